@@ -1,0 +1,47 @@
+# safe_bc: one venv, torch pinned first (local CPU wheel), then the package.
+PY ?= python3.11
+VENV ?= .venv
+BIN := $(VENV)/bin
+STUDY ?= default
+TRIALS ?=
+STAMP := $(VENV)/.installed
+
+.PHONY: install test test-slow lint format bench tune reproduce collect clean
+
+$(STAMP): pyproject.toml
+	test -x $(BIN)/python || $(PY) -m venv $(VENV)
+	$(BIN)/pip install -q --upgrade pip
+	$(BIN)/pip install -q torch==2.13.0
+	$(BIN)/pip install -q -e '.[dev]'
+	touch $(STAMP)
+
+install: $(STAMP)
+
+test: $(STAMP)
+	RAY_AUTH_MODE=disabled $(BIN)/python -m pytest -q
+
+test-slow: $(STAMP)
+	RAY_AUTH_MODE=disabled $(BIN)/python -m pytest -q -m slow
+
+lint: $(STAMP)
+	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
+
+format: $(STAMP)
+	$(BIN)/ruff format .
+	$(BIN)/ruff check --fix .
+
+bench: $(STAMP)
+	$(BIN)/python -m safe_bc.bench
+
+collect: $(STAMP)
+	$(BIN)/safe-bc collect --out data/demos
+
+reproduce: $(STAMP)
+	$(BIN)/safe-bc reproduce
+
+tune: $(STAMP)
+	$(BIN)/safe-bc tune tune_jobs/$(STUDY).py $(if $(TRIALS),--trials $(TRIALS),)
+
+clean:
+	rm -rf $(VENV) .pytest_cache .ruff_cache
