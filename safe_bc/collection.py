@@ -1,0 +1,112 @@
+"""What one demonstration episode is: env + expert + perturbation + seeds (no Ray, no I/O)."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from safe_bc.data.codec import Encoding
+from safe_bc.envs import EnvConfig, make_env
+from safe_bc.episode import Episode
+from safe_bc.experts.carracing import CarRacingExpert, ExpertConfig
+from safe_bc.experts.perturb import Perturbation, PerturbationConfig
+from safe_bc.policy import Policy
+from safe_bc.rollout import run_episode
+from safe_bc.seeds import demo_seed, episode_rng
+
+
+@dataclass(frozen=True)
+class CollectConfig:
+    """A demonstration collection: which episodes, made how, by how many workers."""
+
+    episodes: int = 5
+    """Number of expert episodes (the paper used 4692 pairs: ~5 CarRacing episodes)."""
+    workers: int = 2
+    """Persistent rollout actors running in parallel."""
+    seed: int = 0
+    """Collection seed: fixes every episode's track and noise."""
+    env: EnvConfig = field(default_factory=EnvConfig)
+    """The environment."""
+    expert: Any = field(default_factory=ExpertConfig)
+    """The expert's configuration (:class:`ExpertConfig` for CarRacing)."""
+    perturbation: PerturbationConfig = field(default_factory=PerturbationConfig)
+    """Perturbation of the executed action (the recorded label stays the expert's)."""
+    max_steps: int | None = None
+    """Cap on steps per episode (``None``: the env's time limit)."""
+    encoding: Encoding = "png"
+    """Observation encoding in Parquet (``vector`` for non-image envs)."""
+
+    def __post_init__(self) -> None:
+        if self.episodes < 1:
+            raise ValueError(f"episodes must be >= 1, got {self.episodes}")
+        if self.workers < 1:
+            raise ValueError(f"workers must be >= 1, got {self.workers}")
+        if self.seed < 0:
+            raise ValueError(f"seed must be >= 0, got {self.seed}")
+        if self.max_steps is not None and self.max_steps < 1:
+            raise ValueError(f"max_steps must be >= 1, got {self.max_steps}")
+        if self.encoding not in ("png", "raw", "vector"):
+            raise ValueError(f"encoding must be png, raw or vector, got {self.encoding!r}")
+        if self.env.is_carracing == (self.encoding == "vector"):
+            raise ValueError(
+                f"encoding {self.encoding!r} does not fit {self.env.env_id} observations"
+            )
+
+
+def config_dict(cfg: Any) -> dict[str, Any]:
+    """A dataclass config as a JSON-able dict with its type name."""
+    return {"type": type(cfg).__name__, **asdict(cfg)}
+
+
+def build_expert(cfg: Any) -> Policy:
+    """The expert policy for an expert config."""
+    if isinstance(cfg, ExpertConfig):
+        return CarRacingExpert(cfg)
+    from safe_bc.experts.rehab import GuidelineConfig, GuidelineExpert
+
+    if isinstance(cfg, GuidelineConfig):
+        return GuidelineExpert(cfg)
+    raise TypeError(f"no expert for config type {type(cfg).__name__}")
+
+
+class EpisodeMaker:
+    """Holds one env and one expert; makes demonstration episodes by id.
+
+    The same ``(config.seed, episode_id)`` always gives the same episode, whichever
+    process makes it.
+    """
+
+    def __init__(self, config: CollectConfig) -> None:
+        self.config = config
+        self.env: gym.Env = make_env(config.env)
+        self.expert = build_expert(config.expert)
+        self.perturbation = Perturbation(config.perturbation)
+
+    def make(self, episode_id: int) -> Episode:
+        """Roll out episode ``episode_id`` of the collection."""
+        rng = episode_rng(self.config.seed, episode_id)
+        return run_episode(
+            self.env,
+            self.expert,
+            demo_seed(self.config.seed, episode_id),
+            rng,
+            episode_id=episode_id,
+            perturbation=self.perturbation,
+            max_steps=self.config.max_steps,
+        )
+
+    def close(self) -> None:
+        """Release the env."""
+        self.env.close()
+
+
+def observation_shape(config: CollectConfig) -> tuple[int, ...]:
+    """Shape of one observation of the collection's env."""
+    env = make_env(config.env)
+    try:
+        return tuple(int(x) for x in np.shape(env.observation_space.sample()))
+    finally:
+        env.close()

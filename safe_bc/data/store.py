@@ -1,0 +1,322 @@
+"""The Parquet store: one file per episode plus a ``dataset.json`` (the only pyarrow user).
+
+Layout of a dataset directory ``DIR``::
+
+    DIR/dataset.json                    dataset-level metadata (also embedded in every file)
+    DIR/episodes/episode-00000.parquet  one file per episode, one row per step
+
+Columns (the contract later work and outside readers rely on): ``episode_id``,
+``step``, ``seed``, ``observation`` (binary PNG or raw bytes of a ``96x96x3 uint8``
+frame, or a float32 list for vector envs; ``dataset.json`` says which),
+``action`` (float32 list: the action the expert chose), ``executed_action`` (what
+was executed, differs under perturbation), ``reward``, ``terminated``,
+``truncated``, ``safety_<dim>`` and ``cost_<dim>`` per safety dimension
+(``left``, ``front``, ``right`` for CarRacing), ``warmup`` and ``offroad``.
+
+Every write goes to a temporary file in the same directory and is renamed into
+place, so a crash never leaves a partial episode behind.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from collections.abc import Iterable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from safe_bc.data.codec import Encoding, decode_frames, encode_frames
+from safe_bc.demos import Demonstrations
+from safe_bc.episode import Episode
+
+META_FILE = "dataset.json"
+EPISODE_DIR = "episodes"
+META_KEY = b"safe_bc"
+
+
+class DatasetError(Exception):
+    """A dataset is missing, unreadable, or not what it should be. The message is one line."""
+
+
+@dataclass(frozen=True)
+class DatasetMeta:
+    """Dataset-level metadata, written once to ``dataset.json`` and into every file."""
+
+    env_id: str
+    """Environment id, e.g. ``CarRacing-v3``."""
+    obs_encoding: Encoding
+    """How the ``observation`` column is stored."""
+    obs_shape: tuple[int, ...]
+    """Shape of one decoded observation, e.g. ``(96, 96, 3)``."""
+    safety_dims: tuple[str, ...]
+    """Safety dimensions, the suffixes of the ``safety_*``/``cost_*`` columns."""
+    seed: int
+    """The collection's ``--seed``."""
+    max_steps: int | None
+    """Episode step cap used for collection (``None``: the env's time limit)."""
+    expert: dict[str, Any]
+    """The expert's configuration."""
+    perturbation: dict[str, Any]
+    """The perturbation's configuration."""
+    provenance: dict[str, str] = field(default_factory=dict, compare=False)
+    """Package version, git revision, creation time (not part of the dataset's identity)."""
+
+    def to_json(self) -> str:
+        """Serialise to JSON."""
+        return json.dumps(asdict(self), indent=2, sort_keys=True)
+
+    @classmethod
+    def from_json(cls, text: str, source: str = "dataset.json") -> DatasetMeta:
+        """Parse the JSON written by :meth:`to_json`."""
+        try:
+            raw = json.loads(text)
+            raw["obs_shape"] = tuple(raw["obs_shape"])
+            raw["safety_dims"] = tuple(raw["safety_dims"])
+            return cls(**raw)
+        except (ValueError, TypeError, KeyError) as e:
+            raise DatasetError(f"{source}: malformed dataset metadata ({e})") from None
+
+    def identity(self) -> dict[str, Any]:
+        """The fields that must agree for two runs to add to the same dataset."""
+        d = asdict(self)
+        d.pop("provenance")
+        return json.loads(json.dumps(d))
+
+
+def episode_path(root: Path, episode_id: int) -> Path:
+    """Where episode ``episode_id`` of the dataset at ``root`` lives."""
+    return Path(root) / EPISODE_DIR / f"episode-{episode_id:05d}.parquet"
+
+
+def _schema(meta: DatasetMeta) -> pa.Schema:
+    obs_type = pa.list_(pa.float32()) if meta.obs_encoding == "vector" else pa.binary()
+    fields = [
+        pa.field("episode_id", pa.int64()),
+        pa.field("step", pa.int32()),
+        pa.field("seed", pa.int64()),
+        pa.field("observation", obs_type),
+        pa.field("action", pa.list_(pa.float32())),
+        pa.field("executed_action", pa.list_(pa.float32())),
+        pa.field("reward", pa.float32()),
+        pa.field("terminated", pa.bool_()),
+        pa.field("truncated", pa.bool_()),
+    ]
+    fields += [pa.field(f"safety_{d}", pa.float32()) for d in meta.safety_dims]
+    fields += [pa.field(f"cost_{d}", pa.float32()) for d in meta.safety_dims]
+    fields += [pa.field("warmup", pa.bool_()), pa.field("offroad", pa.bool_())]
+    return pa.schema(fields, metadata={META_KEY: meta.to_json().encode()})
+
+
+def _atomic_write(path: Path, write: Any) -> None:
+    """Call ``write(tmp_path)`` then rename the temporary file to ``path``."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def write_text_atomic(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` atomically."""
+    _atomic_write(Path(path), lambda tmp: Path(tmp).write_text(text))
+
+
+def write_table_atomic(path: Path, frame: Any, metadata: dict[str, Any] | None = None) -> None:
+    """Write a pandas DataFrame to Parquet atomically, with JSON ``metadata`` embedded.
+
+    Result tables (evaluations, studies) go through here so that each file records
+    the command, seeds and code revision that made it.
+    """
+    table = pa.Table.from_pandas(frame, preserve_index=False)
+    if metadata is not None:
+        merged = dict(table.schema.metadata or {})
+        merged[META_KEY] = json.dumps(metadata, sort_keys=True, default=str).encode()
+        table = table.replace_schema_metadata(merged)
+    _atomic_write(Path(path), lambda tmp: pq.write_table(table, tmp, compression="zstd"))
+
+
+def read_table(path: Path) -> tuple[Any, dict[str, Any]]:
+    """Read a table written by :func:`write_table_atomic`: ``(DataFrame, metadata)``."""
+    path = Path(path)
+    if not path.exists():
+        raise DatasetError(f"{path}: no such file")
+    try:
+        table = pq.read_table(path)
+    except (pa.ArrowException, OSError) as e:
+        raise DatasetError(f"{path}: not a readable Parquet file ({_first_line(e)})") from None
+    raw = (table.schema.metadata or {}).get(META_KEY)
+    meta = json.loads(raw) if raw else {}
+    return table.to_pandas(), meta
+
+
+def init_dataset(root: Path, meta: DatasetMeta) -> DatasetMeta:
+    """Create ``root`` for ``meta`` or check that an existing dataset there matches it.
+
+    Returns the metadata on disk (the original provenance is kept on resume).
+    """
+    root = Path(root)
+    meta_path = root / META_FILE
+    if meta_path.exists():
+        existing = read_meta(root)
+        if existing.identity() != meta.identity():
+            diff = [
+                k for k in meta.identity() if existing.identity().get(k) != meta.identity().get(k)
+            ]
+            raise DatasetError(
+                f"{meta_path}: dataset was collected with different settings "
+                f"({', '.join(diff)}); choose another output directory"
+            )
+        return existing
+    root.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(meta_path, meta.to_json())
+    return meta
+
+
+def read_meta(root: Path) -> DatasetMeta:
+    """Read ``root/dataset.json``."""
+    meta_path = Path(root) / META_FILE
+    if not meta_path.exists():
+        raise DatasetError(f"{root}: no dataset here (missing {META_FILE}); run `safe-bc collect`")
+    return DatasetMeta.from_json(meta_path.read_text(), source=str(meta_path))
+
+
+def write_episode(root: Path, episode: Episode, meta: DatasetMeta) -> Path:
+    """Encode ``episode`` and write it atomically to its file under ``root``."""
+    if episode.safety_dims != meta.safety_dims:
+        raise ValueError(f"episode safety dims {episode.safety_dims} != {meta.safety_dims}")
+    n = len(episode)
+    if meta.obs_encoding == "vector":
+        obs = pa.array(list(episode.observations.astype(np.float32)), pa.list_(pa.float32()))
+    else:
+        obs = pa.array(encode_frames(episode.observations, meta.obs_encoding), pa.binary())
+    cols: dict[str, Any] = {
+        "episode_id": np.full(n, episode.episode_id, np.int64),
+        "step": np.arange(n, dtype=np.int32),
+        "seed": np.full(n, episode.seed, np.int64),
+        "observation": obs,
+        "action": pa.array(list(episode.actions.astype(np.float32)), pa.list_(pa.float32())),
+        "executed_action": pa.array(
+            list(episode.executed_actions.astype(np.float32)), pa.list_(pa.float32())
+        ),
+        "reward": episode.rewards.astype(np.float32),
+        "terminated": episode.terminated,
+        "truncated": episode.truncated,
+    }
+    for j, d in enumerate(meta.safety_dims):
+        cols[f"safety_{d}"] = episode.safety[:, j].astype(np.float32)
+    for j, d in enumerate(meta.safety_dims):
+        cols[f"cost_{d}"] = episode.costs[:, j].astype(np.float32)
+    cols["warmup"] = episode.warmup
+    cols["offroad"] = episode.offroad
+    table = pa.table(cols, schema=_schema(meta))
+    path = episode_path(root, episode.episode_id)
+    _atomic_write(path, lambda tmp: pq.write_table(table, tmp, compression="zstd"))
+    return path
+
+
+def _first_line(e: BaseException) -> str:
+    return (str(e).strip().splitlines() or [type(e).__name__])[0]
+
+
+def _check_schema(path: Path, schema: pa.Schema, meta: DatasetMeta) -> None:
+    expected = _schema(meta)
+    missing = [f.name for f in expected if f.name not in schema.names]
+    if missing:
+        raise DatasetError(f"{path}: wrong schema, missing column(s) {', '.join(missing)}")
+    for f in expected:
+        got = schema.field(f.name).type
+        if got != f.type:
+            raise DatasetError(f"{path}: wrong schema, column {f.name} is {got}, expected {f.type}")
+
+
+def check_episode_file(path: Path, meta: DatasetMeta) -> None:
+    """Open ``path``'s footer and check its schema (cheap: no data is read)."""
+    try:
+        schema = pq.read_schema(path)
+    except (pa.ArrowException, OSError) as e:
+        raise DatasetError(f"{path}: not a readable Parquet file ({_first_line(e)})") from None
+    _check_schema(path, schema, meta)
+
+
+def completed_episodes(root: Path, meta: DatasetMeta) -> list[int]:
+    """Ids of the episodes already stored under ``root`` (each file's schema checked)."""
+    ep_dir = Path(root) / EPISODE_DIR
+    if not ep_dir.exists():
+        return []
+    ids = []
+    for path in sorted(ep_dir.glob("episode-*.parquet")):
+        check_episode_file(path, meta)
+        ids.append(int(path.stem.split("-")[1]))
+    return ids
+
+
+def read_episode(path: Path, meta: DatasetMeta) -> Episode:
+    """Read and decode one episode file."""
+    try:
+        table = pq.read_table(path)
+    except (pa.ArrowException, OSError) as e:
+        raise DatasetError(f"{path}: not a readable Parquet file ({_first_line(e)})") from None
+    _check_schema(path, table.schema, meta)
+    n = table.num_rows
+    if n == 0:
+        raise DatasetError(f"{path}: episode has no steps")
+
+    def col(name: str) -> np.ndarray:
+        return table.column(name).to_numpy()
+
+    def matrix(name: str) -> np.ndarray:
+        flat = table.column(name).combine_chunks().flatten().to_numpy()
+        return flat.reshape(n, -1).astype(np.float32)
+
+    try:
+        if meta.obs_encoding == "vector":
+            obs = matrix("observation")
+        else:
+            obs = decode_frames(
+                table.column("observation").to_pylist(), meta.obs_encoding, meta.obs_shape
+            )
+    except ValueError as e:
+        raise DatasetError(f"{path}: bad observation data ({e})") from None
+    return Episode(
+        episode_id=int(col("episode_id")[0]),
+        seed=int(col("seed")[0]),
+        observations=obs,
+        actions=matrix("action"),
+        executed_actions=matrix("executed_action"),
+        rewards=col("reward").astype(np.float32),
+        terminated=col("terminated").astype(bool),
+        truncated=col("truncated").astype(bool),
+        safety=np.stack([col(f"safety_{d}") for d in meta.safety_dims], 1).astype(np.float32),
+        costs=np.stack([col(f"cost_{d}") for d in meta.safety_dims], 1).astype(np.float32),
+        warmup=col("warmup").astype(bool),
+        offroad=col("offroad").astype(bool),
+        safety_dims=meta.safety_dims,
+    )
+
+
+def read_episodes(root: Path, ids: Iterable[int] | None = None) -> list[Episode]:
+    """Read the episodes of the dataset at ``root`` (all, or the given ids) in id order."""
+    meta = read_meta(root)
+    stored = completed_episodes(root, meta)
+    if not stored:
+        raise DatasetError(f"{root}: dataset has no episodes; run `safe-bc collect`")
+    wanted = stored if ids is None else sorted(ids)
+    missing = sorted(set(wanted) - set(stored))
+    if missing:
+        raise DatasetError(f"{root}: missing episode(s) {missing}")
+    return [read_episode(episode_path(root, i), meta) for i in wanted]
+
+
+def load_demonstrations(root: Path) -> Demonstrations:
+    """Read a whole dataset into the flat arrays used for training."""
+    return Demonstrations.from_episodes(read_episodes(root))

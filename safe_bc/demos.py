@@ -1,0 +1,77 @@
+"""In-memory demonstrations: the flat arrays that selection and training consume."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from safe_bc.episode import Episode
+
+
+@dataclass(frozen=True)
+class Demonstrations:
+    """``N`` state-action pairs from one or more episodes, in episode/step order.
+
+    Attributes:
+        observations: ``(N, *obs_shape)``: ``(N, 96, 96, 3) uint8`` frames or ``(N, D) float32``.
+        actions: ``(N, A) float32``, the expert's chosen actions (the BC labels).
+        costs: ``(N, S) float32``, safety costs (higher is less safe).
+        safety: ``(N, S) float32``, safety distances (higher is safer).
+        episode_ids: ``(N,) int64``.
+        steps: ``(N,) int64``, step index within the episode.
+        seeds: ``(N,) int64``, the env seed of the step's episode.
+        warmup: ``(N,) bool``, unscored steps (CarRacing zoom-in); selection ignores them.
+        safety_dims: names of the ``S`` safety dimensions.
+    """
+
+    observations: np.ndarray
+    actions: np.ndarray
+    costs: np.ndarray
+    safety: np.ndarray
+    episode_ids: np.ndarray
+    steps: np.ndarray
+    seeds: np.ndarray
+    warmup: np.ndarray
+    safety_dims: tuple[str, ...]
+
+    def __len__(self) -> int:
+        return len(self.actions)
+
+    @property
+    def scored(self) -> np.ndarray:
+        """``(N,) bool``: steps that count for thresholds and training (not warm-up)."""
+        return ~self.warmup
+
+    @classmethod
+    def from_episodes(cls, episodes: Sequence[Episode]) -> Demonstrations:
+        """Concatenate episodes (in the given order) into flat arrays.
+
+        >>> import numpy as np
+        >>> from safe_bc.episode import Episode
+        >>> T = 4
+        >>> ep = Episode(0, 7, np.zeros((T, 2), np.float32), np.zeros((T, 3), np.float32),
+        ...     np.zeros((T, 3), np.float32), np.zeros(T, np.float32), np.zeros(T, bool),
+        ...     np.zeros(T, bool), np.ones((T, 3), np.float32), np.zeros((T, 3), np.float32),
+        ...     np.zeros(T, bool), np.zeros(T, bool))
+        >>> demos = Demonstrations.from_episodes([ep, ep])
+        >>> len(demos), demos.seeds.tolist()
+        (8, [7, 7, 7, 7, 7, 7, 7, 7])
+        """
+        if not episodes:
+            raise ValueError("no episodes: the demonstration set is empty")
+        dims = episodes[0].safety_dims
+        if any(e.safety_dims != dims for e in episodes):
+            raise ValueError("episodes disagree on safety dimensions")
+        return cls(
+            observations=np.concatenate([e.observations for e in episodes]),
+            actions=np.concatenate([e.actions for e in episodes]).astype(np.float32),
+            costs=np.concatenate([e.costs for e in episodes]).astype(np.float32),
+            safety=np.concatenate([e.safety for e in episodes]).astype(np.float32),
+            episode_ids=np.concatenate([np.full(len(e), e.episode_id, np.int64) for e in episodes]),
+            steps=np.concatenate([np.arange(len(e), dtype=np.int64) for e in episodes]),
+            seeds=np.concatenate([np.full(len(e), e.seed, np.int64) for e in episodes]),
+            warmup=np.concatenate([e.warmup for e in episodes]).astype(bool),
+            safety_dims=dims,
+        )

@@ -1,0 +1,76 @@
+"""One place that builds every environment safe_bc uses."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import gymnasium as gym
+
+from safe_bc.envs.wrappers import CarRacingSafety
+
+EnvId = Literal["CarRacing-v3", "safe_bc/RehabPathway-v0"]
+Renderer = Literal["fast", "stock"]
+
+FAST_CARRACING_ID = "safe_bc/CarRacingFast-v3"
+
+
+@dataclass(frozen=True)
+class EnvConfig:
+    """Which environment to build, and how."""
+
+    env_id: EnvId = "CarRacing-v3"
+    """The task: the CarRacing testbed or the rehabilitation pathway."""
+    renderer: Renderer = "fast"
+    """CarRacing only: ``"fast"`` draws pixel-identical frames faster, ``"stock"`` is
+    gymnasium's own renderer."""
+    max_episode_steps: int | None = None
+    """Time limit; ``None`` keeps the env's own (1000 steps for CarRacing)."""
+
+    def __post_init__(self) -> None:
+        if self.env_id not in ("CarRacing-v3", "safe_bc/RehabPathway-v0"):
+            raise ValueError(f"unknown env_id {self.env_id!r}")
+        if self.renderer not in ("fast", "stock"):
+            raise ValueError(f"renderer must be 'fast' or 'stock', got {self.renderer!r}")
+        if self.max_episode_steps is not None and self.max_episode_steps < 1:
+            raise ValueError(f"max_episode_steps must be >= 1, got {self.max_episode_steps}")
+
+    @property
+    def is_carracing(self) -> bool:
+        """True for the pixel-based CarRacing testbed."""
+        return self.env_id == "CarRacing-v3"
+
+
+def register_envs() -> None:
+    """Register safe_bc's environment ids with gymnasium (idempotent)."""
+    if FAST_CARRACING_ID not in gym.registry:
+        gym.register(
+            id=FAST_CARRACING_ID,
+            entry_point="safe_bc.envs.fast_render:FastCarRacing",
+            max_episode_steps=1000,
+            reward_threshold=900,
+        )
+    from safe_bc.envs.rehab import register_rehab
+
+    register_rehab()
+
+
+def make_env(config: EnvConfig | None = None) -> gym.Env:
+    """Build the environment of ``config`` with safety costs in ``info``.
+
+    >>> env = make_env(EnvConfig(renderer="stock", max_episode_steps=60))
+    >>> obs, info = env.reset(seed=3)
+    >>> obs.shape, sorted(k for k in info if k in ("cost", "safety"))
+    ((96, 96, 3), ['cost', 'safety'])
+    >>> env.close()
+    """
+    config = config or EnvConfig()
+    register_envs()
+    kwargs = {}
+    if config.max_episode_steps is not None:
+        kwargs["max_episode_steps"] = config.max_episode_steps
+    if config.is_carracing:
+        env_id = FAST_CARRACING_ID if config.renderer == "fast" else "CarRacing-v3"
+        env = gym.make(env_id, continuous=True, domain_randomize=False, **kwargs)
+        return CarRacingSafety(env)
+    return gym.make(config.env_id, **kwargs)

@@ -1,0 +1,122 @@
+"""Safety distances of the car from the grass, read off a CarRacing frame.
+
+Pure numpy: no gym, no I/O. The camera of ``CarRacing-v3`` follows the car and
+rotates with it, so the car is always drawn pointing up at the same place of the
+96x96 state (hull rows 67-76, cols 46-49; wheels out to cols 45-50). From there we
+cast three rays over the road and measure, in pixels, how much road lies between
+the car's body and the grass:
+
+* ``left``: along the car's rows, from column 44 towards column 0 (at most 45 px);
+* ``right``: along the car's rows, from column 51 towards column 95 (at most 45 px);
+* ``front``: along the car's columns, from row 65 towards row 0 (at most 66 px).
+
+Each pixel gets a *greenness* ``g = clip((G - max(R, B)) / 100, 0, 1)``: 0 on the
+grey road, the curbs and the car, ~1 on grass (~(100, 202, 100) and (100, 228, 100)).
+A ray stops at the first pixel with ``g >= 0.5``; its distance is the sum of the
+road fractions ``1 - g`` up to and including that pixel, so the anti-aliased edge
+pixel left by the smooth-scaling contributes a sub-pixel fraction. The distance
+of a side is the mean over the rows (columns) of the car's band. A car on the
+grass has distance ~0 on that side.
+
+Costs turn distances into "higher is less safe": ``cost = max_range - distance``,
+so the paper's threshold ``d_s = max c_s`` is the closest the expert came to the
+grass, and ``c_s >= d_s - eps`` means "within eps pixels of that".
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+SAFETY_DIMS: tuple[str, str, str] = ("left", "front", "right")
+"""Order of the three safety dimensions in every array of this module."""
+
+CAR_ROWS = slice(66, 78)
+"""Rows of the car (wheels included) used for the side rays."""
+CAR_COLS = slice(45, 51)
+"""Columns of the car (wheels included) used for the front ray."""
+LEFT_START, RIGHT_START, FRONT_START = 44, 51, 65
+"""First pixel outside the car on each ray."""
+
+MAX_RANGE: np.ndarray = np.array([LEFT_START + 1, FRONT_START + 1, 96 - RIGHT_START], np.float32)
+"""``(3,)`` the longest measurable distance per dimension (45, 66, 45 px)."""
+
+GRASS_LEVEL = 0.5
+"""Greenness at which a ray stops."""
+
+
+def greenness(frame: np.ndarray) -> np.ndarray:
+    """Per-pixel grass score in [0, 1].
+
+    Args:
+        frame: ``(H, W, 3) uint8`` RGB.
+
+    Returns:
+        ``(H, W) float32``.
+    """
+    f = frame.astype(np.int16)
+    excess = f[..., 1] - np.maximum(f[..., 0], f[..., 2])
+    return np.clip(excess.astype(np.float32) / 100.0, 0.0, 1.0)
+
+
+def _ray_distance(green: np.ndarray) -> np.ndarray:
+    """Distance along the last axis of ``green`` ``(K, L)`` (pixel 0 next to the car).
+
+    Returns ``(K,) float32``: sum of road fractions up to and including the first
+    grass pixel, or over the whole ray when it never meets grass.
+    """
+    road = 1.0 - green
+    csum = np.cumsum(road, axis=1)
+    hit = green >= GRASS_LEVEL
+    any_hit = hit.any(axis=1)
+    first = np.where(any_hit, hit.argmax(axis=1), green.shape[1] - 1)
+    return csum[np.arange(len(csum)), first].astype(np.float32)
+
+
+def pixel_distances(frame: np.ndarray) -> np.ndarray:
+    """Road pixels between the car and the grass, to the left, front and right.
+
+    Args:
+        frame: ``(96, 96, 3) uint8`` CarRacing state (after the zoom-in phase).
+
+    Returns:
+        ``(3,) float32`` distances in pixels, ordered as :data:`SAFETY_DIMS`.
+
+    >>> frame = np.zeros((96, 96, 3), np.uint8); frame[..., 1] = 202  # all grass
+    >>> frame[:, 30:70] = 102                                          # a road
+    >>> pixel_distances(frame).round(1).tolist()
+    [15.0, 66.0, 19.0]
+    """
+    if frame.shape != (96, 96, 3):
+        raise ValueError(f"expected a (96, 96, 3) CarRacing frame, got shape {frame.shape}")
+    g = greenness(frame)
+    left = _ray_distance(g[CAR_ROWS, LEFT_START::-1]).mean()
+    right = _ray_distance(g[CAR_ROWS, RIGHT_START:]).mean()
+    front = _ray_distance(g[FRONT_START::-1, CAR_COLS].T).mean()
+    return np.array([left, front, right], np.float32)
+
+
+def costs_from_distances(distances: np.ndarray) -> np.ndarray:
+    """Safety costs ``MAX_RANGE - distance`` (higher is less safe).
+
+    Args:
+        distances: ``(..., 3)`` pixel distances.
+
+    Returns:
+        ``(..., 3) float32`` costs in ``[0, MAX_RANGE]``.
+
+    >>> costs_from_distances(np.array([45.0, 0.0, 40.0])).tolist()
+    [0.0, 66.0, 5.0]
+    """
+    return (MAX_RANGE - np.clip(distances, 0.0, MAX_RANGE)).astype(np.float32)
+
+
+def combined_safety(distances: np.ndarray) -> np.ndarray:
+    """One safety number per state: the distance to the nearest grass of the three rays.
+
+    Args:
+        distances: ``(..., 3)``.
+
+    Returns:
+        ``(...)`` float32, the minimum over the last axis.
+    """
+    return np.min(distances, axis=-1).astype(np.float32)

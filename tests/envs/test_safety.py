@@ -1,0 +1,97 @@
+"""Frame-based safety distances agree with the simulator's geometry."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from safe_bc.envs import EnvConfig, make_env
+from safe_bc.envs.safety import (
+    MAX_RANGE,
+    combined_safety,
+    costs_from_distances,
+    pixel_distances,
+)
+from safe_bc.experts.carracing import CarRacingExpert, ExpertConfig
+from safe_bc.experts.geometry import lateral_offset
+
+
+def _road_frame(left_edge: int, right_edge: int) -> np.ndarray:
+    frame = np.zeros((96, 96, 3), np.uint8)
+    frame[..., 0] = frame[..., 2] = 100
+    frame[..., 1] = 202
+    frame[:, left_edge:right_edge] = 102
+    return frame
+
+
+def test_synthetic_road_distances() -> None:
+    d = pixel_distances(_road_frame(34, 62))
+    # road cols 34..61: left of col 44 lie cols 34..44 (11 px), right of col 51: 51..61 (11 px)
+    np.testing.assert_allclose(d, [11, 66, 11])
+    assert costs_from_distances(d).tolist() == [34, 0, 34]
+
+
+def test_partial_edge_pixel_counts_as_fraction() -> None:
+    frame = _road_frame(34, 62)
+    frame[:, 33, 1] = 151  # half-blended edge pixel: greenness 0.51 -> stops, adds 0.49
+    assert pixel_distances(frame)[0] == pytest.approx(11.49, abs=1e-4)
+
+
+def test_wrong_shape_is_refused() -> None:
+    with pytest.raises(ValueError, match="96, 96, 3"):
+        pixel_distances(np.zeros((84, 96, 3), np.uint8))
+
+
+def test_costs_are_bounded() -> None:
+    c = costs_from_distances(np.array([[-3.0, 100.0, 10.0]]))
+    assert c.tolist() == [[MAX_RANGE[0], 0.0, MAX_RANGE[2] - 10]]
+
+
+def _drive(seed: int, steps: int, expert_cfg: ExpertConfig, steer_bias: float = 0.0):
+    env = make_env(EnvConfig(max_episode_steps=steps))
+    expert = CarRacingExpert(expert_cfg)
+    obs, info = env.reset(seed=seed)
+    expert.reset(env, np.random.default_rng(seed))
+    track = np.asarray(env.unwrapped.track)
+    rows = []
+    for t in range(steps):
+        action = expert.act(obs, env).copy()
+        # swing the car across the road so the offsets cover its width
+        action[0] = np.clip(action[0] + steer_bias * np.sin(t / 15.0), -1, 1)
+        obs, _, term, trunc, info = env.step(action)
+        pos = np.asarray(env.unwrapped.car.hull.position)
+        if not info["warmup"]:
+            rows.append((lateral_offset(track, pos), *info["safety"], info["offroad"]))
+        if term or trunc:
+            break
+    env.close()
+    return np.array(rows, dtype=np.float64)
+
+
+def test_left_minus_right_tracks_true_lateral_offset() -> None:
+    rows = np.concatenate(
+        [_drive(seed, 260, ExpertConfig(max_speed=35.0), steer_bias=0.35) for seed in (1, 2)]
+    )
+    on_road = rows[:, 4] == 0
+    lat, left, right = rows[on_road, 0], rows[on_road, 1], rows[on_road, 3]
+    assert np.ptp(lat) > 4.0, "drive must sweep across the road to test anything"
+    r = np.corrcoef(lat, left - right)[0, 1]
+    assert r > 0.95, f"pixel left-right vs true offset correlation {r:.3f}"
+    # positive offset = right of centre = more road on the left
+    assert np.polyfit(lat, left - right, 1)[0] > 0
+
+
+def test_offroad_frames_have_distance_near_zero() -> None:
+    env = make_env(EnvConfig(max_episode_steps=400))
+    _, info = env.reset(seed=5)
+    seen = []
+    for t in range(400):
+        steer = 0.0 if t < 60 else 0.6
+        _obs, _, term, trunc, info = env.step(np.array([steer, 0.5, 0.0], np.float32))
+        if info["offroad"] and not info["warmup"]:
+            seen.append(combined_safety(info["safety"]))
+        if term or trunc or len(seen) > 40:
+            break
+    env.close()
+    assert len(seen) > 10, "the car never left the road"
+    assert np.median(seen) < 1.0
