@@ -1,0 +1,137 @@
+"""The Parquet store: round trips, outside readers, schema and corruption errors."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from safe_bc.data.store import (
+    DatasetError,
+    DatasetMeta,
+    completed_episodes,
+    episode_path,
+    init_dataset,
+    load_demonstrations,
+    read_episodes,
+    read_table,
+    write_episode,
+    write_table_atomic,
+)
+from safe_bc.episode import SAFETY_DIMS, Episode
+
+
+def make_episode(episode_id: int, n: int = 12, seed: int = 0) -> Episode:
+    rng = np.random.default_rng(episode_id)
+    return Episode(
+        episode_id=episode_id,
+        seed=seed + episode_id,
+        observations=rng.integers(0, 256, (n, 96, 96, 3), dtype=np.uint8),
+        actions=rng.uniform(-1, 1, (n, 3)).astype(np.float32),
+        executed_actions=rng.uniform(-1, 1, (n, 3)).astype(np.float32),
+        rewards=rng.normal(size=n).astype(np.float32),
+        terminated=np.arange(n) == n - 1,
+        truncated=np.zeros(n, bool),
+        safety=rng.uniform(0, 40, (n, 3)).astype(np.float32),
+        costs=rng.uniform(0, 40, (n, 3)).astype(np.float32),
+        warmup=np.arange(n) < 3,
+        offroad=np.zeros(n, bool),
+    )
+
+
+def make_meta(encoding: str = "png", seed: int = 0) -> DatasetMeta:
+    return DatasetMeta(
+        env_id="CarRacing-v3",
+        obs_encoding=encoding,  # type: ignore[arg-type]
+        obs_shape=(96, 96, 3),
+        safety_dims=SAFETY_DIMS,
+        seed=seed,
+        max_steps=None,
+        expert={"type": "ExpertConfig"},
+        perturbation={"mode": "none"},
+        provenance={"git_revision": "test"},
+    )
+
+
+@pytest.mark.parametrize("encoding", ["png", "raw"])
+def test_round_trip_is_lossless(tmp_path: Path, encoding: str) -> None:
+    meta = init_dataset(tmp_path, make_meta(encoding))
+    eps = [make_episode(i) for i in range(2)]
+    for ep in eps:
+        write_episode(tmp_path, ep, meta)
+    back = read_episodes(tmp_path)
+    for a, b in zip(eps, back, strict=True):
+        for name in ("observations", "actions", "executed_actions", "safety", "costs", "warmup"):
+            np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+    demos = load_demonstrations(tmp_path)
+    assert len(demos) == 24 and demos.observations.shape == (24, 96, 96, 3)
+
+
+def test_outside_readers_see_the_contract(tmp_path: Path) -> None:
+    meta = init_dataset(tmp_path, make_meta())
+    write_episode(tmp_path, make_episode(0), meta)
+    df = pd.read_parquet(tmp_path / "episodes")
+    expected = {"episode_id", "step", "seed", "observation", "action", "executed_action"}
+    expected |= {"reward", "terminated", "truncated", "warmup", "offroad"}
+    expected |= {f"safety_{d}" for d in SAFETY_DIMS} | {f"cost_{d}" for d in SAFETY_DIMS}
+    assert expected <= set(df.columns)
+    assert len(df["action"].iloc[0]) == 3
+    import duckdb
+
+    rows = duckdb.sql(
+        f"select count(*) from read_parquet('{tmp_path}/episodes/*.parquet')"
+    ).fetchall()
+    n = rows[0][0]
+    assert n == 12
+
+
+def test_wrong_schema_names_the_file(tmp_path: Path) -> None:
+    meta = init_dataset(tmp_path, make_meta())
+    write_episode(tmp_path, make_episode(0), meta)
+    bad = episode_path(tmp_path, 1)
+    pd.DataFrame({"episode_id": [1], "step": [0]}).to_parquet(bad)
+    with pytest.raises(DatasetError, match=r"episode-00001\.parquet: wrong schema, missing"):
+        completed_episodes(tmp_path, meta)
+
+
+def test_truncated_file_names_the_file(tmp_path: Path) -> None:
+    meta = init_dataset(tmp_path, make_meta())
+    path = write_episode(tmp_path, make_episode(0), meta)
+    path.write_bytes(path.read_bytes()[:500])
+    with pytest.raises(DatasetError, match=r"episode-00000\.parquet: not a readable Parquet"):
+        read_episodes(tmp_path)
+
+
+def test_missing_dataset_is_clear(tmp_path: Path) -> None:
+    with pytest.raises(DatasetError, match="no dataset here"):
+        load_demonstrations(tmp_path / "nope")
+
+
+def test_other_settings_are_not_mixed_in(tmp_path: Path) -> None:
+    init_dataset(tmp_path, make_meta(seed=0))
+    with pytest.raises(DatasetError, match=r"different settings.*seed"):
+        init_dataset(tmp_path, make_meta(seed=1))
+
+
+def test_failed_write_leaves_nothing(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    meta = init_dataset(tmp_path, make_meta())
+    import pyarrow.parquet as pq
+
+    def boom(*args, **kwargs):
+        Path(args[1]).write_bytes(b"partial")
+        raise OSError("disk full")
+
+    monkeypatch.setattr(pq, "write_table", boom)
+    with pytest.raises(OSError, match="disk full"):
+        write_episode(tmp_path, make_episode(0), meta)
+    assert list((tmp_path / "episodes").iterdir()) == []
+
+
+def test_result_table_keeps_its_metadata(tmp_path: Path) -> None:
+    df = pd.DataFrame({"alpha": [0.0, 0.5], "reward": [1.0, 2.0]})
+    write_table_atomic(tmp_path / "t.parquet", df, {"seed": 3, "git_revision": "abc"})
+    back, meta = read_table(tmp_path / "t.parquet")
+    pd.testing.assert_frame_equal(back, df)
+    assert meta == {"seed": 3, "git_revision": "abc"}
