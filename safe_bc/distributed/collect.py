@@ -9,7 +9,6 @@ duplicated episode.
 
 from __future__ import annotations
 
-import collections
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -19,6 +18,7 @@ from tqdm.auto import tqdm
 
 from safe_bc.collection import CollectConfig, EpisodeMaker, config_dict, observation_shape
 from safe_bc.data.store import DatasetMeta, completed_episodes, init_dataset, write_episode
+from safe_bc.distributed.pool import run_on_actors
 from safe_bc.distributed.runtime import cpus_per_actor, ensure_ray
 from safe_bc.episode import Episode
 from safe_bc.provenance import provenance
@@ -99,7 +99,7 @@ def collect(
         raise FileNotFoundError(f"parent directory of --out does not exist: {out.parent}")
     meta = init_dataset(out, dataset_meta(config))
     done = set(completed_episodes(out, meta))
-    todo = collections.deque(i for i in range(config.episodes) if i not in done)
+    todo = [i for i in range(config.episodes) if i not in done]
     reused = sorted(done & set(range(config.episodes)))
     report_args = dict(root=out, reused=reused)
     start = time.perf_counter()
@@ -107,52 +107,35 @@ def collect(
         return CollectReport(**report_args, collected=[], steps=0, seconds=0.0, worker_restarts=0)
 
     ensure_ray()
-    n_workers = min(config.workers, len(todo))
-    worker_cls = RolloutWorker.options(num_cpus=cpus_per_actor(n_workers), max_restarts=0)
-    workers = [worker_cls.remote(config) for _ in range(n_workers)]
-    pending: dict[ray.ObjectRef, tuple[int, int]] = {}
-    failures: collections.Counter[int] = collections.Counter()
+    worker_cls = RolloutWorker.options(
+        num_cpus=cpus_per_actor(min(config.workers, len(todo))), max_restarts=0
+    )
     collected: list[int] = []
-    steps = restarts = 0
-
-    def submit(slot: int) -> None:
-        if todo:
-            eid = todo.popleft()
-            pending[workers[slot].run_episode.remote(eid)] = (slot, eid)
-
-    for slot in range(n_workers):
-        submit(slot)
+    steps = 0
     bar = tqdm(
         total=config.episodes, initial=len(reused), desc="collect", unit="ep", disable=not progress
     )
-    try:
-        while pending:
-            (ref,), _ = ray.wait(list(pending), num_returns=1)
-            slot, eid = pending.pop(ref)
-            try:
-                episode = ray.get(ref)
-            except ray.exceptions.RayActorError as e:
-                failures[eid] += 1
-                if failures[eid] > max_retries:
-                    raise RuntimeError(
-                        f"episode {eid}: rollout worker died {failures[eid]} times ({e})"
-                    ) from None
-                ray.kill(workers[slot], no_restart=True)
-                workers[slot] = worker_cls.remote(config)
-                restarts += 1
-                todo.appendleft(eid)
-                bar.write(f"worker {slot} died during episode {eid}; restarted, retrying")
-            else:
-                write_episode(out, episode, meta)
-                collected.append(eid)
-                steps += len(episode)
-                bar.update(1)
-                bar.set_postfix(steps_per_s=f"{steps / (time.perf_counter() - start):.0f}")
-            submit(slot)
-    finally:
-        bar.close()
-        for w in workers:
-            ray.kill(w, no_restart=True)
+
+    def store(eid: int, episode: Episode) -> None:
+        nonlocal steps
+        write_episode(out, episode, meta)
+        collected.append(eid)
+        steps += len(episode)
+        bar.update(1)
+        bar.set_postfix(steps_per_s=f"{steps / (time.perf_counter() - start):.0f}")
+
+    with bar:
+        restarts = run_on_actors(
+            lambda: worker_cls.remote(config),
+            config.workers,
+            todo,
+            lambda actor, eid: actor.run_episode.remote(eid),
+            store,
+            max_retries=max_retries,
+            on_restart=lambda slot, eid: bar.write(
+                f"worker {slot} died during episode {eid}; replaced, episode restarted"
+            ),
+        )
     return CollectReport(
         **report_args,
         collected=sorted(collected),

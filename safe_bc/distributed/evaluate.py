@@ -1,0 +1,114 @@
+"""Parallel evaluation of policies on held-out seeds with persistent Ray actors.
+
+Each policy's weights are put in the object store once (``ray.put``); actors keep
+the policy they built last, so an actor that evaluates several episodes of the
+same policy builds it once.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import pandas as pd
+import ray
+from tqdm.auto import tqdm
+
+from safe_bc.distributed.pool import run_on_actors
+from safe_bc.distributed.runtime import cpus_per_actor, ensure_ray
+from safe_bc.envs import EnvConfig, make_env
+from safe_bc.evaluation import EvalConfig, evaluate_episode
+from safe_bc.policy import Policy
+from safe_bc.seeds import heldout_seeds
+
+PolicySource = Any
+"""Anything with ``build() -> Policy`` that pickles (``ExpertSource``, ``NetSource``)."""
+
+
+class _Evaluator:
+    """One env and the last policy built; used in-process or inside an actor."""
+
+    def __init__(self, env_config: EnvConfig) -> None:
+        self.env: gym.Env = make_env(env_config)
+        self.key: str | None = None
+        self.policy: Policy | None = None
+
+    def run(
+        self,
+        key: str,
+        source: PolicySource | list[ray.ObjectRef],
+        seed: int,
+        thresholds: np.ndarray | None,
+        eps: float,
+        max_steps: int | None,
+    ) -> tuple[dict[str, float], dict[str, np.ndarray]]:
+        if key != self.key:
+            if isinstance(source, list):  # boxed ObjectRef: fetched only when needed
+                source = ray.get(source[0])
+            self.key, self.policy = key, source.build()
+        return evaluate_episode(
+            self.env, self.policy, seed, thresholds=thresholds, eps=eps, max_steps=max_steps
+        )
+
+
+EvalWorker = ray.remote(_Evaluator)
+
+
+def evaluate_policies(
+    sources: Mapping[str, PolicySource],
+    config: EvalConfig,
+    *,
+    thresholds: np.ndarray | None = None,
+    progress: bool = True,
+) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Evaluate every policy on the same ``config.episodes`` held-out seeds.
+
+    Returns:
+        ``(episodes, steps)``: one row per (policy, episode) with the metrics of
+        :func:`safe_bc.metrics.episode_metrics`, and one row per step with the
+        safety trace; both keyed by ``policy`` and ``env_seed``.
+    """
+    seeds = heldout_seeds(config.seed, config.episodes)
+    tasks = [(key, s) for key in sources for s in seeds]
+    ep_rows: list[dict[str, Any]] = []
+    traces: list[pd.DataFrame] = []
+    bar = tqdm(total=len(tasks), desc="evaluate", unit="ep", disable=not progress)
+
+    def record(task: tuple[str, int], value: tuple[dict, dict]) -> None:
+        (key, seed), (metrics, trace) = task, value
+        ep_rows.append({"policy": key, "env_seed": seed, **metrics})
+        frame = pd.DataFrame(trace)
+        frame.insert(0, "env_seed", seed)
+        frame.insert(0, "policy", key)
+        traces.append(frame)
+        bar.update(1)
+        bar.set_postfix(reward=f"{metrics['reward']:.0f}", safety=f"{metrics['safety_mean']:.1f}")
+
+    args = (thresholds, config.eps, config.max_steps)
+    with bar:
+        if config.workers == 0:
+            local = _Evaluator(config.env)
+            for task in tasks:
+                record(task, local.run(task[0], sources[task[0]], task[1], *args))
+            local.env.close()
+        else:
+            ensure_ray()
+            refs = {key: [ray.put(src)] for key, src in sources.items()}
+            n = min(config.workers, len(tasks))
+            actor_cls = EvalWorker.options(num_cpus=cpus_per_actor(n), max_restarts=0)
+            run_on_actors(
+                lambda: actor_cls.remote(config.env),
+                n,
+                tasks,
+                lambda actor, t: actor.run.remote(t[0], refs[t[0]], t[1], *args),
+                record,
+            )
+    order = {key: i for i, key in enumerate(sources)}
+    episodes = pd.DataFrame(ep_rows)
+    episodes = episodes.sort_values(
+        ["policy", "env_seed"], key=lambda c: c.map(order) if c.name == "policy" else c
+    ).reset_index(drop=True)
+    steps = pd.concat(traces, ignore_index=True) if traces else pd.DataFrame()
+    return episodes, steps

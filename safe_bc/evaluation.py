@@ -1,0 +1,116 @@
+"""Evaluating a policy on held-out episodes (no Ray: the distributed layer fans this out)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import torch
+
+from safe_bc.bc.config import BCConfig
+from safe_bc.bc.policy import BCNet, BCPolicy, ModelSpec
+from safe_bc.collection import build_expert
+from safe_bc.envs import EnvConfig
+from safe_bc.metrics import combined, critical_zone, episode_metrics
+from safe_bc.policy import Policy
+from safe_bc.rollout import run_episode
+
+
+@dataclass(frozen=True)
+class EvalConfig:
+    """How a policy is evaluated."""
+
+    episodes: int = 10
+    """Held-out episodes per policy (the paper used 2)."""
+    workers: int = 2
+    """Persistent evaluation actors; 0 evaluates in the calling process."""
+    seed: int = 0
+    """Evaluation seed: picks the block of held-out track seeds."""
+    env: EnvConfig = field(default_factory=EnvConfig)
+    """The environment."""
+    max_steps: int | None = None
+    """Step cap per episode (``None``: the env's time limit)."""
+    eps: float = 5.0
+    """Width of the critical zone used for ``critical_share``."""
+
+    def __post_init__(self) -> None:
+        if self.episodes < 1:
+            raise ValueError(f"episodes must be >= 1, got {self.episodes}")
+        if self.workers < 0:
+            raise ValueError(f"workers must be >= 0, got {self.workers}")
+        if self.eps < 0:
+            raise ValueError(f"eps must be >= 0, got {self.eps}")
+
+
+@dataclass(frozen=True)
+class ExpertSource:
+    """The scripted expert, evaluated like any learned policy."""
+
+    config: Any
+    """The expert's configuration."""
+
+    def build(self) -> Policy:
+        """A fresh expert policy."""
+        return build_expert(self.config)
+
+
+@dataclass(frozen=True)
+class NetSource:
+    """A trained net, as plain data that pickles cheaply (weights travel once via ``ray.put``)."""
+
+    spec: dict[str, Any]
+    """``ModelSpec.to_dict()``."""
+    config: dict[str, Any]
+    """``BCConfig.to_dict()``."""
+    state: dict[str, torch.Tensor]
+    """The net's ``state_dict``."""
+
+    @classmethod
+    def from_model(cls, model: BCNet, config: BCConfig) -> NetSource:
+        """Capture ``model``'s weights and configs."""
+        state = {k: v.detach().cpu().clone() for k, v in model.state_dict().items()}
+        return cls(model.spec.to_dict(), config.to_dict(), state)
+
+    def build(self) -> Policy:
+        """Rebuild the net (eval mode) as a policy."""
+        cfg = BCConfig.from_dict(self.config)
+        model = BCNet(ModelSpec.from_dict(self.spec), cfg.preprocess, cfg.network)
+        model.load_state_dict(self.state)
+        return BCPolicy(model.eval(), cfg.preprocess)
+
+
+def evaluate_episode(
+    env: gym.Env,
+    policy: Policy,
+    seed: int,
+    *,
+    thresholds: np.ndarray | None,
+    eps: float,
+    max_steps: int | None = None,
+) -> tuple[dict[str, float], dict[str, np.ndarray]]:
+    """Run one held-out episode; return its metrics and its per-step safety trace.
+
+    The trace holds ``(T,)`` arrays: ``step``, ``reward``, ``safety_<dim>`` per
+    dimension, ``safety`` (combined), ``critical`` and ``offroad``, ``warmup``.
+    """
+    rng = np.random.default_rng(seed)
+    with torch.inference_mode():
+        ep = run_episode(env, policy, seed, rng, keep_observations=False, max_steps=max_steps)
+    tiles = getattr(env.unwrapped, "tile_visited_count", None)
+    n_tiles = len(getattr(env.unwrapped, "track", []) or [])
+    visited = tiles / n_tiles if tiles is not None and n_tiles else float("nan")
+    metrics = episode_metrics(ep, tiles_visited=visited, thresholds=thresholds, eps=eps)
+    trace: dict[str, np.ndarray] = {
+        "step": np.arange(len(ep), dtype=np.int32),
+        "reward": ep.rewards,
+        "safety": combined(ep.safety),
+        "warmup": ep.warmup,
+        "offroad": ep.offroad,
+    }
+    for j, d in enumerate(ep.safety_dims):
+        trace[f"safety_{d}"] = ep.safety[:, j]
+    if thresholds is not None:
+        trace["critical"] = critical_zone(ep.costs, thresholds, eps)
+    return metrics, trace
