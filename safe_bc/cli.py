@@ -72,6 +72,91 @@ def _cmd_collect(args: argparse.Namespace) -> int:
     return 0
 
 
+def _unit_interval(name: str) -> Callable[[str], float]:
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{name} must be a number, got {text!r}") from None
+        if not 0.0 <= value <= 1.0:
+            raise argparse.ArgumentTypeError(f"{name} must be in [0, 1], got {value}")
+        return value
+
+    return parse
+
+
+def _non_negative_float(name: str) -> Callable[[str], float]:
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{name} must be a number, got {text!r}") from None
+        if not value >= 0.0:
+            raise argparse.ArgumentTypeError(f"{name} must be >= 0, got {value}")
+        return value
+
+    return parse
+
+
+def _cmd_describe(args: argparse.Namespace) -> int:
+    import json
+
+    from safe_bc.data.store import load_demonstrations, read_meta, write_text_atomic
+    from safe_bc.experiment import select_for
+    from safe_bc.metrics import combined
+    from safe_bc.plots import plot_cost_histograms
+    from safe_bc.selection import SelectionConfig
+
+    demos = load_demonstrations(args.demos)
+    meta = read_meta(args.demos)
+    sel = select_for(demos, SelectionConfig(eps=args.eps, alpha=0.0))
+    scored = demos.scored
+    summary = {
+        "demos": str(args.demos),
+        "pairs": len(demos),
+        "scored_pairs": int(scored.sum()),
+        "episodes": len(set(demos.episode_ids.tolist())),
+        "safety_mean": float(combined(demos.safety[scored]).mean()),
+        "per_dim": {
+            d: {
+                "mean": float(demos.safety[scored, j].mean()),
+                "min": float(demos.safety[scored, j].min()),
+            }
+            for j, d in enumerate(demos.safety_dims)
+        },
+        "selection": sel.to_dict(),
+        "dataset": json.loads(meta.to_json()),
+    }
+    args.out.mkdir(parents=True, exist_ok=True)
+    title = f"{args.demos}: {len(demos)} pairs, rev {meta.provenance.get('git_revision', '?')[:12]}"
+    plot_cost_histograms(demos, args.out / "cost_histograms.png", eps=args.eps, title=title)
+    write_text_atomic(args.out / "summary.json", json.dumps(summary, indent=2) + "\n")
+    print(json.dumps({k: summary[k] for k in ("pairs", "episodes", "safety_mean")}))
+    print(f"wrote {args.out / 'cost_histograms.png'} and {args.out / 'summary.json'}")
+    return 0
+
+
+def _cmd_reproduce(args: argparse.Namespace) -> int:
+    from safe_bc.reproduce import reproduce_config_from_args, run_reproduce
+
+    config = reproduce_config_from_args(
+        demos=args.demos,
+        out=args.out,
+        train_seeds=range(args.train_seeds),
+        episodes=args.episodes,
+        workers=args.workers,
+        batches=args.batches,
+        max_steps=args.max_steps,
+        eval_seed=args.eval_seed,
+        eps=args.eps,
+    )
+    table = run_reproduce(config, progress=not args.quiet)
+    cols = ["method", "reward", "safety_mean", "safety_std", "offroad_steps"]
+    print(table[cols].to_string(index=False, float_format=lambda x: f"{x:.2f}"))
+    print(f"wrote {args.out / 'table1.parquet'} and {args.out / 'table1.md'}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``safe-bc``."""
     parser = argparse.ArgumentParser(
@@ -89,6 +174,25 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     _env_args(p)
     p.set_defaults(func=_cmd_collect)
+
+    p = sub.add_parser("describe", help="cost histograms and summary of a demonstration set")
+    p.add_argument("--demos", type=Path, default=DEFAULT_DEMOS)
+    p.add_argument("--out", type=Path, default=Path("results/demos"))
+    p.add_argument("--eps", type=_non_negative_float("--eps"), default=5.0)
+    p.set_defaults(func=_cmd_describe)
+
+    p = sub.add_parser("reproduce", help="rerun the paper's Table 1 with CIs")
+    p.add_argument("--demos", type=Path, default=DEFAULT_DEMOS)
+    p.add_argument("--out", type=Path, default=Path("results"))
+    p.add_argument("--train-seeds", type=_positive("--train-seeds"), default=3)
+    p.add_argument("--episodes", type=_positive("--episodes"), default=10)
+    p.add_argument("--workers", type=_positive("--workers"), default=2)
+    p.add_argument("--batches", type=_positive("--batches"), default=2000)
+    p.add_argument("--max-steps", type=_positive("--max-steps"), default=None)
+    p.add_argument("--eval-seed", type=_non_negative, default=0)
+    p.add_argument("--eps", type=_non_negative_float("--eps"), default=5.0)
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=_cmd_reproduce)
     return parser
 
 

@@ -17,7 +17,14 @@ import ray
 from tqdm.auto import tqdm
 
 from safe_bc.collection import CollectConfig, EpisodeMaker, config_dict, observation_shape
-from safe_bc.data.store import DatasetMeta, completed_episodes, init_dataset, write_episode
+from safe_bc.data.store import (
+    META_FILE,
+    DatasetMeta,
+    completed_episodes,
+    init_dataset,
+    read_meta,
+    write_episode,
+)
 from safe_bc.distributed.pool import run_on_actors
 from safe_bc.distributed.runtime import cpus_per_actor, ensure_ray
 from safe_bc.episode import Episode
@@ -143,3 +150,24 @@ def collect(
         seconds=time.perf_counter() - start,
         worker_restarts=restarts,
     )
+
+
+def ensure_demos(
+    out: Path, config: CollectConfig | None = None, *, progress: bool = True
+) -> CollectReport | None:
+    """Make sure ``out`` holds a demonstration set; build the default one if there is none.
+
+    The default, ``CollectConfig()``, is comparable to the paper's (~4,700 pairs from
+    5 episodes). A default dataset that was interrupted resumes; a dataset made
+    with other settings (e.g. by ``safe-bc collect``) is used as it is.
+
+    Returns:
+        The collection report, or ``None`` when an existing custom dataset is used.
+    """
+    out = Path(out)
+    config = config or CollectConfig()
+    exists = (out / META_FILE).exists()
+    if exists and read_meta(out).identity() != dataset_meta(config).identity():
+        return None
+    out.parent.mkdir(parents=True, exist_ok=True)
+    return collect(config, out, progress=progress)

@@ -1,0 +1,94 @@
+"""One safety-imitation run: select T_eps, train BC on alpha-mixed batches (no Ray).
+
+This is what a row of Table 1 and every study trial does before evaluation.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from safe_bc.bc import BCConfig, TrainResult, sampler_for, train_bc
+from safe_bc.bc.train import LogFn
+from safe_bc.demos import Demonstrations
+from safe_bc.selection import Selection, SelectionConfig, select
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """Everything that defines a trained safety-imitation agent."""
+
+    selection: SelectionConfig = field(default_factory=SelectionConfig)
+    """eps, alpha and the eq. 5 reading."""
+    bc: BCConfig = field(default_factory=BCConfig)
+    """Preprocessing, network and training (its ``train.seed`` is the training seed)."""
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-able nested dict."""
+        return {"selection": self.selection.to_dict(), "bc": self.bc.to_dict()}
+
+
+def select_for(demos: Demonstrations, config: SelectionConfig) -> Selection:
+    """T_eps of ``demos`` under ``config`` (warm-up steps excluded)."""
+    return select(demos.costs, config, demos.scored, demos.safety_dims)
+
+
+def train_run(
+    demos: Demonstrations,
+    config: RunConfig,
+    *,
+    selection: Selection | None = None,
+    progress: bool = False,
+    log_fn: LogFn | None = None,
+    action_bounds: tuple[np.ndarray, np.ndarray] | None = None,
+) -> tuple[TrainResult, Selection]:
+    """Select the critical subset and train one BC agent on it.
+
+    Raises:
+        SelectionError: the mix cannot be built (e.g. alpha > 0 with an empty T_eps).
+    """
+    selection = selection or select_for(demos, config.selection)
+    sampler = sampler_for(selection, config.bc.train)  # validates the mix before training
+    result = train_bc(
+        demos,
+        sampler,
+        config.bc.network,
+        config.bc.preprocess,
+        config.bc.train,
+        progress=progress,
+        log_fn=log_fn,
+        action_bounds=action_bounds,
+    )
+    return result, selection
+
+
+def selection_table(demos: Demonstrations, selection: Selection) -> pd.DataFrame:
+    """Which demonstrations were critical: one row per step, per-dimension flags and costs."""
+    df = pd.DataFrame(
+        {
+            "episode_id": demos.episode_ids,
+            "step": demos.steps,
+            "seed": demos.seeds,
+            "scored": selection.valid,
+            "critical": selection.mask,
+        }
+    )
+    for j, d in enumerate(demos.safety_dims):
+        df[f"cost_{d}"] = demos.costs[:, j]
+        df[f"critical_{d}"] = selection.per_dim[:, j]
+    return df
+
+
+def save_selection(
+    directory: Path, demos: Demonstrations, selection: Selection, meta: dict[str, Any]
+) -> Path:
+    """Write ``selection.parquet`` (the mask per step; thresholds in its metadata)."""
+    from safe_bc.data.store import write_table_atomic
+
+    path = Path(directory) / "selection.parquet"
+    write_table_atomic(path, selection_table(demos, selection), {**meta, **selection.to_dict()})
+    return path

@@ -1,0 +1,96 @@
+"""Figures (matplotlib, Agg): cost histograms, the alpha sweep, safety traces."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+import pandas as pd
+
+from safe_bc.demos import Demonstrations
+
+
+def _save(fig: Any, path: Path) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp.png")
+    fig.savefig(tmp, dpi=110, bbox_inches="tight")
+    plt.close(fig)
+    tmp.replace(path)
+    return path
+
+
+def plot_cost_histograms(
+    demos: Demonstrations, path: Path, *, eps: float = 5.0, title: str = ""
+) -> Path:
+    """One histogram of safety distances per dimension (the paper's Figures 3, 7, 8).
+
+    The shaded band marks the critical zone of the max threshold: distances within
+    ``eps`` of the closest approach to the grass.
+    """
+    scored = demos.scored
+    dims = demos.safety_dims
+    fig, axes = plt.subplots(1, len(dims), figsize=(4.2 * len(dims), 3.2), squeeze=False)
+    for j, (ax, d) in enumerate(zip(axes[0], dims, strict=True)):
+        x = demos.safety[scored, j]
+        ax.hist(x, bins=40, color="tab:blue", alpha=0.8)
+        lo = float(x.min())
+        ax.axvspan(lo, lo + eps, color="tab:red", alpha=0.2, label=f"critical (eps={eps:g})")
+        ax.set_xlabel(f"safety {d} (distance)")
+        ax.set_title(f"{d}: n={len(x)}, min={lo:.1f}, mean={x.mean():.1f}")
+        ax.legend(fontsize=8)
+    axes[0][0].set_ylabel("steps")
+    if title:
+        fig.suptitle(title, fontsize=9)
+    return _save(fig, path)
+
+
+def plot_alpha_sweep(table: pd.DataFrame, path: Path, *, paper: pd.DataFrame | None = None) -> Path:
+    """Reward and safety mean against alpha, per eq. 5 reading, with CI error bars."""
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
+    agents = table[table["method"] != "expert"]
+    expert = table[table["method"] == "expert"]
+    for ax, m, name in ((axes[0], "reward", "reward"), (axes[1], "safety_mean", "safety mean")):
+        for rest, df in agents.groupby("rest"):
+            df = df.sort_values("alpha")
+            err = np.vstack([df[m] - df[f"{m}_lo"], df[f"{m}_hi"] - df[m]])
+            ax.errorbar(df["alpha"], df[m], yerr=err, marker="o", capsize=4, label=f"rest={rest}")
+        if len(expert):
+            e = expert.iloc[0]
+            ax.axhline(e[m], color="k", ls="--", lw=1, label="expert")
+            ax.axhspan(e[f"{m}_lo"], e[f"{m}_hi"], color="k", alpha=0.08)
+        if paper is not None and m in paper:
+            ax.plot(paper["alpha"], paper[m], "x:", color="gray", label="paper (2 episodes)")
+        ax.set_xlabel("safety focus alpha")
+        ax.set_ylabel(name)
+        ax.legend(fontsize=8)
+    fig.suptitle("mean and 95% CI over training seeds x held-out episodes", fontsize=9)
+    return _save(fig, path)
+
+
+def plot_traces(
+    traces: pd.DataFrame, labels: dict[str, dict[str, Any]], path: Path, *, episode: int = 0
+) -> Path:
+    """Left/right safety over one held-out episode for each policy (Figures 5-6)."""
+    policies = list(dict.fromkeys(traces["policy"]))
+    fig, axes = plt.subplots(len(policies), 1, figsize=(9, 2.3 * len(policies)), squeeze=False)
+    for ax, key in zip(axes[:, 0], policies, strict=True):
+        df = traces[traces["policy"] == key]
+        seed = sorted(df["env_seed"].unique())[episode]
+        df = df[(df["env_seed"] == seed) & ~df["warmup"]]
+        for col in [c for c in df.columns if c.startswith("safety_")]:
+            ax.plot(df["step"], df[col], lw=0.8, label=col.removeprefix("safety_"))
+        off = df[df["offroad"]]
+        if len(off):
+            ax.plot(off["step"], np.zeros(len(off)), "r|", label="off-road")
+        lab = labels.get(key, {})
+        ax.set_title(f"{lab.get('method', key)} (track seed {seed})", fontsize=9)
+        ax.set_ylabel("distance")
+        ax.legend(fontsize=7, ncol=4, loc="upper right")
+    axes[-1, 0].set_xlabel("step")
+    return _save(fig, path)

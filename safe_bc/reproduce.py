@@ -1,0 +1,289 @@
+"""Table 1 of the paper, rerun honestly: alpha sweep x both eq. 5 readings x training seeds.
+
+Writes under ``out`` (default ``results/``):
+
+* ``table1.parquet``: one row per method (alpha, reading, and the expert) with means and
+  95% bootstrap CIs over training seeds and held-out episodes; metadata records the
+  command, seeds, configs and code revision.
+* ``table1.md``: the same as Markdown, beside the paper's numbers.
+* ``table1_episodes.parquet``: one row per evaluated episode.
+* ``table1_selection.parquet``: which demonstrations were critical (thresholds in metadata).
+* ``fig4_alpha.png``: reward and safety against alpha with CI error bars.
+* ``fig5_6_traces.png``: safety traces of alpha 0 and alpha 0.8 agents and the expert.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import pandas as pd
+
+from safe_bc.bc import BCConfig, TrainConfig
+from safe_bc.data.store import load_demonstrations, write_table_atomic, write_text_atomic
+from safe_bc.envs import EnvConfig
+from safe_bc.evaluation import EvalConfig, ExpertSource, NetSource
+from safe_bc.experiment import RunConfig, save_selection, select_for, train_run
+from safe_bc.metrics import combined, summarize
+from safe_bc.provenance import provenance
+from safe_bc.selection import SelectionConfig
+
+Reading = Literal["all", "noncritical"]
+
+PAPER_TABLE1 = pd.DataFrame(
+    {
+        "alpha": [0.0, 0.1, 0.5, 0.8],
+        "safety_mean": [13.05, 17.30, 21.37, 20.94],
+        "safety_std": [16.41, 12.87, 11.12, 14.08],
+        "reward": [139.50, 228.88, 697.41, 549.51],
+    }
+)
+"""Boecking & Philipp (2020), Table 1 (2 evaluation episodes, one training run each)."""
+
+SUMMARY_METRICS = (
+    "reward",
+    "safety_mean",
+    "safety_std",
+    "safety_min",
+    "offroad_steps",
+    "critical_share",
+    "tiles_visited",
+)
+
+
+@dataclass(frozen=True)
+class ReproduceConfig:
+    """The Table 1 rerun."""
+
+    demos: Path = Path("data/demos")
+    """Demonstration dataset (built with the default collection if absent)."""
+    out: Path = Path("results")
+    """Where tables and figures go."""
+    alphas: tuple[float, ...] = (0.0, 0.1, 0.5, 0.8)
+    """Safety focus values (the paper's)."""
+    eps: float = 5.0
+    """Critical-zone width in pixels (the paper's)."""
+    readings: tuple[Reading, ...] = ("all", "noncritical")
+    """Both readings of eq. 5: the rest drawn from all of T (text) or from T \\ T_eps."""
+    train_seeds: tuple[int, ...] = (0, 1, 2)
+    """Training seeds per configuration."""
+    episodes: int = 10
+    """Held-out evaluation episodes per trained agent (and for the expert)."""
+    eval_seed: int = 0
+    """Block of held-out track seeds."""
+    workers: int = 2
+    """Evaluation actors."""
+    bc: BCConfig = field(default_factory=BCConfig)
+    """Network, preprocessing and training budget (2000 batches by default)."""
+    max_steps: int | None = None
+    """Step cap of evaluation episodes (``None``: the full 1000)."""
+    env: EnvConfig = field(default_factory=EnvConfig)
+    """The environment."""
+
+    def __post_init__(self) -> None:
+        for a in self.alphas:
+            if not 0.0 <= a <= 1.0:
+                raise ValueError(f"alpha must be in [0, 1], got {a}")
+        if self.eps < 0:
+            raise ValueError(f"eps must be >= 0, got {self.eps}")
+        if not self.train_seeds:
+            raise ValueError("need at least one training seed")
+
+
+def method_name(alpha: float, reading: str) -> str:
+    """Row label of a configuration, e.g. ``alpha=0.5 (rest=all)``."""
+    return f"alpha={alpha:g} (rest={reading})"
+
+
+def run_reproduce(config: ReproduceConfig, *, progress: bool = True) -> pd.DataFrame:
+    """Train every (alpha, reading, seed), evaluate them and the expert, write the results."""
+    from safe_bc.distributed.collect import ensure_demos
+    from safe_bc.distributed.evaluate import evaluate_policies
+
+    started = time.perf_counter()
+    ensure_demos(config.demos, progress=progress)
+    demos = load_demonstrations(config.demos)
+    meta = _metadata(config)
+    config.out.mkdir(parents=True, exist_ok=True)
+
+    base = select_for(demos, SelectionConfig(eps=config.eps, alpha=0.0))
+    save_selection(config.out / "table1_selection", demos, base, meta)
+
+    sources: dict[str, Any] = {}
+    labels: dict[str, dict[str, Any]] = {}
+    train_rows = []
+    runs = [(a, r, s) for a in config.alphas for r in config.readings for s in config.train_seeds]
+    for i, (alpha, reading, seed) in enumerate(runs):
+        bc = dataclasses.replace(config.bc, train=dataclasses.replace(config.bc.train, seed=seed))
+        run = RunConfig(SelectionConfig(eps=config.eps, alpha=alpha, rest=reading), bc)
+        result, selection = train_run(demos, run, progress=False)
+        key = f"{method_name(alpha, reading)} seed={seed}"
+        sources[key] = NetSource.from_model(result.model, result.config)
+        labels[key] = {
+            "method": method_name(alpha, reading),
+            "alpha": alpha,
+            "rest": reading,
+            "train_seed": seed,
+        }
+        train_rows.append(
+            {
+                **labels[key],
+                "final_loss": result.final_loss,
+                "samples_per_s": result.samples_per_s,
+                "n_critical": selection.n_critical,
+            }
+        )
+        if progress:
+            print(
+                f"[{i + 1}/{len(runs)}] trained {key}: loss {result.final_loss:.4f}, "
+                f"{result.samples_per_s:.0f} samples/s, |T_eps|={selection.n_critical}",
+                file=sys.stderr,
+            )
+    sources["expert"] = ExpertSource(_expert_config(config))
+    labels["expert"] = {"method": "expert", "alpha": np.nan, "rest": "", "train_seed": 0}
+
+    eval_cfg = EvalConfig(
+        episodes=config.episodes,
+        workers=config.workers,
+        seed=config.eval_seed,
+        env=config.env,
+        max_steps=config.max_steps,
+        eps=config.eps,
+    )
+    episodes, steps = evaluate_policies(
+        sources, eval_cfg, thresholds=base.thresholds, progress=progress
+    )
+    label_df = pd.DataFrame.from_dict(labels, orient="index").rename_axis("policy").reset_index()
+    episodes = label_df.merge(episodes, on="policy")
+    table = summarize(episodes, ["method", "alpha", "rest"], SUMMARY_METRICS, group="train_seed")
+    table = _order(table, config)
+    train_df = pd.DataFrame(train_rows)
+    table = table.merge(
+        train_df.groupby("method")[["final_loss", "samples_per_s"]].mean().reset_index(),
+        on="method",
+        how="left",
+    )
+    meta["seconds"] = round(time.perf_counter() - started, 1)
+    meta["demo_safety_mean"] = float(combined(demos.safety[demos.scored]).mean())
+
+    write_table_atomic(config.out / "table1.parquet", table, meta)
+    write_table_atomic(config.out / "table1_episodes.parquet", episodes, meta)
+    traces = steps[steps["policy"].isin(_trace_policies(labels))]
+    write_table_atomic(config.out / "table1_traces.parquet", traces, meta)
+    write_text_atomic(config.out / "table1.md", render_markdown(table, meta))
+    from safe_bc.plots import plot_alpha_sweep, plot_traces
+
+    plot_alpha_sweep(table, config.out / "fig4_alpha.png", paper=PAPER_TABLE1)
+    plot_traces(traces, labels, config.out / "fig5_6_traces.png")
+    return table
+
+
+def _expert_config(config: ReproduceConfig) -> Any:
+    from safe_bc.data.store import read_meta
+    from safe_bc.experts.carracing import ExpertConfig
+
+    stored = dict(read_meta(config.demos).expert)
+    stored.pop("type", None)
+    return ExpertConfig(**stored)
+
+
+def _trace_policies(labels: dict[str, dict[str, Any]]) -> list[str]:
+    """Seed-0 agents of alpha 0 and 0.8 (the paper's Figures 5-6) and the expert."""
+    keep = ["expert"]
+    for key, lab in labels.items():
+        if lab["train_seed"] == 0 and lab["rest"] == "all" and lab["alpha"] in (0.0, 0.8):
+            keep.append(key)
+    return keep
+
+
+def _order(table: pd.DataFrame, config: ReproduceConfig) -> pd.DataFrame:
+    order = {
+        method_name(a, r): i
+        for i, (r, a) in enumerate((r, a) for r in config.readings for a in config.alphas)
+    }
+    order["expert"] = len(order)
+    return table.sort_values("method", key=lambda c: c.map(order)).reset_index(drop=True)
+
+
+def _metadata(config: ReproduceConfig) -> dict[str, Any]:
+    cfg = dataclasses.asdict(config)
+    cfg["demos"], cfg["out"] = str(config.demos), str(config.out)
+    return {
+        "command": " ".join(sys.argv),
+        "config": cfg,
+        "train_seeds": list(config.train_seeds),
+        "eval_seed": config.eval_seed,
+        **provenance(),
+    }
+
+
+def _fmt(row: pd.Series, m: str, digits: int = 1) -> str:
+    return f"{row[m]:.{digits}f} [{row[m + '_lo']:.{digits}f}, {row[m + '_hi']:.{digits}f}]"
+
+
+def render_markdown(table: pd.DataFrame, meta: dict[str, Any]) -> str:
+    """Our Table 1 (means with 95% CIs) and the paper's, as Markdown."""
+    lines = [
+        "| method | reward | safety mean | safety std | safety min | off-road steps "
+        "| critical share | n |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for _, r in table.iterrows():
+        lines.append(
+            f"| {r['method']} | {_fmt(r, 'reward', 0)} | {_fmt(r, 'safety_mean')} "
+            f"| {_fmt(r, 'safety_std')} | {_fmt(r, 'safety_min')} | {_fmt(r, 'offroad_steps')} "
+            f"| {_fmt(r, 'critical_share', 2)} | {int(r['n_train_seeds'])}x"
+            f"{int(r['n_episodes'] // max(r['n_train_seeds'], 1))} |"
+        )
+    lines += [
+        "",
+        "Paper (Boecking & Philipp 2020, Table 1; 2 episodes, 1 training run):",
+        "",
+        "| alpha | reward | safety mean | safety std |",
+        "|---|---|---|---|",
+    ]
+    for _, r in PAPER_TABLE1.iterrows():
+        lines.append(
+            f"| {r['alpha']:g} | {r['reward']:.1f} | {r['safety_mean']:.2f} "
+            f"| {r['safety_std']:.2f} |"
+        )
+    lines += [
+        "",
+        f"Values: mean [95% bootstrap CI over training seeds and held-out episodes]. "
+        f"Code {meta['git_revision']}, command `{meta['command']}`, "
+        f"{meta.get('seconds', '?')} s.",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def reproduce_config_from_args(
+    *,
+    demos: Path,
+    out: Path,
+    train_seeds: Sequence[int],
+    episodes: int,
+    workers: int,
+    batches: int,
+    max_steps: int | None,
+    eval_seed: int,
+    eps: float = 5.0,
+) -> ReproduceConfig:
+    """A :class:`ReproduceConfig` from command-line values."""
+    return ReproduceConfig(
+        demos=demos,
+        out=out,
+        train_seeds=tuple(train_seeds),
+        episodes=episodes,
+        workers=workers,
+        bc=BCConfig(train=TrainConfig(batches=batches)),
+        max_steps=max_steps,
+        eval_seed=eval_seed,
+        eps=eps,
+    )
