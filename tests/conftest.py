@@ -26,3 +26,14 @@ def ray_session():
         )
     yield ray
     ray.shutdown()
+
+
+@pytest.fixture(scope="session")
+def tiny_demos(ray_session, tmp_path_factory):
+    """Two short real CarRacing demonstration episodes (150 steps, ~100 scored)."""
+    from safe_bc.collection import CollectConfig
+    from safe_bc.distributed.collect import collect
+
+    out = tmp_path_factory.mktemp("tiny") / "demos"
+    collect(CollectConfig(episodes=2, workers=2, max_steps=150), out, progress=False)
+    return out
