@@ -189,7 +189,7 @@ def critical_mask(
     return combine_dims(critical_dims(costs, d, eps, valid), combine)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Selection:
     """Result of ``select``: the thresholds and ``T_eps`` of one demonstration set.
 
@@ -281,8 +281,9 @@ def select(
 def n_critical_per_batch(alpha: float, batch_size: int) -> int:
     """``round(alpha * B)`` with halves rounded up: ``floor(alpha * B + 0.5)``.
 
-    Python's ``round`` rounds halves to even (``round(2.5) == 2``), which would make the
-    critical count jump non-monotonically in ``B``; rounding half up does not.
+    Python's ``round`` rounds halves to even (``round(2.5) == 2`` but ``round(3.5) == 4``),
+    so ties would go to the critical pool for some ``B`` and away from it for others; rounding
+    half up always gives ties to ``T_eps`` (``alpha = 0.5, B = 1`` draws one critical row).
 
     >>> n_critical_per_batch(0.5, 5), n_critical_per_batch(0.1, 64), round(0.5 * 5)
     (3, 6, 2)
@@ -307,9 +308,9 @@ class MixedBatchSampler:
         valid: ``(N,) bool`` rows allowed at all (e.g. not warm-up); ``None`` = all.
 
     Raises:
-        SelectionError: ``alpha > 0`` with an empty ``T_eps``, or ``alpha < 1`` with an
-            empty rest pool.
-        ValueError: invalid ``alpha``, ``batch_size``, ``rest`` or array shapes.
+        SelectionError: ``alpha > 0`` with an empty ``T_eps``, ``alpha < 1`` with an
+            empty rest pool, or ``batch_size < 1``.
+        ValueError: invalid ``alpha``, ``rest`` or array shapes.
     """
 
     def __init__(

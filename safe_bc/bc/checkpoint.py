@@ -1,0 +1,136 @@
+"""Save / load a ``BCNet``: ``weights.pt`` (state_dict) + ``config.json``, each written atomically.
+
+``config.json`` is written last and records the SHA-256 of ``weights.pt``, so a directory
+whose two files do not belong together (a crash between the two writes) is detected.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+from collections.abc import Callable
+from pathlib import Path
+from typing import IO, Any
+
+import torch
+
+from safe_bc.bc.config import BCConfig
+from safe_bc.bc.policy import BCNet, ModelSpec
+
+WEIGHTS = "weights.pt"
+CONFIG = "config.json"
+FORMAT = "safe_bc.bc/1"
+
+
+class CheckpointError(RuntimeError):
+    """A checkpoint directory is missing, incomplete or malformed."""
+
+
+class CheckpointNotFoundError(CheckpointError, FileNotFoundError):
+    """The checkpoint directory or one of its files does not exist."""
+
+
+def _atomic_write(path: Path, write: Callable[[IO[bytes]], None]) -> None:
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            write(f)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _sha256(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def save_checkpoint(
+    directory: str | Path,
+    model: BCNet,
+    configs: BCConfig,
+    extra: dict[str, Any] | None = None,
+) -> Path:
+    """Write ``model``'s weights and ``{format, spec, config, extra, weights_sha256}``.
+
+    Args:
+        directory: created if needed; existing checkpoint files are replaced.
+        model: the net (its ``spec`` and configs rebuild it on load).
+        configs: the configs it was trained with.
+        extra: strict-JSON-able metadata (e.g. the selection summary, metrics).
+
+    Returns:
+        ``directory`` as a ``Path``.
+    """
+    directory = Path(directory)
+    if configs.preprocess != model.pre_cfg or configs.network != model.net_cfg:
+        raise ValueError("configs do not match the model's preprocess/network configs")
+    meta = {
+        "format": FORMAT,
+        "spec": model.spec.to_dict(),
+        "config": configs.to_dict(),
+        "extra": extra or {},
+    }
+    try:
+        json.dumps(meta, allow_nan=False)
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"checkpoint metadata is not strict JSON: {e}") from e
+    directory.mkdir(parents=True, exist_ok=True)
+    state = {k: v.detach().cpu().clone() for k, v in model.state_dict().items()}
+    _atomic_write(directory / WEIGHTS, lambda f: torch.save(state, f))
+    meta["weights_sha256"] = _sha256(directory / WEIGHTS)
+    text = json.dumps(meta, indent=2, allow_nan=False) + "\n"
+    _atomic_write(directory / CONFIG, lambda f: f.write(text.encode()))
+    return directory
+
+
+def read_checkpoint_meta(directory: str | Path) -> dict[str, Any]:
+    """The parsed ``config.json`` (``format``, ``spec``, ``config``, ``extra``, ...)."""
+    directory = Path(directory)
+    path = directory / CONFIG
+    if not directory.is_dir():
+        raise CheckpointNotFoundError(f"no checkpoint directory at {directory}")
+    if not path.is_file():
+        raise CheckpointNotFoundError(f"incomplete checkpoint at {directory}: missing {CONFIG}")
+    try:
+        meta = json.loads(path.read_text())
+    except (UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise CheckpointError(f"malformed {path}: {e}") from e
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+        got = meta.get("format") if isinstance(meta, dict) else type(meta).__name__
+        raise CheckpointError(f"{path} is not a {FORMAT} checkpoint (format={got!r})")
+    return meta
+
+
+def load_checkpoint(directory: str | Path) -> tuple[BCNet, BCConfig]:
+    """Rebuild the net saved by ``save_checkpoint`` (eval mode, CPU) and its configs.
+
+    Raises:
+        CheckpointNotFoundError: the directory or a file is missing.
+        CheckpointError: malformed JSON, configs, weights, or weights from another save.
+    """
+    directory = Path(directory)
+    meta = read_checkpoint_meta(directory)
+    weights = directory / WEIGHTS
+    if not weights.is_file():
+        raise CheckpointNotFoundError(f"incomplete checkpoint at {directory}: missing {WEIGHTS}")
+    if meta.get("weights_sha256") != _sha256(weights):
+        raise CheckpointError(
+            f"{weights} does not match the sha256 recorded in {CONFIG} (partial or mixed save)"
+        )
+    try:
+        configs = BCConfig.from_dict(meta["config"])
+        spec = ModelSpec.from_dict(meta["spec"])
+        model = BCNet(spec, configs.preprocess, configs.network)
+    except (KeyError, TypeError, ValueError) as e:
+        raise CheckpointError(f"malformed configs in {directory / CONFIG}: {e!r}") from e
+    try:
+        state = torch.load(weights, map_location="cpu", weights_only=True)
+        model.load_state_dict(state)
+    except Exception as e:  # torch raises several types for corrupt / mismatched files
+        raise CheckpointError(f"cannot load weights from {weights}: {e}") from e
+    return model.eval(), configs

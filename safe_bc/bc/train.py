@@ -1,0 +1,233 @@
+"""Behaviour cloning: regress the expert's actions on alpha-mixed batches (cleanrl style)."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from safe_bc.bc.config import BCConfig, NetworkConfig, PreprocessConfig, TrainConfig
+from safe_bc.bc.policy import BCNet, BCPolicy, ModelSpec
+from safe_bc.bc.preprocess import frame_stack_index, gather_inputs, standardization_stats
+from safe_bc.demos import Demonstrations
+from safe_bc.selection import MixedBatchSampler, Selection
+
+LogFn = Callable[[int, dict[str, float]], None]
+"""``log_fn(batch, metrics)``: called every ``log_every`` batches with ``loss`` (mean since
+the previous call) and ``samples_per_s``."""
+
+
+class BatchBuilder:
+    """Gathers ``(inputs, targets)`` tensors for row indices of in-memory demonstrations."""
+
+    def __init__(self, demos: Demonstrations, pre_cfg: PreprocessConfig) -> None:
+        self.observations = demos.observations
+        self.actions = torch.as_tensor(np.asarray(demos.actions, np.float32))
+        self.pre_cfg = pre_cfg
+        self.stack_index = (
+            frame_stack_index(demos.episode_ids, demos.steps, pre_cfg.frame_stack)
+            if pre_cfg.frame_stack > 1
+            else None
+        )
+
+    def inputs(self, rows: np.ndarray) -> torch.Tensor:
+        """``rows (B,) -> (B, *input_shape) float32``."""
+        return gather_inputs(self.observations, rows, self.pre_cfg, self.stack_index)
+
+    def targets(self, rows: np.ndarray) -> torch.Tensor:
+        """``rows (B,) -> (B, A) float32`` expert actions."""
+        return self.actions[torch.as_tensor(rows)]
+
+
+@dataclass(frozen=True, eq=False)
+class TrainResult:
+    """Outcome of ``train_bc``.
+
+    Attributes:
+        model: the trained net, in eval mode.
+        config: the preprocessing, network and training configs used.
+        log_steps: ``(K,) int64`` batch number (1-based) of each log point.
+        losses: ``(K,) float64`` mean training loss over the batches since the previous log.
+        seconds: wall time of the training loop.
+        samples_per_s: ``batches * batch_size / seconds``.
+    """
+
+    model: BCNet
+    config: BCConfig
+    log_steps: np.ndarray
+    losses: np.ndarray
+    seconds: float
+    samples_per_s: float
+
+    @property
+    def final_loss(self) -> float:
+        return float(self.losses[-1])
+
+    def policy(self) -> BCPolicy:
+        """The trained net as a ``Policy``."""
+        return BCPolicy(self.model, self.config.preprocess)
+
+    def summary(self) -> dict[str, Any]:
+        """JSON-able summary (configs, loss curve, throughput)."""
+        return {
+            "config": self.config.to_dict(),
+            "spec": self.model.spec.to_dict(),
+            "log_steps": self.log_steps.tolist(),
+            "losses": self.losses.tolist(),
+            "final_loss": self.final_loss,
+            "seconds": self.seconds,
+            "samples_per_s": self.samples_per_s,
+        }
+
+    def save(self, directory: str | Path, extra: dict[str, Any] | None = None) -> Path:
+        """``save_checkpoint(directory, model, config, extra)``."""
+        from safe_bc.bc.checkpoint import save_checkpoint
+
+        return save_checkpoint(directory, self.model, self.config, extra)
+
+
+@contextmanager
+def torch_settings(num_threads: int | None) -> Iterator[None]:
+    """Deterministic algorithms, optional thread count and a forked torch RNG, all restored
+    on exit so that training does not leak global state into the caller."""
+    old_det = torch.are_deterministic_algorithms_enabled()
+    old_warn = torch.is_deterministic_algorithms_warn_only_enabled()
+    old_threads = torch.get_num_threads()
+    try:
+        torch.use_deterministic_algorithms(True)
+        if num_threads is not None:
+            torch.set_num_threads(num_threads)
+        with torch.random.fork_rng(devices=[]):
+            yield
+    finally:
+        torch.use_deterministic_algorithms(old_det, warn_only=old_warn)
+        if num_threads is not None:
+            torch.set_num_threads(old_threads)
+
+
+def sampler_for(selection: Selection, train_cfg: TrainConfig) -> MixedBatchSampler:
+    """The selection's mixed sampler with the config's batch size and seed."""
+    return selection.sampler(train_cfg.batch_size, np.random.default_rng(train_cfg.seed))
+
+
+def train_bc(
+    demos: Demonstrations,
+    sampler: MixedBatchSampler,
+    net_cfg: NetworkConfig,
+    pre_cfg: PreprocessConfig,
+    train_cfg: TrainConfig,
+    progress: bool = False,
+    log_fn: LogFn | None = None,
+    action_bounds: tuple[Sequence[float], Sequence[float]] | None = None,
+) -> TrainResult:
+    """Train a ``BCNet`` for ``train_cfg.batches`` Adam steps on MSE to the expert's actions.
+
+    Batches are the sampler's row indices, drawn from a copy of the sampler whose random
+    stream starts from ``train_cfg.seed`` (the passed sampler is not advanced); only those
+    rows are preprocessed. With the same data, configs and thread count the resulting weights
+    are bit-identical. Global torch state (deterministic flag, threads, RNG) is restored on
+    return; the first call in a process pays a one-off ~2-5 s because
+    ``torch.use_deterministic_algorithms`` imports ``torch._inductor``.
+
+    Args:
+        demos: ``N`` state-action pairs (frames or vectors).
+        sampler: mixed sampler over the ``N`` rows; its ``batch_size`` must equal
+            ``train_cfg.batch_size``.
+        net_cfg, pre_cfg, train_cfg: hyper-parameters.
+        progress: show a tqdm bar with the loss and samples/s.
+        log_fn: called at each log point (see ``LogFn``).
+        action_bounds: ``(low (A,), high (A,))``; default from ``ModelSpec.for_data``.
+    """
+    if len(sampler.mask) != len(demos):
+        raise ValueError(f"sampler covers {len(sampler.mask)} rows, demos have {len(demos)}")
+    if sampler.batch_size != train_cfg.batch_size:
+        raise ValueError(
+            f"sampler.batch_size={sampler.batch_size} != train_cfg.batch_size="
+            f"{train_cfg.batch_size}"
+        )
+    n_actions = demos.actions.shape[1]
+    weights = torch.ones(n_actions)
+    if train_cfg.loss_weights is not None:
+        if len(train_cfg.loss_weights) != n_actions:
+            raise ValueError(
+                f"{len(train_cfg.loss_weights)} loss_weights for {n_actions} action dimensions"
+            )
+        weights = torch.tensor(train_cfg.loss_weights, dtype=torch.float32)
+    weights = weights / weights.sum()
+
+    spec = ModelSpec.for_data(demos.observations.shape[1:], n_actions, action_bounds)
+    builder = BatchBuilder(demos, pre_cfg)
+    sampler = sampler.with_rng(np.random.default_rng(train_cfg.seed))
+    log_steps: list[int] = []
+    losses: list[float] = []
+
+    with torch_settings(train_cfg.num_threads):
+        torch.manual_seed(train_cfg.seed)
+        model = BCNet(spec, pre_cfg, net_cfg)
+        if model.vector_input and pre_cfg.standardize:
+            mean, std = standardization_stats(demos.observations, sampler.valid)
+            k = pre_cfg.frame_stack
+            model.set_standardization(np.tile(mean, k), np.tile(std, k))
+        optimizer = torch.optim.Adam(
+            model.parameters(), lr=train_cfg.lr, weight_decay=train_cfg.weight_decay
+        )
+        model.train()
+        window = 0.0
+        start = time.perf_counter()
+        bar = tqdm(range(1, train_cfg.batches + 1), disable=not progress, desc="bc", unit="batch")
+        for step in bar:
+            rows = sampler.sample()
+            x, y = builder.inputs(rows), builder.targets(rows)
+            loss = ((model(x) - y).square() * weights).sum(dim=1).mean()
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            optimizer.step()
+
+            window += loss.item()
+            if step % train_cfg.log_every == 0 or step == train_cfg.batches:
+                n = step - (log_steps[-1] if log_steps else 0)
+                sps = step * train_cfg.batch_size / (time.perf_counter() - start)
+                log_steps.append(step)
+                losses.append(window / n)
+                window = 0.0
+                bar.set_postfix(loss=f"{losses[-1]:.4f}", sps=f"{sps:.0f}")
+                if log_fn is not None:
+                    log_fn(step, {"loss": losses[-1], "samples_per_s": sps})
+        seconds = time.perf_counter() - start
+        bar.close()
+    model.eval()
+    return TrainResult(
+        model=model,
+        config=BCConfig(pre_cfg, net_cfg, train_cfg),
+        log_steps=np.asarray(log_steps, np.int64),
+        losses=np.asarray(losses, np.float64),
+        seconds=seconds,
+        samples_per_s=train_cfg.batches * train_cfg.batch_size / seconds,
+    )
+
+
+def predict(
+    model: BCNet,
+    demos: Demonstrations,
+    rows: np.ndarray | None = None,
+    batch_size: int = 256,
+) -> np.ndarray:
+    """Model actions for ``rows`` (default all) of ``demos``, with training's frame stacking:
+    ``(len(rows), A) float32``."""
+    builder = BatchBuilder(demos, model.pre_cfg)
+    rows = np.arange(len(demos)) if rows is None else np.asarray(rows, np.int64)
+    model.eval()
+    out = []
+    with torch.inference_mode():
+        for i in range(0, len(rows), batch_size):
+            out.append(model(builder.inputs(rows[i : i + batch_size])).numpy())
+    if not out:
+        return np.zeros((0, model.spec.action_dim), np.float32)
+    return np.concatenate(out).astype(np.float32, copy=False)
