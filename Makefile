@@ -6,7 +6,7 @@ STUDY ?= default
 TRIALS ?=
 STAMP := $(VENV)/.installed
 
-.PHONY: install test test-slow lint format bench tune reproduce collect clean
+.PHONY: install test test-slow lint format bench tune reproduce demos expert clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -34,8 +34,12 @@ format: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/python -m safe_bc.bench
 
-collect: $(STAMP)
+demos: $(STAMP)
 	$(BIN)/safe-bc collect --out data/demos
+	$(BIN)/safe-bc describe --demos data/demos --out results/demos
+
+expert: $(STAMP)
+	$(BIN)/python -m safe_bc.experts.evaluate_expert
 
 reproduce: $(STAMP)
 	$(BIN)/safe-bc reproduce
