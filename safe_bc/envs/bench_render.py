@@ -1,0 +1,152 @@
+"""Stock vs fast CarRacing-v3 rendering speed, measured side by side in one process.
+
+``bench_render`` drives gymnasium's ``CarRacing`` and ``FastCarRacing`` with the same
+deterministic controller (pure pursuit along the track with a little seeded steering noise,
+so the car mostly stays on the road, which is what demonstrations look like), times only the
+``env.step`` calls, and alternates the variants within each repetition so that load from other
+processes hits both alike. Compare the ratio, not the absolute numbers.
+
+    python -m safe_bc.envs.bench_render --steps 1000 --repeats 3
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+from collections.abc import Callable
+
+import numpy as np
+from gymnasium.envs.box2d.car_racing import CarRacing
+
+from safe_bc.envs.fast_render import FastCarRacing
+
+__all__ = ["bench_render"]
+
+_VARIANTS: dict[str, Callable[[], CarRacing]] = {"stock": CarRacing, "fast": FastCarRacing}
+
+
+class _PursuitDriver:
+    """Cheap privileged controller: steer at a track point a few tiles ahead, hold ~25 units/s."""
+
+    def __init__(self, env: CarRacing, seed: int) -> None:
+        self.env = env
+        self.rng = np.random.default_rng(seed)
+        self.track_xy = np.zeros((0, 2))
+
+    def reset(self) -> None:
+        """Re-read the track after ``env.reset()``; shape ``(n_tiles, 2)``."""
+        self.track_xy = np.asarray([(x, y) for _, _, x, y in self.env.track], dtype=np.float64)
+
+    def __call__(self) -> np.ndarray:
+        """The next action ``[steer, gas, brake]`` (float32, shape ``(3,)``)."""
+        car = self.env.car
+        assert car is not None
+        x, y = car.hull.position
+        heading = car.hull.angle
+        i = int(np.argmin(np.sum((self.track_xy - (x, y)) ** 2, axis=1)))
+        tx, ty = self.track_xy[(i + 4) % len(self.track_xy)]
+        dx, dy = tx - x, ty - y
+        fx, fy = -np.sin(heading), np.cos(heading)
+        lateral = (fx * dy - fy * dx) / (np.hypot(dx, dy) + 1e-6)
+        steer = float(np.clip(-2.0 * lateral - 0.1 * car.hull.angularVelocity, -1.0, 1.0))
+        steer = float(np.clip(steer + self.rng.normal(0.0, 0.1), -1.0, 1.0))
+        speed = float(np.hypot(*car.hull.linearVelocity))
+        gas, brake = (0.6, 0.0) if speed < 25.0 else (0.0, 0.1 if speed > 35.0 else 0.0)
+        return np.array([steer, gas, brake], dtype=np.float32)
+
+
+def _time_steps(env: CarRacing, steps: int, seed: int) -> tuple[float, float]:
+    """Wall and CPU seconds spent inside ``env.step`` over ``steps`` steps (resets untimed)."""
+    driver = _PursuitDriver(env, seed)
+    episode = 0
+    env.reset(seed=seed)
+    driver.reset()
+    wall = cpu = 0.0
+    for _ in range(steps):
+        action = driver()
+        c0 = time.process_time()
+        t0 = time.perf_counter()
+        _, _, terminated, truncated, _ = env.step(action)
+        wall += time.perf_counter() - t0
+        cpu += time.process_time() - c0
+        if terminated or truncated:
+            episode += 1
+            env.reset(seed=seed + episode)
+            driver.reset()
+    return wall, cpu
+
+
+def bench_render(steps: int = 1000, repeats: int = 3, seed: int = 0) -> list[dict]:
+    """Steps per second of stock and fast CarRacing-v3, interleaved in this process.
+
+    Each repetition runs ``steps`` steps per variant from ``reset(seed=seed)`` with the same
+    actions; the variants' order alternates between repetitions. Returns one row per variant:
+    ``{"case": "env_step", "variant": "stock" | "fast", "steps_per_s": median,
+    "steps_per_s_runs": [...], "ms_per_step": ..., "speedup_vs_stock": ..., "cpu_steps_per_s":
+    ..., "cpu_speedup_vs_stock": ..., "steps", "repeats", "seed"}``. Wall-clock ``steps_per_s``
+    is the headline; the CPU-time figures (``time.process_time``) are steadier when other
+    processes compete for the cores.
+    """
+    if steps < 1 or repeats < 1:
+        raise ValueError(f"steps and repeats must be >= 1, got {steps}, {repeats}")
+    envs = {name: make() for name, make in _VARIANTS.items()}
+    try:
+        for env in envs.values():  # warm-up: imports, font, buffers
+            _time_steps(env, 5, seed)
+        runs: dict[str, list[float]] = {name: [] for name in envs}
+        cpu_runs: dict[str, list[float]] = {name: [] for name in envs}
+        names = list(envs)
+        for r in range(repeats):
+            for name in names if r % 2 == 0 else names[::-1]:
+                wall, cpu = _time_steps(envs[name], steps, seed)
+                runs[name].append(steps / wall)
+                cpu_runs[name].append(steps / cpu)
+    finally:
+        for env in envs.values():
+            env.close()
+
+    medians = {name: statistics.median(values) for name, values in runs.items()}
+    cpu_medians = {name: statistics.median(values) for name, values in cpu_runs.items()}
+    return [
+        {
+            "case": "env_step",
+            "variant": name,
+            "steps_per_s": medians[name],
+            "steps_per_s_runs": runs[name],
+            "ms_per_step": 1000.0 / medians[name],
+            "speedup_vs_stock": medians[name] / medians["stock"],
+            "cpu_steps_per_s": cpu_medians[name],
+            "cpu_speedup_vs_stock": cpu_medians[name] / cpu_medians["stock"],
+            "steps": steps,
+            "repeats": repeats,
+            "seed": seed,
+        }
+        for name in envs
+    ]
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Print stock vs fast steps/s and their ratio."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--steps", type=int, default=1000)
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args(argv)
+    rows = bench_render(steps=args.steps, repeats=args.repeats, seed=args.seed)
+    for row in rows:
+        runs = ", ".join(f"{v:.0f}" for v in row["steps_per_s_runs"])
+        print(
+            f"{row['case']:>8} {row['variant']:>5}: {row['steps_per_s']:7.1f} steps/s "
+            f"({row['ms_per_step']:.2f} ms/step; runs {runs}; "
+            f"CPU time {row['cpu_steps_per_s']:.1f} steps/s)"
+        )
+    fast = next(row for row in rows if row["variant"] == "fast")
+    print(
+        f"fast/stock ratio (medians, same run): {fast['speedup_vs_stock']:.2f}x wall-clock, "
+        f"{fast['cpu_speedup_vs_stock']:.2f}x CPU time"
+    )
+
+
+if __name__ == "__main__":
+    main()
