@@ -1,0 +1,884 @@
+"""`make bench`: env stepping, Ray collection, BC training and evaluation speed, as ratios.
+
+The machine is shared and noisy, so every figure is the median of several repetitions and
+every comparison is a *ratio* against a baseline measured in the same process, with the
+variants interleaved (their order alternates between repetitions) so that load from other
+processes hits both alike. Compare ratios, not absolute numbers.
+
+Each case runs in its own subprocess (``python -m safe_bc.bench --case X --json``) so that
+its peak memory can be read with ``getrusage``; the driver collects the rows, prints a table
+and writes ``results/bench.parquet`` with machine information and provenance in the table
+metadata.
+
+    python -m safe_bc.bench                       # all cases, ~4-5 minutes on 2 busy cores
+    python -m safe_bc.bench --quick --cases env,train --repeats 2
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import math
+import os
+import platform
+import resource
+import statistics
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+__all__ = ["CASES", "FULL", "QUICK", "Sizes", "main", "run_case", "run_case_subprocess"]
+
+CASES: tuple[str, ...] = ("env", "collect", "train", "eval")
+"""Benchmark cases, in the order they run."""
+
+DEFAULT_OUT = Path("results/bench.parquet")
+COLUMNS: tuple[str, ...] = (
+    "case",
+    "variant",
+    "value",
+    "unit",
+    "baseline",
+    "ratio",
+    "runs",
+    "repeats",
+    "note",
+    "peak_mb",
+    "peak_children_mb",
+    "peak_actor_mb",
+    "peak_tree_mb",
+)
+"""Columns of the result table (one row per measured figure)."""
+
+MEMORY_NOTES = {
+    "peak_mb": "getrusage(RUSAGE_SELF).ru_maxrss of the case's own process (the driver of "
+    "its Ray actors); includes the imports (torch, gymnasium, ray) of that process.",
+    "peak_children_mb": "getrusage(RUSAGE_CHILDREN).ru_maxrss after the case (ray.shutdown() "
+    "first): the largest single reaped descendant, not a sum. Caveat (Linux): a child keeps "
+    "the RSS high-water mark of the process it was forked from across exec, so this is at "
+    "least the driver's RSS when it last spawned a helper (git in provenance(), Ray's "
+    "GCS/raylet); Ray actors are children of the raylet and are usually not reaped into it. "
+    "Use peak_actor_mb / peak_tree_mb for Ray. 0 when the case starts no processes.",
+    "peak_actor_mb": "largest RSS of a single Ray actor process (a descendant named "
+    "'ray::<ActorClass>'), sampled every 0.25 s with psutil; NaN when the case starts no "
+    "actors (or without psutil).",
+    "peak_tree_mb": "largest sum of RSS over the case's process and all its descendants "
+    "(Ray GCS, raylet, dashboard/runtime-env agents, idle workers, actors), sampled every "
+    "0.25 s with psutil: can miss short peaks and double-counts pages shared between "
+    "processes (shared libraries, the plasma store). NaN without psutil.",
+}
+
+
+@dataclass(frozen=True)
+class Sizes:
+    """How much work one repetition of each case does."""
+
+    env_steps: int
+    """Env steps per variant per repetition (``bench_render``)."""
+    collect_episodes: int
+    """Episodes per collection run (both worker counts)."""
+    collect_steps: int
+    """``max_steps`` of each collected episode."""
+    train_frames: int
+    """Synthetic ``96x96x3`` demonstration frames."""
+    train_batches: int
+    """Gradient steps per training run (batch size 64)."""
+    eval_episodes: int
+    """Held-out episodes per ``evaluate_policies`` call."""
+    eval_steps: int
+    """``max_steps`` of each evaluation episode."""
+    act_steps: int
+    """Steps of the per-step env vs inference timing, per repetition."""
+
+
+FULL = Sizes(
+    env_steps=300,
+    collect_episodes=2,
+    collect_steps=300,
+    train_frames=1000,
+    train_batches=200,
+    eval_episodes=2,
+    eval_steps=200,
+    act_steps=200,
+)
+QUICK = Sizes(
+    env_steps=40,
+    collect_episodes=2,
+    collect_steps=60,
+    train_frames=200,
+    train_batches=16,
+    eval_episodes=1,
+    eval_steps=60,
+    act_steps=40,
+)
+
+BATCH_SIZE = 64
+BARE_DISTINCT_BATCHES = 25
+"""The bare torch loop cycles over this many pre-built batches (200 would hold ~400 MB)."""
+
+
+# --------------------------------------------------------------------------------- helpers
+
+
+def _median(values: Sequence[float]) -> float:
+    return float(statistics.median(values))
+
+
+def _order(names: Sequence[str], rep: int) -> list[str]:
+    """Variants in the given order on even repetitions, reversed on odd ones."""
+    return list(names) if rep % 2 == 0 else list(names)[::-1]
+
+
+def _row(
+    case: str,
+    variant: str,
+    runs: Sequence[float],
+    unit: str,
+    baseline: tuple[str, Sequence[float]] | None = None,
+    note: str = "",
+) -> dict[str, Any]:
+    """One result row: the median of ``runs`` and its ratio to the baseline's median.
+
+    ``baseline`` is ``(variant name, runs)``; a row that is its own baseline has ratio 1, a
+    row without one has ratio NaN and an empty ``baseline``.
+    """
+    value = _median(runs)
+    if baseline is None:
+        base_name, ratio = "", math.nan
+    else:
+        base_name, base_runs = baseline
+        ratio = value / _median(base_runs)
+    return {
+        "case": case,
+        "variant": variant,
+        "value": value,
+        "unit": unit,
+        "baseline": base_name,
+        "ratio": ratio,
+        "runs": [float(v) for v in runs],
+        "repeats": len(runs),
+        "note": note,
+    }
+
+
+def _self_row(
+    case: str, variant: str, runs: Sequence[float], unit: str, note: str = ""
+) -> dict[str, Any]:
+    """A baseline row (ratio 1 against itself)."""
+    return _row(case, variant, runs, unit, (variant, runs), note)
+
+
+_RAY_SYSTEM_PROCS = frozenset({"ray::IDLE", "ray::DashboardAgent", "ray::RuntimeEnvAgent"})
+
+
+class _TreeRSS:
+    """Samples, in a daemon thread, the summed RSS of this process and its descendants and
+    the largest RSS of one Ray actor process (named ``ray::<ActorClass>`` by Ray)."""
+
+    def __init__(self, interval: float = 0.25) -> None:
+        self.interval = interval
+        self.peak_bytes = 0
+        self.peak_actor_bytes = 0
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        try:
+            import psutil
+        except ImportError:  # psutil is a dev dependency
+            self._proc = None
+        else:
+            self._proc = psutil.Process()
+
+    def _sample(self) -> None:
+        import psutil
+
+        assert self._proc is not None
+        total = 0
+        for proc in [self._proc, *self._proc.children(recursive=True)]:
+            with contextlib.suppress(psutil.Error):
+                rss = proc.memory_info().rss
+                total += rss
+                name = proc.name()
+                if name.startswith("ray::") and name not in _RAY_SYSTEM_PROCS:
+                    self.peak_actor_bytes = max(self.peak_actor_bytes, rss)
+        self.peak_bytes = max(self.peak_bytes, total)
+
+    def _loop(self) -> None:
+        while not self._stop.wait(self.interval):
+            self._sample()
+
+    def __enter__(self) -> _TreeRSS:
+        if self._proc is not None:
+            self._sample()
+            self._thread = threading.Thread(target=self._loop, daemon=True)
+            self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self._thread is not None:
+            self._stop.set()
+            self._thread.join()
+
+    @property
+    def peak_mb(self) -> float:
+        """Peak summed RSS of the process tree, MiB (NaN without psutil)."""
+        return self.peak_bytes / 2**20 if self._proc is not None else math.nan
+
+    @property
+    def peak_actor_mb(self) -> float:
+        """Peak RSS of one Ray actor process, MiB (NaN when none was seen)."""
+        return self.peak_actor_bytes / 2**20 if self.peak_actor_bytes else math.nan
+
+
+def _maxrss_mb(who: int) -> float:
+    """``ru_maxrss`` in MiB (Linux reports KiB, macOS bytes)."""
+    raw = resource.getrusage(who).ru_maxrss
+    return raw / 2**20 if sys.platform == "darwin" else raw / 1024
+
+
+# ------------------------------------------------------------------------------ case: env
+
+
+def bench_env(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
+    """Stock vs fast CarRacing steps/s (wall clock and CPU time) from ``bench_render``."""
+    from safe_bc.envs.bench_render import bench_render
+
+    rows = {r["variant"]: r for r in bench_render(sizes.env_steps, repeats, seed)}
+    stock, fast = rows["stock"], rows["fast"]
+    note = f"{sizes.env_steps} env.step calls per variant and repetition; pursuit driver"
+    # bench_render only returns the medians of the CPU-time figures
+    cpu_note = "CPU time (time.process_time) inside env.step: steadier under load; median only"
+    return [
+        _self_row("env", "stock", stock["steps_per_s_runs"], "steps/s", note),
+        _row(
+            "env",
+            "fast",
+            fast["steps_per_s_runs"],
+            "steps/s",
+            ("stock", stock["steps_per_s_runs"]),
+            note,
+        ),
+        _self_row("env", "stock, CPU time", [stock["cpu_steps_per_s"]], "steps/s", cpu_note),
+        _row(
+            "env",
+            "fast, CPU time",
+            [fast["cpu_steps_per_s"]],
+            "steps/s",
+            ("stock, CPU time", [stock["cpu_steps_per_s"]]),
+            cpu_note,
+        ),
+    ]
+
+
+# -------------------------------------------------------------------------- case: collect
+
+
+def _collect_config(workers: int, sizes: Sizes, seed: int) -> Any:
+    from safe_bc.collection import CollectConfig
+
+    return CollectConfig(
+        episodes=sizes.collect_episodes, workers=workers, seed=seed, max_steps=sizes.collect_steps
+    )
+
+
+def _collect_cold(workers: int, sizes: Sizes, seed: int) -> float:
+    """``collect()`` into a fresh directory: ``CollectReport.steps_per_s`` (actor start-up,
+    episode rollouts and the driver's Parquet writes)."""
+    from safe_bc.distributed.collect import collect
+
+    with tempfile.TemporaryDirectory(prefix="bench-collect-") as tmp:
+        report = collect(_collect_config(workers, sizes, seed), Path(tmp) / "demos", progress=False)
+    return report.steps_per_s
+
+
+def _collect_warm(workers: int, sizes: Sizes, seed: int) -> tuple[float, float]:
+    """``collect()``'s loop on actors that are already up: ``(steps/s, start-up seconds)``.
+
+    Same actors, pool and driver-side Parquet writes as ``collect()``; the clock starts once
+    every actor has finished its constructor (process start, imports, env and expert built).
+    """
+    import ray
+
+    from safe_bc.data.store import init_dataset, write_episode
+    from safe_bc.distributed.collect import RolloutWorker, dataset_meta
+    from safe_bc.distributed.pool import run_on_actors
+    from safe_bc.distributed.runtime import cpus_per_actor
+
+    config = _collect_config(workers, sizes, seed)
+    with tempfile.TemporaryDirectory(prefix="bench-collect-") as tmp:
+        out = Path(tmp) / "demos"
+        meta = init_dataset(out, dataset_meta(config))
+        worker_cls = RolloutWorker.options(num_cpus=cpus_per_actor(workers), max_restarts=0)
+        t0 = time.perf_counter()
+        actors = [worker_cls.remote(config) for _ in range(workers)]
+        ray.get([actor.__ray_ready__.remote() for actor in actors])
+        startup = time.perf_counter() - t0
+        handed_out = iter(actors)
+        steps = 0
+
+        def store(episode_id: int, episode: Any) -> None:
+            nonlocal steps
+            write_episode(out, episode, meta)
+            steps += len(episode)
+
+        t1 = time.perf_counter()
+        run_on_actors(
+            lambda: next(handed_out),
+            workers,
+            range(config.episodes),
+            lambda actor, eid: actor.run_episode.remote(eid),
+            store,
+        )
+        seconds = time.perf_counter() - t1
+    return steps / seconds, startup
+
+
+def bench_collect(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
+    """Collection steps/s with 1 vs 2 Ray workers, cold (``collect()``) and warm."""
+    import ray
+
+    from safe_bc.distributed.runtime import ensure_ray
+
+    ensure_ray()
+    cold: dict[int, list[float]] = {1: [], 2: []}
+    warm: dict[int, list[float]] = {1: [], 2: []}
+    startup: dict[int, list[float]] = {1: [], 2: []}
+    variants = ["cold 1", "cold 2", "warm 1", "warm 2"]
+    try:
+        for rep in range(repeats):
+            for variant in _order(variants, rep):
+                kind, w = variant.split()
+                workers = int(w)
+                if kind == "cold":
+                    cold[workers].append(_collect_cold(workers, sizes, seed))
+                else:
+                    sps, up = _collect_warm(workers, sizes, seed)
+                    warm[workers].append(sps)
+                    startup[workers].append(up)
+    finally:
+        ray.shutdown()  # reaps Ray's processes so that RUSAGE_CHILDREN sees them
+    work = f"{sizes.collect_episodes} episodes x {sizes.collect_steps} steps, fresh dir each run"
+    cold_note = f"collect(): CollectReport.steps_per_s incl. actor start-up; {work}"
+    warm_note = f"actors started and ready before the clock; {work}"
+    up_note = "actor creation until every constructor (imports, env, expert) has returned"
+    return [
+        _self_row("collect", "1 worker, cold", cold[1], "steps/s", cold_note),
+        _row(
+            "collect", "2 workers, cold", cold[2], "steps/s", ("1 worker, cold", cold[1]), cold_note
+        ),
+        _self_row("collect", "1 worker, warm", warm[1], "steps/s", warm_note),
+        _row(
+            "collect", "2 workers, warm", warm[2], "steps/s", ("1 worker, warm", warm[1]), warm_note
+        ),
+        _self_row("collect", "actor start-up, 1 worker", startup[1], "s", up_note),
+        _row(
+            "collect",
+            "actor start-up, 2 workers",
+            startup[2],
+            "s",
+            ("actor start-up, 1 worker", startup[1]),
+            up_note,
+        ),
+    ]
+
+
+# ---------------------------------------------------------------------------- case: train
+
+
+def synthetic_demos(n: int, seed: int = 0, episode_len: int = 250) -> Any:
+    """``n`` random ``96x96x3 uint8`` frames with random in-bounds actions and costs."""
+    from safe_bc.demos import Demonstrations
+
+    rng = np.random.default_rng(seed)
+    actions = np.stack(
+        [rng.uniform(-1, 1, n), rng.uniform(0, 1, n), rng.uniform(0, 1, n)], axis=1
+    ).astype(np.float32)
+    costs = rng.uniform(0, 40, (n, 3)).astype(np.float32)
+    steps = np.arange(n, dtype=np.int64) % episode_len
+    episodes = np.arange(n, dtype=np.int64) // episode_len
+    return Demonstrations(
+        observations=rng.integers(0, 256, (n, 96, 96, 3), dtype=np.uint8),
+        actions=actions,
+        costs=costs,
+        safety=40 - costs,
+        episode_ids=episodes,
+        steps=steps,
+        seeds=episodes,
+        warmup=np.zeros(n, bool),
+        safety_dims=("left", "front", "right"),
+    )
+
+
+def _run_config(batches: int, seed: int) -> Any:
+    from safe_bc.bc import BCConfig, TrainConfig
+    from safe_bc.experiment import RunConfig
+
+    train = TrainConfig(batches=batches, batch_size=BATCH_SIZE, seed=seed, num_threads=1)
+    return RunConfig(bc=BCConfig(train=train))
+
+
+def _prebuilt_batches(demos: Any, config: Any, n: int) -> list[tuple[Any, Any]]:
+    """``n`` preprocessed ``(inputs, targets)`` batches drawn by the run's own sampler."""
+    from safe_bc.bc import BatchBuilder, sampler_for
+    from safe_bc.experiment import select_for
+
+    sampler = sampler_for(select_for(demos, config.selection), config.bc.train)
+    builder = BatchBuilder(demos, config.bc.preprocess)
+    rows = [sampler.sample() for _ in range(n)]
+    return [(builder.inputs(r), builder.targets(r)) for r in rows]
+
+
+def _bare_loop(demos: Any, config: Any, batches: list[tuple[Any, Any]]) -> float:
+    """Samples/s of the training step alone: same net, init, Adam, loss and torch settings
+    as ``train_bc``, cycling over pre-built batches."""
+    import torch
+
+    from safe_bc.bc import BCNet, ModelSpec
+    from safe_bc.bc.train import torch_settings
+
+    cfg = config.bc
+    spec = ModelSpec.for_data(demos.observations.shape[1:], demos.actions.shape[1])
+    n_batches = cfg.train.batches
+    with torch_settings(cfg.train.num_threads):
+        torch.manual_seed(cfg.train.seed)
+        model = BCNet(spec, cfg.preprocess, cfg.network)
+        optimizer = torch.optim.Adam(
+            model.parameters(), lr=cfg.train.lr, weight_decay=cfg.train.weight_decay
+        )
+        weights = torch.full((spec.action_dim,), 1.0 / spec.action_dim)
+        model.train()
+        start = time.perf_counter()
+        for step in range(n_batches):
+            x, y = batches[step % len(batches)]
+            loss = ((model(x) - y).square() * weights).sum(dim=1).mean()
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            optimizer.step()
+            loss.item()  # train_bc reads the loss every step too
+        seconds = time.perf_counter() - start
+    return n_batches * cfg.train.batch_size / seconds
+
+
+def bench_train(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
+    """``train_bc`` (sampler + preprocessing + gather) vs a bare loop on pre-built batches."""
+    from safe_bc.experiment import train_run
+
+    demos = synthetic_demos(sizes.train_frames, seed)
+    config = _run_config(sizes.train_batches, seed)
+    train_run(demos, _run_config(2, seed))  # warm-up: the one-off torch._inductor import
+    prebuilt = _prebuilt_batches(demos, config, min(sizes.train_batches, BARE_DISTINCT_BATCHES))
+    runs: dict[str, list[float]] = {"bare": [], "pipeline": []}
+    for rep in range(repeats):
+        for variant in _order(list(runs), rep):
+            if variant == "pipeline":
+                runs[variant].append(train_run(demos, config)[0].samples_per_s)
+            else:
+                runs[variant].append(_bare_loop(demos, config, prebuilt))
+    work = (
+        f"{sizes.train_batches} batches x {BATCH_SIZE}, {sizes.train_frames} random frames, "
+        "default net, torch threads 1, deterministic algorithms"
+    )
+    overhead = _median(runs["bare"]) / _median(runs["pipeline"]) - 1.0
+    return [
+        _self_row(
+            "train",
+            "bare torch loop",
+            runs["bare"],
+            "samples/s",
+            f"{work}; cycles {len(prebuilt)} pre-built, preprocessed batches",
+        ),
+        _row(
+            "train",
+            "train_bc pipeline",
+            runs["pipeline"],
+            "samples/s",
+            ("bare torch loop", runs["bare"]),
+            f"{work}; data pipeline adds {100 * overhead:+.0f}% time per batch",
+        ),
+    ]
+
+
+# ----------------------------------------------------------------------------- case: eval
+
+
+def _untrained_source(seed: int) -> Any:
+    """A default-config ``BCNet`` with seeded random weights, as a ``NetSource``."""
+    import torch
+
+    from safe_bc.bc import BCConfig, BCNet, ModelSpec
+    from safe_bc.evaluation import NetSource
+
+    cfg = BCConfig()
+    torch.manual_seed(seed)
+    model = BCNet(ModelSpec.for_data((96, 96, 3), 3), cfg.preprocess, cfg.network)
+    return NetSource.from_model(model, cfg)
+
+
+def _time_evaluation(source: Any, config: Any) -> tuple[float, float]:
+    """``(episodes/min, steps/s)`` of one in-process ``evaluate_policies`` call."""
+    from safe_bc.distributed.evaluate import evaluate_policies
+
+    t0 = time.perf_counter()
+    episodes, steps = evaluate_policies({"policy": source}, config, progress=False)
+    seconds = time.perf_counter() - t0
+    return 60.0 * len(episodes) / seconds, len(steps) / seconds
+
+
+def _time_step_parts(net: Any, steps: int, seed: int) -> dict[str, float]:
+    """Mean ms per step of a fast env step, ``BCPolicy.act`` and the expert's ``act`` on one
+    expert-driven trajectory (the net acts on the same frames; its actions are discarded)."""
+    from safe_bc.envs import EnvConfig, make_env
+    from safe_bc.experts.carracing import CarRacingExpert, ExpertConfig
+    from safe_bc.seeds import heldout_seed
+
+    env = make_env(EnvConfig(renderer="fast"))
+    expert, policy = CarRacingExpert(ExpertConfig()), net.build()
+    totals = {"env": 0.0, "net": 0.0, "expert": 0.0}
+    try:
+        obs, _ = env.reset(seed=heldout_seed(seed, 0))
+        expert.reset(env, np.random.default_rng(seed))
+        policy.reset(env, None)
+        for _ in range(steps):
+            t0 = time.perf_counter()
+            policy.act(obs, env)
+            t1 = time.perf_counter()
+            action = expert.act(obs, env)
+            t2 = time.perf_counter()
+            obs, _, terminated, truncated, _ = env.step(action)
+            t3 = time.perf_counter()
+            totals["net"] += t1 - t0
+            totals["expert"] += t2 - t1
+            totals["env"] += t3 - t2
+            if terminated or truncated:
+                break
+    finally:
+        env.close()
+    return {k: 1000.0 * v / steps for k, v in totals.items()}
+
+
+def bench_eval(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
+    """``evaluate_policies`` episodes/min (net vs expert) and inference vs env step cost."""
+    import torch
+
+    from safe_bc.evaluation import EvalConfig, ExpertSource
+    from safe_bc.experts.carracing import ExpertConfig
+
+    torch.set_num_threads(1)  # what a 1-CPU Ray evaluation actor gets (OMP_NUM_THREADS=1)
+    sources = {"expert": ExpertSource(ExpertConfig()), "BC net": _untrained_source(seed)}
+    config = EvalConfig(
+        episodes=sizes.eval_episodes, workers=0, seed=seed, max_steps=sizes.eval_steps
+    )
+    _time_step_parts(sources["BC net"], 5, seed)  # warm-up
+    eps: dict[str, list[float]] = {name: [] for name in sources}
+    sps: dict[str, list[float]] = {name: [] for name in sources}
+    parts: dict[str, list[float]] = {"env": [], "net": [], "expert": []}
+    for rep in range(repeats):
+        for name in _order(list(sources), rep):
+            e, s = _time_evaluation(sources[name], config)
+            eps[name].append(e)
+            sps[name].append(s)
+        for key, ms in _time_step_parts(sources["BC net"], sizes.act_steps, seed).items():
+            parts[key].append(ms)
+    share = [n / (n + e) for n, e in zip(parts["net"], parts["env"], strict=True)]
+    ev_note = (
+        f"evaluate_policies, workers=0 (in-process, no actor start-up), "
+        f"{sizes.eval_episodes} episodes x <= {sizes.eval_steps} steps, torch threads 1"
+    )
+    net_note = "untrained default BCNet (random weights: same compute as a trained one)"
+    step_note = f"mean over {sizes.act_steps} expert-driven steps of a fast env; same frames"
+    return [
+        _self_row("eval", "expert", eps["expert"], "episodes/min", ev_note),
+        _row(
+            "eval",
+            "BC net",
+            eps["BC net"],
+            "episodes/min",
+            ("expert", eps["expert"]),
+            f"{ev_note}; {net_note}",
+        ),
+        _self_row("eval", "expert", sps["expert"], "steps/s", ev_note),
+        _row("eval", "BC net", sps["BC net"], "steps/s", ("expert", sps["expert"]), net_note),
+        _self_row("eval", "fast env step", parts["env"], "ms/step", step_note),
+        _row(
+            "eval",
+            "BCPolicy.act (1 frame)",
+            parts["net"],
+            "ms/step",
+            ("fast env step", parts["env"]),
+            f"{step_note}; {net_note}",
+        ),
+        _row(
+            "eval",
+            "expert act",
+            parts["expert"],
+            "ms/step",
+            ("fast env step", parts["env"]),
+            step_note,
+        ),
+        _row(
+            "eval",
+            "inference share of a BC step",
+            [100.0 * s for s in share],
+            "%",
+            note="act / (act + env step), per repetition",
+        ),
+    ]
+
+
+# ---------------------------------------------------------------------------- running cases
+
+_BENCHES: dict[str, Callable[[Sizes, int, int], list[dict[str, Any]]]] = {
+    "env": bench_env,
+    "collect": bench_collect,
+    "train": bench_train,
+    "eval": bench_eval,
+}
+
+
+def run_case(case: str, sizes: Sizes, repeats: int, seed: int = 0) -> dict[str, Any]:
+    """Run one case in this process: ``{"case", "rows", "seconds", "memory": {...}}``.
+
+    The memory figures are this process's (see ``MEMORY_NOTES``); run it in a fresh process
+    (``run_case_subprocess``) for them to describe the case alone.
+    """
+    if case not in _BENCHES:
+        raise ValueError(f"unknown case {case!r}; choose from {', '.join(CASES)}")
+    if repeats < 1:
+        raise ValueError(f"repeats must be >= 1, got {repeats}")
+    start = time.perf_counter()
+    with _TreeRSS() as tree:
+        rows = _BENCHES[case](sizes, repeats, seed)
+    memory = {
+        "peak_mb": _maxrss_mb(resource.RUSAGE_SELF),
+        "peak_children_mb": _maxrss_mb(resource.RUSAGE_CHILDREN),
+        "peak_actor_mb": tree.peak_actor_mb,
+        "peak_tree_mb": tree.peak_mb,
+    }
+    return {
+        "case": case,
+        "rows": rows,
+        "seconds": time.perf_counter() - start,
+        "memory": memory,
+    }
+
+
+def run_case_subprocess(
+    case: str, quick: bool, repeats: int, seed: int = 0, timeout: float = 900.0
+) -> dict[str, Any]:
+    """``run_case`` in a fresh ``python -m safe_bc.bench --case ... --json`` process.
+
+    The child's stderr (Ray and progress messages) passes through; its stdout is one JSON
+    document.
+    """
+    cmd = [sys.executable, "-m", "safe_bc.bench", "--case", case, "--json"]
+    cmd += ["--repeats", str(repeats), "--seed", str(seed)] + (["--quick"] if quick else [])
+    env = {**os.environ, "RAY_AUTH_MODE": os.environ.get("RAY_AUTH_MODE", "disabled")}
+    proc = subprocess.run(
+        cmd, stdout=subprocess.PIPE, text=True, timeout=timeout, env=env, check=False
+    )
+    if proc.returncode != 0:
+        raise RuntimeError(f"bench case {case!r} failed with exit status {proc.returncode}")
+    return json.loads(proc.stdout)
+
+
+def _rows_with_memory(result: dict[str, Any]) -> list[dict[str, Any]]:
+    """The case's rows, each carrying the case's peak memory figures."""
+    return [{**row, **result["memory"]} for row in result["rows"]]
+
+
+# ------------------------------------------------------------------------------ reporting
+
+
+def machine_info() -> dict[str, Any]:
+    """CPU model and count, library versions, load average: what the numbers depend on."""
+    import gymnasium
+    import ray
+    import torch
+
+    model = platform.processor() or platform.machine()
+    with contextlib.suppress(OSError):
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+                break
+    try:
+        usable = len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        usable = os.cpu_count() or 0
+    return {
+        "cpu_model": model,
+        "cpu_count": os.cpu_count(),
+        "cpu_usable": usable,
+        "load_avg_1_5_15": list(os.getloadavg()) if hasattr(os, "getloadavg") else None,
+        "platform": platform.platform(),
+        "python": platform.python_version(),
+        "numpy": np.__version__,
+        "torch": torch.__version__,
+        "torch_threads_default": torch.get_num_threads(),
+        "ray": ray.__version__,
+        "gymnasium": gymnasium.__version__,
+    }
+
+
+def _fmt(value: float) -> str:
+    if not math.isfinite(value):
+        return "-"
+    if abs(value) >= 100:
+        return f"{value:,.0f}"
+    if abs(value) >= 10:
+        return f"{value:.1f}"
+    return f"{value:.2f}"
+
+
+def format_table(rows: Sequence[dict[str, Any]]) -> str:
+    """Aligned text table: case, variant, value, unit, ratio vs baseline, peak MB."""
+    header = ("case", "variant", "value", "unit", "ratio", "vs", "peak MB", "actor MB", "tree MB")
+    lines = [
+        (
+            row["case"],
+            row["variant"],
+            _fmt(row["value"]),
+            row["unit"],
+            "-" if not math.isfinite(row["ratio"]) else f"{row['ratio']:.2f}x",
+            row["baseline"] if row["baseline"] != row["variant"] else "(baseline)",
+            _fmt(row.get("peak_mb", math.nan)),
+            _fmt(row.get("peak_actor_mb", math.nan)),
+            _fmt(row.get("peak_tree_mb", math.nan)),
+        )
+        for row in rows
+    ]
+    widths = [max(len(str(x)) for x in col) for col in zip(header, *lines, strict=True)]
+    right = {2, 4, 6, 7, 8}
+
+    def fmt_line(cells: Sequence[str]) -> str:
+        return "  ".join(
+            c.rjust(w) if i in right else c.ljust(w)
+            for i, (c, w) in enumerate(zip(cells, widths, strict=True))
+        ).rstrip()
+
+    rule = "  ".join("-" * w for w in widths)
+    return "\n".join([fmt_line(header), rule, *(fmt_line(line) for line in lines)])
+
+
+def write_results(
+    rows: Sequence[dict[str, Any]], out: Path, settings: dict[str, Any]
+) -> pd.DataFrame:
+    """Write the table to ``out`` (Parquet) with machine info and provenance as metadata."""
+    import pandas as pd
+
+    from safe_bc.data.store import write_table_atomic
+    from safe_bc.provenance import provenance
+
+    frame = pd.DataFrame(list(rows), columns=list(COLUMNS))
+    metadata = {
+        "benchmark": "safe_bc.bench",
+        "settings": settings,
+        "machine": machine_info(),
+        "provenance": provenance(),
+        "memory_notes": MEMORY_NOTES,
+        "ratio": "median(variant runs) / median(baseline runs), same process, interleaved",
+    }
+    out.parent.mkdir(parents=True, exist_ok=True)
+    write_table_atomic(out, frame, metadata)
+    return frame
+
+
+# ----------------------------------------------------------------------------------- CLI
+
+
+def _parse_cases(text: str) -> list[str]:
+    cases = [c.strip() for c in text.split(",") if c.strip()]
+    unknown = [c for c in cases if c not in CASES]
+    if unknown or not cases:
+        raise argparse.ArgumentTypeError(
+            f"unknown case(s) {unknown or text!r}; choose from {', '.join(CASES)}"
+        )
+    return cases
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="python -m safe_bc.bench", description=(__doc__ or "").splitlines()[0]
+    )
+    parser.add_argument("--quick", action="store_true", help="small sizes (used by the tests)")
+    parser.add_argument("--repeats", type=int, default=None, help="repetitions (3; quick: 2)")
+    parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help="Parquet output path")
+    parser.add_argument(
+        "--cases", type=_parse_cases, default=list(CASES), help=f"subset of {','.join(CASES)}"
+    )
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--case", choices=CASES, help="run one case in this process")
+    parser.add_argument("--json", action="store_true", help="with --case: print JSON only")
+    return parser
+
+
+def _run_one(args: argparse.Namespace, sizes: Sizes, repeats: int) -> int:
+    """``--case X``: run it here; JSON on stdout with ``--json`` (everything else to stderr)."""
+    with contextlib.redirect_stdout(sys.stderr):
+        result = run_case(args.case, sizes, repeats, args.seed)
+    if args.json:
+        print(json.dumps(result))
+    else:
+        print(format_table(_rows_with_memory(result)))
+    return 0
+
+
+def _run_all(args: argparse.Namespace, sizes: Sizes, repeats: int) -> int:
+    """Every selected case in its own subprocess; print and write the table."""
+    rows: list[dict[str, Any]] = []
+    seconds: dict[str, float] = {}
+    failed: list[str] = []
+    start = time.perf_counter()
+    for case in args.cases:
+        print(f"bench: {case} ...", file=sys.stderr, flush=True)
+        try:
+            result = run_case_subprocess(case, args.quick, repeats, args.seed)
+        except (RuntimeError, subprocess.TimeoutExpired, json.JSONDecodeError) as e:
+            print(f"bench: {case} failed: {e}", file=sys.stderr)
+            failed.append(case)
+            continue
+        rows += _rows_with_memory(result)
+        seconds[case] = result["seconds"]
+    settings = {
+        "quick": args.quick,
+        "repeats": repeats,
+        "seed": args.seed,
+        "cases": args.cases,
+        "failed_cases": failed,
+        "sizes": asdict(sizes),
+        "case_seconds": seconds,
+        "total_seconds": time.perf_counter() - start,
+        "argv": sys.argv[1:],
+    }
+    if rows:
+        write_results(rows, args.out, settings)
+        print(format_table(rows))
+        print(f"\nwrote {args.out} ({settings['total_seconds']:.0f} s)")
+    return 1 if failed else 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the benchmark; the exit status is 1 when a case failed."""
+    args = _parser().parse_args(argv)
+    sizes = QUICK if args.quick else FULL
+    repeats = args.repeats if args.repeats is not None else (2 if args.quick else 3)
+    if repeats < 1:
+        _parser().error(f"--repeats must be >= 1, got {repeats}")
+    if args.case is not None:
+        return _run_one(args, sizes, repeats)
+    return _run_all(args, sizes, repeats)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

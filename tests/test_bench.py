@@ -1,0 +1,74 @@
+"""`python -m safe_bc.bench --quick`: table schema, finite positive ratios, metadata.
+
+No timing thresholds: the machine is shared, only the shape of the results is checked.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+
+import pytest
+
+from safe_bc import bench
+from safe_bc.data.store import read_table
+
+
+@pytest.fixture(scope="module")
+def quick_table(tmp_path_factory):
+    """The quick env + train cases, each in its own subprocess, as ``(frame, metadata)``."""
+    out = tmp_path_factory.mktemp("bench") / "bench.parquet"
+    rc = bench.main(["--quick", "--cases", "env,train", "--repeats", "2", "--out", str(out)])
+    assert rc == 0
+    return read_table(out)
+
+
+def test_quick_table_schema(quick_table):
+    frame, _ = quick_table
+    assert list(frame.columns) == list(bench.COLUMNS)
+    assert set(frame["case"]) == {"env", "train"}
+    assert {"stock", "fast"} <= set(frame.loc[frame["case"] == "env", "variant"])
+    assert {"bare torch loop", "train_bc pipeline"} <= set(frame["variant"])
+    assert (frame["value"] > 0).all()
+    assert (frame["repeats"] >= 1).all()
+
+
+def test_quick_ratios_finite_and_positive(quick_table):
+    frame, _ = quick_table
+    compared = frame[frame["baseline"] != ""]
+    assert len(compared) == len(frame)  # every env/train row has a baseline
+    assert all(math.isfinite(r) and r > 0 for r in compared["ratio"])
+    baselines = compared[compared["baseline"] == compared["variant"]]
+    assert (baselines["ratio"] == 1.0).all()
+    for _, row in compared.iterrows():  # each baseline is a row of the same case
+        assert row["baseline"] in set(frame.loc[frame["case"] == row["case"], "variant"])
+
+
+def test_quick_memory_and_metadata(quick_table):
+    frame, meta = quick_table
+    assert (frame["peak_mb"] > 0).all()
+    assert meta["provenance"]["git_revision"]
+    machine = meta["machine"]
+    for key in ("cpu_model", "cpu_count", "python", "torch", "ray", "gymnasium"):
+        assert machine[key], key
+    assert meta["settings"]["quick"] is True
+    assert meta["settings"]["failed_cases"] == []
+    assert set(meta["memory_notes"]) == {c for c in bench.COLUMNS if c.startswith("peak_")}
+
+
+def test_format_table_is_aligned():
+    rows = [
+        bench._self_row("train", "bare", [10.0, 12.0], "samples/s"),
+        bench._row("train", "pipeline", [5.0, 6.0], "samples/s", ("bare", [10.0, 12.0])),
+        bench._row("eval", "share", [20.0], "%"),
+    ]
+    lines = bench.format_table(rows).splitlines()
+    assert len({len(line) for line in lines[:2]}) == 1  # header and rule line up
+    assert "0.50x" in lines[3] and "(baseline)" in lines[2]
+    assert math.isnan(rows[2]["ratio"])
+
+
+def test_parse_cases_rejects_unknown():
+    assert bench._parse_cases("env, train") == ["env", "train"]
+    with pytest.raises(argparse.ArgumentTypeError):
+        bench._parse_cases("env,nope")
