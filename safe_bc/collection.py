@@ -54,11 +54,28 @@ class CollectConfig:
             raise ValueError(
                 f"encoding {self.encoding!r} does not fit {self.env.env_id} observations"
             )
+        if not self.env.is_carracing and self.perturbation.mode != "none":
+            raise ValueError(
+                f"perturbation mode {self.perturbation.mode!r} acts on CarRacing's "
+                f"(steer, gas, brake); use mode='none' for {self.env.env_id}"
+            )
 
 
 def config_dict(cfg: Any) -> dict[str, Any]:
     """A dataclass config as a JSON-able dict with its type name."""
     return {"type": type(cfg).__name__, **asdict(cfg)}
+
+
+def expert_config_from_dict(data: dict[str, Any]) -> Any:
+    """Inverse of :func:`config_dict` for expert configs (as stored in ``dataset.json``)."""
+    from safe_bc.experts.rehab import GuidelineConfig
+
+    kinds = {"ExpertConfig": ExpertConfig, "GuidelineConfig": GuidelineConfig}
+    data = dict(data)
+    kind = data.pop("type", "ExpertConfig")
+    if kind not in kinds:
+        raise ValueError(f"unknown expert config type {kind!r}")
+    return kinds[kind](**data)
 
 
 def build_expert(cfg: Any) -> Policy:
@@ -83,7 +100,9 @@ class EpisodeMaker:
         self.config = config
         self.env: gym.Env = make_env(config.env)
         self.expert = build_expert(config.expert)
-        self.perturbation = Perturbation(config.perturbation)
+        self.perturbation = (
+            Perturbation(config.perturbation) if config.perturbation.mode != "none" else None
+        )
 
     def make(self, episode_id: int) -> Episode:
         """Roll out episode ``episode_id`` of the collection."""

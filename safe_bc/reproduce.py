@@ -33,6 +33,7 @@ from safe_bc.experiment import RunConfig, save_selection, select_for, train_run
 from safe_bc.metrics import combined, summarize
 from safe_bc.provenance import provenance
 from safe_bc.selection import SelectionConfig
+from safe_bc.tasks import Task, action_bounds, task_defaults
 
 Reading = Literal["all", "noncritical"]
 
@@ -83,8 +84,8 @@ class ReproduceConfig:
     """Network, preprocessing and training budget (2000 batches by default)."""
     max_steps: int | None = None
     """Step cap of evaluation episodes (``None``: the full 1000)."""
-    env: EnvConfig = field(default_factory=EnvConfig)
-    """The environment."""
+    task: Task = "carracing"
+    """The testbed: ``carracing`` or ``rehab`` (its env, expert and default collection)."""
 
     def __post_init__(self) -> None:
         for a in self.alphas:
@@ -94,6 +95,11 @@ class ReproduceConfig:
             raise ValueError(f"eps must be >= 0, got {self.eps}")
         if not self.train_seeds:
             raise ValueError("need at least one training seed")
+
+    @property
+    def env(self) -> EnvConfig:
+        """The task's environment."""
+        return task_defaults(self.task).env
 
 
 def method_name(alpha: float, reading: str) -> str:
@@ -107,7 +113,7 @@ def run_reproduce(config: ReproduceConfig, *, progress: bool = True) -> pd.DataF
     from safe_bc.distributed.evaluate import evaluate_policies
 
     started = time.perf_counter()
-    ensure_demos(config.demos, progress=progress)
+    ensure_demos(config.demos, task_defaults(config.task).collect_config(), progress=progress)
     demos = load_demonstrations(config.demos)
     meta = _metadata(config)
     config.out.mkdir(parents=True, exist_ok=True)
@@ -115,6 +121,7 @@ def run_reproduce(config: ReproduceConfig, *, progress: bool = True) -> pd.DataF
     base = select_for(demos, SelectionConfig(eps=config.eps, alpha=0.0))
     save_selection(config.out / "table1_selection", demos, base, meta)
 
+    bounds = None if config.env.is_carracing else action_bounds(config.env)
     sources: dict[str, Any] = {}
     labels: dict[str, dict[str, Any]] = {}
     train_rows = []
@@ -122,7 +129,7 @@ def run_reproduce(config: ReproduceConfig, *, progress: bool = True) -> pd.DataF
     for i, (alpha, reading, seed) in enumerate(runs):
         bc = dataclasses.replace(config.bc, train=dataclasses.replace(config.bc.train, seed=seed))
         run = RunConfig(SelectionConfig(eps=config.eps, alpha=alpha, rest=reading), bc)
-        result, selection = train_run(demos, run, progress=False)
+        result, selection = train_run(demos, run, progress=False, action_bounds=bounds)
         key = f"{method_name(alpha, reading)} seed={seed}"
         sources[key] = NetSource.from_model(result.model, result.config)
         labels[key] = {
@@ -185,12 +192,10 @@ def run_reproduce(config: ReproduceConfig, *, progress: bool = True) -> pd.DataF
 
 
 def _expert_config(config: ReproduceConfig) -> Any:
+    from safe_bc.collection import expert_config_from_dict
     from safe_bc.data.store import read_meta
-    from safe_bc.experts.carracing import ExpertConfig
 
-    stored = dict(read_meta(config.demos).expert)
-    stored.pop("type", None)
-    return ExpertConfig(**stored)
+    return expert_config_from_dict(read_meta(config.demos).expert)
 
 
 def _trace_policies(labels: dict[str, dict[str, Any]]) -> list[str]:
@@ -214,6 +219,7 @@ def _order(table: pd.DataFrame, config: ReproduceConfig) -> pd.DataFrame:
 def _metadata(config: ReproduceConfig) -> dict[str, Any]:
     cfg = dataclasses.asdict(config)
     cfg["demos"], cfg["out"] = str(config.demos), str(config.out)
+    cfg["env"] = dataclasses.asdict(config.env)
     return {
         "command": " ".join(sys.argv),
         "config": cfg,
@@ -274,6 +280,7 @@ def reproduce_config_from_args(
     max_steps: int | None,
     eval_seed: int,
     eps: float = 5.0,
+    task: Task = "carracing",
 ) -> ReproduceConfig:
     """A :class:`ReproduceConfig` from command-line values."""
     return ReproduceConfig(
@@ -286,4 +293,5 @@ def reproduce_config_from_args(
         max_steps=max_steps,
         eval_seed=eval_seed,
         eps=eps,
+        task=task,
     )

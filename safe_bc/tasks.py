@@ -25,6 +25,28 @@ class TaskDefaults:
     """The default perturbation of the executed actions."""
     encoding: Encoding
     """Observation encoding in Parquet."""
+    episodes: int
+    """Episodes of the default demonstration set (~4,700 pairs, like the paper's)."""
+    eps: float
+    """Default critical-zone width, in the cost's units."""
+    demos: str
+    """Where the default demonstration set lives."""
+    results: str
+    """Where the task's result tables and figures go."""
+
+    def collect_config(self, workers: int = 2, seed: int = 0) -> Any:
+        """The default demonstration collection of the task."""
+        from safe_bc.collection import CollectConfig
+
+        return CollectConfig(
+            episodes=self.episodes,
+            workers=workers,
+            seed=seed,
+            env=self.env,
+            expert=self.expert,
+            perturbation=self.perturbation,
+            encoding=self.encoding,
+        )
 
 
 def task_defaults(task: Task, renderer: Literal["fast", "stock"] = "fast") -> TaskDefaults:
@@ -35,6 +57,10 @@ def task_defaults(task: Task, renderer: Literal["fast", "stock"] = "fast") -> Ta
             expert=ExpertConfig(),
             perturbation=PerturbationConfig(),
             encoding="png",
+            episodes=5,
+            eps=5.0,
+            demos="data/demos",
+            results="results",
         )
     if task == "rehab":
         from safe_bc.experts.rehab import GuidelineConfig
@@ -44,5 +70,26 @@ def task_defaults(task: Task, renderer: Literal["fast", "stock"] = "fast") -> Ta
             expert=GuidelineConfig(),
             perturbation=PerturbationConfig(mode="none"),
             encoding="vector",
+            episodes=150,
+            eps=0.05,
+            demos="data/rehab_demos",
+            results="results/rehab",
         )
     raise ValueError(f"unknown task {task!r}: choose carracing or rehab")
+
+
+def task_of(env_id: str) -> Task:
+    """The task name of an env id."""
+    return "carracing" if env_id == "CarRacing-v3" else "rehab"
+
+
+def action_bounds(env_config: EnvConfig) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """``(low, high)`` of the env's Box action space, for squashing the policy's outputs."""
+    from safe_bc.envs import make_env
+
+    env = make_env(env_config)
+    try:
+        space = env.action_space
+        return tuple(float(x) for x in space.low), tuple(float(x) for x in space.high)
+    finally:
+        env.close()
