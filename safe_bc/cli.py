@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -157,6 +158,42 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     return 0
 
 
+def _finite_float(name: str) -> Callable[[str], float]:
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{name} must be a number, got {text!r}") from None
+        if not math.isfinite(value):
+            raise argparse.ArgumentTypeError(f"{name} must be finite, got {value}")
+        return value
+
+    return parse
+
+
+def _cmd_tune(args: argparse.Namespace) -> int:
+    import dataclasses
+    import shlex
+
+    from safe_bc.study import load_study
+
+    overrides = {"trials": args.trials, "storage": args.storage, "threshold": args.threshold}
+    overrides = {k: v for k, v in overrides.items() if v is not None}
+    spec = dataclasses.replace(load_study(args.study), **overrides)
+    command = ["safe-bc", "tune", str(args.study)]
+    for key, value in overrides.items():
+        command += [f"--{key}", str(value)]
+    command += ["--fresh"] if args.fresh else []
+
+    from safe_bc.distributed.study import format_outcome, run_study
+
+    outcome = run_study(spec, fresh=args.fresh, command=shlex.join(command))
+    print(format_outcome(outcome, spec.params))
+    if not outcome.complete:
+        return 130
+    return 1 if outcome.errors else 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``safe-bc``."""
     parser = argparse.ArgumentParser(
@@ -193,6 +230,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--eps", type=_non_negative_float("--eps"), default=5.0)
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=_cmd_reproduce)
+
+    p = sub.add_parser("tune", help="run (or resume) a constrained hyper-parameter study")
+    p.add_argument("study", type=Path, help="study file defining STUDY, e.g. tune_jobs/default.py")
+    p.add_argument("--trials", type=_positive("--trials"), default=None, help="override")
+    p.add_argument("--storage", default=None, help="Tune storage: folder or URI (s3://...)")
+    p.add_argument(
+        "--threshold",
+        type=_finite_float("--threshold"),
+        default=None,
+        help="safety threshold (default: the expert's safety mean on the demonstrations)",
+    )
+    p.add_argument("--fresh", action="store_true", help="discard a previous run of the study")
+    p.set_defaults(func=_cmd_tune)
     return parser
 
 

@@ -62,8 +62,13 @@ def evaluate_policies(
     *,
     thresholds: np.ndarray | None = None,
     progress: bool = True,
+    actor_cpus: float | None = None,
 ) -> tuple[pd.DataFrame, pd.DataFrame]:
     """Evaluate every policy on the same ``config.episodes`` held-out seeds.
+
+    ``actor_cpus`` is each actor's CPU reservation; ``None`` shares the cluster's CPUs out
+    (at most 1 each). Inside a Tune trial pass the size of the trial's worker bundles: actors
+    asking for more than the trial reserved wait forever.
 
     Returns:
         ``(episodes, steps)``: one row per (policy, episode) with the metrics of
@@ -97,7 +102,8 @@ def evaluate_policies(
             ensure_ray()
             refs = {key: [ray.put(src)] for key, src in sources.items()}
             n = min(config.workers, len(tasks))
-            actor_cls = EvalWorker.options(num_cpus=cpus_per_actor(n), max_restarts=0)
+            cpus = cpus_per_actor(n) if actor_cpus is None else actor_cpus
+            actor_cls = EvalWorker.options(num_cpus=cpus, max_restarts=0)
             run_on_actors(
                 lambda: actor_cls.remote(config.env),
                 n,

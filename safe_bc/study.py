@@ -1,0 +1,515 @@
+"""Hyper-parameter studies as data: the spec a ``tune_jobs/<name>.py`` file builds, and the pure
+pieces around a study run (no Ray): search-space parameters, applying sampled values to a
+``RunConfig``, feasibility, the trial table, the winner choice and the Pareto figure.
+
+A study maximises the mean held-out reward subject to the safety constraint
+``safety_mean >= threshold``, expressed as ``constraint = threshold - safety_mean <= 0``.
+The Ray side (``safe_bc.distributed.study``) samples parameters with Optuna, runs the trials
+and hands the finished table to :func:`choose_winner`.
+
+>>> spec = StudySpec("demo", {"selection.alpha": Float(0.0, 1.0), "bc.network.channels":
+...     Choice(((8, 16, 16), (16, 32, 32)))})
+>>> cfg = apply_params(spec.base, {"selection.alpha": 0.3, "bc.network.channels": "8-16-16"})
+>>> cfg.selection.alpha, cfg.bc.network.channels
+(0.3, (8, 16, 16))
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+import sys
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, fields, is_dataclass, replace
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import pandas as pd
+
+from safe_bc.envs import EnvConfig
+from safe_bc.experiment import RunConfig
+
+Primitive = bool | int | float | str
+Baseline = Literal["same_network", "default"]
+
+
+@dataclass(frozen=True)
+class Float:
+    """A real parameter sampled from ``[low, high]``."""
+
+    low: float
+    """Smallest value."""
+    high: float
+    """Largest value."""
+    log: bool = False
+    """Sample uniformly in log space (``low`` must be > 0)."""
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.low) and math.isfinite(self.high) and self.low <= self.high):
+            raise ValueError(f"Float needs finite low <= high, got {self.low}, {self.high}")
+        if self.log and self.low <= 0:
+            raise ValueError(f"Float(log=True) needs low > 0, got {self.low}")
+
+    def bounds(self) -> tuple[float, float]:
+        """The extreme values (for validation)."""
+        return self.low, self.high
+
+
+@dataclass(frozen=True)
+class Int:
+    """An integer parameter sampled from ``[low, high]``."""
+
+    low: int
+    """Smallest value."""
+    high: int
+    """Largest value."""
+    step: int = 1
+    """Spacing of the values (``low, low + step, ...``)."""
+    log: bool = False
+    """Sample uniformly in log space (``low`` must be >= 1, ``step`` 1)."""
+
+    def __post_init__(self) -> None:
+        if self.low > self.high or self.step < 1:
+            raise ValueError(f"Int needs low <= high and step >= 1, got {self}")
+        if self.log and (self.low < 1 or self.step != 1):
+            raise ValueError(f"Int(log=True) needs low >= 1 and step 1, got {self}")
+
+    def bounds(self) -> tuple[int, int]:
+        """The extreme values (for validation)."""
+        return self.low, self.high
+
+
+@dataclass(frozen=True)
+class Choice:
+    """A categorical parameter. Options are ``bool``/``int``/``float``/``str`` or tuples of
+    ints (e.g. conv channels); tuples travel as labels like ``"16-32-32"`` (Optuna only
+    accepts primitive categories) and are decoded by :func:`apply_params`."""
+
+    options: tuple[Any, ...]
+    """The values to choose from (at least one)."""
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "options", tuple(self.options))
+        if not self.options:
+            raise ValueError("Choice needs at least one option")
+        labels = self.labels()
+        if len(set(labels)) != len(labels):
+            raise ValueError(f"Choice options must be distinct, got {self.options}")
+
+    def labels(self) -> tuple[Primitive, ...]:
+        """The options as Optuna-safe primitives."""
+        return tuple(encode_value(o) for o in self.options)
+
+    def bounds(self) -> tuple[Primitive, ...]:
+        """Every option (for validation)."""
+        return self.labels()
+
+
+Param = Float | Int | Choice
+"""One dimension of a search space."""
+
+
+def encode_value(value: Any) -> Primitive:
+    """A config value as a primitive: tuples of ints become ``"a-b-c"`` (``()`` is ``"-"``).
+
+    >>> encode_value((16, 32, 32)), encode_value(()), encode_value(0.5)
+    ('16-32-32', '-', 0.5)
+    """
+    if isinstance(value, tuple | list):
+        if not all(isinstance(v, int) and not isinstance(v, bool) for v in value):
+            raise ValueError(f"tuple options must hold ints, got {value!r}")
+        return "-".join(str(v) for v in value) if value else "-"
+    if isinstance(value, bool | int | float | str):
+        return value
+    raise ValueError(f"unsupported option type {type(value).__name__}: {value!r}")
+
+
+def _coerce(current: Any, value: Any, name: str) -> Any:
+    """``value`` in the type of the field's ``current`` value."""
+    if isinstance(current, tuple) and isinstance(value, str):
+        return () if value == "-" else tuple(int(v) for v in value.split("-"))
+    if isinstance(current, bool):
+        if not isinstance(value, bool | np.bool_):
+            raise ValueError(f"{name} is a bool, got {value!r}")
+        return bool(value)
+    if isinstance(current, int):
+        if float(value) != int(value):
+            raise ValueError(f"{name} is an integer, got {value!r}")
+        return int(value)
+    if isinstance(current, float):
+        return float(value)
+    return value.item() if isinstance(value, np.generic) else value
+
+
+def _replace_path(obj: Any, parts: Sequence[str], value: Any, name: str) -> Any:
+    head, rest = parts[0], parts[1:]
+    if not is_dataclass(obj) or head not in {f.name for f in fields(obj)}:
+        raise ValueError(f"unknown parameter {name!r}: no field {head!r} in {type(obj).__name__}")
+    current = getattr(obj, head)
+    new = _replace_path(current, rest, value, name) if rest else _coerce(current, value, name)
+    return replace(obj, **{head: new})
+
+
+def apply_params(base: RunConfig, params: Mapping[str, Any]) -> RunConfig:
+    """``base`` with each dotted parameter (``"selection.eps"``, ``"bc.train.lr"``) set.
+
+    Raises:
+        ValueError: an unknown path, or a value the config rejects.
+    """
+    config = base
+    for name, value in params.items():
+        config = _replace_path(config, name.split("."), value, name)
+    return config
+
+
+@dataclass(frozen=True)
+class StudySpec:
+    """A constrained hyper-parameter study: search space, budget, threshold, resources."""
+
+    name: str
+    """Study name: the Tune experiment name and the output folder ``results/<name>/``."""
+    space: Mapping[str, Param]
+    """Search space keyed by dotted ``RunConfig`` paths: ``selection.eps``, ``selection.alpha``,
+    ``selection.rest``, ``bc.network.channels``, ``bc.network.hidden``, ``bc.train.lr``,
+    ``bc.train.batch_size``, ``bc.preprocess.frame_stack``, ``bc.preprocess.grayscale``, ..."""
+    base: RunConfig = field(default_factory=RunConfig)
+    """Values of everything not searched (``bc.train.seed`` is every trial's training seed)."""
+    trials: int = 20
+    """Number of trials (``--trials`` overrides)."""
+    max_concurrent: int = 2
+    """Trials running at once."""
+    batches: int = 2000
+    """Per-trial budget: training batches (overrides ``base.bc.train.batches``)."""
+    eval_episodes: int = 3
+    """Per-trial budget: held-out evaluation episodes."""
+    max_steps: int | None = None
+    """Step cap per evaluation episode (``None``: the env's time limit)."""
+    eval_seed: int = 1
+    """Held-out seed block of the trials' evaluations."""
+    final_episodes: int = 20
+    """Episodes per policy when the winner is re-evaluated beside the expert and alpha = 0."""
+    final_seed: int = 2
+    """Held-out seed block of the re-evaluation (must differ from ``eval_seed``)."""
+    final_workers: int = 2
+    """Evaluation actors of the re-evaluation (0: in the driver process)."""
+    baseline: Baseline = "same_network"
+    """The alpha = 0 baseline: plain BC with the winner's preprocessing, network and training
+    settings (``"same_network"``) or with ``base``'s (``"default"``)."""
+    threshold: float | None = None
+    """Safety threshold; ``None``: the expert's safety mean on the demonstrations,
+    ``combined(demos.safety[demos.scored]).mean()``."""
+    critical_eps: float = 5.0
+    """Width of the critical zone behind ``critical_share`` (fixed, so trials compare)."""
+    demos: Path = Path("data/demos")
+    """Demonstration set (built with ``ensure_demos`` if absent); a shared path on a cluster."""
+    storage: str = "results/ray"
+    """Tune storage: a local folder (made absolute), a shared file system or an ``s3://`` URI."""
+    results: Path = Path("results")
+    """Outputs go to ``results/<name>/``."""
+    env: EnvConfig = field(default_factory=EnvConfig)
+    """Evaluation environment (must be the demonstrations' task)."""
+    rollout_workers: int = 0
+    """Evaluation actors per trial (0: evaluate in the trial's own process)."""
+    cpus_per_trial: float = 1.0
+    """CPUs reserved for a trial's own process (fractional allowed); torch uses
+    ``max(1, floor(cpus_per_trial))`` threads."""
+    cpus_per_worker: float = 1.0
+    """CPUs reserved per rollout worker of a trial."""
+    max_failures: int = 2
+    """Retries of a failed trial (it resumes from its post-training checkpoint)."""
+    sampler_seed: int = 0
+    """Seed of Optuna's TPE sampler."""
+    startup_trials: int = 8
+    """Random trials before TPE starts modelling."""
+
+    def __post_init__(self) -> None:
+        if not self.name or not self.name.replace("_", "").replace("-", "").isalnum():
+            raise ValueError(f"study name must be letters, digits, - or _, got {self.name!r}")
+        object.__setattr__(self, "space", dict(self.space))
+        object.__setattr__(self, "demos", Path(self.demos))
+        object.__setattr__(self, "results", Path(self.results))
+        object.__setattr__(self, "storage", str(self.storage))
+        for key, value in (
+            ("trials", self.trials),
+            ("max_concurrent", self.max_concurrent),
+            ("batches", self.batches),
+            ("eval_episodes", self.eval_episodes),
+            ("final_episodes", self.final_episodes),
+        ):
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"{key} must be an integer >= 1, got {value!r}")
+        for key in ("rollout_workers", "final_workers", "max_failures", "startup_trials"):
+            if getattr(self, key) < 0:
+                raise ValueError(f"{key} must be >= 0, got {getattr(self, key)}")
+        if self.max_steps is not None and self.max_steps < 1:
+            raise ValueError(f"max_steps must be >= 1 or None, got {self.max_steps}")
+        if self.eval_seed == self.final_seed:
+            raise ValueError(f"final_seed must differ from eval_seed (both {self.eval_seed})")
+        if not (self.cpus_per_trial > 0 and self.cpus_per_worker > 0):
+            raise ValueError("cpus_per_trial and cpus_per_worker must be > 0")
+        if self.baseline not in ("same_network", "default"):
+            raise ValueError(f"baseline must be 'same_network' or 'default', got {self.baseline!r}")
+        if self.threshold is not None and not math.isfinite(self.threshold):
+            raise ValueError(f"threshold must be finite or None, got {self.threshold}")
+        for name, param in self.space.items():
+            if not isinstance(param, Float | Int | Choice):
+                raise ValueError(f"space[{name!r}] must be Float, Int or Choice, got {param!r}")
+            for value in param.bounds():  # every option / bound builds a valid config
+                apply_params(self.base, {name: value})
+
+    @property
+    def params(self) -> tuple[str, ...]:
+        """The searched parameter names, in space order."""
+        return tuple(self.space)
+
+    def run_config(self, params: Mapping[str, Any], num_threads: int | None = None) -> RunConfig:
+        """The trial's ``RunConfig``: ``base`` + sampled ``params`` + the batch budget."""
+        cfg = apply_params(self.base, params)
+        train = replace(cfg.bc.train, batches=self.batches, num_threads=num_threads)
+        return replace(cfg, bc=replace(cfg.bc, train=train))
+
+    def baseline_config(self, winner: RunConfig) -> RunConfig:
+        """The alpha = 0 baseline (plain BC: ``rest="all"``) for the re-evaluation."""
+        ref = winner if self.baseline == "same_network" else self.run_config({})
+        sel = replace(ref.selection, alpha=0.0, rest="all")
+        return replace(ref, selection=sel)
+
+    def summary(self) -> dict[str, Any]:
+        """JSON-able description (stored with every output)."""
+        space = {k: {"type": type(p).__name__, **_param_dict(p)} for k, p in self.space.items()}
+        out = {f.name: getattr(self, f.name) for f in fields(self) if f.name not in ("space",)}
+        out["base"] = self.base.to_dict()
+        out["env"] = {f.name: getattr(self.env, f.name) for f in fields(self.env)}
+        out["demos"], out["results"] = str(self.demos), str(self.results)
+        out["space"] = space
+        return out
+
+
+def _param_dict(p: Param) -> dict[str, Any]:
+    if isinstance(p, Choice):
+        return {"options": list(p.labels())}
+    return {f.name: getattr(p, f.name) for f in fields(p)}
+
+
+def load_study(path: str | Path) -> StudySpec:
+    """Import a study file by path and return its ``STUDY``.
+
+    Raises:
+        FileNotFoundError: no such file.
+        ValueError: the file does not define ``STUDY`` as a ``StudySpec``.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no study file {path}")
+    if path.suffix != ".py":
+        raise ValueError(f"{path}: a study file is a Python file (tune_jobs/<name>.py)")
+    module_name = f"safe_bc_tune_jobs_{path.stem}"
+    spec = importlib.util.spec_from_file_location(module_name, path)
+    if spec is None or spec.loader is None:
+        raise ValueError(f"{path}: cannot be imported")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[module_name] = module  # picklable by reference while the study runs
+    spec.loader.exec_module(module)
+    study = getattr(module, "STUDY", None)
+    if not isinstance(study, StudySpec):
+        got = "nothing" if study is None else type(study).__name__
+        raise ValueError(
+            f"{path}: must define STUDY = StudySpec(...) (from safe_bc.study), found {got}"
+        )
+    return study
+
+
+# --- feasibility, trial table, winner ---------------------------------------------------------
+
+CONSTRAINT = "constraint"
+"""Column / result key of ``threshold - safety_mean`` (<= 0 feasible)."""
+OBJECTIVE = "reward_mean"
+"""The maximised metric."""
+
+TRIAL_METRICS = (
+    "reward_mean",
+    "reward_std",
+    "safety_mean",
+    "safety_std",
+    "safety_min",
+    "offroad_steps",
+    "critical_share",
+    "steps_mean",
+    "threshold",
+    "constraint",
+    "feasible",
+    "train_loss",
+    "train_seconds",
+    "eval_seconds",
+    "duration_s",
+    "train_seed",
+    "eval_seed",
+    "eval_seeds",
+    "n_critical",
+    "critical_fraction",
+    "resumed",
+    "phase",
+    "error",
+)
+"""What every trial reports (each report carries all keys; NaN where not known yet)."""
+
+TRIAL_INFO = ("trial_id", "status", "iterations")
+"""Bookkeeping columns in front of the table."""
+
+
+def constraint_value(threshold: float, safety_mean: float) -> float:
+    """``threshold - safety_mean``: ``<= 0`` is feasible (NaN stays NaN).
+
+    >>> constraint_value(5.0, 6.5), constraint_value(5.0, 4.0)
+    (-1.5, 1.0)
+    """
+    return float(threshold) - float(safety_mean)
+
+
+def is_feasible(constraint: float) -> bool:
+    """``constraint <= 0``; NaN is infeasible."""
+    return bool(constraint <= 0.0)
+
+
+def trial_table(records: Sequence[Mapping[str, Any]], params: Sequence[str]) -> pd.DataFrame:
+    """One row per trial (in the order given): bookkeeping, every config value, every metric.
+
+    ``records`` hold ``trial_id``, ``status``, the parameters and the metrics (missing keys
+    become NaN: e.g. a trial that errored before reporting). ``feasible`` is recomputed from
+    ``constraint`` so that NaN counts as infeasible.
+    """
+    cols = [*TRIAL_INFO, *params, *TRIAL_METRICS]
+    frame = pd.DataFrame([{c: r.get(c, np.nan) for c in cols} for r in records], columns=cols)
+    frame["constraint"] = pd.to_numeric(frame["constraint"], errors="coerce").astype(float)
+    frame["feasible"] = (frame["constraint"] <= 0) & np.isfinite(
+        pd.to_numeric(frame["reward_mean"], errors="coerce").astype(float)
+    )
+    for c in ("error", "phase", "eval_seeds", "status", "trial_id"):
+        frame[c] = frame[c].map(lambda v: "" if is_missing(v) else str(v))
+    return frame
+
+
+@dataclass(frozen=True)
+class Winner:
+    """The chosen trial."""
+
+    trial_id: str
+    """Tune trial id."""
+    feasible: bool
+    """False: no trial met the constraint; this is the closest one."""
+    row: dict[str, Any]
+    """Its row of the trial table."""
+    message: str
+    """One line saying how it was chosen."""
+
+
+def choose_winner(trials: pd.DataFrame) -> Winner | None:
+    """The feasible trial with the highest reward, else the least infeasible one.
+
+    Only trials with a finite reward and constraint count (finished evaluations). Ties go to
+    the higher safety mean, then the lower trial id. ``None`` when no trial finished.
+    """
+    done = trials[
+        np.isfinite(trials["reward_mean"].astype(float))
+        & np.isfinite(trials["constraint"].astype(float))
+    ]
+    if done.empty:
+        return None
+    feasible = done[done["constraint"] <= 0]
+    if not feasible.empty:
+        best = feasible.sort_values(
+            ["reward_mean", "safety_mean", "trial_id"], ascending=[False, False, True]
+        ).iloc[0]
+        msg = (
+            f"winner {best['trial_id']}: highest reward {best['reward_mean']:.1f} among "
+            f"{len(feasible)}/{len(done)} feasible trials (safety {best['safety_mean']:.2f} "
+            f">= threshold {best['threshold']:.2f})"
+        )
+        return Winner(str(best["trial_id"]), True, _row(best), msg)
+    best = done.sort_values(
+        ["constraint", "reward_mean", "trial_id"], ascending=[True, False, True]
+    ).iloc[0]
+    msg = (
+        f"no feasible trial among {len(done)}: closest is {best['trial_id']} (safety "
+        f"{best['safety_mean']:.2f} < threshold {best['threshold']:.2f}, violation "
+        f"{best['constraint']:.2f}, reward {best['reward_mean']:.1f})"
+    )
+    return Winner(str(best["trial_id"]), False, _row(best), msg)
+
+
+def is_missing(v: Any) -> bool:
+    return v is None or (isinstance(v, float) and math.isnan(v))
+
+
+def _row(s: pd.Series) -> dict[str, Any]:
+    return {k: (v.item() if isinstance(v, np.generic) else v) for k, v in s.items()}
+
+
+def pareto_mask(reward: np.ndarray, safety: np.ndarray) -> np.ndarray:
+    """``(N,) bool``: points no other point beats in both reward and safety (higher is better).
+
+    >>> pareto_mask(np.array([1.0, 2.0, 3.0, 1.0]), np.array([3.0, 2.0, 1.0, 1.0])).tolist()
+    [True, True, True, False]
+    """
+    r, s = np.asarray(reward, float), np.asarray(safety, float)
+    ok = np.isfinite(r) & np.isfinite(s)
+    out = np.zeros(len(r), bool)
+    for i in np.flatnonzero(ok):
+        dominated = ok & (r >= r[i]) & (s >= s[i]) & ((r > r[i]) | (s > s[i]))
+        out[i] = not dominated.any()
+    return out
+
+
+def summary_lines(trials: pd.DataFrame, params: Sequence[str], top: int = 10) -> str:
+    """The best trials as a short text table: feasible first, then by reward."""
+    cols = ["trial_id", "reward_mean", "safety_mean", "constraint", "feasible", *params]
+    order = trials.assign(_f=trials["feasible"].astype(bool)).sort_values(
+        ["_f", "reward_mean"], ascending=[False, False], na_position="last"
+    )
+    view = order[[c for c in cols if c in order]].head(top).copy()
+    view.columns = [c.rsplit(".", 1)[-1] for c in view.columns]
+    return view.to_string(index=False, float_format=lambda x: f"{x:.3g}")
+
+
+def plot_pareto(
+    trials: pd.DataFrame,
+    threshold: float,
+    path: Path,
+    *,
+    winner: str | None = None,
+    title: str = "",
+) -> Path:
+    """Reward against safety mean per trial: feasible filled, infeasible hollow, Pareto front
+    joined, the threshold as a vertical line and the winner starred."""
+    from safe_bc.plots import _save, plt
+
+    r = trials["reward_mean"].to_numpy(float)
+    s = trials["safety_mean"].to_numpy(float)
+    feas = trials["feasible"].to_numpy(bool)
+    front = pareto_mask(r, s)
+    fig, ax = plt.subplots(figsize=(6.0, 4.2))
+    ax.scatter(s[feas], r[feas], c="tab:blue", label=f"feasible ({feas.sum()})", zorder=3)
+    ax.scatter(
+        s[~feas],
+        r[~feas],
+        facecolors="none",
+        edgecolors="tab:red",
+        label=f"infeasible ({(~feas & np.isfinite(r)).sum()})",
+        zorder=3,
+    )
+    order = np.argsort(s[front])
+    ax.plot(s[front][order], r[front][order], "k--", lw=0.8, label="Pareto front")
+    ax.axvline(threshold, color="gray", ls=":", label=f"threshold {threshold:.2f}")
+    if winner is not None and (trials["trial_id"] == winner).any():
+        w = trials[trials["trial_id"] == winner].iloc[0]
+        ax.scatter(
+            [w["safety_mean"]], [w["reward_mean"]], marker="*", s=250, c="gold",
+            edgecolors="k", label="winner", zorder=4,
+        )  # fmt: skip
+    ax.set_xlabel("safety mean (pixels to the grass, higher is safer)")
+    ax.set_ylabel("reward mean")
+    ax.set_title(title or "study trials")
+    ax.legend(fontsize=8, loc="best")
+    ax.grid(alpha=0.3)
+    return _save(fig, path)

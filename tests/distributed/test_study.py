@@ -1,0 +1,236 @@
+"""Tiny constrained studies on the shared local Ray: the CLI end to end, constraints inside
+Optuna, a failed trial retried from its checkpoint, and resume after an interruption."""
+
+from __future__ import annotations
+
+import functools
+import math
+import os
+import pickle
+import signal
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import cloudpickle
+import numpy as np
+import pytest
+from optuna.trial import TrialState
+from ray import tune
+
+from safe_bc.cli import main
+from safe_bc.data.store import load_demonstrations, read_table
+from safe_bc.distributed.study import (
+    ConstrainedOptunaSearch,
+    SpaceSampler,
+    TrialJob,
+    load_searcher,
+    run_study,
+    run_trial,
+)
+from safe_bc.metrics import combined
+from safe_bc.seeds import heldout_seeds
+from safe_bc.study import TRIAL_INFO, TRIAL_METRICS, Choice, Float, choose_winner, load_study
+
+REPO = Path(__file__).resolve().parents[2]
+SMOKE = REPO / "tune_jobs" / "smoke.py"
+
+# The trial wrapper below runs in Ray workers, which cannot import this test module.
+cloudpickle.register_pickle_by_value(sys.modules[__name__])
+
+
+def small(tmp_path: Path, demos: Path, **kw):
+    """The smoke study, shrunk further, writing under ``tmp_path``."""
+    defaults = dict(
+        demos=demos,
+        storage=str(tmp_path / "ray"),
+        results=tmp_path / "results",
+        batches=30,
+        max_steps=80,
+        final_episodes=1,
+        final_workers=0,
+    )
+    return replace(load_study(SMOKE), **{**defaults, **kw})
+
+
+def test_searcher_hands_constraints_to_optuna_and_keeps_them_in_its_checkpoint(tmp_path) -> None:
+    s = ConstrainedOptunaSearch(
+        space=SpaceSampler({"a": Float(0.0, 1.0), "c": Choice(((1, 2), (3, 4)))}),
+        metric="reward_mean",
+        mode="max",
+    )
+    cfg = s.suggest("t1")
+    assert 0 <= cfg["a"] <= 1 and cfg["c"] in ("1-2", "3-4")
+    s.suggest("t2")
+    s.suggest("t3")
+    s.on_trial_result("t1", {"reward_mean": math.nan, "training_iteration": 1})  # not forwarded
+    s.on_trial_complete("t1", {"reward_mean": 10.0, "constraint": 0.5})
+    s.on_trial_complete("t2", {"reward_mean": 5.0, "constraint": -1.0})
+    s.on_trial_complete("t3", {"reward_mean": 7.0})  # no constraint: not a usable point
+    trials = s.study.get_trials(deepcopy=False)
+    assert [t.state for t in trials] == [TrialState.COMPLETE, TrialState.COMPLETE, TrialState.FAIL]
+    assert trials[0].intermediate_values == {}
+    assert trials[0].constraints == {"safety": 0.5} and trials[1].constraints == {"safety": -1.0}
+    s.save(str(tmp_path / "searcher.pkl"))
+    restored = ConstrainedOptunaSearch()
+    restored.restore(str(tmp_path / "searcher.pkl"))
+    assert restored.constraints_by_trial() == {
+        "t1": {"safety": 0.5},
+        "t2": {"safety": -1.0},
+        "t3": {},
+    }
+    pickle.dumps(SpaceSampler({"a": Float(0.0, 1.0)}))  # the define-by-run space pickles
+
+
+def test_cli_study_end_to_end(tiny_demos: Path, tmp_path: Path, capsys) -> None:
+    study_file = tmp_path / "tiny.py"
+    study_file.write_text(
+        "from dataclasses import replace\n"
+        "from pathlib import Path\n"
+        "from safe_bc.study import load_study\n"
+        f"STUDY = replace(load_study({str(SMOKE)!r}), demos=Path({str(tiny_demos)!r}),\n"
+        f"    results=Path({str(tmp_path / 'results')!r}), batches=30, max_steps=80,\n"
+        "    final_episodes=1, final_workers=0, max_concurrent=2,\n"
+        "    rollout_workers=1, cpus_per_trial=0.5, cpus_per_worker=0.5)\n"
+    )
+    storage = str(tmp_path / "ray")
+    rc = main(["tune", str(study_file), "--trials", "3", "--storage", storage])
+    printed = capsys.readouterr().out
+    assert rc == 0, printed
+    assert "re-evaluation on fresh held-out seeds" in printed
+    out = tmp_path / "results" / "smoke"
+    spec = load_study(study_file)
+
+    trials, meta = read_table(out / "trials.parquet")
+    assert list(trials.columns) == [*TRIAL_INFO, *spec.params, *TRIAL_METRICS]
+    assert len(trials) == 3 and trials["trial_id"].is_unique
+    assert (trials["status"] == "done").all() and (trials["phase"] == "evaluated").all()
+    demos = load_demonstrations(tiny_demos)
+    expert = float(combined(demos.safety[demos.scored]).mean())
+    assert meta["threshold"] == pytest.approx(expert)  # default: the expert's demo safety
+    np.testing.assert_allclose(trials["constraint"], expert - trials["safety_mean"], rtol=1e-6)
+    assert (trials["feasible"] == (trials["constraint"] <= 0)).all()
+    seeds = heldout_seeds(spec.eval_seed, spec.eval_episodes)
+    assert (trials["eval_seeds"] == ",".join(map(str, seeds))).all()
+    assert (trials["steps_mean"] == 80).all() and (trials["duration_s"] > 0).all()
+    assert trials["bc.network.channels"].isin(["4-8-8", "8-16-16"]).all()
+    assert meta["command"].startswith("safe-bc tune") and "--trials 3" in meta["command"]
+    assert meta["provenance"]["git_revision"] and meta["seeds"]["final_seed"] == spec.final_seed
+    assert meta["study"]["name"] == "smoke" and meta["complete"] is True
+
+    history, hmeta = read_table(out / "history.parquet")
+    assert hmeta["command"] == meta["command"]
+    phases = history.groupby("trial_id")["phase"].apply(list).to_dict()
+    assert phases == {t: ["trained", "evaluated"] for t in trials["trial_id"]}
+
+    # the constraint values of the finished trials are inside the Optuna study
+    searcher = load_searcher(meta["experiment_path"])
+    held = searcher.constraints_by_trial()
+    for row in trials.itertuples():
+        assert held[row.trial_id]["safety"] == pytest.approx(row.constraint)
+    states = [t.state for t in searcher.study.get_trials(deepcopy=False)]
+    assert states == [TrialState.COMPLETE] * 3
+
+    best = __import__("json").loads((out / "best.json").read_text())
+    winner = choose_winner(trials)
+    assert best["trial_id"] == winner.trial_id and best["feasible"] == winner.feasible
+    final, fmeta = read_table(out / "final.parquet")
+    assert final["policy"].tolist() == ["winner", "bc_alpha0", "expert"]
+    assert {"reward_lo", "reward_hi", "safety_mean_lo", "safety_mean_hi"} <= set(final.columns)
+    assert set(fmeta["final_seeds"]).isdisjoint(seeds)
+    assert fmeta["baseline_config"]["selection"]["alpha"] == 0.0
+    assert (out / "pareto.png").stat().st_size > 0
+
+
+class InterruptOnce(tune.Callback):
+    """Ctrl-C (SIGINT) after the first finished trial, once (the callback is restored too)."""
+
+    def __init__(self, marker: str) -> None:
+        self.marker = marker
+
+    def on_trial_complete(self, iteration, trials, trial, **info) -> None:
+        if not os.path.exists(self.marker):
+            Path(self.marker).touch()
+            signal.raise_signal(signal.SIGINT)
+
+
+def flaky_trial(config: dict, job: TrialJob, marker: str) -> None:
+    """``run_trial`` whose first evaluation in the whole study fails (after training)."""
+    import safe_bc.distributed.study as mod
+
+    original = mod.evaluate_trial
+    if not os.path.exists(marker):
+
+        def fail(*args, **kwargs):
+            Path(marker).touch()
+            raise RuntimeError("injected failure after training")
+
+        mod.evaluate_trial = fail
+    try:
+        run_trial(config, job)
+    finally:
+        mod.evaluate_trial = original
+
+
+def test_interrupted_study_resumes_and_failed_trial_is_not_retrained(
+    tiny_demos: Path, tmp_path: Path
+) -> None:
+    spec = small(tmp_path, tiny_demos, trials=3, max_concurrent=1, max_failures=1)
+    trial_fn = functools.partial(flaky_trial, marker=str(tmp_path / "failed"))
+    first = run_study(
+        spec,
+        progress=False,
+        callbacks=[InterruptOnce(str(tmp_path / "interrupted"))],
+        trial_fn=trial_fn,
+    )
+    assert (tmp_path / "failed").exists() and (tmp_path / "interrupted").exists()
+    assert not first.complete and first.winner is None and first.final is None
+    done_first = set(first.trials.loc[first.trials["status"] == "done", "trial_id"])
+    assert 1 <= len(done_first) < 3
+    assert not (first.out / "best.json").exists()
+
+    with pytest.raises(ValueError, match="other settings"):
+        run_study(replace(spec, trials=4), progress=False, trial_fn=trial_fn)
+
+    second = run_study(spec, progress=False, trial_fn=trial_fn)
+    t = second.trials
+    assert second.complete and len(t) == 3 and t["trial_id"].is_unique
+    assert (t["status"] == "done").all() and second.errors == 0
+    assert done_first <= set(t["trial_id"])
+    history, _ = read_table(second.out / "history.parquet")
+    counts = history.groupby(["trial_id", "phase"]).size().unstack(fill_value=0)
+    assert (counts["trained"] == 1).all(), counts  # never retrained
+    assert (counts["evaluated"] == 1).all(), counts  # no trial ran twice
+    # the trial whose evaluation failed was retried from its checkpoint
+    assert t["resumed"].sum() == 1
+    retried = t[t["resumed"]].iloc[0]
+    assert retried["trial_id"] in done_first and retried["train_seconds"] > 0
+
+    searcher = load_searcher(second.experiment_path)
+    trials = searcher.study.get_trials(deepcopy=False)
+    assert [x.state for x in trials] == [TrialState.COMPLETE] * 3
+    held = searcher.constraints_by_trial()
+    assert set(held) == set(t["trial_id"])
+    for row in t.itertuples():
+        assert held[row.trial_id]["safety"] == pytest.approx(row.constraint)
+    assert (second.out / "best.json").exists() and second.final is not None
+
+
+def test_configuration_the_data_cannot_support_is_recorded_not_retried(
+    tiny_demos: Path, tmp_path: Path
+) -> None:
+    # every scored row is critical, so the "noncritical" rest pool of eq. 5 is empty
+    space = {
+        "selection.eps": Float(500.0, 600.0),
+        "selection.alpha": Float(0.2, 0.8),
+        "selection.rest": Choice(("noncritical",)),
+    }
+    spec = small(tmp_path, tiny_demos, space=space, trials=1, max_failures=2)
+    outcome = run_study(spec, progress=False)
+    row = outcome.trials.iloc[0]
+    assert outcome.complete and outcome.errors == 0 and outcome.winner is None
+    assert row["status"] == "invalid" and "rest pool" in row["error"] and not row["feasible"]
+    assert row["iterations"] == 1  # reported once, never retried
+    assert (outcome.out / "trials.parquet").exists() and not (outcome.out / "best.json").exists()
+    states = [t.state for t in load_searcher(outcome.experiment_path).study.get_trials()]
+    assert states == [TrialState.FAIL]

@@ -1,0 +1,230 @@
+"""The study as data (no Ray): spec validation, parameters, feasibility, table, winner, figure."""
+
+from __future__ import annotations
+
+import math
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from safe_bc.study import (
+    TRIAL_INFO,
+    TRIAL_METRICS,
+    Choice,
+    Float,
+    Int,
+    StudySpec,
+    apply_params,
+    choose_winner,
+    constraint_value,
+    is_feasible,
+    load_study,
+    pareto_mask,
+    plot_pareto,
+    summary_lines,
+    trial_table,
+)
+
+REPO = Path(__file__).resolve().parent.parent
+PARAMS = ("selection.alpha", "bc.network.channels")
+
+
+def spec(**kw) -> StudySpec:
+    space = {"selection.alpha": Float(0.0, 1.0), "bc.network.channels": Choice(((8, 16, 16),))}
+    return StudySpec("t", space, **kw)
+
+
+def test_apply_params_sets_nested_fields_and_decodes_values() -> None:
+    base = spec().base
+    cfg = apply_params(
+        base,
+        {
+            "selection.eps": 2,
+            "selection.rest": "noncritical",
+            "bc.network.channels": "4-8-8",
+            "bc.network.hidden": 64.0,  # a float from a table column
+            "bc.preprocess.grayscale": np.bool_(False),
+            "bc.preprocess.frame_stack": np.int64(2),
+            "bc.train.lr": 1e-3,
+        },
+    )
+    assert cfg.selection.eps == 2.0 and isinstance(cfg.selection.eps, float)
+    assert cfg.selection.rest == "noncritical"
+    assert cfg.bc.network.channels == (4, 8, 8)
+    assert cfg.bc.network.hidden == 64 and isinstance(cfg.bc.network.hidden, int)
+    assert cfg.bc.preprocess.grayscale is False
+    assert cfg.bc.preprocess.frame_stack == 2 and cfg.bc.train.lr == 1e-3
+    assert base.bc.network.channels == (16, 32, 32)  # the base is untouched
+
+
+@pytest.mark.parametrize(
+    ("params", "match"),
+    [
+        ({"selection.nope": 1}, "unknown parameter"),
+        ({"bc.optimizer.lr": 1}, "unknown parameter"),
+        ({"selection.alpha": 1.5}, "alpha"),
+        ({"bc.network.hidden": 1.5}, "integer"),
+        ({"selection.rest": "some"}, "rest"),
+    ],
+)
+def test_apply_params_rejects_bad_values(params, match) -> None:
+    with pytest.raises(ValueError, match=match):
+        apply_params(spec().base, params)
+
+
+def test_spec_validates_space_and_budget() -> None:
+    with pytest.raises(ValueError, match="channels"):  # 2 layers, but 3 kernel sizes
+        StudySpec("t", {"bc.network.channels": Choice(((8, 16), (16, 32, 32)))})
+    with pytest.raises(ValueError, match="alpha"):
+        StudySpec("t", {"selection.alpha": Float(0.0, 2.0)})
+    with pytest.raises(ValueError, match="unknown parameter"):
+        StudySpec("t", {"bc.train.momentum": Float(0.0, 1.0)})
+    with pytest.raises(ValueError, match="final_seed"):
+        spec(eval_seed=3, final_seed=3)
+    with pytest.raises(ValueError, match="trials"):
+        spec(trials=0)
+    with pytest.raises(ValueError, match="name"):
+        StudySpec("a b", {})
+    with pytest.raises(ValueError, match="log"):
+        Float(0.0, 1.0, log=True)
+    with pytest.raises(ValueError, match="distinct"):
+        Choice((1, 1))
+    assert Int(1, 4).bounds() == (1, 4)
+    assert Choice(((16, 32, 32), True, "all")).labels() == ("16-32-32", True, "all")
+
+
+def test_run_config_applies_budget_and_baselines() -> None:
+    s = spec(batches=123)
+    cfg = s.run_config({"selection.alpha": 0.7, "bc.network.channels": "8-16-16"}, num_threads=1)
+    assert cfg.bc.train.batches == 123 and cfg.bc.train.num_threads == 1
+    base = s.baseline_config(cfg)
+    assert base.selection.alpha == 0.0 and base.selection.rest == "all"
+    assert base.bc == cfg.bc  # same network, preprocessing and training
+    default = replace(s, baseline="default").baseline_config(cfg)
+    assert default.bc.network.channels == (16, 32, 32) and default.bc.train.batches == 123
+
+
+def test_constraint_and_feasibility() -> None:
+    assert constraint_value(5.0, 6.0) == -1.0 and is_feasible(-1.0)
+    assert is_feasible(0.0) and not is_feasible(0.1) and not is_feasible(math.nan)
+
+
+def _table(rows: list[dict]) -> pd.DataFrame:
+    base = {"status": "done", "threshold": 5.0, "selection.alpha": 0.5, "bc.network.channels": "-"}
+    recs = []
+    for r in rows:
+        rec = {**base, **r}
+        rec["constraint"] = constraint_value(5.0, rec["safety_mean"])
+        recs.append(rec)
+    return trial_table(recs, PARAMS)
+
+
+def test_trial_table_schema_and_nan_is_infeasible() -> None:
+    t = _table(
+        [
+            {"trial_id": "b", "reward_mean": 10.0, "safety_mean": 6.0},
+            {"trial_id": "a", "reward_mean": math.nan, "safety_mean": math.nan},
+        ]
+    )
+    assert list(t.columns) == [*TRIAL_INFO, *PARAMS, *TRIAL_METRICS]
+    assert list(t["trial_id"]) == ["b", "a"]
+    assert t["feasible"].tolist() == [True, False]
+    assert t["error"].tolist() == ["", ""]
+
+
+def test_winner_is_the_feasible_trial_with_the_highest_reward() -> None:
+    t = _table(
+        [
+            {"trial_id": "unsafe_fast", "reward_mean": 900.0, "safety_mean": 4.0},
+            {"trial_id": "safe_slow", "reward_mean": 300.0, "safety_mean": 9.0},
+            {"trial_id": "safe_fast", "reward_mean": 600.0, "safety_mean": 5.5},
+            {"trial_id": "tie_safer", "reward_mean": 600.0, "safety_mean": 7.0},
+            {"trial_id": "unfinished", "reward_mean": math.nan, "safety_mean": math.nan},
+        ]
+    )
+    w = choose_winner(t)
+    assert w is not None and w.feasible and w.trial_id == "tie_safer"
+    assert "3/4 feasible" in w.message
+    assert w.row["reward_mean"] == 600.0
+    # Tune's get_best_result would pick the unconstrained optimum instead
+    assert t.loc[t["reward_mean"].idxmax(), "trial_id"] == "unsafe_fast"
+
+
+def test_no_feasible_trial_gives_the_closest_one_and_says_so() -> None:
+    t = _table(
+        [
+            {"trial_id": "far", "reward_mean": 900.0, "safety_mean": 1.0},
+            {"trial_id": "close_low", "reward_mean": 100.0, "safety_mean": 4.5},
+            {"trial_id": "close_high", "reward_mean": 200.0, "safety_mean": 4.5},
+        ]
+    )
+    w = choose_winner(t)
+    assert w is not None and not w.feasible and w.trial_id == "close_high"
+    assert w.message.startswith("no feasible trial") and "violation 0.50" in w.message
+    assert choose_winner(t.iloc[:0]) is None
+    nothing = _table([{"trial_id": "x", "reward_mean": math.nan, "safety_mean": math.nan}])
+    assert choose_winner(nothing) is None
+
+
+def test_pareto_mask_summary_and_figure(tmp_path: Path) -> None:
+    assert pareto_mask(np.array([1.0, np.nan, 2.0]), np.array([2.0, 9.0, 2.0])).tolist() == [
+        False,
+        False,
+        True,
+    ]
+    t = _table(
+        [
+            {"trial_id": "a", "reward_mean": 100.0, "safety_mean": 7.0},
+            {"trial_id": "b", "reward_mean": 500.0, "safety_mean": 3.0},
+            {"trial_id": "c", "reward_mean": math.nan, "safety_mean": math.nan},
+        ]
+    )
+    text = summary_lines(t, PARAMS)
+    assert text.splitlines()[1].split()[0] == "a"  # feasible first
+    path = plot_pareto(t, 5.0, tmp_path / "p" / "pareto.png", winner="a", title="t")
+    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_load_study_files(tmp_path: Path) -> None:
+    default = load_study(REPO / "tune_jobs" / "default.py")
+    assert default.name == "default" and default.trials >= 20 and default.batches == 2000
+    for key in (
+        "selection.eps",
+        "selection.alpha",
+        "selection.rest",
+        "bc.network.channels",
+        "bc.network.hidden",
+        "bc.train.lr",
+        "bc.train.batch_size",
+        "bc.preprocess.frame_stack",
+        "bc.preprocess.grayscale",
+    ):
+        assert key in default.space, key
+    assert default.threshold is None and default.rollout_workers == 0
+    assert default.eval_seed != default.final_seed and default.final_episodes >= 20
+    smoke = load_study(REPO / "tune_jobs" / "smoke.py")
+    assert smoke.trials <= 4 and smoke.batches <= 100 and smoke.max_steps is not None
+
+    with pytest.raises(FileNotFoundError):
+        load_study(tmp_path / "missing.py")
+    (tmp_path / "empty.py").write_text("X = 1\n")
+    with pytest.raises(ValueError, match="must define STUDY"):
+        load_study(tmp_path / "empty.py")
+    (tmp_path / "wrong.py").write_text("STUDY = {'name': 'x'}\n")
+    with pytest.raises(ValueError, match="found dict"):
+        load_study(tmp_path / "wrong.py")
+    assert "safe_bc_tune_jobs_default" in sys.modules
+
+
+def test_spec_summary_is_json_able() -> None:
+    import json
+
+    s = load_study(REPO / "tune_jobs" / "default.py")
+    d = json.loads(json.dumps(s.summary(), default=str))
+    assert d["space"]["bc.network.channels"]["options"] == ["8-16-16", "16-32-32"]
+    assert d["space"]["bc.train.lr"] == {"type": "Float", "low": 1e-4, "high": 3e-3, "log": True}
+    assert d["threshold"] is None and d["base"]["bc"]["train"]["seed"] == 0
