@@ -151,9 +151,7 @@ def summarize(
         else:
             g = None
         for m in metrics:
-            mean, lo, hi = bootstrap_ci(
-                df[m].to_numpy(float), g, confidence=confidence, rng=rng
-            )
+            mean, lo, hi = bootstrap_ci(df[m].to_numpy(float), g, confidence=confidence, rng=rng)
             row[m], row[f"{m}_lo"], row[f"{m}_hi"] = mean, lo, hi
         rows.append(row)
     return pd.DataFrame(rows)
