@@ -67,6 +67,7 @@ from safe_bc.study import (
     summary_lines,
     trial_table,
 )
+from safe_bc.tasks import action_bounds, task_defaults, task_of
 
 CONSTRAINT_NAME = "safety"
 """Key of the constraint inside Optuna (``trial.constraints["safety"]``)."""
@@ -201,6 +202,11 @@ _DEMOS: dict[str, Demonstrations] = {}
 """Per-process cache: ``reuse_actors=True`` keeps trial processes, so demos load once."""
 
 
+def _bounds(spec: StudySpec) -> tuple[tuple[float, ...], tuple[float, ...]] | None:
+    """Action bounds for vector tasks (CarRacing's are the frames' default)."""
+    return None if spec.env.is_carracing else action_bounds(spec.env)
+
+
 def cached_demos(path: str) -> Demonstrations:
     """The demonstration set at ``path``, loaded once per process."""
     if path not in _DEMOS:
@@ -307,7 +313,9 @@ def run_trial(config: dict[str, Any], job: TrialJob) -> None:
         earlier = float(extra["trained_s"])
     else:
         try:
-            result, selection = train_run(cached_demos(job.demos), run_cfg)
+            result, selection = train_run(
+                cached_demos(job.demos), run_cfg, action_bounds=_bounds(spec)
+            )
         except SelectionError as e:  # a configuration the data cannot support: no retry
             metrics.update(phase="invalid", error=str(e), duration_s=time.perf_counter() - start)
             tune.report(metrics)
@@ -574,7 +582,8 @@ def _run_study(
     demos_path = spec.demos.resolve()
     if not (demos_path / "dataset.json").exists():
         print(f"{spec.demos}: no demonstrations yet; collecting the default set")
-        ensure_demos(demos_path, progress=progress)
+        task = task_defaults(task_of(spec.env.env_id))
+        ensure_demos(demos_path, task.collect_config(), progress=progress)
     _check_env(spec, demos_path)
     demos = cached_demos(str(demos_path))
     expert_safety = float(combined(demos.safety[demos.scored]).mean())
@@ -682,7 +691,7 @@ def _reevaluate(
     base_cfg = spec.baseline_config(win_cfg)
     if progress:
         print(f"training the alpha = 0 baseline ({spec.baseline}) for the re-evaluation")
-    baseline, _ = train_run(demos, base_cfg)
+    baseline, _ = train_run(demos, base_cfg, action_bounds=_bounds(spec))
     sources = {
         "winner": NetSource.from_model(_winner_model(grid, winner.trial_id), win_cfg.bc),
         "bc_alpha0": NetSource.from_model(baseline.model, base_cfg.bc),

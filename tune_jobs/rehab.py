@@ -1,0 +1,44 @@
+"""The rehabilitation-pathway study: eps, alpha, the eq. 5 reading and the MLP, searched by
+constrained TPE for the highest functional gain with a safety mean (smallest margin to the
+heart-rate, fatigue and blood-pressure limits) at least the guideline clinician's.
+
+Budget: 24 trials, 2 at a time; 2000 training batches and 20 simulated patients per trial;
+then the winner, the alpha = 0 baseline and the guideline on 100 fresh patients each.
+Demonstrations: 150 guideline programmes (~4,500 sessions) in ``data/rehab_demos``.
+
+Run: ``make tune STUDY=rehab`` (or ``safe-bc tune tune_jobs/rehab.py``); rerun to resume.
+"""
+
+from pathlib import Path
+
+from safe_bc.bc import BCConfig, NetworkConfig
+from safe_bc.envs import EnvConfig
+from safe_bc.experiment import RunConfig
+from safe_bc.study import Choice, Float, StudySpec
+
+STUDY = StudySpec(
+    name="rehab",
+    space={
+        "selection.eps": Float(0.01, 0.2, log=True),
+        "selection.alpha": Float(0.0, 1.0),
+        "selection.rest": Choice(("all", "noncritical")),
+        "bc.network.hidden": Choice((32, 64, 128)),
+        "bc.network.mlp_layers": Choice((1, 2, 3)),
+        "bc.train.lr": Float(1e-4, 3e-3, log=True),
+        "bc.train.batch_size": Choice((32, 64, 128)),
+    },
+    base=RunConfig(bc=BCConfig(network=NetworkConfig(hidden=64))),
+    env=EnvConfig(env_id="safe_bc/RehabPathway-v0"),
+    demos=Path("data/rehab_demos"),
+    critical_eps=0.05,
+    trials=24,
+    max_concurrent=2,
+    cpus_per_trial=1.0,
+    batches=2000,
+    eval_episodes=20,
+    eval_seed=1,
+    final_episodes=100,
+    final_seed=2,
+    final_workers=0,
+    startup_trials=8,
+)
