@@ -54,8 +54,9 @@ def _cmd_collect(args: argparse.Namespace) -> int:
     from safe_bc.tasks import task_defaults
 
     defaults = task_defaults(args.env, renderer=args.renderer)
+    args.out = args.out or Path(defaults.demos)
     config = CollectConfig(
-        episodes=args.episodes,
+        episodes=args.episodes or defaults.episodes,
         workers=args.workers,
         seed=args.seed,
         env=defaults.env,
@@ -139,7 +140,11 @@ def _cmd_describe(args: argparse.Namespace) -> int:
 
 def _cmd_reproduce(args: argparse.Namespace) -> int:
     from safe_bc.reproduce import reproduce_config_from_args, run_reproduce
+    from safe_bc.tasks import task_defaults
 
+    task = task_defaults(args.env)
+    args.demos = args.demos or Path(task.demos)
+    args.out = args.out or Path(task.results)
     config = reproduce_config_from_args(
         demos=args.demos,
         out=args.out,
@@ -149,7 +154,8 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
         batches=args.batches,
         max_steps=args.max_steps,
         eval_seed=args.eval_seed,
-        eps=args.eps,
+        eps=task.eps if args.eps is None else args.eps,
+        task=args.env,
     )
     table = run_reproduce(config, progress=not args.quiet)
     cols = ["method", "reward", "safety_mean", "safety_std", "offroad_steps"]
@@ -202,10 +208,14 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("collect", help="collect expert demonstrations into Parquet")
-    p.add_argument("--episodes", type=_positive("--episodes"), default=5)
+    p.add_argument(
+        "--episodes", type=_positive("--episodes"), default=None, help="default: 5 (rehab: 150)"
+    )
     p.add_argument("--workers", type=_positive("--workers"), default=2)
     p.add_argument("--seed", type=_non_negative, default=0)
-    p.add_argument("--out", type=Path, default=DEFAULT_DEMOS)
+    p.add_argument(
+        "--out", type=Path, default=None, help="default: data/demos (rehab: data/rehab_demos)"
+    )
     p.add_argument("--max-steps", type=_positive("--max-steps"), default=None)
     p.add_argument("--encoding", choices=["png", "raw", "vector"], default=None)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -219,15 +229,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_describe)
 
     p = sub.add_parser("reproduce", help="rerun the paper's Table 1 with CIs")
-    p.add_argument("--demos", type=Path, default=DEFAULT_DEMOS)
-    p.add_argument("--out", type=Path, default=Path("results"))
+    p.add_argument("--env", choices=["carracing", "rehab"], default="carracing")
+    p.add_argument("--demos", type=Path, default=None, help="default: the task's demo set")
+    p.add_argument(
+        "--out", type=Path, default=None, help="default: results/ (rehab: results/rehab)"
+    )
     p.add_argument("--train-seeds", type=_positive("--train-seeds"), default=3)
     p.add_argument("--episodes", type=_positive("--episodes"), default=10)
     p.add_argument("--workers", type=_positive("--workers"), default=2)
     p.add_argument("--batches", type=_positive("--batches"), default=2000)
     p.add_argument("--max-steps", type=_positive("--max-steps"), default=None)
     p.add_argument("--eval-seed", type=_non_negative, default=0)
-    p.add_argument("--eps", type=_non_negative_float("--eps"), default=5.0)
+    p.add_argument(
+        "--eps", type=_non_negative_float("--eps"), default=None, help="default: 5 px / 0.05"
+    )
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=_cmd_reproduce)
 
