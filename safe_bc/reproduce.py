@@ -29,7 +29,7 @@ from safe_bc.bc import BCConfig, TrainConfig
 from safe_bc.data.store import load_demonstrations, write_table_atomic, write_text_atomic
 from safe_bc.envs import EnvConfig
 from safe_bc.evaluation import EvalConfig, ExpertSource, NetSource
-from safe_bc.experiment import RunConfig, save_selection, select_for, train_run
+from safe_bc.experiment import RunConfig, save_selection, select_for
 from safe_bc.metrics import combined, summarize
 from safe_bc.provenance import provenance
 from safe_bc.selection import SelectionConfig
@@ -111,6 +111,7 @@ def run_reproduce(config: ReproduceConfig, *, progress: bool = True) -> pd.DataF
     """Train every (alpha, reading, seed), evaluate them and the expert, write the results."""
     from safe_bc.distributed.collect import ensure_demos
     from safe_bc.distributed.evaluate import evaluate_policies
+    from safe_bc.distributed.train import train_many
 
     started = time.perf_counter()
     ensure_demos(config.demos, task_defaults(config.task).collect_config(), progress=progress)
@@ -122,14 +123,25 @@ def run_reproduce(config: ReproduceConfig, *, progress: bool = True) -> pd.DataF
     save_selection(config.out / "table1_selection", demos, base, meta)
 
     bounds = None if config.env.is_carracing else action_bounds(config.env)
+    runs = [(a, r, s) for a in config.alphas for r in config.readings for s in config.train_seeds]
+    for alpha, reading, _ in runs:  # fail fast, before any training, on an impossible mix
+        select_for(demos, SelectionConfig(eps=config.eps, alpha=alpha, rest=reading)).sampler(
+            config.bc.train.batch_size, np.random.default_rng(0)
+        )
+    run_cfgs = [
+        RunConfig(
+            SelectionConfig(eps=config.eps, alpha=alpha, rest=reading),
+            dataclasses.replace(config.bc, train=dataclasses.replace(config.bc.train, seed=seed)),
+        )
+        for alpha, reading, seed in runs
+    ]
+    trained = train_many(
+        demos, run_cfgs, workers=config.workers, action_bounds=bounds, progress=progress
+    )
     sources: dict[str, Any] = {}
     labels: dict[str, dict[str, Any]] = {}
     train_rows = []
-    runs = [(a, r, s) for a in config.alphas for r in config.readings for s in config.train_seeds]
-    for i, (alpha, reading, seed) in enumerate(runs):
-        bc = dataclasses.replace(config.bc, train=dataclasses.replace(config.bc.train, seed=seed))
-        run = RunConfig(SelectionConfig(eps=config.eps, alpha=alpha, rest=reading), bc)
-        result, selection = train_run(demos, run, progress=False, action_bounds=bounds)
+    for (alpha, reading, seed), (result, selection) in zip(runs, trained, strict=True):
         key = f"{method_name(alpha, reading)} seed={seed}"
         sources[key] = NetSource.from_model(result.model, result.config)
         labels[key] = {
@@ -146,12 +158,6 @@ def run_reproduce(config: ReproduceConfig, *, progress: bool = True) -> pd.DataF
                 "n_critical": selection.n_critical,
             }
         )
-        if progress:
-            print(
-                f"[{i + 1}/{len(runs)}] trained {key}: loss {result.final_loss:.4f}, "
-                f"{result.samples_per_s:.0f} samples/s, |T_eps|={selection.n_critical}",
-                file=sys.stderr,
-            )
     sources["expert"] = ExpertSource(_expert_config(config))
     labels["expert"] = {"method": "expert", "alpha": np.nan, "rest": "", "train_seed": 0}
 
