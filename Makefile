@@ -39,7 +39,7 @@ demos: $(STAMP)
 	$(BIN)/safe-bc describe --demos data/demos --out results/demos
 
 expert: $(STAMP)
-	$(BIN)/python -m safe_bc.experts.evaluate_expert
+	$(BIN)/safe-bc expert --episodes 20 --out results/expert
 
 reproduce: $(STAMP)
 	$(BIN)/safe-bc reproduce

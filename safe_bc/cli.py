@@ -138,6 +138,54 @@ def _cmd_describe(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_expert(args: argparse.Namespace) -> int:
+    import sys as _sys
+
+    from safe_bc.data.store import write_table_atomic, write_text_atomic
+    from safe_bc.distributed.evaluate import evaluate_policies
+    from safe_bc.evaluation import EvalConfig, ExpertSource
+    from safe_bc.metrics import summarize
+    from safe_bc.provenance import provenance
+    from safe_bc.tasks import task_defaults
+
+    task = task_defaults(args.env)
+    cfg = EvalConfig(
+        episodes=args.episodes, workers=args.workers, seed=args.eval_seed, env=task.env
+    )
+    episodes, _ = evaluate_policies(
+        {"expert": ExpertSource(task.expert)}, cfg, progress=not args.quiet
+    )
+    metrics = ["reward", "safety_mean", "safety_std", "safety_min", "offroad_steps", "steps"]
+    metrics += [c for c in episodes.columns if c.startswith("safety_") and c.endswith("_mean")]
+    metrics = list(dict.fromkeys(metrics))
+    table = summarize(episodes.assign(method="expert"), ["method"], metrics, group=None)
+    meta = {
+        "command": " ".join(_sys.argv),
+        "expert": repr(task.expert),
+        "env": args.env,
+        "episodes": args.episodes,
+        "eval_seed": args.eval_seed,
+        "env_seeds": episodes["env_seed"].tolist(),
+        **provenance(),
+    }
+    args.out.mkdir(parents=True, exist_ok=True)
+    write_table_atomic(args.out / "expert_episodes.parquet", episodes, meta)
+    write_table_atomic(args.out / "expert.parquet", table, meta)
+    r = table.iloc[0]
+    lines = ["| metric | mean | 95% CI |", "|---|---|---|"]
+    lines += [f"| {m} | {r[m]:.2f} | [{r[m + '_lo']:.2f}, {r[m + '_hi']:.2f}] |" for m in metrics]
+    lines += [
+        "",
+        f"min reward {episodes['reward'].min():.1f}, episodes with off-road steps: "
+        f"{int((episodes['offroad_steps'] > 0).sum())}/{len(episodes)}; "
+        f"code {meta['git_revision']}, command `{meta['command']}`",
+        "",
+    ]
+    write_text_atomic(args.out / "expert.md", "\n".join(lines))
+    print("\n".join(lines))
+    return 0
+
+
 def _cmd_reproduce(args: argparse.Namespace) -> int:
     from safe_bc.reproduce import reproduce_config_from_args, run_reproduce
     from safe_bc.tasks import task_defaults
@@ -227,6 +275,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, default=Path("results/demos"))
     p.add_argument("--eps", type=_non_negative_float("--eps"), default=5.0)
     p.set_defaults(func=_cmd_describe)
+
+    p = sub.add_parser("expert", help="measure the expert on held-out tracks (or patients)")
+    p.add_argument("--env", choices=["carracing", "rehab"], default="carracing")
+    p.add_argument("--episodes", type=_positive("--episodes"), default=20)
+    p.add_argument("--workers", type=_positive("--workers"), default=2)
+    p.add_argument("--eval-seed", type=_non_negative, default=3)
+    p.add_argument("--out", type=Path, default=Path("results/expert"))
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=_cmd_expert)
 
     p = sub.add_parser("reproduce", help="rerun the paper's Table 1 with CIs")
     p.add_argument("--env", choices=["carracing", "rehab"], default="carracing")

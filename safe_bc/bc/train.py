@@ -29,7 +29,7 @@ class BatchBuilder:
 
     def __init__(self, demos: Demonstrations, pre_cfg: PreprocessConfig) -> None:
         self.observations = demos.observations
-        self.actions = torch.as_tensor(np.asarray(demos.actions, np.float32))
+        self.actions = torch.tensor(np.asarray(demos.actions, np.float32))  # own copy
         self.pre_cfg = pre_cfg
         self.stack_index = (
             frame_stack_index(demos.episode_ids, demos.steps, pre_cfg.frame_stack)
