@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
+from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
@@ -75,7 +76,14 @@ def expert_config_from_dict(data: dict[str, Any]) -> Any:
     kind = data.pop("type", "ExpertConfig")
     if kind not in kinds:
         raise ValueError(f"unknown expert config type {kind!r}")
-    return kinds[kind](**data)
+    return kinds[kind](**{k: tuple(v) if isinstance(v, list) else v for k, v in data.items()})
+
+
+def stored_expert_config(demos: Path) -> Any:
+    """The expert configuration recorded in a demonstration set's ``dataset.json``."""
+    from safe_bc.data.store import read_meta
+
+    return expert_config_from_dict(read_meta(demos).expert)
 
 
 def build_expert(cfg: Any) -> Policy:

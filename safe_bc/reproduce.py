@@ -26,6 +26,7 @@ import numpy as np
 import pandas as pd
 
 from safe_bc.bc import BCConfig, TrainConfig
+from safe_bc.collection import stored_expert_config
 from safe_bc.data.store import load_demonstrations, write_table_atomic, write_text_atomic
 from safe_bc.envs import EnvConfig
 from safe_bc.evaluation import EvalConfig, ExpertSource, NetSource
@@ -158,7 +159,7 @@ def run_reproduce(config: ReproduceConfig, *, progress: bool = True) -> pd.DataF
                 "n_critical": selection.n_critical,
             }
         )
-    sources["expert"] = ExpertSource(_expert_config(config))
+    sources["expert"] = ExpertSource(stored_expert_config(config.demos))
     labels["expert"] = {"method": "expert", "alpha": np.nan, "rest": "", "train_seed": 0}
 
     eval_cfg = EvalConfig(
@@ -195,13 +196,6 @@ def run_reproduce(config: ReproduceConfig, *, progress: bool = True) -> pd.DataF
     plot_alpha_sweep(table, config.out / "fig4_alpha.png", paper=PAPER_TABLE1)
     plot_traces(traces, labels, config.out / "fig5_6_traces.png")
     return table
-
-
-def _expert_config(config: ReproduceConfig) -> Any:
-    from safe_bc.collection import expert_config_from_dict
-    from safe_bc.data.store import read_meta
-
-    return expert_config_from_dict(read_meta(config.demos).expert)
 
 
 def _trace_policies(labels: dict[str, dict[str, Any]]) -> list[str]:

@@ -34,6 +34,7 @@ from ray.tune.utils import flatten_dict
 
 from safe_bc.bc import load_checkpoint, read_checkpoint_meta
 from safe_bc.bc.policy import BCNet
+from safe_bc.collection import stored_expert_config
 from safe_bc.data.store import (
     load_demonstrations,
     read_meta,
@@ -418,19 +419,6 @@ def _delete_tree(path: str) -> None:
         fs.delete_dir(p)
 
 
-def expert_config(demos: Path) -> Any:
-    """The expert configuration stored with a demonstration set."""
-    from safe_bc.experts.carracing import ExpertConfig
-    from safe_bc.experts.rehab import GuidelineConfig
-
-    stored = dict(read_meta(demos).expert)
-    kind = stored.pop("type", "ExpertConfig")
-    classes = {c.__name__: c for c in (ExpertConfig, GuidelineConfig)}
-    if kind not in classes:
-        raise ValueError(f"{demos}: unknown expert type {kind!r}")
-    return classes[kind](**{k: tuple(v) if isinstance(v, list) else v for k, v in stored.items()})
-
-
 def _check_env(spec: StudySpec, demos: Path) -> None:
     env_id = read_meta(demos).env_id
     if env_id != spec.env.env_id:
@@ -695,7 +683,7 @@ def _reevaluate(
     sources = {
         "winner": NetSource.from_model(_winner_model(grid, winner.trial_id), win_cfg.bc),
         "bc_alpha0": NetSource.from_model(baseline.model, base_cfg.bc),
-        "expert": ExpertSource(expert_config(Path(job.demos))),
+        "expert": ExpertSource(stored_expert_config(Path(job.demos))),
     }
     config = EvalConfig(
         episodes=spec.final_episodes,
