@@ -31,7 +31,7 @@ from safe_bc.data.store import load_demonstrations, write_table_atomic, write_te
 from safe_bc.envs import EnvConfig
 from safe_bc.evaluation import EvalConfig, ExpertSource, NetSource
 from safe_bc.experiment import RunConfig, save_selection, select_for
-from safe_bc.metrics import combined, summarize
+from safe_bc.metrics import combined, paired_differences, summarize
 from safe_bc.provenance import provenance
 from safe_bc.selection import SelectionConfig
 from safe_bc.tasks import Task, action_bounds, task_defaults
@@ -176,6 +176,11 @@ def run_reproduce(config: ReproduceConfig, *, progress: bool = True) -> pd.DataF
     label_df = pd.DataFrame.from_dict(labels, orient="index").rename_axis("policy").reset_index()
     episodes = label_df.merge(episodes, on="policy")
     table = summarize(episodes, ["method", "alpha", "rest"], SUMMARY_METRICS, group="train_seed")
+    baseline = method_name(0.0, "all") if 0.0 in config.alphas else None
+    if baseline is not None:
+        agents = episodes[episodes["method"] != "expert"]  # trained once: no seed pairing
+        diffs = paired_differences(agents, baseline, ["reward", "safety_mean"])
+        table = table.merge(diffs, on="method", how="left") if len(diffs) else table
     table = _order(table, config)
     train_df = pd.DataFrame(train_rows)
     table = table.merge(
@@ -190,10 +195,12 @@ def run_reproduce(config: ReproduceConfig, *, progress: bool = True) -> pd.DataF
     write_table_atomic(config.out / "table1_episodes.parquet", episodes, meta)
     traces = steps[steps["policy"].isin(_trace_policies(labels))]
     write_table_atomic(config.out / "table1_traces.parquet", traces, meta)
-    write_text_atomic(config.out / "table1.md", render_markdown(table, meta))
+    markdown = render_markdown(table, meta, paper=config.env.is_carracing)
+    write_text_atomic(config.out / "table1.md", markdown)
     from safe_bc.plots import plot_alpha_sweep, plot_traces
 
-    plot_alpha_sweep(table, config.out / "fig4_alpha.png", paper=PAPER_TABLE1)
+    paper = PAPER_TABLE1 if config.env.is_carracing else None
+    plot_alpha_sweep(table, config.out / "fig4_alpha.png", paper=paper)
     plot_traces(traces, labels, config.out / "fig5_6_traces.png")
     return table
 
@@ -233,35 +240,52 @@ def _fmt(row: pd.Series, m: str, digits: int = 1) -> str:
     return f"{row[m]:.{digits}f} [{row[m + '_lo']:.{digits}f}, {row[m + '_hi']:.{digits}f}]"
 
 
-def render_markdown(table: pd.DataFrame, meta: dict[str, Any]) -> str:
-    """Our Table 1 (means with 95% CIs) and the paper's, as Markdown."""
+def _paired_cells(row: pd.Series, sd: int) -> str:
+    if pd.isna(row.get("d_reward")):
+        return " | |"
+    return f" {_fmt(row, 'd_reward', 0 if sd == 1 else 2)} | {_fmt(row, 'd_safety_mean', sd)} |"
+
+
+def render_markdown(table: pd.DataFrame, meta: dict[str, Any], *, paper: bool = True) -> str:
+    """Our Table 1 (means with 95% CIs) and, for CarRacing, the paper's, as Markdown.
+
+    Safety is shown with 1 decimal for pixel distances and 3 for margins below 1
+    (the rehabilitation task's normalised limits).
+    """
+    sd = 1 if table["safety_mean"].abs().max() >= 1 else 3
+    paired = "d_reward" in table
     lines = [
         "| method | reward | safety mean | safety std | safety min | off-road steps "
-        "| critical share | n |",
-        "|---|---|---|---|---|---|---|---|",
+        "| critical share | n |" + (" reward - plain BC | safety - plain BC |" if paired else ""),
+        "|---|---|---|---|---|---|---|---|" + ("---|---|" if paired else ""),
     ]
     for _, r in table.iterrows():
         lines.append(
-            f"| {r['method']} | {_fmt(r, 'reward', 0)} | {_fmt(r, 'safety_mean')} "
-            f"| {_fmt(r, 'safety_std')} | {_fmt(r, 'safety_min')} | {_fmt(r, 'offroad_steps')} "
+            f"| {r['method']} | {_fmt(r, 'reward', 0 if sd == 1 else 2)} "
+            f"| {_fmt(r, 'safety_mean', sd)} | {_fmt(r, 'safety_std', sd)} "
+            f"| {_fmt(r, 'safety_min', sd)} | {_fmt(r, 'offroad_steps')} "
             f"| {_fmt(r, 'critical_share', 2)} | {int(r['n_train_seeds'])}x"
             f"{int(r['n_episodes'] // max(r['n_train_seeds'], 1))} |"
+            + (_paired_cells(r, sd) if paired else "")
         )
+    if paper:
+        lines += [
+            "",
+            "Paper (Boecking & Philipp 2020, Table 1; 2 episodes, 1 training run):",
+            "",
+            "| alpha | reward | safety mean | safety std |",
+            "|---|---|---|---|",
+        ]
+        for _, r in PAPER_TABLE1.iterrows():
+            lines.append(
+                f"| {r['alpha']:g} | {r['reward']:.1f} | {r['safety_mean']:.2f} "
+                f"| {r['safety_std']:.2f} |"
+            )
     lines += [
         "",
-        "Paper (Boecking & Philipp 2020, Table 1; 2 episodes, 1 training run):",
-        "",
-        "| alpha | reward | safety mean | safety std |",
-        "|---|---|---|---|",
-    ]
-    for _, r in PAPER_TABLE1.iterrows():
-        lines.append(
-            f"| {r['alpha']:g} | {r['reward']:.1f} | {r['safety_mean']:.2f} "
-            f"| {r['safety_std']:.2f} |"
-        )
-    lines += [
-        "",
-        f"Values: mean [95% bootstrap CI over training seeds and held-out episodes]. "
+        f"Values: mean [95% bootstrap CI over training seeds and held-out episodes]; the "
+        f"last two columns pair each agent with plain BC (alpha=0, rest=all) of the same "
+        f"training seed on the same tracks. "
         f"Code {meta['git_revision']}, command `{meta['command']}`, "
         f"{meta.get('seconds', '?')} s.",
         "",

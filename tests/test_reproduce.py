@@ -36,6 +36,7 @@ def test_tiny_rerun_writes_table_figures_and_provenance(tiny_demos, tmp_path: Pa
     assert meta["config"]["eps"] == 3.0
     for name in ("table1.md", "fig4_alpha.png", "fig5_6_traces.png", "table1_episodes.parquet"):
         assert (tmp_path / name).stat().st_size > 0, name
+    assert "d_reward" in on_disk and on_disk["d_reward"].notna().sum() == 3
     sel, sel_meta = read_table(tmp_path / "table1_selection" / "selection.parquet")
     assert sel["critical"].sum() == sel_meta["n_critical"] > 0
     assert len(sel_meta["thresholds"]) == 3
