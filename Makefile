@@ -4,6 +4,7 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 STUDY ?= default
 TRIALS ?=
+ARGS ?=
 STAMP := $(VENV)/.installed
 
 .PHONY: install test test-slow lint format bench tune reproduce demos expert clean
@@ -45,7 +46,7 @@ reproduce: $(STAMP)
 	$(BIN)/safe-bc reproduce
 
 tune: $(STAMP)
-	$(BIN)/safe-bc tune tune_jobs/$(STUDY).py $(if $(TRIALS),--trials $(TRIALS),)
+	$(BIN)/safe-bc tune tune_jobs/$(STUDY).py $(if $(TRIALS),--trials $(TRIALS),) $(ARGS)
 
 clean:
 	rm -rf $(VENV) .pytest_cache .ruff_cache

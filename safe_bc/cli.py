@@ -100,6 +100,19 @@ def _non_negative_float(name: str) -> Callable[[str], float]:
     return parse
 
 
+def _positive_float(name: str) -> Callable[[str], float]:
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{name} must be a number, got {text!r}") from None
+        if not value > 0.0:
+            raise argparse.ArgumentTypeError(f"{name} must be > 0, got {value}")
+        return value
+
+    return parse
+
+
 def _cmd_describe(args: argparse.Namespace) -> int:
     import json
 
@@ -231,12 +244,22 @@ def _cmd_tune(args: argparse.Namespace) -> int:
 
     from safe_bc.study import load_study
 
-    overrides = {"trials": args.trials, "storage": args.storage, "threshold": args.threshold}
-    overrides = {k: v for k, v in overrides.items() if v is not None}
-    spec = dataclasses.replace(load_study(args.study), **overrides)
+    fields = {
+        "trials": "trials",
+        "storage": "storage",
+        "threshold": "threshold",
+        "concurrent": "max_concurrent",
+        "rollout_workers": "rollout_workers",
+        "cpus_per_trial": "cpus_per_trial",
+        "demos": "demos",
+    }
+    given = {flag: getattr(args, flag) for flag in fields if getattr(args, flag) is not None}
+    spec = dataclasses.replace(
+        load_study(args.study), **{fields[flag]: value for flag, value in given.items()}
+    )
     command = ["safe-bc", "tune", str(args.study)]
-    for key, value in overrides.items():
-        command += [f"--{key}", str(value)]
+    for flag, value in given.items():
+        command += [f"--{flag.replace('_', '-')}", str(value)]
     command += ["--fresh"] if args.fresh else []
 
     from safe_bc.distributed.study import format_outcome, run_study
@@ -312,6 +335,24 @@ def build_parser() -> argparse.ArgumentParser:
         type=_finite_float("--threshold"),
         default=None,
         help="safety threshold (default: the expert's safety mean on the demonstrations)",
+    )
+    p.add_argument(
+        "--concurrent", type=_positive("--concurrent"), default=None, help="trials at once"
+    )
+    p.add_argument(
+        "--rollout-workers",
+        type=_non_negative,
+        default=None,
+        help="evaluation actors per trial, reserved in its placement group",
+    )
+    p.add_argument(
+        "--cpus-per-trial",
+        type=_positive_float("--cpus-per-trial"),
+        default=None,
+        help="CPUs of a trial's own process (fractional allowed)",
+    )
+    p.add_argument(
+        "--demos", type=Path, default=None, help="demonstration set (a shared path on a cluster)"
     )
     p.add_argument("--fresh", action="store_true", help="discard a previous run of the study")
     p.set_defaults(func=_cmd_tune)
