@@ -8,6 +8,7 @@ import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
+from safe_bc.bc.checkpoint import CheckpointError
 from safe_bc.data.store import DatasetError
 
 DEFAULT_DEMOS = Path("data/demos")
@@ -148,6 +149,113 @@ def _cmd_describe(args: argparse.Namespace) -> int:
     write_text_atomic(args.out / "summary.json", json.dumps(summary, indent=2) + "\n")
     print(json.dumps({k: summary[k] for k in ("pairs", "episodes", "safety_mean")}))
     print(f"wrote {args.out / 'cost_histograms.png'} and {args.out / 'summary.json'}")
+    return 0
+
+
+def _cmd_train(args: argparse.Namespace) -> int:
+    import json
+    import sys as _sys
+
+    from safe_bc.bc import BCConfig, NetworkConfig, PreprocessConfig, TrainConfig
+    from safe_bc.data.store import load_demonstrations, read_meta
+    from safe_bc.experiment import RunConfig, save_selection, train_run
+    from safe_bc.provenance import provenance
+    from safe_bc.selection import SelectionConfig
+    from safe_bc.tasks import action_bounds, task_defaults, task_of
+
+    demos = load_demonstrations(args.demos)
+    env_id = read_meta(args.demos).env_id
+    task = task_defaults(task_of(env_id))
+    run = RunConfig(
+        SelectionConfig(
+            eps=task.eps if args.eps is None else args.eps,
+            alpha=args.alpha,
+            rest=args.rest,
+            threshold=args.threshold,
+        ),
+        BCConfig(
+            preprocess=PreprocessConfig(frame_stack=args.frame_stack),
+            network=NetworkConfig(hidden=args.hidden),
+            train=TrainConfig(
+                batches=args.batches, batch_size=args.batch_size, lr=args.lr, seed=args.seed
+            ),
+        ),
+    )
+    bounds = None if task.env.is_carracing else action_bounds(task.env)
+    result, selection = train_run(demos, run, progress=not args.quiet, action_bounds=bounds)
+    meta = {
+        "command": " ".join(_sys.argv),
+        "demos": str(args.demos),
+        "env_id": env_id,
+        "run": run.to_dict(),
+        "train": result.summary(),
+        **provenance(),
+    }
+    result.save(args.out, extra=json.loads(json.dumps(meta, default=str)))
+    save_selection(args.out, demos, selection, meta)
+    print(
+        f"{args.out}: trained {run.bc.train.batches} batches, final loss "
+        f"{result.final_loss:.4f}, {result.samples_per_s:.0f} samples/s; "
+        f"|T_eps| = {selection.n_critical} of {selection.n_valid} scored pairs"
+    )
+    return 0
+
+
+def _cmd_evaluate(args: argparse.Namespace) -> int:
+    import sys as _sys
+
+    import numpy as np
+
+    from safe_bc.bc import load_checkpoint, read_checkpoint_meta
+    from safe_bc.data.store import read_table, write_table_atomic
+    from safe_bc.distributed.evaluate import evaluate_policies
+    from safe_bc.evaluation import EvalConfig, NetSource
+    from safe_bc.metrics import summarize
+    from safe_bc.provenance import provenance
+    from safe_bc.tasks import task_defaults, task_of
+
+    model, bc_cfg = load_checkpoint(args.checkpoint)
+    extra = read_checkpoint_meta(args.checkpoint).get("extra", {})
+    _, sel_meta = read_table(args.checkpoint / "selection.parquet")
+    if "env_id" not in extra:
+        raise ValueError(
+            f"{args.checkpoint}: no env_id in the checkpoint; train with safe-bc train"
+        )
+    task = task_defaults(task_of(extra["env_id"]))
+    eps = float(sel_meta.get("config", {}).get("eps", task.eps))
+    cfg = EvalConfig(
+        episodes=args.episodes,
+        workers=args.workers,
+        seed=args.eval_seed,
+        env=task.env,
+        max_steps=args.max_steps,
+        eps=eps,
+    )
+    episodes, steps = evaluate_policies(
+        {"agent": NetSource.from_model(model, bc_cfg)},
+        cfg,
+        thresholds=np.asarray(sel_meta["thresholds"]),
+        progress=not args.quiet,
+    )
+    metrics = ["reward", "safety_mean", "safety_std", "safety_min", "offroad_steps"]
+    metrics += ["critical_share", "tiles_visited"] if task.env.is_carracing else []
+    table = summarize(episodes.assign(method="agent"), ["method"], metrics, group=None)
+    meta = {
+        "command": " ".join(_sys.argv),
+        "checkpoint": str(args.checkpoint),
+        "trained_with": extra.get("run"),
+        "eval_seed": args.eval_seed,
+        "env_seeds": episodes["env_seed"].tolist(),
+        **provenance(),
+    }
+    args.out.mkdir(parents=True, exist_ok=True)
+    write_table_atomic(args.out / "episodes.parquet", episodes, meta)
+    write_table_atomic(args.out / "steps.parquet", steps, meta)
+    write_table_atomic(args.out / "summary.parquet", table, meta)
+    r = table.iloc[0]
+    for m in metrics:
+        print(f"{m:>15}: {r[m]:9.3f}  95% CI [{r[m + '_lo']:.3f}, {r[m + '_hi']:.3f}]")
+    print(f"wrote {args.out}/episodes.parquet, steps.parquet, summary.parquet")
     return 0
 
 
@@ -299,6 +407,32 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--eps", type=_non_negative_float("--eps"), default=5.0)
     p.set_defaults(func=_cmd_describe)
 
+    p = sub.add_parser("train", help="select T_eps and train one BC agent (checkpoint)")
+    p.add_argument("--demos", type=Path, default=DEFAULT_DEMOS)
+    p.add_argument("--out", type=Path, required=True, help="checkpoint directory")
+    p.add_argument("--eps", type=_non_negative_float("--eps"), default=None)
+    p.add_argument("--alpha", type=_unit_interval("--alpha"), default=0.5)
+    p.add_argument("--rest", choices=["all", "noncritical"], default="all")
+    p.add_argument("--threshold", choices=["max", "quantile"], default="max")
+    p.add_argument("--batches", type=_positive("--batches"), default=2000)
+    p.add_argument("--batch-size", type=_positive("--batch-size"), default=64)
+    p.add_argument("--lr", type=_positive_float("--lr"), default=3e-4)
+    p.add_argument("--hidden", type=_positive("--hidden"), default=128)
+    p.add_argument("--frame-stack", type=_positive("--frame-stack"), default=1)
+    p.add_argument("--seed", type=_non_negative, default=0)
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=_cmd_train)
+
+    p = sub.add_parser("evaluate", help="evaluate a checkpoint on held-out tracks (or patients)")
+    p.add_argument("--checkpoint", type=Path, required=True)
+    p.add_argument("--episodes", type=_positive("--episodes"), default=10)
+    p.add_argument("--workers", type=_positive("--workers"), default=2)
+    p.add_argument("--eval-seed", type=_non_negative, default=0)
+    p.add_argument("--max-steps", type=_positive("--max-steps"), default=None)
+    p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=_cmd_evaluate)
+
     p = sub.add_parser("expert", help="measure the expert on held-out tracks (or patients)")
     p.add_argument("--env", choices=["carracing", "rehab"], default="carracing")
     p.add_argument("--episodes", type=_positive("--episodes"), default=20)
@@ -365,7 +499,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         return args.func(args)
-    except (DatasetError, ValueError, FileNotFoundError) as e:
+    except (DatasetError, ValueError, FileNotFoundError, CheckpointError) as e:
         print(f"safe-bc {args.command}: error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

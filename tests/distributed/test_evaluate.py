@@ -61,3 +61,33 @@ def test_actors_match_in_process_and_seeds_are_held_out(tiny_demos) -> None:
         remote[remote.policy == "expert"].reward.mean()
         > remote[remote.policy == "bc"].reward.mean()
     )
+
+
+def test_train_then_evaluate_commands(tiny_demos, tmp_path, capsys) -> None:
+    from safe_bc.cli import main
+
+    ckpt = tmp_path / "agent"
+    args = ["train", "--demos", str(tiny_demos), "--out", str(ckpt), "--eps", "3"]
+    args += ["--alpha", "0.5", "--batches", "5", "--batch-size", "8", "--hidden", "16", "--quiet"]
+    assert main(args) == 0
+    assert (ckpt / "weights.pt").exists() and (ckpt / "selection.parquet").exists()
+    out = tmp_path / "eval"
+    args = ["evaluate", "--checkpoint", str(ckpt), "--episodes", "2", "--workers", "2"]
+    args += ["--max-steps", "60", "--out", str(out), "--quiet"]
+    assert main(args) == 0
+    episodes = pd.read_parquet(out / "episodes.parquet")
+    assert len(episodes) == 2 and (episodes["steps"] == 60).all()
+    assert "safety_mean" in capsys.readouterr().out
+
+
+def test_bad_alpha_and_missing_dataset_are_one_line_errors(tmp_path, capsys) -> None:
+    import pytest
+
+    from safe_bc.cli import main
+
+    with pytest.raises(SystemExit):
+        main(["train", "--alpha", "1.5", "--out", str(tmp_path / "x")])
+    assert "--alpha must be in [0, 1], got 1.5" in capsys.readouterr().err
+    assert main(["train", "--demos", str(tmp_path / "none"), "--out", str(tmp_path / "x")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "no dataset here" in err
