@@ -326,7 +326,12 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
         eps=task.eps if args.eps is None else args.eps,
         task=args.env,
     )
-    table = run_reproduce(config, progress=not args.quiet)
+    if args.render_only:
+        from safe_bc.reproduce import rerender
+
+        table = rerender(config)
+    else:
+        table = run_reproduce(config, progress=not args.quiet)
     cols = ["method", "reward", "safety_mean", "safety_std", "offroad_steps"]
     print(table[cols].to_string(index=False, float_format=lambda x: f"{x:.2f}"))
     print(f"wrote {args.out / 'table1.parquet'} and {args.out / 'table1.md'}")
@@ -458,6 +463,11 @@ def build_parser() -> argparse.ArgumentParser:
         "--eps", type=_non_negative_float("--eps"), default=None, help="default: 5 px / 0.05"
     )
     p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.add_argument(
+        "--render-only",
+        action="store_true",
+        help="rebuild the table and figures from the stored per-episode results",
+    )
     p.set_defaults(func=_cmd_reproduce)
 
     p = sub.add_parser("tune", help="run (or resume) a constrained hyper-parameter study")

@@ -41,3 +41,12 @@ def test_tiny_rerun_writes_table_figures_and_provenance(tiny_demos, tmp_path: Pa
     assert sel["critical"].sum() == sel_meta["n_critical"] > 0
     assert len(sel_meta["thresholds"]) == 3
     assert "| expert |" in (tmp_path / "table1.md").read_text()
+
+    # re-rendering from the stored episodes gives the same table and records itself
+    from safe_bc.reproduce import rerender
+
+    again = rerender(cfg)
+    back, meta2 = read_table(tmp_path / "table1.parquet")
+    assert back["reward"].tolist() == on_disk["reward"].tolist()
+    assert again["method"].tolist() == table["method"].tolist()
+    assert meta2["git_revision"] == meta["git_revision"] and "rendered" in meta2
