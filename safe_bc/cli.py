@@ -365,6 +365,7 @@ def _cmd_tune(args: argparse.Namespace) -> int:
         "rollout_workers": "rollout_workers",
         "cpus_per_trial": "cpus_per_trial",
         "demos": "demos",
+        "results": "results",
     }
     given = {flag: getattr(args, flag) for flag in fields if getattr(args, flag) is not None}
     spec = dataclasses.replace(
@@ -498,6 +499,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--demos", type=Path, default=None, help="demonstration set (a shared path on a cluster)"
     )
+    p.add_argument("--results", type=Path, default=None, help="outputs go to RESULTS/<study>/")
     p.add_argument("--fresh", action="store_true", help="discard a previous run of the study")
     p.set_defaults(func=_cmd_tune)
     return parser
