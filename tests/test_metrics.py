@@ -12,11 +12,11 @@ from safe_bc.metrics import bootstrap_ci, critical_zone, summarize
 def test_ci_covers_the_true_mean_most_of_the_time() -> None:
     rng = np.random.default_rng(0)
     hits = 0
-    for _ in range(200):
+    for _ in range(100):
         x = rng.normal(3.0, 1.0, 30)
-        _, lo, hi = bootstrap_ci(x, rng=rng, n_boot=400)
+        _, lo, hi = bootstrap_ci(x, rng=rng, n_boot=200)
         hits += lo <= 3.0 <= hi
-    assert 0.88 <= hits / 200 <= 0.99
+    assert 0.85 <= hits / 100 <= 0.995
 
 
 def test_two_level_ci_is_wider_when_seeds_disagree() -> None:

@@ -10,7 +10,9 @@ from gymnasium.utils.env_checker import check_env
 from safe_bc.envs import CarRacingSafety, DomainRandomizationError, EnvConfig, make_env
 
 
+@pytest.mark.filterwarnings("ignore:.*is different from the unwrapped version")
 def test_passes_env_checker() -> None:
+    """The wrapper itself (not only the base env) passes gymnasium's checker."""
     env = CarRacingSafety(gym.make("CarRacing-v3").unwrapped)
     check_env(env, skip_render_check=True)
     env.close()
