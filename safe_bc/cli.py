@@ -7,6 +7,7 @@ import math
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any
 
 from safe_bc.bc.checkpoint import CheckpointError
 from safe_bc.data.store import DatasetError
@@ -14,24 +15,44 @@ from safe_bc.data.store import DatasetError
 DEFAULT_DEMOS = Path("data/demos")
 
 
-def _positive(name: str) -> Callable[[str], int]:
-    def parse(text: str) -> int:
+def _number(name: str, cast: type, ok: Callable[[Any], bool], rule: str) -> Callable[[str], Any]:
+    """An argparse type: ``cast`` the text, then check it, with a message naming the flag."""
+    kind = "an integer" if cast is int else "a number"
+
+    def parse(text: str) -> Any:
         try:
-            value = int(text)
+            value = cast(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"{name} must be an integer, got {text!r}") from None
-        if value < 1:
-            raise argparse.ArgumentTypeError(f"{name} must be >= 1, got {value}")
+            raise argparse.ArgumentTypeError(f"{name} must be {kind}, got {text!r}") from None
+        if not ok(value):
+            raise argparse.ArgumentTypeError(f"{name} must be {rule}, got {value}")
         return value
 
     return parse
 
 
-def _non_negative(text: str) -> int:
-    value = int(text)
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {value}")
-    return value
+def _positive(name: str) -> Callable[[str], int]:
+    return _number(name, int, lambda v: v >= 1, ">= 1")
+
+
+def _non_negative_int(name: str) -> Callable[[str], int]:
+    return _number(name, int, lambda v: v >= 0, ">= 0")
+
+
+def _positive_float(name: str) -> Callable[[str], float]:
+    return _number(name, float, lambda v: v > 0, "> 0")
+
+
+def _non_negative_float(name: str) -> Callable[[str], float]:
+    return _number(name, float, lambda v: v >= 0, ">= 0")
+
+
+def _unit_interval(name: str) -> Callable[[str], float]:
+    return _number(name, float, lambda v: 0 <= v <= 1, "in [0, 1]")
+
+
+def _finite_float(name: str) -> Callable[[str], float]:
+    return _number(name, float, math.isfinite, "finite")
 
 
 def _env_args(p: argparse.ArgumentParser) -> None:
@@ -73,45 +94,6 @@ def _cmd_collect(args: argparse.Namespace) -> int:
         f"{report.worker_restarts} worker restart(s)"
     )
     return 0
-
-
-def _unit_interval(name: str) -> Callable[[str], float]:
-    def parse(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{name} must be a number, got {text!r}") from None
-        if not 0.0 <= value <= 1.0:
-            raise argparse.ArgumentTypeError(f"{name} must be in [0, 1], got {value}")
-        return value
-
-    return parse
-
-
-def _non_negative_float(name: str) -> Callable[[str], float]:
-    def parse(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{name} must be a number, got {text!r}") from None
-        if not value >= 0.0:
-            raise argparse.ArgumentTypeError(f"{name} must be >= 0, got {value}")
-        return value
-
-    return parse
-
-
-def _positive_float(name: str) -> Callable[[str], float]:
-    def parse(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{name} must be a number, got {text!r}") from None
-        if not value > 0.0:
-            raise argparse.ArgumentTypeError(f"{name} must be > 0, got {value}")
-        return value
-
-    return parse
 
 
 def _cmd_describe(args: argparse.Namespace) -> int:
@@ -338,19 +320,6 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     return 0
 
 
-def _finite_float(name: str) -> Callable[[str], float]:
-    def parse(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{name} must be a number, got {text!r}") from None
-        if not math.isfinite(value):
-            raise argparse.ArgumentTypeError(f"{name} must be finite, got {value}")
-        return value
-
-    return parse
-
-
 def _cmd_tune(args: argparse.Namespace) -> int:
     import dataclasses
     import shlex
@@ -397,7 +366,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--episodes", type=_positive("--episodes"), default=None, help="default: 5 (rehab: 150)"
     )
     p.add_argument("--workers", type=_positive("--workers"), default=2)
-    p.add_argument("--seed", type=_non_negative, default=0)
+    p.add_argument("--seed", type=_non_negative_int("--seed"), default=0)
     p.add_argument(
         "--out", type=Path, default=None, help="default: data/demos (rehab: data/rehab_demos)"
     )
@@ -425,7 +394,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--lr", type=_positive_float("--lr"), default=3e-4)
     p.add_argument("--hidden", type=_positive("--hidden"), default=128)
     p.add_argument("--frame-stack", type=_positive("--frame-stack"), default=1)
-    p.add_argument("--seed", type=_non_negative, default=0)
+    p.add_argument("--seed", type=_non_negative_int("--seed"), default=0)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_train)
 
@@ -433,7 +402,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--checkpoint", type=Path, required=True)
     p.add_argument("--episodes", type=_positive("--episodes"), default=10)
     p.add_argument("--workers", type=_positive("--workers"), default=2)
-    p.add_argument("--eval-seed", type=_non_negative, default=0)
+    p.add_argument("--eval-seed", type=_non_negative_int("--eval-seed"), default=0)
     p.add_argument("--max-steps", type=_positive("--max-steps"), default=None)
     p.add_argument("--out", type=Path, required=True)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -443,7 +412,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--env", choices=["carracing", "rehab"], default="carracing")
     p.add_argument("--episodes", type=_positive("--episodes"), default=20)
     p.add_argument("--workers", type=_positive("--workers"), default=2)
-    p.add_argument("--eval-seed", type=_non_negative, default=3)
+    p.add_argument("--eval-seed", type=_non_negative_int("--eval-seed"), default=3)
     p.add_argument("--out", type=Path, default=Path("results/expert"))
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_expert)
@@ -459,7 +428,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--workers", type=_positive("--workers"), default=2)
     p.add_argument("--batches", type=_positive("--batches"), default=2000)
     p.add_argument("--max-steps", type=_positive("--max-steps"), default=None)
-    p.add_argument("--eval-seed", type=_non_negative, default=0)
+    p.add_argument("--eval-seed", type=_non_negative_int("--eval-seed"), default=0)
     p.add_argument(
         "--eps", type=_non_negative_float("--eps"), default=None, help="default: 5 px / 0.05"
     )
@@ -486,7 +455,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--rollout-workers",
-        type=_non_negative,
+        type=_non_negative_int("--rollout-workers"),
         default=None,
         help="evaluation actors per trial, reserved in its placement group",
     )

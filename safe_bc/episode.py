@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 SAFETY_DIMS: tuple[str, ...] = ("left", "front", "right")
-"""Names of the safety dimensions, in column order of ``safety`` and ``cost``."""
+"""CarRacing's safety dimensions, in column order of ``safety`` and ``cost`` (the default)."""
 
 
 @dataclass(frozen=True)

@@ -27,8 +27,9 @@ from __future__ import annotations
 
 import numpy as np
 
-SAFETY_DIMS: tuple[str, str, str] = ("left", "front", "right")
-"""Order of the three safety dimensions in every array of this module."""
+from safe_bc.episode import SAFETY_DIMS
+
+__all__ = ["MAX_RANGE", "SAFETY_DIMS", "costs_from_distances", "greenness", "pixel_distances"]
 
 CAR_ROWS = slice(66, 78)
 """Rows of the car (wheels included) used for the side rays."""
@@ -108,15 +109,3 @@ def costs_from_distances(distances: np.ndarray) -> np.ndarray:
     [0.0, 66.0, 5.0]
     """
     return (MAX_RANGE - np.clip(distances, 0.0, MAX_RANGE)).astype(np.float32)
-
-
-def combined_safety(distances: np.ndarray) -> np.ndarray:
-    """One safety number per state: the distance to the nearest grass of the three rays.
-
-    Args:
-        distances: ``(..., 3)``.
-
-    Returns:
-        ``(...)`` float32, the minimum over the last axis.
-    """
-    return np.min(distances, axis=-1).astype(np.float32)

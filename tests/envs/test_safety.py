@@ -8,12 +8,12 @@ import pytest
 from safe_bc.envs import EnvConfig, make_env
 from safe_bc.envs.safety import (
     MAX_RANGE,
-    combined_safety,
     costs_from_distances,
     pixel_distances,
 )
 from safe_bc.experts.carracing import CarRacingExpert, ExpertConfig
 from safe_bc.experts.geometry import lateral_offset
+from safe_bc.metrics import combined
 
 
 def _road_frame(left_edge: int, right_edge: int) -> np.ndarray:
@@ -89,7 +89,7 @@ def test_offroad_frames_have_distance_near_zero() -> None:
         steer = 0.0 if t < 60 else 0.6
         _obs, _, term, trunc, info = env.step(np.array([steer, 0.5, 0.0], np.float32))
         if info["offroad"] and not info["warmup"]:
-            seen.append(combined_safety(info["safety"]))
+            seen.append(combined(info["safety"]))
         if term or trunc or len(seen) > 40:
             break
     env.close()
