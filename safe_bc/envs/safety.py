@@ -89,7 +89,7 @@ def pixel_distances(frame: np.ndarray) -> np.ndarray:
     """
     if frame.shape != (96, 96, 3):
         raise ValueError(f"expected a (96, 96, 3) CarRacing frame, got shape {frame.shape}")
-    g = greenness(frame)
+    g = greenness(frame[: CAR_ROWS.stop])  # rows below the car hold no ray
     left = _ray_distance(g[CAR_ROWS, LEFT_START::-1]).mean()
     right = _ray_distance(g[CAR_ROWS, RIGHT_START:]).mean()
     front = _ray_distance(g[FRONT_START::-1, CAR_COLS].T).mean()
