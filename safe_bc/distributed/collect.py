@@ -9,6 +9,7 @@ duplicated episode.
 
 from __future__ import annotations
 
+import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -166,8 +167,15 @@ def ensure_demos(
     """
     out = Path(out)
     config = config or CollectConfig()
-    exists = (out / META_FILE).exists()
-    if exists and read_meta(out).identity() != dataset_meta(config).identity():
-        return None
+    if (out / META_FILE).exists():
+        stored, wanted = read_meta(out).identity(), dataset_meta(config).identity()
+        if stored != wanted:
+            diff = ", ".join(k for k in wanted if stored.get(k) != wanted.get(k))
+            print(
+                f"{out}: using the dataset there as it is; it differs from the default "
+                f"collection in: {diff}",
+                file=sys.stderr,
+            )
+            return None
     out.parent.mkdir(parents=True, exist_ok=True)
     return collect(config, out, progress=progress)
