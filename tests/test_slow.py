@@ -47,5 +47,5 @@ def test_smoke_study_through_the_cli(ray_session, tiny_demos, tmp_path: Path) ->
     assert code == 0
     out = tmp_path / "results" / "smoke"
     trials, meta = read_table(out / "trials.parquet")
-    assert len(trials) == 3 and meta["git_revision"]
+    assert len(trials) == 3 and meta["provenance"]["git_revision"]
     assert (out / "pareto.png").exists() and (out / "best.json").exists()
