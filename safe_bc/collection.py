@@ -7,7 +7,6 @@ from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
-import numpy as np
 
 from safe_bc.data.codec import Encoding
 from safe_bc.envs import EnvConfig, make_env
@@ -130,10 +129,11 @@ class EpisodeMaker:
         self.env.close()
 
 
-def observation_shape(config: CollectConfig) -> tuple[int, ...]:
-    """Shape of one observation of the collection's env."""
+def env_facts(config: CollectConfig) -> tuple[tuple[int, ...], tuple[str, ...]]:
+    """``(observation shape, safety dimension names)`` of the collection's env (built once)."""
     env = make_env(config.env)
     try:
-        return tuple(int(x) for x in np.shape(env.observation_space.sample()))
+        shape = tuple(int(x) for x in env.observation_space.shape)
+        return shape, tuple(env.get_wrapper_attr("safety_dims"))
     finally:
         env.close()

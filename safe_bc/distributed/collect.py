@@ -17,7 +17,7 @@ from pathlib import Path
 import ray
 from tqdm.auto import tqdm
 
-from safe_bc.collection import CollectConfig, EpisodeMaker, config_dict, observation_shape
+from safe_bc.collection import CollectConfig, EpisodeMaker, config_dict, env_facts
 from safe_bc.data.store import (
     META_FILE,
     DatasetMeta,
@@ -63,30 +63,18 @@ class CollectReport:
 
 def dataset_meta(config: CollectConfig) -> DatasetMeta:
     """The metadata a collection with ``config`` writes."""
-    from safe_bc.envs import SAFETY_DIMS
-
-    dims = SAFETY_DIMS if config.env.is_carracing else _vector_dims(config)
+    obs_shape, dims = env_facts(config)
     return DatasetMeta(
         env_id=config.env.env_id,
         obs_encoding=config.encoding,
-        obs_shape=observation_shape(config),
-        safety_dims=tuple(dims),
+        obs_shape=obs_shape,
+        safety_dims=dims,
         seed=config.seed,
         max_steps=config.max_steps,
         expert=config_dict(config.expert),
         perturbation=config_dict(config.perturbation),
         provenance=provenance(),
     )
-
-
-def _vector_dims(config: CollectConfig) -> tuple[str, ...]:
-    from safe_bc.envs import make_env
-
-    env = make_env(config.env)
-    try:
-        return tuple(env.get_wrapper_attr("safety_dims"))
-    finally:
-        env.close()
 
 
 def collect(
