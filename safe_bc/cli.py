@@ -71,21 +71,17 @@ def _env_args(p: argparse.ArgumentParser) -> None:
 
 
 def _cmd_collect(args: argparse.Namespace) -> int:
-    from safe_bc.collection import CollectConfig
     from safe_bc.distributed.collect import collect
     from safe_bc.tasks import task_defaults
 
     defaults = task_defaults(args.env, renderer=args.renderer)
     args.out = args.out or Path(defaults.demos)
-    config = CollectConfig(
-        episodes=args.episodes or defaults.episodes,
+    given = {"episodes": args.episodes, "encoding": args.encoding}
+    config = defaults.collect_config(
         workers=args.workers,
         seed=args.seed,
-        env=defaults.env,
-        expert=defaults.expert,
-        perturbation=defaults.perturbation,
         max_steps=args.max_steps,
-        encoding=args.encoding or defaults.encoding,
+        **{k: v for k, v in given.items() if v is not None},
     )
     report = collect(config, args.out, progress=not args.quiet)
     print(
@@ -136,12 +132,11 @@ def _cmd_describe(args: argparse.Namespace) -> int:
 
 def _cmd_train(args: argparse.Namespace) -> int:
     import json
-    import sys as _sys
 
     from safe_bc.bc import BCConfig, NetworkConfig, PreprocessConfig, TrainConfig
     from safe_bc.data.store import load_demonstrations, read_meta
     from safe_bc.experiment import RunConfig, save_selection, train_run
-    from safe_bc.provenance import provenance
+    from safe_bc.provenance import run_metadata
     from safe_bc.selection import SelectionConfig
     from safe_bc.tasks import action_bounds, task_defaults, task_of
 
@@ -165,14 +160,9 @@ def _cmd_train(args: argparse.Namespace) -> int:
     )
     bounds = None if task.env.is_carracing else action_bounds(task.env)
     result, selection = train_run(demos, run, progress=not args.quiet, action_bounds=bounds)
-    meta = {
-        "command": " ".join(_sys.argv),
-        "demos": str(args.demos),
-        "env_id": env_id,
-        "run": run.to_dict(),
-        "train": result.summary(),
-        **provenance(),
-    }
+    meta = run_metadata(
+        demos=str(args.demos), env_id=env_id, run=run.to_dict(), train=result.summary()
+    )
     result.save(args.out, extra=json.loads(json.dumps(meta, default=str)))
     save_selection(args.out, demos, selection, meta)
     print(
@@ -184,8 +174,6 @@ def _cmd_train(args: argparse.Namespace) -> int:
 
 
 def _cmd_evaluate(args: argparse.Namespace) -> int:
-    import sys as _sys
-
     import numpy as np
 
     from safe_bc.bc import load_checkpoint, read_checkpoint_meta
@@ -193,7 +181,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     from safe_bc.distributed.evaluate import evaluate_policies
     from safe_bc.evaluation import EvalConfig, NetSource
     from safe_bc.metrics import summarize
-    from safe_bc.provenance import provenance
+    from safe_bc.provenance import run_metadata
     from safe_bc.tasks import task_defaults, task_of
 
     model, bc_cfg = load_checkpoint(args.checkpoint)
@@ -222,14 +210,12 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     metrics = ["reward", "safety_mean", "safety_std", "safety_min", "offroad_steps"]
     metrics += ["critical_share", "tiles_visited"] if task.env.is_carracing else []
     table = summarize(episodes.assign(method="agent"), ["method"], metrics, group=None)
-    meta = {
-        "command": " ".join(_sys.argv),
-        "checkpoint": str(args.checkpoint),
-        "trained_with": extra.get("run"),
-        "eval_seed": args.eval_seed,
-        "env_seeds": episodes["env_seed"].tolist(),
-        **provenance(),
-    }
+    meta = run_metadata(
+        checkpoint=str(args.checkpoint),
+        trained_with=extra.get("run"),
+        eval_seed=args.eval_seed,
+        env_seeds=episodes["env_seed"].tolist(),
+    )
     args.out.mkdir(parents=True, exist_ok=True)
     write_table_atomic(args.out / "episodes.parquet", episodes, meta)
     write_table_atomic(args.out / "steps.parquet", steps, meta)
@@ -242,13 +228,11 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
 
 
 def _cmd_expert(args: argparse.Namespace) -> int:
-    import sys as _sys
-
     from safe_bc.data.store import write_table_atomic, write_text_atomic
     from safe_bc.distributed.evaluate import evaluate_policies
     from safe_bc.evaluation import EvalConfig, ExpertSource
     from safe_bc.metrics import summarize
-    from safe_bc.provenance import provenance
+    from safe_bc.provenance import run_metadata
     from safe_bc.tasks import task_defaults
 
     task = task_defaults(args.env)
@@ -262,15 +246,13 @@ def _cmd_expert(args: argparse.Namespace) -> int:
     metrics += [c for c in episodes.columns if c.startswith("safety_") and c.endswith("_mean")]
     metrics = list(dict.fromkeys(metrics))
     table = summarize(episodes.assign(method="expert"), ["method"], metrics, group=None)
-    meta = {
-        "command": " ".join(_sys.argv),
-        "expert": repr(task.expert),
-        "env": args.env,
-        "episodes": args.episodes,
-        "eval_seed": args.eval_seed,
-        "env_seeds": episodes["env_seed"].tolist(),
-        **provenance(),
-    }
+    meta = run_metadata(
+        expert=repr(task.expert),
+        env=args.env,
+        episodes=args.episodes,
+        eval_seed=args.eval_seed,
+        env_seeds=episodes["env_seed"].tolist(),
+    )
     args.out.mkdir(parents=True, exist_ok=True)
     write_table_atomic(args.out / "expert_episodes.parquet", episodes, meta)
     write_table_atomic(args.out / "expert.parquet", table, meta)
@@ -290,19 +272,20 @@ def _cmd_expert(args: argparse.Namespace) -> int:
 
 
 def _cmd_reproduce(args: argparse.Namespace) -> int:
-    from safe_bc.reproduce import reproduce_config_from_args, run_reproduce
+    from safe_bc.bc import BCConfig, TrainConfig
+    from safe_bc.reproduce import ReproduceConfig, run_reproduce
     from safe_bc.tasks import task_defaults
 
     task = task_defaults(args.env)
     args.demos = args.demos or Path(task.demos)
     args.out = args.out or Path(task.results)
-    config = reproduce_config_from_args(
+    config = ReproduceConfig(
         demos=args.demos,
         out=args.out,
-        train_seeds=range(args.train_seeds),
+        train_seeds=tuple(range(args.train_seeds)),
         episodes=args.episodes,
         workers=args.workers,
-        batches=args.batches,
+        bc=BCConfig(train=TrainConfig(batches=args.batches)),
         max_steps=args.max_steps,
         eval_seed=args.eval_seed,
         eps=task.eps if args.eps is None else args.eps,

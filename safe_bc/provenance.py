@@ -5,7 +5,9 @@ from __future__ import annotations
 import datetime as _dt
 import platform
 import subprocess
+import sys
 from pathlib import Path
+from typing import Any
 
 import safe_bc
 
@@ -42,3 +44,9 @@ def provenance() -> dict[str, str]:
         "python": platform.python_version(),
         "machine": f"{platform.machine()} {platform.node()}",
     }
+
+
+def run_metadata(**fields: Any) -> dict[str, Any]:
+    """What a result table records: the command line, ``fields`` (seeds, configs) and
+    :func:`provenance`."""
+    return {"command": " ".join(sys.argv), **fields, **provenance()}

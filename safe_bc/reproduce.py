@@ -15,9 +15,7 @@ Writes under ``out`` (default ``results/``):
 from __future__ import annotations
 
 import dataclasses
-import sys
 import time
-from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -25,14 +23,14 @@ from typing import Any, Literal
 import numpy as np
 import pandas as pd
 
-from safe_bc.bc import BCConfig, TrainConfig
+from safe_bc.bc import BCConfig
 from safe_bc.collection import stored_expert_config
 from safe_bc.data.store import load_demonstrations, write_table_atomic, write_text_atomic
 from safe_bc.envs import EnvConfig
 from safe_bc.evaluation import EvalConfig, ExpertSource, NetSource
 from safe_bc.experiment import RunConfig, save_selection, select_for
 from safe_bc.metrics import combined, paired_differences, summarize
-from safe_bc.provenance import provenance
+from safe_bc.provenance import run_metadata
 from safe_bc.selection import SelectionConfig
 from safe_bc.tasks import Task, action_bounds, task_defaults
 
@@ -233,7 +231,7 @@ def rerender(config: ReproduceConfig) -> pd.DataFrame:
     else:  # runs before the training table existed kept these columns in table1.parquet
         old, _ = read_table(config.out / "table1.parquet")
         train_df = old[["method", "final_loss", "samples_per_s"]].dropna()
-    meta = {**meta, "rendered": {"command": " ".join(sys.argv), **provenance()}}
+    meta = {**meta, "rendered": run_metadata()}
     stored = meta.get("config", {})
     config = dataclasses.replace(
         config,
@@ -266,13 +264,9 @@ def _metadata(config: ReproduceConfig) -> dict[str, Any]:
     cfg = dataclasses.asdict(config)
     cfg["demos"], cfg["out"] = str(config.demos), str(config.out)
     cfg["env"] = dataclasses.asdict(config.env)
-    return {
-        "command": " ".join(sys.argv),
-        "config": cfg,
-        "train_seeds": list(config.train_seeds),
-        "eval_seed": config.eval_seed,
-        **provenance(),
-    }
+    return run_metadata(
+        config=cfg, train_seeds=list(config.train_seeds), eval_seed=config.eval_seed
+    )
 
 
 def _fmt(row: pd.Series, m: str, digits: int = 1) -> str:
@@ -336,31 +330,3 @@ def render_markdown(table: pd.DataFrame, meta: dict[str, Any], *, paper: bool = 
         "",
     ]
     return "\n".join(lines)
-
-
-def reproduce_config_from_args(
-    *,
-    demos: Path,
-    out: Path,
-    train_seeds: Sequence[int],
-    episodes: int,
-    workers: int,
-    batches: int,
-    max_steps: int | None,
-    eval_seed: int,
-    eps: float = 5.0,
-    task: Task = "carracing",
-) -> ReproduceConfig:
-    """A :class:`ReproduceConfig` from command-line values."""
-    return ReproduceConfig(
-        demos=demos,
-        out=out,
-        train_seeds=tuple(train_seeds),
-        episodes=episodes,
-        workers=workers,
-        bc=BCConfig(train=TrainConfig(batches=batches)),
-        max_steps=max_steps,
-        eval_seed=eval_seed,
-        eps=eps,
-        task=task,
-    )

@@ -34,19 +34,19 @@ class TaskDefaults:
     results: str
     """Where the task's result tables and figures go."""
 
-    def collect_config(self, workers: int = 2, seed: int = 0) -> Any:
-        """The default demonstration collection of the task."""
+    def collect_config(self, **overrides: Any) -> Any:
+        """The task's default demonstration collection; ``overrides`` set other fields
+        (``episodes``, ``workers``, ``seed``, ``max_steps``, ``encoding``)."""
         from safe_bc.collection import CollectConfig
 
-        return CollectConfig(
-            episodes=self.episodes,
-            workers=workers,
-            seed=seed,
-            env=self.env,
-            expert=self.expert,
-            perturbation=self.perturbation,
-            encoding=self.encoding,
-        )
+        fields = {
+            "episodes": self.episodes,
+            "env": self.env,
+            "expert": self.expert,
+            "perturbation": self.perturbation,
+            "encoding": self.encoding,
+        }
+        return CollectConfig(**{**fields, **overrides})
 
 
 def task_defaults(task: Task, renderer: Literal["fast", "stock"] = "fast") -> TaskDefaults:
