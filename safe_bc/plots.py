@@ -15,7 +15,7 @@ import pandas as pd
 from safe_bc.demos import Demonstrations
 
 
-def _save(fig: Any, path: Path) -> Path:
+def save_figure(fig: Any, path: Path) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.tmp.png")
@@ -47,7 +47,7 @@ def plot_cost_histograms(
     axes[0][0].set_ylabel("steps")
     if title:
         fig.suptitle(title, fontsize=9)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_alpha_sweep(table: pd.DataFrame, path: Path, *, paper: pd.DataFrame | None = None) -> Path:
@@ -70,7 +70,7 @@ def plot_alpha_sweep(table: pd.DataFrame, path: Path, *, paper: pd.DataFrame | N
         ax.set_ylabel(name)
         ax.legend(fontsize=8)
     fig.suptitle("mean and 95% CI over training seeds x held-out episodes", fontsize=9)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_traces(
@@ -93,4 +93,4 @@ def plot_traces(
         ax.set_ylabel("distance")
         ax.legend(fontsize=7, ncol=4, loc="upper right")
     axes[-1, 0].set_xlabel("step")
-    return _save(fig, path)
+    return save_figure(fig, path)

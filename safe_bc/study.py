@@ -482,7 +482,7 @@ def plot_pareto(
 ) -> Path:
     """Reward against safety mean per trial: feasible filled, infeasible hollow, Pareto front
     joined, the threshold as a vertical line and the winner starred."""
-    from safe_bc.plots import _save, plt
+    from safe_bc.plots import plt, save_figure
 
     r = trials["reward_mean"].to_numpy(float)
     s = trials["safety_mean"].to_numpy(float)
@@ -512,4 +512,4 @@ def plot_pareto(
     ax.set_title(title or "study trials")
     ax.legend(fontsize=8, loc="best")
     ax.grid(alpha=0.3)
-    return _save(fig, path)
+    return save_figure(fig, path)
