@@ -96,11 +96,10 @@ def evaluate_episode(
     dimension, ``safety`` (combined), ``critical`` and ``offroad``, ``warmup``.
     """
     rng = np.random.default_rng(seed)
-    with torch.inference_mode():
-        ep = run_episode(env, policy, seed, rng, keep_observations=False, max_steps=max_steps)
-    tiles = getattr(env.unwrapped, "tile_visited_count", None)
-    n_tiles = len(getattr(env.unwrapped, "track", []) or [])
-    visited = tiles / n_tiles if tiles is not None and n_tiles else float("nan")
+    ep = run_episode(env, policy, seed, rng, keep_observations=False, max_steps=max_steps)
+    base = env.unwrapped  # CarRacing counts visited tiles; other tasks have none
+    has_track = hasattr(base, "tile_visited_count") and len(getattr(base, "track", ())) > 0
+    visited = base.tile_visited_count / len(base.track) if has_track else float("nan")
     metrics = episode_metrics(ep, tiles_visited=visited, thresholds=thresholds, eps=eps)
     trace: dict[str, np.ndarray] = {
         "step": np.arange(len(ep), dtype=np.int32),
