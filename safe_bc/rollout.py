@@ -56,10 +56,8 @@ def run_episode(
         executed = action if perturbation is None else perturbation.apply(action, t, rng)
         executed = np.asarray(executed, dtype=np.float32)
         cols["obs"].append(obs if keep_observations else np.empty(0, np.uint8))
-        for key, name in (("safety", "safety"), ("cost", "cost")):
-            cols[key].append(info[name])
-        cols["warmup"].append(info["warmup"])
-        cols["offroad"].append(info["offroad"])
+        for key in ("safety", "cost", "warmup", "offroad"):
+            cols[key].append(info[key])
         cols["act"].append(action)
         cols["exe"].append(executed)
         obs, reward, terminated, truncated, info = env.step(executed)
