@@ -44,6 +44,25 @@ class Demonstrations:
         """``(N,) bool``: steps that count for thresholds and training (not warm-up)."""
         return ~self.warmup
 
+    @property
+    def limits(self) -> np.ndarray:
+        """``(S,) float64``: the expert's worst cost per dimension over the scored steps,
+        ``d_s = max c_s``: the limit a policy must never go beyond (a violation)."""
+        from safe_bc.selection import thresholds
+
+        return thresholds(self.costs, "max", valid=self.scored)
+
+    @property
+    def safety_mean(self) -> float:
+        """The demonstrations' safety mean: mean over the scored steps of the smallest
+        distance (the expert's reference for the safety constraint)."""
+        return float(np.min(self.safety[self.scored], axis=1).mean())
+
+    def dim_safety_means(self) -> dict[str, float]:
+        """Per-dimension safety means over the scored steps."""
+        s = self.safety[self.scored]
+        return {d: float(s[:, j].mean()) for j, d in enumerate(self.safety_dims)}
+
     @classmethod
     def from_episodes(cls, episodes: Sequence[Episode]) -> Demonstrations:
         """Concatenate episodes (in the given order) into flat arrays.

@@ -13,9 +13,11 @@ from safe_bc.bc.config import BCConfig
 from safe_bc.bc.policy import BCNet, BCPolicy, ModelSpec
 from safe_bc.collection import build_expert
 from safe_bc.envs import EnvConfig
-from safe_bc.metrics import combined, critical_zone, episode_metrics
+from safe_bc.metrics import combined, critical_zone, episode_metrics, violations
 from safe_bc.policy import Policy
 from safe_bc.rollout import run_episode
+from safe_bc.seeds import heldout_seed
+from safe_bc.selection import Combine
 
 
 @dataclass(frozen=True)
@@ -28,18 +30,30 @@ class EvalConfig:
     """Persistent evaluation actors; 0 evaluates in the calling process."""
     seed: int = 0
     """Evaluation seed: picks the block of held-out track seeds."""
+    first_episode: int = 0
+    """Index of the first held-out seed of the block to use: episodes ``first_episode ..
+    first_episode + episodes - 1`` (a trial's second evaluation round continues where its
+    screening stopped; final-phase seeds each get their own tracks)."""
     env: EnvConfig = field(default_factory=EnvConfig)
     """The environment."""
     max_steps: int | None = None
     """Step cap per episode (``None``: the env's time limit)."""
-    eps: float = 5.0
-    """Width of the critical zone used for ``critical_share``."""
+    eps: float = 2.0
+    """Width of the critical zone used for ``critical_share`` (the selection's eps)."""
+    combine: Combine = "any"
+    """How per-dimension critical flags combine for ``critical_share`` (the selection's)."""
+
+    def seeds(self) -> list[int]:
+        """The held-out env seeds this evaluation runs, in order."""
+        return [heldout_seed(self.seed, self.first_episode + k) for k in range(self.episodes)]
 
     def __post_init__(self) -> None:
         if self.episodes < 1:
             raise ValueError(f"episodes must be >= 1, got {self.episodes}")
         if self.workers < 0:
             raise ValueError(f"workers must be >= 0, got {self.workers}")
+        if self.first_episode < 0:
+            raise ValueError(f"first_episode must be >= 0, got {self.first_episode}")
         if self.eps < 0:
             raise ValueError(f"eps must be >= 0, got {self.eps}")
 
@@ -89,18 +103,22 @@ def evaluate_episode(
     thresholds: np.ndarray | None,
     eps: float,
     max_steps: int | None = None,
+    combine: Combine = "any",
 ) -> tuple[dict[str, float], dict[str, np.ndarray]]:
     """Run one held-out episode; return its metrics and its per-step safety trace.
 
-    The trace holds ``(T,)`` arrays: ``step``, ``reward``, ``safety_<dim>`` per
-    dimension, ``safety`` (combined), ``critical`` and ``offroad``, ``warmup``.
+    ``thresholds`` are the limits ``d_s`` of the demonstrations (``(S,)`` costs). The trace
+    holds ``(T,)`` arrays: ``step``, ``reward``, ``safety_<dim>`` per dimension, ``safety``
+    (combined), ``offroad``, ``warmup``, and with thresholds ``critical`` and ``violation``.
     """
     rng = np.random.default_rng(seed)
     ep = run_episode(env, policy, seed, rng, keep_observations=False, max_steps=max_steps)
     base = env.unwrapped  # CarRacing counts visited tiles; other tasks have none
     has_track = hasattr(base, "tile_visited_count") and len(getattr(base, "track", ())) > 0
     visited = base.tile_visited_count / len(base.track) if has_track else float("nan")
-    metrics = episode_metrics(ep, tiles_visited=visited, thresholds=thresholds, eps=eps)
+    metrics = episode_metrics(
+        ep, tiles_visited=visited, thresholds=thresholds, eps=eps, combine=combine
+    )
     trace: dict[str, np.ndarray] = {
         "step": np.arange(len(ep), dtype=np.int32),
         "reward": ep.rewards,
@@ -111,5 +129,6 @@ def evaluate_episode(
     for j, d in enumerate(ep.safety_dims):
         trace[f"safety_{d}"] = ep.safety[:, j]
     if thresholds is not None:
-        trace["critical"] = critical_zone(ep.costs, thresholds, eps)
+        trace["critical"] = critical_zone(ep.costs, thresholds, eps, combine)
+        trace["violation"] = violations(ep.costs, thresholds)
     return metrics, trace

@@ -8,6 +8,34 @@ import numpy as np
 import pandas as pd
 
 from safe_bc.episode import Episode
+from safe_bc.selection import Combine, critical_mask
+
+METRICS: tuple[str, ...] = (
+    "reward",
+    "safety_mean",
+    "safety_std",
+    "safety_min",
+    "violation_steps",
+    "violation_rate",
+    "any_violation",
+    "worst_excursion",
+    "offroad_steps",
+    "critical_share",
+    "tiles_visited",
+    "steps",
+)
+"""The one metric list every evaluation reports (expert, evaluate, Table 1, study trials and
+the study's final phase), one value per episode, summarised as a mean over episodes.
+
+* ``safety_mean``: the mean over an episode's scored steps of the step's safety (its smallest
+  distance, :func:`combined`); a policy's safety mean is the mean of its episodes' means.
+* ``violation_steps``: scored steps beyond the expert's limit ``d_s`` in any dimension
+  (:func:`violations`); ``violation_rate`` the same as a share of the scored steps;
+  ``any_violation`` 1.0 when the episode had one (so its mean is the share of episodes);
+  ``worst_excursion`` how far beyond ``d_s`` the worst step went (cost units, 0 if never).
+* ``offroad_steps``: steps with all wheels on grass (simulator ground truth, CarRacing).
+* ``critical_share``: share of scored steps inside the critical zone ``c >= d_s - eps``.
+"""
 
 
 def combined(safety: np.ndarray) -> np.ndarray:
@@ -22,9 +50,36 @@ def combined(safety: np.ndarray) -> np.ndarray:
     return np.min(safety, axis=-1).astype(np.float32)
 
 
-def critical_zone(costs: np.ndarray, thresholds: np.ndarray, eps: float) -> np.ndarray:
-    """``(T,) bool``: steps with some cost at or beyond ``threshold - eps`` (the T_eps rule)."""
-    return np.any(costs >= np.asarray(thresholds) - eps, axis=-1)
+def critical_zone(
+    costs: np.ndarray, thresholds: np.ndarray, eps: float, combine: Combine = "any"
+) -> np.ndarray:
+    """``(T,) bool``: steps inside the critical zone, by the same rule that selects T_eps
+    (:func:`safe_bc.selection.critical_mask`)."""
+    return critical_mask(costs, thresholds, eps, combine)
+
+
+def violations(costs: np.ndarray, limits: np.ndarray) -> np.ndarray:
+    """``(T,) bool``: steps beyond the limit in some dimension, ``c_s > d_s``.
+
+    Args:
+        costs: ``(T, S)`` safety costs (higher is less safe).
+        limits: ``(S,)`` the expert's worst costs ``d_s``.
+
+    >>> violations(np.array([[1.0, 2.0], [3.0, 0.0]]), np.array([2.0, 2.0])).tolist()
+    [False, True]
+    """
+    costs = np.asarray(costs, np.float64)
+    limits = np.asarray(limits, np.float64)
+    if limits.shape != costs.shape[-1:]:
+        raise ValueError(f"limits must have shape {costs.shape[-1:]}, got {limits.shape}")
+    return np.any(costs > limits, axis=-1)
+
+
+def excursion(costs: np.ndarray, limits: np.ndarray) -> np.ndarray:
+    """``(T,) float64``: how far each step goes beyond the limit (largest over the
+    dimensions of ``c_s - d_s``, 0 when inside)."""
+    costs = np.asarray(costs, np.float64)
+    return np.maximum(np.max(costs - np.asarray(limits, np.float64), axis=-1), 0.0)
 
 
 def episode_metrics(
@@ -33,13 +88,17 @@ def episode_metrics(
     tiles_visited: float = float("nan"),
     thresholds: np.ndarray | None = None,
     eps: float = 5.0,
+    combine: Combine = "any",
 ) -> dict[str, float]:
-    """Reward and safety of one evaluated episode.
+    """Reward, safety and violations of one evaluated episode (the keys of :data:`METRICS`
+    plus per-dimension safety statistics).
 
     Safety statistics use the scored steps only (the CarRacing zoom-in is
-    excluded). ``critical_share`` is the share of scored steps inside the critical
-    zone defined by the demonstrations' ``thresholds`` and ``eps``; ``offroad_steps``
-    counts the unsafe events (all wheels on grass / a safety limit crossed).
+    excluded). ``thresholds`` are the demonstrations' limits ``d_s`` (worst expert cost
+    per dimension): violations are steps beyond them and ``critical_share`` is the share
+    of scored steps inside the critical zone of width ``eps``; without thresholds those
+    metrics are NaN. ``offroad_steps`` counts the simulator's unsafe events (all wheels on
+    grass / a safety limit crossed).
 
     >>> import numpy as np
     >>> T = 5
@@ -50,6 +109,9 @@ def episode_metrics(
     >>> m = episode_metrics(ep)
     >>> m["reward"], m["steps"], m["safety_min"], m["safety_left_mean"]
     (10.0, 5, 1.0, 2.5)
+    >>> m = episode_metrics(ep, thresholds=np.array([40.0, 6.0, 39.0]))  # costs are all 0
+    >>> m["violation_steps"], m["any_violation"], m["worst_excursion"]
+    (0, 0.0, 0.0)
     """
     scored = ~episode.warmup
     if not scored.any():
@@ -70,8 +132,21 @@ def episode_metrics(
         out[f"safety_{d}_mean"] = float(safety[:, j].mean())
         out[f"safety_{d}_std"] = float(safety[:, j].std())
         out[f"safety_{d}_min"] = float(safety[:, j].min())
+    nan = float("nan")
+    out.update(
+        violation_steps=nan, violation_rate=nan, any_violation=nan, worst_excursion=nan,
+        critical_share=nan,
+    )  # fmt: skip
     if thresholds is not None:
-        out["critical_share"] = float(critical_zone(episode.costs[scored], thresholds, eps).mean())
+        costs = episode.costs[scored]
+        beyond = violations(costs, thresholds)
+        out.update(
+            violation_steps=int(beyond.sum()),
+            violation_rate=float(beyond.mean()),
+            any_violation=float(beyond.any()),
+            worst_excursion=float(excursion(costs, thresholds).max()),
+            critical_share=float(critical_zone(costs, thresholds, eps, combine).mean()),
+        )
     return out
 
 
@@ -155,6 +230,46 @@ def summarize(
             row[m], row[f"{m}_lo"], row[f"{m}_hi"] = mean, lo, hi
         rows.append(row)
     return pd.DataFrame(rows)
+
+
+def summarize_policies(
+    episodes: pd.DataFrame,
+    by: Sequence[str] = ("policy",),
+    *,
+    metrics: Sequence[str] = METRICS,
+    group: str | None = None,
+    confidence: float = 0.95,
+    seed: int = 0,
+) -> pd.DataFrame:
+    """The one summary of evaluated policies: per ``by`` group, the mean over episodes of every
+    metric of :data:`METRICS` present (NaN-only metrics dropped) and the per-dimension safety
+    means, with a bootstrap CI, ``n_episodes`` and ``episodes_with_violation``.
+
+    Args:
+        episodes: one row per evaluated episode (``evaluate_policies`` output).
+        group: column of the training seed when each seed was evaluated on its own tracks
+            (a nested design: two-level bootstrap, seeds then tracks); ``None``: episodes
+            are resampled i.i.d.
+    """
+    present = [m for m in metrics if m in episodes and episodes[m].notna().any()]
+    present += [c for c in episodes.columns if c.startswith("safety_") and c.endswith("_mean")]
+    present = list(dict.fromkeys(present))
+    table = summarize(episodes, list(by), present, group=group, confidence=confidence, seed=seed)
+    if "any_violation" in present:
+        counts = episodes.groupby(list(by), sort=True, dropna=False)["any_violation"].sum()
+        table["episodes_with_violation"] = counts.to_numpy().astype(int)
+    return table
+
+
+def mean_metrics(episodes: pd.DataFrame, metrics: Sequence[str] = METRICS) -> dict[str, float]:
+    """Means over the episodes of one policy (a study trial's result), same definitions as
+    :func:`summarize_policies` (per-dimension safety means included); missing metrics are NaN."""
+    dims = [c for c in episodes.columns if c.startswith("safety_") and c.endswith("_mean")]
+    names = [*metrics, *dims]
+    return {
+        m: float(episodes[m].astype(float).mean()) if m in episodes else float("nan")
+        for m in dict.fromkeys(names)
+    }
 
 
 def paired_differences(

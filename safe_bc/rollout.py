@@ -17,8 +17,15 @@ class ActionPerturbation(Protocol):
     def reset(self, rng: np.random.Generator) -> None:
         """Start a new episode."""
 
-    def apply(self, action: np.ndarray, t: int, rng: np.random.Generator) -> np.ndarray:
-        """Return the action to execute at step ``t``, shape ``(A,)``."""
+    def apply(
+        self,
+        action: np.ndarray,
+        t: int,
+        rng: np.random.Generator,
+        safety: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """Return the action to execute at step ``t``, shape ``(A,)``; ``safety`` is the
+        current state's ``(S,)`` safety distances (a perturbation may back off near a limit)."""
 
 
 def run_episode(
@@ -53,7 +60,10 @@ def run_episode(
     t = 0
     while True:
         action = np.asarray(policy.act(obs, env), dtype=np.float32)
-        executed = action if perturbation is None else perturbation.apply(action, t, rng)
+        if perturbation is not None:
+            executed = perturbation.apply(action, t, rng, info["safety"])
+        else:
+            executed = action
         executed = np.asarray(executed, dtype=np.float32)
         cols["obs"].append(obs if keep_observations else np.empty(0, np.uint8))
         for key in ("safety", "cost", "warmup", "offroad"):

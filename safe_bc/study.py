@@ -2,8 +2,15 @@
 pieces around a study run (no Ray): search-space parameters, applying sampled values to a
 ``RunConfig``, feasibility, the trial table, the winner choice and the Pareto figure.
 
-A study maximises the mean held-out reward subject to the safety constraint
-``safety_mean >= threshold``, expressed as ``constraint = threshold - safety_mean <= 0``.
+A study maximises the mean held-out reward subject to two constraints, each ``<= 0`` when met:
+
+* ``constraint_safety``: the safety mean must reach the expert's (on its demonstrations),
+  ``threshold - safety_mean``, and with ``safety_constraint="per_dim"`` also every
+  dimension's mean its own expert mean (the largest gap counts);
+* ``constraint_violation``: the share of steps beyond the expert's limit ``d_s``
+  (``violation_rate``) must not exceed ``violation_tolerance``.
+
+``constraint`` is the larger of the two (``<= 0``: feasible).
 The Ray side (``safe_bc.distributed.study``) samples parameters with Optuna, runs the trials
 and hands the finished table to :func:`choose_winner`.
 
@@ -32,6 +39,7 @@ from safe_bc.experiment import RunConfig
 
 Primitive = bool | int | float | str
 Baseline = Literal["same_network", "default"]
+SafetyConstraint = Literal["combined", "per_dim"]
 
 
 @dataclass(frozen=True)
@@ -181,26 +189,46 @@ class StudySpec:
     """Trials running at once."""
     batches: int = 2000
     """Per-trial budget: training batches (overrides ``base.bc.train.batches``)."""
-    eval_episodes: int = 3
-    """Per-trial budget: held-out evaluation episodes."""
+    eval_episodes: int = 10
+    """Per-trial budget: held-out evaluation episodes (tracks) of a trial that survives the
+    screening."""
+    screen_episodes: int = 3
+    """The cheap first evaluation: after this many of its ``eval_episodes`` tracks a trial
+    reports, and successive halving (Tune's ASHA) stops the trials whose screened score
+    (reward, minus a large penalty when a constraint is broken) is in the lower half so
+    far; 0 (or ``>= eval_episodes``) evaluates every trial on all tracks."""
     max_steps: int | None = None
     """Step cap per evaluation episode (``None``: the env's time limit)."""
     eval_seed: int = 1
     """Held-out seed block of the trials' evaluations."""
-    final_episodes: int = 20
-    """Episodes per policy when the winner is re-evaluated beside the expert and alpha = 0."""
+    final_episodes: int = 50
+    """Fresh held-out tracks of the final phase per candidate: split evenly across its
+    ``final_train_seeds`` (each seed on its own tracks, rounded up), and the same tracks for
+    plain BC (same seeds) and the expert."""
+    final_candidates: int = 3
+    """Top feasible trials (by trial reward) retrained and re-evaluated in the final phase;
+    the closest infeasible ones fill in when fewer are feasible."""
+    final_train_seeds: int = 3
+    """Training seeds per candidate in the final phase: the trial's own seed (its checkpoint,
+    which a rerun reproduces bit for bit) and the next ones."""
     final_seed: int = 2
     """Held-out seed block of the re-evaluation (must differ from ``eval_seed``)."""
-    final_workers: int = 2
-    """Evaluation actors of the re-evaluation (0: in the driver process)."""
+    final_workers: int | None = None
+    """Training and evaluation actors of the final phase; ``None``: one per CPU of the
+    cluster (0: in the driver process)."""
     baseline: Baseline = "same_network"
     """The alpha = 0 baseline: plain BC with the winner's preprocessing, network and training
     settings (``"same_network"``) or with ``base``'s (``"default"``)."""
     threshold: float | None = None
     """Safety threshold; ``None``: the expert's safety mean on the demonstrations,
     ``combined(demos.safety[demos.scored]).mean()``."""
-    critical_eps: float = 5.0
+    critical_eps: float = 2.0
     """Width of the critical zone behind ``critical_share`` (fixed, so trials compare)."""
+    safety_constraint: SafetyConstraint = "per_dim"
+    """``"combined"``: safety mean (smallest distance) >= the expert's; ``"per_dim"``: that and
+    every dimension's mean >= the expert's mean in that dimension (stricter)."""
+    violation_tolerance: float = 0.0
+    """Largest allowed share of evaluated steps beyond the expert's limit ``d_s``."""
     demos: Path = Path("data/demos")
     """Demonstration set (built with ``ensure_demos`` if absent); a shared path on a cluster."""
     storage: str = "results/ray"
@@ -239,7 +267,25 @@ class StudySpec:
         ):
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"{key} must be an integer >= 1, got {value!r}")
-        for key in ("rollout_workers", "final_workers", "max_failures", "startup_trials"):
+        for key in ("final_candidates", "final_train_seeds"):
+            value = getattr(self, key)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"{key} must be an integer >= 1, got {value!r}")
+        if self.final_workers is not None and self.final_workers < 0:
+            raise ValueError(f"final_workers must be >= 0 or None, got {self.final_workers}")
+        if self.screen_episodes < 0:
+            raise ValueError(f"screen_episodes must be >= 0, got {self.screen_episodes}")
+        if self.safety_constraint not in ("combined", "per_dim"):
+            raise ValueError(
+                f"safety_constraint must be 'combined' or 'per_dim', got {self.safety_constraint!r}"
+            )
+        if not (math.isfinite(self.violation_tolerance) and 0 <= self.violation_tolerance <= 1):
+            raise ValueError(
+                f"violation_tolerance must be in [0, 1], got {self.violation_tolerance!r}"
+            )
+        if not (math.isfinite(self.critical_eps) and self.critical_eps >= 0):
+            raise ValueError(f"critical_eps must be >= 0, got {self.critical_eps!r}")
+        for key in ("rollout_workers", "max_failures", "startup_trials"):
             if getattr(self, key) < 0:
                 raise ValueError(f"{key} must be >= 0, got {getattr(self, key)}")
         if self.max_steps is not None and self.max_steps < 1:
@@ -257,6 +303,15 @@ class StudySpec:
                 raise ValueError(f"space[{name!r}] must be Float, Int or Choice, got {param!r}")
             for value in param.bounds():  # every option / bound builds a valid config
                 apply_params(self.base, {name: value})
+
+    @property
+    def screens(self) -> bool:
+        """Whether trials are screened on ``screen_episodes`` tracks first (ASHA)."""
+        return 0 < self.screen_episodes < self.eval_episodes
+
+    def final_tracks_per_seed(self) -> int:
+        """Fresh tracks each training seed of a final candidate is evaluated on."""
+        return -(-self.final_episodes // self.final_train_seeds)
 
     @property
     def params(self) -> tuple[str, ...]:
@@ -323,7 +378,9 @@ def load_study(path: str | Path) -> StudySpec:
 # --- feasibility, trial table, winner ---------------------------------------------------------
 
 CONSTRAINT = "constraint"
-"""Column / result key of ``threshold - safety_mean`` (<= 0 feasible)."""
+"""Column / result key of the larger of the constraints (<= 0 feasible)."""
+CONSTRAINTS = {"safety": "constraint_safety", "violations": "constraint_violation"}
+"""Optuna constraint name -> result key; each is handed to Optuna (``<= 0`` feasible)."""
 OBJECTIVE = "reward_mean"
 """The maximised metric."""
 
@@ -333,10 +390,17 @@ TRIAL_METRICS = (
     "safety_mean",
     "safety_std",
     "safety_min",
+    "violation_steps",
+    "violation_rate",
+    "any_violation",
+    "worst_excursion",
     "offroad_steps",
     "critical_share",
     "steps_mean",
+    "episodes",
     "threshold",
+    "constraint_safety",
+    "constraint_violation",
     "constraint",
     "feasible",
     "train_loss",
@@ -356,6 +420,39 @@ TRIAL_METRICS = (
 
 TRIAL_INFO = ("trial_id", "status", "iterations")
 """Bookkeeping columns in front of the table."""
+
+
+@dataclass(frozen=True)
+class Limits:
+    """What a study's constraints compare a policy with (from the expert's demonstrations)."""
+
+    threshold: float
+    """The safety-mean threshold (the expert's safety mean, or the study's own)."""
+    dim_thresholds: Mapping[str, float]
+    """Per-dimension safety-mean thresholds (used with ``safety_constraint="per_dim"``)."""
+    violation_tolerance: float
+    """Largest allowed ``violation_rate``."""
+    safety_constraint: SafetyConstraint = "per_dim"
+    """Which safety constraint applies."""
+
+
+def constraints(metrics: Mapping[str, float], limits: Limits) -> dict[str, float]:
+    """``constraint_safety``, ``constraint_violation`` and their maximum ``constraint`` for a
+    policy's mean metrics (``safety_mean``, ``safety_<dim>_mean``, ``violation_rate``); each
+    ``<= 0`` when met, NaN when a metric is missing.
+
+    >>> lim = Limits(6.0, {"left": 7.0}, 0.0, "per_dim")
+    >>> constraints({"safety_mean": 6.5, "safety_left_mean": 6.8, "violation_rate": 0.0}, lim)
+    {'constraint_safety': 0.2..., 'constraint_violation': 0.0, 'constraint': 0.2...}
+    """
+    gaps = [constraint_value(limits.threshold, metrics.get("safety_mean", math.nan))]
+    if limits.safety_constraint == "per_dim":
+        for dim, thr in limits.dim_thresholds.items():
+            gaps.append(constraint_value(thr, metrics.get(f"safety_{dim}_mean", math.nan)))
+    safety = math.nan if any(math.isnan(g) for g in gaps) else max(gaps)
+    violation = float(metrics.get("violation_rate", math.nan)) - limits.violation_tolerance
+    both = math.nan if math.isnan(safety) or math.isnan(violation) else max(safety, violation)
+    return {"constraint_safety": safety, "constraint_violation": violation, "constraint": both}
 
 
 def constraint_value(threshold: float, safety_mean: float) -> float:
@@ -381,7 +478,8 @@ def trial_table(records: Sequence[Mapping[str, Any]], params: Sequence[str]) -> 
     """
     cols = [*TRIAL_INFO, *params, *TRIAL_METRICS]
     frame = pd.DataFrame([{c: r.get(c, np.nan) for c in cols} for r in records], columns=cols)
-    frame["constraint"] = pd.to_numeric(frame["constraint"], errors="coerce").astype(float)
+    for c in ("constraint", *CONSTRAINTS.values()):
+        frame[c] = pd.to_numeric(frame[c], errors="coerce").astype(float)
     frame["feasible"] = (frame["constraint"] <= 0) & np.isfinite(
         pd.to_numeric(frame["reward_mean"], errors="coerce").astype(float)
     )
@@ -410,10 +508,7 @@ def choose_winner(trials: pd.DataFrame) -> Winner | None:
     Only trials with a finite reward and constraint count (finished evaluations). Ties go to
     the higher safety mean, then the lower trial id. ``None`` when no trial finished.
     """
-    done = trials[
-        np.isfinite(trials["reward_mean"].astype(float))
-        & np.isfinite(trials["constraint"].astype(float))
-    ]
+    done = _finished(trials)
     if done.empty:
         return None
     feasible = done[done["constraint"] <= 0]
@@ -436,6 +531,30 @@ def choose_winner(trials: pd.DataFrame) -> Winner | None:
         f"{best['constraint']:.2f}, reward {best['reward_mean']:.1f})"
     )
     return Winner(str(best["trial_id"]), False, _row(best), msg)
+
+
+def _finished(trials: pd.DataFrame) -> pd.DataFrame:
+    """Trials with a finite reward and constraint on their full evaluation (trials that the
+    screening stopped are left out when the table says which those are)."""
+    ok = np.isfinite(trials["reward_mean"].astype(float)) & np.isfinite(
+        trials["constraint"].astype(float)
+    )
+    if "status" in trials and (trials["status"] == "done").any():
+        ok &= trials["status"] == "done"
+    return trials[ok]
+
+
+def choose_candidates(trials: pd.DataFrame, k: int) -> pd.DataFrame:
+    """The final phase's candidates: up to ``k`` fully evaluated trials, feasible ones first by
+    reward, then the least infeasible (smallest ``constraint``)."""
+    done = _finished(trials).assign(_f=lambda t: t["constraint"] <= 0)
+    feasible = done[done["_f"]].sort_values(
+        ["reward_mean", "safety_mean", "trial_id"], ascending=[False, False, True]
+    )
+    rest = done[~done["_f"]].sort_values(
+        ["constraint", "reward_mean", "trial_id"], ascending=[True, False, True]
+    )
+    return pd.concat([feasible, rest]).head(k).drop(columns="_f").reset_index(drop=True)
 
 
 def is_missing(v: Any) -> bool:
@@ -463,7 +582,8 @@ def pareto_mask(reward: np.ndarray, safety: np.ndarray) -> np.ndarray:
 
 def summary_lines(trials: pd.DataFrame, params: Sequence[str], top: int = 10) -> str:
     """The best trials as a short text table: feasible first, then by reward."""
-    cols = ["trial_id", "reward_mean", "safety_mean", "constraint", "feasible", *params]
+    cols = ["trial_id", "status", "reward_mean", "safety_mean", "violation_rate", "constraint",
+            "feasible", *params]  # fmt: skip
     order = trials.assign(_f=trials["feasible"].astype(bool)).sort_values(
         ["_f", "reward_mean"], ascending=[False, False], na_position="last"
     )

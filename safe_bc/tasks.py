@@ -58,7 +58,7 @@ def task_defaults(task: Task, renderer: Literal["fast", "stock"] = "fast") -> Ta
             perturbation=PerturbationConfig(),
             encoding="png",
             episodes=5,
-            eps=5.0,
+            eps=2.0,
             demos="data/demos",
             results="results",
         )

@@ -191,7 +191,13 @@ def test_pareto_mask_summary_and_figure(tmp_path: Path) -> None:
 
 def test_load_study_files(tmp_path: Path) -> None:
     default = load_study(REPO / "tune_jobs" / "default.py")
-    assert default.name == "default" and default.trials >= 20 and default.batches == 2000
+    assert default.name == "default" and default.trials >= 16 and default.batches == 2000
+    # issue "Safety that holds": >= 10 tracks per trial, screened first; top 3 retrained with
+    # 3 seeds on >= 50 fresh tracks; no step beyond d_s tolerated
+    assert default.eval_episodes >= 10 and default.screens
+    assert default.final_candidates == 3 and default.final_train_seeds == 3
+    assert default.final_tracks_per_seed() * default.final_train_seeds >= 50
+    assert default.violation_tolerance == 0.0 and default.final_workers is None
     for key in (
         "selection.eps",
         "selection.alpha",
@@ -205,7 +211,7 @@ def test_load_study_files(tmp_path: Path) -> None:
     ):
         assert key in default.space, key
     assert default.threshold is None and default.rollout_workers == 0
-    assert default.eval_seed != default.final_seed and default.final_episodes >= 20
+    assert default.eval_seed != default.final_seed
     smoke = load_study(REPO / "tune_jobs" / "smoke.py")
     assert smoke.trials <= 4 and smoke.batches <= 100 and smoke.max_steps is not None
 
@@ -228,3 +234,42 @@ def test_spec_summary_is_json_able() -> None:
     assert d["space"]["bc.network.channels"]["options"] == ["8-16-16", "16-32-32"]
     assert d["space"]["bc.train.lr"] == {"type": "Float", "low": 1e-4, "high": 3e-3, "log": True}
     assert d["threshold"] is None and d["base"]["bc"]["train"]["seed"] == 0
+
+
+def test_constraints_cover_safety_per_dimension_and_violations() -> None:
+    from safe_bc.study import Limits, constraints
+
+    lim = Limits(6.0, {"left": 7.0, "right": 7.0}, 0.0, "per_dim")
+    ok = {"safety_mean": 6.5, "safety_left_mean": 7.2, "safety_right_mean": 7.1}
+    c = constraints({**ok, "violation_rate": 0.0}, lim)
+    assert c["constraint"] <= 0 and c["constraint_safety"] == pytest.approx(-0.1)
+    # one dimension below its expert mean breaks the per-dimension constraint only
+    low_left = {**ok, "safety_left_mean": 6.9, "violation_rate": 0.0}
+    assert constraints(low_left, lim)["constraint_safety"] == pytest.approx(0.1)
+    assert constraints(low_left, replace(lim, safety_constraint="combined"))["constraint"] <= 0
+    # any step beyond d_s breaks the violation constraint at tolerance 0
+    c = constraints({**ok, "violation_rate": 0.001}, lim)
+    assert c["constraint_violation"] == pytest.approx(0.001) and c["constraint"] > 0
+    assert (
+        constraints({**ok, "violation_rate": 0.001}, replace(lim, violation_tolerance=0.01))[
+            "constraint"
+        ]
+        <= 0
+    )
+    assert np.isnan(constraints({"safety_mean": 7.0}, lim)["constraint"])
+
+
+def test_candidates_are_fully_evaluated_feasible_first() -> None:
+    from safe_bc.study import choose_candidates
+
+    t = pd.DataFrame(
+        {
+            "trial_id": list("abcde"),
+            "status": ["done", "done", "stopped", "done", "done"],
+            "reward_mean": [900.0, 950.0, 990.0, 800.0, 970.0],
+            "safety_mean": [7.0] * 5,
+            "constraint": [-0.1, -0.2, -1.0, 0.3, 0.1],
+        }
+    )
+    assert choose_candidates(t, 3)["trial_id"].tolist() == ["b", "a", "e"]
+    assert choose_candidates(t, 1)["trial_id"].tolist() == ["b"]

@@ -2,8 +2,10 @@
 constrained TPE for the highest functional gain with a safety mean (smallest margin to the
 heart-rate, fatigue and blood-pressure limits) at least the guideline clinician's.
 
-Budget: 24 trials, 2 at a time; 2000 training batches and 20 simulated patients per trial;
-then the winner, the alpha = 0 baseline and the guideline on 100 fresh patients each.
+Budget: 24 trials, 2 at a time; 2000 training batches; each trial is screened on 5 simulated
+patients (successive halving stops the weaker half) and evaluated on 20; then the top 3
+trials are retrained with 3 seeds each and re-evaluated on 102 fresh patients (34 per seed)
+beside plain BC (same seeds) and the guideline, and the winner is chosen there.
 Demonstrations: 150 guideline programmes (~4,500 sessions) in ``data/rehab_demos``.
 
 Run: ``make tune STUDY=rehab`` (or ``safe-bc tune tune_jobs/rehab.py``); rerun to resume.
@@ -36,8 +38,9 @@ STUDY = StudySpec(
     cpus_per_trial=1.0,
     batches=2000,
     eval_episodes=20,
+    screen_episodes=5,
     eval_seed=1,
-    final_episodes=100,
+    final_episodes=102,
     final_seed=2,
     final_workers=0,
     startup_trials=8,

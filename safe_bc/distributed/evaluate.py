@@ -8,6 +8,7 @@ same policy builds it once.
 from __future__ import annotations
 
 from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import Any
 
 import gymnasium as gym
@@ -20,8 +21,8 @@ from safe_bc.distributed.pool import run_on_actors
 from safe_bc.distributed.runtime import cpus_per_actor, ensure_ray
 from safe_bc.envs import EnvConfig, make_env
 from safe_bc.evaluation import EvalConfig, evaluate_episode
+from safe_bc.metrics import summarize_policies
 from safe_bc.policy import Policy
-from safe_bc.seeds import heldout_seeds
 
 PolicySource = Any
 """Anything with ``build() -> Policy`` that pickles (``ExpertSource``, ``NetSource``)."""
@@ -43,13 +44,20 @@ class _Evaluator:
         thresholds: np.ndarray | None,
         eps: float,
         max_steps: int | None,
+        combine: str = "any",
     ) -> tuple[dict[str, float], dict[str, np.ndarray]]:
         if key != self.key:
             if isinstance(source, list):  # boxed ObjectRef: fetched only when needed
                 source = ray.get(source[0])
             self.key, self.policy = key, source.build()
         return evaluate_episode(
-            self.env, self.policy, seed, thresholds=thresholds, eps=eps, max_steps=max_steps
+            self.env,
+            self.policy,
+            seed,
+            thresholds=thresholds,
+            eps=eps,
+            max_steps=max_steps,
+            combine=combine,  # type: ignore[arg-type]
         )
 
 
@@ -75,7 +83,7 @@ def evaluate_policies(
         :func:`safe_bc.metrics.episode_metrics`, and one row per step with the
         safety trace; both keyed by ``policy`` and ``env_seed``.
     """
-    seeds = heldout_seeds(config.seed, config.episodes)
+    seeds = config.seeds()
     tasks = [(key, s) for key in sources for s in seeds]
     ep_rows: list[dict[str, Any]] = []
     traces: list[pd.DataFrame] = []
@@ -89,9 +97,13 @@ def evaluate_policies(
         frame.insert(0, "policy", key)
         traces.append(frame)
         bar.update(1)
-        bar.set_postfix(reward=f"{metrics['reward']:.0f}", safety=f"{metrics['safety_mean']:.1f}")
+        bar.set_postfix(
+            reward=f"{metrics['reward']:.0f}",
+            safety=f"{metrics['safety_mean']:.1f}",
+            violations=metrics["violation_steps"],
+        )
 
-    args = (thresholds, config.eps, config.max_steps)
+    args = (thresholds, config.eps, config.max_steps, config.combine)
     with bar:
         if config.workers == 0:
             local = _Evaluator(config.env)
@@ -118,3 +130,42 @@ def evaluate_policies(
     ).reset_index(drop=True)
     steps = pd.concat(traces, ignore_index=True) if traces else pd.DataFrame()
     return episodes, steps
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """Held-out evaluation of a set of policies (the output of :func:`evaluate`)."""
+
+    episodes: pd.DataFrame
+    """One row per (policy, episode): ``policy``, ``env_seed`` and the metrics of
+    :data:`safe_bc.metrics.METRICS` (plus per-dimension safety statistics)."""
+    steps: pd.DataFrame
+    """One row per step: the safety trace (``safety``, ``critical``, ``violation``, ...)."""
+    summary: pd.DataFrame
+    """One row per policy: :func:`safe_bc.metrics.summarize_policies` (means over episodes,
+    bootstrap CIs over episodes, ``episodes_with_violation``)."""
+
+
+def evaluate(
+    sources: Mapping[str, PolicySource],
+    config: EvalConfig,
+    limits: np.ndarray | None,
+    *,
+    progress: bool = True,
+    actor_cpus: float | None = None,
+) -> Evaluation:
+    """The one evaluation path: every policy on the same held-out seeds, summarised with the
+    one metric list. ``limits`` are the demonstrations' ``d_s`` (worst expert cost per
+    dimension) that define violations and the critical zone.
+
+    The expert (``safe-bc expert``), a trained agent (``safe-bc evaluate``), Table 1, every
+    study trial and the study's final phase all call this (Table 1 then regroups the same
+    per-episode rows by method with its crossed bootstrap).
+    """
+    episodes, steps = evaluate_policies(
+        sources, config, thresholds=limits, progress=progress, actor_cpus=actor_cpus
+    )
+    summary = summarize_policies(episodes, ["policy"], seed=config.seed)
+    order = {key: i for i, key in enumerate(sources)}
+    summary = summary.sort_values("policy", key=lambda c: c.map(order)).reset_index(drop=True)
+    return Evaluation(episodes, steps, summary)

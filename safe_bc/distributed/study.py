@@ -1,11 +1,10 @@
 """Running a ``StudySpec`` on Ray Tune + Optuna: constrained search, resumable, re-evaluated.
 
-* :class:`ConstrainedOptunaSearch` hands each finished trial's safety constraint to Optuna
-  (``Trial.set_constraint``) before the usual ``tell``; Ray's ``OptunaSearch`` alone drops it.
-* :func:`run_trial` is one trial: select, train, checkpoint, evaluate on held-out seeds.
-* :func:`run_study` builds or restores the Tuner, writes ``trials.parquet``,
-  ``history.parquet`` and ``pareto.png``, picks the winner from the table and re-evaluates it
-  beside the expert and the alpha = 0 baseline (``final.parquet``, ``best.json``).
+The pieces live in their own modules: the searcher and scheduler (``distributed/search.py``),
+one trial (``distributed/trial.py``) and the final phase (``distributed/final.py``). Here
+:func:`run_study` builds or restores the Tuner, writes ``trials.parquet``,
+``history.parquet`` and ``pareto.png``, then runs the final phase on the top trials and writes
+``final.parquet``, ``final_episodes.parquet`` and ``best.json``.
 """
 
 from __future__ import annotations
@@ -13,11 +12,8 @@ from __future__ import annotations
 import json
 import math
 import os
-import random
 import signal
-import tempfile
-import time
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -25,332 +21,50 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-import torch
-from optuna.samplers import TPESampler
 from ray import tune
 from ray.tune.logger import CSVLoggerCallback, JsonLoggerCallback
-from ray.tune.search.optuna import OptunaSearch
 from ray.tune.utils import flatten_dict
 
-from safe_bc.bc import load_checkpoint, read_checkpoint_meta
+from safe_bc.bc import load_checkpoint
 from safe_bc.bc.policy import BCNet
-from safe_bc.collection import stored_expert_config
-from safe_bc.data.store import (
-    load_demonstrations,
-    read_meta,
-    write_table_atomic,
-    write_text_atomic,
-)
-from safe_bc.demos import Demonstrations
-from safe_bc.distributed.evaluate import evaluate_policies
+from safe_bc.data.store import read_meta, write_table_atomic, write_text_atomic
+from safe_bc.distributed.final import FinalOutcome, final_phase
 from safe_bc.distributed.runtime import ensure_ray
-from safe_bc.evaluation import EvalConfig, ExpertSource, NetSource
-from safe_bc.experiment import RunConfig, train_run
-from safe_bc.metrics import combined, summarize
+from safe_bc.distributed.search import (
+    ConstrainedOptunaSearch,
+    SpaceSampler,
+    load_searcher,
+    make_scheduler,
+    make_searcher,
+)
+from safe_bc.distributed.trial import TrialJob, cached_demos, run_trial
 from safe_bc.provenance import provenance
-from safe_bc.seeds import heldout_seeds
-from safe_bc.selection import SelectionError, thresholds
 from safe_bc.study import (
-    CONSTRAINT,
     OBJECTIVE,
     TRIAL_METRICS,
-    Choice,
-    Float,
-    Int,
-    Param,
+    Limits,
     StudySpec,
     Winner,
+    choose_candidates,
     choose_winner,
-    constraint_value,
-    is_feasible,
     is_missing,
     plot_pareto,
     summary_lines,
     trial_table,
 )
-from safe_bc.tasks import action_bounds, task_defaults, task_of
+from safe_bc.tasks import task_defaults, task_of
 
-CONSTRAINT_NAME = "safety"
-"""Key of the constraint inside Optuna (``trial.constraints["safety"]``)."""
-
-FINAL_METRICS = (
-    "reward",
-    "safety_mean",
-    "safety_std",
-    "safety_min",
-    "offroad_steps",
-    "critical_share",
-    "tiles_visited",
-)
-"""Summarised with bootstrap CIs in ``final.parquet``."""
-
-
-# --- the searcher -----------------------------------------------------------------------------
-
-
-class SpaceSampler:
-    """Optuna define-by-run function for a ``StudySpec.space`` (plain data: pickles by value,
-    so the checkpointed searcher restores without the study file)."""
-
-    def __init__(self, space: Mapping[str, Param]) -> None:
-        self.space = dict(space)
-
-    def __call__(self, trial: Any) -> None:
-        for name, p in self.space.items():
-            if isinstance(p, Float):
-                trial.suggest_float(name, p.low, p.high, log=p.log)
-            elif isinstance(p, Int):
-                trial.suggest_int(name, p.low, p.high, step=p.step, log=p.log)
-            elif isinstance(p, Choice):
-                trial.suggest_categorical(name, list(p.labels()))
-            else:  # pragma: no cover - StudySpec validates the space
-                raise TypeError(f"unknown parameter type {type(p).__name__}")
-
-
-class ConstrainedOptunaSearch(OptunaSearch):
-    """``OptunaSearch`` that passes ``result[constraint_key]`` to Optuna as a constraint.
-
-    Ray's ``OptunaSearch`` ignores ``TPESampler(constraints_func=...)`` silently; Optuna 5
-    reads constraints that ``Trial.set_constraint(name, value)`` stored on the trial
-    (``value <= 0`` feasible), so they are set in ``on_trial_complete`` before ``tell``.
-    Results whose objective is not a finite number (the post-training report) are not
-    forwarded as intermediate values.
-    """
-
-    def __init__(
-        self,
-        *args: Any,
-        constraint_key: str = CONSTRAINT,
-        constraint_name: str = CONSTRAINT_NAME,
-        **kwargs: Any,
-    ) -> None:
-        self._constraint_key = constraint_key
-        self._constraint_name = constraint_name
-        super().__init__(*args, **kwargs)
-
-    def on_trial_result(self, trial_id: str, result: dict) -> None:
-        value = result.get(self.metric) if isinstance(self.metric, str) else None
-        if isinstance(value, int | float) and math.isfinite(value):
-            super().on_trial_result(trial_id, result)
-
-    def on_trial_complete(
-        self, trial_id: str, result: dict | None = None, error: bool = False
-    ) -> None:
-        ot_trial = self._ot_trials.get(trial_id)
-        if ot_trial is not None and trial_id not in self._completed_trials and result:
-            value = result.get(self._constraint_key)
-            if isinstance(value, int | float) and math.isfinite(value):
-                if self._constraint_name not in ot_trial.constraints:
-                    ot_trial.set_constraint(self._constraint_name, float(value))
-            elif not error:
-                # No constraint (e.g. an invalid configuration): not a usable point.
-                error = True
-                result = {k: v for k, v in result.items() if k != self.metric}
-        super().on_trial_complete(trial_id, result, error)
-
-    @property
-    def study(self) -> Any:
-        """The Optuna study (its trials carry ``.constraints``)."""
-        return self._ot_study
-
-    def constraints_by_trial(self) -> dict[str, dict[str, float]]:
-        """Tune trial id -> the constraint values Optuna holds for that trial."""
-        return {tid: dict(t.constraints) for tid, t in self._ot_trials.items()}
-
-
-def make_searcher(spec: StudySpec) -> ConstrainedOptunaSearch:
-    """The study's constrained TPE searcher (maximises ``reward_mean``)."""
-    sampler = TPESampler(
-        seed=spec.sampler_seed,
-        n_startup_trials=spec.startup_trials,
-        multivariate=True,
-        constant_liar=spec.max_concurrent > 1,
-    )
-    return ConstrainedOptunaSearch(
-        space=SpaceSampler(spec.space),
-        metric=OBJECTIVE,
-        mode="max",
-        sampler=sampler,
-        study_name=spec.name,
-    )
-
-
-def load_searcher(experiment_path: str | Path) -> ConstrainedOptunaSearch:
-    """The searcher as last checkpointed in a (local) experiment folder."""
-    searcher = ConstrainedOptunaSearch()
-    searcher.restore_from_dir(str(experiment_path))
-    return searcher
-
-
-# --- one trial ----------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class TrialJob:
-    """What every trial of a study shares (pickled into the trainable; small)."""
-
-    spec: StudySpec
-    """The study."""
-    demos: str
-    """Absolute path of the demonstration set (trials run in their own folders)."""
-    threshold: float
-    """Safety threshold of the constraint."""
-    cost_thresholds: tuple[float, ...]
-    """The demonstrations' ``d_s`` (max cost per dimension) behind ``critical_share``."""
-
-
-_DEMOS: dict[str, Demonstrations] = {}
-"""Per-process cache: ``reuse_actors=True`` keeps trial processes, so demos load once."""
-
-
-def _bounds(spec: StudySpec) -> tuple[tuple[float, ...], tuple[float, ...]] | None:
-    """Action bounds for vector tasks (CarRacing's are the frames' default)."""
-    return None if spec.env.is_carracing else action_bounds(spec.env)
-
-
-def cached_demos(path: str) -> Demonstrations:
-    """The demonstration set at ``path``, loaded once per process."""
-    if path not in _DEMOS:
-        _DEMOS.clear()
-        _DEMOS[path] = load_demonstrations(Path(path))
-    return _DEMOS[path]
-
-
-def trial_threads(cpus: float) -> int:
-    """Torch threads for a trial reserving ``cpus`` CPUs."""
-    return max(1, int(cpus))
-
-
-def reset_trial_state(seed: int) -> None:
-    """Reset the global random state a reused trial process carries over."""
-    random.seed(seed)
-    np.random.seed(seed)
-    torch.manual_seed(seed)
-
-
-def _blank_metrics(job: TrialJob) -> dict[str, Any]:
-    spec = job.spec
-    seeds = heldout_seeds(spec.eval_seed, spec.eval_episodes)
-    out: dict[str, Any] = {k: math.nan for k in TRIAL_METRICS}
-    out.update(
-        threshold=job.threshold,
-        feasible=False,
-        train_seed=spec.base.bc.train.seed,
-        eval_seed=spec.eval_seed,
-        eval_seeds=",".join(str(s) for s in seeds),
-        resumed=False,
-        phase="",
-        error="",
-    )
-    return out
-
-
-def evaluate_trial(
-    model: BCNet, run_cfg: RunConfig, job: TrialJob
-) -> tuple[dict[str, float], float]:
-    """Held-out evaluation of a trained net: ``(metrics, seconds)``.
-
-    Safety statistics pool the scored (non-warm-up) steps of all episodes, like the
-    threshold pools the demonstrations' scored steps.
-    """
-    spec = job.spec
-    start = time.perf_counter()
-    config = EvalConfig(
-        episodes=spec.eval_episodes,
-        workers=spec.rollout_workers,
-        seed=spec.eval_seed,
-        env=spec.env,
-        max_steps=spec.max_steps,
-        eps=spec.critical_eps,
-    )
-    episodes, steps = evaluate_policies(
-        {"trial": NetSource.from_model(model, run_cfg.bc)},
-        config,
-        thresholds=np.asarray(job.cost_thresholds),
-        progress=False,
-        actor_cpus=spec.cpus_per_worker if spec.rollout_workers else None,
-    )
-    return episode_summary(episodes, steps), time.perf_counter() - start
-
-
-def episode_summary(episodes: pd.DataFrame, steps: pd.DataFrame) -> dict[str, float]:
-    """Trial metrics from ``evaluate_policies`` output (one policy)."""
-    scored = steps[~steps["warmup"].astype(bool)]
-    safety = scored["safety"].to_numpy(float)
-    critical = scored["critical"].to_numpy(bool) if "critical" in scored else np.array([])
-    return {
-        "reward_mean": float(episodes["reward"].mean()),
-        "reward_std": float(episodes["reward"].std(ddof=0)),
-        "safety_mean": float(safety.mean()),
-        "safety_std": float(safety.std()),
-        "safety_min": float(safety.min()),
-        "offroad_steps": float(episodes["offroad_steps"].mean()),
-        "critical_share": float(critical.mean()) if len(critical) else math.nan,
-        "steps_mean": float(episodes["steps"].mean()),
-    }
-
-
-def run_trial(config: dict[str, Any], job: TrialJob) -> None:
-    """One trial: train (or resume from its checkpoint), report, evaluate, report.
-
-    The first report carries the trained weights as a checkpoint, so a retry after a
-    failure (or a resumed study) evaluates without retraining.
-    """
-    start = time.perf_counter()
-    spec = job.spec
-    seed = spec.base.bc.train.seed
-    reset_trial_state(seed)
-    threads = trial_threads(spec.cpus_per_trial)
-    torch.set_num_threads(threads)
-    run_cfg = spec.run_config({k: config[k] for k in spec.params}, num_threads=threads)
-    metrics = _blank_metrics(job)
-
-    checkpoint = tune.get_checkpoint()
-    if checkpoint is not None:  # a retry or a resumed study: the weights are already trained
-        with checkpoint.as_directory() as d:
-            model, _ = load_checkpoint(d)
-            extra = read_checkpoint_meta(d)["extra"]
-        metrics.update(extra["train"], resumed=True)
-        earlier = float(extra["trained_s"])
-    else:
-        try:
-            result, selection = train_run(
-                cached_demos(job.demos), run_cfg, action_bounds=_bounds(spec)
-            )
-        except SelectionError as e:  # a configuration the data cannot support: no retry
-            metrics.update(phase="invalid", error=str(e), duration_s=time.perf_counter() - start)
-            tune.report(metrics)
-            return
-        if not math.isfinite(result.final_loss):  # diverged: nothing to evaluate, no retry
-            metrics.update(phase="invalid", error=f"training diverged (loss {result.final_loss})")
-            metrics.update(duration_s=time.perf_counter() - start)
-            tune.report(metrics)
-            return
-        model, earlier = result.model, 0.0
-        train_info = {
-            "train_loss": result.final_loss,
-            "train_seconds": result.seconds,
-            "n_critical": selection.n_critical,
-            "critical_fraction": selection.n_critical / selection.n_valid,
-        }
-        trained_s = time.perf_counter() - start
-        metrics.update(train_info, phase="trained", duration_s=trained_s)
-        extra = {"train": train_info, "trained_s": trained_s, "run_config": run_cfg.to_dict()}
-        with tempfile.TemporaryDirectory() as d:
-            result.save(d, extra=extra)
-            tune.report(metrics, checkpoint=tune.Checkpoint.from_directory(d))
-
-    values, eval_s = evaluate_trial(model, run_cfg, job)
-    c = constraint_value(job.threshold, values["safety_mean"])
-    metrics.update(
-        values,
-        phase="evaluated",
-        eval_seconds=eval_s,
-        duration_s=earlier + time.perf_counter() - start,
-        constraint=c,
-        feasible=is_feasible(c),
-    )
-    tune.report(metrics)
+__all__ = [
+    "ConstrainedOptunaSearch",
+    "SpaceSampler",
+    "StudyOutcome",
+    "TrialJob",
+    "format_outcome",
+    "load_searcher",
+    "make_searcher",
+    "run_study",
+    "run_trial",
+]
 
 
 # --- the study ----------------------------------------------------------------------------------
@@ -368,9 +82,10 @@ class StudyOutcome:
     trials: pd.DataFrame
     """The trial table (also ``trials.parquet``)."""
     winner: Winner | None
-    """The chosen trial (``None`` while incomplete or when nothing finished)."""
-    final: pd.DataFrame | None
-    """The re-evaluation summary (``final.parquet``), or ``None``."""
+    """The best trial on the trials' own evaluation (``None`` while incomplete or when nothing
+    finished); the study's winner is ``final.winner``, chosen on the re-evaluation."""
+    final: FinalOutcome | None
+    """The final phase (``final.parquet``), or ``None``."""
     threshold: float
     """The safety threshold used."""
     out: Path
@@ -471,7 +186,9 @@ def _records(grid: Any, params: Sequence[str]) -> list[dict[str, Any]]:
         status = (
             "error"
             if r.error
-            else {"evaluated": "done", "invalid": "invalid"}.get(phase, "unfinished")
+            else {"evaluated": "done", "invalid": "invalid", "screened": "stopped"}.get(
+                phase, "unfinished"
+            )
         )
         rec = {k: m.get(k, math.nan) for k in TRIAL_METRICS}
         rec.update({k: r.config.get(k) for k in params})
@@ -574,15 +291,18 @@ def _run_study(
         ensure_demos(demos_path, task.collect_config(), progress=progress)
     _check_env(spec, demos_path)
     demos = cached_demos(str(demos_path))
-    expert_safety = float(combined(demos.safety[demos.scored]).mean())
+    expert_safety = demos.safety_mean
     threshold = expert_safety if spec.threshold is None else float(spec.threshold)
-    d = thresholds(demos.costs, "max", valid=demos.scored)
-    job = TrialJob(spec, str(demos_path), threshold, tuple(float(x) for x in d))
+    limits = Limits(
+        threshold, demos.dim_safety_means(), spec.violation_tolerance, spec.safety_constraint
+    )
+    job = TrialJob(spec, str(demos_path), limits, tuple(float(x) for x in demos.limits))
 
     restoring = tune.Tuner.can_restore(exp_path)
     if not restoring:  # a new experiment: rows of an older one do not belong to it
         (out / HISTORY).unlink(missing_ok=True)
-    _check_resume(out, {"trials": spec.trials, "threshold": threshold}, restoring)
+    identity = {"trials": spec.trials, "threshold": threshold, "limits": list(job.cost_limits)}
+    _check_resume(out, identity, restoring)
     resources = tune.PlacementGroupFactory(
         [{"CPU": spec.cpus_per_trial}] + [{"CPU": spec.cpus_per_worker}] * spec.rollout_workers
     )
@@ -595,6 +315,7 @@ def _run_study(
             trainable,
             tune_config=tune.TuneConfig(
                 search_alg=make_searcher(spec),
+                scheduler=make_scheduler(spec),
                 num_samples=spec.trials,
                 max_concurrent_trials=spec.max_concurrent,
                 reuse_actors=True,
@@ -619,18 +340,23 @@ def _run_study(
     trials = trial_table(_records(grid, spec.params), spec.params)
     history = read_history(out / HISTORY)
     errors = int((trials["status"] == "error").sum())
-    finished = int(trials["status"].isin(["done", "invalid", "error"]).sum())
+    finished = int(trials["status"].isin(["done", "stopped", "invalid", "error"]).sum())
     complete = finished >= spec.trials
     meta = {
         "command": command,
         "study": spec.summary(),
         "threshold": threshold,
+        "dim_thresholds": dict(limits.dim_thresholds),
+        "violation_tolerance": spec.violation_tolerance,
+        "safety_constraint": spec.safety_constraint,
         "expert_demo_safety_mean": expert_safety,
-        "cost_thresholds": list(job.cost_thresholds),
+        "cost_limits": list(job.cost_limits),
         "seeds": {
             "train_seed": spec.base.bc.train.seed,
             "eval_seed": spec.eval_seed,
-            "eval_seeds": heldout_seeds(spec.eval_seed, spec.eval_episodes),
+            "eval_seeds": [int(x) for x in str(trials["eval_seeds"].iloc[0]).split(",")]
+            if len(trials) and trials["eval_seeds"].iloc[0]
+            else [],
             "final_seed": spec.final_seed,
             "sampler_seed": spec.sampler_seed,
         },
@@ -652,89 +378,68 @@ def _run_study(
     if not complete or winner is None:
         return outcome
 
-    final = _reevaluate(spec, job, grid, winner, demos, meta, progress)
+    candidates = choose_candidates(trials, spec.final_candidates)
+    checkpoints = _checkpoints(grid, list(candidates["trial_id"]))
+    final = final_phase(spec, job, candidates, checkpoints, demos, progress=progress)
+    _write_final(spec, final, candidates, meta)
     return replace(outcome, winner=winner, final=final)
 
 
-def _winner_model(grid: Any, trial_id: str) -> BCNet:
+def _checkpoints(grid: Any, trial_ids: Sequence[str]) -> dict[str, BCNet]:
+    """Trial id -> its trained net, for the trials of ``trial_ids`` that have a checkpoint."""
+    out = {}
     for r in grid:
-        if str((r.metrics or {}).get("trial_id")) == trial_id and r.checkpoint is not None:
+        tid = str((r.metrics or {}).get("trial_id"))
+        if tid in trial_ids and r.checkpoint is not None:
             with r.checkpoint.as_directory() as d:
-                return load_checkpoint(d)[0]
-    raise RuntimeError(f"trial {trial_id} has no checkpoint to re-evaluate")
+                out[tid] = load_checkpoint(d)[0]
+    return out
 
 
-def _reevaluate(
-    spec: StudySpec,
-    job: TrialJob,
-    grid: Any,
-    winner: Winner,
-    demos: Demonstrations,
-    meta: dict[str, Any],
-    progress: bool,
-) -> pd.DataFrame:
-    """Winner vs expert vs alpha = 0 on fresh held-out seeds; writes the final outputs."""
-    threads = trial_threads(spec.cpus_per_trial)  # the baseline trains like a trial would
-    win_cfg = spec.run_config({k: winner.row[k] for k in spec.params}, num_threads=threads)
-    base_cfg = spec.baseline_config(win_cfg)
-    if progress:
-        print(f"training the alpha = 0 baseline ({spec.baseline}) for the re-evaluation")
-    baseline, _ = train_run(demos, base_cfg, action_bounds=_bounds(spec))
-    sources = {
-        "winner": NetSource.from_model(_winner_model(grid, winner.trial_id), win_cfg.bc),
-        "bc_alpha0": NetSource.from_model(baseline.model, base_cfg.bc),
-        "expert": ExpertSource(stored_expert_config(Path(job.demos))),
-    }
-    config = EvalConfig(
-        episodes=spec.final_episodes,
-        workers=spec.final_workers,
-        seed=spec.final_seed,
-        env=spec.env,
-        max_steps=spec.max_steps,
-        eps=spec.critical_eps,
-    )
-    previous = torch.get_num_threads()
-    torch.set_num_threads(threads)  # in-process evaluation: 2 threads ran ~5x slower here
-    try:
-        episodes, _ = evaluate_policies(
-            sources, config, thresholds=np.asarray(job.cost_thresholds), progress=progress
-        )
-    finally:
-        torch.set_num_threads(previous)
-    final = summarize(episodes, ["policy"], FINAL_METRICS, group=None, seed=spec.final_seed)
-    final["feasible"] = final["safety_mean"] >= job.threshold
-    final["threshold"] = job.threshold
-    order = {k: i for i, k in enumerate(sources)}
-    final = final.sort_values("policy", key=lambda c: c.map(order)).reset_index(drop=True)
+def _write_final(
+    spec: StudySpec, final: FinalOutcome, candidates: pd.DataFrame, meta: dict[str, Any]
+) -> None:
     out = spec.results / spec.name
     final_meta = {
         **meta,
-        "final_seeds": heldout_seeds(spec.final_seed, spec.final_episodes),
-        "winner": winner.trial_id,
-        "winner_config": win_cfg.to_dict(),
-        "baseline_config": base_cfg.to_dict(),
+        "final_design": {
+            "candidates": list(candidates["trial_id"]),
+            "train_seeds": sorted(int(s) for s in final.episodes["train_seed"].unique()),
+            "tracks_per_seed": spec.final_tracks_per_seed(),
+            "final_seed": spec.final_seed,
+            "env_seeds": sorted(int(s) for s in final.episodes["env_seed"].unique()),
+        },
+        "winner": final.winner,
+        "winner_feasible": final.feasible,
+        "configs": final.configs,
     }
-    write_table_atomic(out / "final.parquet", final, final_meta)
-    write_table_atomic(out / "final_episodes.parquet", episodes, final_meta)
+    write_table_atomic(out / "final.parquet", final.table, final_meta)
+    write_table_atomic(out / "final_episodes.parquet", final.episodes, final_meta)
+    win = candidates[candidates["trial_id"] == final.winner]
+    row = win.iloc[0].to_dict() if len(win) else {}
     best = {
         "study": spec.name,
-        "trial_id": winner.trial_id,
-        "feasible": winner.feasible,
-        "message": winner.message,
-        "threshold": job.threshold,
-        "params": {k: winner.row[k] for k in spec.params},
-        "trial_metrics": {k: winner.row.get(k) for k in TRIAL_METRICS},
-        "run_config": win_cfg.to_dict(),
+        "chosen_on": "final re-evaluation: candidates retrained with "
+        f"{spec.final_train_seeds} seeds on {final.episodes['env_seed'].nunique()} fresh tracks",
+        "trial_id": final.winner,
+        "feasible": final.feasible,
+        "message": final.message,
+        "threshold": meta["threshold"],
+        "dim_thresholds": meta["dim_thresholds"],
+        "violation_tolerance": meta["violation_tolerance"],
+        "cost_limits": meta["cost_limits"],
+        "params": {k: row.get(k) for k in spec.params},
+        "trial_metrics": {k: row.get(k) for k in TRIAL_METRICS},
+        "run_config": final.configs.get(final.winner or "", {}),
+        "candidates": list(candidates["trial_id"]),
         "baseline": spec.baseline,
-        "baseline_config": base_cfg.to_dict(),
-        "final": final.to_dict(orient="records"),
-        "final_seeds": final_meta["final_seeds"],
+        "final": final.table.to_dict(orient="records"),
+        "final_design": final_meta["final_design"],
         "command": meta["command"],
         "provenance": meta["provenance"],
     }
     text = json.dumps(best, indent=2, default=_json_default, allow_nan=True)
     write_text_atomic(out / "best.json", text + "\n")
-    return final
 
 
 def _json_default(v: Any) -> Any:
@@ -750,7 +455,9 @@ def format_outcome(outcome: StudyOutcome, params: Sequence[str]) -> str:
     t = outcome.trials
     lines = [
         f"study {outcome.out.name}: {len(t)} trials, {int(t['feasible'].sum())} feasible "
-        f"(safety mean >= {outcome.threshold:.2f}), {outcome.errors} failed",
+        f"(safety mean >= {outcome.threshold:.2f} and no step beyond d_s), "
+        f"{int((t['status'] == 'stopped').sum())} stopped by the screening, "
+        f"{outcome.errors} failed",
         summary_lines(t, params),
     ]
     if not outcome.complete:
@@ -759,10 +466,17 @@ def format_outcome(outcome: StudyOutcome, params: Sequence[str]) -> str:
         lines.append(outcome.winner.message)
     else:
         lines.append("no trial finished its evaluation")
-    if outcome.final is not None:
-        cols = ["policy", "reward", "reward_lo", "reward_hi", "safety_mean", "safety_mean_lo",
-                "safety_mean_hi", "offroad_steps", "feasible"]  # fmt: skip
-        lines.append("re-evaluation on fresh held-out seeds (95% bootstrap CIs):")
-        lines.append(outcome.final[cols].to_string(index=False, float_format=lambda x: f"{x:.2f}"))
+    if outcome.final is not None and len(outcome.final.table):
+        cols = ["method", "n_train_seeds", "n_episodes", "reward", "reward_lo", "reward_hi",
+                "safety_mean", "violation_steps", "episodes_with_violation", "offroad_steps",
+                "feasible"]  # fmt: skip
+        tab = outcome.final.table
+        lines.append("final phase on fresh held-out tracks (95% bootstrap CIs over seeds, tracks):")
+        lines.append(
+            tab[[c for c in cols if c in tab]].to_string(
+                index=False, float_format=lambda x: f"{x:.2f}"
+            )
+        )
+        lines.append(outcome.final.message)
     lines.append(f"outputs in {outcome.out}/")
     return "\n".join(lines)

@@ -28,7 +28,9 @@ class CarRacingSafety(gym.Wrapper, gym.utils.RecordConstructorArgs):
     * ``"warmup"``: ``True`` while the zoom-in animation runs (first ~50 steps): those
       frames are not to be scored;
     * ``"offroad"``: ``True`` when all four wheels are on grass (ground truth from the
-      simulator, for evaluation only; the costs come from the frame alone).
+      simulator, for evaluation only; the costs come from the frame alone);
+    * ``"wheels_on_road"``: how many of the four wheels touch a road tile (simulator
+      ground truth; 4 means the car is entirely on the road).
 
     >>> env = CarRacingSafety(gym.make("CarRacing-v3"))
     >>> obs, info = env.reset(seed=0)
@@ -55,7 +57,9 @@ class CarRacingSafety(gym.Wrapper, gym.utils.RecordConstructorArgs):
         info["safety"] = distances
         info["cost"] = costs_from_distances(distances)
         info["warmup"] = bool(inner.t < ZOOM_END_T - 1e-6)
-        info["offroad"] = bool(all(len(w.tiles) == 0 for w in inner.car.wheels))
+        on_road = sum(1 for w in inner.car.wheels if len(w.tiles) > 0)
+        info["offroad"] = on_road == 0
+        info["wheels_on_road"] = on_road
         return info
 
     def reset(

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import gymnasium as gym
 import numpy as np
 
+from safe_bc.envs.safety import pixel_distances
 from safe_bc.experts.carracing import CarRacingExpert, ExpertConfig
 from safe_bc.experts.geometry import lateral_offset
 from safe_bc.experts.perturb import Perturbation, PerturbationConfig
@@ -90,7 +91,11 @@ def rollout(
     actions, executed, lateral = [], [], []
     for t in range(max_steps):
         action = expert.act(obs, env)
-        exe = perturbation.apply(action, t, rng) if perturbation is not None else action
+        if perturbation is None:
+            exe = action
+        else:  # the frame's distances let a drift stop short of the grass
+            safety = pixel_distances(obs) if obs is not None and t > 0 else None
+            exe = perturbation.apply(action, t, rng, safety)
         obs, reward, terminated, truncated, info = env.step(exe)
         total += float(reward)
         wheels = sum(1 for w in unwrapped.car.wheels if w.tiles)

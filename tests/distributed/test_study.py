@@ -30,7 +30,7 @@ from safe_bc.distributed.study import (
 )
 from safe_bc.metrics import combined
 from safe_bc.seeds import heldout_seeds
-from safe_bc.study import TRIAL_INFO, TRIAL_METRICS, Choice, Float, choose_winner, load_study
+from safe_bc.study import TRIAL_INFO, TRIAL_METRICS, Choice, Float, load_study
 
 REPO = Path(__file__).resolve().parents[2]
 SMOKE = REPO / "tune_jobs" / "smoke.py"
@@ -64,19 +64,23 @@ def test_searcher_hands_constraints_to_optuna_and_keeps_them_in_its_checkpoint(t
     s.suggest("t2")
     s.suggest("t3")
     s.on_trial_result("t1", {"reward_mean": math.nan, "training_iteration": 1})  # not forwarded
-    s.on_trial_complete("t1", {"reward_mean": 10.0, "constraint": 0.5})
-    s.on_trial_complete("t2", {"reward_mean": 5.0, "constraint": -1.0})
-    s.on_trial_complete("t3", {"reward_mean": 7.0})  # no constraint: not a usable point
+    both = {"constraint_safety": 0.5, "constraint_violation": 0.0}
+    s.on_trial_complete("t1", {"reward_mean": 10.0, **both})
+    s.on_trial_complete(
+        "t2", {"reward_mean": 5.0, "constraint_safety": -1.0, "constraint_violation": 0.1}
+    )
+    s.on_trial_complete("t3", {"reward_mean": 7.0, "constraint_safety": -1.0})  # one missing
     trials = s.study.get_trials(deepcopy=False)
     assert [t.state for t in trials] == [TrialState.COMPLETE, TrialState.COMPLETE, TrialState.FAIL]
     assert trials[0].intermediate_values == {}
-    assert trials[0].constraints == {"safety": 0.5} and trials[1].constraints == {"safety": -1.0}
+    assert trials[0].constraints == {"safety": 0.5, "violations": 0.0}
+    assert trials[1].constraints == {"safety": -1.0, "violations": 0.1}
     s.save(str(tmp_path / "searcher.pkl"))
     restored = ConstrainedOptunaSearch()
     restored.restore(str(tmp_path / "searcher.pkl"))
     assert restored.constraints_by_trial() == {
-        "t1": {"safety": 0.5},
-        "t2": {"safety": -1.0},
+        "t1": {"safety": 0.5, "violations": 0.0},
+        "t2": {"safety": -1.0, "violations": 0.1},
         "t3": {},
     }
     pickle.dumps(SpaceSampler({"a": Float(0.0, 1.0)}))  # the define-by-run space pickles
@@ -97,18 +101,29 @@ def test_cli_study_end_to_end(tiny_demos: Path, tmp_path: Path, capsys) -> None:
     rc = main(["tune", str(study_file), "--trials", "3", "--storage", storage])
     printed = capsys.readouterr().out
     assert rc == 0, printed
-    assert "re-evaluation on fresh held-out seeds" in printed
+    assert "final phase on fresh held-out tracks" in printed
     out = tmp_path / "results" / "smoke"
     spec = load_study(study_file)
 
     trials, meta = read_table(out / "trials.parquet")
     assert list(trials.columns) == [*TRIAL_INFO, *spec.params, *TRIAL_METRICS]
     assert len(trials) == 3 and trials["trial_id"].is_unique
-    assert (trials["status"] == "done").all() and (trials["phase"] == "evaluated").all()
+    # screened on 1 track; successive halving may stop a trial there
+    assert trials["status"].isin(["done", "stopped"]).all() and (trials["status"] == "done").any()
+    done = trials[trials["status"] == "done"]
+    assert (done["phase"] == "evaluated").all() and (done["episodes"] == spec.eval_episodes).all()
+    stopped = trials[trials["status"] == "stopped"]
+    assert (stopped["phase"] == "screened").all() and (stopped["episodes"] == 1).all()
     demos = load_demonstrations(tiny_demos)
     expert = float(combined(demos.safety[demos.scored]).mean())
     assert meta["threshold"] == pytest.approx(expert)  # default: the expert's demo safety
-    np.testing.assert_allclose(trials["constraint"], expert - trials["safety_mean"], rtol=1e-6)
+    assert meta["cost_limits"] == pytest.approx(list(demos.limits))
+    # two constraints, each <= 0 when met; the safety one is at least the combined gap
+    assert (trials["constraint_safety"] >= expert - trials["safety_mean"] - 1e-9).all()
+    np.testing.assert_allclose(trials["constraint_violation"], trials["violation_rate"])
+    np.testing.assert_allclose(
+        trials["constraint"], trials[["constraint_safety", "constraint_violation"]].max(axis=1)
+    )
     assert (trials["feasible"] == (trials["constraint"] <= 0)).all()
     seeds = heldout_seeds(spec.eval_seed, spec.eval_episodes)
     assert (trials["eval_seeds"] == ",".join(map(str, seeds))).all()
@@ -121,24 +136,34 @@ def test_cli_study_end_to_end(tiny_demos: Path, tmp_path: Path, capsys) -> None:
     history, hmeta = read_table(out / "history.parquet")
     assert hmeta["command"] == meta["command"]
     phases = history.groupby("trial_id")["phase"].apply(list).to_dict()
-    assert phases == {t: ["trained", "evaluated"] for t in trials["trial_id"]}
+    for row in trials.itertuples():
+        want = ["trained", "screened"] + (["evaluated"] if row.status == "done" else [])
+        assert phases[row.trial_id] == want
 
-    # the constraint values of the finished trials are inside the Optuna study
+    # both constraint values of every trial are inside the Optuna study
     searcher = load_searcher(meta["experiment_path"])
     held = searcher.constraints_by_trial()
     for row in trials.itertuples():
-        assert held[row.trial_id]["safety"] == pytest.approx(row.constraint)
+        assert held[row.trial_id]["safety"] == pytest.approx(row.constraint_safety)
+        assert held[row.trial_id]["violations"] == pytest.approx(row.constraint_violation)
     states = [t.state for t in searcher.study.get_trials(deepcopy=False)]
     assert states == [TrialState.COMPLETE] * 3
 
+    # the final phase: candidates retrained with 2 seeds on fresh tracks, winner chosen there
     best = __import__("json").loads((out / "best.json").read_text())
-    winner = choose_winner(trials)
-    assert best["trial_id"] == winner.trial_id and best["feasible"] == winner.feasible
     final, fmeta = read_table(out / "final.parquet")
-    assert final["policy"].tolist() == ["winner", "bc_alpha0", "expert"]
-    assert {"reward_lo", "reward_hi", "safety_mean_lo", "safety_mean_hi"} <= set(final.columns)
-    assert set(fmeta["final_seeds"]).isdisjoint(seeds)
-    assert fmeta["baseline_config"]["selection"]["alpha"] == 0.0
+    cands = fmeta["final_design"]["candidates"]
+    assert 1 <= len(cands) <= spec.final_candidates and set(cands) <= set(done["trial_id"])
+    assert final["method"].tolist() == [*cands, "plain_bc", "expert"]
+    assert (final.loc[final["method"] != "expert", "n_train_seeds"] == 2).all()
+    assert {"reward_lo", "reward_hi", "violation_steps", "episodes_with_violation"} <= set(final)
+    assert best["trial_id"] in cands and best["trial_id"] == fmeta["winner"]
+    assert best["feasible"] == bool(final.set_index("method").loc[best["trial_id"], "feasible"])
+    assert set(fmeta["final_design"]["env_seeds"]).isdisjoint(seeds)
+    assert fmeta["configs"]["plain_bc"]["selection"]["alpha"] == 0.0
+    episodes, _ = read_table(out / "final_episodes.parquet")
+    per_seed = episodes[episodes["method"] == "plain_bc"].groupby("train_seed")["env_seed"]
+    assert per_seed.apply(frozenset).nunique() == 2  # each seed on its own tracks
     assert (out / "pareto.png").stat().st_size > 0
 
 
@@ -156,26 +181,28 @@ class InterruptOnce(tune.Callback):
 
 def flaky_trial(config: dict, job: TrialJob, marker: str) -> None:
     """``run_trial`` whose first evaluation in the whole study fails (after training)."""
-    import safe_bc.distributed.study as mod
+    import safe_bc.distributed.trial as mod
 
-    original = mod.evaluate_trial
+    original = mod.evaluate_net
     if not os.path.exists(marker):
 
         def fail(*args, **kwargs):
             Path(marker).touch()
             raise RuntimeError("injected failure after training")
 
-        mod.evaluate_trial = fail
+        mod.evaluate_net = fail
     try:
         run_trial(config, job)
     finally:
-        mod.evaluate_trial = original
+        mod.evaluate_net = original
 
 
 def test_interrupted_study_resumes_and_failed_trial_is_not_retrained(
     tiny_demos: Path, tmp_path: Path
 ) -> None:
-    spec = small(tmp_path, tiny_demos, trials=3, max_concurrent=1, max_failures=1)
+    spec = small(
+        tmp_path, tiny_demos, trials=3, max_concurrent=1, max_failures=1, screen_episodes=0
+    )
     trial_fn = functools.partial(flaky_trial, marker=str(tmp_path / "failed"))
     first = run_study(
         spec,
@@ -212,7 +239,7 @@ def test_interrupted_study_resumes_and_failed_trial_is_not_retrained(
     held = searcher.constraints_by_trial()
     assert set(held) == set(t["trial_id"])
     for row in t.itertuples():
-        assert held[row.trial_id]["safety"] == pytest.approx(row.constraint)
+        assert held[row.trial_id]["safety"] == pytest.approx(row.constraint_safety)
     assert (second.out / "best.json").exists() and second.final is not None
 
 

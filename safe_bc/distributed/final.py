@@ -1,0 +1,210 @@
+"""The study's final phase: the top trials retrained with more seeds and re-evaluated on fresh
+tracks beside plain BC and the expert; the winner is chosen on this re-evaluation.
+
+Design: each candidate is trained with ``final_train_seeds`` seeds (the first is the trial's
+own, taken from its checkpoint), and each seed is evaluated on its own block of fresh tracks
+(``final_tracks_per_seed``), the same blocks for every candidate, plain BC (same seeds,
+trained like the first candidate with ``alpha = 0``) and the expert. Seeds are nested in
+track blocks, so the two-level bootstrap (seeds, then tracks within a seed) fits the design;
+for the same number of episodes it covers 3x the tracks of evaluating every seed on every
+track, and an episode costs the same either way.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+import torch
+
+from safe_bc.bc.policy import BCNet
+from safe_bc.collection import stored_expert_config
+from safe_bc.demos import Demonstrations
+from safe_bc.distributed.evaluate import evaluate
+from safe_bc.distributed.runtime import cluster_cpus, ensure_ray
+from safe_bc.distributed.train import train_many
+from safe_bc.distributed.trial import TrialJob, bounds_for, trial_threads
+from safe_bc.evaluation import EvalConfig, ExpertSource, NetSource
+from safe_bc.experiment import RunConfig, train_run
+from safe_bc.metrics import summarize_policies
+from safe_bc.study import StudySpec, constraints
+
+PLAIN_BC = "plain_bc"
+"""Method label of the alpha = 0 reference in the final table."""
+EXPERT = "expert"
+"""Method label of the expert in the final table."""
+
+
+@dataclass(frozen=True)
+class FinalOutcome:
+    """What the final phase measured and chose."""
+
+    table: pd.DataFrame
+    """One row per method (candidate trial ids, ``plain_bc``, ``expert``): means and CIs of
+    every metric, constraints, ``feasible``, ``n_train_seeds``, ``episodes_with_violation``."""
+    episodes: pd.DataFrame
+    """One row per evaluated episode (``method``, ``train_seed``, ``env_seed``, metrics)."""
+    winner: str | None
+    """Trial id of the winner: the best feasible candidate on the re-evaluation (else the
+    least infeasible); ``None`` without candidates."""
+    feasible: bool
+    """Whether the winner met both constraints on the re-evaluation."""
+    message: str
+    """One line saying how the winner was chosen."""
+    configs: dict[str, dict[str, Any]]
+    """Method -> its run configuration (the first seed's)."""
+
+
+def final_workers(spec: StudySpec) -> int:
+    """Actors of the final phase: ``spec.final_workers``, or one per CPU of the cluster."""
+    if spec.final_workers is not None:
+        return spec.final_workers
+    ensure_ray()
+    return max(1, int(cluster_cpus()))
+
+
+def with_seed(cfg: RunConfig, seed: int) -> RunConfig:
+    """``cfg`` with another training seed."""
+    train = dataclasses.replace(cfg.bc.train, seed=seed)
+    return dataclasses.replace(cfg, bc=dataclasses.replace(cfg.bc, train=train))
+
+
+def _train(
+    demos: Demonstrations, runs: list[RunConfig], workers: int, spec: StudySpec, progress: bool
+) -> list[BCNet]:
+    if not runs:
+        return []
+    if workers == 0:  # in the driver, one thread per agent like the trials
+        previous = torch.get_num_threads()
+        try:
+            out = []
+            for r in runs:
+                torch.set_num_threads(r.bc.train.num_threads or 1)
+                out.append(train_run(demos, r, action_bounds=bounds_for(spec))[0].model)
+            return out
+        finally:
+            torch.set_num_threads(previous)
+    trained = train_many(
+        demos, runs, workers=workers, action_bounds=bounds_for(spec), progress=progress
+    )
+    return [result.model for result, _ in trained]
+
+
+def final_phase(
+    spec: StudySpec,
+    job: TrialJob,
+    candidates: pd.DataFrame,
+    checkpoints: Mapping[str, BCNet],
+    demos: Demonstrations,
+    *,
+    progress: bool = True,
+) -> FinalOutcome:
+    """Retrain ``candidates`` (rows of the trial table) with ``final_train_seeds`` seeds each,
+    train plain BC with the same seeds, evaluate all of them and the expert on fresh tracks,
+    and choose the winner on that evaluation.
+
+    Args:
+        checkpoints: trial id -> the trial's trained net (its own seed); a candidate without
+            one is retrained for that seed too.
+    """
+    workers = final_workers(spec)
+    threads = trial_threads(spec.cpus_per_trial)
+    seeds = [spec.base.bc.train.seed + i for i in range(spec.final_train_seeds)]
+    cfgs: dict[str, RunConfig] = {
+        str(row["trial_id"]): spec.run_config({k: row[k] for k in spec.params}, threads)
+        for _, row in candidates.iterrows()
+    }
+    if not cfgs:
+        empty = pd.DataFrame()
+        return FinalOutcome(empty, empty, None, False, "no candidate to re-evaluate", {})
+    first = next(iter(cfgs.values()))
+    cfgs[PLAIN_BC] = spec.baseline_config(first)
+    nets: dict[tuple[str, int], NetSource] = {}
+    todo: list[tuple[str, int, RunConfig]] = []
+    for method, cfg in cfgs.items():
+        for s in seeds:
+            if s == seeds[0] and method in checkpoints:
+                nets[(method, s)] = NetSource.from_model(checkpoints[method], cfg.bc)
+            else:
+                todo.append((method, s, with_seed(cfg, s)))
+    if progress:
+        print(f"final phase: training {len(todo)} agents ({len(cfgs) - 1} candidates and plain "
+              f"BC x {len(seeds)} seeds) on {max(workers, 1)} worker(s)")  # fmt: skip
+    models = _train(demos, [r for *_, r in todo], workers, spec, progress)
+    for (method, s, run), model in zip(todo, models, strict=True):
+        nets[(method, s)] = NetSource.from_model(model, run.bc)
+
+    per = spec.final_tracks_per_seed()
+    expert = ExpertSource(stored_expert_config(Path(job.demos)))
+    parts = []
+    previous = torch.get_num_threads()
+    torch.set_num_threads(threads)  # in-process evaluation: more threads ran slower here
+    try:
+        for i, s in enumerate(seeds):
+            sources: dict[str, Any] = {f"{m} seed={s}": nets[(m, s)] for m in cfgs}
+            sources[f"{EXPERT} block={i}"] = expert
+            config = EvalConfig(
+                episodes=per,
+                first_episode=i * per,
+                workers=workers,
+                seed=spec.final_seed,
+                env=spec.env,
+                max_steps=spec.max_steps,
+                eps=spec.critical_eps,
+            )
+            if progress:
+                print(f"final phase: seed {s}, tracks {i * per}..{(i + 1) * per - 1} of block "
+                      f"{spec.final_seed}")  # fmt: skip
+            eps = evaluate(sources, config, np.asarray(job.cost_limits), progress=progress)
+            ep = eps.episodes
+            ep.insert(0, "train_seed", s)
+            ep.insert(0, "method", ep["policy"].str.split(" ").str[0])
+            parts.append(ep)
+    finally:
+        torch.set_num_threads(previous)
+    episodes = pd.concat(parts, ignore_index=True)
+    table = summarize_policies(episodes, ["method"], group="train_seed", seed=spec.final_seed)
+    order = {m: i for i, m in enumerate([*cfgs, EXPERT])}
+    table = table.sort_values("method", key=lambda c: c.map(order)).reset_index(drop=True)
+    cons = pd.DataFrame([constraints(r, job.limits) for r in table.to_dict("records")])
+    table = pd.concat([table, cons], axis=1)
+    table["feasible"] = table["constraint"] <= 0
+    table["role"] = ["candidate" if m in cfgs and m != PLAIN_BC else m for m in table["method"]]
+    winner, feasible, message = choose_final(table)
+    configs = {m: c.to_dict() for m, c in cfgs.items()}
+    return FinalOutcome(table, episodes, winner, feasible, message, configs)
+
+
+def choose_final(table: pd.DataFrame) -> tuple[str | None, bool, str]:
+    """The best feasible candidate by re-evaluated reward, else the least infeasible one.
+
+    >>> t = pd.DataFrame({"method": ["a", "b", "plain_bc"], "role": ["candidate"] * 2 +
+    ...     ["plain_bc"], "reward": [900.0, 950.0, 990.0], "constraint": [-1.0, 0.5, -2.0]})
+    >>> choose_final(t)[:2]
+    ('a', True)
+    """
+    cands = table[table["role"] == "candidate"]
+    cands = cands[np.isfinite(cands["reward"].astype(float))]
+    if cands.empty:
+        return None, False, "no candidate finished its re-evaluation"
+    ok = cands[cands["constraint"] <= 0]
+    if not ok.empty:
+        best = ok.sort_values(["reward", "method"], ascending=[False, True]).iloc[0]
+        return (
+            str(best["method"]),
+            True,
+            f"winner {best['method']}: highest re-evaluated reward {best['reward']:.1f} among "
+            f"{len(ok)}/{len(cands)} feasible candidates",
+        )
+    best = cands.sort_values(["constraint", "reward"], ascending=[True, False]).iloc[0]
+    return (
+        str(best["method"]),
+        False,
+        f"no candidate met both constraints on the re-evaluation: closest is {best['method']} "
+        f"(constraint {best['constraint']:.3g}, reward {best['reward']:.1f})",
+    )
