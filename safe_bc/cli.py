@@ -178,9 +178,9 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
 
     from safe_bc.bc import load_checkpoint, read_checkpoint_meta
     from safe_bc.data.store import read_table, write_table_atomic
-    from safe_bc.distributed.evaluate import evaluate_policies
+    from safe_bc.distributed.evaluate import evaluate
     from safe_bc.evaluation import EvalConfig, NetSource
-    from safe_bc.metrics import summarize
+    from safe_bc.metrics import METRICS
     from safe_bc.provenance import run_metadata
     from safe_bc.tasks import task_defaults, task_of
 
@@ -192,24 +192,24 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
             f"{args.checkpoint}: no env_id in the checkpoint; train with safe-bc train"
         )
     task = task_defaults(task_of(extra["env_id"]))
-    eps = float(sel_meta.get("config", {}).get("eps", task.eps))
+    sel_cfg = sel_meta.get("config", {})
     cfg = EvalConfig(
         episodes=args.episodes,
         workers=args.workers,
         seed=args.eval_seed,
         env=task.env,
         max_steps=args.max_steps,
-        eps=eps,
+        eps=float(sel_cfg.get("eps", task.eps)),
+        combine=sel_cfg.get("combine", "any"),
     )
-    episodes, steps = evaluate_policies(
+    result = evaluate(
         {"agent": NetSource.from_model(model, bc_cfg)},
         cfg,
-        thresholds=np.asarray(sel_meta["thresholds"]),
+        np.asarray(sel_meta["thresholds"]),
         progress=not args.quiet,
     )
-    metrics = ["reward", "safety_mean", "safety_std", "safety_min", "offroad_steps"]
-    metrics += ["critical_share", "tiles_visited"] if task.env.is_carracing else []
-    table = summarize(episodes.assign(method="agent"), ["method"], metrics, group=None)
+    episodes, steps, table = result.episodes, result.steps, result.summary
+    metrics = [m for m in METRICS if m in table]
     meta = run_metadata(
         checkpoint=str(args.checkpoint),
         trained_with=extra.get("run"),
@@ -228,42 +228,57 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
 
 
 def _cmd_expert(args: argparse.Namespace) -> int:
-    from safe_bc.data.store import write_table_atomic, write_text_atomic
-    from safe_bc.distributed.evaluate import evaluate_policies
+    from safe_bc.data.store import load_demonstrations, write_table_atomic, write_text_atomic
+    from safe_bc.distributed.collect import ensure_demos
+    from safe_bc.distributed.evaluate import evaluate
     from safe_bc.evaluation import EvalConfig, ExpertSource
-    from safe_bc.metrics import summarize
+    from safe_bc.metrics import METRICS
     from safe_bc.provenance import run_metadata
     from safe_bc.tasks import task_defaults
 
     task = task_defaults(args.env)
+    demos_path = args.demos or Path(task.demos)
+    ensure_demos(demos_path, task.collect_config(), progress=not args.quiet)
+    demos = load_demonstrations(demos_path)
+    limits = demos.limits
     cfg = EvalConfig(
-        episodes=args.episodes, workers=args.workers, seed=args.eval_seed, env=task.env
+        episodes=args.episodes,
+        workers=args.workers,
+        seed=args.eval_seed,
+        env=task.env,
+        eps=task.eps,
     )
-    episodes, _ = evaluate_policies(
-        {"expert": ExpertSource(task.expert)}, cfg, progress=not args.quiet
-    )
-    metrics = ["reward", "safety_mean", "safety_std", "safety_min", "offroad_steps", "steps"]
-    metrics += [c for c in episodes.columns if c.startswith("safety_") and c.endswith("_mean")]
+    result = evaluate({"expert": ExpertSource(task.expert)}, cfg, limits, progress=not args.quiet)
+    episodes, table = result.episodes, result.summary
+    metrics = [m for m in METRICS if m in table]
+    metrics += [c for c in table.columns if c.startswith("safety_") and c.endswith("_mean")]
     metrics = list(dict.fromkeys(metrics))
-    table = summarize(episodes.assign(method="expert"), ["method"], metrics, group=None)
     meta = run_metadata(
         expert=repr(task.expert),
         env=args.env,
         episodes=args.episodes,
         eval_seed=args.eval_seed,
         env_seeds=episodes["env_seed"].tolist(),
+        demos=str(demos_path),
+        limits=[float(x) for x in limits],
+        eps=task.eps,
     )
     args.out.mkdir(parents=True, exist_ok=True)
     write_table_atomic(args.out / "expert_episodes.parquet", episodes, meta)
     write_table_atomic(args.out / "expert.parquet", table, meta)
     r = table.iloc[0]
+    dims = ", ".join(f"{d} {x:.2f}" for d, x in zip(demos.safety_dims, limits, strict=True))
     lines = ["| metric | mean | 95% CI |", "|---|---|---|"]
     lines += [f"| {m} | {r[m]:.2f} | [{r[m + '_lo']:.2f}, {r[m + '_hi']:.2f}] |" for m in metrics]
     lines += [
         "",
-        f"min reward {episodes['reward'].min():.1f}, episodes with off-road steps: "
+        f"{len(episodes)} held-out episodes (seeds {episodes['env_seed'].min()}..."
+        f"{episodes['env_seed'].max()}); limits d_s (worst cost of the demonstrations in "
+        f"{demos_path}): {dims}; episodes with a violation: "
+        f"{int(r['episodes_with_violation'])}/{len(episodes)}, with an off-road step: "
         f"{int((episodes['offroad_steps'] > 0).sum())}/{len(episodes)}; "
-        f"code {meta['git_revision']}, command `{meta['command']}`",
+        f"min reward {episodes['reward'].min():.1f}; code {meta['git_revision']}, "
+        f"command `{meta['command']}`",
         "",
     ]
     write_text_atomic(args.out / "expert.md", "\n".join(lines))
@@ -397,6 +412,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--workers", type=_positive("--workers"), default=2)
     p.add_argument("--eval-seed", type=_non_negative_int("--eval-seed"), default=3)
     p.add_argument("--out", type=Path, default=Path("results/expert"))
+    p.add_argument(
+        "--demos",
+        type=Path,
+        default=None,
+        help="demonstrations whose worst costs d_s define violations (default: the task's; "
+        "built if absent)",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_expert)
 
