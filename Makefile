@@ -36,11 +36,12 @@ bench: $(STAMP)
 	$(BIN)/python -m safe_bc.bench
 
 demos: $(STAMP)
+	mkdir -p data
 	$(BIN)/safe-bc collect --out data/demos
 	$(BIN)/safe-bc describe --demos data/demos --out results/demos
 
 expert: $(STAMP)
-	$(BIN)/safe-bc expert --episodes 20 --out results/expert
+	$(BIN)/safe-bc expert --episodes 50 --out results/expert
 
 reproduce: $(STAMP)
 	$(BIN)/safe-bc reproduce

@@ -95,16 +95,33 @@ def _cmd_collect(args: argparse.Namespace) -> int:
 def _cmd_describe(args: argparse.Namespace) -> int:
     import json
 
-    from safe_bc.data.store import load_demonstrations, read_meta, write_text_atomic
+    from safe_bc.data.store import load_demonstrations, read_episodes, read_meta, write_text_atomic
     from safe_bc.experiment import select_for
     from safe_bc.metrics import combined
     from safe_bc.plots import plot_cost_histograms
+    from safe_bc.provenance import provenance
     from safe_bc.selection import SelectionConfig
+    from safe_bc.tasks import task_defaults, task_of
 
     demos = load_demonstrations(args.demos)
     meta = read_meta(args.demos)
+    if args.eps is None:
+        args.eps = task_defaults(task_of(meta.env_id)).eps
     sel = select_for(demos, SelectionConfig(eps=args.eps, alpha=0.0))
     scored = demos.scored
+    offroad = sum(int(ep.offroad.sum()) for ep in read_episodes(args.demos))
+    # the largest cost a state can have: cost + distance is the measurable range per dim
+    top = (demos.costs + demos.safety).max(axis=0)
+    limits = {
+        d: {
+            "d_s": float(sel.thresholds[j]),
+            "closest_distance": float(demos.safety[scored, j].min()),
+            "max_cost": float(top[j]),
+            "inside_range": bool(sel.thresholds[j] < top[j]),
+            "critical_pairs": int(sel.per_dim[:, j].sum()),
+        }
+        for j, d in enumerate(demos.safety_dims)
+    }
     summary = {
         "demos": str(args.demos),
         "pairs": len(demos),
@@ -118,14 +135,27 @@ def _cmd_describe(args: argparse.Namespace) -> int:
             }
             for j, d in enumerate(demos.safety_dims)
         },
+        "offroad_frames": offroad,
+        "limits": limits,
+        "eps": args.eps,
+        "critical_pairs": int(sel.n_critical),
+        "critical_share": float(sel.n_critical / sel.n_valid),
         "selection": sel.to_dict(),
         "dataset": json.loads(meta.to_json()),
+        "described_by": {"command": " ".join(sys.argv), "provenance": provenance()},
     }
     args.out.mkdir(parents=True, exist_ok=True)
     title = f"{args.demos}: {len(demos)} pairs, rev {meta.provenance.get('git_revision', '?')[:12]}"
     plot_cost_histograms(demos, args.out / "cost_histograms.png", eps=args.eps, title=title)
     write_text_atomic(args.out / "summary.json", json.dumps(summary, indent=2) + "\n")
-    print(json.dumps({k: summary[k] for k in ("pairs", "episodes", "safety_mean")}))
+    keys = ("pairs", "episodes", "safety_mean", "offroad_frames", "critical_share")
+    print(json.dumps({k: summary[k] for k in keys}))
+    for d, v in limits.items():
+        print(
+            f"{d:>6}: d_s {v['d_s']:.2f} of {v['max_cost']:.2f} (closest distance "
+            f"{v['closest_distance']:.2f}), critical pairs at eps {args.eps:g}: "
+            f"{v['critical_pairs']}"
+        )
     print(f"wrote {args.out / 'cost_histograms.png'} and {args.out / 'summary.json'}")
     return 0
 
@@ -377,7 +407,12 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("describe", help="cost histograms and summary of a demonstration set")
     p.add_argument("--demos", type=Path, default=DEFAULT_DEMOS)
     p.add_argument("--out", type=Path, default=Path("results/demos"))
-    p.add_argument("--eps", type=_non_negative_float("--eps"), default=5.0)
+    p.add_argument(
+        "--eps",
+        type=_non_negative_float("--eps"),
+        default=None,
+        help="critical-zone width (default: the task's, 2 px / 0.05)",
+    )
     p.set_defaults(func=_cmd_describe)
 
     p = sub.add_parser("train", help="select T_eps and train one BC agent (checkpoint)")
