@@ -41,7 +41,7 @@ if TYPE_CHECKING:
 
 __all__ = ["CASES", "FULL", "QUICK", "Sizes", "main", "run_case", "run_case_subprocess"]
 
-CASES: tuple[str, ...] = ("env", "collect", "train", "eval")
+CASES: tuple[str, ...] = ("env", "collect", "train", "eval", "study", "final")
 """Benchmark cases, in the order they run."""
 
 DEFAULT_OUT = Path("results/bench.parquet")
@@ -101,6 +101,12 @@ class Sizes:
     """``max_steps`` of each evaluation episode."""
     act_steps: int
     """Steps of the per-step env vs inference timing, per repetition."""
+    study_trials: int = 4
+    """Trials of the tiny study timed at 1 and at 2 concurrent trials."""
+    study_batches: int = 100
+    """Training batches per trial of the tiny study."""
+    final_episodes: int = 4
+    """Episodes per policy of the final-phase evaluation (2 policies)."""
 
 
 FULL = Sizes(
@@ -122,6 +128,9 @@ QUICK = Sizes(
     eval_episodes=1,
     eval_steps=60,
     act_steps=40,
+    study_trials=2,
+    study_batches=10,
+    final_episodes=1,
 )
 
 BATCH_SIZE = 64
@@ -636,6 +645,145 @@ def bench_eval(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
     ]
 
 
+# ------------------------------------------------------------------------- case: study, final
+
+
+class _TrialClock:
+    """Tune callback: wall time from the first trial's start to the last trial's end."""
+
+    def __init__(self) -> None:
+        self.first: float | None = None
+        self.last = 0.0
+        self.done = 0
+
+    def setup(self, **info: Any) -> None:
+        """Tune calls this before the experiment starts (nothing to do)."""
+
+    def __getattr__(self, name: str) -> Any:  # every other Tune callback hook: a no-op
+        if name.startswith("on_") or name in ("get_state", "set_state"):
+            return lambda *args, **kwargs: None
+        raise AttributeError(name)
+
+    def on_trial_start(self, iteration: int, trials: list, trial: Any, **info: Any) -> None:
+        if self.first is None:
+            self.first = time.perf_counter()
+
+    def on_trial_complete(self, iteration: int, trials: list, trial: Any, **info: Any) -> None:
+        self.last = time.perf_counter()
+        self.done += 1
+
+
+def _bench_demos(root: Path, seed: int) -> Path:
+    """Two short real CarRacing demonstration episodes for the study cases."""
+    from safe_bc.collection import CollectConfig
+    from safe_bc.distributed.collect import collect
+
+    out = root / "demos"
+    collect(CollectConfig(episodes=2, workers=2, max_steps=150, seed=seed), out, progress=False)
+    return out
+
+
+def _tiny_study(root: Path, demos: Path, sizes: Sizes, concurrent: int, seed: int) -> Any:
+    from dataclasses import replace
+
+    from safe_bc.study import load_study
+
+    repo = Path(__file__).resolve().parents[1]
+    smoke = load_study(repo / "tune_jobs" / "smoke.py")
+    return replace(
+        smoke,
+        name=f"bench_c{concurrent}",
+        demos=demos,
+        storage=str(root / "ray"),
+        results=root / "results",
+        trials=sizes.study_trials,
+        batches=sizes.study_batches,
+        max_concurrent=concurrent,
+        screen_episodes=0,
+        eval_episodes=1,
+        max_steps=sizes.eval_steps,
+        final_candidates=1,
+        final_train_seeds=1,
+        final_episodes=1,
+        final_workers=0,
+        sampler_seed=seed,
+    )
+
+
+def bench_study(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
+    """Trials/min of the study's tuning loop (a tiny study) at 1 vs 2 concurrent trials."""
+    from safe_bc.distributed.runtime import ensure_ray
+    from safe_bc.distributed.study import run_study
+
+    ensure_ray()
+    rates: dict[int, list[float]] = {1: [], 2: []}
+    with tempfile.TemporaryDirectory(prefix="bench-study-") as tmp:
+        demos = _bench_demos(Path(tmp), seed)
+        for rep in range(repeats):
+            for concurrent in _order([1, 2], rep):
+                clock = _TrialClock()
+                spec = _tiny_study(Path(tmp) / f"r{rep}", demos, sizes, concurrent, seed)
+                run_study(spec, fresh=True, progress=False, callbacks=[clock])
+                assert clock.first is not None and clock.done == spec.trials
+                rates[concurrent].append(60.0 * clock.done / (clock.last - clock.first))
+    note = (
+        f"tune_jobs/smoke.py shrunk: {sizes.study_trials} trials x {sizes.study_batches} "
+        f"batches, 1 eval episode of <= {sizes.eval_steps} steps, 1 CPU per trial; first trial "
+        "start to last trial end (the final phase excluded)"
+    )
+    return [
+        _self_row("study", "1 concurrent trial", rates[1], "trials/min", note),
+        _row(
+            "study",
+            "2 concurrent trials",
+            rates[2],
+            "trials/min",
+            ("1 concurrent trial", rates[1]),
+            note,
+        ),
+    ]
+
+
+def bench_final(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
+    """Episodes/min of the final phase's evaluation: one actor per CPU vs one actor."""
+    from safe_bc.distributed.evaluate import evaluate
+    from safe_bc.distributed.runtime import cluster_cpus, ensure_ray
+    from safe_bc.evaluation import EvalConfig
+
+    ensure_ray()
+    cpus = max(1, int(cluster_cpus()))
+    sources = {"a": _untrained_source(seed), "b": _untrained_source(seed + 1)}
+    rates: dict[int, list[float]] = {1: [], cpus: []}
+    for rep in range(repeats):
+        for workers in _order(list(rates), rep):
+            config = EvalConfig(
+                episodes=sizes.final_episodes,
+                workers=workers,
+                seed=seed,
+                max_steps=sizes.eval_steps,
+            )
+            t0 = time.perf_counter()
+            result = evaluate(sources, config, None, progress=False)
+            rates[workers].append(60.0 * len(result.episodes) / (time.perf_counter() - t0))
+    note = (
+        f"evaluate() of 2 untrained default BC nets x {sizes.final_episodes} episodes of <= "
+        f"{sizes.eval_steps} steps, actor start-up included (as in the final phase)"
+    )
+    rows = [_self_row("final", "1 worker", rates[1], "episodes/min", note)]
+    if cpus > 1:
+        rows.append(
+            _row(
+                "final",
+                f"{cpus} workers (every CPU)",
+                rates[cpus],
+                "episodes/min",
+                ("1 worker", rates[1]),
+                note,
+            )
+        )
+    return rows
+
+
 # ---------------------------------------------------------------------------- running cases
 
 _BENCHES: dict[str, Callable[[Sizes, int, int], list[dict[str, Any]]]] = {
@@ -643,6 +791,8 @@ _BENCHES: dict[str, Callable[[Sizes, int, int], list[dict[str, Any]]]] = {
     "collect": bench_collect,
     "train": bench_train,
     "eval": bench_eval,
+    "study": bench_study,
+    "final": bench_final,
 }
 
 

@@ -72,3 +72,16 @@ def test_parse_cases_rejects_unknown():
     assert bench._parse_cases("env, train") == ["env", "train"]
     with pytest.raises(argparse.ArgumentTypeError):
         bench._parse_cases("env,nope")
+
+
+@pytest.mark.slow
+def test_quick_study_and_final_cases_measure_ratios():
+    """The study's trials/min at 1 vs 2 concurrent trials and the final phase's episodes/min."""
+    rows = bench.run_case("study", bench.QUICK, repeats=1)["rows"]
+    rows += bench.run_case("final", bench.QUICK, repeats=1)["rows"]
+    by = {(r["case"], r["variant"]): r for r in rows}
+    two = by[("study", "2 concurrent trials")]
+    assert two["baseline"] == "1 concurrent trial" and two["unit"] == "trials/min"
+    assert math.isfinite(two["ratio"]) and two["ratio"] > 0
+    one = by[("final", "1 worker")]
+    assert one["unit"] == "episodes/min" and one["value"] > 0
