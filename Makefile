@@ -33,7 +33,7 @@ format: $(STAMP)
 	$(BIN)/ruff check --fix .
 
 bench: $(STAMP)
-	$(BIN)/python -m safe_bc.bench
+	$(BIN)/python -m benchmarks.bench
 
 demos: $(STAMP)
 	mkdir -p data

@@ -1,4 +1,4 @@
-"""`python -m safe_bc.bench --quick`: table schema, finite positive ratios, metadata.
+"""`python -m benchmarks.bench --quick`: table schema, finite positive ratios, metadata.
 
 No timing thresholds: the machine is shared, only the shape of the results is checked.
 """
@@ -10,7 +10,7 @@ import math
 
 import pytest
 
-from safe_bc import bench
+from benchmarks import bench
 from safe_bc.data.store import read_table
 
 

@@ -8,7 +8,7 @@ import gymnasium as gym
 import pytest
 
 from safe_bc.experts import CarRacingExpert, Perturbation, PerturbationConfig
-from safe_bc.experts.evaluate_expert import RolloutStats, make_env, rollout
+from scripts.evaluate_expert import RolloutStats, make_env, rollout
 
 TRACK_SEEDS: tuple[int, ...] = (3, 21)
 """Track seeds of the short test episodes (not the 10000+ evaluation seeds)."""

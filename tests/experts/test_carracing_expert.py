@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from safe_bc.experts import CarRacingExpert, ExpertConfig, lateral_offset, lateral_offsets
-from safe_bc.experts.evaluate_expert import RolloutStats
 from safe_bc.experts.geometry import ROAD_HALF_WIDTH
 from safe_bc.policy import Policy
+from scripts.evaluate_expert import RolloutStats
 
 from .conftest import STEPS
 

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from safe_bc.experts import CarRacingExpert, Perturbation, PerturbationConfig
-from safe_bc.experts.evaluate_expert import RolloutStats, rollout
 from safe_bc.experts.geometry import CAR_HALF_WIDTH, ROAD_HALF_WIDTH
+from scripts.evaluate_expert import RolloutStats, rollout
 
 from .conftest import STEPS, TRACK_SEEDS
 

@@ -6,7 +6,7 @@ so the car mostly stays on the road, which is what demonstrations look like), ti
 ``env.step`` calls, and alternates the variants within each repetition so that load from other
 processes hits both alike. Compare the ratio, not the absolute numbers.
 
-    python -m safe_bc.envs.bench_render --steps 1000 --repeats 3
+    python -m benchmarks.bench_render --steps 1000 --repeats 3
 """
 
 from __future__ import annotations

@@ -2,8 +2,8 @@
 
 Usage::
 
-    .venv/bin/python -m safe_bc.experts.evaluate_expert            # 20 seeds 10000..10019
-    .venv/bin/python -m safe_bc.experts.evaluate_expert --num-seeds 5 --perturbation drift
+    .venv/bin/python -m scripts.evaluate_expert            # 20 seeds 10000..10019
+    .venv/bin/python -m scripts.evaluate_expert --num-seeds 5 --perturbation drift
 
 Prints one line per episode and, per perturbation mode, the mean / std / min reward,
 episode length, offroad steps (all four wheels off the road) and the largest

@@ -5,13 +5,13 @@ every comparison is a *ratio* against a baseline measured in the same process, w
 variants interleaved (their order alternates between repetitions) so that load from other
 processes hits both alike. Compare ratios, not absolute numbers.
 
-Each case runs in its own subprocess (``python -m safe_bc.bench --case X --json``) so that
+Each case runs in its own subprocess (``python -m benchmarks.bench --case X --json``) so that
 its peak memory can be read with ``getrusage``; the driver collects the rows, prints a table
 and writes ``results/bench.parquet`` with machine information and provenance in the table
 metadata.
 
-    python -m safe_bc.bench                       # all cases, ~4-5 minutes on 2 busy cores
-    python -m safe_bc.bench --quick --cases env,train --repeats 2
+    python -m benchmarks.bench                       # all cases, ~4-5 minutes on 2 busy cores
+    python -m benchmarks.bench --quick --cases env,train --repeats 2
 """
 
 from __future__ import annotations
@@ -261,7 +261,7 @@ def _maxrss_mb(who: int) -> float:
 
 def bench_env(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
     """Stock vs fast CarRacing steps/s (wall clock and CPU time) from ``bench_render``."""
-    from safe_bc.envs.bench_render import bench_render
+    from benchmarks.bench_render import bench_render
 
     rows = {r["variant"]: r for r in bench_render(sizes.env_steps, repeats, seed)}
     stock, fast = rows["stock"], rows["fast"]
@@ -826,16 +826,18 @@ def run_case(case: str, sizes: Sizes, repeats: int, seed: int = 0) -> dict[str, 
 def run_case_subprocess(
     case: str, quick: bool, repeats: int, seed: int = 0, timeout: float = 900.0
 ) -> dict[str, Any]:
-    """``run_case`` in a fresh ``python -m safe_bc.bench --case ... --json`` process.
+    """``run_case`` in a fresh ``python -m benchmarks.bench --case ... --json`` process.
 
     The child's stderr (Ray and progress messages) passes through; its stdout is one JSON
     document.
     """
-    cmd = [sys.executable, "-m", "safe_bc.bench", "--case", case, "--json"]
+    cmd = [sys.executable, "-m", "benchmarks.bench", "--case", case, "--json"]
     cmd += ["--repeats", str(repeats), "--seed", str(seed)] + (["--quick"] if quick else [])
     env = {**os.environ, "RAY_AUTH_MODE": os.environ.get("RAY_AUTH_MODE", "disabled")}
+    repo = Path(__file__).resolve().parents[1]  # ``benchmarks`` is importable from the root
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(repo), env.get("PYTHONPATH", "")) if p)
     proc = subprocess.run(
-        cmd, stdout=subprocess.PIPE, text=True, timeout=timeout, env=env, check=False
+        cmd, stdout=subprocess.PIPE, text=True, timeout=timeout, env=env, check=False, cwd=repo
     )
     if proc.returncode != 0:
         raise RuntimeError(f"bench case {case!r} failed with exit status {proc.returncode}")
@@ -932,7 +934,7 @@ def write_results(
 
     frame = pd.DataFrame(list(rows), columns=list(COLUMNS))
     metadata = {
-        "benchmark": "safe_bc.bench",
+        "benchmark": "benchmarks.bench",
         "settings": settings,
         "machine": machine_info(),
         "provenance": provenance(),
@@ -959,7 +961,7 @@ def _parse_cases(text: str) -> list[str]:
 
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog="python -m safe_bc.bench", description=(__doc__ or "").splitlines()[0]
+        prog="python -m benchmarks.bench", description=(__doc__ or "").splitlines()[0]
     )
     parser.add_argument("--quick", action="store_true", help="small sizes (used by the tests)")
     parser.add_argument("--repeats", type=int, default=None, help="repetitions (3; quick: 2)")
