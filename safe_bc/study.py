@@ -224,9 +224,14 @@ class StudySpec:
     ``combined(demos.safety[demos.scored]).mean()``."""
     critical_eps: float = 2.0
     """Width of the critical zone behind ``critical_share`` (fixed, so trials compare)."""
-    safety_constraint: SafetyConstraint = "per_dim"
+    safety_constraint: SafetyConstraint = "combined"
     """``"combined"``: safety mean (smallest distance) >= the expert's; ``"per_dim"``: that and
-    every dimension's mean >= the expert's mean in that dimension (stricter)."""
+    every dimension's mean >= the expert's mean in that dimension (stricter). The default is
+    ``"combined"`` because, measured on CarRacing, ``"per_dim"`` admitted no trial at all
+    (``results/default_per_dim/``): the left and right distances add up to the road's width,
+    so a policy cannot be further from the grass than the expert on *both* sides on average.
+    The per-dimension limits still bind step by step: a violation is a step beyond ``d_s`` in
+    any dimension."""
     violation_tolerance: float = 0.0
     """Largest allowed share of evaluated steps beyond the expert's limit ``d_s``."""
     demos: Path = Path("data/demos")
@@ -432,7 +437,7 @@ class Limits:
     """Per-dimension safety-mean thresholds (used with ``safety_constraint="per_dim"``)."""
     violation_tolerance: float
     """Largest allowed ``violation_rate``."""
-    safety_constraint: SafetyConstraint = "per_dim"
+    safety_constraint: SafetyConstraint = "combined"
     """Which safety constraint applies."""
 
 
