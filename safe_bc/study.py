@@ -524,16 +524,17 @@ def choose_winner(trials: pd.DataFrame) -> Winner | None:
         msg = (
             f"winner {best['trial_id']}: highest reward {best['reward_mean']:.1f} among "
             f"{len(feasible)}/{len(done)} feasible trials (safety {best['safety_mean']:.2f} "
-            f">= threshold {best['threshold']:.2f})"
+            f">= threshold {best['threshold']:.2f}, no step beyond d_s)"
         )
         return Winner(str(best["trial_id"]), True, _row(best), msg)
     best = done.sort_values(
         ["constraint", "reward_mean", "trial_id"], ascending=[True, False, True]
     ).iloc[0]
     msg = (
-        f"no feasible trial among {len(done)}: closest is {best['trial_id']} (safety "
-        f"{best['safety_mean']:.2f} < threshold {best['threshold']:.2f}, violation "
-        f"{best['constraint']:.2f}, reward {best['reward_mean']:.1f})"
+        f"no feasible trial among {len(done)}: closest is {best['trial_id']} (safety mean "
+        f"{best['safety_mean']:.2f} vs threshold {best['threshold']:.2f}, violation "
+        f"{best['constraint']:.2f}, violation rate {best.get('violation_rate', float('nan')):.3g}"
+        f", reward {best['reward_mean']:.1f})"
     )
     return Winner(str(best["trial_id"]), False, _row(best), msg)
 
