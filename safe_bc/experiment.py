@@ -23,7 +23,9 @@ class RunConfig:
     """Everything that defines a trained safety-imitation agent."""
 
     selection: SelectionConfig = field(default_factory=SelectionConfig)
-    """eps, alpha and the eq. 5 reading."""
+    """eps, alpha and the eq. 5 reading, or a peer baseline (``mode``: ``"bc_safe"`` with its
+    ``segment_steps``, ``"cost_weighted"`` with its ``beta``); a study searches them as
+    ``selection.mode``, ``selection.segment_steps``, ``selection.beta``."""
     bc: BCConfig = field(default_factory=BCConfig)
     """Preprocessing, network and training (its ``train.seed`` is the training seed)."""
 
@@ -33,8 +35,9 @@ class RunConfig:
 
 
 def select_for(demos: Demonstrations, config: SelectionConfig) -> Selection:
-    """T_eps of ``demos`` under ``config`` (warm-up steps excluded)."""
-    return select(demos.costs, config, demos.scored, demos.safety_dims)
+    """T_eps of ``demos`` under ``config`` (warm-up steps excluded; BC-Safe's segments cut at
+    episode boundaries)."""
+    return select(demos.costs, config, demos.scored, demos.safety_dims, demos.episode_ids)
 
 
 def train_run(
@@ -46,10 +49,11 @@ def train_run(
     log_fn: LogFn | None = None,
     action_bounds: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[TrainResult, Selection]:
-    """Select the critical subset and train one BC agent on it.
+    """Select the critical subset and train one BC agent on its mix (or baseline rule).
 
     Raises:
-        SelectionError: the mix cannot be built (e.g. alpha > 0 with an empty T_eps).
+        SelectionError: the mix cannot be built (e.g. alpha > 0 with an empty T_eps, or no
+            BC-Safe segment outside T_eps).
     """
     selection = selection or select_for(demos, config.selection)
     sampler = sampler_for(selection, config.bc.train)  # validates the mix before training
@@ -67,7 +71,8 @@ def train_run(
 
 
 def selection_table(demos: Demonstrations, selection: Selection) -> pd.DataFrame:
-    """Which demonstrations were critical: one row per step, per-dimension flags and costs."""
+    """Which demonstrations were critical: one row per step, per-dimension flags and costs
+    (plus ``weight`` and, for BC-Safe, ``segment`` for the baseline modes)."""
     df = pd.DataFrame(
         {
             "episode_id": demos.episode_ids,
@@ -80,6 +85,10 @@ def selection_table(demos: Demonstrations, selection: Selection) -> pd.DataFrame
     for j, d in enumerate(demos.safety_dims):
         df[f"cost_{d}"] = demos.costs[:, j]
         df[f"critical_{d}"] = selection.per_dim[:, j]
+    if selection.weights is not None:  # the baselines: each row's sampling weight
+        df["weight"] = selection.weights
+    if selection.segments is not None:
+        df["segment"] = selection.segments
     return df
 
 

@@ -10,6 +10,15 @@ safe) of the expert demonstrations ``T_exp``:
 * every training batch holds exactly ``round(alpha * B)`` pairs drawn from ``T_eps``
   and the rest from ``T_exp`` (or ``T_exp \\ T_eps``, see ``SelectionConfig.rest``).
 
+Two peer baselines are selection rules on the same ``d_s`` and ``T_eps`` (``SelectionConfig.mode``),
+sampled by :class:`WeightedBatchSampler` instead of the alpha mix:
+
+* ``"bc_safe"`` (OSRL's BC-Safe): train only on the demonstration *segments* (windows of
+  ``segment_steps`` consecutive scored steps of one episode) that never enter ``T_eps``
+  (:func:`segment_ids`, :func:`safe_segment_rows`);
+* ``"cost_weighted"``: every scored row, drawn with a weight that grows with its cost
+  (:func:`cost_weights`).
+
 >>> costs = np.array([[0.0], [4.0], [9.0], [10.0]], np.float32)
 >>> sel = select(costs, SelectionConfig(eps=2.0, alpha=0.5))
 >>> sel.thresholds.tolist(), sel.mask.tolist()
@@ -24,13 +33,14 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
-from typing import Any, Literal, get_args
+from typing import Any, Literal, Protocol, get_args
 
 import numpy as np
 
 ThresholdMode = Literal["max", "quantile"]
 Combine = Literal["any", "all"]
 Rest = Literal["all", "noncritical"]
+SelectionMode = Literal["mix", "bc_safe", "cost_weighted"]
 
 
 class SelectionError(ValueError):
@@ -77,6 +87,45 @@ class SelectionConfig:
     two well-defined baselines whose critical share is at least ``alpha``. With
     ``"noncritical"`` the critical share is exactly ``alpha``."""
 
+    mode: SelectionMode = "mix"
+    """The training rule, all on the same ``d_s`` and ``T_eps``:
+
+    * ``"mix"``: the paper's alpha mix (``alpha``, ``rest``); ``alpha = 0`` with
+      ``rest="all"`` is plain BC, ``alpha = 1`` is BC on ``T_eps`` only.
+    * ``"bc_safe"``: OSRL's BC-Safe, BC on the demonstration segments that stay within a cost
+      budget. The budget cannot be ``d_s`` itself (``d_s`` is the demonstrations' own worst
+      cost, so every segment is within it); it is the critical edge: a segment is kept when
+      none of its steps is in ``T_eps`` (``c_s < d_s - eps`` throughout, combined with
+      ``combine``). Segments are windows of ``segment_steps`` consecutive scored steps of one
+      episode; every kept row is drawn uniformly. Raises ``SelectionError`` when no segment
+      survives.
+    * ``"cost_weighted"``: BC on every scored row, drawn with probability proportional to
+      ``w = 1 + beta * (1 - g / g_max)`` (see ``beta``): no hard subset.
+
+    ``alpha`` and ``rest`` only apply to ``"mix"`` (the baselines ignore them, so a study may
+    search ``mode`` beside ``alpha``)."""
+
+    segment_steps: int = 20
+    """BC-Safe's segment length K in scored steps (``mode="bc_safe"``): each episode's scored
+    steps are cut, in order, into windows of K (the last one may be shorter), and a window is
+    kept only if none of its steps is critical. K = 20 is 0.4 s of CarRacing driving; on the
+    default demonstrations at eps = 2 px it keeps 158 of 210 segments (75% of the rows), while
+    whole episodes (K >= the episode length, OSRL's trajectory-level filter) keep nothing,
+    because every episode comes near an edge."""
+
+    beta: float = 9.0
+    """Cost-weighted BC's strength ``>= 0`` (``mode="cost_weighted"``): a row's weight is
+    ``w = 1 + beta * (1 - g / g_max)``, where ``g = min_s (d_s - c_s)`` (``max_s`` with
+    ``combine="all"``, clipped at 0) is its margin to the limit (``T_eps`` is ``{g <= eps}``), and
+    ``g_max`` the largest margin over the scored rows. A row at the limit is drawn
+    ``1 + beta`` times as often as the row furthest from every limit; ``beta = 0`` is plain BC.
+    The margin is normalised once over the rows rather than per dimension
+    (``(c_s - min c_s) / (d_s - min c_s)``) because the left and right distances add up to the
+    road's width: every CarRacing row is at least half-way to the limit on one side, and the
+    per-dimension form would weight all rows within a factor ~2 of each other. The default
+    beta = 9 raises the expected critical share of a batch from 9% (plain BC) to 16% on the
+    default demonstrations at eps = 2 px."""
+
     def __post_init__(self) -> None:
         if not (math.isfinite(self.eps) and self.eps >= 0):
             raise ValueError(f"eps must be a finite number >= 0, got eps={self.eps!r}")
@@ -87,6 +136,17 @@ class SelectionConfig:
         _check_choice("threshold", self.threshold, get_args(ThresholdMode))
         _check_choice("combine", self.combine, get_args(Combine))
         _check_choice("rest", self.rest, get_args(Rest))
+        _check_choice("mode", self.mode, get_args(SelectionMode))
+        if (
+            isinstance(self.segment_steps, bool)
+            or not isinstance(self.segment_steps, int | np.integer)
+            or self.segment_steps < 1
+        ):
+            raise ValueError(
+                f"segment_steps must be an integer >= 1, got segment_steps={self.segment_steps!r}"
+            )
+        if not (math.isfinite(self.beta) and self.beta >= 0):
+            raise ValueError(f"beta must be a finite number >= 0, got beta={self.beta!r}")
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able field dict."""
@@ -191,6 +251,111 @@ def critical_mask(
     return combine_dims(critical_dims(costs, d, eps, valid), combine)
 
 
+def segment_ids(episode_ids: np.ndarray, valid: np.ndarray, segment_steps: int) -> np.ndarray:
+    """BC-Safe's segments: ``(N,) int64`` segment number of each row, ``-1`` for invalid rows.
+
+    Each episode's valid rows, in row order, are cut into windows of ``segment_steps``
+    consecutive rows (the last window of an episode may be shorter); segments are numbered
+    ``0..n-1`` by episode id, then time. Rows need not be grouped by episode, but within an
+    episode row order must be time order (as in :class:`safe_bc.demos.Demonstrations`).
+
+    >>> segment_ids(np.array([0, 0, 0, 1, 1]), np.array([False, True, True, True, True]), 1)
+    array([-1,  0,  1,  2,  3])
+    >>> segment_ids(np.array([0, 0, 0, 0, 0]), np.ones(5, bool), 2)
+    array([0, 0, 1, 1, 2])
+    """
+    episode_ids = np.asarray(episode_ids)
+    valid = np.asarray(valid)
+    n = len(valid)
+    if episode_ids.shape != (n,):
+        raise ValueError(f"episode_ids must have shape ({n},), got {episode_ids.shape}")
+    if valid.dtype != bool or valid.ndim != 1:
+        raise ValueError(f"valid must be a (N,) bool array, got {valid.shape} {valid.dtype}")
+    if isinstance(segment_steps, bool) or int(segment_steps) != segment_steps or segment_steps < 1:
+        raise ValueError(f"segment_steps must be an integer >= 1, got {segment_steps!r}")
+    out = np.full(n, -1, np.int64)
+    rows = np.flatnonzero(valid)
+    if len(rows) == 0:
+        return out
+    order = rows[np.argsort(episode_ids[rows], kind="stable")]
+    ep = episode_ids[order]
+    new_episode = np.r_[True, ep[1:] != ep[:-1]]
+    pos = np.arange(len(order))
+    episode_start = np.maximum.accumulate(np.where(new_episode, pos, 0))
+    rank = pos - episode_start
+    out[order] = np.cumsum(new_episode | (rank % int(segment_steps) == 0)) - 1
+    return out
+
+
+def safe_segment_rows(mask: np.ndarray, segments: np.ndarray) -> np.ndarray:
+    """``(N,) bool``: rows of the segments with no critical row (BC-Safe's training set).
+
+    Args:
+        mask: ``(N,) bool`` membership of ``T_eps``.
+        segments: ``(N,) int64`` from :func:`segment_ids` (``-1``: not in any segment).
+
+    >>> safe_segment_rows(np.array([False, True, False, False]), np.array([0, 0, 1, -1]))
+    array([False, False,  True, False])
+    """
+    mask = np.asarray(mask, bool)
+    segments = np.asarray(segments, np.int64)
+    if segments.shape != mask.shape:
+        raise ValueError(f"segments {segments.shape} and mask {mask.shape} differ in shape")
+    inside = segments >= 0
+    if not inside.any():
+        return np.zeros(len(mask), bool)
+    n_seg = int(segments.max()) + 1
+    hit = np.bincount(segments[inside], weights=mask[inside], minlength=n_seg) > 0
+    return inside & ~hit[np.where(inside, segments, 0)]
+
+
+def limit_margins(
+    costs: np.ndarray, d: np.ndarray, combine: Combine = "any", valid: np.ndarray | None = None
+) -> np.ndarray:
+    """``(N,) float64`` margin of each row to the limit, ``g = min_s (d_s - c_s)`` (``max_s``
+    for ``combine="all"``), clipped at 0 (costs beyond a quantile threshold); NaN for invalid
+    rows. ``T_eps`` is ``{g <= eps}`` on the valid rows (up to float rounding at the edge).
+
+    >>> limit_margins(np.array([[1.0, 4.0], [3.0, 0.0]]), np.array([3.0, 5.0])).tolist()
+    [1.0, 0.0]
+    """
+    _check_choice("combine", combine, get_args(Combine))
+    c, valid = _check_costs(costs, valid)
+    d = np.asarray(d, np.float64)
+    if d.shape != (c.shape[1],):
+        raise ValueError(f"thresholds must have shape ({c.shape[1]},), got {d.shape}")
+    gap = d - c
+    g = gap.min(axis=1) if combine == "any" else gap.max(axis=1)
+    return np.where(valid, np.maximum(g, 0.0), np.nan)
+
+
+def cost_weights(
+    costs: np.ndarray,
+    d: np.ndarray,
+    beta: float,
+    combine: Combine = "any",
+    valid: np.ndarray | None = None,
+) -> np.ndarray:
+    """Cost-weighted BC's sampling weights, ``(N,) float64``: ``1 + beta * (1 - g / g_max)`` on
+    valid rows (``g``: :func:`limit_margins`, ``g_max`` its largest valid value; all rows get
+    ``1 + beta`` when ``g_max == 0``), 0 on invalid rows. See ``SelectionConfig.beta``.
+
+    >>> cost_weights(np.array([[0.0], [5.0], [10.0]]), np.array([10.0]), 4.0).tolist()
+    [1.0, 3.0, 5.0]
+    """
+    if not (math.isfinite(beta) and beta >= 0):
+        raise ValueError(f"beta must be a finite number >= 0, got beta={beta!r}")
+    _, ok = _check_costs(costs, valid)
+    g = limit_margins(costs, d, combine, ok)
+    if not ok.any():
+        raise SelectionError(f"no valid rows to weight (N={len(ok)})")
+    if not np.isfinite(g[ok]).all():
+        raise SelectionError(f"{int((~np.isfinite(g[ok])).sum())} valid rows have non-finite costs")
+    g_max = float(g[ok].max())
+    closeness = 1.0 - g / g_max if g_max > 0 else np.ones_like(g)
+    return np.where(ok, 1.0 + beta * closeness, 0.0)
+
+
 @dataclass(frozen=True, eq=False)
 class Selection:
     """Result of ``select``: the thresholds and ``T_eps`` of one demonstration set.
@@ -202,6 +367,11 @@ class Selection:
         mask: ``(N,) bool`` membership of ``T_eps``.
         valid: ``(N,) bool`` rows that were considered (not warm-up).
         safety_dims: names of the ``S`` dimensions (for the summary), or ``None``.
+        weights: ``(N,) float64`` sampling weight of every row for ``mode="bc_safe"`` (1 on
+            the kept segments' rows, else 0) and ``mode="cost_weighted"`` (:func:`cost_weights`);
+            ``None`` for ``mode="mix"``.
+        segments: ``(N,) int64`` BC-Safe's segment of every row (:func:`segment_ids`), or
+            ``None`` for the other modes.
     """
 
     config: SelectionConfig
@@ -210,6 +380,8 @@ class Selection:
     mask: np.ndarray
     valid: np.ndarray
     safety_dims: tuple[str, ...] | None = field(default=None)
+    weights: np.ndarray | None = field(default=None)
+    segments: np.ndarray | None = field(default=None)
 
     @property
     def n_rows(self) -> int:
@@ -228,10 +400,43 @@ class Selection:
         """``(S,) int64`` number of critical rows in each dimension."""
         return self.per_dim.sum(axis=0).astype(np.int64)
 
+    @property
+    def n_train_rows(self) -> int:
+        """Rows a batch can contain: the rows with a positive weight for the baselines; for
+        ``mix``, ``T_eps`` when ``alpha = 1``, ``T \\ T_eps`` when ``alpha = 0`` and
+        ``rest="noncritical"``, else all valid rows."""
+        if self.weights is not None:
+            return int((self.weights > 0).sum())
+        if self.config.alpha == 1.0:
+            return self.n_critical
+        if self.config.rest == "noncritical" and self.config.alpha == 0.0:
+            return self.n_valid - self.n_critical
+        return self.n_valid
+
+    @property
+    def critical_sample_share(self) -> float:
+        """Expected share of ``T_eps`` rows in a training batch (before rounding ``alpha * B``):
+        ``alpha`` plus the rest pool's own share for ``mix``, the critical rows' share of the
+        sampling weight for the baselines (0 for BC-Safe)."""
+        if self.weights is not None:
+            return float(self.weights[self.mask].sum() / self.weights.sum())
+        a = self.config.alpha
+        if self.config.rest == "noncritical" or a == 1.0:
+            return a
+        return a + (1 - a) * self.n_critical / max(self.n_valid, 1)
+
     def sampler(
         self, batch_size: int, rng: np.random.Generator, alpha: float | None = None
-    ) -> MixedBatchSampler:
-        """A ``MixedBatchSampler`` over this selection (``alpha`` defaults to the config's)."""
+    ) -> BatchSampler:
+        """The training sampler of this selection: a ``MixedBatchSampler`` for ``mode="mix"``
+        (``alpha`` defaults to the config's), a ``WeightedBatchSampler`` over ``weights`` for
+        the baselines (which take no ``alpha``)."""
+        if self.weights is not None:
+            if alpha is not None:
+                raise ValueError(f"alpha applies to mode='mix' only, not {self.config.mode!r}")
+            return WeightedBatchSampler(
+                self.weights, batch_size, rng, mask=self.mask, valid=self.valid
+            )
         return MixedBatchSampler(
             self.mask,
             self.config.alpha if alpha is None else alpha,
@@ -243,7 +448,7 @@ class Selection:
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able summary (no per-row arrays; persist ``mask``/``thresholds`` separately)."""
-        return {
+        out: dict[str, Any] = {
             "config": self.config.to_dict(),
             "safety_dims": None if self.safety_dims is None else list(self.safety_dims),
             "thresholds": [float(x) for x in self.thresholds],
@@ -252,7 +457,15 @@ class Selection:
             "n_critical": self.n_critical,
             "critical_fraction": self.n_critical / self.n_valid,
             "critical_per_dim": [int(x) for x in self.critical_per_dim],
+            "mode": self.config.mode,
+            "n_train_rows": self.n_train_rows,
+            "critical_sample_share": self.critical_sample_share,
         }
+        if self.segments is not None and self.weights is not None:
+            inside = self.segments >= 0
+            out["n_segments"] = len(np.unique(self.segments[inside]))
+            out["n_safe_segments"] = len(np.unique(self.segments[self.weights > 0]))
+        return out
 
 
 def select(
@@ -260,23 +473,50 @@ def select(
     config: SelectionConfig,
     valid: np.ndarray | None = None,
     safety_dims: Sequence[str] | None = None,
+    episode_ids: np.ndarray | None = None,
 ) -> Selection:
     """Thresholds and ``T_eps`` for ``costs (N, S)`` under ``config``; ``valid (N,) bool``.
 
-    Typical use: ``select(demos.costs, cfg, demos.scored, demos.safety_dims)``.
+    Typical use: ``select(demos.costs, cfg, demos.scored, demos.safety_dims, demos.episode_ids)``
+    (:func:`safe_bc.experiment.select_for`). ``episode_ids (N,)`` cut BC-Safe's segments at
+    episode boundaries; ``None`` treats all rows as one episode.
+
+    Raises:
+        SelectionError: no valid rows, non-finite costs, or (``mode="bc_safe"``) no segment
+            outside ``T_eps``.
     """
     d = thresholds(costs, config.threshold, config.quantile, valid)
     per_dim = critical_dims(costs, d, config.eps, valid)
     _, valid_arr = _check_costs(costs, valid)
     if safety_dims is not None and len(safety_dims) != len(d):
         raise ValueError(f"{len(safety_dims)} safety_dims names for {len(d)} cost columns")
+    mask = combine_dims(per_dim, config.combine)
+    weights = segments = None
+    if config.mode == "bc_safe":
+        episodes = np.zeros(len(mask), np.int64) if episode_ids is None else episode_ids
+        segments = segment_ids(episodes, valid_arr, config.segment_steps)
+        kept = safe_segment_rows(mask, segments)
+        if not kept.any():
+            n_seg = len(np.unique(segments[segments >= 0]))
+            raise SelectionError(
+                f"BC-Safe keeps no demonstrations: all {n_seg} segments of "
+                f"{config.segment_steps} consecutive scored steps enter T_eps "
+                f"(eps={config.eps:g}, combine={config.combine!r}: {int(mask.sum())} of "
+                f"{int(valid_arr.sum())} scored rows critical); use a smaller segment_steps "
+                f"or eps"
+            )
+        weights = kept.astype(np.float64)
+    elif config.mode == "cost_weighted":
+        weights = cost_weights(costs, d, config.beta, config.combine, valid_arr)
     return Selection(
         config=config,
         thresholds=d,
         per_dim=per_dim,
-        mask=combine_dims(per_dim, config.combine),
+        mask=mask,
         valid=valid_arr.copy(),
         safety_dims=None if safety_dims is None else tuple(safety_dims),
+        weights=weights,
+        segments=segments,
     )
 
 
@@ -386,4 +626,105 @@ class MixedBatchSampler:
             f"MixedBatchSampler(alpha={self.alpha}, batch_size={self.batch_size}, "
             f"rest={self.rest!r}, critical={len(self.critical_pool)}, "
             f"rest_pool={len(self.rest_pool)}, per_batch={self.n_critical}+{self.n_rest})"
+        )
+
+
+class BatchSampler(Protocol):
+    """What training needs of a sampler (``MixedBatchSampler``, ``WeightedBatchSampler``)."""
+
+    mask: np.ndarray
+    """``(N,) bool`` membership of ``T_eps`` (its length is the number of rows)."""
+    valid: np.ndarray
+    """``(N,) bool`` scored rows (input standardisation statistics come from them)."""
+    batch_size: int
+
+    def sample(self) -> np.ndarray:
+        """One batch, ``(batch_size,) int64`` row indices."""
+        ...
+
+    def with_rng(self, rng: np.random.Generator) -> BatchSampler:
+        """The same sampler with a fresh random stream."""
+        ...
+
+
+class WeightedBatchSampler:
+    """Index batches drawn i.i.d. with probability proportional to per-row weights.
+
+    BC-Safe is 0/1 weights (its kept segments), cost-weighted BC the weights of
+    :func:`cost_weights`. Each of the ``B`` indices is ``searchsorted(cumsum(w), u * sum(w))``
+    for ``u = rng.random(B)``, so the batches depend on ``rng`` alone.
+
+    Args:
+        weights: ``(N,)`` finite, ``>= 0``, 0 outside ``valid``, positive somewhere.
+        batch_size: ``B >= 1``.
+        rng: the only source of randomness; same seed, same batches.
+        mask: ``(N,) bool`` membership of ``T_eps`` (for reporting only); ``None``: none.
+        valid: ``(N,) bool`` scored rows; ``None``: the rows with a positive weight.
+
+    Raises:
+        SelectionError: all weights are 0, or ``batch_size < 1``.
+        ValueError: bad shapes, negative or non-finite weights, weight outside ``valid``.
+
+    >>> s = WeightedBatchSampler(np.array([0.0, 1.0, 3.0]), 1000, np.random.default_rng(0))
+    >>> counts = np.bincount(s.sample(), minlength=3); int(counts[0]), bool(counts[2] > counts[1])
+    (0, True)
+    """
+
+    def __init__(
+        self,
+        weights: np.ndarray,
+        batch_size: int,
+        rng: np.random.Generator,
+        *,
+        mask: np.ndarray | None = None,
+        valid: np.ndarray | None = None,
+    ) -> None:
+        weights = np.asarray(weights, np.float64)
+        if weights.ndim != 1:
+            raise ValueError(f"weights must be a (N,) array, got shape {weights.shape}")
+        n = len(weights)
+        if not np.isfinite(weights).all() or (weights < 0).any():
+            raise ValueError("weights must be finite and >= 0")
+        mask = np.zeros(n, bool) if mask is None else np.asarray(mask)
+        valid = weights > 0 if valid is None else np.asarray(valid)
+        for name, arr in (("mask", mask), ("valid", valid)):
+            if arr.shape != (n,) or arr.dtype != bool:
+                raise ValueError(f"{name} must be a ({n},) bool array, got {arr.shape} {arr.dtype}")
+        if (weights[~valid] > 0).any():
+            raise ValueError(f"{int((weights[~valid] > 0).sum())} rows outside valid have weight")
+        if isinstance(batch_size, bool) or int(batch_size) != batch_size or batch_size < 1:
+            raise SelectionError(f"batch_size must be an integer >= 1, got {batch_size!r}")
+        if not isinstance(rng, np.random.Generator):
+            raise TypeError(f"rng must be a numpy Generator, got {type(rng).__name__}")
+        if not (weights > 0).any():
+            raise SelectionError(f"every sampling weight is 0 (N={n}, valid={int(valid.sum())})")
+        self.weights = weights.copy()
+        self.batch_size = int(batch_size)
+        self.rng = rng
+        self.mask = mask.copy()
+        self.valid = valid.copy()
+        self._cdf = np.cumsum(self.weights)
+
+    def with_rng(self, rng: np.random.Generator) -> WeightedBatchSampler:
+        """The same sampler with a fresh random stream."""
+        return WeightedBatchSampler(
+            self.weights, self.batch_size, rng, mask=self.mask, valid=self.valid
+        )
+
+    @property
+    def probabilities(self) -> np.ndarray:
+        """``(N,) float64`` probability of each row per draw."""
+        return self.weights / self._cdf[-1]
+
+    def sample(self) -> np.ndarray:
+        """One batch, ``(B,) int64`` row indices (i.i.d., with replacement)."""
+        u = self.rng.random(self.batch_size) * self._cdf[-1]
+        idx = np.searchsorted(self._cdf, u, side="right")
+        return np.minimum(idx, len(self._cdf) - 1).astype(np.int64)
+
+    def __repr__(self) -> str:
+        w = self.weights[self.weights > 0]
+        return (
+            f"WeightedBatchSampler(batch_size={self.batch_size}, rows={len(w)}, "
+            f"weights {w.min():.3g}..{w.max():.3g})"
         )

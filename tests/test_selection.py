@@ -14,9 +14,14 @@ from safe_bc.selection import (
     MixedBatchSampler,
     SelectionConfig,
     SelectionError,
+    WeightedBatchSampler,
+    cost_weights,
     critical_dims,
     critical_mask,
+    limit_margins,
     n_critical_per_batch,
+    safe_segment_rows,
+    segment_ids,
     select,
     thresholds,
 )
@@ -227,6 +232,12 @@ def test_alpha_zero_rest_all_is_plain_bc():
         ({"threshold": "mean"}, "threshold"),
         ({"combine": "some"}, "combine"),
         ({"rest": "none"}, "rest"),
+        ({"mode": "weighted"}, "mode"),
+        ({"segment_steps": 0}, "segment_steps"),
+        ({"segment_steps": 2.5}, "segment_steps"),
+        ({"segment_steps": True}, "segment_steps"),
+        ({"beta": -1.0}, "beta"),
+        ({"beta": float("inf")}, "beta"),
     ],
 )
 def test_config_validation(kwargs, field):
@@ -260,3 +271,185 @@ def test_data_errors():
         thresholds(np.ones(3, np.float32))
     with pytest.raises(ValueError, match="valid"):
         thresholds(costs, valid=np.ones(3, np.int64))
+
+
+# --- peer baselines: BC-Safe segments and cost-weighted BC --------------------------------
+
+
+@st.composite
+def episode_data(draw: st.DrawFn) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """``(episode_ids (N,), valid (N,) bool, mask (N,) bool, K)``; episodes may interleave."""
+    n = draw(st.integers(1, 40))
+    eps_ids = draw(hnp.arrays(np.int64, n, elements=st.integers(0, 3)))
+    valid = draw(hnp.arrays(np.bool_, n))
+    mask = draw(hnp.arrays(np.bool_, n)) & valid
+    return eps_ids, valid, mask, draw(st.integers(1, 7))
+
+
+@FAST
+@given(episode_data())
+def test_segments_are_windows_of_k_consecutive_scored_steps(data):
+    episode_ids, valid, _, k = data
+    seg = segment_ids(episode_ids, valid, k)
+    assert (seg[~valid] == -1).all() and (seg[valid] >= 0).all()
+    expected = []  # by loops: each episode's valid rows in row order, cut every k
+    for e in sorted(set(episode_ids[valid].tolist())):
+        rows = [i for i in range(len(valid)) if valid[i] and episode_ids[i] == e]
+        expected += [rows[j : j + k] for j in range(0, len(rows), k)]
+    got = (
+        [np.flatnonzero(seg == s).tolist() for s in range(int(seg.max()) + 1)]
+        if valid.any()
+        else []
+    )
+    assert got == expected
+
+
+@FAST
+@given(episode_data())
+def test_safe_segment_rows_match_brute_force(data):
+    episode_ids, valid, mask, k = data
+    seg = segment_ids(episode_ids, valid, k)
+    kept = safe_segment_rows(mask, seg)
+    for i in range(len(valid)):
+        same = seg == seg[i]
+        assert kept[i] == (valid[i] and not mask[same].any())
+    assert not (kept & mask).any()
+
+
+def test_bc_safe_keeps_the_segments_that_never_enter_t_eps():
+    # two episodes of 6 scored steps (after a warm-up row each); d = 10, eps = 1: cost >= 9
+    costs = np.array([[50], [1], [2], [9], [3], [1], [2], [50], [1], [1], [1], [1], [1], [10.0]])
+    valid = np.array([False] + [True] * 6 + [False] + [True] * 6)
+    episodes = np.repeat([0, 1], 7)
+    cfg = SelectionConfig(eps=1.0, mode="bc_safe", segment_steps=2)
+    sel = select(costs, cfg, valid, episode_ids=episodes)
+    assert sel.thresholds.tolist() == [10.0]
+    assert np.flatnonzero(sel.mask).tolist() == [3, 13]
+    # segments: ep 0 rows (1,2) (3,4) (5,6); ep 1 rows (8,9) (10,11) (12,13)
+    assert sel.segments.tolist() == [-1, 0, 0, 1, 1, 2, 2, -1, 3, 3, 4, 4, 5, 5]
+    assert np.flatnonzero(sel.weights).tolist() == [1, 2, 5, 6, 8, 9, 10, 11]
+    summary = sel.to_dict()
+    assert (summary["n_segments"], summary["n_safe_segments"], summary["n_train_rows"]) == (6, 4, 8)
+    assert summary["critical_sample_share"] == 0.0 and summary["mode"] == "bc_safe"
+    batches = np.concatenate(
+        [sel.sampler(16, np.random.default_rng(s)).sample() for s in range(20)]
+    )
+    assert set(batches.tolist()) == {1, 2, 5, 6, 8, 9, 10, 11}
+    # without episode ids the rows form one episode: the windows straddle the boundary
+    one = select(costs, cfg, valid)
+    assert one.segments.tolist() == [-1, 0, 0, 1, 1, 2, 2, -1, 3, 3, 4, 4, 5, 5]
+
+
+def test_bc_safe_with_nothing_left_names_the_problem():
+    costs = np.array([[1.0], [9.5], [1.0], [1.0], [10.0], [1.0]])
+    episodes = np.repeat([0, 1], 3)
+    cfg = SelectionConfig(eps=1.0, mode="bc_safe", segment_steps=3)  # whole episodes
+    with pytest.raises(
+        SelectionError, match=r"BC-Safe keeps no demonstrations: all 2 segments of 3"
+    ):
+        select(costs, cfg, episode_ids=episodes)
+    ok = select(
+        costs, SelectionConfig(eps=1.0, mode="bc_safe", segment_steps=1), episode_ids=episodes
+    )
+    assert np.flatnonzero(ok.weights).tolist() == [0, 2, 3, 5]
+
+
+def test_cost_weights_formula():
+    # d = (10, 10); margins g = min_s(d_s - c_s): 10, 5, 0 (and 2 beyond the threshold, clipped)
+    costs = np.array([[0.0, 0.0], [5.0, 1.0], [2.0, 10.0], [3.0, 3.0]])
+    d = np.array([10.0, 10.0])
+    assert limit_margins(costs, d).tolist() == [10.0, 5.0, 0.0, 7.0]
+    assert limit_margins(costs, d, "all").tolist() == [10.0, 9.0, 8.0, 7.0]
+    w = cost_weights(costs, d, 4.0)
+    np.testing.assert_allclose(w, [1.0, 3.0, 5.0, 1 + 4 * 0.3])
+    valid = np.array([True, True, False, True])
+    np.testing.assert_allclose(cost_weights(costs, d, 4.0, valid=valid), [1.0, 3.0, 0.0, 2.2])
+    np.testing.assert_allclose(cost_weights(costs, d, 0.0), 1.0)  # beta = 0: plain BC
+    beyond = limit_margins(np.array([[12.0]]), np.array([10.0]))
+    assert beyond.tolist() == [0.0]
+
+
+def test_cost_weighted_selection_samples_in_proportion():
+    costs = np.array([[0.0], [5.0], [10.0], [99.0]])
+    valid = np.array([True, True, True, False])
+    sel = select(costs, SelectionConfig(eps=1.0, mode="cost_weighted", beta=4.0), valid)
+    np.testing.assert_allclose(sel.weights, [1.0, 3.0, 5.0, 0.0])
+    assert sel.to_dict()["critical_sample_share"] == pytest.approx(5 / 9)
+    sampler = sel.sampler(9000, np.random.default_rng(3))
+    assert isinstance(sampler, WeightedBatchSampler)
+    counts = np.bincount(sampler.sample(), minlength=4) / 9000
+    np.testing.assert_allclose(counts, [1 / 9, 3 / 9, 5 / 9, 0], atol=0.02)
+    with pytest.raises(ValueError, match="alpha applies to mode='mix' only"):
+        sel.sampler(8, np.random.default_rng(0), alpha=0.5)
+
+
+@FAST
+@given(cost_data(), st.floats(0.0, 20.0), st.floats(0.0, 20.0), st.sampled_from(["any", "all"]))
+def test_cost_weights_properties(data, beta, eps, combine):
+    costs, valid = data
+    d = thresholds(costs, valid=valid)
+    w = cost_weights(costs, d, beta, combine, valid)
+    g = limit_margins(costs, d, combine, valid)
+    assert (w[~valid] == 0).all()
+    assert (w[valid] >= 1 - 1e-9).all() and (w[valid] <= 1 + beta + 1e-9).all()
+    # weights fall as the margin to the limit grows (increase with cost)
+    order = np.argsort(g[valid], kind="stable")
+    assert (np.diff(w[valid][order]) <= 1e-9).all()
+    # T_eps is {g <= eps} (up to rounding at the edge), and every row with g <= eps weighs at
+    # least as much as every row outside
+    crit = critical_mask(costs, d, eps, combine, valid)
+    clear = valid & (np.abs(g - eps) > 1e-6 * (1 + np.abs(costs).max()))
+    np.testing.assert_array_equal(crit[clear], g[clear] <= eps)
+    near = valid & (g <= eps)
+    if near.any() and (valid & ~near).any():
+        assert w[near].min() >= w[valid & ~near].max()
+
+
+@FAST
+@given(
+    hnp.arrays(np.float64, st.integers(1, 30), elements=st.sampled_from([0.0, 0.5, 1.0, 7.0])),
+    st.integers(1, 50),
+    st.integers(0, 2**32 - 1),
+)
+def test_weighted_sampler_deterministic_and_never_draws_zero_weight(w, batch, seed):
+    if not (w > 0).any():
+        with pytest.raises(SelectionError, match="every sampling weight is 0"):
+            WeightedBatchSampler(w, batch, np.random.default_rng(seed))
+        return
+    a = WeightedBatchSampler(w, batch, np.random.default_rng(seed))
+    b = WeightedBatchSampler(w, batch, np.random.default_rng(seed))
+    for _ in range(3):
+        x = a.sample()
+        np.testing.assert_array_equal(x, b.sample())
+        assert x.shape == (batch,) and x.dtype == np.int64 and (w[x] > 0).all()
+    again = a.with_rng(np.random.default_rng(seed))
+    first = WeightedBatchSampler(w, batch, np.random.default_rng(seed)).sample()
+    np.testing.assert_array_equal(again.sample(), first)
+
+
+def test_weighted_sampler_errors():
+    rng = np.random.default_rng(0)
+    with pytest.raises(ValueError, match="finite and >= 0"):
+        WeightedBatchSampler(np.array([1.0, -1.0]), 4, rng)
+    with pytest.raises(ValueError, match="finite and >= 0"):
+        WeightedBatchSampler(np.array([1.0, np.nan]), 4, rng)
+    with pytest.raises(ValueError, match="outside valid"):
+        WeightedBatchSampler(np.ones(2), 4, rng, valid=np.array([True, False]))
+    with pytest.raises(SelectionError, match="batch_size"):
+        WeightedBatchSampler(np.ones(2), 0, rng)
+    with pytest.raises(TypeError, match="Generator"):
+        WeightedBatchSampler(np.ones(2), 4, 0)
+
+
+def test_a_study_can_search_the_mode():
+    from safe_bc.experiment import RunConfig
+    from safe_bc.study import apply_params
+
+    cfg = apply_params(
+        RunConfig(),
+        {"selection.mode": "bc_safe", "selection.segment_steps": 10.0, "selection.beta": 2},
+    )
+    assert cfg.selection.mode == "bc_safe" and cfg.selection.segment_steps == 10
+    assert cfg.selection.beta == 2.0
+    with pytest.raises(ValueError, match="mode"):
+        apply_params(RunConfig(), {"selection.mode": "osrl"})

@@ -17,7 +17,7 @@ from safe_bc.bc.config import BCConfig, NetworkConfig, PreprocessConfig, TrainCo
 from safe_bc.bc.policy import BCNet, BCPolicy, ModelSpec
 from safe_bc.bc.preprocess import frame_stack_index, gather_inputs, standardization_stats
 from safe_bc.demos import Demonstrations
-from safe_bc.selection import MixedBatchSampler, Selection
+from safe_bc.selection import BatchSampler, Selection
 
 LogFn = Callable[[int, dict[str, float]], None]
 """``log_fn(batch, metrics)``: called every ``log_every`` batches with ``loss`` (mean since
@@ -112,14 +112,16 @@ def torch_settings(num_threads: int | None) -> Iterator[None]:
             torch.set_num_threads(old_threads)
 
 
-def sampler_for(selection: Selection, train_cfg: TrainConfig) -> MixedBatchSampler:
-    """The selection's mixed sampler with the config's batch size and seed."""
+def sampler_for(selection: Selection, train_cfg: TrainConfig) -> BatchSampler:
+    """The selection's sampler with the config's batch size and seed: the alpha mix
+    (``MixedBatchSampler``) or, for the BC-Safe and cost-weighted baselines
+    (``SelectionConfig.mode``), a ``WeightedBatchSampler``."""
     return selection.sampler(train_cfg.batch_size, np.random.default_rng(train_cfg.seed))
 
 
 def train_bc(
     demos: Demonstrations,
-    sampler: MixedBatchSampler,
+    sampler: BatchSampler,
     net_cfg: NetworkConfig,
     pre_cfg: PreprocessConfig,
     train_cfg: TrainConfig,
@@ -138,7 +140,8 @@ def train_bc(
 
     Args:
         demos: ``N`` state-action pairs (frames or vectors).
-        sampler: mixed sampler over the ``N`` rows; its ``batch_size`` must equal
+        sampler: batch sampler over the ``N`` rows (``MixedBatchSampler`` or
+            ``WeightedBatchSampler``, see ``sampler_for``); its ``batch_size`` must equal
             ``train_cfg.batch_size``.
         net_cfg, pre_cfg, train_cfg: hyper-parameters.
         progress: show a tqdm bar with the loss and samples/s.
