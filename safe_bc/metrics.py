@@ -313,3 +313,181 @@ def paired_differences(
             row[f"d_{m}"], row[f"d_{m}_lo"], row[f"d_{m}_hi"] = mean, lo, hi
         rows.append(row)
     return pd.DataFrame(rows)
+
+
+def crossed_bootstrap_ci(
+    cells: np.ndarray,
+    *,
+    confidence: float = 0.95,
+    n_boot: int = 2000,
+    rng: np.random.Generator,
+) -> tuple[float, float, float]:
+    """Mean of a crossed ``(training seeds, tracks)`` table with a crossed bootstrap CI.
+
+    In Table 1 every agent of every method is evaluated on the *same* held-out tracks
+    (``env_seed``) and the training seeds are shared too: a cell ``(s, t)`` is the metric of
+    seed ``s``'s agent on track ``t``. Each replicate draws the seeds (rows) with replacement
+    and, independently, the tracks (columns) with replacement, and averages the chosen
+    seeds x chosen tracks cells (missing cells, NaN, are skipped). The nested two-level
+    bootstrap (:func:`bootstrap_ci` with groups: seeds, then episodes within each seed) draws
+    every seed's tracks separately, as if each seed had its own tracks; with shared tracks a
+    hard track is hard for every seed at once, so the nested bootstrap averages that
+    variation away (by a factor of the number of seeds) and its intervals under-cover, the
+    more so the fewer seeds there are.
+
+    Args:
+        cells: ``(S, T)`` values, ``NaN`` where a cell was not evaluated.
+        confidence: in ``(0, 1)``.
+        n_boot: bootstrap replicates.
+        rng: the only source of randomness.
+
+    Returns:
+        ``(mean over the cells, low, high)``; ``low == high == mean`` for a single cell, NaN
+        for no cell.
+
+    >>> cells = np.array([[1.0, 5.0], [2.0, 6.0]])
+    >>> m, lo, hi = crossed_bootstrap_ci(cells, rng=np.random.default_rng(0))
+    >>> m, bool(1.0 <= lo <= m <= hi <= 6.0)
+    (3.5, True)
+    """
+    cells = np.asarray(cells, np.float64)
+    if cells.ndim != 2:
+        raise ValueError(f"cells must be a (seeds, tracks) array, got shape {cells.shape}")
+    if not 0 < confidence < 1:
+        raise ValueError(f"confidence must be in (0, 1), got {confidence}")
+    if n_boot < 1:
+        raise ValueError(f"n_boot must be >= 1, got {n_boot}")
+    present = ~np.isnan(cells)
+    if not present.any():
+        return (float("nan"),) * 3
+    mean = float(cells[present].mean())
+    if present.sum() == 1:
+        return mean, mean, mean
+    n_s, n_t = cells.shape
+    filled = np.where(present, cells, 0.0)
+    boots = np.empty(n_boot)
+    chunk = max(1, 2_000_000 // max(n_s * n_t, 1))
+    for start in range(0, n_boot, chunk):
+        b = min(chunk, n_boot - start)
+        si = rng.integers(0, n_s, (b, n_s))
+        ti = rng.integers(0, n_t, (b, n_t))
+        pick = (si[:, :, None], ti[:, None, :])
+        total = filled[pick].sum(axis=(1, 2))
+        count = present[pick].sum(axis=(1, 2))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            boots[start : start + b] = total / count
+    tail = (1 - confidence) / 2
+    lo, hi = np.nanquantile(boots, [tail, 1 - tail])
+    return mean, float(lo), float(hi)
+
+
+def cell_table(
+    episodes: pd.DataFrame, metric: str, *, seeds: str = "train_seed", tracks: str = "env_seed"
+) -> pd.DataFrame:
+    """``(training seeds, tracks)`` table of one metric (rows sorted seeds, columns sorted
+    tracks; the mean where a cell has several episodes, NaN where it has none)."""
+    return episodes.pivot_table(index=seeds, columns=tracks, values=metric, aggfunc="mean")
+
+
+def summarize_crossed(
+    episodes: pd.DataFrame,
+    by: Sequence[str],
+    metrics: Sequence[str],
+    *,
+    seeds: str = "train_seed",
+    tracks: str = "env_seed",
+    confidence: float = 0.95,
+    n_boot: int = 2000,
+    seed: int = 0,
+) -> pd.DataFrame:
+    """One row per ``by`` combination: ``<metric>`` mean over its ``(seed, track)`` cells with a
+    crossed bootstrap CI (:func:`crossed_bootstrap_ci`), ``<metric>_lo``/``_hi``,
+    ``n_episodes``, ``n_train_seeds`` and ``n_tracks``.
+
+    Use it instead of :func:`summarize` when every configuration's agents were evaluated on
+    the same tracks (Table 1): see :func:`crossed_bootstrap_ci` for why.
+    """
+    rng = np.random.default_rng(seed)
+    rows = []
+    for key, df in episodes.groupby(list(by), sort=True, dropna=False):
+        row: dict[str, object] = dict(
+            zip(by, key if isinstance(key, tuple) else (key,), strict=True)
+        )
+        row["n_episodes"] = len(df)
+        row["n_train_seeds"] = int(df[seeds].nunique())
+        row["n_tracks"] = int(df[tracks].nunique())
+        for m in metrics:
+            cells = cell_table(df, m, seeds=seeds, tracks=tracks).to_numpy(float)
+            mean, lo, hi = crossed_bootstrap_ci(
+                cells, confidence=confidence, n_boot=n_boot, rng=rng
+            )
+            row[m], row[f"{m}_lo"], row[f"{m}_hi"] = mean, lo, hi
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def paired_crossed(
+    episodes: pd.DataFrame,
+    baseline: str,
+    metrics: Sequence[str],
+    *,
+    by: str = "method",
+    seeds: str = "train_seed",
+    tracks: str = "env_seed",
+    better: str | None = "reward",
+    confidence: float = 0.95,
+    n_boot: int = 2000,
+    seed: int = 0,
+) -> pd.DataFrame:
+    """Per method, the mean difference to ``baseline`` on the same ``(training seed, track)``
+    cells with a crossed bootstrap CI: ``d_<metric>``, ``d_<metric>_lo``, ``d_<metric>_hi``.
+
+    The difference table ``D[s, t] = method[s, t] - baseline[s, t]`` keeps the seeds and
+    tracks both have; it is resampled like :func:`crossed_bootstrap_ci` (seeds and tracks
+    independently), so a track effect shared by all methods cancels exactly. ``n_pairs`` is the
+    number of cells. With ``better`` (a metric where higher is better, e.g. reward):
+    ``seeds_better`` counts the shared training seeds whose mean over the shared tracks beats
+    the baseline's same seed (``mean_t D[s, t] > 0``) out of ``n_seeds_paired``. Methods
+    without a shared cell (e.g. an expert trained once under another seed) are left out.
+
+    >>> df = pd.DataFrame({"method": ["a", "a", "b", "b"], "train_seed": [0, 0, 0, 0],
+    ...                    "env_seed": [1, 2, 1, 2], "reward": [10.0, 20.0, 12.0, 23.0]})
+    >>> out = paired_crossed(df, "a", ["reward"])
+    >>> out[["method", "d_reward", "seeds_better", "n_seeds_paired"]].to_dict("records")
+    [{'method': 'b', 'd_reward': 2.5, 'seeds_better': 1, 'n_seeds_paired': 1}]
+    """
+    rng = np.random.default_rng(seed)
+    names = list(dict.fromkeys([*metrics, *([better] if better else [])]))
+    base = episodes[episodes[by] == baseline]
+    if base.empty:
+        raise ValueError(f"baseline {baseline!r} has no episodes in column {by!r}")
+    base_cells = {m: cell_table(base, m, seeds=seeds, tracks=tracks) for m in names}
+    rows = []
+    for method, df in episodes.groupby(by, sort=True):
+        if method == baseline:
+            continue
+        diffs = {}
+        for m in names:
+            mine = cell_table(df, m, seeds=seeds, tracks=tracks)
+            ref = base_cells[m]
+            rows_, cols = mine.index.intersection(ref.index), mine.columns.intersection(ref.columns)
+            diffs[m] = (mine.loc[rows_, cols] - ref.loc[rows_, cols]).to_numpy(float)
+        first = diffs[names[0]]
+        n_pairs = int((~np.isnan(first)).sum())
+        if n_pairs == 0:
+            continue
+        row: dict[str, object] = {by: method, "n_pairs": n_pairs}
+        for m in metrics:
+            mean, lo, hi = crossed_bootstrap_ci(
+                diffs[m], confidence=confidence, n_boot=n_boot, rng=rng
+            )
+            row[f"d_{m}"], row[f"d_{m}_lo"], row[f"d_{m}_hi"] = mean, lo, hi
+        if better:
+            d = diffs[better]
+            has = ~np.isnan(d).all(axis=1)
+            with np.errstate(invalid="ignore"):
+                per_seed = np.nanmean(np.where(has[:, None], d, 0.0), axis=1)
+            row["seeds_better"] = int((per_seed[has] > 0).sum())
+            row["n_seeds_paired"] = int(has.sum())
+        rows.append(row)
+    return pd.DataFrame(rows)

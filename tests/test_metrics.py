@@ -6,7 +6,14 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from safe_bc.metrics import bootstrap_ci, critical_zone, summarize
+from safe_bc.metrics import (
+    bootstrap_ci,
+    critical_zone,
+    crossed_bootstrap_ci,
+    paired_crossed,
+    summarize,
+    summarize_crossed,
+)
 
 
 def test_ci_covers_the_true_mean_most_of_the_time() -> None:
@@ -52,3 +59,92 @@ def test_summarize_columns() -> None:
         "reward_hi",
     ]
     assert out["reward"].tolist() == [1.5, 3.5]
+
+
+# --- crossed bootstrap: shared training seeds x shared tracks ----------------------------
+
+
+def _crossed_episodes(values: dict[str, np.ndarray]) -> pd.DataFrame:
+    """Long table from ``{method: (seeds, tracks) reward}``; tracks are env seeds 100.."""
+    rows = []
+    for method, cells in values.items():
+        for s in range(cells.shape[0]):
+            for t in range(cells.shape[1]):
+                rows.append(
+                    {"method": method, "train_seed": s, "env_seed": 100 + t, "reward": cells[s, t]}
+                )
+    return pd.DataFrame(rows)
+
+
+def test_pure_track_effect_gives_a_zero_width_paired_interval() -> None:
+    rng = np.random.default_rng(0)
+    track = rng.normal(0, 100, 20)  # hard and easy tracks, the same for every method and seed
+    seeds = rng.normal(0, 5, (8, 1))
+    cells = {"bc": seeds + track, "a": seeds + track + 7.0, "b": seeds + track - 2.0}
+    episodes = _crossed_episodes(cells)
+    table = summarize_crossed(episodes, ["method"], ["reward"])
+    paired = paired_crossed(episodes, "bc", ["reward"]).set_index("method")
+    assert paired.loc["a", "d_reward"] == pytest.approx(7.0)
+    assert paired.loc["a", "d_reward_lo"] == pytest.approx(7.0)
+    assert paired.loc["a", "d_reward_hi"] == pytest.approx(7.0)
+    assert paired.loc["b", "d_reward_hi"] - paired.loc["b", "d_reward_lo"] == pytest.approx(0.0)
+    assert paired.loc["a", "seeds_better"] == 8 and paired.loc["b", "seeds_better"] == 0
+    assert (paired["n_seeds_paired"] == 8).all() and (paired["n_pairs"] == 160).all()
+    # the method means themselves carry the track spread
+    width = table["reward_hi"] - table["reward_lo"]
+    assert (width > 20).all()
+    assert table[["n_train_seeds", "n_tracks", "n_episodes"]].values.tolist() == [[8, 20, 160]] * 3
+
+
+def test_crossed_mean_inside_interval_and_deterministic() -> None:
+    rng = np.random.default_rng(1)
+    cells = rng.normal(5, 1, (4, 6)) + rng.normal(0, 2, (1, 6))
+    cells[2, 3] = np.nan  # a missing evaluation is skipped
+    a = crossed_bootstrap_ci(cells, rng=np.random.default_rng(7))
+    b = crossed_bootstrap_ci(cells, rng=np.random.default_rng(7))
+    assert a == b
+    mean, lo, hi = a
+    assert mean == pytest.approx(np.nanmean(cells)) and lo < mean < hi
+    assert crossed_bootstrap_ci(np.array([[3.0]]), rng=rng) == (3.0, 3.0, 3.0)
+    assert np.isnan(crossed_bootstrap_ci(np.full((2, 2), np.nan), rng=rng)[0])
+    with pytest.raises(ValueError, match="seeds, tracks"):
+        crossed_bootstrap_ci(np.ones(3), rng=rng)
+    with pytest.raises(ValueError, match="confidence"):
+        crossed_bootstrap_ci(np.ones((2, 2)), confidence=1.0, rng=rng)
+
+
+def test_one_seed_is_a_bootstrap_over_tracks() -> None:
+    x = np.arange(10.0)
+    crossed = crossed_bootstrap_ci(x[None, :], rng=np.random.default_rng(0))
+    plain = bootstrap_ci(x, rng=np.random.default_rng(1))
+    assert crossed[0] == plain[0]
+    assert abs((crossed[2] - crossed[1]) - (plain[2] - plain[1])) < 1.0
+
+
+def test_crossed_covers_shared_track_effects_better_than_nested() -> None:
+    # 4 seeds x 10 shared tracks; the track effect dominates; the true mean is 0
+    rng = np.random.default_rng(0)
+    s, t, n = 4, 10, 100
+    hits_crossed = hits_nested = 0
+    for _ in range(n):
+        y = rng.normal(0, 0.3, (s, 1)) + rng.normal(0, 1, (1, t)) + rng.normal(0, 0.3, (s, t))
+        _, lo, hi = crossed_bootstrap_ci(y, n_boot=200, rng=rng)
+        hits_crossed += lo <= 0 <= hi
+        _, lo, hi = bootstrap_ci(y.ravel(), np.repeat(np.arange(s), t), n_boot=200, rng=rng)
+        hits_nested += lo <= 0 <= hi
+    assert hits_crossed / n >= 0.8
+    assert hits_crossed - hits_nested >= 8
+
+
+def test_seeds_better_counts_seed_means() -> None:
+    base = np.zeros((3, 4))
+    other = np.array([[1.0, 1, 1, 1], [-5, 1, 1, 1], [0.5, -0.1, 0, 0]])  # seed means 1, -0.5, .1
+    episodes = _crossed_episodes({"bc": base, "x": other})
+    out = paired_crossed(episodes, "bc", ["reward"]).iloc[0]
+    assert (out["seeds_better"], out["n_seeds_paired"]) == (2, 3)
+    # an expert evaluated once, under a seed the agents lack, has no pairs
+    expert = _crossed_episodes({"expert": np.ones((1, 4))}).assign(train_seed=99)
+    again = paired_crossed(pd.concat([episodes, expert]), "bc", ["reward"])
+    assert again["method"].tolist() == ["x"]
+    with pytest.raises(ValueError, match="baseline"):
+        paired_crossed(episodes, "nope", ["reward"])
