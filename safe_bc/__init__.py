@@ -1,3 +1,26 @@
-"""safe_bc: safety-focused behaviour cloning."""
+"""safe_bc: safety-focused behaviour cloning.
+
+Importing the package registers its gymnasium environment ids, following gymnasium's
+convention for third-party environments:
+
+>>> import gymnasium as gym
+>>> import safe_bc
+>>> env = gym.make("safe_bc/RehabPathway-v0")
+>>> env.close()
+
+Without a prior import, ``gym.make("safe_bc:safe_bc/RehabPathway-v0")`` imports this
+package first (the part before the colon). The ids are
+``safe_bc/RehabPathway-v0`` (the rehabilitation pathway, safety costs in ``info``) and
+``safe_bc/CarRacingFast-v3`` (CarRacing-v3 with a faster, pixel-identical renderer;
+wrap it in :class:`safe_bc.envs.CarRacingSafety`, or use :func:`safe_bc.envs.make_env`,
+for the safety distances in ``info``). Registration imports gymnasium and numpy only
+(no torch, no Ray).
+"""
+
+from safe_bc.envs.factory import ENV_IDS, register_envs
 
 __version__ = "0.1.0"
+
+register_envs()
+
+__all__ = ["ENV_IDS", "__version__", "register_envs"]

@@ -13,6 +13,9 @@ EnvId = Literal["CarRacing-v3", "safe_bc/RehabPathway-v0"]
 Renderer = Literal["fast", "stock"]
 
 FAST_CARRACING_ID = "safe_bc/CarRacingFast-v3"
+REHAB_ID = "safe_bc/RehabPathway-v0"
+ENV_IDS: tuple[str, ...] = (FAST_CARRACING_ID, REHAB_ID)
+"""The gymnasium ids that ``import safe_bc`` (or :func:`register_envs`) registers."""
 
 
 @dataclass(frozen=True)
@@ -42,7 +45,15 @@ class EnvConfig:
 
 
 def register_envs() -> None:
-    """Register safe_bc's environment ids with gymnasium (idempotent)."""
+    """Register safe_bc's environment ids, :data:`ENV_IDS`, with gymnasium (idempotent).
+
+    ``import safe_bc`` calls this, so ``gym.make("safe_bc/RehabPathway-v0")`` works after
+    the import and ``gym.make("safe_bc:safe_bc/RehabPathway-v0")`` works without it.
+    Entry points are strings: nothing heavier than gymnasium is imported here.
+
+    >>> register_envs(); all(env_id in gym.registry for env_id in ENV_IDS)
+    True
+    """
     if FAST_CARRACING_ID not in gym.registry:
         gym.register(
             id=FAST_CARRACING_ID,
