@@ -9,6 +9,8 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import pickle
+import re
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
@@ -30,6 +32,11 @@ class CheckpointError(RuntimeError):
 
 class CheckpointNotFoundError(CheckpointError, FileNotFoundError):
     """The checkpoint directory or one of its files does not exist."""
+
+
+class UnsafeCheckpointError(CheckpointError):
+    """``weights.pt`` holds Python objects that safe loading (``torch.load(weights_only=True)``)
+    refuses: it was not written by :func:`save_checkpoint`. safe_bc never retries unsafely."""
 
 
 def _atomic_write(path: Path, write: Callable[[IO[bytes]], None]) -> None:
@@ -111,6 +118,7 @@ def load_checkpoint(directory: str | Path) -> tuple[BCNet, BCConfig]:
 
     Raises:
         CheckpointNotFoundError: the directory or a file is missing.
+        UnsafeCheckpointError: ``weights.pt`` is refused by safe loading (``weights_only``).
         CheckpointError: malformed JSON, configs, weights, or weights from another save.
     """
     directory = Path(directory)
@@ -128,9 +136,52 @@ def load_checkpoint(directory: str | Path) -> tuple[BCNet, BCConfig]:
         model = BCNet(spec, configs.preprocess, configs.network)
     except (KeyError, TypeError, ValueError) as e:
         raise CheckpointError(f"malformed configs in {directory / CONFIG}: {e!r}") from e
+    state = _load_weights(weights)
     try:
-        state = torch.load(weights, map_location="cpu", weights_only=True)
         model.load_state_dict(state)
-    except Exception as e:  # torch raises several types for corrupt / mismatched files
-        raise CheckpointError(f"cannot load weights from {weights}: {e}") from e
+    except Exception as e:  # RuntimeError for mismatched keys/shapes, others for non-dicts
+        raise CheckpointError(
+            f"cannot load weights from {weights}: they do not fit the net in {CONFIG} "
+            f"({_one_line(e)})"
+        ) from None
     return model.eval(), configs
+
+
+def _one_line(e: BaseException, limit: int = 300) -> str:
+    text = " ".join(line.strip() for line in str(e).splitlines() if line.strip())
+    text = text or type(e).__name__
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _first_line(e: BaseException) -> str:
+    lines = [line.strip() for line in str(e).splitlines() if line.strip()]
+    return lines[0] if lines else type(e).__name__
+
+
+def _load_weights(weights: Path) -> Any:
+    """``torch.load(weights_only=True)`` with one-line errors that name the file.
+
+    A file that safe loading refuses raises :class:`UnsafeCheckpointError` naming the
+    offending Python type; torch's advice to retry with ``weights_only=False`` (which
+    would run arbitrary code from the file) is deliberately not passed on.
+    """
+    try:
+        return torch.load(weights, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError as e:
+        text = str(e)
+        found = re.search(r"GLOBAL ([\w.]+)", text)
+        if found:
+            raise UnsafeCheckpointError(
+                f"{weights}: refused by safe loading: it holds a {found.group(1)} object, not "
+                "just tensors (not written by safe_bc's save_checkpoint; retrain, or re-save "
+                "the state_dict)"
+            ) from None
+        marker = "WeightsUnpickler error:"
+        detail = text.split(marker, 1)[1] if marker in text else text
+        if detail.startswith("Weights only load failed"):  # torch's advice, no detail
+            detail = "refused by safe loading"
+        raise CheckpointError(
+            f"cannot load weights from {weights}: not a torch weights file ({_first_line(detail)})"
+        ) from None
+    except Exception as e:  # torch raises several types for corrupt files
+        raise CheckpointError(f"cannot load weights from {weights}: {_first_line(e)}") from None

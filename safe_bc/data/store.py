@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import tempfile
 from collections.abc import Iterable
 from dataclasses import asdict, dataclass, field
@@ -249,15 +250,39 @@ def check_episode_file(path: Path, meta: DatasetMeta) -> None:
     _check_schema(path, schema, meta)
 
 
+def _episode_id_of(path: Path) -> int | None:
+    """The id in an episode file's name, or ``None`` when the name is not one
+    :func:`episode_path` writes."""
+    match = re.fullmatch(r"episode-(\d+)\.parquet", path.name)
+    if match is None:
+        return None
+    episode_id = int(match.group(1))
+    return episode_id if episode_path(path.parent, episode_id).name == path.name else None
+
+
 def completed_episodes(root: Path, meta: DatasetMeta) -> list[int]:
-    """Ids of the episodes already stored under ``root`` (each file's schema checked)."""
+    """Ids of the episodes already stored under ``root`` (each file's schema checked).
+
+    Every ``*.parquet`` file in ``episodes/`` must be an episode file named as
+    :func:`episode_path` names it; any other one (a stray export, a renamed copy) is an
+    error naming it, rather than being silently left out of the dataset. Hidden files
+    (``.``-prefixed, e.g. an interrupted write's temporary file) are skipped.
+    """
     ep_dir = Path(root) / EPISODE_DIR
     if not ep_dir.exists():
         return []
     ids = []
-    for path in sorted(ep_dir.glob("episode-*.parquet")):
+    for path in sorted(ep_dir.glob("*.parquet")):
+        if path.name.startswith("."):
+            continue
+        episode_id = _episode_id_of(path)
+        if episode_id is None:
+            raise DatasetError(
+                f"{path}: not an episode file (episode files are named episode-NNNNN.parquet); "
+                f"move it out of {ep_dir}"
+            )
         check_episode_file(path, meta)
-        ids.append(int(path.stem.split("-")[1]))
+        ids.append(episode_id)
     return ids
 
 
