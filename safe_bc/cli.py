@@ -316,17 +316,23 @@ def _cmd_expert(args: argparse.Namespace) -> int:
     return 0
 
 
-def _cmd_reproduce(args: argparse.Namespace) -> int:
+def _reproduce_config(args: argparse.Namespace) -> Any:
+    """The ``ReproduceConfig`` of ``safe-bc reproduce``'s arguments."""
     from safe_bc.bc import BCConfig, TrainConfig
-    from safe_bc.reproduce import ReproduceConfig, run_reproduce
+    from safe_bc.reproduce import ReproduceConfig
     from safe_bc.tasks import task_defaults
 
     task = task_defaults(args.env)
     args.demos = args.demos or Path(task.demos)
     args.out = args.out or Path(task.results)
-    config = ReproduceConfig(
+    return ReproduceConfig(
         demos=args.demos,
         out=args.out,
+        alphas=tuple(args.alphas),
+        readings=tuple(args.readings),
+        baselines=tuple(args.baselines),
+        segment_steps=args.segment_steps,
+        beta=args.beta,
         train_seeds=tuple(range(args.train_seeds)),
         episodes=args.episodes,
         workers=args.workers,
@@ -336,6 +342,12 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
         eps=task.eps if args.eps is None else args.eps,
         task=args.env,
     )
+
+
+def _cmd_reproduce(args: argparse.Namespace) -> int:
+    from safe_bc.reproduce import run_reproduce
+
+    config = _reproduce_config(args)
     if args.render_only:
         from safe_bc.reproduce import rerender
 
@@ -463,14 +475,57 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--out", type=Path, default=None, help="default: results/ (rehab: results/rehab)"
     )
-    p.add_argument("--train-seeds", type=_positive("--train-seeds"), default=3)
-    p.add_argument("--episodes", type=_positive("--episodes"), default=10)
+    p.add_argument(
+        "--train-seeds",
+        type=_positive("--train-seeds"),
+        default=8,
+        help="training seeds 0..N-1, shared by every method (default: 8)",
+    )
+    p.add_argument(
+        "--episodes",
+        type=_positive("--episodes"),
+        default=20,
+        help="held-out tracks, the same for every agent (default: 20)",
+    )
     p.add_argument("--workers", type=_positive("--workers"), default=2)
     p.add_argument("--batches", type=_positive("--batches"), default=2000)
     p.add_argument("--max-steps", type=_positive("--max-steps"), default=None)
     p.add_argument("--eval-seed", type=_non_negative_int("--eval-seed"), default=0)
     p.add_argument(
-        "--eps", type=_non_negative_float("--eps"), default=None, help="default: 5 px / 0.05"
+        "--eps", type=_non_negative_float("--eps"), default=None, help="default: 2 px / 0.05"
+    )
+    p.add_argument(
+        "--alphas",
+        type=_unit_interval("--alphas"),
+        nargs="+",
+        default=[0.0, 0.1, 0.5, 0.8, 1.0],
+        help="alpha-mix rows (default: 0 0.1 0.5 0.8 1; 0 with rest=all is plain BC)",
+    )
+    p.add_argument(
+        "--readings",
+        choices=["all", "noncritical"],
+        nargs="+",
+        default=["all"],
+        help="eq. 5 readings of the alpha rows (default: all; add noncritical for T \\ T_eps)",
+    )
+    p.add_argument(
+        "--baselines",
+        choices=["bc_safe", "cost_weighted"],
+        nargs="*",
+        default=["bc_safe", "cost_weighted"],
+        help="peer-baseline rows (default: both; none with a bare --baselines)",
+    )
+    p.add_argument(
+        "--segment-steps",
+        type=_positive("--segment-steps"),
+        default=20,
+        help="BC-Safe's segment length K in scored steps (default: 20)",
+    )
+    p.add_argument(
+        "--beta",
+        type=_non_negative_float("--beta"),
+        default=9.0,
+        help="cost-weighted BC's strength: weight 1 + beta * closeness to d_s (default: 9)",
     )
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.add_argument(
