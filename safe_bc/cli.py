@@ -394,6 +394,47 @@ def _cmd_tune(args: argparse.Namespace) -> int:
     return 1 if outcome.errors else 0
 
 
+def _cmd_improve(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from safe_bc.improve import ImproveConfig, improve
+
+    config = ImproveConfig(
+        shield=args.shield,
+        lagrangian=args.lagrangian,
+        eps=args.eps,
+        cost_signal=args.cost_signal,
+        cost_margin=args.cost_margin,
+        cost_budget=args.cost_budget,
+        lambda_lr=args.lambda_lr,
+        anchor=args.anchor,
+        anchor_coef=args.anchor_coef,
+        iterations=args.iterations,
+        episodes_per_iter=args.episodes_per_iter,
+        seed=args.seed,
+    )
+    bar = tqdm(total=config.iterations, desc=f"improve ({config.mode})", disable=args.quiet)
+
+    def show(row: dict[str, float]) -> None:
+        bar.n = int(row["iteration"])
+        bar.set_postfix(reward=f"{row['train_reward']:.2f}", lam=f"{row['lambda']:.2f}",
+                        viol=f"{row['train_violation_steps']:.2f}")  # fmt: skip
+        bar.refresh()
+
+    with bar:
+        result = improve(args.start, args.out, config, demos=args.demos, on_iteration=show)
+    last = result.history.dropna(subset=["val_reward"]).iloc[-1]
+    print(
+        f"{args.out}: {config.mode}, {result.iterations} iterations "
+        f"({'resumed at ' + str(result.resumed_at) if result.resumed_at else 'fresh'}), "
+        f"{int(last['env_steps'])} env steps; validation reward {last['val_reward']:.2f}, "
+        f"violating sessions / patient {last['val_violation_steps']:.3f}, lambda "
+        f"{last['lambda']:.2f}; policy of iteration {result.kept_iteration} in "
+        f"{args.out / 'policy'}"
+    )
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``safe-bc``."""
     parser = argparse.ArgumentParser(
@@ -566,6 +607,30 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--results", type=Path, default=None, help="outputs go to RESULTS/<study>/")
     p.add_argument("--fresh", action="store_true", help="discard a previous run of the study")
     p.set_defaults(func=_cmd_tune)
+
+    p = sub.add_parser(
+        "improve", help="improve a safety-imitation checkpoint by constrained RL (resumable)"
+    )
+    p.add_argument("--start", type=Path, required=True, help="a safe-bc train checkpoint")
+    p.add_argument("--out", type=Path, required=True, help="run directory (rerun to resume)")
+    p.add_argument("--demos", type=Path, default=None, help="default: the start's")
+    p.add_argument("--shield", action=argparse.BooleanOptionalAction, default=True,
+                   help="imitation start acts in critical states (default: on)")  # fmt: skip
+    p.add_argument("--lagrangian", action=argparse.BooleanOptionalAction, default=True,
+                   help="PPO-Lagrangian on the violation cost (default: on)")  # fmt: skip
+    p.add_argument("--eps", type=_non_negative_float("--eps"), default=None,
+                   help="shield's critical-zone width (default: the start's)")  # fmt: skip
+    p.add_argument("--cost-signal", choices=["indicator", "excursion"], default="indicator")
+    p.add_argument("--cost-margin", type=_non_negative_float("--cost-margin"), default=0.0)
+    p.add_argument("--cost-budget", type=_non_negative_float("--cost-budget"), default=0.0)
+    p.add_argument("--lambda-lr", type=_non_negative_float("--lambda-lr"), default=0.5)
+    p.add_argument("--anchor", choices=["bc", "kl", "none"], default="bc")
+    p.add_argument("--anchor-coef", type=_non_negative_float("--anchor-coef"), default=1.0)
+    p.add_argument("--iterations", type=_positive("--iterations"), default=150)
+    p.add_argument("--episodes-per-iter", type=_positive("--episodes-per-iter"), default=64)
+    p.add_argument("--seed", type=_non_negative_int("--seed"), default=0)
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=_cmd_improve)
     return parser
 
 

@@ -1,0 +1,191 @@
+"""Constrained improvement (safe_bc.improve): shield, multiplier, determinism, resume."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from safe_bc.improve import (
+    ImproveConfig,
+    ImprovedSource,
+    Improver,
+    Shield,
+    _load_start,
+    improve,
+    multiplier_update,
+    observed_costs,
+)
+
+REHAB = "safe_bc/RehabPathway-v0"
+TINY = ImproveConfig(
+    iterations=4,
+    episodes_per_iter=4,
+    n_envs=4,
+    update_epochs=2,
+    minibatch_size=32,
+    anchor_batch=16,
+    critic_hidden=16,
+    critic_warmup=1,
+    eval_every=2,
+    eval_episodes=3,
+    checkpoint_every=2,
+)
+
+
+@pytest.fixture(scope="module")
+def start(tmp_path_factory) -> Path:
+    """A tiny safety-imitation start: 8 guideline programmes (in-process), 50 BC batches."""
+    from safe_bc.cli import main
+    from safe_bc.collection import EpisodeMaker
+    from safe_bc.data.store import init_dataset, write_episode
+    from safe_bc.distributed.collect import dataset_meta
+    from safe_bc.tasks import task_defaults
+
+    root = tmp_path_factory.mktemp("improve")
+    cfg = task_defaults("rehab").collect_config(episodes=8, workers=1)
+    meta = init_dataset(root / "demos", dataset_meta(cfg))
+    maker = EpisodeMaker(cfg)
+    for i in range(cfg.episodes):
+        write_episode(root / "demos", maker.make(i), meta)
+    maker.close()
+    ckpt = root / "start"
+    argv = ["train", "--demos", str(root / "demos"), "--out", str(ckpt), "--batches", "50",
+            "--hidden", "16", "--alpha", "0.5", "--quiet"]  # fmt: skip
+    assert main(argv) == 0
+    return ckpt
+
+
+def _weights(out: Path) -> dict[str, torch.Tensor]:
+    return torch.load(out / "policy" / "weights.pt", weights_only=True)
+
+
+def _same(a: dict[str, torch.Tensor], b: dict[str, torch.Tensor]) -> bool:
+    return a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
+
+
+# ------------------------------------------------------------------ the multiplier
+def test_multiplier_rises_above_budget_falls_below_and_clips_at_zero():
+    assert multiplier_update(1.0, episode_cost=0.5, budget=0.1, lr=0.5) == pytest.approx(1.2)
+    assert multiplier_update(1.0, episode_cost=0.0, budget=0.1, lr=0.5) == pytest.approx(0.95)
+    assert multiplier_update(0.02, episode_cost=0.0, budget=0.1, lr=0.5) == 0.0  # clipped
+    assert multiplier_update(0.0, episode_cost=0.0, budget=0.0, lr=0.5) == 0.0  # stays
+    assert multiplier_update(9.9, episode_cost=5.0, budget=0.0, lr=1.0, lam_max=10.0) == 10.0
+
+
+def test_multiplier_in_training_follows_the_cost(start):
+    """Budget 0: lambda never falls, and rises exactly when an iteration's rollouts cost."""
+    s, demos = _load_start(start, None)
+    with torch.random.fork_rng(devices=[]):
+        agent = Improver(s, demos, replace(TINY, cost_margin=0.5, lambda_lr=0.5))
+        for _ in range(3):
+            before = agent.lam
+            row = agent.iterate()
+            assert row["train_episode_cost"] > 0  # margin 0.5: every session costs
+            assert agent.lam == pytest.approx(before + 0.5 * row["train_episode_cost"])
+        off = Improver(s, demos, replace(TINY, lagrangian=False, cost_margin=0.5))
+        off.iterate()
+        assert off.lam == 0.0
+    for env in [*agent.envs, *off.envs]:
+        env.close()
+
+
+# ------------------------------------------------------------------ the shield
+def test_observed_costs_match_the_env_without_noise():
+    from safe_bc.envs.rehab import RehabConfig, RehabPathwayEnv, prescription_to_action
+
+    env = RehabPathwayEnv(RehabConfig(obs_noise=0.0))
+    obs, info = env.reset(seed=3)
+    for _ in range(5):
+        obs, _, _, _, info = env.step(prescription_to_action(0.7, 40.0))
+        measured = observed_costs(obs[None], REHAB)[0]
+        assert measured[1:] == pytest.approx(info["cost"][1:], abs=1e-5)  # fatigue, SBP
+        assert measured[0] == pytest.approx(info["cost"][0], abs=0.05)  # HRR vs rest HR now
+
+
+def test_shield_gives_critical_states_the_imitation_action(start):
+    """Evaluation policy and training rollouts: every critical state gets the start's action."""
+    from safe_bc.bc import BCPolicy
+    from safe_bc.evaluation import NetSource
+
+    s, demos = _load_start(start, None)
+    shield = Shield(tuple(s.limits), eps=0.15, combine="any", env_id=REHAB)
+    moved = NetSource.from_model(s.model, s.config)
+    last_bias = [k for k in moved.state if k.startswith("head.") and k.endswith(".bias")][-1]
+    moved.state[last_bias] += 0.7  # a different policy everywhere
+    policy = ImprovedSource(moved, NetSource.from_model(s.model, s.config), shield).build()
+    start_policy, own = BCPolicy(s.model), moved.build()
+    rng = np.random.default_rng(0)
+    obs = demos.observations[rng.permutation(len(demos))[:300]]
+    critical = shield.critical(obs)
+    assert 0 < critical.sum() < len(obs)
+    for o, c in zip(obs, critical, strict=True):
+        expect = start_policy.act(o) if c else own.act(o)
+        np.testing.assert_array_equal(policy.act(o), expect)
+
+    with torch.random.fork_rng(devices=[]):
+        agent = Improver(s, demos, replace(TINY, eps=0.15))
+        agent.actor.mean_net.head[-1].bias.data += 0.7
+        ro = agent.rollout([11, 12, 13, 14])
+    for env in agent.envs:
+        env.close()
+    crit = agent.shield.critical(ro.obs)
+    assert crit.any() and (crit == ro.shielded).all()
+    np.testing.assert_allclose(ro.actions[crit], start_policy.act_batch(ro.obs[crit]), atol=1e-6)
+    assert not np.allclose(ro.actions[~crit], start_policy.act_batch(ro.obs[~crit]))
+
+
+# ------------------------------------------------------------------ determinism and resume
+def test_fixed_seed_gives_bit_identical_weights(start, tmp_path):
+    a = improve(start, tmp_path / "a", TINY)
+    improve(start, tmp_path / "b", TINY)
+    improve(start, tmp_path / "c", replace(TINY, seed=1))
+    assert _same(_weights(tmp_path / "a"), _weights(tmp_path / "b"))
+    assert not _same(_weights(tmp_path / "a"), _weights(tmp_path / "c"))
+    assert len(a.history) == TINY.iterations and a.history["val_reward"].notna().sum() == 2
+    start_w = torch.load(start / "weights.pt", weights_only=True)
+    assert not _same(_weights(tmp_path / "a"), start_w)  # it did move
+
+
+def test_interrupted_run_resumes_to_the_same_weights(start, tmp_path):
+    cfg = replace(TINY, iterations=5)
+    whole = improve(start, tmp_path / "whole", cfg)
+
+    def crash(row: dict[str, float]) -> None:
+        if row["iteration"] == 3:  # the last checkpoint holds iteration 2
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        improve(start, tmp_path / "cut", cfg, on_iteration=crash)
+    assert not (tmp_path / "cut" / "policy").exists()
+    resumed = improve(start, tmp_path / "cut", cfg)
+    assert resumed.resumed_at == 2 and resumed.iterations == 5
+    assert _same(_weights(tmp_path / "whole"), _weights(tmp_path / "cut"))
+    cols = [c for c in whole.history.columns if c != "seconds"]
+    assert whole.history[cols].equals(resumed.history[cols])
+    with pytest.raises(ValueError, match="another run"):
+        improve(start, tmp_path / "cut", replace(cfg, anchor_coef=2.0))
+
+
+def test_cli_and_evaluation_of_a_run(start, tmp_path, capsys):
+    from safe_bc.cli import main
+    from safe_bc.distributed.evaluate import evaluate
+    from safe_bc.envs import EnvConfig
+    from safe_bc.evaluation import EvalConfig
+
+    out = tmp_path / "run"
+    argv = ["improve", "--start", str(start), "--out", str(out), "--iterations", "2",
+            "--episodes-per-iter", "4", "--no-lagrangian", "--quiet"]  # fmt: skip
+    assert main(argv) == 0
+    assert "shield, 2 iterations (fresh)" in capsys.readouterr().out
+    source = ImprovedSource.from_run(out)
+    assert source.shield is not None and source.imitation is not None
+    cfg = EvalConfig(episodes=2, workers=0, env=EnvConfig(REHAB), eps=0.05)
+    result = evaluate({"improved": source}, cfg, np.asarray(source.shield.limits), progress=False)
+    assert len(result.episodes) == 2 and result.episodes["steps"].eq(30).all()
+    with pytest.raises(SystemExit):
+        main([*argv[:-1], "--iterations", "0"])
+    assert "--iterations must be >= 1" in capsys.readouterr().err
