@@ -435,6 +435,21 @@ def _cmd_improve(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_export(args: argparse.Namespace) -> int:
+    from safe_bc.data.minari_export import MinariNotInstalledError, export_minari
+
+    try:
+        dataset = export_minari(args.demos, args.dataset_id, author=args.author)
+    except MinariNotInstalledError as e:
+        raise ValueError(str(e)) from None
+    print(
+        f"{args.demos} -> Minari dataset {args.dataset_id}: {dataset.total_episodes} episode(s), "
+        f"{dataset.total_steps} steps in {dataset.storage.data_path.parent}; load it with "
+        f"minari.load_dataset({args.dataset_id!r})"
+    )
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``safe-bc``."""
     parser = argparse.ArgumentParser(
@@ -631,6 +646,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=_non_negative_int("--seed"), default=0)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_improve)
+
+    p = sub.add_parser("export", help="export a demonstration set to another format (Minari)")
+    p.add_argument("--demos", type=Path, default=DEFAULT_DEMOS)
+    p.add_argument("--format", choices=["minari"], default="minari")
+    p.add_argument(
+        "--dataset-id",
+        required=True,
+        help="e.g. safe_bc/carracing-drift-v0; written under $MINARI_DATASETS_PATH "
+        "(default ~/.minari/datasets)",
+    )
+    p.add_argument("--author", default=None, help="recorded in the Minari metadata")
+    p.set_defaults(func=_cmd_export)
     return parser
 
 

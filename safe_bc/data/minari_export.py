@@ -1,0 +1,258 @@
+"""Export a safe_bc demonstration set as a `Minari <https://minari.farama.org>`_ dataset.
+
+Minari is the Farama Foundation's format for offline-RL datasets, the one that
+gymnasium users load with ``minari.load_dataset``. It is an optional extra
+(``pip install -e '.[minari]'``); this module imports it only when called.
+
+What goes where, per episode of ``T`` stored steps (one Minari episode per safe_bc
+episode, in episode-id order):
+
+* ``observations``: ``T + 1`` entries, ``(T+1, 96, 96, 3) uint8`` frames (stored
+  losslessly: no JPEG) or ``(T+1, D) float32`` vectors. safe_bc stores the ``T``
+  observations an action was chosen in, not the one after the last step, so **the final
+  observation is a copy of the last stored one** and ``infos["repeated_observation"]``
+  is ``True`` there (only there). Steps ``0..T-1`` are exactly the stored observations.
+* ``actions``: ``(T, A) float32``, the expert's recorded action (the label; under a
+  perturbation the executed action differs and is in ``infos["executed_action"]``).
+* ``rewards``, ``terminations``, ``truncations``: ``(T,)``, as stored.
+* ``infos`` (Minari's rule: the same keys at every entry, ``T + 1`` entries, entry ``i``
+  describes ``observations[i]``, entry 0 being the reset's):
+
+  - ``safety`` ``(T+1, S) float32`` distances, higher is safer (CarRacing: pixels to the
+    grass left/front/right; rehab: margins to the limits);
+  - ``cost`` ``(T+1, S) float32``, higher is less safe;
+  - ``warmup``, ``offroad`` ``(T+1,) bool``;
+  - ``executed_action`` ``(T+1, A) float32``: entry ``t`` is the action sent to the env
+    from ``observations[t]`` (aligned with ``actions[t]``; zeros at the final entry);
+  - ``repeated_observation`` ``(T+1,) bool``: ``True`` at the final entry, whose
+    observation, safety, cost, warmup and offroad repeat entry ``T - 1``.
+
+Each episode's Minari metadata has the reset ``seed`` and ``safe_bc_episode_id``; the
+dataset's metadata has ``safe_bc`` (the source ``dataset.json``) and
+``safe_bc_safety_dims``. The env spec is the one :func:`safe_bc.envs.make_env` builds
+(for CarRacing with the safety wrapper), so ``dataset.recover_environment()`` gives an
+env whose ``info`` has the same ``safety``/``cost`` keys.
+
+>>> import importlib.util
+>>> importlib.util.find_spec("minari") is None or callable(export_minari)
+True
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import warnings
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from safe_bc.data.store import (
+    DatasetError,
+    DatasetMeta,
+    completed_episodes,
+    episode_path,
+    read_episode,
+    read_meta,
+)
+from safe_bc.episode import Episode
+
+INFO_KEYS: tuple[str, ...] = (
+    "safety",
+    "cost",
+    "warmup",
+    "offroad",
+    "executed_action",
+    "repeated_observation",
+)
+"""The keys of every exported step's ``infos``."""
+
+DATA_FORMAT = "arrow"
+"""Minari storage backend: Arrow IPC (pyarrow is a safe_bc dependency; ``hdf5`` would need
+h5py)."""
+
+
+class MinariNotInstalledError(ImportError):
+    """Minari is an optional extra that is not installed."""
+
+
+def import_minari() -> Any:
+    """``import minari``, or a one-line error saying how to install it."""
+    try:
+        import minari
+    except ImportError:
+        raise MinariNotInstalledError(
+            "Minari export needs the optional extra: pip install -e '.[minari]' "
+            "(or pip install minari)"
+        ) from None
+    return minari
+
+
+def episode_buffer_fields(episode: Episode) -> dict[str, Any]:
+    """The Minari ``EpisodeBuffer`` fields of one safe_bc episode (see the module doc).
+
+    >>> from safe_bc.episode import Episode
+    >>> n = 2
+    >>> ep = Episode(0, 7, np.zeros((n, 4), np.float32), np.ones((n, 2), np.float32),
+    ...              np.ones((n, 2), np.float32), np.zeros(n, np.float32), np.array([0, 1], bool),
+    ...              np.zeros(n, bool), np.ones((n, 3), np.float32), np.zeros((n, 3), np.float32),
+    ...              np.zeros(n, bool), np.zeros(n, bool))
+    >>> f = episode_buffer_fields(ep)
+    >>> f["observations"].shape, f["actions"].shape, f["infos"]["safety"].shape
+    ((3, 4), (2, 2), (3, 3))
+    >>> f["infos"]["repeated_observation"]
+    [False, False, True]
+    """
+    n = len(episode)
+
+    def pad_repeat(a: np.ndarray) -> np.ndarray:
+        return np.concatenate([a, a[-1:]], axis=0)
+
+    executed = episode.executed_actions.astype(np.float32)
+    infos = {
+        "safety": pad_repeat(episode.safety.astype(np.float32)),
+        "cost": pad_repeat(episode.costs.astype(np.float32)),
+        "warmup": pad_repeat(episode.warmup.astype(bool)),
+        "offroad": pad_repeat(episode.offroad.astype(bool)),
+        "executed_action": np.concatenate([executed, np.zeros_like(executed[:1])], axis=0),
+        "repeated_observation": np.arange(n + 1) == n,
+    }
+    # Minari 0.5's Arrow storage cannot read back 1-D ndarray infos (it records an empty
+    # shape); as lists of Python scalars they round-trip to the same 1-D numpy arrays.
+    infos = {k: v.tolist() if v.ndim == 1 else v for k, v in infos.items()}
+    return {
+        "seed": int(episode.seed),
+        "observations": pad_repeat(episode.observations),
+        "actions": episode.actions.astype(np.float32),
+        "rewards": episode.rewards.astype(np.float32),
+        "terminations": episode.terminated.astype(bool),
+        "truncations": episode.truncated.astype(bool),
+        "infos": infos,
+    }
+
+
+def _episodes(root: Path, meta: DatasetMeta) -> Iterator[Episode]:
+    """The stored episodes in id order, one at a time (a dataset need not fit in memory)."""
+    for episode_id in completed_episodes(root, meta):
+        yield read_episode(episode_path(root, episode_id), meta)
+
+
+def _env_for(meta: DatasetMeta) -> Any:
+    from safe_bc.envs import EnvConfig, make_env
+
+    return make_env(EnvConfig(env_id=meta.env_id, max_episode_steps=meta.max_steps))
+
+
+def _description(meta: DatasetMeta, root: Path) -> str:
+    return (
+        f"safe_bc expert demonstrations of {meta.env_id} exported from {root}: actions are "
+        "the expert's recorded actions; infos hold per-step safety distances ('safety', "
+        f"dims {list(meta.safety_dims)}, higher is safer), costs ('cost'), 'warmup', "
+        "'offroad' and 'executed_action'. safe_bc does not store the observation after the "
+        "last step: each episode's final observation repeats the last stored one "
+        "(infos['repeated_observation'] is True there)."
+    )
+
+
+def export_minari(
+    demos: str | Path,
+    dataset_id: str,
+    *,
+    author: str | None = None,
+    description: str | None = None,
+) -> Any:
+    """Write the safe_bc dataset at ``demos`` as the Minari dataset ``dataset_id``.
+
+    The dataset goes where Minari keeps local datasets: ``$MINARI_DATASETS_PATH`` if set,
+    else Minari's default (``~/.minari/datasets``). Episodes are read and written one at a
+    time. On any failure the partly written Minari dataset is removed.
+
+    Args:
+        demos: a directory written by ``safe-bc collect``.
+        dataset_id: e.g. ``safe_bc/carracing-drift-v0`` (``namespace/name-vN``).
+        author: optional author recorded in the Minari metadata.
+        description: defaults to a summary of the layout (see the module doc).
+
+    Returns:
+        The ``minari.MinariDataset``.
+
+    Raises:
+        MinariNotInstalledError: the ``minari`` extra is missing.
+        DatasetError: ``demos`` is not a readable safe_bc dataset, or has no episodes.
+        ValueError: a Minari dataset ``dataset_id`` exists already.
+    """
+    minari = import_minari()
+    from minari.data_collector import EpisodeBuffer
+    from minari.storage import get_dataset_path
+
+    root = Path(demos)
+    meta = read_meta(root)
+    if not completed_episodes(root, meta):
+        raise DatasetError(f"{root}: dataset has no episodes; run `safe-bc collect`")
+    target = Path(get_dataset_path(dataset_id))
+    if target.exists():
+        raise ValueError(
+            f"Minari dataset {dataset_id} already exists at {target}; delete it "
+            f"(minari delete {dataset_id}) or choose another --dataset-id"
+        )
+    env = _env_for(meta)
+    try:
+        shape = tuple(int(x) for x in env.observation_space.shape)
+        if shape != tuple(meta.obs_shape):
+            raise DatasetError(
+                f"{root}: observations of shape {tuple(meta.obs_shape)} do not fit "
+                f"{meta.env_id}'s observation space {shape}"
+            )
+        episodes = _episodes(root, meta)
+        dataset = None
+        ids: list[int] = []
+        try:
+            for episode in episodes:
+                buffer = EpisodeBuffer(**episode_buffer_fields(episode))
+                if dataset is None:
+                    with warnings.catch_warnings():  # optional provenance fields
+                        warnings.filterwarnings(
+                            "ignore", r"`(author|author_email|code_permalink)` is set to None"
+                        )
+                        dataset = minari.create_dataset_from_buffers(
+                            dataset_id=dataset_id,
+                            buffer=[buffer],
+                            env=env,
+                            eval_env=env,
+                            algorithm_name=f"safe_bc expert ({meta.expert.get('type', 'expert')})",
+                            author=author,
+                            description=description or _description(meta, root),
+                            data_format=DATA_FORMAT,
+                            jpeg_encoding=False,
+                        )
+                else:
+                    dataset.update_dataset_from_buffer([buffer])
+                ids.append(episode.episode_id)
+            assert dataset is not None  # at least one episode, checked above
+            dataset.storage.update_episode_metadata(
+                [{"safe_bc_episode_id": i} for i in ids], range(len(ids))
+            )
+            dataset.storage.update_metadata(
+                {
+                    "safe_bc": json.loads(meta.to_json()),
+                    "safe_bc_safety_dims": list(meta.safety_dims),
+                }
+            )
+        except BaseException:
+            shutil.rmtree(target, ignore_errors=True)
+            raise
+    finally:
+        env.close()
+    return minari.load_dataset(dataset_id)
+
+
+__all__ = [
+    "DATA_FORMAT",
+    "INFO_KEYS",
+    "MinariNotInstalledError",
+    "episode_buffer_fields",
+    "export_minari",
+    "import_minari",
+]

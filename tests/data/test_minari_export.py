@@ -1,0 +1,139 @@
+"""Minari export: a short real dataset survives the round trip through ``minari.load_dataset``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from safe_bc.collection import CollectConfig, EpisodeMaker, config_dict
+from safe_bc.data.store import DatasetMeta, init_dataset, read_episodes, write_episode
+from safe_bc.envs import EnvConfig
+from safe_bc.experts.perturb import PerturbationConfig
+
+minari = pytest.importorskip("minari")
+
+from safe_bc.data.minari_export import INFO_KEYS, export_minari  # noqa: E402
+
+
+def _collect(root: Path, config: CollectConfig, episodes: int) -> Path:
+    maker = EpisodeMaker(config)
+    try:
+        made = [maker.make(i) for i in range(episodes)]
+    finally:
+        maker.close()
+    meta = DatasetMeta(
+        env_id=config.env.env_id,
+        obs_encoding=config.encoding,
+        obs_shape=made[0].observations.shape[1:],
+        safety_dims=made[0].safety_dims,
+        seed=config.seed,
+        max_steps=config.max_steps,
+        expert=config_dict(config.expert),
+        perturbation=config_dict(config.perturbation),
+    )
+    meta = init_dataset(root, meta)
+    for episode in made:
+        write_episode(root, episode, meta)
+    return root
+
+
+@pytest.fixture(scope="module")
+def carracing_demos(tmp_path_factory) -> Path:
+    """One real 60-step CarRacing episode (the default drift perturbation)."""
+    root = tmp_path_factory.mktemp("mx") / "demos"
+    return _collect(root, CollectConfig(episodes=1, max_steps=60), 1)
+
+
+@pytest.fixture(scope="module")
+def rehab_demos(tmp_path_factory) -> Path:
+    """Two rehab episodes (vector observations, 30 sessions each)."""
+    from safe_bc.experts.rehab import GuidelineConfig
+
+    config = CollectConfig(
+        episodes=2,
+        env=EnvConfig("safe_bc/RehabPathway-v0"),
+        expert=GuidelineConfig(),
+        perturbation=PerturbationConfig(mode="none"),
+        encoding="vector",
+    )
+    return _collect(tmp_path_factory.mktemp("mx") / "rehab", config, 2)
+
+
+def _check_round_trip(demos: Path, dataset_id: str) -> None:
+    stored = read_episodes(demos)
+    dataset = minari.load_dataset(dataset_id)
+    assert dataset.total_episodes == len(stored)
+    assert dataset.total_steps == sum(len(e) for e in stored)
+    metas = list(dataset.storage.get_episode_metadata(range(len(stored))))
+    for ep, got, meta in zip(stored, dataset.iterate_episodes(), metas, strict=True):
+        n = len(ep)
+        assert meta["seed"] == ep.seed and meta["safe_bc_episode_id"] == ep.episode_id
+        assert got.observations.shape == (n + 1, *ep.observations.shape[1:])
+        assert got.observations.dtype == ep.observations.dtype
+        np.testing.assert_array_equal(got.observations[:n], ep.observations)
+        np.testing.assert_array_equal(got.observations[n], ep.observations[-1])
+        np.testing.assert_array_equal(got.actions, ep.actions)
+        np.testing.assert_array_equal(got.rewards, ep.rewards)
+        np.testing.assert_array_equal(got.terminations, ep.terminated)
+        np.testing.assert_array_equal(got.truncations, ep.truncated)
+        assert set(got.infos) == set(INFO_KEYS)
+        assert all(len(v) == n + 1 for v in got.infos.values())
+        np.testing.assert_array_equal(got.infos["safety"][:n], ep.safety)
+        np.testing.assert_array_equal(got.infos["cost"][:n], ep.costs)
+        np.testing.assert_array_equal(got.infos["warmup"][:n], ep.warmup)
+        np.testing.assert_array_equal(got.infos["offroad"][:n], ep.offroad)
+        np.testing.assert_array_equal(got.infos["executed_action"][:n], ep.executed_actions)
+        assert got.infos["repeated_observation"].tolist() == [False] * n + [True]
+    assert dataset.storage.metadata["safe_bc_safety_dims"] == list(stored[0].safety_dims)
+
+
+def test_carracing_round_trip(carracing_demos, tmp_path, monkeypatch) -> None:
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path / "minari"))
+    dataset = export_minari(carracing_demos, "safe_bc/carracing-drift-v0")
+    assert (tmp_path / "minari" / "safe_bc" / "carracing-drift-v0").is_dir()
+    assert dataset.observation_space.shape == (96, 96, 3)
+    _check_round_trip(carracing_demos, "safe_bc/carracing-drift-v0")
+    stored = read_episodes(carracing_demos)[0]
+    # the recorded env spec rebuilds the same env, safety wrapper included
+    env = dataset.recover_environment()
+    try:
+        _, info = env.reset(seed=stored.seed)
+        assert {"safety", "cost"} <= set(info)
+    finally:
+        env.close()
+    with pytest.raises(ValueError, match="already exists"):
+        export_minari(carracing_demos, "safe_bc/carracing-drift-v0")
+
+
+def test_cli_rehab_round_trip(rehab_demos, tmp_path, monkeypatch, capsys) -> None:
+    from safe_bc.cli import main
+
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path / "minari"))
+    code = main(
+        [
+            "export",
+            "--demos",
+            str(rehab_demos),
+            "--format",
+            "minari",
+            "--dataset-id",
+            "safe_bc/rehab-guideline-v0",
+        ]
+    )
+    assert code == 0, capsys.readouterr().err
+    assert "safe_bc/rehab-guideline-v0" in capsys.readouterr().out
+    _check_round_trip(rehab_demos, "safe_bc/rehab-guideline-v0")
+    code = main(
+        [
+            "export",
+            "--demos",
+            str(rehab_demos),
+            "--format",
+            "minari",
+            "--dataset-id",
+            "safe_bc/rehab-guideline-v0",
+        ]
+    )
+    assert code == 2 and "already exists" in capsys.readouterr().err
