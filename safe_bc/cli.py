@@ -450,6 +450,26 @@ def _cmd_export(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_render(args: argparse.Namespace) -> int:
+    from safe_bc.render import render_command
+
+    print(
+        render_command(
+            args.out,
+            args.seed,
+            checkpoint=args.checkpoint,
+            expert=args.expert,
+            paths=args.paths,
+            demos=args.demos,
+            eps=args.eps,
+            max_steps=args.max_steps,
+            scale=args.scale,
+            fps=args.fps,
+        )
+    )
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``safe-bc``."""
     parser = argparse.ArgumentParser(
@@ -658,6 +678,35 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--author", default=None, help="recorded in the Minari metadata")
     p.set_defaults(func=_cmd_export)
+
+    p = sub.add_parser(
+        "render", help="video of a CarRacing episode with the safety rays drawn in (or --paths)"
+    )
+    p.add_argument("--checkpoint", type=Path, default=None, help="the agent (safe-bc train)")
+    p.add_argument("--expert", action="store_true", help="render the expert instead")
+    p.add_argument(
+        "--paths",
+        action="store_true",
+        help="draw the track map with the driven paths (expert beside agent) to --out",
+    )
+    p.add_argument("--seed", type=_non_negative_int("--seed"), default=0, help="track seed")
+    p.add_argument("--out", type=Path, required=True, help=".mp4, .gif, or .png with --paths")
+    p.add_argument("--max-steps", type=_positive("--max-steps"), default=None)
+    p.add_argument(
+        "--demos",
+        type=Path,
+        default=None,
+        help="expert and limits d_s (default: the checkpoint's, else data/demos)",
+    )
+    p.add_argument(
+        "--eps",
+        type=_non_negative_float("--eps"),
+        default=None,
+        help="critical-zone width (default: the checkpoint's, else 2 px)",
+    )
+    p.add_argument("--scale", type=_positive("--scale"), default=4, help="upscaling of frames")
+    p.add_argument("--fps", type=_positive_float("--fps"), default=50.0)
+    p.set_defaults(func=_cmd_render)
     return parser
 
 

@@ -1,0 +1,462 @@
+"""Pictures of CarRacing episodes: videos with the safety rays drawn in, and track maps.
+
+* :func:`render_episode` rolls a policy out on one track and writes an MP4 (or a GIF when
+  the file name ends in ``.gif``): each 96x96 frame is upscaled (4x by default) and the
+  three safety rays of :mod:`safe_bc.envs.safety` are drawn over it, from the first pixel
+  outside the car (``LEFT_START``/``FRONT_START``/``RIGHT_START``, centred on the car's
+  rows or columns) to the distance measured in that frame. A ray is green while its
+  dimension is outside the critical zone, orange inside it (``c_s >= d_s - eps``), red
+  beyond the limit (``c_s > d_s``, a violation) and grey during the zoom-in (not scored);
+  without limits it is cyan. The frame's border shows the combined critical-zone state
+  (the selection's ``combine`` rule) and a header line the step, distances and state.
+* :func:`draw_paths` draws the track seen from above (``env.unwrapped.road_poly``) with
+  each policy's driven path coloured by its safety distance (the smallest of left, front
+  and right, in pixels), one panel per policy, e.g. the expert beside the agent;
+  :func:`render_paths` rolls the policies out on one track and calls it.
+
+Videos are encoded by imageio (its ffmpeg plugin, whose binary ships in the
+``imageio-ffmpeg`` wheel; GIFs by its Pillow plugin). CarRacing runs at 50 steps/s.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import gymnasium as gym
+import numpy as np
+
+from safe_bc.envs.safety import CAR_COLS, CAR_ROWS, FRONT_START, LEFT_START, RIGHT_START
+from safe_bc.episode import Episode
+from safe_bc.policy import Policy
+from safe_bc.rollout import run_episode
+
+FPS = 50
+"""CarRacing's simulation rate (steps per second), the default video frame rate."""
+HEADER = 32
+"""Height in pixels of the text strip above each upscaled frame."""
+
+# RGB colours
+GREEN = (40, 220, 40)
+ORANGE = (255, 150, 0)
+RED = (235, 30, 30)
+GREY = (150, 150, 150)
+CYAN = (0, 220, 230)
+WHITE = (255, 255, 255)
+STATE_COLOURS = {"safe": GREEN, "critical": ORANGE, "violation": RED, "warmup": GREY, "": CYAN}
+
+
+@dataclass(frozen=True)
+class Limits:
+    """What the critical zone is: the demonstrations' limits ``d_s`` and the zone's width."""
+
+    thresholds: np.ndarray
+    """``(S,)`` limits ``d_s`` (costs; a cost above one is a violation)."""
+    eps: float
+    """Critical-zone width: a dimension is critical when ``c_s >= d_s - eps``."""
+    combine: str = "any"
+    """How per-dimension flags combine into the frame's state (``any`` or ``all``)."""
+
+
+@dataclass(frozen=True)
+class Trace:
+    """One rendered episode: the stored episode plus the car's position at every step."""
+
+    episode: Episode
+    """Observations, actions, safety, costs, warm-up flags (``T`` steps)."""
+    positions: np.ndarray
+    """``(T, 2)`` world coordinates of the car's hull when each observation was seen."""
+    road: list[np.ndarray]
+    """The road tiles, ``(4, 2)`` world-coordinate polygons."""
+    label: str
+    """Name of the policy (panel / video title)."""
+
+
+class _Recorder:
+    """A policy that remembers where the car was each time it was asked for an action."""
+
+    def __init__(self, policy: Policy) -> None:
+        self.policy = policy
+        self.positions: list[tuple[float, float]] = []
+
+    def reset(self, env: gym.Env, rng: np.random.Generator) -> None:
+        self.positions.clear()
+        self.policy.reset(env, rng)
+
+    def act(self, obs: np.ndarray, env: gym.Env) -> np.ndarray:
+        pos = env.unwrapped.car.hull.position
+        self.positions.append((float(pos[0]), float(pos[1])))
+        return self.policy.act(obs, env)
+
+
+def record(
+    policy: Policy,
+    seed: int,
+    *,
+    label: str = "policy",
+    max_steps: int | None = None,
+    renderer: str = "fast",
+) -> Trace:
+    """Roll ``policy`` out on CarRacing track ``seed`` (``env.reset(seed=seed)``), keeping
+    frames and positions. The policy's randomness is seeded with ``seed`` as in evaluation."""
+    from safe_bc.envs import EnvConfig, make_env
+
+    env = make_env(EnvConfig(renderer=renderer))  # type: ignore[arg-type]
+    try:
+        recorder = _Recorder(policy)
+        rng = np.random.default_rng(seed)
+        episode = run_episode(env, recorder, seed, rng, max_steps=max_steps)
+        road = [np.asarray(poly, np.float64) for poly, _ in env.unwrapped.road_poly]
+    finally:
+        env.close()
+    return Trace(episode, np.asarray(recorder.positions, np.float64), road, label)
+
+
+def dim_states(episode: Episode, limits: Limits | None) -> np.ndarray:
+    """``(T, S)`` state names per step and dimension: ``safe``, ``critical``, ``violation``,
+    ``warmup`` (not scored), or ``""`` when there are no limits."""
+    n, s = episode.safety.shape
+    states = np.full((n, s), "" if limits is None else "safe", dtype=object)
+    if limits is not None:
+        from safe_bc.selection import critical_dims
+
+        d = np.asarray(limits.thresholds, np.float64)
+        states[critical_dims(episode.costs, d, limits.eps)] = "critical"
+        states[np.asarray(episode.costs, np.float64) > d] = "violation"
+    states[episode.warmup] = "warmup"
+    return states
+
+
+def frame_state(states: np.ndarray, combine: str = "any") -> str:
+    """One step's state from its per-dimension states (worst first)."""
+    if "warmup" in states:
+        return "warmup"
+    if "violation" in states:
+        return "violation"
+    critical = [s in ("critical", "violation") for s in states]
+    if (all(critical) if combine == "all" else any(critical)) and len(critical):
+        return "critical"
+    return "safe" if "safe" in states else ""
+
+
+def ray_segments(distances: np.ndarray) -> list[tuple[tuple[float, float], tuple[float, float]]]:
+    """The three rays of :func:`safe_bc.envs.safety.pixel_distances` as ``((x0, y0), (x1, y1))``
+    segments in frame coordinates (pixel ``i`` spans ``[i, i + 1)``), left/front/right.
+
+    >>> [tuple(map(tuple, s)) for s in ray_segments(np.array([10.0, 20.0, 5.0]))]
+    [((45.0, 72.0), (35.0, 72.0)), ((48.0, 66.0), (48.0, 46.0)), ((51.0, 72.0), (56.0, 72.0))]
+    """
+    row = (CAR_ROWS.start + CAR_ROWS.stop) / 2  # centre of the side rays' band of rows
+    col = (CAR_COLS.start + CAR_COLS.stop) / 2  # centre of the front ray's band of columns
+    left, front, right = (float(x) for x in distances)
+    x_left, y_front, x_right = LEFT_START + 1.0, FRONT_START + 1.0, float(RIGHT_START)
+    return [
+        ((x_left, row), (x_left - left, row)),
+        ((col, y_front), (col, y_front - front)),
+        ((x_right, row), (x_right + right, row)),
+    ]
+
+
+def overlay(
+    frame: np.ndarray,
+    distances: np.ndarray,
+    states: np.ndarray,
+    state: str,
+    text: str,
+    scale: int = 4,
+) -> np.ndarray:
+    """Upscale one frame and draw its rays, border and header.
+
+    Returns:
+        ``(HEADER + 96 * scale, 96 * scale, 3) uint8`` RGB.
+    """
+    big = cv2.resize(frame, None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST)
+    shift = 4  # cv2 fixed-point: coordinates in 1/16 px
+
+    def pt(x: float, y: float) -> tuple[int, int]:
+        return round(x * scale * (1 << shift)), round(y * scale * (1 << shift))
+
+    for (start, end), dim_state in zip(ray_segments(distances), states, strict=True):
+        colour = STATE_COLOURS[str(dim_state)]
+        cv2.line(big, pt(*start), pt(*end), colour, 2, cv2.LINE_AA, shift)
+        cv2.circle(big, pt(*end), 4 << shift, colour, 2, cv2.LINE_AA, shift)
+        cv2.circle(big, pt(*start), 2 << shift, WHITE, -1, cv2.LINE_AA, shift)
+    if state in ("critical", "violation"):
+        cv2.rectangle(big, (0, 0), (big.shape[1] - 1, big.shape[0] - 1), STATE_COLOURS[state], 6)
+    header = np.zeros((HEADER, big.shape[1], 3), np.uint8)
+    colour = STATE_COLOURS.get(state, WHITE) if state else WHITE
+    cv2.putText(header, text, (6, 21), cv2.FONT_HERSHEY_SIMPLEX, 0.45, colour, 1, cv2.LINE_AA)
+    return np.concatenate([header, big], axis=0)
+
+
+def annotated_frames(
+    trace: Trace, limits: Limits | None = None, scale: int = 4
+) -> list[np.ndarray]:
+    """Every frame of ``trace`` with its rays, border and header drawn in."""
+    ep = trace.episode
+    states = dim_states(ep, limits)
+    combine = limits.combine if limits is not None else "any"
+    frames = []
+    for t in range(len(ep)):
+        state = frame_state(states[t], combine)
+        left, front, right = ep.safety[t]
+        text = f"{trace.label}  t={t}  L{left:4.1f} F{front:4.1f} R{right:4.1f} px"
+        if state and state != "safe":
+            text += f"  {state.upper()}"
+        frames.append(overlay(ep.observations[t], ep.safety[t], states[t], state, text, scale))
+    return frames
+
+
+def write_video(frames: list[np.ndarray], out: str | Path, fps: float = FPS) -> Path:
+    """Write ``frames`` (RGB uint8) as MP4/other ffmpeg formats, or as a GIF for ``.gif``."""
+    import imageio.v2 as imageio
+
+    out = Path(out)
+    if not frames:
+        raise ValueError("no frames to write")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    if out.suffix.lower() == ".gif":
+        imageio.mimsave(out, frames, format="GIF", duration=1000.0 / fps, loop=0)
+        return out
+    with imageio.get_writer(out, format="FFMPEG", mode="I", fps=fps, macro_block_size=16) as w:
+        for frame in frames:
+            w.append_data(frame)
+    return out
+
+
+def render_episode(
+    policy: Policy,
+    seed: int,
+    out: str | Path,
+    *,
+    label: str = "policy",
+    limits: Limits | None = None,
+    max_steps: int | None = None,
+    scale: int = 4,
+    fps: float = FPS,
+) -> Trace:
+    """Roll ``policy`` out on track ``seed`` and write the annotated episode to ``out``
+    (one frame per step: the observation each action was chosen in)."""
+    trace = record(policy, seed, label=label, max_steps=max_steps)
+    write_video(annotated_frames(trace, limits, scale), out, fps)
+    return trace
+
+
+def draw_paths(
+    traces: list[Trace], out: str | Path, *, limits: Limits | None = None, title: str = ""
+) -> Path:
+    """One panel per trace: the road from above, the driven path coloured by the smallest
+    safety distance (px; grey during the zoom-in), violations (with ``limits``) as red
+    crosses. Colours share one scale across panels."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.collections import LineCollection, PolyCollection
+
+    if not traces:
+        raise ValueError("no traces to draw")
+    scored = [tr.episode.safety[~tr.episode.warmup].min(axis=1) for tr in traces]
+    top = max((float(np.percentile(s, 95)) for s in scored if len(s)), default=1.0)
+    norm = plt.Normalize(0.0, max(top, 1.0))
+    fig, axes = plt.subplots(
+        1, len(traces), figsize=(5.5 * len(traces) + 1, 5), squeeze=False, layout="constrained"
+    )
+    line = None
+    for ax, trace in zip(axes[0], traces, strict=True):
+        ep, xy = trace.episode, trace.positions
+        ax.add_collection(PolyCollection(trace.road, facecolors="0.55", edgecolors="none"))
+        d = ep.safety.min(axis=1)
+        segments = np.stack([xy[:-1], xy[1:]], axis=1)
+        warm = ep.warmup[:-1]
+        ax.add_collection(LineCollection(segments[warm], colors="0.85", linewidths=1.5))
+        line = LineCollection(segments[~warm], cmap="RdYlGn", norm=norm, linewidths=2.5)
+        line.set_array(d[:-1][~warm])
+        ax.add_collection(line)
+        ax.plot(*xy[0], "o", color="k", ms=5, label="start")
+        summary = f"{len(ep)} steps, reward {ep.total_reward:.0f}"
+        if (~ep.warmup).any():
+            summary += f", closest {d[~ep.warmup].min():.1f} px"
+        if limits is not None:
+            bad = np.any(np.asarray(ep.costs, np.float64) > limits.thresholds, axis=1)
+            bad &= ~ep.warmup
+            if bad.any():
+                ax.plot(*xy[bad].T, "x", color="red", ms=5, label="violation")
+            summary += f", {int(bad.sum())} violation step(s)"
+        ax.set_title(f"{trace.label}\n{summary}", fontsize=9)
+        ax.set_aspect("equal")
+        ax.autoscale_view()
+        ax.set_xticks([])
+        ax.set_yticks([])
+        ax.legend(loc="lower right", fontsize=8)
+    assert line is not None
+    fig.colorbar(line, ax=list(axes[0]), shrink=0.8, label="distance to grass (px, min L/F/R)")
+    if title:
+        fig.suptitle(title)
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out
+
+
+def render_paths(
+    policies: Mapping[str, Policy],
+    seed: int,
+    out: str | Path,
+    *,
+    limits: Limits | None = None,
+    max_steps: int | None = None,
+) -> list[Trace]:
+    """Roll each policy out on track ``seed`` and draw their paths side by side."""
+    traces = [record(p, seed, label=name, max_steps=max_steps) for name, p in policies.items()]
+    draw_paths(traces, out, limits=limits, title=f"track seed {seed}")
+    return traces
+
+
+def limits_from_checkpoint(directory: str | Path) -> Limits:
+    """The limits and critical zone a ``safe-bc train`` checkpoint was selected with."""
+    from safe_bc.data.store import read_table
+
+    _, meta = read_table(Path(directory) / "selection.parquet")
+    if "thresholds" not in meta:
+        raise ValueError(f"{directory}/selection.parquet: no thresholds in its metadata")
+    cfg = meta.get("config", {})
+    return Limits(
+        np.asarray(meta["thresholds"], np.float64),
+        float(cfg.get("eps", 2.0)),
+        str(cfg.get("combine", "any")),
+    )
+
+
+def limits_from_demos(demos: str | Path, eps: float) -> Limits:
+    """``d_s``: the demonstrations' worst cost per dimension over the scored steps (reads
+    only the cost and warm-up columns)."""
+    import pyarrow.parquet as pq
+
+    from safe_bc.data.store import completed_episodes, episode_path, read_meta
+    from safe_bc.selection import thresholds
+
+    meta = read_meta(demos)
+    ids = completed_episodes(demos, meta)
+    if not ids:
+        raise ValueError(f"{demos}: dataset has no episodes")
+    columns = [f"cost_{d}" for d in meta.safety_dims] + ["warmup"]
+    tables = [pq.read_table(episode_path(demos, i), columns=columns) for i in ids]
+    costs = np.concatenate(
+        [np.stack([t.column(c).to_numpy() for c in columns[:-1]], 1) for t in tables]
+    )
+    warmup = np.concatenate([t.column("warmup").to_numpy() for t in tables]).astype(bool)
+    return Limits(thresholds(costs, "max", valid=~warmup), eps)
+
+
+def _checkpoint_env_id(directory: Path) -> str:
+    from safe_bc.bc.checkpoint import read_checkpoint_meta
+
+    return str(read_checkpoint_meta(directory).get("extra", {}).get("env_id", "CarRacing-v3"))
+
+
+def render_command(
+    out: str | Path,
+    seed: int,
+    *,
+    checkpoint: str | Path | None = None,
+    expert: bool = False,
+    paths: bool = False,
+    demos: str | Path | None = None,
+    eps: float | None = None,
+    max_steps: int | None = None,
+    scale: int = 4,
+    fps: float = FPS,
+) -> str:
+    """What ``safe-bc render`` does; returns the line it prints.
+
+    The agent is the checkpoint's net; the expert is the one recorded in the
+    demonstrations' ``dataset.json`` (``demos``, else the checkpoint's, else
+    ``data/demos`` when present; the default expert otherwise). The critical zone is the
+    checkpoint's selection (``d_s``, eps, combine), else ``d_s`` of ``demos`` with ``eps``
+    (default 2 px); without either the rays are drawn without states. ``paths`` draws the
+    track map instead: the expert beside the agent (the expert alone without a checkpoint).
+    """
+    from safe_bc.collection import build_expert, stored_expert_config
+    from safe_bc.data.store import read_meta
+    from safe_bc.experts.carracing import ExpertConfig
+
+    default_eps = 2.0
+    if checkpoint is None and not (expert or paths):
+        raise ValueError("render needs --checkpoint DIR (the agent) or --expert")
+    limits = None
+    if checkpoint is not None:
+        checkpoint = Path(checkpoint)
+        env_id = _checkpoint_env_id(checkpoint)
+        if env_id != "CarRacing-v3":
+            raise ValueError(
+                f"{checkpoint}: trained on {env_id}; render draws CarRacing frames only"
+            )
+        limits = limits_from_checkpoint(checkpoint)
+        if demos is None:
+            from safe_bc.bc.checkpoint import read_checkpoint_meta
+
+            recorded = read_checkpoint_meta(checkpoint).get("extra", {}).get("demos")
+            demos = recorded if recorded and (Path(recorded) / "dataset.json").is_file() else None
+    if demos is None and (Path("data/demos") / "dataset.json").is_file():
+        demos = Path("data/demos")
+    if demos is not None and read_meta(demos).env_id != "CarRacing-v3":
+        raise ValueError(f"{demos}: not CarRacing demonstrations; render draws CarRacing only")
+    if limits is None and demos is not None:
+        limits = limits_from_demos(demos, default_eps if eps is None else eps)
+    if limits is not None and eps is not None:
+        limits = Limits(limits.thresholds, eps, limits.combine)
+    expert_policy = build_expert(
+        stored_expert_config(Path(demos)) if demos is not None else ExpertConfig()
+    )
+
+    def agent() -> Policy:
+        from safe_bc.bc.policy import BCPolicy
+
+        assert checkpoint is not None
+        return BCPolicy.from_checkpoint(checkpoint)
+
+    if paths:
+        policies = {"expert": expert_policy}
+        if checkpoint is not None:
+            policies["agent"] = agent()
+        traces = render_paths(policies, seed, out, limits=limits, max_steps=max_steps)
+        drawn = ", ".join(f"{t.label} ({len(t.episode)} steps)" for t in traces)
+        return f"{out}: paths of {drawn} on track seed {seed}"
+    label = "expert" if expert else "agent"
+    policy = expert_policy if expert else agent()
+    trace = render_episode(
+        policy, seed, out, label=label, limits=limits, max_steps=max_steps, scale=scale, fps=fps
+    )
+    ep = trace.episode
+    scored = ~ep.warmup
+    line = f"{out}: {len(ep)} frames of the {label} on track seed {seed}"
+    if scored.any():
+        line += f", closest {ep.safety[scored].min():.1f} px to the grass"
+    if limits is not None:
+        bad = np.any(np.asarray(ep.costs, np.float64) > limits.thresholds, axis=1) & scored
+        line += f", {int(bad.sum())} violation step(s) (d_s of the demonstrations)"
+    return line
+
+
+__all__ = [
+    "FPS",
+    "Limits",
+    "Trace",
+    "annotated_frames",
+    "dim_states",
+    "draw_paths",
+    "frame_state",
+    "limits_from_checkpoint",
+    "limits_from_demos",
+    "overlay",
+    "ray_segments",
+    "record",
+    "render_command",
+    "render_episode",
+    "render_paths",
+    "write_video",
+]
