@@ -11,6 +11,7 @@ from typing import Any
 
 from safe_bc.bc.checkpoint import CheckpointError
 from safe_bc.data.store import DatasetError
+from safe_bc.distributed.runtime import RayUnavailableError, check_ray_address
 
 DEFAULT_DEMOS = Path("data/demos")
 
@@ -53,6 +54,76 @@ def _unit_interval(name: str) -> Callable[[str], float]:
 
 def _finite_float(name: str) -> Callable[[str], float]:
     return _number(name, float, math.isfinite, "finite")
+
+
+RAY_COMMANDS = frozenset({"collect", "evaluate", "expert", "reproduce", "tune"})
+"""Commands that may start or join Ray: with ``RAY_ADDRESS`` set they join the cluster before
+they write anything."""
+
+SELECTION_FLAGS: dict[str, dict[str, Any]] = {
+    "eps": {"type": _non_negative_float("--eps"), "help": "critical-zone width"},
+    "alpha": {"type": _unit_interval("--alpha"), "help": "share of T_eps in every batch"},
+    "rest": {"help": "where the rest of a batch comes from"},
+    "threshold": {"help": "d_s: the demonstrations' largest cost, or a quantile of it"},
+    "quantile": {
+        "type": _number("--quantile", float, lambda v: 0 < v <= 1, "in (0, 1]"),
+        "help": "the quantile of --threshold quantile",
+        "requires": ("threshold", "quantile"),
+    },
+    "combine": {"help": "a pair is critical in any dimension or in all of them"},
+    "mode": {"help": "training rule: the alpha mix, BC-Safe or cost-weighted BC"},
+    "segment_steps": {
+        "type": _positive("--segment-steps"),
+        "help": "BC-Safe's segment length in scored steps",
+        "requires": ("mode", "bc_safe"),
+    },
+    "beta": {
+        "type": _number("--beta", float, lambda v: math.isfinite(v) and v >= 0, "finite, >= 0"),
+        "help": "cost-weighted BC's strength",
+        "requires": ("mode", "cost_weighted"),
+    },
+}
+"""``SelectionConfig`` fields on ``safe-bc train``: field -> ``add_argument`` keywords, plus
+``requires=(field, value)`` for a flag that only applies with another's value. A field typed
+with a ``Literal`` gets its choices from the type; every flag defaults to the config's default.
+A new field is one entry here (tests/test_cli.py fails while a field has none)."""
+
+
+def _selection_args(p: argparse.ArgumentParser, **defaults: str) -> None:
+    """One ``--flag`` per entry of :data:`SELECTION_FLAGS`; ``defaults`` describe defaults
+    that are not the config's (e.g. ``eps="the task's"``)."""
+    import dataclasses
+    import typing
+
+    from safe_bc.selection import SelectionConfig
+
+    hints = typing.get_type_hints(SelectionConfig)
+    own = {f.name: f.default for f in dataclasses.fields(SelectionConfig)}
+    for name, settings in SELECTION_FLAGS.items():
+        kw = {k: v for k, v in settings.items() if k != "requires"}
+        if "type" not in kw:
+            kw["choices"] = typing.get_args(hints[name])
+        kw["help"] = f"{kw.get('help', name)} (default: {defaults.get(name, own[name])})"
+        p.add_argument(f"--{name.replace('_', '-')}", default=None, **kw)
+
+
+def _selection_config(args: argparse.Namespace, **defaults: Any) -> Any:
+    """The ``SelectionConfig`` of the flags given, else ``defaults``, else the config's own.
+
+    Raises:
+        ValueError: a flag given without the setting it applies to.
+    """
+    from safe_bc.selection import SelectionConfig
+
+    given = {n: getattr(args, n) for n in SELECTION_FLAGS if getattr(args, n, None) is not None}
+    values = {**defaults, **given}
+    for name in given:
+        other, needed = SELECTION_FLAGS[name].get("requires", (None, None))
+        if other is not None and values.get(other) != needed:
+            raise ValueError(
+                f"--{name.replace('_', '-')} applies with --{other.replace('_', '-')} {needed}"
+            )
+    return SelectionConfig(**values)
 
 
 def _env_args(p: argparse.ArgumentParser) -> None:
@@ -167,19 +238,13 @@ def _cmd_train(args: argparse.Namespace) -> int:
     from safe_bc.data.store import load_demonstrations, read_meta
     from safe_bc.experiment import RunConfig, save_selection, train_run
     from safe_bc.provenance import run_metadata
-    from safe_bc.selection import SelectionConfig
     from safe_bc.tasks import action_bounds, task_defaults, task_of
 
     demos = load_demonstrations(args.demos)
     env_id = read_meta(args.demos).env_id
     task = task_defaults(task_of(env_id))
     run = RunConfig(
-        SelectionConfig(
-            eps=task.eps if args.eps is None else args.eps,
-            alpha=args.alpha,
-            rest=args.rest,
-            threshold=args.threshold,
-        ),
+        _selection_config(args, eps=task.eps),
         BCConfig(
             preprocess=PreprocessConfig(frame_stack=args.frame_stack),
             network=NetworkConfig(hidden=args.hidden),
@@ -391,7 +456,7 @@ def _cmd_tune(args: argparse.Namespace) -> int:
     print(format_outcome(outcome, spec.params))
     if not outcome.complete:
         return 130
-    return 1 if outcome.errors else 0
+    return 1 if outcome.errors or outcome.winner is None else 0
 
 
 def _cmd_improve(args: argparse.Namespace) -> int:
@@ -506,10 +571,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("train", help="select T_eps and train one BC agent (checkpoint)")
     p.add_argument("--demos", type=Path, default=DEFAULT_DEMOS)
     p.add_argument("--out", type=Path, required=True, help="checkpoint directory")
-    p.add_argument("--eps", type=_non_negative_float("--eps"), default=None)
-    p.add_argument("--alpha", type=_unit_interval("--alpha"), default=0.5)
-    p.add_argument("--rest", choices=["all", "noncritical"], default="all")
-    p.add_argument("--threshold", choices=["max", "quantile"], default="max")
+    _selection_args(p, eps="the task's, 2 px / 0.05")
     p.add_argument("--batches", type=_positive("--batches"), default=2000)
     p.add_argument("--batch-size", type=_positive("--batch-size"), default=64)
     p.add_argument("--lr", type=_positive_float("--lr"), default=3e-4)
@@ -715,8 +777,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
+        if args.command in RAY_COMMANDS and check_ray_address() is not None:
+            # join the cluster before anything is written (a refused address fails in
+            # milliseconds, something that is not Ray within ~40 s)
+            from safe_bc.distributed.runtime import ensure_ray
+
+            ensure_ray()
         return args.func(args)
-    except (DatasetError, ValueError, FileNotFoundError, CheckpointError) as e:
+    except (DatasetError, ValueError, FileNotFoundError, CheckpointError, RayUnavailableError) as e:
         print(f"safe-bc {args.command}: error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

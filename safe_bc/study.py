@@ -357,8 +357,12 @@ def load_study(path: str | Path) -> StudySpec:
 
     Raises:
         FileNotFoundError: no such file.
-        ValueError: the file does not define ``STUDY`` as a ``StudySpec``.
+        ValueError: the file does not define ``STUDY`` as a ``StudySpec``, or running it
+            failed (a syntax error, a failing import, a bad value): one line naming the file,
+            the line and the problem.
     """
+    import traceback
+
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"no study file {path}")
@@ -370,7 +374,23 @@ def load_study(path: str | Path) -> StudySpec:
         raise ValueError(f"{path}: cannot be imported")
     module = importlib.util.module_from_spec(spec)
     sys.modules[module_name] = module  # picklable by reference while the study runs
-    spec.loader.exec_module(module)
+    try:
+        spec.loader.exec_module(module)
+    except SyntaxError as e:  # also raised for a syntax error in a module the file imports
+        sys.modules.pop(module_name, None)
+        inside = Path(e.filename or path).resolve() == path.resolve()
+        where = f"{path}:{e.lineno}" if inside else f"{path}: {e.filename}:{e.lineno}"
+        raise ValueError(f"{where}: {type(e).__name__}: {e.msg}") from None
+    except Exception as e:
+        sys.modules.pop(module_name, None)
+        here = [
+            f
+            for f in traceback.extract_tb(e.__traceback__)
+            if Path(f.filename).resolve() == path.resolve()
+        ]
+        line = f":{here[-1].lineno}" if here else ""
+        problem = " ".join(str(e).split()) or "(no message)"
+        raise ValueError(f"{path}{line}: {type(e).__name__}: {problem}") from None
     study = getattr(module, "STUDY", None)
     if not isinstance(study, StudySpec):
         got = "nothing" if study is None else type(study).__name__

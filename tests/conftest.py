@@ -13,17 +13,15 @@ os.environ.setdefault("RAY_DEDUP_LOGS", "0")
 
 @pytest.fixture(scope="session")
 def ray_session():
-    """A local 2-CPU Ray, started once for every test that asks for it."""
+    """A local 2-CPU Ray listening on loopback only, started once for every test that asks
+    for it."""
     import ray
 
+    from safe_bc.distributed.runtime import start_local_ray
+
     if not ray.is_initialized():
-        ray.init(
-            address="local",
-            num_cpus=2,
-            include_dashboard=False,
-            log_to_driver=False,
-            object_store_memory=256 * 2**20,
-        )
+        # loopback only, like every local run (tests/distributed/test_runtime.py checks it)
+        start_local_ray(num_cpus=2, log_to_driver=False, object_store_memory=256 * 2**20)
     yield ray
     ray.shutdown()
 

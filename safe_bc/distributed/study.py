@@ -465,7 +465,13 @@ def format_outcome(outcome: StudyOutcome, params: Sequence[str]) -> str:
     elif outcome.winner is not None:
         lines.append(outcome.winner.message)
     else:
-        lines.append("no trial finished its evaluation")
+        reasons = t["error"][t["error"] != ""].value_counts()  # most frequent first
+        lines.append(
+            "no trial finished its evaluation; why:"
+            if len(reasons)
+            else "no trial finished its evaluation (no trial recorded an error)"
+        )
+        lines += [f"  {n} trial(s): {reason}" for reason, n in reasons.items()]
     if outcome.final is not None and len(outcome.final.table):
         cols = ["method", "n_train_seeds", "n_episodes", "reward", "reward_lo", "reward_hi",
                 "safety_mean", "violation_steps", "episodes_with_violation", "offroad_steps",
