@@ -146,7 +146,11 @@ def test_train_records_quantile_and_combine(tmp_path: Path, capsys: pytest.Captu
 def _invalid_outcome(tmp_path: Path):
     from safe_bc.distributed.study import StudyOutcome
 
-    errors = ["rest pool is empty", "rest pool is empty", "training diverged (loss nan)"]
+    errors = [
+        "alpha=0.63 < 1 but the rest pool is empty (critical=74)",
+        "training diverged (loss nan)",
+        "alpha=0.5 < 1 but the rest pool is empty (critical=74)",
+    ]
     records = [
         {"trial_id": f"t{i}", "status": "invalid", "error": e, "reward_mean": np.nan}
         for i, e in enumerate(errors)
@@ -162,10 +166,13 @@ def test_study_without_a_finished_trial_says_why_and_fails(
 
     outcome = _invalid_outcome(tmp_path)
     text = study.format_outcome(outcome, ["selection.eps"])
-    assert "no trial finished its evaluation; why:" in text
-    assert "  2 trial(s): rest pool is empty" in text
-    assert "  1 trial(s): training diverged (loss nan)" in text
-    assert text.count("rest pool is empty") == 1
+    lines = text.splitlines()
+    why = lines.index("no trial finished its evaluation; why:")
+    assert lines[why + 1 : why + 3] == [
+        "  2 trial(s): alpha=0.63 < 1 but the rest pool is empty (critical=74) (numbers differ "
+        "between the trials)",
+        "  1 trial(s): training diverged (loss nan)",
+    ]
 
     monkeypatch.delenv("RAY_ADDRESS", raising=False)
     monkeypatch.setattr(study, "run_study", lambda spec, **kw: outcome)

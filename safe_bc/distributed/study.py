@@ -465,13 +465,22 @@ def format_outcome(outcome: StudyOutcome, params: Sequence[str]) -> str:
     elif outcome.winner is not None:
         lines.append(outcome.winner.message)
     else:
-        reasons = t["error"][t["error"] != ""].value_counts()  # most frequent first
+        import re
+
+        # the trials' errors, most frequent first; messages that differ in numbers only count
+        # as one
+        reasons: dict[str, list[str]] = {}
+        for error in t["error"]:
+            if error:
+                reasons.setdefault(re.sub(r"\d+(\.\d+)?(e[-+]?\d+)?", "#", error), []).append(error)
         lines.append(
             "no trial finished its evaluation; why:"
-            if len(reasons)
+            if reasons
             else "no trial finished its evaluation (no trial recorded an error)"
         )
-        lines += [f"  {n} trial(s): {reason}" for reason, n in reasons.items()]
+        for errors in sorted(reasons.values(), key=len, reverse=True):
+            other = " (numbers differ between the trials)" if len(set(errors)) > 1 else ""
+            lines.append(f"  {len(errors)} trial(s): {errors[0]}{other}")
     if outcome.final is not None and len(outcome.final.table):
         cols = ["method", "n_train_seeds", "n_episodes", "reward", "reward_lo", "reward_hi",
                 "safety_mean", "violation_steps", "episodes_with_violation", "offroad_steps",
