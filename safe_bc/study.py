@@ -245,8 +245,10 @@ class StudySpec:
     rollout_workers: int = 0
     """Evaluation actors per trial (0: evaluate in the trial's own process)."""
     cpus_per_trial: float = 1.0
-    """CPUs reserved for a trial's own process (fractional allowed); torch uses
-    ``max(1, floor(cpus_per_trial))`` threads."""
+    """CPUs reserved for a trial's own process (fractional allowed). Training does not follow
+    it: every trial trains with ``base.bc.train.num_threads`` torch threads (1 when unset),
+    recorded in its checkpoint's run config, so a rerun with other resources gives the same
+    weights."""
     cpus_per_worker: float = 1.0
     """CPUs reserved per rollout worker of a trial."""
     max_failures: int = 2

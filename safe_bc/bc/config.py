@@ -117,7 +117,8 @@ class TrainConfig:
     """Record the mean loss every this many batches (and at the last batch)."""
 
     num_threads: int | None = None
-    """``torch.set_num_threads`` during training (restored after); ``None`` leaves it."""
+    """``torch.set_num_threads`` during training (restored after); ``None``: 1
+    (``bc.train.DEFAULT_NUM_THREADS``), never the process's count. The weights depend on it."""
 
     def __post_init__(self) -> None:
         _positive_int("batches", self.batches)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -93,6 +93,20 @@ class TrainResult:
         return save_checkpoint(directory, self.model, self.config, extra)
 
 
+DEFAULT_NUM_THREADS = 1
+"""Torch threads of a training run whose ``TrainConfig.num_threads`` is ``None``. Fixed rather
+than the process's setting: the thread count changes how float sums are split, so 1 and 2
+threads give different weights, and the process's count depends on the machine,
+``OMP_NUM_THREADS`` (Ray sets it from a task's CPU reservation) and earlier
+``torch.set_num_threads`` calls (a reused Tune trial process)."""
+
+
+def training_threads(train_cfg: TrainConfig) -> int:
+    """The torch threads ``train_bc`` uses for ``train_cfg``: its ``num_threads``, else
+    ``DEFAULT_NUM_THREADS``."""
+    return DEFAULT_NUM_THREADS if train_cfg.num_threads is None else train_cfg.num_threads
+
+
 @contextmanager
 def torch_settings(num_threads: int | None) -> Iterator[None]:
     """Deterministic algorithms, optional thread count and a forked torch RNG, all restored
@@ -133,10 +147,11 @@ def train_bc(
 
     Batches are the sampler's row indices, drawn from a copy of the sampler whose random
     stream starts from ``train_cfg.seed`` (the passed sampler is not advanced); only those
-    rows are preprocessed. With the same data, configs and thread count the resulting weights
-    are bit-identical. Global torch state (deterministic flag, threads, RNG) is restored on
-    return; the first call in a process pays a one-off ~2-5 s because
-    ``torch.use_deterministic_algorithms`` imports ``torch._inductor``.
+    rows are preprocessed. The weights are a function of the data and the configs alone,
+    bit for bit: the thread count is ``training_threads(train_cfg)`` (``DEFAULT_NUM_THREADS``
+    when unset, recorded in the result's config), never the process's. Global torch state
+    (see ``torch_settings``) is restored on return; the first call in a process pays a
+    one-off ~2-5 s because ``torch.use_deterministic_algorithms`` imports ``torch._inductor``.
 
     Args:
         demos: ``N`` state-action pairs (frames or vectors).
@@ -165,6 +180,7 @@ def train_bc(
         weights = torch.tensor(train_cfg.loss_weights, dtype=torch.float32)
     weights = weights / weights.sum()
 
+    train_cfg = replace(train_cfg, num_threads=training_threads(train_cfg))  # recorded
     spec = ModelSpec.for_data(demos.observations.shape[1:], n_actions, action_bounds)
     builder = BatchBuilder(demos, pre_cfg)
     sampler = sampler.with_rng(np.random.default_rng(train_cfg.seed))

@@ -113,7 +113,7 @@ def final_phase(
             one is retrained for that seed too.
     """
     workers = final_workers(spec)
-    threads = trial_threads(spec.cpus_per_trial)
+    threads = trial_threads(spec)
     seeds = [spec.base.bc.train.seed + i for i in range(spec.final_train_seeds)]
     cfgs: dict[str, RunConfig] = {
         str(row["trial_id"]): spec.run_config({k: row[k] for k in spec.params}, threads)

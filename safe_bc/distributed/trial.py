@@ -23,6 +23,7 @@ from ray import tune
 
 from safe_bc.bc import load_checkpoint, read_checkpoint_meta
 from safe_bc.bc.policy import BCNet
+from safe_bc.bc.train import training_threads
 from safe_bc.data.store import load_demonstrations
 from safe_bc.demos import Demonstrations
 from safe_bc.distributed.evaluate import evaluate
@@ -71,9 +72,15 @@ def cached_demos(path: str) -> Demonstrations:
     return _DEMOS[path]
 
 
-def trial_threads(cpus: float) -> int:
-    """Torch threads for a trial reserving ``cpus`` CPUs."""
-    return max(1, int(cpus))
+def trial_threads(spec: StudySpec) -> int:
+    """Torch threads every trial of ``spec`` trains with: ``base.bc.train.num_threads``, else 1.
+
+    Never the CPU reservation (``cpus_per_trial``; Ray also sets ``OMP_NUM_THREADS`` from it)
+    nor the reused process's setting: 1 and 2 threads give different weights, so the count is
+    part of the trial's run config (recorded in its checkpoint) and a rerun with other
+    resources, or ``train_run`` of that config in any process, gives the same weights.
+    """
+    return training_threads(spec.base.bc.train)
 
 
 def reset_trial_state(seed: int) -> None:
@@ -163,7 +170,7 @@ def run_trial(config: dict[str, Any], job: TrialJob) -> None:
     spec = job.spec
     seed = spec.base.bc.train.seed
     reset_trial_state(seed)
-    threads = trial_threads(spec.cpus_per_trial)
+    threads = trial_threads(spec)
     torch.set_num_threads(threads)
     run_cfg = spec.run_config({k: config[k] for k in spec.params}, num_threads=threads)
     metrics = blank_metrics(job)

@@ -36,6 +36,25 @@ def test_same_seed_identical_weights_different_seed_differs():
     assert not all(torch.equal(a[k], c[k]) for k in a)
 
 
+def test_unset_thread_count_trains_with_one_thread_whatever_the_process_uses():
+    """1 and 2 threads give different weights, so ``num_threads=None`` must not mean the
+    process's count (the machine's, ``OMP_NUM_THREADS`` or an earlier set_num_threads)."""
+    demos = frame_demos(n=60)
+    one = small_train(batches=10)
+    unset = TrainConfig(**{**one.__dict__, "num_threads": None})
+    threads = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        result = train_bc(demos, _sampler(demos, unset), TINY_CNN, SMALL_FRAMES, unset)
+        assert torch.get_num_threads() == 2  # restored
+    finally:
+        torch.set_num_threads(threads)
+    assert result.config.train.num_threads == 1  # recorded
+    a = _state(result)
+    b = _state(train_bc(demos, _sampler(demos, one), TINY_CNN, SMALL_FRAMES, one))
+    assert all(torch.equal(a[k], b[k]) for k in a)
+
+
 def test_loss_decreases_on_pixel_task():
     """steer = side of a bright square, gas = its brightness: learnable in a few hundred steps."""
     demos = frame_demos(n=200)
