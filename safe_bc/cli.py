@@ -464,20 +464,10 @@ def _cmd_improve(args: argparse.Namespace) -> int:
 
     from safe_bc.improve import ImproveConfig, improve
 
-    config = ImproveConfig(
-        shield=args.shield,
-        lagrangian=args.lagrangian,
-        eps=args.eps,
-        cost_signal=args.cost_signal,
-        cost_margin=args.cost_margin,
-        cost_budget=args.cost_budget,
-        lambda_lr=args.lambda_lr,
-        anchor=args.anchor,
-        anchor_coef=args.anchor_coef,
-        iterations=args.iterations,
-        episodes_per_iter=args.episodes_per_iter,
-        seed=args.seed,
-    )
+    names = ("eps", "cost_signal", "cost_margin", "cost_budget", "lambda_lr", "anchor",
+             "anchor_coef", "iterations", "episodes_per_iter")  # fmt: skip
+    given = {k: getattr(args, k) for k in names if getattr(args, k) is not None}
+    config = ImproveConfig(shield=args.shield, lagrangian=args.lagrangian, seed=args.seed, **given)
     bar = tqdm(total=config.iterations, desc=f"improve ({config.mode})", disable=args.quiet)
 
     def show(row: dict[str, float]) -> None:
@@ -717,14 +707,15 @@ def build_parser() -> argparse.ArgumentParser:
                    help="PPO-Lagrangian on the violation cost (default: on)")  # fmt: skip
     p.add_argument("--eps", type=_non_negative_float("--eps"), default=None,
                    help="shield's critical-zone width (default: the start's)")  # fmt: skip
-    p.add_argument("--cost-signal", choices=["indicator", "excursion"], default="indicator")
-    p.add_argument("--cost-margin", type=_non_negative_float("--cost-margin"), default=0.0)
-    p.add_argument("--cost-budget", type=_non_negative_float("--cost-budget"), default=0.0)
-    p.add_argument("--lambda-lr", type=_non_negative_float("--lambda-lr"), default=0.5)
-    p.add_argument("--anchor", choices=["bc", "kl", "none"], default="bc")
-    p.add_argument("--anchor-coef", type=_non_negative_float("--anchor-coef"), default=1.0)
-    p.add_argument("--iterations", type=_positive("--iterations"), default=150)
-    p.add_argument("--episodes-per-iter", type=_positive("--episodes-per-iter"), default=64)
+    # unset options keep ImproveConfig's defaults (safe_bc/improve.py documents each)
+    p.add_argument("--cost-signal", choices=["indicator", "excursion"], default=None)
+    p.add_argument("--cost-margin", type=_non_negative_float("--cost-margin"), default=None)
+    p.add_argument("--cost-budget", type=_non_negative_float("--cost-budget"), default=None)
+    p.add_argument("--lambda-lr", type=_non_negative_float("--lambda-lr"), default=None)
+    p.add_argument("--anchor", choices=["bc", "kl", "none"], default=None)
+    p.add_argument("--anchor-coef", type=_non_negative_float("--anchor-coef"), default=None)
+    p.add_argument("--iterations", type=_positive("--iterations"), default=None)
+    p.add_argument("--episodes-per-iter", type=_positive("--episodes-per-iter"), default=None)
     p.add_argument("--seed", type=_non_negative_int("--seed"), default=0)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_improve)

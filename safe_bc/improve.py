@@ -103,13 +103,16 @@ class ImproveConfig:
     """Per-step cost of the Lagrangian, read off the step's outcome (the next state's true
     costs): ``"indicator"`` 1 when beyond ``d_s - cost_margin`` in some dimension,
     ``"excursion"`` how far beyond (largest over the dimensions, in cost units)."""
-    cost_margin: float = 0.0
-    """Tightens the Lagrangian's limit to ``d_s - cost_margin`` (0: exactly ``d_s``)."""
-    cost_budget: float = 0.0
-    """Allowed expected cost per episode, ``J_c <= budget`` (0: no violation at all)."""
+    cost_margin: float = 0.02
+    """Tightens the Lagrangian's limit to ``d_s - cost_margin`` (0: exactly ``d_s``), so the
+    deterministic policy keeps a margin that the noisy training policy is charged for."""
+    cost_budget: float = 0.1
+    """Allowed expected cost per episode of the *stochastic* training policy at the tightened
+    limit, ``J_c <= budget``. With 0 the exploration noise alone keeps the multiplier rising
+    forever (it can never fall), and the reward signal fades as ``1 / (1 + lambda)``."""
     lambda_init: float = 0.0
     """Initial multiplier."""
-    lambda_lr: float = 0.5
+    lambda_lr: float = 0.1
     """Step size of the multiplier's projected gradient ascent, per iteration."""
     lambda_max: float = 100.0
     """Upper clip of the multiplier (keeps the reward term from vanishing entirely)."""
@@ -121,7 +124,7 @@ class ImproveConfig:
     """Weight of the anchor term in the policy loss."""
     anchor_batch: int = 256
     """Demonstration pairs per anchor batch (``anchor="bc"``)."""
-    iterations: int = 150
+    iterations: int = 200
     """PPO iterations; each collects ``episodes_per_iter`` complete episodes."""
     episodes_per_iter: int = 64
     """Episodes (patients) per iteration."""

@@ -204,7 +204,8 @@ def main(argv: list[str] | None = None) -> int:
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
-    p.add_argument("--modes", nargs="+", choices=list(MODES), default=list(MODES))
+    p.add_argument("--modes", nargs="+", choices=list(MODES),
+                   default=["shield", "lagrangian", "both"])  # fmt: skip
     p.add_argument("--episodes", type=int, default=200, help="held-out patients")
     p.add_argument("--eval-seed", type=int, default=5, help="held-out seed block")
     p.add_argument("--iterations", type=int, default=None, help="override the config's")

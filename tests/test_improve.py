@@ -80,7 +80,7 @@ def test_multiplier_in_training_follows_the_cost(start):
     """Budget 0: lambda never falls, and rises exactly when an iteration's rollouts cost."""
     s, demos = _load_start(start, None)
     with torch.random.fork_rng(devices=[]):
-        agent = Improver(s, demos, replace(TINY, cost_margin=0.5, lambda_lr=0.5))
+        agent = Improver(s, demos, replace(TINY, cost_margin=0.5, cost_budget=0.0, lambda_lr=0.5))
         for _ in range(3):
             before = agent.lam
             row = agent.iterate()
