@@ -13,6 +13,7 @@ import json
 import math
 import os
 import signal
+import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
@@ -23,6 +24,7 @@ import numpy as np
 import pandas as pd
 from ray import tune
 from ray.tune.logger import CSVLoggerCallback, JsonLoggerCallback
+from ray.tune.schedulers import FIFOScheduler, TrialScheduler
 from ray.tune.utils import flatten_dict
 
 from safe_bc.bc import load_checkpoint
@@ -37,7 +39,7 @@ from safe_bc.distributed.search import (
     make_scheduler,
     make_searcher,
 )
-from safe_bc.distributed.trial import TrialJob, cached_demos, run_trial
+from safe_bc.distributed.trial import TrialJob, cached_demos, run_trial, stored_checkpoint
 from safe_bc.provenance import provenance
 from safe_bc.study import (
     OBJECTIVE,
@@ -203,8 +205,37 @@ def _records(grid: Any, params: Sequence[str]) -> list[dict[str, Any]]:
     return records
 
 
+def _study_history(history: pd.DataFrame, trials: pd.DataFrame) -> tuple[pd.DataFrame, list[str]]:
+    """The history rows of the trials in ``trials`` (every trial Tune knows), and the ids of the
+    trials whose rows are set aside: trials that a driver killed before Tune saved them had
+    started (the restored experiment does not know them and ran others in their place)."""
+    if history.empty or "trial_id" not in history:
+        return history, []
+    known = history["trial_id"].isin(set(trials["trial_id"]))
+    lost = sorted(set(history.loc[~known, "trial_id"]))
+    return history[known].reset_index(drop=True), lost
+
+
+def _remove_orphan_trial_dirs(exp_path: str, known: set[str]) -> list[str]:
+    """Delete the ``trial_<id>`` folders of trials the experiment does not know (see
+    :func:`_study_history`) and return their ids."""
+    import pyarrow.fs as pafs
+
+    fs, root = pafs.FileSystem.from_uri(exp_path)
+    orphans = []
+    for info in fs.get_file_info(pafs.FileSelector(root, allow_not_found=True)):
+        tid = info.base_name.removeprefix("trial_")
+        if info.type == pafs.FileType.Directory and info.base_name != tid and tid not in known:
+            fs.delete_dir(info.path)
+            orphans.append(tid)
+    return sorted(orphans)
+
+
 class HistoryRecorder(tune.Callback):
-    """Appends every reported result to a JSON-lines file as it arrives (in the driver).
+    """Appends every reported result to a JSON-lines file as it arrives (in the driver), and a
+    line ``{"trial_id", "event": "complete" | "error", "timestamp"}`` when a trial has ended
+    and Tune has saved the experiment state that says so (:class:`SaveOnTrialEnd`: those are
+    written at the end of the step, after the save).
 
     Tune's own ``result.json`` lost the rows before a failure when a trial was restored from
     its checkpoint (Ray 2.60, local storage), so the history is kept here. The callback is
@@ -213,25 +244,158 @@ class HistoryRecorder(tune.Callback):
 
     def __init__(self, path: str) -> None:
         self.path = path
+        self._ended: list[tuple[str, str]] = []
+
+    def _append(self, rows: list[dict[str, Any]]) -> None:
+        Path(self.path).parent.mkdir(parents=True, exist_ok=True)
+        with open(self.path, "a") as f:
+            f.write("".join(json.dumps(row, default=str) + "\n" for row in rows))
 
     def on_trial_result(self, iteration: int, trials: list, trial: Any, result: dict, **info):
         row = {k: v for k, v in flatten_dict(result).items() if not k.startswith("config/")}
         row["trial_id"] = trial.trial_id
-        Path(self.path).parent.mkdir(parents=True, exist_ok=True)
-        with open(self.path, "a") as f:
-            f.write(json.dumps(row, default=str) + "\n")
+        self._append([row])
+
+    def _end(self, trial: Any, event: str) -> None:
+        self.__dict__.setdefault("_ended", []).append((trial.trial_id, event))
+
+    def on_trial_complete(self, iteration: int, trials: list, trial: Any, **info) -> None:
+        self._end(trial, "complete")
+
+    def on_trial_error(self, iteration: int, trials: list, trial: Any, **info) -> None:
+        self._end(trial, "error")
+
+    def on_step_end(self, iteration: int, trials: list, **info) -> None:
+        ended = self.__dict__.get("_ended")
+        if ended:  # Tune calls this after the step's save of the experiment state
+            now = time.time()
+            self._append([{"trial_id": t, "event": e, "timestamp": now} for t, e in ended])
+            ended.clear()
 
 
 def read_history(path: Path) -> pd.DataFrame:
-    """The rows a :class:`HistoryRecorder` wrote (text columns without NaN, for Parquet)."""
+    """The results a :class:`HistoryRecorder` wrote (text columns without NaN, for Parquet); a
+    line cut short by a killed driver is skipped."""
     if not path.exists():
         return pd.DataFrame()
-    rows = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    rows = []
+    for line in path.read_text().splitlines():
+        try:
+            row = json.loads(line)
+        except json.JSONDecodeError:
+            continue
+        if "event" not in row:  # a result, not the end of a trial
+            rows.append(row)
     hist = pd.DataFrame(rows)
     for c in hist.columns:  # mixed text / NaN columns do not convert to Parquet
         if hist[c].dtype == object:
             hist[c] = hist[c].map(lambda v: "" if is_missing(v) else str(v))
     return hist
+
+
+# --- persisting the experiment state after every trial -----------------------------------------
+
+
+class SaveOnTrialEnd(TrialScheduler):
+    """The study's scheduler, wrapped: Tune saves the experiment state (every trial's status and
+    last result, the searcher's state, the callbacks) at the end of the step in which a trial
+    completes or fails, and waits for it to reach the storage.
+
+    Ray 2.60 saves that state only at the first step, then at most every ``max(10 s, 19 x the
+    last save's duration)`` (``TUNE_GLOBAL_CHECKPOINT_S`` unset: ``"auto"``) and at the end of
+    ``fit`` (also on Ctrl-C): a driver killed in between restored an older state and ran the
+    trials finished since again. Tune hands schedulers the controller in ``on_trial_complete``
+    and ``on_trial_error``; this sets the flag with which Tune itself forces a save
+    (``CheckpointConfig(num_to_keep)``); :func:`check_persistence_api` checks it exists.
+    """
+
+    def __init__(self, inner: TrialScheduler) -> None:
+        super().__init__()
+        self.inner = inner
+
+    @property
+    def metric(self) -> str | None:
+        return self.inner.metric
+
+    @property
+    def supports_buffered_results(self) -> bool:
+        return self.inner.supports_buffered_results
+
+    def set_search_properties(self, metric: str | None, mode: str | None, **spec: Any) -> bool:
+        return self.inner.set_search_properties(metric, mode, **spec)
+
+    def on_trial_add(self, tune_controller: Any, trial: Any) -> None:
+        self.inner.on_trial_add(tune_controller, trial)
+
+    def on_trial_error(self, tune_controller: Any, trial: Any) -> None:
+        self.inner.on_trial_error(tune_controller, trial)
+        _save_at_step_end(tune_controller)
+
+    def on_trial_result(self, tune_controller: Any, trial: Any, result: dict) -> str:
+        return self.inner.on_trial_result(tune_controller, trial, result)
+
+    def on_trial_complete(self, tune_controller: Any, trial: Any, result: dict) -> None:
+        self.inner.on_trial_complete(tune_controller, trial, result)
+        _save_at_step_end(tune_controller)
+
+    def on_trial_remove(self, tune_controller: Any, trial: Any) -> None:
+        self.inner.on_trial_remove(tune_controller, trial)
+
+    def choose_trial_to_run(self, tune_controller: Any) -> Any:
+        return self.inner.choose_trial_to_run(tune_controller)
+
+    def debug_string(self) -> str:
+        return self.inner.debug_string()
+
+    def save(self, checkpoint_path: str) -> None:
+        self.inner.save(checkpoint_path)
+
+    def restore(self, checkpoint_path: str) -> None:
+        self.inner.restore(checkpoint_path)
+
+
+def _save_at_step_end(tune_controller: Any) -> None:
+    """Make the save at the end of Tune's current step a forced, waited-for one (after the trial's
+    new status is set: Tune calls the scheduler first)."""
+    controller = getattr(tune_controller, "_tune_controller", tune_controller)  # unwrapped
+    manager = getattr(controller, "_checkpoint_manager", None)
+    if manager is not None:
+        manager._should_force_sync_up = True
+
+
+def check_persistence_api() -> None:
+    """Raise ``RuntimeError`` naming what :class:`SaveOnTrialEnd` and :func:`_save_every_trial`
+    rely on (Ray 2.60 internals) when the installed Ray lacks it."""
+    from ray.tune.execution.experiment_state import _ExperimentCheckpointManager
+    from ray.tune.execution.tune_controller import TuneController
+    from ray.tune.impl.tuner_internal import TunerInternal
+
+    uses = {
+        "TuneController._checkpoint_manager": "_checkpoint_manager"
+        in TuneController.__init__.__code__.co_names,
+        "_ExperimentCheckpointManager._should_force_sync_up": "_should_force_sync_up"
+        in _ExperimentCheckpointManager.sync_up_experiment_state.__code__.co_names,
+        "TunerInternal._tune_config": "_tune_config" in TunerInternal.__init__.__code__.co_names,
+        "TunerInternal._run_config": "_run_config" in TunerInternal.__init__.__code__.co_names,
+        "Tuner._local_tuner": "_local_tuner" in tune.Tuner.__annotations__,
+    }
+    missing = [name for name, ok in uses.items() if not ok]
+    if missing:
+        raise RuntimeError(
+            f"ray.tune no longer has {', '.join(missing)}; safe_bc's saving of the experiment "
+            "state after every trial (distributed/study.py) needs updating for this Ray version"
+        )
+
+
+def _save_every_trial(tuner: tune.Tuner) -> None:
+    """A restored experiment started before :class:`SaveOnTrialEnd` existed gets it too (and
+    the save after every trial checkpoint): Tune restores both from its ``tuner.pkl``."""
+    internal = tuner._local_tuner
+    config, run_config = internal._tune_config, internal._run_config
+    if not isinstance(config.scheduler, SaveOnTrialEnd):
+        config.scheduler = SaveOnTrialEnd(config.scheduler or FIFOScheduler())
+    if run_config.checkpoint_config.num_to_keep is None:
+        run_config.checkpoint_config = replace(run_config.checkpoint_config, num_to_keep=1)
 
 
 def run_study(
@@ -275,6 +439,10 @@ def _run_study(
 
     os.environ.setdefault("TUNE_DISABLE_AUTO_CALLBACK_LOGGERS", "1")
     os.environ.setdefault("RAY_AIR_NEW_OUTPUT", "0")  # the terse status table of CLIReporter
+    # SaveOnTrialEnd forces saves; Tune would call two within 5 s "excessive" and blame
+    # CheckpointConfig(num_to_keep)
+    os.environ.setdefault("TUNE_WARN_EXCESSIVE_EXPERIMENT_CHECKPOINT_SYNC_THRESHOLD_S", "0")
+    check_persistence_api()
     out = spec.results / spec.name
     storage, exp_path = experiment_location(spec)
     if fresh:
@@ -310,12 +478,13 @@ def _run_study(
     if restoring:
         print(f"resuming study {spec.name!r} from {exp_path}")
         tuner = tune.Tuner.restore(exp_path, trainable=trainable, resume_errored=True)
+        _save_every_trial(tuner)
     else:
         tuner = tune.Tuner(
             trainable,
             tune_config=tune.TuneConfig(
                 search_alg=make_searcher(spec),
-                scheduler=make_scheduler(spec),
+                scheduler=SaveOnTrialEnd(make_scheduler(spec)),
                 num_samples=spec.trials,
                 max_concurrent_trials=spec.max_concurrent,
                 reuse_actors=True,
@@ -325,6 +494,9 @@ def _run_study(
                 name=spec.name,
                 storage_path=storage,
                 failure_config=tune.FailureConfig(max_failures=spec.max_failures),
+                # a trial's (only) checkpoint forces a save of the experiment state too, so a
+                # trial in flight when the driver dies resumes from it
+                checkpoint_config=tune.CheckpointConfig(num_to_keep=1),
                 callbacks=[
                     JsonLoggerCallback(),
                     CSVLoggerCallback(),
@@ -338,7 +510,16 @@ def _run_study(
     grid = tuner.fit()
 
     trials = trial_table(_records(grid, spec.params), spec.params)
-    history = read_history(out / HISTORY)
+    history, lost = _study_history(read_history(out / HISTORY), trials)
+    if lost:
+        print(
+            f"{len(lost)} trial(s) were lost with a killed driver (the restored experiment does "
+            f"not know them and ran others instead; their reports stay in {HISTORY} only): "
+            + ", ".join(lost)
+        )
+    orphans = _remove_orphan_trial_dirs(exp_path, set(trials["trial_id"]))
+    if orphans:
+        print(f"removed the folders of {len(orphans)} such trial(s) from {exp_path}")
     errors = int((trials["status"] == "error").sum())
     finished = int(trials["status"].isin(["done", "stopped", "invalid", "error"]).sum())
     complete = finished >= spec.trials
@@ -362,6 +543,7 @@ def _run_study(
         },
         "experiment_path": exp_path,
         "complete": complete,
+        "lost_trials": lost,
         "provenance": provenance(),
     }
     write_table_atomic(out / "trials.parquet", trials, meta)
@@ -393,6 +575,10 @@ def _checkpoints(grid: Any, trial_ids: Sequence[str]) -> dict[str, BCNet]:
         if tid in trial_ids and r.checkpoint is not None:
             with r.checkpoint.as_directory() as d:
                 out[tid] = load_checkpoint(d)[0]
+        elif tid in trial_ids:  # resumed from a checkpoint Tune had not recorded (resume_point)
+            stored = stored_checkpoint(r.filesystem, r.path)
+            if stored is not None:
+                out[tid] = stored[0]
     return out
 
 

@@ -1,9 +1,10 @@
 """One study trial on Ray Tune: select, train, checkpoint, then evaluate in rounds.
 
 A trial trains once (the first report carries the weights as a checkpoint, so a retry or a
-resumed study never retrains), is screened on the first ``screen_episodes`` held-out tracks
-(successive halving may stop it there) and, if it survives, evaluated on the rest of its
-``eval_episodes`` tracks. Every report carries every key of ``TRIAL_METRICS``.
+resumed study never retrains: :func:`resume_point`), is screened on the first
+``screen_episodes`` held-out tracks (successive halving may stop it there) and, if it
+survives, evaluated on the rest of its ``eval_episodes`` tracks. Every report carries every
+key of ``TRIAL_METRICS``.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ import pandas as pd
 import torch
 from ray import tune
 
-from safe_bc.bc import load_checkpoint, read_checkpoint_meta
+from safe_bc.bc import CheckpointError, load_checkpoint, read_checkpoint_meta
 from safe_bc.bc.policy import BCNet
 from safe_bc.bc.train import training_threads
 from safe_bc.data.store import load_demonstrations
@@ -164,6 +165,46 @@ def trial_values(episodes: pd.DataFrame, limits: Limits) -> dict[str, float]:
     return values
 
 
+def _load(checkpoint: tune.Checkpoint) -> tuple[BCNet, dict[str, Any]]:
+    with checkpoint.as_directory() as d:
+        model, _ = load_checkpoint(d)
+        return model, read_checkpoint_meta(d)["extra"]
+
+
+def stored_checkpoint(fs: Any, folder: str) -> tuple[BCNet, dict[str, Any]] | None:
+    """The newest complete checkpoint among the ``checkpoint_*`` folders of a trial's folder
+    ``folder`` on the ``pyarrow`` filesystem ``fs``: its net and ``extra`` (``None``: none)."""
+    import pyarrow.fs as pafs
+
+    infos = fs.get_file_info(pafs.FileSelector(folder, allow_not_found=True))
+    dirs = [
+        i.path
+        for i in infos
+        if i.type == pafs.FileType.Directory and i.base_name.startswith("checkpoint_")
+    ]
+    for d in sorted(dirs, reverse=True):
+        try:
+            return _load(tune.Checkpoint(d, filesystem=fs))
+        except (CheckpointError, OSError):  # cut short by a kill: try an older one
+            continue
+    return None
+
+
+def resume_point() -> tuple[BCNet, dict[str, Any]] | None:
+    """The trained net and its checkpoint's ``extra`` when this trial has trained before.
+
+    Tune hands over the checkpoint it recorded (a retry, a resumed study). A checkpoint the
+    trial reported just before the driver stopped (Ctrl-C, or killed) is on the storage but not
+    in Tune's saved experiment state, and Tune then restarts the trial without one (Ray 2.60):
+    the newest complete checkpoint in the trial's folder is used instead of retraining.
+    """
+    checkpoint = tune.get_checkpoint()
+    if checkpoint is not None:
+        return _load(checkpoint)
+    storage = tune.get_context().get_storage()
+    return stored_checkpoint(storage.storage_filesystem, storage.trial_fs_path)
+
+
 def run_trial(config: dict[str, Any], job: TrialJob) -> None:
     """One trial: train (or resume from its checkpoint), report, evaluate in rounds, report."""
     start = time.perf_counter()
@@ -175,11 +216,9 @@ def run_trial(config: dict[str, Any], job: TrialJob) -> None:
     run_cfg = spec.run_config({k: config[k] for k in spec.params}, num_threads=threads)
     metrics = blank_metrics(job)
 
-    checkpoint = tune.get_checkpoint()
-    if checkpoint is not None:  # a retry or a resumed study: the weights are already trained
-        with checkpoint.as_directory() as d:
-            model, _ = load_checkpoint(d)
-            extra = read_checkpoint_meta(d)["extra"]
+    resumed = resume_point()
+    if resumed is not None:  # a retry or a resumed study: the weights are already trained
+        model, extra = resumed
         metrics.update(extra["train"], resumed=True)
         earlier = float(extra["trained_s"])
     else:
