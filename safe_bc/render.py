@@ -395,7 +395,8 @@ def render_command(
             raise ValueError(
                 f"{checkpoint}: trained on {env_id}; render draws CarRacing frames only"
             )
-        limits = limits_from_checkpoint(checkpoint)
+        if (checkpoint / "selection.parquet").is_file():  # a study trial's has none
+            limits = limits_from_checkpoint(checkpoint)
         if demos is None:
             from safe_bc.bc.checkpoint import read_checkpoint_meta
 
