@@ -10,7 +10,8 @@ import numpy as np
 import torch
 
 from safe_bc.bc.config import BCConfig
-from safe_bc.bc.policy import BCNet, BCPolicy, ModelSpec
+from safe_bc.bc.net import BCNet, ModelSpec
+from safe_bc.bc.policy import BCPolicy
 from safe_bc.collection import build_expert
 from safe_bc.envs import EnvConfig
 from safe_bc.metrics import combined, critical_zone, episode_metrics, violations

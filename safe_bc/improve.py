@@ -61,7 +61,8 @@ from torch import nn
 
 from safe_bc.bc.checkpoint import load_checkpoint, read_checkpoint_meta, save_checkpoint
 from safe_bc.bc.config import BCConfig, NetworkConfig
-from safe_bc.bc.policy import BCNet, BCPolicy, ModelSpec
+from safe_bc.bc.net import BCNet, ModelSpec
+from safe_bc.bc.policy import BCPolicy
 from safe_bc.bc.preprocess import preprocess
 from safe_bc.bc.train import BatchBuilder, torch_settings
 from safe_bc.evaluation import NetSource

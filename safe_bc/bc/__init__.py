@@ -10,7 +10,8 @@ from safe_bc.bc.checkpoint import (
     save_checkpoint,
 )
 from safe_bc.bc.config import BCConfig, NetworkConfig, PreprocessConfig, TrainConfig
-from safe_bc.bc.policy import CAR_RACING_BOUNDS, BCNet, BCPolicy, ModelSpec
+from safe_bc.bc.net import CAR_RACING_BOUNDS, BCNet, ModelSpec
+from safe_bc.bc.policy import BCPolicy
 from safe_bc.bc.preprocess import (
     frame_stack_index,
     gather_inputs,

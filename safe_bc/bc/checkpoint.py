@@ -19,7 +19,7 @@ from typing import IO, Any
 import torch
 
 from safe_bc.bc.config import BCConfig
-from safe_bc.bc.policy import BCNet, ModelSpec
+from safe_bc.bc.net import BCNet, ModelSpec
 
 WEIGHTS = "weights.pt"
 CONFIG = "config.json"

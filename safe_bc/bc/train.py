@@ -13,8 +13,10 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from safe_bc.bc.checkpoint import save_checkpoint
 from safe_bc.bc.config import BCConfig, NetworkConfig, PreprocessConfig, TrainConfig
-from safe_bc.bc.policy import BCNet, BCPolicy, ModelSpec
+from safe_bc.bc.net import BCNet, ModelSpec
+from safe_bc.bc.policy import BCPolicy
 from safe_bc.bc.preprocess import frame_stack_index, gather_inputs, standardization_stats
 from safe_bc.demos import Demonstrations
 from safe_bc.selection import BatchSampler, Selection
@@ -88,8 +90,6 @@ class TrainResult:
 
     def save(self, directory: str | Path, extra: dict[str, Any] | None = None) -> Path:
         """``save_checkpoint(directory, model, config, extra)``."""
-        from safe_bc.bc.checkpoint import save_checkpoint
-
         return save_checkpoint(directory, self.model, self.config, extra)
 
 

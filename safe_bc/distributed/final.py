@@ -22,7 +22,7 @@ import numpy as np
 import pandas as pd
 import torch
 
-from safe_bc.bc.policy import BCNet
+from safe_bc.bc.net import BCNet
 from safe_bc.collection import stored_expert_config
 from safe_bc.demos import Demonstrations
 from safe_bc.distributed.evaluate import evaluate

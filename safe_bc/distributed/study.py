@@ -28,7 +28,7 @@ from ray.tune.schedulers import FIFOScheduler, TrialScheduler
 from ray.tune.utils import flatten_dict
 
 from safe_bc.bc import load_checkpoint
-from safe_bc.bc.policy import BCNet
+from safe_bc.bc.net import BCNet
 from safe_bc.data.store import read_meta, write_table_atomic, write_text_atomic
 from safe_bc.distributed.final import FinalOutcome, final_phase
 from safe_bc.distributed.runtime import ensure_ray

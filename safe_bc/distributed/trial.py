@@ -23,7 +23,7 @@ import torch
 from ray import tune
 
 from safe_bc.bc import CheckpointError, load_checkpoint, read_checkpoint_meta
-from safe_bc.bc.policy import BCNet
+from safe_bc.bc.net import BCNet
 from safe_bc.bc.train import training_threads
 from safe_bc.data.store import load_demonstrations
 from safe_bc.demos import Demonstrations
