@@ -40,9 +40,7 @@ def _is_type_checking(test: ast.expr) -> bool:
     )
 
 
-def _imports(
-    name: str, path: Path, modules: dict[str, Path]
-) -> tuple[set[str], dict[str, int]]:
+def _imports(name: str, path: Path, modules: dict[str, Path]) -> tuple[set[str], dict[str, int]]:
     """``(module-level targets, {function-local target: line})`` among ``modules``."""
     is_pkg = path.name == "__init__.py"
     package = name if is_pkg else name.rpartition(".")[0]
@@ -78,9 +76,7 @@ def _imports(
                 else:
                     top.add(target)
             return
-        inner = in_function or isinstance(
-            node, ast.FunctionDef | ast.AsyncFunctionDef | ast.Lambda
-        )
+        inner = in_function or isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef | ast.Lambda)
         for child in ast.iter_child_nodes(node):
             visit(child, inner)
 
@@ -210,7 +206,5 @@ def test_every_module_imports_first():
         sys.exit(1 if failed else 0)
         """
     )
-    proc = subprocess.run(
-        [sys.executable, "-c", code], capture_output=True, text=True, timeout=280
-    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=280)
     assert proc.returncode == 0, proc.stdout + proc.stderr[-3000:]
