@@ -45,8 +45,6 @@ from __future__ import annotations
 import copy
 import json
 import math
-import os
-import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
@@ -59,6 +57,7 @@ import pandas as pd
 import torch
 from torch import nn
 
+from safe_bc.atomic import atomic_write
 from safe_bc.bc.checkpoint import load_checkpoint, read_checkpoint_meta, save_checkpoint
 from safe_bc.bc.config import BCConfig, NetworkConfig
 from safe_bc.bc.net import BCNet, ModelSpec
@@ -427,19 +426,6 @@ def _load_start(start: Path, demos: Path | None) -> tuple[_Start, Any]:
     s = _Start(start, model, cfg, extra["env_id"], demos_path, data.limits, selection,
                meta["weights_sha256"])  # fmt: skip
     return s, data
-
-
-def _atomic_torch_save(obj: Any, path: Path) -> None:
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            torch.save(obj, f)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 class Improver:
@@ -824,7 +810,8 @@ def improve(
         def save() -> None:
             state = agent.state_dict()
             state["identity"] = json.dumps(identity)
-            _atomic_torch_save(state, state_path)
+            with atomic_write(state_path) as f:
+                torch.save(state, f)
             write_table_atomic(out / HISTORY, pd.DataFrame(agent.history), meta)
 
         try:
@@ -853,6 +840,45 @@ def improve(
     return ImproveResult(out, history, resumed_at, agent.iteration, seconds, kept)
 
 
+def improve_from_net(
+    model: BCNet,
+    bc_config: BCConfig,
+    selection: SelectionConfig,
+    demos: str | Path,
+    env_id: str,
+    folder: str | Path,
+    config: ImproveConfig,
+    *,
+    metadata: dict[str, Any] | None = None,
+) -> tuple[ImprovedSource, ImproveResult]:
+    """Improve a trained net that is not yet a ``safe-bc train`` checkpoint (a study trial's).
+
+    Writes it as a start checkpoint to ``folder/start`` (with its ``selection.parquet``,
+    recomputed from ``selection`` on ``demos``), runs :func:`improve` into ``folder/run``
+    (resuming from there; a run of other weights or settings there is discarded) and returns
+    the improved agent (behind the shield when ``config.shield``) and the run's result.
+    """
+    from safe_bc.data.store import load_demonstrations
+    from safe_bc.experiment import save_selection, select_for
+
+    folder = Path(folder)
+    start, run = folder / "start", folder / "run"
+    data = load_demonstrations(Path(demos))
+    meta = {"env_id": env_id, "demos": str(demos)}
+    save_checkpoint(start, model, bc_config, extra=meta)
+    save_selection(start, data, select_for(data, selection), meta)
+    try:
+        result = improve(start, run, config, demos=demos, metadata=metadata)
+    except ValueError as e:
+        if "belongs to another run" not in str(e):
+            raise
+        import shutil
+
+        shutil.rmtree(run)
+        result = improve(start, run, config, demos=demos, metadata=metadata)
+    return ImprovedSource.from_run(run), result
+
+
 def _copy_selection(start: Path, policy_dir: Path) -> None:
     """The start's ``selection.parquet`` (thresholds, eps) next to the improved net, so that
     ``safe-bc evaluate --checkpoint OUT/policy`` measures it against the same limits."""
@@ -872,6 +898,7 @@ __all__ = [
     "ShieldedPolicy",
     "gae",
     "improve",
+    "improve_from_net",
     "make_critic",
     "multiplier_update",
     "observed_costs",

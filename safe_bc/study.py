@@ -36,6 +36,7 @@ import pandas as pd
 
 from safe_bc.envs import EnvConfig
 from safe_bc.experiment import RunConfig
+from safe_bc.improve import ImproveConfig
 
 Primitive = bool | int | float | str
 Baseline = Literal["same_network", "default"]
@@ -159,6 +160,36 @@ def _replace_path(obj: Any, parts: Sequence[str], value: Any, name: str) -> Any:
     return replace(obj, **{head: new})
 
 
+IMPROVE_PREFIX = "improve."
+"""Search-space keys of the optional improvement stage (``improve.cost_margin``, ...) start with
+this; they set fields of :attr:`StudySpec.improve`, every other key a ``RunConfig`` field."""
+
+
+def split_params(params: Mapping[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
+    """``(run_params, improve_params)``: the ``RunConfig`` keys and the improvement keys (their
+    ``improve.`` prefix removed).
+
+    >>> split_params({"selection.alpha": 0.5, "improve.cost_margin": 0.1})
+    ({'selection.alpha': 0.5}, {'cost_margin': 0.1})
+    """
+    run = {k: v for k, v in params.items() if not k.startswith(IMPROVE_PREFIX)}
+    imp = {k.removeprefix(IMPROVE_PREFIX): v for k, v in params.items()
+           if k.startswith(IMPROVE_PREFIX)}  # fmt: skip
+    return run, imp
+
+
+def apply_improve_params(base: ImproveConfig, params: Mapping[str, Any]) -> ImproveConfig:
+    """``base`` with each improvement parameter (``"cost_margin"``, no prefix) set.
+
+    Raises:
+        ValueError: an unknown field, or a value the config rejects.
+    """
+    config = base
+    for name, value in params.items():
+        config = _replace_path(config, name.split("."), value, IMPROVE_PREFIX + name)
+    return config
+
+
 def apply_params(base: RunConfig, params: Mapping[str, Any]) -> RunConfig:
     """``base`` with each dotted parameter (``"selection.eps"``, ``"bc.train.lr"``) set.
 
@@ -257,6 +288,15 @@ class StudySpec:
     """Seed of Optuna's TPE sampler."""
     startup_trials: int = 8
     """Random trials before TPE starts modelling."""
+    improve: ImproveConfig | None = None
+    """Optional improvement stage (:mod:`safe_bc.improve`, constrained RL beyond the expert):
+    with a config, every trial, after its BC training, improves its agent from there (the
+    trained net is the start; ``seed`` is replaced by the training seed) and the *improved*
+    agent is what the trial's evaluation, constraints and objective measure, and what the
+    final phase retrains (BC, then improvement, per seed) and re-evaluates; plain BC and the
+    expert stay the references. Its fields are searchable as ``improve.<field>`` keys of
+    :attr:`space` (e.g. ``improve.cost_margin``, ``improve.anchor_coef``). ``None``: no
+    improvement (imitation only)."""
 
     def __post_init__(self) -> None:
         if not self.name or not self.name.replace("_", "").replace("-", "").isalnum():
@@ -309,7 +349,15 @@ class StudySpec:
             if not isinstance(param, Float | Int | Choice):
                 raise ValueError(f"space[{name!r}] must be Float, Int or Choice, got {param!r}")
             for value in param.bounds():  # every option / bound builds a valid config
-                apply_params(self.base, {name: value})
+                if name.startswith(IMPROVE_PREFIX):
+                    if self.improve is None:
+                        raise ValueError(
+                            f"space[{name!r}] searches the improvement stage, but the study "
+                            "has none: set StudySpec(improve=ImproveConfig(...))"
+                        )
+                    apply_improve_params(self.improve, split_params({name: value})[1])
+                else:
+                    apply_params(self.base, {name: value})
 
     @property
     def screens(self) -> bool:
@@ -326,10 +374,18 @@ class StudySpec:
         return tuple(self.space)
 
     def run_config(self, params: Mapping[str, Any], num_threads: int | None = None) -> RunConfig:
-        """The trial's ``RunConfig``: ``base`` + sampled ``params`` + the batch budget."""
-        cfg = apply_params(self.base, params)
+        """The trial's ``RunConfig``: ``base`` + sampled ``params`` (the ``RunConfig`` keys;
+        ``improve.*`` keys go to :meth:`improve_config`) + the batch budget."""
+        cfg = apply_params(self.base, split_params(params)[0])
         train = replace(cfg.bc.train, batches=self.batches, num_threads=num_threads)
         return replace(cfg, bc=replace(cfg.bc, train=train))
+
+    def improve_config(self, params: Mapping[str, Any], seed: int) -> ImproveConfig | None:
+        """The trial's improvement settings: :attr:`improve` + the sampled ``improve.*``
+        ``params``, with ``seed`` (the BC training seed); ``None`` without a stage."""
+        if self.improve is None:
+            return None
+        return replace(apply_improve_params(self.improve, split_params(params)[1]), seed=seed)
 
     def baseline_config(self, winner: RunConfig) -> RunConfig:
         """The alpha = 0 baseline (plain BC: ``rest="all"``) for the re-evaluation."""
@@ -345,6 +401,7 @@ class StudySpec:
         out["env"] = {f.name: getattr(self.env, f.name) for f in fields(self.env)}
         out["demos"], out["results"] = str(self.demos), str(self.results)
         out["space"] = space
+        out["improve"] = None if self.improve is None else self.improve.to_dict()
         return out
 
 
@@ -432,6 +489,8 @@ TRIAL_METRICS = (
     "feasible",
     "train_loss",
     "train_seconds",
+    "improve_seconds",
+    "improve_kept_iteration",
     "eval_seconds",
     "duration_s",
     "train_seed",

@@ -8,6 +8,11 @@ trained like the first candidate with ``alpha = 0``) and the expert. Seeds are n
 track blocks, so the two-level bootstrap (seeds, then tracks within a seed) fits the design;
 for the same number of episodes it covers 3x the tracks of evaluating every seed on every
 track, and an episode costs the same either way.
+
+With an improvement stage (``StudySpec.improve``), every candidate's net of every seed is
+improved (its own ``improve.*`` settings, ``seed`` = the training seed; in the driver, one run
+after the other, resumable under ``results/<study>/final_improve/``) and the improved agents
+are evaluated; plain BC and the expert stay unimproved references.
 """
 
 from __future__ import annotations
@@ -124,20 +129,25 @@ def final_phase(
         return FinalOutcome(empty, empty, None, False, "no candidate to re-evaluate", {})
     first = next(iter(cfgs.values()))
     cfgs[PLAIN_BC] = spec.baseline_config(first)
-    nets: dict[tuple[str, int], NetSource] = {}
+    nets: dict[tuple[str, int], Any] = {}
+    models: dict[tuple[str, int], tuple[BCNet, RunConfig]] = {}
     todo: list[tuple[str, int, RunConfig]] = []
     for method, cfg in cfgs.items():
         for s in seeds:
             if s == seeds[0] and method in checkpoints:
                 nets[(method, s)] = NetSource.from_model(checkpoints[method], cfg.bc)
+                models[(method, s)] = (checkpoints[method], cfg)
             else:
                 todo.append((method, s, with_seed(cfg, s)))
     if progress:
         print(f"final phase: training {len(todo)} agents ({len(cfgs) - 1} candidates and plain "
               f"BC x {len(seeds)} seeds) on {max(workers, 1)} worker(s)")  # fmt: skip
-    models = _train(demos, [r for *_, r in todo], workers, spec, progress)
-    for (method, s, run), model in zip(todo, models, strict=True):
+    trained = _train(demos, [r for *_, r in todo], workers, spec, progress)
+    for (method, s, run), model in zip(todo, trained, strict=True):
         nets[(method, s)] = NetSource.from_model(model, run.bc)
+        models[(method, s)] = (model, run)
+    if spec.improve is not None:
+        nets.update(_improve_candidates(spec, job, candidates, models, progress))
 
     per = spec.final_tracks_per_seed()
     expert = ExpertSource(stored_expert_config(Path(job.demos)))
@@ -178,6 +188,33 @@ def final_phase(
     winner, feasible, message = choose_final(table)
     configs = {m: c.to_dict() for m, c in cfgs.items()}
     return FinalOutcome(table, episodes, winner, feasible, message, configs)
+
+
+def _improve_candidates(
+    spec: StudySpec,
+    job: TrialJob,
+    candidates: pd.DataFrame,
+    models: Mapping[tuple[str, int], tuple[BCNet, RunConfig]],
+    progress: bool,
+) -> dict[tuple[str, int], Any]:
+    """The improved agent of every candidate and seed (plain BC is left as it is)."""
+    from safe_bc.improve import improve_from_net
+
+    params = {str(r["trial_id"]): {k: r[k] for k in spec.params} for _, r in candidates.iterrows()}
+    root = spec.results / spec.name / "final_improve"
+    out: dict[tuple[str, int], Any] = {}
+    for (method, s), (model, run) in models.items():
+        if method not in params:
+            continue
+        icfg = spec.improve_config(params[method], seed=s)
+        assert icfg is not None
+        if progress:
+            print(f"final phase: improving {method} seed {s}")
+        out[(method, s)], _ = improve_from_net(
+            model, run.bc, run.selection, job.demos, spec.env.env_id,
+            root / method / f"seed{s}", icfg,
+        )  # fmt: skip
+    return out
 
 
 def choose_final(table: pd.DataFrame) -> tuple[str | None, bool, str]:

@@ -5,6 +5,10 @@ resumed study never retrains: :func:`resume_point`), is screened on the first
 ``screen_episodes`` held-out tracks (successive halving may stop it there) and, if it
 survives, evaluated on the rest of its ``eval_episodes`` tracks. Every report carries every
 key of ``TRIAL_METRICS``.
+
+With an improvement stage (``StudySpec.improve``), the trained net is improved by constrained
+RL (:func:`safe_bc.improve.improve_from_net`, in the trial's folder, resumable) between the
+training and the evaluation, and the improved agent is what the rounds evaluate.
 """
 
 from __future__ import annotations
@@ -129,6 +133,13 @@ def evaluate_net(
     model: BCNet, run_cfg: RunConfig, job: TrialJob, first: int, n: int
 ) -> pd.DataFrame:
     """Held-out episodes ``first .. first + n - 1`` of the trial's seed block (one row each)."""
+    return evaluate_source(NetSource.from_model(model, run_cfg.bc), run_cfg, job, first, n)
+
+
+def evaluate_source(
+    source: Any, run_cfg: RunConfig, job: TrialJob, first: int, n: int
+) -> pd.DataFrame:
+    """:func:`evaluate_net` for any policy source (e.g. an improved agent)."""
     spec = job.spec
     config = EvalConfig(
         episodes=n,
@@ -141,7 +152,7 @@ def evaluate_net(
         combine=run_cfg.selection.combine,
     )
     result = evaluate(
-        {"trial": NetSource.from_model(model, run_cfg.bc)},
+        {"trial": source},
         config,
         np.asarray(job.cost_limits),
         progress=False,
@@ -205,6 +216,35 @@ def resume_point() -> tuple[BCNet, dict[str, Any]] | None:
     return stored_checkpoint(storage.storage_filesystem, storage.trial_fs_path)
 
 
+def trial_folder() -> Path:
+    """A folder of this trial that outlives retries and a resumed study: inside the trial's
+    folder of the storage when that is local, else the trial's local folder."""
+    import pyarrow.fs as pafs
+
+    storage = tune.get_context().get_storage()
+    if isinstance(storage.storage_filesystem, pafs.LocalFileSystem):
+        return Path(storage.trial_fs_path)
+    return Path(tune.get_context().get_trial_dir())
+
+
+def improve_trial(
+    model: BCNet, run_cfg: RunConfig, job: TrialJob, params: dict[str, Any], folder: Path
+) -> tuple[Any, dict[str, float]]:
+    """The trial's improvement stage: the improved agent and its report values."""
+    from safe_bc.improve import improve_from_net
+
+    spec = job.spec
+    icfg = spec.improve_config(params, seed=run_cfg.bc.train.seed)
+    assert icfg is not None
+    source, result = improve_from_net(
+        model, run_cfg.bc, run_cfg.selection, job.demos, spec.env.env_id, folder, icfg
+    )
+    return source, {
+        "improve_seconds": float(result.history["seconds"].sum()),
+        "improve_kept_iteration": float(result.kept_iteration),
+    }
+
+
 def run_trial(config: dict[str, Any], job: TrialJob) -> None:
     """One trial: train (or resume from its checkpoint), report, evaluate in rounds, report."""
     start = time.perf_counter()
@@ -249,12 +289,18 @@ def run_trial(config: dict[str, Any], job: TrialJob) -> None:
             result.save(d, extra=extra)
             tune.report(metrics, checkpoint=tune.Checkpoint.from_directory(d))
 
+    source: Any = NetSource.from_model(model, run_cfg.bc)
+    if spec.improve is not None:  # its time counts in duration_s, not in eval_seconds
+        params = {k: config[k] for k in spec.params}
+        source, values = improve_trial(model, run_cfg, job, params, trial_folder() / "improve")
+        metrics.update(values)
+
     rounds = eval_rounds(spec)
     parts: list[pd.DataFrame] = []
     eval_s = 0.0
     for i, (first, n) in enumerate(rounds, start=1):
         t0 = time.perf_counter()
-        parts.append(evaluate_net(model, run_cfg, job, first, n))
+        parts.append(evaluate_source(source, run_cfg, job, first, n))
         eval_s += time.perf_counter() - t0
         values = trial_values(pd.concat(parts, ignore_index=True), job.limits)
         metrics.update(

@@ -1,0 +1,130 @@
+"""The optional improvement stage of a study: spec keys, the trained-net entry point and (slow)
+a tiny rehab study with improvement end to end on the local Ray."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import pytest
+
+from safe_bc.experiment import RunConfig
+from safe_bc.improve import ImproveConfig, ImprovedSource, improve_from_net
+from safe_bc.study import Choice, Float, StudySpec, load_study, split_params
+
+REPO = Path(__file__).resolve().parents[1]
+TINY = ImproveConfig(
+    shield=False,
+    iterations=2,
+    episodes_per_iter=4,
+    n_envs=4,
+    update_epochs=1,
+    minibatch_size=32,
+    anchor_batch=16,
+    critic_hidden=16,
+    critic_warmup=1,
+    eval_every=1,
+    eval_episodes=2,
+    checkpoint_every=1,
+)
+
+
+@pytest.fixture(scope="module")
+def rehab_demos(tmp_path_factory) -> Path:
+    """8 guideline programmes, collected in-process."""
+    from safe_bc.collection import EpisodeMaker
+    from safe_bc.data.store import init_dataset, write_episode
+    from safe_bc.distributed.collect import dataset_meta
+    from safe_bc.tasks import task_defaults
+
+    root = tmp_path_factory.mktemp("study_improve") / "demos"
+    cfg = task_defaults("rehab").collect_config(episodes=8, workers=1)
+    meta = init_dataset(root, dataset_meta(cfg))
+    maker = EpisodeMaker(cfg)
+    for i in range(cfg.episodes):
+        write_episode(root, maker.make(i), meta)
+    maker.close()
+    return root
+
+
+def test_improve_keys_set_the_improvement_config_and_leave_the_run_config_alone():
+    spec = StudySpec(
+        "s",
+        {"selection.alpha": Float(0.0, 1.0), "improve.cost_margin": Float(0.02, 0.2),
+         "improve.shield": Choice((False, True))},
+        improve=ImproveConfig(iterations=7),
+    )  # fmt: skip
+    params = {"selection.alpha": 0.3, "improve.cost_margin": 0.1, "improve.shield": True}
+    assert split_params(params) == ({"selection.alpha": 0.3},
+                                    {"cost_margin": 0.1, "shield": True})  # fmt: skip
+    assert spec.run_config(params).selection.alpha == 0.3
+    icfg = spec.improve_config(params, seed=4)
+    assert (icfg.cost_margin, icfg.shield, icfg.iterations, icfg.seed) == (0.1, True, 7, 4)
+    assert spec.summary()["improve"]["iterations"] == 7
+    plain = StudySpec("p", {"selection.alpha": Float(0.0, 1.0)})
+    assert plain.improve_config({}, seed=0) is None and plain.summary()["improve"] is None
+
+
+def test_improve_keys_without_a_stage_or_with_a_bad_value_are_rejected():
+    with pytest.raises(ValueError, match="has none"):
+        StudySpec("s", {"improve.cost_margin": Float(0.0, 0.1)})
+    with pytest.raises(ValueError, match="no field 'margin'"):
+        StudySpec("s", {"improve.margin": Float(0.0, 0.1)}, improve=ImproveConfig())
+    with pytest.raises(ValueError, match="cost_margin must be >= 0"):
+        StudySpec("s", {"improve.cost_margin": Float(-0.1, 0.1)}, improve=ImproveConfig())
+
+
+def test_rehab_improve_study_file_loads_with_its_stage():
+    spec = load_study(REPO / "tune_jobs" / "rehab_improve.py")
+    assert spec.improve is not None and spec.trials == 8
+    assert all(k.startswith("improve.") for k in spec.params)
+    assert spec.run_config({}).selection.eps == 0.05
+
+
+def test_improve_from_net_writes_a_start_improves_and_resumes(rehab_demos: Path, tmp_path: Path):
+    from safe_bc.data.store import load_demonstrations
+    from safe_bc.experiment import train_run
+    from safe_bc.tasks import action_bounds, task_defaults
+
+    env = task_defaults("rehab").env
+    run = RunConfig()
+    run = replace(run, selection=replace(run.selection, eps=0.05))
+    run = replace(run, bc=replace(run.bc, train=replace(run.bc.train, batches=20)))
+    result, _ = train_run(load_demonstrations(rehab_demos), run, action_bounds=action_bounds(env))
+    args = (result.model, run.bc, run.selection, str(rehab_demos), env.env_id, tmp_path / "imp")
+    source, done = improve_from_net(*args, TINY)
+    assert isinstance(source, ImprovedSource) and source.imitation is None  # no shield
+    assert done.iterations == 2 and done.resumed_at == 0
+    assert (tmp_path / "imp" / "start" / "selection.parquet").exists()
+    again = improve_from_net(*args, TINY)[1]
+    assert again.resumed_at == 2  # the same weights and settings: resumed, nothing redone
+    shielded, other = improve_from_net(*args, replace(TINY, shield=True))
+    assert shielded.imitation is not None and other.resumed_at == 0  # other settings: new run
+
+
+@pytest.mark.slow
+def test_tiny_study_with_improvement_end_to_end(ray_session, rehab_demos: Path, tmp_path: Path):
+    from safe_bc.distributed.study import run_study
+
+    spec = replace(
+        load_study(REPO / "tune_jobs" / "rehab_improve.py"),
+        demos=rehab_demos,
+        storage=str(tmp_path / "ray"),
+        results=tmp_path / "results",
+        improve=TINY,
+        trials=2,
+        batches=20,
+        eval_episodes=2,
+        screen_episodes=0,
+        final_episodes=2,
+        final_candidates=1,
+        final_train_seeds=2,
+        startup_trials=2,
+    )
+    outcome = run_study(spec, progress=False)
+    t = outcome.trials
+    assert outcome.complete and outcome.errors == 0, t[["status", "error"]]
+    assert (t["status"] == "done").all() and (t["improve_kept_iteration"] >= 1).all()
+    assert outcome.final is not None and outcome.final.winner is not None
+    roots = list((outcome.out / "final_improve").glob("*/seed*/run/policy"))
+    assert len(roots) == 2  # the candidate improved for both seeds; plain BC is not

@@ -1,0 +1,59 @@
+"""The rehabilitation pathway with the improvement stage: the best *safe* improver.
+
+Every trial trains the safety-imitation agent of ``scripts/improve_rehab.py`` (alpha 0.5, eps
+0.05, 2000 batches), improves it by constrained RL (``safe_bc.improve``, a short run: 40
+iterations of 32 patients) and is evaluated as an improved agent under the study's usual
+constraints (safety mean at least the guideline clinician's, no session beyond ``d_s``).
+Searched: the improvement's safety margin inside ``d_s``, its BC anchor, the multiplier's step
+size and whether the critical-state shield is on.
+
+Budget: 8 trials, 2 at a time, each screened on 5 simulated patients and evaluated on 20;
+the top 3 are retrained and re-improved with 3 seeds each and re-evaluated on 102 fresh
+patients beside plain BC and the guideline. About 10-15 minutes on 2 CPU cores.
+
+Run: ``make tune STUDY=rehab_improve`` (or ``safe-bc tune tune_jobs/rehab_improve.py``);
+rerun to resume.
+"""
+
+from pathlib import Path
+
+from safe_bc.bc import BCConfig
+from safe_bc.envs import EnvConfig
+from safe_bc.experiment import RunConfig
+from safe_bc.improve import ImproveConfig
+from safe_bc.selection import SelectionConfig
+from safe_bc.study import Choice, Float, StudySpec
+
+STUDY = StudySpec(
+    name="rehab_improve",
+    space={
+        "improve.cost_margin": Float(0.02, 0.15),
+        "improve.anchor_coef": Float(0.3, 3.0, log=True),
+        "improve.lambda_lr": Float(0.05, 0.3, log=True),
+        "improve.shield": Choice((False, True)),
+    },
+    base=RunConfig(selection=SelectionConfig(eps=0.05, alpha=0.5), bc=BCConfig()),
+    improve=ImproveConfig(
+        shield=False,
+        iterations=40,
+        episodes_per_iter=32,
+        n_envs=32,
+        eval_every=10,
+        eval_episodes=64,
+        checkpoint_every=10,
+    ),
+    env=EnvConfig(env_id="safe_bc/RehabPathway-v0"),
+    demos=Path("data/rehab_demos"),
+    critical_eps=0.05,
+    trials=8,
+    max_concurrent=2,
+    cpus_per_trial=1.0,
+    batches=2000,
+    eval_episodes=20,
+    screen_episodes=5,
+    eval_seed=1,
+    final_episodes=102,
+    final_seed=2,
+    final_workers=0,
+    startup_trials=4,
+)
