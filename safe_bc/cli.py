@@ -166,7 +166,8 @@ def _cmd_collect(args: argparse.Namespace) -> int:
 def _cmd_describe(args: argparse.Namespace) -> int:
     import json
 
-    from safe_bc.data.store import load_demonstrations, read_episodes, read_meta, write_text_atomic
+    from safe_bc.atomic import write_json_atomic
+    from safe_bc.data.store import load_demonstrations, read_episodes, read_meta
     from safe_bc.experiment import select_for
     from safe_bc.metrics import combined
     from safe_bc.plots import plot_cost_histograms
@@ -218,7 +219,7 @@ def _cmd_describe(args: argparse.Namespace) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     title = f"{args.demos}: {len(demos)} pairs, rev {meta.provenance.get('git_revision', '?')[:12]}"
     plot_cost_histograms(demos, args.out / "cost_histograms.png", eps=args.eps, title=title)
-    write_text_atomic(args.out / "summary.json", json.dumps(summary, indent=2) + "\n")
+    write_json_atomic(args.out / "summary.json", summary)
     keys = ("pairs", "episodes", "safety_mean", "offroad_frames", "critical_share")
     print(json.dumps({k: summary[k] for k in keys}))
     for d, v in limits.items():
@@ -323,7 +324,8 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
 
 
 def _cmd_expert(args: argparse.Namespace) -> int:
-    from safe_bc.data.store import load_demonstrations, write_table_atomic, write_text_atomic
+    from safe_bc.atomic import write_text_atomic
+    from safe_bc.data.store import load_demonstrations, write_table_atomic
     from safe_bc.distributed.collect import ensure_demos
     from safe_bc.distributed.evaluate import evaluate
     from safe_bc.evaluation import EvalConfig, ExpertSource

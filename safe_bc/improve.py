@@ -45,8 +45,6 @@ from __future__ import annotations
 import copy
 import json
 import math
-import os
-import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
@@ -59,6 +57,7 @@ import pandas as pd
 import torch
 from torch import nn
 
+from safe_bc.atomic import atomic_write
 from safe_bc.bc.checkpoint import load_checkpoint, read_checkpoint_meta, save_checkpoint
 from safe_bc.bc.config import BCConfig, NetworkConfig
 from safe_bc.bc.net import BCNet, ModelSpec
@@ -427,19 +426,6 @@ def _load_start(start: Path, demos: Path | None) -> tuple[_Start, Any]:
     s = _Start(start, model, cfg, extra["env_id"], demos_path, data.limits, selection,
                meta["weights_sha256"])  # fmt: skip
     return s, data
-
-
-def _atomic_torch_save(obj: Any, path: Path) -> None:
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            torch.save(obj, f)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 class Improver:
@@ -824,7 +810,8 @@ def improve(
         def save() -> None:
             state = agent.state_dict()
             state["identity"] = json.dumps(identity)
-            _atomic_torch_save(state, state_path)
+            with atomic_write(state_path) as f:
+                torch.save(state, f)
             write_table_atomic(out / HISTORY, pd.DataFrame(agent.history), meta)
 
         try:

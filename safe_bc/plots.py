@@ -12,16 +12,20 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 
+from safe_bc.atomic import atomic_write
 from safe_bc.demos import Demonstrations
 
 
 def save_figure(fig: Any, path: Path) -> Path:
+    """Write ``fig`` to ``path`` atomically (format from the suffix, PNG if it names none)
+    and close it."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp.png")
-    fig.savefig(tmp, dpi=110, bbox_inches="tight")
+    fmt = path.suffix[1:].lower()
+    if fmt not in fig.canvas.get_supported_filetypes():
+        fmt = "png"
+    with atomic_write(path) as f:
+        fig.savefig(f, format=fmt, dpi=110, bbox_inches="tight")
     plt.close(fig)
-    tmp.replace(path)
     return path
 
 

@@ -30,9 +30,10 @@ from typing import Any, Literal, get_args
 import numpy as np
 import pandas as pd
 
+from safe_bc.atomic import write_text_atomic
 from safe_bc.bc import BCConfig
 from safe_bc.collection import stored_expert_config
-from safe_bc.data.store import load_demonstrations, write_table_atomic, write_text_atomic
+from safe_bc.data.store import load_demonstrations, write_table_atomic
 from safe_bc.envs import EnvConfig
 from safe_bc.evaluation import EvalConfig, ExpertSource, NetSource
 from safe_bc.experiment import RunConfig, save_selection, select_for

@@ -8,16 +8,14 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 import pickle
 import re
-import tempfile
-from collections.abc import Callable
 from pathlib import Path
-from typing import IO, Any
+from typing import Any
 
 import torch
 
+from safe_bc.atomic import atomic_write, write_json_atomic
 from safe_bc.bc.config import BCConfig
 from safe_bc.bc.net import BCNet, ModelSpec
 
@@ -37,19 +35,6 @@ class CheckpointNotFoundError(CheckpointError, FileNotFoundError):
 class UnsafeCheckpointError(CheckpointError):
     """``weights.pt`` holds Python objects that safe loading (``torch.load(weights_only=True)``)
     refuses: it was not written by :func:`save_checkpoint`. safe_bc never retries unsafely."""
-
-
-def _atomic_write(path: Path, write: Callable[[IO[bytes]], None]) -> None:
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            write(f)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def _sha256(path: Path) -> str:
@@ -88,10 +73,10 @@ def save_checkpoint(
         raise ValueError(f"checkpoint metadata is not strict JSON: {e}") from e
     directory.mkdir(parents=True, exist_ok=True)
     state = {k: v.detach().cpu().clone() for k, v in model.state_dict().items()}
-    _atomic_write(directory / WEIGHTS, lambda f: torch.save(state, f))
+    with atomic_write(directory / WEIGHTS) as f:
+        torch.save(state, f)
     meta["weights_sha256"] = _sha256(directory / WEIGHTS)
-    text = json.dumps(meta, indent=2, allow_nan=False) + "\n"
-    _atomic_write(directory / CONFIG, lambda f: f.write(text.encode()))
+    write_json_atomic(directory / CONFIG, meta, allow_nan=False)
     return directory
 
 

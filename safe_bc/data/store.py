@@ -20,9 +20,7 @@ place, so a crash never leaves a partial episode behind.
 from __future__ import annotations
 
 import json
-import os
 import re
-import tempfile
 from collections.abc import Iterable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -32,6 +30,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from safe_bc.atomic import atomic_write, write_text_atomic
 from safe_bc.data.codec import Encoding, decode_frames, encode_frames
 from safe_bc.demos import Demonstrations
 from safe_bc.episode import Episode
@@ -114,25 +113,6 @@ def _schema(meta: DatasetMeta) -> pa.Schema:
     return pa.schema(fields, metadata={META_KEY: meta.to_json().encode()})
 
 
-def _atomic_write(path: Path, write: Any) -> None:
-    """Call ``write(tmp_path)`` then rename the temporary file to ``path``."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    try:
-        write(tmp)
-        os.chmod(tmp, 0o644)  # mkstemp creates 0600 files
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
-def write_text_atomic(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` atomically."""
-    _atomic_write(Path(path), lambda tmp: Path(tmp).write_text(text))
-
-
 def write_table_atomic(path: Path, frame: Any, metadata: dict[str, Any] | None = None) -> None:
     """Write a pandas DataFrame to Parquet atomically, with JSON ``metadata`` embedded.
 
@@ -144,7 +124,8 @@ def write_table_atomic(path: Path, frame: Any, metadata: dict[str, Any] | None =
         merged = dict(table.schema.metadata or {})
         merged[META_KEY] = json.dumps(metadata, sort_keys=True, default=str).encode()
         table = table.replace_schema_metadata(merged)
-    _atomic_write(Path(path), lambda tmp: pq.write_table(table, tmp, compression="zstd"))
+    with atomic_write(path) as f:
+        pq.write_table(table, f, compression="zstd")
 
 
 def read_table(path: Path) -> tuple[Any, dict[str, Any]]:
@@ -222,7 +203,8 @@ def write_episode(root: Path, episode: Episode, meta: DatasetMeta) -> Path:
     cols["offroad"] = episode.offroad
     table = pa.table(cols, schema=_schema(meta))
     path = episode_path(root, episode.episode_id)
-    _atomic_write(path, lambda tmp: pq.write_table(table, tmp, compression="zstd"))
+    with atomic_write(path) as f:
+        pq.write_table(table, f, compression="zstd")
     return path
 
 

@@ -27,9 +27,10 @@ from ray.tune.logger import CSVLoggerCallback, JsonLoggerCallback
 from ray.tune.schedulers import FIFOScheduler, TrialScheduler
 from ray.tune.utils import flatten_dict
 
+from safe_bc.atomic import write_json_atomic
 from safe_bc.bc import load_checkpoint
 from safe_bc.bc.net import BCNet
-from safe_bc.data.store import read_meta, write_table_atomic, write_text_atomic
+from safe_bc.data.store import read_meta, write_table_atomic
 from safe_bc.distributed.final import FinalOutcome, final_phase
 from safe_bc.distributed.runtime import ensure_ray
 from safe_bc.distributed.search import (
@@ -157,7 +158,7 @@ def _check_resume(out: Path, identity: dict[str, Any], restoring: bool) -> None:
                 f"the study at {out} was started with other settings ({what}); rerun with "
                 f"the same ones to resume, or pass --fresh to start over"
             )
-    write_text_atomic(path, json.dumps(identity, indent=2) + "\n")
+    write_json_atomic(path, identity)
 
 
 @contextmanager
@@ -624,8 +625,7 @@ def _write_final(
         "command": meta["command"],
         "provenance": meta["provenance"],
     }
-    text = json.dumps(best, indent=2, default=_json_default, allow_nan=True)
-    write_text_atomic(out / "best.json", text + "\n")
+    write_json_atomic(out / "best.json", best, default=_json_default, allow_nan=True)
 
 
 def _json_default(v: Any) -> Any:

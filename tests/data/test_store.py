@@ -119,8 +119,8 @@ def test_failed_write_leaves_nothing(tmp_path: Path, monkeypatch: pytest.MonkeyP
     meta = init_dataset(tmp_path, make_meta())
     import pyarrow.parquet as pq
 
-    def boom(*args, **kwargs):
-        Path(args[1]).write_bytes(b"partial")
+    def boom(table, sink, **kwargs):
+        sink.write(b"partial")  # the open temporary file
         raise OSError("disk full")
 
     monkeypatch.setattr(pq, "write_table", boom)
