@@ -239,7 +239,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
     from safe_bc.data.store import load_demonstrations, read_meta
     from safe_bc.experiment import RunConfig, save_selection, train_run
     from safe_bc.provenance import run_metadata
-    from safe_bc.tasks import action_bounds, task_defaults, task_of
+    from safe_bc.tasks import dataset_action_bounds, task_defaults, task_of
 
     demos = load_demonstrations(args.demos)
     env_id = read_meta(args.demos).env_id
@@ -254,7 +254,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
             ),
         ),
     )
-    bounds = None if task.env.is_carracing else action_bounds(task.env)
+    bounds = dataset_action_bounds(args.demos)
     result, selection = train_run(demos, run, progress=not args.quiet, action_bounds=bounds)
     meta = run_metadata(
         demos=str(args.demos), env_id=env_id, run=run.to_dict(), train=result.summary()

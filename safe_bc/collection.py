@@ -129,11 +129,16 @@ class EpisodeMaker:
         self.env.close()
 
 
-def env_facts(config: CollectConfig) -> tuple[tuple[int, ...], tuple[str, ...]]:
-    """``(observation shape, safety dimension names)`` of the collection's env (built once)."""
+def env_facts(
+    config: CollectConfig,
+) -> tuple[tuple[int, ...], tuple[str, ...], tuple[tuple[float, ...], tuple[float, ...]]]:
+    """``(observation shape, safety dimension names, (action low, action high))`` of the
+    collection's env (built once)."""
     env = make_env(config.env)
     try:
         shape = tuple(int(x) for x in env.observation_space.shape)
-        return shape, tuple(env.get_wrapper_attr("safety_dims"))
+        space = env.action_space
+        bounds = tuple(float(x) for x in space.low), tuple(float(x) for x in space.high)
+        return shape, tuple(env.get_wrapper_attr("safety_dims")), bounds
     finally:
         env.close()

@@ -40,7 +40,7 @@ from safe_bc.experiment import RunConfig, save_selection, select_for
 from safe_bc.metrics import METRICS, combined, paired_crossed, summarize_crossed
 from safe_bc.provenance import run_metadata
 from safe_bc.selection import Rest, SelectionConfig
-from safe_bc.tasks import Task, action_bounds, task_defaults
+from safe_bc.tasks import Task, dataset_action_bounds, task_defaults
 
 Reading = Rest
 Baseline = Literal["bc_safe", "cost_weighted"]
@@ -213,7 +213,7 @@ def run_reproduce(config: ReproduceConfig, *, progress: bool = True) -> pd.DataF
     base = select_for(demos, SelectionConfig(eps=eps, alpha=0.0))
     save_selection(config.out / "table1_selection", demos, base, meta)
 
-    bounds = None if config.env.is_carracing else action_bounds(config.env)
+    bounds = dataset_action_bounds(config.demos)
     methods = config.methods()
     for method in methods:  # fail fast, before any training, on an impossible mix or rule
         select_for(demos, method.selection).sampler(
@@ -335,11 +335,12 @@ def write_outputs(
     """Summarise per-episode results into Table 1, its Markdown and the figures."""
     table = table1(config, episodes, train_df)
     write_table_atomic(config.out / "table1.parquet", table, meta)
-    markdown = render_markdown(table, meta, paper=config.env.is_carracing)
+    paper_table1 = task_defaults(config.task).paper_table1
+    markdown = render_markdown(table, meta, paper=paper_table1)
     write_text_atomic(config.out / "table1.md", markdown)
     from safe_bc.plots import plot_alpha_sweep, plot_traces
 
-    paper = PAPER_TABLE1 if config.env.is_carracing else None
+    paper = PAPER_TABLE1 if paper_table1 else None
     sweep = table[table["mode"].isin(["mix", "expert"])]  # the baselines have no alpha
     plot_alpha_sweep(sweep, config.out / "fig4_alpha.png", paper=paper)
     labels = {p: {"method": m} for p, m in episodes[["policy", "method"]].drop_duplicates().values}

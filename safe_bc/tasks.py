@@ -1,16 +1,23 @@
-"""Per-task defaults: the env, expert, perturbation and encoding of each testbed."""
+"""The task registry: per testbed, its env, expert, default collection, action bounds and
+safety dimensions. Code that needs a task-specific value looks it up here (or, for a
+dataset, in its ``dataset.json``) rather than testing for CarRacing."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Literal
 
 from safe_bc.data.codec import Encoding
-from safe_bc.envs import EnvConfig
+from safe_bc.envs import SAFETY_DIMS, EnvConfig
 from safe_bc.experts.carracing import ExpertConfig
 from safe_bc.experts.perturb import PerturbationConfig
 
 Task = Literal["carracing", "rehab"]
+TASKS: tuple[Task, ...] = ("carracing", "rehab")
+
+Bounds = tuple[tuple[float, ...], tuple[float, ...]]
+"""``(low (A,), high (A,))`` of a Box action space."""
 
 
 @dataclass(frozen=True)
@@ -33,6 +40,12 @@ class TaskDefaults:
     """Where the default demonstration set lives."""
     results: str
     """Where the task's result tables and figures go."""
+    action_bounds: Bounds
+    """``(low, high)`` of the env's action space (the policy's outputs are squashed to it)."""
+    safety_dims: tuple[str, ...]
+    """Names of the env's safety dimensions, in the order of its costs."""
+    paper_table1: bool
+    """Whether the paper reports a Table 1 for this task (``reproduce`` compares with it)."""
 
     def collect_config(self, **overrides: Any) -> Any:
         """The task's default demonstration collection; ``overrides`` set other fields
@@ -61,8 +74,12 @@ def task_defaults(task: Task, renderer: Literal["fast", "stock"] = "fast") -> Ta
             eps=2.0,
             demos="data/demos",
             results="results",
+            action_bounds=((-1.0, 0.0, 0.0), (1.0, 1.0, 1.0)),  # steer, gas, brake
+            safety_dims=SAFETY_DIMS,
+            paper_table1=True,
         )
     if task == "rehab":
+        from safe_bc.envs.rehab import REHAB_SAFETY_DIMS
         from safe_bc.experts.rehab import GuidelineConfig
 
         return TaskDefaults(
@@ -74,17 +91,34 @@ def task_defaults(task: Task, renderer: Literal["fast", "stock"] = "fast") -> Ta
             eps=0.05,
             demos="data/rehab_demos",
             results="results/rehab",
+            action_bounds=((-1.0, -1.0), (1.0, 1.0)),
+            safety_dims=REHAB_SAFETY_DIMS,
+            paper_table1=False,
         )
     raise ValueError(f"unknown task {task!r}: choose carracing or rehab")
 
 
 def task_of(env_id: str) -> Task:
-    """The task name of an env id."""
-    return "carracing" if env_id == "CarRacing-v3" else "rehab"
+    """The task whose env is ``env_id``."""
+    for task in TASKS:
+        if task_defaults(task).env.env_id == env_id:
+            return task
+    raise ValueError(f"no task uses env {env_id!r} (known: {', '.join(TASKS)})")
 
 
-def action_bounds(env_config: EnvConfig) -> tuple[tuple[float, ...], tuple[float, ...]]:
-    """``(low, high)`` of the env's Box action space, for squashing the policy's outputs."""
+def dataset_action_bounds(root: str | Path) -> Bounds:
+    """The action bounds of the dataset at ``root``: from its ``dataset.json``, or, for a
+    dataset collected before the bounds were recorded there, from its task's entry."""
+    from safe_bc.data.store import read_meta
+
+    meta = read_meta(Path(root))
+    if meta.action_bounds is not None:
+        return meta.action_bounds
+    return task_defaults(task_of(meta.env_id)).action_bounds
+
+
+def action_bounds(env_config: EnvConfig) -> Bounds:
+    """``(low, high)`` of the env's Box action space, read from a built env."""
     from safe_bc.envs import make_env
 
     env = make_env(env_config)

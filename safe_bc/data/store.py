@@ -66,6 +66,12 @@ class DatasetMeta:
     """The perturbation's configuration."""
     provenance: dict[str, str] = field(default_factory=dict, compare=False)
     """Package version, git revision, creation time (not part of the dataset's identity)."""
+    action_bounds: tuple[tuple[float, ...], tuple[float, ...]] | None = field(
+        default=None, compare=False
+    )
+    """``(low (A,), high (A,))`` of the env's action space; ``None`` in datasets collected
+    before it was recorded (then the task registry has it). Fixed by ``env_id``, so not part
+    of the identity."""
 
     def to_json(self) -> str:
         """Serialise to JSON."""
@@ -78,6 +84,9 @@ class DatasetMeta:
             raw = json.loads(text)
             raw["obs_shape"] = tuple(raw["obs_shape"])
             raw["safety_dims"] = tuple(raw["safety_dims"])
+            if raw.get("action_bounds") is not None:
+                low, high = raw["action_bounds"]
+                raw["action_bounds"] = (tuple(map(float, low)), tuple(map(float, high)))
             return cls(**raw)
         except (ValueError, TypeError, KeyError) as e:
             raise DatasetError(f"{source}: malformed dataset metadata ({e})") from None
@@ -86,6 +95,7 @@ class DatasetMeta:
         """The fields that must agree for two runs to add to the same dataset."""
         d = asdict(self)
         d.pop("provenance")
+        d.pop("action_bounds")
         return json.loads(json.dumps(d))
 
 

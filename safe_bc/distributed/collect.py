@@ -63,7 +63,7 @@ class CollectReport:
 
 def dataset_meta(config: CollectConfig) -> DatasetMeta:
     """The metadata a collection with ``config`` writes."""
-    obs_shape, dims = env_facts(config)
+    obs_shape, dims, bounds = env_facts(config)
     return DatasetMeta(
         env_id=config.env.env_id,
         obs_encoding=config.encoding,
@@ -74,6 +74,7 @@ def dataset_meta(config: CollectConfig) -> DatasetMeta:
         expert=config_dict(config.expert),
         perturbation=config_dict(config.perturbation),
         provenance=provenance(),
+        action_bounds=bounds,
     )
 
 

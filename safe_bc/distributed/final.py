@@ -38,6 +38,7 @@ from safe_bc.evaluation import EvalConfig, ExpertSource, NetSource
 from safe_bc.experiment import RunConfig, train_run
 from safe_bc.metrics import summarize_policies
 from safe_bc.study import StudySpec, constraints
+from safe_bc.tasks import Bounds
 
 PLAIN_BC = "plain_bc"
 """Method label of the alpha = 0 reference in the final table."""
@@ -80,7 +81,7 @@ def with_seed(cfg: RunConfig, seed: int) -> RunConfig:
 
 
 def _train(
-    demos: Demonstrations, runs: list[RunConfig], workers: int, spec: StudySpec, progress: bool
+    demos: Demonstrations, runs: list[RunConfig], workers: int, bounds: Bounds, progress: bool
 ) -> list[BCNet]:
     if not runs:
         return []
@@ -90,13 +91,11 @@ def _train(
             out = []
             for r in runs:
                 torch.set_num_threads(r.bc.train.num_threads or 1)
-                out.append(train_run(demos, r, action_bounds=bounds_for(spec))[0].model)
+                out.append(train_run(demos, r, action_bounds=bounds)[0].model)
             return out
         finally:
             torch.set_num_threads(previous)
-    trained = train_many(
-        demos, runs, workers=workers, action_bounds=bounds_for(spec), progress=progress
-    )
+    trained = train_many(demos, runs, workers=workers, action_bounds=bounds, progress=progress)
     return [result.model for result, _ in trained]
 
 
@@ -142,7 +141,7 @@ def final_phase(
     if progress:
         print(f"final phase: training {len(todo)} agents ({len(cfgs) - 1} candidates and plain "
               f"BC x {len(seeds)} seeds) on {max(workers, 1)} worker(s)")  # fmt: skip
-    trained = _train(demos, [r for *_, r in todo], workers, spec, progress)
+    trained = _train(demos, [r for *_, r in todo], workers, bounds_for(job.demos), progress)
     for (method, s, run), model in zip(todo, trained, strict=True):
         nets[(method, s)] = NetSource.from_model(model, run.bc)
         models[(method, s)] = (model, run)

@@ -38,7 +38,7 @@ from safe_bc.experiment import RunConfig, train_run
 from safe_bc.metrics import mean_metrics
 from safe_bc.selection import SelectionError
 from safe_bc.study import TRIAL_METRICS, Limits, StudySpec, constraints
-from safe_bc.tasks import action_bounds
+from safe_bc.tasks import Bounds, dataset_action_bounds
 
 
 @dataclass(frozen=True)
@@ -64,9 +64,10 @@ _DEMOS: dict[str, Demonstrations] = {}
 """Per-process cache: ``reuse_actors=True`` keeps trial processes, so demos load once."""
 
 
-def bounds_for(spec: StudySpec) -> tuple[tuple[float, ...], tuple[float, ...]] | None:
-    """Action bounds for vector tasks (CarRacing's are the frames' default)."""
-    return None if spec.env.is_carracing else action_bounds(spec.env)
+def bounds_for(demos: str | Path) -> Bounds:
+    """The action bounds of the demonstration set at ``demos`` (its ``dataset.json``, else
+    its task's entry in :mod:`safe_bc.tasks`)."""
+    return dataset_action_bounds(demos)
 
 
 def cached_demos(path: str) -> Demonstrations:
@@ -264,7 +265,7 @@ def run_trial(config: dict[str, Any], job: TrialJob) -> None:
     else:
         try:
             result, selection = train_run(
-                cached_demos(job.demos), run_cfg, action_bounds=bounds_for(spec)
+                cached_demos(job.demos), run_cfg, action_bounds=bounds_for(job.demos)
             )
         except SelectionError as e:  # a configuration the data cannot support: no retry
             metrics.update(phase="invalid", error=str(e), duration_s=time.perf_counter() - start)

@@ -1,0 +1,71 @@
+"""The task registry and the action bounds a dataset records."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import pytest
+
+from safe_bc.bc import CAR_RACING_BOUNDS
+from safe_bc.collection import env_facts
+from safe_bc.data.store import META_FILE, DatasetMeta, init_dataset, read_meta
+from safe_bc.distributed.collect import dataset_meta
+from safe_bc.tasks import TASKS, action_bounds, dataset_action_bounds, task_defaults, task_of
+
+
+@pytest.mark.parametrize("task", TASKS)
+def test_registry_matches_the_env(task):
+    entry = task_defaults(task)
+    assert task_of(entry.env.env_id) == task
+    assert entry.action_bounds == action_bounds(entry.env)
+    _, dims, bounds = env_facts(entry.collect_config(episodes=1))
+    assert entry.safety_dims == dims
+    assert entry.action_bounds == bounds
+
+
+def test_carracing_entry_is_the_nets_default():
+    assert task_defaults("carracing").action_bounds == CAR_RACING_BOUNDS
+    assert task_defaults("carracing").paper_table1
+    assert not task_defaults("rehab").paper_table1
+
+
+def test_unknown_env_id_is_an_error():
+    with pytest.raises(ValueError, match="no task uses env 'Pong-v5'"):
+        task_of("Pong-v5")
+
+
+@pytest.mark.parametrize("task", TASKS)
+def test_collection_records_the_bounds(tmp_path: Path, task):
+    meta = dataset_meta(task_defaults(task).collect_config(episodes=1))
+    assert meta.action_bounds == task_defaults(task).action_bounds
+    init_dataset(tmp_path, meta)
+    assert read_meta(tmp_path) == meta
+    assert read_meta(tmp_path).action_bounds == meta.action_bounds
+    assert dataset_action_bounds(tmp_path) == task_defaults(task).action_bounds
+
+
+def _old_dataset(root: Path, meta: DatasetMeta) -> None:
+    """``dataset.json`` as written before the bounds were recorded."""
+    raw = json.loads(meta.to_json())
+    del raw["action_bounds"]
+    root.mkdir(parents=True, exist_ok=True)
+    (root / META_FILE).write_text(json.dumps(raw, indent=2, sort_keys=True))
+
+
+@pytest.mark.parametrize("task", TASKS)
+def test_old_dataset_falls_back_to_the_registry(tmp_path: Path, task):
+    meta = dataset_meta(task_defaults(task).collect_config(episodes=1))
+    _old_dataset(tmp_path, meta)
+    assert read_meta(tmp_path).action_bounds is None
+    assert dataset_action_bounds(tmp_path) == task_defaults(task).action_bounds
+    # resuming an old dataset with a new collection: same identity, old metadata kept
+    assert init_dataset(tmp_path, meta).action_bounds is None
+
+
+def test_bounds_are_not_part_of_the_identity():
+    meta = dataset_meta(task_defaults("rehab").collect_config(episodes=1))
+    other = dataclasses.replace(meta, action_bounds=None)
+    assert meta.identity() == other.identity()
+    assert "action_bounds" not in meta.identity()
