@@ -146,7 +146,10 @@ def markdown(summary: pd.DataFrame, paired: pd.DataFrame, meta: dict[str, Any]) 
         f"env seeds {meta['env_seeds'][0]}...{meta['env_seeds'][-1]}), the same for every "
         f"policy; {len(meta['train_seeds'])} training seeds {meta['train_seeds']}. Mean "
         "[95% bootstrap CI; two-level over training seeds and patients]. Limits d_s "
-        f"(worst guideline cost in {meta['demos']}): {meta['limits_text']}.",
+        f"(worst guideline cost in {meta['demos']}): {meta['limits_text']}. The Lagrangian "
+        f"charges sessions beyond d_s - {meta['config']['cost_margin']} (`cost_margin`: a "
+        "safety margin inside d_s, chosen on selection patients disjoint from these, see "
+        "[sweep/margin_sweep.md](sweep/margin_sweep.md)).",
         "",
         "| method | capacity gain (reward) | gain - guideline, paired | safety mean | "
         "sessions beyond d_s / patient | patients with a session beyond d_s | "
