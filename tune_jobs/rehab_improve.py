@@ -1,15 +1,17 @@
 """The rehabilitation pathway with the improvement stage: the best *safe* improver.
 
 Every trial trains the safety-imitation agent of ``scripts/improve_rehab.py`` (alpha 0.5, eps
-0.05, 2000 batches), improves it by constrained RL (``safe_bc.improve``, a short run: 40
-iterations of 32 patients) and is evaluated as an improved agent under the study's usual
+0.05, 2000 batches), improves it by constrained RL (``safe_bc.improve``, a short run: 100
+iterations of 32 patients, half the patients per iteration of ``scripts/improve_rehab.py`` and
+half its iterations) and is evaluated as an improved agent under the study's usual
 constraints (safety mean at least the guideline clinician's, no session beyond ``d_s``).
 Searched: the improvement's safety margin inside ``d_s``, its BC anchor, the multiplier's step
 size and whether the critical-state shield is on.
 
 Budget: 8 trials, 2 at a time, each screened on 5 simulated patients and evaluated on 20;
 the top 3 are retrained and re-improved with 3 seeds each and re-evaluated on 102 fresh
-patients beside plain BC and the guideline. About 10-15 minutes on 2 CPU cores.
+patients beside plain BC and the guideline. About 10 minutes on 2 CPU cores (40 iterations:
+4.5 minutes, and the winner stayed below the guideline; see ``results/rehab_improve``).
 
 Run: ``make tune STUDY=rehab_improve`` (or ``safe-bc tune tune_jobs/rehab_improve.py``);
 rerun to resume.
@@ -35,7 +37,7 @@ STUDY = StudySpec(
     base=RunConfig(selection=SelectionConfig(eps=0.05, alpha=0.5), bc=BCConfig()),
     improve=ImproveConfig(
         shield=False,
-        iterations=40,
+        iterations=100,
         episodes_per_iter=32,
         n_envs=32,
         eval_every=10,
