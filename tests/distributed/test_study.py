@@ -183,18 +183,18 @@ def flaky_trial(config: dict, job: TrialJob, marker: str) -> None:
     """``run_trial`` whose first evaluation in the whole study fails (after training)."""
     import safe_bc.distributed.trial as mod
 
-    original = mod.evaluate_net
+    original = mod.evaluate_source
     if not os.path.exists(marker):
 
         def fail(*args, **kwargs):
             Path(marker).touch()
             raise RuntimeError("injected failure after training")
 
-        mod.evaluate_net = fail
+        mod.evaluate_source = fail
     try:
         run_trial(config, job)
     finally:
-        mod.evaluate_net = original
+        mod.evaluate_source = original
 
 
 def test_interrupted_study_resumes_and_failed_trial_is_not_retrained(
