@@ -334,21 +334,13 @@ def limits_from_checkpoint(directory: str | Path) -> Limits:
 def limits_from_demos(demos: str | Path, eps: float) -> Limits:
     """``d_s``: the demonstrations' worst cost per dimension over the scored steps (reads
     only the cost and warm-up columns)."""
-    import pyarrow.parquet as pq
-
-    from safe_bc.data.store import completed_episodes, episode_path, read_meta
+    from safe_bc.data.store import read_columns, read_meta
     from safe_bc.selection import thresholds
 
-    meta = read_meta(demos)
-    ids = completed_episodes(demos, meta)
-    if not ids:
-        raise ValueError(f"{demos}: dataset has no episodes")
-    columns = [f"cost_{d}" for d in meta.safety_dims] + ["warmup"]
-    tables = [pq.read_table(episode_path(demos, i), columns=columns) for i in ids]
-    costs = np.concatenate(
-        [np.stack([t.column(c).to_numpy() for c in columns[:-1]], 1) for t in tables]
-    )
-    warmup = np.concatenate([t.column("warmup").to_numpy() for t in tables]).astype(bool)
+    dims = [f"cost_{d}" for d in read_meta(demos).safety_dims]
+    cols = read_columns(Path(demos), [*dims, "warmup"])
+    costs = np.stack([cols[c] for c in dims], 1)
+    warmup = cols["warmup"].astype(bool)
     return Limits(thresholds(costs, "max", valid=~warmup), eps)
 
 

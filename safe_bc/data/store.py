@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import json
 import re
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -276,6 +276,18 @@ def completed_episodes(root: Path, meta: DatasetMeta) -> list[int]:
         check_episode_file(path, meta)
         ids.append(episode_id)
     return ids
+
+
+def read_columns(root: Path, columns: Sequence[str]) -> dict[str, np.ndarray]:
+    """The named scalar columns of every stored episode of ``root``, concatenated in episode
+    order: ``{column: (T_total,)}`` (reads only those columns, not the frames)."""
+    root = Path(root)
+    meta = read_meta(root)
+    ids = completed_episodes(root, meta)
+    if not ids:
+        raise DatasetError(f"{root}: dataset has no episodes")
+    tables = [pq.read_table(episode_path(root, i), columns=list(columns)) for i in ids]
+    return {c: np.concatenate([t.column(c).to_numpy() for t in tables]) for c in columns}
 
 
 def read_episode(path: Path, meta: DatasetMeta) -> Episode:
