@@ -17,16 +17,19 @@ Run: ``make tune STUDY=rehab_improve`` (or ``safe-bc tune tune_jobs/rehab_improv
 rerun to resume.
 """
 
+from dataclasses import replace
 from pathlib import Path
 
 from safe_bc.bc import BCConfig
-from safe_bc.envs import EnvConfig
 from safe_bc.experiment import RunConfig
 from safe_bc.improve import ImproveConfig
 from safe_bc.selection import SelectionConfig
-from safe_bc.study import Choice, Float, StudySpec
+from safe_bc.study import Choice, Float, load_study
 
-STUDY = StudySpec(
+# the rehab study's environment, demonstrations and evaluation budget; its own search space,
+# start and improvement stage
+STUDY = replace(
+    load_study(Path(__file__).with_name("rehab.py")),
     name="rehab_improve",
     space={
         "improve.cost_margin": Float(0.02, 0.15),
@@ -44,18 +47,6 @@ STUDY = StudySpec(
         eval_episodes=64,
         checkpoint_every=10,
     ),
-    env=EnvConfig(env_id="safe_bc/RehabPathway-v0"),
-    demos=Path("data/rehab_demos"),
-    critical_eps=0.05,
     trials=8,
-    max_concurrent=2,
-    cpus_per_trial=1.0,
-    batches=2000,
-    eval_episodes=20,
-    screen_episodes=5,
-    eval_seed=1,
-    final_episodes=102,
-    final_seed=2,
-    final_workers=0,
     startup_trials=4,
 )
