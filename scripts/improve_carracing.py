@@ -25,18 +25,15 @@ from __future__ import annotations
 import argparse
 import shlex
 import sys
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
-from safe_bc.improve import ImproveConfig, ImprovedSource, improve
+from safe_bc.improve import ImproveConfig
+from scripts.improve_rehab import MODES, run_modes, split_policy, write_outputs
 
-MODES = {"ppo": (False, False), "shield": (True, False), "lagrangian": (False, True),
-         "both": (True, True)}  # fmt: skip
-"""Mode -> ``(shield, lagrangian)``."""
 LABELS = {
     "expert": "expert (scripted, privileged)",
     "imitation": "safety-imitation start (alpha 0.1)",
@@ -47,18 +44,6 @@ LABELS = {
 }
 START_ARGS = ["--alpha", "0.1"]
 """How the starts are trained (with ``--seed k``): Table 1's best row."""
-
-
-def ensure_start(demos: Path, out: Path, seed: int) -> Path:
-    """The safety-imitation start of ``seed`` (trained unless ``out`` holds one)."""
-    from safe_bc.cli import main
-
-    if not (out / "config.json").exists():
-        argv = ["train", "--demos", str(demos), "--out", str(out), *START_ARGS,
-                "--seed", str(seed), "--quiet"]  # fmt: skip
-        if main(argv) != 0:
-            raise SystemExit(f"training the start {out} failed")
-    return out
 
 
 def plot_curves(history: pd.DataFrame, path: Path) -> Path:
@@ -138,10 +123,9 @@ def markdown(summary: pd.DataFrame, paired: pd.DataFrame, meta: dict[str, Any]) 
 
 
 def main(argv: list[str] | None = None) -> int:
-    from safe_bc.bc import load_checkpoint
-    from safe_bc.data.store import load_demonstrations, write_table_atomic, write_text_atomic
+    from safe_bc.data.store import load_demonstrations
     from safe_bc.distributed.evaluate import evaluate
-    from safe_bc.evaluation import EvalConfig, ExpertSource, NetSource
+    from safe_bc.evaluation import EvalConfig, ExpertSource
     from safe_bc.metrics import paired_differences, summarize
     from safe_bc.provenance import run_metadata
     from safe_bc.tasks import task_defaults
@@ -176,34 +160,21 @@ def main(argv: list[str] | None = None) -> int:
     demos = load_demonstrations(args.demos)
     limits = demos.limits
 
-    sources: dict[str, Any] = {"expert": ExpertSource(task.expert)}
-    histories = []
-    for k in args.seeds:
-        start = ensure_start(args.demos, args.out / "starts" / f"seed{k}", k)
-        sources[f"imitation/{k}"] = NetSource.from_model(*load_checkpoint(start))
-        for mode in args.modes:
-            shield, lagrangian = MODES[mode]
-            cfg = replace(base, shield=shield, lagrangian=lagrangian, seed=k)
-            run = args.out / "runs" / mode / f"seed{k}"
+    def report(mode: str, k: int, row: dict[str, float]) -> None:
+        if not args.quiet:
+            print(f"{mode} seed {k} iteration {int(row['iteration'])}: "
+                  f"train reward {row['train_reward']:.0f}, violation steps "
+                  f"{row['train_violation_steps']:.0f}, lambda {row['lambda']:.2f}, "
+                  f"{row['seconds']:.0f} s", flush=True)  # fmt: skip
 
-            def report(row: dict[str, float], mode: str = mode, k: int = k) -> None:
-                if not args.quiet:
-                    print(f"{mode} seed {k} iteration {int(row['iteration'])}: "
-                          f"train reward {row['train_reward']:.0f}, violation steps "
-                          f"{row['train_violation_steps']:.0f}, lambda {row['lambda']:.2f}, "
-                          f"{row['seconds']:.0f} s", flush=True)  # fmt: skip
-
-            done = improve(start, run, cfg, metadata={"command": command}, on_iteration=report)
-            histories.append(done.history.assign(mode=mode, train_seed=k))
-            sources[f"{mode}/{k}"] = ImprovedSource.from_run(run)
+    trained, histories = run_modes(args.demos, args.out, args.seeds, args.modes, base, command,
+                                   start_args=START_ARGS, on_iteration=report)  # fmt: skip
+    sources: dict[str, Any] = {"expert": ExpertSource(task.expert), **trained}
 
     cfg = EvalConfig(episodes=args.episodes, workers=args.workers, seed=args.eval_seed,
                      env=task.env)  # fmt: skip
     result = evaluate(sources, cfg, limits, progress=not args.quiet)
-    episodes = result.episodes
-    split = episodes["policy"].str.split("/", expand=True)
-    episodes["method"] = split[0]
-    episodes["train_seed"] = pd.to_numeric(split[1]).fillna(-1).astype(int)
+    episodes = split_policy(result.episodes)
 
     metrics = ["reward", "safety_mean", "violation_steps", "any_violation", "offroad_steps"]
     summary = summarize(episodes, ["method"], metrics, group="train_seed", seed=0)
@@ -240,13 +211,9 @@ def main(argv: list[str] | None = None) -> int:
         start_args=START_ARGS,
     )
     meta["command"] = command
-    args.out.mkdir(parents=True, exist_ok=True)
-    write_table_atomic(args.out / "episodes.parquet", episodes, meta)
-    write_table_atomic(args.out / "summary.parquet", summary, meta)
-    write_table_atomic(args.out / "paired.parquet", paired, meta)
-    write_table_atomic(args.out / "history.parquet", history, meta)
     text = markdown(summary, paired, meta)
-    write_text_atomic(args.out / "improve.md", text)
+    tables = {"episodes": episodes, "summary": summary, "paired": paired, "history": history}
+    write_outputs(args.out, tables, meta, text)
     print(text)
     return 0
 

@@ -29,7 +29,9 @@ from __future__ import annotations
 import argparse
 import shlex
 import sys
+from collections.abc import Callable
 from dataclasses import replace
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -53,16 +55,70 @@ START_ARGS = ["--alpha", "0.5"]
 """How the starts are trained (with ``--seed k``; the rest are ``safe-bc train`` defaults)."""
 
 
-def ensure_start(demos: Path, out: Path, seed: int) -> Path:
-    """The safety-imitation start of ``seed`` (trained unless ``out`` holds one)."""
+def ensure_start(demos: Path, out: Path, seed: int, start_args: list[str] = START_ARGS) -> Path:
+    """The safety-imitation start of ``seed`` (``safe-bc train`` with ``start_args``, unless
+    ``out`` holds one)."""
     from safe_bc.cli import main
 
     if not (out / "config.json").exists():
-        argv = ["train", "--demos", str(demos), "--out", str(out), *START_ARGS,
+        argv = ["train", "--demos", str(demos), "--out", str(out), *start_args,
                 "--seed", str(seed), "--quiet"]  # fmt: skip
         if main(argv) != 0:
             raise SystemExit(f"training the start {out} failed")
     return out
+
+
+def run_modes(
+    demos: Path,
+    out: Path,
+    seeds: list[int],
+    modes: list[str],
+    base: ImproveConfig,
+    command: str,
+    *,
+    start_args: list[str] = START_ARGS,
+    on_iteration: Callable[[str, int, dict[str, float]], None] | None = None,
+) -> tuple[dict[str, Any], list[pd.DataFrame]]:
+    """Per training seed ``k`` its start (``OUT/starts/seed<k>``) and one resumable improvement
+    run per mode (``OUT/runs/<mode>/seed<k>``). Returns the policy sources
+    (``imitation/<k>``, ``<mode>/<k>``) and each run's history (``mode``, ``train_seed``)."""
+    from safe_bc.bc import load_checkpoint
+    from safe_bc.evaluation import NetSource
+
+    sources: dict[str, Any] = {}
+    histories = []
+    for k in seeds:
+        start = ensure_start(demos, out / "starts" / f"seed{k}", k, start_args)
+        sources[f"imitation/{k}"] = NetSource.from_model(*load_checkpoint(start))
+        for mode in modes:
+            shield, lagrangian = MODES[mode]
+            cfg = replace(base, shield=shield, lagrangian=lagrangian, seed=k)
+            run = out / "runs" / mode / f"seed{k}"
+            report = None if on_iteration is None else partial(on_iteration, mode, k)
+            done = improve(start, run, cfg, metadata={"command": command}, on_iteration=report)
+            histories.append(done.history.assign(mode=mode, train_seed=k))
+            sources[f"{mode}/{k}"] = ImprovedSource.from_run(run)
+    return sources, histories
+
+
+def split_policy(episodes: pd.DataFrame) -> pd.DataFrame:
+    """``episodes`` with ``method`` and ``train_seed`` (-1: untrained) from ``policy`` keys
+    ``<method>[/<seed>]``."""
+    split = episodes["policy"].str.split("/", expand=True)
+    seeds = pd.to_numeric(split[1]).fillna(-1).astype(int) if 1 in split else -1
+    return episodes.assign(method=split[0], train_seed=seeds)
+
+
+def write_outputs(
+    out: Path, tables: dict[str, pd.DataFrame], meta: dict[str, Any], text: str
+) -> None:
+    """``OUT/<name>.parquet`` for every table (with ``meta``) and ``OUT/improve.md``."""
+    from safe_bc.data.store import write_table_atomic, write_text_atomic
+
+    out.mkdir(parents=True, exist_ok=True)
+    for name, table in tables.items():
+        write_table_atomic(out / f"{name}.parquet", table, meta)
+    write_text_atomic(out / "improve.md", text)
 
 
 def session_outcomes(
@@ -192,15 +248,9 @@ def markdown(summary: pd.DataFrame, paired: pd.DataFrame, meta: dict[str, Any]) 
 
 
 def main(argv: list[str] | None = None) -> int:
-    from safe_bc.bc import load_checkpoint
-    from safe_bc.data.store import (
-        load_demonstrations,
-        read_table,
-        write_table_atomic,
-        write_text_atomic,
-    )
+    from safe_bc.data.store import load_demonstrations, read_table
     from safe_bc.distributed.evaluate import evaluate
-    from safe_bc.evaluation import EvalConfig, ExpertSource, NetSource
+    from safe_bc.evaluation import EvalConfig, ExpertSource
     from safe_bc.metrics import paired_differences, summarize
     from safe_bc.provenance import run_metadata
     from safe_bc.tasks import task_defaults
@@ -226,30 +276,20 @@ def main(argv: list[str] | None = None) -> int:
     demos = load_demonstrations(args.demos)
     limits = demos.limits
 
-    sources: dict[str, Any] = {"expert": ExpertSource(task.expert)}
-    histories = []
-    for k in args.seeds:
-        start = ensure_start(args.demos, args.out / "starts" / f"seed{k}", k)
-        sources[f"imitation/{k}"] = NetSource.from_model(*load_checkpoint(start))
-        for mode in args.modes:
-            shield, lagrangian = MODES[mode]
-            cfg = replace(base, shield=shield, lagrangian=lagrangian, seed=k)
-            run = args.out / "runs" / mode / f"seed{k}"
-            done = improve(start, run, cfg, metadata={"command": command})
-            if not args.quiet:
-                print(f"{mode} seed {k}: {done.iterations} iterations, kept "
-                      f"{done.kept_iteration}", flush=True)  # fmt: skip
-            histories.append(done.history.assign(mode=mode, train_seed=k))
-            sources[f"{mode}/{k}"] = ImprovedSource.from_run(run)
+    def report(mode: str, k: int, row: dict[str, float]) -> None:
+        if not args.quiet and row["iteration"] == base.iterations:
+            print(f"{mode} seed {k}: {int(row['iteration'])} iterations", flush=True)
+
+    trained, histories = run_modes(args.demos, args.out, args.seeds, args.modes, base, command,
+                                   on_iteration=report)  # fmt: skip
+    sources: dict[str, Any] = {"expert": ExpertSource(task.expert), **trained}
+    start = args.out / "starts" / f"seed{args.seeds[-1]}"
 
     eps = read_table(start / "selection.parquet")[1]["config"]["eps"]  # every start's
     cfg = EvalConfig(episodes=args.episodes, workers=0, seed=args.eval_seed, env=task.env,
                      eps=eps)  # fmt: skip
     result = evaluate(sources, cfg, limits, progress=not args.quiet)
-    episodes = result.episodes
-    split = episodes["policy"].str.split("/", expand=True)
-    episodes["method"] = split[0]
-    episodes["train_seed"] = pd.to_numeric(split[1]).fillna(-1).astype(int)
+    episodes = split_policy(result.episodes)
     replays = []
     for key, source in sources.items():
         replays.append(session_outcomes(source, task.env, cfg.seeds(), limits).assign(policy=key))
@@ -303,13 +343,9 @@ def main(argv: list[str] | None = None) -> int:
         validation_reference=refs,
     )
     meta["command"] = command
-    args.out.mkdir(parents=True, exist_ok=True)
-    write_table_atomic(args.out / "episodes.parquet", episodes, meta)
-    write_table_atomic(args.out / "summary.parquet", summary, meta)
-    write_table_atomic(args.out / "paired.parquet", paired, meta)
-    write_table_atomic(args.out / "history.parquet", history, meta)
     text = markdown(summary, paired, meta)
-    write_text_atomic(args.out / "improve.md", text)
+    tables = {"episodes": episodes, "summary": summary, "paired": paired, "history": history}
+    write_outputs(args.out, tables, meta, text)
     print(text)
     return 0
 
