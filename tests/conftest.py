@@ -35,3 +35,22 @@ def tiny_demos(ray_session, tmp_path_factory):
     out = tmp_path_factory.mktemp("tiny") / "demos"
     collect(CollectConfig(episodes=2, workers=2, max_steps=150), out, progress=False)
     return out
+
+
+@pytest.fixture(scope="session")
+def rehab_demos(tmp_path_factory):
+    """8 guideline rehab programmes, collected in-process (no Ray): the improvement tests'
+    demonstrations."""
+    from safe_bc.collection import EpisodeMaker
+    from safe_bc.data.store import init_dataset, write_episode
+    from safe_bc.distributed.collect import dataset_meta
+    from safe_bc.tasks import task_defaults
+
+    root = tmp_path_factory.mktemp("rehab") / "demos"
+    cfg = task_defaults("rehab").collect_config(episodes=8, workers=1)
+    meta = init_dataset(root, dataset_meta(cfg))
+    maker = EpisodeMaker(cfg)
+    for i in range(cfg.episodes):
+        write_episode(root, maker.make(i), meta)
+    maker.close()
+    return root

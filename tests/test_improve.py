@@ -37,23 +37,12 @@ TINY = ImproveConfig(
 
 
 @pytest.fixture(scope="module")
-def start(tmp_path_factory) -> Path:
-    """A tiny safety-imitation start: 8 guideline programmes (in-process), 50 BC batches."""
+def start(rehab_demos: Path, tmp_path_factory) -> Path:
+    """A tiny safety-imitation start: the 8 guideline programmes, 50 BC batches."""
     from safe_bc.cli import main
-    from safe_bc.collection import EpisodeMaker
-    from safe_bc.data.store import init_dataset, write_episode
-    from safe_bc.distributed.collect import dataset_meta
-    from safe_bc.tasks import task_defaults
 
-    root = tmp_path_factory.mktemp("improve")
-    cfg = task_defaults("rehab").collect_config(episodes=8, workers=1)
-    meta = init_dataset(root / "demos", dataset_meta(cfg))
-    maker = EpisodeMaker(cfg)
-    for i in range(cfg.episodes):
-        write_episode(root / "demos", maker.make(i), meta)
-    maker.close()
-    ckpt = root / "start"
-    argv = ["train", "--demos", str(root / "demos"), "--out", str(ckpt), "--batches", "50",
+    ckpt = tmp_path_factory.mktemp("improve") / "start"
+    argv = ["train", "--demos", str(rehab_demos), "--out", str(ckpt), "--batches", "50",
             "--hidden", "16", "--alpha", "0.5", "--quiet"]  # fmt: skip
     assert main(argv) == 0
     return ckpt

@@ -29,24 +29,6 @@ TINY = ImproveConfig(
 )
 
 
-@pytest.fixture(scope="module")
-def rehab_demos(tmp_path_factory) -> Path:
-    """8 guideline programmes, collected in-process."""
-    from safe_bc.collection import EpisodeMaker
-    from safe_bc.data.store import init_dataset, write_episode
-    from safe_bc.distributed.collect import dataset_meta
-    from safe_bc.tasks import task_defaults
-
-    root = tmp_path_factory.mktemp("study_improve") / "demos"
-    cfg = task_defaults("rehab").collect_config(episodes=8, workers=1)
-    meta = init_dataset(root, dataset_meta(cfg))
-    maker = EpisodeMaker(cfg)
-    for i in range(cfg.episodes):
-        write_episode(root, maker.make(i), meta)
-    maker.close()
-    return root
-
-
 def test_improve_keys_set_the_improvement_config_and_leave_the_run_config_alone():
     spec = StudySpec(
         "s",
