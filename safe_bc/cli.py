@@ -464,7 +464,7 @@ def _cmd_tune(args: argparse.Namespace) -> int:
 def _cmd_improve(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from safe_bc.improve import ImproveConfig, improve
+    from safe_bc.improve import ImproveConfig, LocalEnvs, improve
 
     names = ("eps", "cost_signal", "cost_margin", "cost_budget", "lambda_lr", "anchor",
              "anchor_coef", "iterations", "episodes_per_iter")  # fmt: skip
@@ -478,8 +478,14 @@ def _cmd_improve(args: argparse.Namespace) -> int:
                         viol=f"{row['train_violation_steps']:.2f}")  # fmt: skip
         bar.refresh()
 
+    envs = LocalEnvs
+    if args.rollout_workers:
+        from safe_bc.distributed.envs import ray_envs
+
+        envs = ray_envs(args.rollout_workers)
     with bar:
-        result = improve(args.start, args.out, config, demos=args.demos, on_iteration=show)
+        result = improve(args.start, args.out, config, demos=args.demos, on_iteration=show,
+                         envs=envs)  # fmt: skip
     last = result.history.dropna(subset=["val_reward"]).iloc[-1]
     print(
         f"{args.out}: {config.mode}, {result.iterations} iterations "
@@ -719,6 +725,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--iterations", type=_positive("--iterations"), default=None)
     p.add_argument("--episodes-per-iter", type=_positive("--episodes-per-iter"), default=None)
     p.add_argument("--seed", type=_non_negative_int("--seed"), default=0)
+    p.add_argument("--rollout-workers", type=_non_negative_int("--rollout-workers"), default=0,
+                   help="Ray actors stepping the rollout envs (0: in-process, right for rehab; "
+                   "CarRacing: one per core); the run is bit-identical either way")  # fmt: skip
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_improve)
 

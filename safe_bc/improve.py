@@ -32,9 +32,13 @@ Lagrangian. So, cleanrl style: one file, one config, explicit seeds.
 Determinism: every random draw comes from one ``np.random.Generator`` (minibatches, anchor
 batches), one ``torch.Generator`` (action noise) or ``torch.manual_seed(seed)`` (critic
 initialisation), and env seeds come from a counter; with 1 thread and the same config two
-runs give bit-identical weights. Rollouts are in-process: each iteration runs
-``episodes_per_iter`` complete episodes on ``n_envs`` envs in lockstep, one batched forward
-pass per step (the rehabilitation env steps in ~60 us). Every ``checkpoint_every``
+runs give bit-identical weights. Each iteration runs ``episodes_per_iter`` complete episodes
+on ``n_envs`` envs in lockstep: the learner makes one batched forward pass per step (its own
+noise, its own shield) and an :class:`EnvGroup` steps the envs, in this process
+(:class:`LocalEnvs`, right for the rehabilitation env's ~60 us steps) or on persistent Ray
+actors (:class:`safe_bc.distributed.envs.RayEnvs`, for CarRacing's milliseconds of rendering
+per step). Where the envs step changes nothing else, so both give bit-identical runs; a
+rollout whose actor died is run again from the same noise state. Every ``checkpoint_every``
 iterations the whole state (nets, optimisers, multiplier, both generators, counters,
 history) is written atomically to ``OUT/state.pt``; rerunning the same call resumes from it
 and ends bit-identical to an uninterrupted run.
@@ -46,10 +50,10 @@ import copy
 import json
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Literal, get_args
+from typing import Any, Literal, Protocol, get_args
 
 import gymnasium as gym
 import numpy as np
@@ -85,6 +89,8 @@ STATE = "state.pt"
 HISTORY = "history.parquet"
 POLICY = "policy"
 FORMAT = "safe_bc.improve/1"
+ROLLOUT_RETRIES = 3
+"""How often one rollout is run again after its env group lost envs."""
 
 
 @dataclass(frozen=True)
@@ -354,6 +360,77 @@ def validation_seeds(n: int) -> list[int]:
     return [VALIDATION_SEED_BASE - k for k in range(n)]
 
 
+# --------------------------------------------------------------------------- the envs
+StepOut = tuple[np.ndarray, float, bool, bool, np.ndarray]
+"""One env step: ``(next_obs, reward, terminated, truncated, cost)``, ``cost`` of shape
+``(S,)`` (the env's ``info["cost"]``, the true costs of ``next_obs``)."""
+
+
+class EnvsLostError(RuntimeError):
+    """An env group lost envs mid-episode (a worker died); the episodes must be run again."""
+
+
+class EnvGroup(Protocol):
+    """The ``n`` envs the learner steps in lockstep; where they run is the group's business.
+
+    The learner picks every action (one batched forward pass, its own noise), so a group
+    changes where envs step, never what happens: any group gives bit-identical runs.
+    """
+
+    def __len__(self) -> int:
+        """Number of envs."""
+
+    def reset(self, seeds: Sequence[int]) -> list[np.ndarray]:
+        """Reset env ``i`` with ``seeds[i]`` for ``i < len(seeds)``; their first observations."""
+
+    def step(self, index: Sequence[int], actions: np.ndarray) -> list[StepOut]:
+        """Step env ``index[j]`` with ``actions[j]`` (``(len(index), A)``), in that order."""
+
+    def restart(self) -> None:
+        """Replace lost envs (after :class:`EnvsLostError`); their episodes start over."""
+
+    def close(self) -> None:
+        """Release the envs."""
+
+
+EnvGroupFactory = Callable[[str, int], EnvGroup]
+"""``(env_id, n) -> EnvGroup``: how a run gets its envs (:class:`LocalEnvs` by default;
+:class:`safe_bc.distributed.envs.RayEnvs` spreads them over Ray actors)."""
+
+
+class LocalEnvs:
+    """``n`` envs in this process (:func:`safe_bc.envs.make_env`)."""
+
+    def __init__(self, env_id: str, n: int) -> None:
+        from safe_bc.envs import EnvConfig, make_env
+
+        self.envs = [make_env(EnvConfig(env_id)) for _ in range(n)]
+
+    def __len__(self) -> int:
+        return len(self.envs)
+
+    def reset(self, seeds: Sequence[int]) -> list[np.ndarray]:
+        if len(seeds) > len(self.envs):
+            raise ValueError(f"{len(seeds)} seeds for {len(self.envs)} envs")
+        return [env.reset(seed=int(s))[0] for env, s in zip(self.envs, seeds, strict=False)]
+
+    def step(self, index: Sequence[int], actions: np.ndarray) -> list[StepOut]:
+        out = []
+        for i, a in zip(index, actions, strict=True):
+            nobs, r, term, trunc, info = self.envs[i].step(a)
+            out.append(
+                (nobs, float(r), bool(term), bool(trunc), np.asarray(info["cost"], np.float64))
+            )
+        return out
+
+    def restart(self) -> None:
+        """Nothing is ever lost in-process."""
+
+    def close(self) -> None:
+        for env in self.envs:
+            env.close()
+
+
 # --------------------------------------------------------------------------- the agent
 class GaussianActor(nn.Module):
     """``N(mean_net(x), exp(log_std))``: the BC net as the mean, a learned state-free std."""
@@ -439,8 +516,13 @@ def _load_start(start: Path, demos: Path | None) -> tuple[_Start, Any]:
 class Improver:
     """The run's state and its two steps, :meth:`rollout` and :meth:`update`."""
 
-    def __init__(self, start: _Start, demos: Any, config: ImproveConfig) -> None:
-        from safe_bc.envs import EnvConfig, make_env
+    def __init__(
+        self,
+        start: _Start,
+        demos: Any,
+        config: ImproveConfig,
+        envs: EnvGroupFactory = LocalEnvs,
+    ) -> None:
         from safe_bc.experiment import select_for
 
         self.cfg, self.start = config, start
@@ -470,7 +552,7 @@ class Improver:
         self.low = np.asarray(start.model.spec.action_low, np.float32)
         self.high = np.asarray(start.model.spec.action_high, np.float32)
         n_envs = min(config.n_envs, max(config.episodes_per_iter, config.eval_episodes))
-        self.envs = [make_env(EnvConfig(start.env_id)) for _ in range(n_envs)]
+        self.envs = envs(start.env_id, n_envs)
         self.demos = BatchBuilder(demos, self.pre_cfg)
         self.sampler = select_for(demos, start.selection).sampler(config.anchor_batch, self.rng)
 
@@ -523,7 +605,7 @@ class Improver:
         episodes: list[dict[str, list]] = []
         for w in range(0, len(seeds), len(self.envs)):
             wave = seeds[w : w + len(self.envs)]
-            obs = [env.reset(seed=s)[0] for env, s in zip(self.envs, wave, strict=False)]
+            obs = self.envs.reset(wave)
             trajs: list[dict[str, list]] = [{} for _ in wave]
             last_obs: list[np.ndarray | None] = [None] * len(wave)
             alive = list(range(len(wave)))
@@ -547,12 +629,13 @@ class Improver:
                 actions = a.numpy()
                 executed = np.clip(actions, self.low, self.high)
                 still = []
-                for j, i in enumerate(alive):
-                    nobs, r, term, trunc, info = self.envs[i].step(executed[j])
-                    cost = np.asarray(info["cost"], np.float64)
+                stepped = self.envs.step(alive, executed)
+                for j, (i, (nobs, r, term, trunc, cost)) in enumerate(
+                    zip(alive, stepped, strict=True)
+                ):
                     row = {
                         "obs": o[j], "action": actions[j], "logp": float(logp[j]),
-                        "shielded": bool(shielded[j]), "reward": float(r),
+                        "shielded": bool(shielded[j]), "reward": r,
                         "cost": self._cost_signal(cost),
                         "violation": bool(violations(cost[None], self.limits)[0]),
                         "v_r": float(v_r[j]), "v_c": float(v_c[j]),
@@ -691,6 +774,21 @@ class Improver:
             return torch.distributions.kl_divergence(dist, start).sum(-1).mean()
         return torch.zeros(())
 
+    def _retrying(self, rollout: Callable[..., Rollout], *args: Any, **kw: Any) -> Rollout:
+        """``rollout(*args, **kw)``, run again from the same noise state when the env group
+        loses envs (up to :data:`ROLLOUT_RETRIES` times): the retry is bit-identical to an
+        undisturbed rollout."""
+        noise = self.gen.get_state()
+        for attempt in range(ROLLOUT_RETRIES + 1):
+            try:
+                return rollout(*args, **kw)
+            except EnvsLostError:
+                if attempt == ROLLOUT_RETRIES:
+                    raise
+                self.gen.set_state(noise)
+                self.envs.restart()
+        raise AssertionError("unreachable")
+
     # ------------------------------------------------------------------ one iteration
     def iterate(self) -> dict[str, float]:
         """Collect, update, (validate); returns the iteration's history row."""
@@ -698,7 +796,7 @@ class Improver:
         t0 = time.perf_counter()
         first = self.episodes
         seeds = [train_env_seed(cfg.seed, first + k) for k in range(cfg.episodes_per_iter)]
-        ro = self.rollout(seeds)
+        ro = self._retrying(self.rollout, seeds)
         self.episodes += len(seeds)
         self.env_steps += len(ro)
         stats = self.update(ro)
@@ -721,7 +819,8 @@ class Improver:
                    val_any_violation=float("nan"))  # fmt: skip
         last = self.iteration == cfg.iterations
         if cfg.eval_every and (self.iteration % cfg.eval_every == 0 or last):
-            val = self.rollout(validation_seeds(cfg.eval_episodes), stochastic=False)
+            val = self._retrying(self.rollout, validation_seeds(cfg.eval_episodes),
+                                 stochastic=False)  # fmt: skip
             row.update(
                 val_reward=float(val.episode_return.mean()),
                 val_violation_steps=float(val.episode_violations.mean()),
@@ -772,13 +871,15 @@ def improve(
     demos: str | Path | None = None,
     on_iteration: Callable[[dict[str, float]], None] | None = None,
     metadata: dict[str, Any] | None = None,
+    envs: EnvGroupFactory = LocalEnvs,
 ) -> ImproveResult:
     """Improve the safety-imitation checkpoint ``start`` by constrained RL into ``out``.
 
     Resumes from ``out/state.pt`` when present (same start, demonstrations and config; a
-    different one raises ``ValueError``). Writes ``out/policy/`` (the improved mean net as a
-    BC checkpoint, evaluable with ``safe-bc evaluate``; its ``extra["improve"]`` holds the
-    shield's zone) and ``out/history.parquet``.
+    different one raises ``ValueError``); a finished run of the same start, demonstrations
+    and config in ``out`` is returned as it is, without ``state.pt``. Writes ``out/policy/``
+    (the improved mean net as a BC checkpoint, evaluable with ``safe-bc evaluate``; its
+    ``extra["improve"]`` holds the shield's zone) and ``out/history.parquet``.
 
     Args:
         start: a ``safe-bc train`` checkpoint directory.
@@ -788,6 +889,9 @@ def improve(
         on_iteration: called with each iteration's history row (progress, or a test's
             interruption).
         metadata: extra fields for the outputs' provenance (e.g. the command).
+        envs: where the rollout envs run (default: in this process; a
+            :class:`safe_bc.distributed.envs.RayEnvs` factory spreads them over Ray actors).
+            The run is bit-identical either way, so a run may resume on another group.
     """
     from safe_bc.data.store import write_table_atomic
     from safe_bc.provenance import run_metadata
@@ -797,10 +901,15 @@ def improve(
     t0 = time.perf_counter()
     s, data = _load_start(start, Path(demos) if demos is not None else None)
     identity = _identity(s, config)
+    finished = _finished(out, identity, config.iterations)
+    if finished is not None:
+        history, kept = finished
+        seconds = time.perf_counter() - t0
+        return ImproveResult(out, history, config.iterations, config.iterations, seconds, kept)
     out.mkdir(parents=True, exist_ok=True)
     state_path = out / STATE
     with torch_settings(config.num_threads):
-        agent = Improver(s, data, config)
+        agent = Improver(s, data, config, envs)
         resumed_at = 0
         if state_path.exists():
             state = torch.load(state_path, map_location="cpu", weights_only=True)
@@ -830,8 +939,7 @@ def improve(
                 if on_iteration is not None:
                     on_iteration(row)
         finally:
-            for env in agent.envs:
-                env.close()
+            agent.envs.close()
         save()
         extra = {"improve": {**meta, "start": str(start), "eps": agent.shield.eps}}
         extra.update(env_id=s.env_id, demos=str(s.demos_path))
@@ -887,6 +995,25 @@ def improve_from_net(
     return ImprovedSource.from_run(run), result
 
 
+def _finished(
+    out: Path, identity: dict[str, Any], iterations: int
+) -> tuple[pd.DataFrame, int] | None:
+    """``(history, kept iteration)`` of a finished run of this identity in ``out``, else
+    ``None``. A finished run is left as it is, provenance included; its ``state.pt`` (kept out
+    of git) is not needed."""
+    from safe_bc.data.store import read_table
+
+    if not (out / POLICY / "config.json").is_file() or not (out / HISTORY).is_file():
+        return None
+    meta = read_checkpoint_meta(out / POLICY).get("extra", {}).get("improve", {})
+    if {k: meta.get(k) for k in identity} != json.loads(json.dumps(identity)):
+        return None
+    history, _ = read_table(out / HISTORY)
+    if len(history) != iterations:
+        return None
+    return history, int(meta["kept_iteration"])
+
+
 def _copy_selection(start: Path, policy_dir: Path) -> None:
     """The start's ``selection.parquet`` (thresholds, eps) next to the improved net, so that
     ``safe-bc evaluate --checkpoint OUT/policy`` measures it against the same limits."""
@@ -897,11 +1024,15 @@ def _copy_selection(start: Path, policy_dir: Path) -> None:
 
 
 __all__ = [
+    "EnvGroup",
+    "EnvGroupFactory",
+    "EnvsLostError",
     "GaussianActor",
     "ImproveConfig",
     "ImproveResult",
     "ImprovedSource",
     "Improver",
+    "LocalEnvs",
     "Shield",
     "ShieldedPolicy",
     "gae",

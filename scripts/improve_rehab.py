@@ -38,7 +38,14 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from safe_bc.improve import ImproveConfig, ImprovedSource, improve, validation_seeds
+from safe_bc.improve import (
+    EnvGroupFactory,
+    ImproveConfig,
+    ImprovedSource,
+    LocalEnvs,
+    improve,
+    validation_seeds,
+)
 
 MODES = {"ppo": (False, False), "shield": (True, False), "lagrangian": (False, True),
          "both": (True, True)}  # fmt: skip
@@ -78,6 +85,7 @@ def run_modes(
     *,
     start_args: list[str] = START_ARGS,
     on_iteration: Callable[[str, int, dict[str, float]], None] | None = None,
+    envs: EnvGroupFactory = LocalEnvs,
 ) -> tuple[dict[str, Any], list[pd.DataFrame]]:
     """Per training seed ``k`` its start (``OUT/starts/seed<k>``) and one resumable improvement
     run per mode (``OUT/runs/<mode>/seed<k>``). Returns the policy sources
@@ -95,7 +103,8 @@ def run_modes(
             cfg = replace(base, shield=shield, lagrangian=lagrangian, seed=k)
             run = out / "runs" / mode / f"seed{k}"
             report = None if on_iteration is None else partial(on_iteration, mode, k)
-            done = improve(start, run, cfg, metadata={"command": command}, on_iteration=report)
+            done = improve(start, run, cfg, metadata={"command": command}, on_iteration=report,
+                           envs=envs)  # fmt: skip
             histories.append(done.history.assign(mode=mode, train_seed=k))
             sources[f"{mode}/{k}"] = ImprovedSource.from_run(run)
     return sources, histories

@@ -54,3 +54,16 @@ def rehab_demos(tmp_path_factory):
         write_episode(root, maker.make(i), meta)
     maker.close()
     return root
+
+
+@pytest.fixture(scope="session")
+def rehab_start(rehab_demos, tmp_path_factory):
+    """A tiny safety-imitation start for improvement tests: the 8 guideline programmes, 50 BC
+    batches, 16 hidden units."""
+    from safe_bc.cli import main
+
+    ckpt = tmp_path_factory.mktemp("improve") / "start"
+    argv = ["train", "--demos", str(rehab_demos), "--out", str(ckpt), "--batches", "50",
+            "--hidden", "16", "--alpha", "0.5", "--quiet"]  # fmt: skip
+    assert main(argv) == 0
+    return ckpt

@@ -6,6 +6,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 import torch
 
@@ -37,15 +38,8 @@ TINY = ImproveConfig(
 
 
 @pytest.fixture(scope="module")
-def start(rehab_demos: Path, tmp_path_factory) -> Path:
-    """A tiny safety-imitation start: the 8 guideline programmes, 50 BC batches."""
-    from safe_bc.cli import main
-
-    ckpt = tmp_path_factory.mktemp("improve") / "start"
-    argv = ["train", "--demos", str(rehab_demos), "--out", str(ckpt), "--batches", "50",
-            "--hidden", "16", "--alpha", "0.5", "--quiet"]  # fmt: skip
-    assert main(argv) == 0
-    return ckpt
+def start(rehab_start: Path) -> Path:
+    return rehab_start
 
 
 def _weights(out: Path) -> dict[str, torch.Tensor]:
@@ -78,8 +72,8 @@ def test_multiplier_in_training_follows_the_cost(start):
         off = Improver(s, demos, replace(TINY, lagrangian=False, cost_margin=0.5))
         off.iterate()
         assert off.lam == 0.0
-    for env in [*agent.envs, *off.envs]:
-        env.close()
+    agent.envs.close()
+    off.envs.close()
 
 
 # ------------------------------------------------------------------ the shield
@@ -119,8 +113,7 @@ def test_shield_gives_critical_states_the_imitation_action(start):
         agent = Improver(s, demos, replace(TINY, eps=0.15))
         agent.actor.mean_net.head[-1].bias.data += 0.7
         ro = agent.rollout([11, 12, 13, 14])
-    for env in agent.envs:
-        env.close()
+    agent.envs.close()
     crit = agent.shield.critical(ro.obs)
     assert crit.any() and (crit == ro.shielded).all()
     np.testing.assert_allclose(ro.actions[crit], start_policy.act_batch(ro.obs[crit]), atol=1e-6)
@@ -178,3 +171,18 @@ def test_cli_and_evaluation_of_a_run(start, tmp_path, capsys):
     with pytest.raises(SystemExit):
         main([*argv[:-1], "--iterations", "0"])
     assert "--iterations must be >= 1" in capsys.readouterr().err
+
+
+def test_a_finished_run_is_returned_untouched_without_its_state(start, tmp_path):
+    """Rerunning a finished run (its state.pt gone, as in a git checkout) rewrites nothing."""
+    done = improve(start, tmp_path / "run", TINY)
+    (tmp_path / "run" / "state.pt").unlink()
+    files = sorted(p for p in (tmp_path / "run").rglob("*") if p.is_file())
+    stamps = [p.stat().st_mtime_ns for p in files]
+    again = improve(start, tmp_path / "run", TINY)
+    assert [p.stat().st_mtime_ns for p in files] == stamps
+    assert again.resumed_at == again.iterations == TINY.iterations
+    assert again.kept_iteration == done.kept_iteration
+    pd.testing.assert_frame_equal(again.history, done.history)
+    longer = improve(start, tmp_path / "run", replace(TINY, iterations=TINY.iterations + 1))
+    assert longer.resumed_at == 0  # another config: no finished run of it, a fresh one
