@@ -41,7 +41,7 @@ if TYPE_CHECKING:
 
 __all__ = ["CASES", "FULL", "QUICK", "Sizes", "main", "run_case", "run_case_subprocess"]
 
-CASES: tuple[str, ...] = ("env", "collect", "train", "eval", "study", "final")
+CASES: tuple[str, ...] = ("env", "collect", "train", "eval", "study", "final", "improve")
 """Benchmark cases, in the order they run."""
 
 DEFAULT_OUT = Path("results/bench.parquet")
@@ -107,6 +107,9 @@ class Sizes:
     """Training batches per trial of the tiny study."""
     final_episodes: int = 4
     """Episodes per policy of the final-phase evaluation (2 policies)."""
+    improve_steps: int = 150
+    """Lockstep steps of the improvement rollout's 4 CarRacing envs, per variant and
+    repetition."""
 
 
 FULL = Sizes(
@@ -131,6 +134,7 @@ QUICK = Sizes(
     study_trials=2,
     study_batches=10,
     final_episodes=1,
+    improve_steps=20,
 )
 
 BATCH_SIZE = 64
@@ -784,6 +788,54 @@ def bench_final(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
     return rows
 
 
+IMPROVE_ENVS = 4
+"""Envs of the improvement-rollout case (``scripts.improve_carracing``'s episodes per
+iteration)."""
+
+
+def bench_improve(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
+    """Env steps/s of an improvement run's lockstep rollout: envs on Ray actors vs in-process.
+
+    The loop is the learner's: one batched forward pass of a BC net for the live envs, then
+    the env group steps them (:class:`safe_bc.improve.LocalEnvs` or
+    :class:`safe_bc.distributed.envs.RayEnvs`). Actor start-up and the tracks' generation
+    (the reset) are outside the clock.
+    """
+    from safe_bc.distributed.envs import RayEnvs
+    from safe_bc.distributed.runtime import cluster_cpus, ensure_ray
+    from safe_bc.improve import LocalEnvs
+
+    ensure_ray()
+    n = IMPROVE_ENVS
+    workers = max(1, min(n, int(cluster_cpus())))
+    policy = _untrained_source(seed).build()
+    makers: dict[str, Callable[[], Any]] = {
+        "in-process": lambda: LocalEnvs("CarRacing-v3", n),
+        f"{workers} Ray actors": lambda: RayEnvs("CarRacing-v3", n, workers),
+    }
+    rates: dict[str, list[float]] = {name: [] for name in makers}
+    for rep in range(repeats):
+        for name in _order(list(makers), rep):
+            group = makers[name]()
+            obs = group.reset([seed + i for i in range(n)])
+            index = list(range(n))
+            t0 = time.perf_counter()
+            for _ in range(sizes.improve_steps):
+                actions = policy.act_batch(np.stack(obs))
+                obs = [step[0] for step in group.step(index, actions)]
+            rates[name].append(n * sizes.improve_steps / (time.perf_counter() - t0))
+            group.close()
+    note = (
+        f"{n} CarRacing envs x {sizes.improve_steps} lockstep steps, one batched forward pass "
+        "of an untrained default BC net per step (the learner's share)"
+    )
+    base, other = list(makers)
+    return [
+        _self_row("improve", base, rates[base], "steps/s", note),
+        _row("improve", other, rates[other], "steps/s", (base, rates[base]), note),
+    ]
+
+
 # ---------------------------------------------------------------------------- running cases
 
 _BENCHES: dict[str, Callable[[Sizes, int, int], list[dict[str, Any]]]] = {
@@ -793,6 +845,7 @@ _BENCHES: dict[str, Callable[[Sizes, int, int], list[dict[str, Any]]]] = {
     "eval": bench_eval,
     "study": bench_study,
     "final": bench_final,
+    "improve": bench_improve,
 }
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import datetime as _dt
+import os
 import platform
 import subprocess
 import sys
@@ -17,7 +18,9 @@ _REPO = Path(__file__).resolve().parent.parent
 def git_revision() -> str:
     """The checkout's commit, with ``-dirty`` when there are uncommitted changes to tracked files.
 
-    Returns ``"unknown"`` outside a git checkout (e.g. an installed wheel).
+    Outside a git checkout (an installed wheel, a copy of the tree on another machine) it
+    returns ``$SAFE_BC_GIT_REVISION`` when set (the copy's commit, set by whoever made the
+    copy), else ``"unknown"``.
     """
     try:
         rev = subprocess.run(
@@ -31,7 +34,7 @@ def git_revision() -> str:
             check=True,
         ).stdout.strip()
     except (OSError, subprocess.CalledProcessError):
-        return "unknown"
+        return os.environ.get("SAFE_BC_GIT_REVISION", "unknown")
     return f"{rev}-dirty" if dirty else rev
 
 
@@ -43,6 +46,7 @@ def provenance() -> dict[str, str]:
         "created_utc": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
         "python": platform.python_version(),
         "machine": f"{platform.machine()} {platform.node()}",
+        "cpus": str(os.cpu_count()),
     }
 
 

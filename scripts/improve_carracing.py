@@ -1,19 +1,24 @@
-"""Beyond the expert on CarRacing: how far constrained improvement gets on 2 CPU cores.
+"""Beyond the expert on CarRacing: constrained improvement from pixels, 3 seeds x 4 modes.
 
 Usage::
 
-    .venv/bin/python -m scripts.improve_carracing          # 1 seed, 20 iterations, 50 tracks
-    .venv/bin/python -m scripts.improve_carracing --iterations 2 --episodes 4 \\
-        --out /tmp/improve_cr_smoke                                 # a quick look
+    .venv/bin/python -m scripts.improve_carracing                     # the committed table
+    .venv/bin/python -m scripts.improve_carracing --processes 16 --workers 0   # 16 cores, no Ray
+    .venv/bin/python -m scripts.improve_carracing --seeds 0 --modes both --iterations 2 \
+        --episodes 4 --out /tmp/improve_cr_smoke                    # a quick look
 
-The start is the best Table 1 row's recipe (``safe-bc train --alpha 0.1 --seed k``, reused
-when present). One :func:`safe_bc.improve.improve` run per mode and seed (default: shield +
-Lagrangian), sized for pixels on a laptop: ``--episodes-per-iter`` complete 1000-step
-episodes per PPO iteration, validation on ``--val-episodes`` tracks every 5 iterations, and
-a cost margin of 1 px inside d_s. Each run checkpoints every iteration and resumes when the
-command is rerun. Then the expert, each start and each improved agent go through the one
-evaluation path, :func:`safe_bc.distributed.evaluate.evaluate`, on the same ``--episodes``
-fresh held-out tracks (evaluation seed block ``--eval-seed``, used by no other command).
+The starts are the best Table 1 row's recipe (``safe-bc train --alpha 0.1 --seed k``, reused
+when present). One :func:`safe_bc.improve.improve` run per mode (``ppo``: neither mechanism,
+``shield``, ``lagrangian``, ``both``) and training seed, sized for pixels on small machines:
+``--episodes-per-iter`` complete 1000-step episodes per PPO iteration, validation on
+``--val-episodes`` tracks every 5 iterations, and a cost margin of 1 px inside d_s. Each
+run checkpoints every iteration and resumes when the command is rerun; a finished run is
+reused as it is. Runs go one after another (rollout envs in-process, or on
+``--rollout-workers`` Ray actors), or with ``--processes N`` side by side in N local
+processes. Then the expert, each start and each improved agent go through the one
+evaluation path (:func:`safe_bc.distributed.evaluate.evaluate_policies`, per policy cached
+in ``OUT/evaluations/``) on the same ``--episodes`` fresh held-out tracks (evaluation seed
+block ``--eval-seed``, used by no other command).
 
 Writes ``OUT/episodes.parquet``, ``OUT/summary.parquet``, ``OUT/paired.parquet``
 (differences to the start on the same tracks), ``OUT/history.parquet``, ``OUT/improve.md``
@@ -23,6 +28,7 @@ and ``OUT/learning_curves.png``; runs live in ``OUT/runs/<mode>/seed<k>/``.
 from __future__ import annotations
 
 import argparse
+import collections
 import shlex
 import sys
 from pathlib import Path
@@ -31,7 +37,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from safe_bc.improve import ImproveConfig
+from safe_bc.improve import ImproveConfig, LocalEnvs
+from scripts.eval_cache import evaluate_cached
 from scripts.improve_rehab import MODES, run_modes, split_policy, write_outputs
 
 LABELS = {
@@ -107,7 +114,7 @@ def markdown(summary: pd.DataFrame, paired: pd.DataFrame, meta: dict[str, Any]) 
     lines += [
         "",
         "*compute / run*: wall time of one improvement run (training rollouts, PPO updates and "
-        "validation) on the shared 2-core machine, 1 torch thread.",
+        f"validation), 1 torch thread, mean over training seeds, on {meta['run_machines']}.",
         "",
         "![learning curves](learning_curves.png)",
         "",
@@ -123,16 +130,15 @@ def markdown(summary: pd.DataFrame, paired: pd.DataFrame, meta: dict[str, Any]) 
 
 
 def main(argv: list[str] | None = None) -> int:
-    from safe_bc.data.store import load_demonstrations
-    from safe_bc.distributed.evaluate import evaluate
+    from safe_bc.data.store import load_demonstrations, read_table
     from safe_bc.evaluation import EvalConfig, ExpertSource
     from safe_bc.metrics import paired_differences, summarize
     from safe_bc.provenance import run_metadata
     from safe_bc.tasks import task_defaults
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--seeds", type=int, nargs="+", default=[0])
-    p.add_argument("--modes", nargs="+", choices=list(MODES), default=["both"])
+    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    p.add_argument("--modes", nargs="+", choices=list(MODES), default=list(MODES))
     p.add_argument("--iterations", type=int, default=20)
     p.add_argument("--episodes-per-iter", type=int, default=4)
     p.add_argument("--val-episodes", type=int, default=4)
@@ -140,6 +146,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--episodes", type=int, default=50, help="held-out tracks")
     p.add_argument("--eval-seed", type=int, default=7, help="held-out seed block")
     p.add_argument("--workers", type=int, default=2, help="evaluation actors (0: in-process)")
+    p.add_argument("--rollout-workers", type=int, default=0,
+                   help="Ray actors stepping each run's rollout envs (0: in-process; on 2 cores "
+                   "in-process is faster, see make bench); the runs are bit-identical either "
+                   "way")  # fmt: skip
+    p.add_argument("--processes", type=int, default=0,
+                   help="> 0: runs and evaluations in this many local processes instead (no "
+                   "Ray; a many-core machine), rollout envs in-process")  # fmt: skip
     p.add_argument("--demos", type=Path, default=Path("data/demos"))
     p.add_argument("--out", type=Path, default=Path("results/improve/carracing"))
     p.add_argument("--quiet", action="store_true")
@@ -167,14 +180,21 @@ def main(argv: list[str] | None = None) -> int:
                   f"{row['train_violation_steps']:.0f}, lambda {row['lambda']:.2f}, "
                   f"{row['seconds']:.0f} s", flush=True)  # fmt: skip
 
+    envs = LocalEnvs
+    if args.rollout_workers > 0 and args.processes == 0:
+        from safe_bc.distributed.envs import ray_envs
+
+        envs = ray_envs(args.rollout_workers)
     trained, histories = run_modes(args.demos, args.out, args.seeds, args.modes, base, command,
-                                   start_args=START_ARGS, on_iteration=report)  # fmt: skip
+                                   start_args=START_ARGS, on_iteration=report, envs=envs,
+                                   processes=args.processes)  # fmt: skip
     sources: dict[str, Any] = {"expert": ExpertSource(task.expert), **trained}
 
     cfg = EvalConfig(episodes=args.episodes, workers=args.workers, seed=args.eval_seed,
                      env=task.env)  # fmt: skip
-    result = evaluate(sources, cfg, limits, progress=not args.quiet)
-    episodes = split_policy(result.episodes)
+    raw = evaluate_cached(sources, cfg, limits, args.out / "evaluations",
+                          processes=args.processes, progress=not args.quiet)  # fmt: skip
+    episodes = split_policy(raw)
 
     metrics = ["reward", "safety_mean", "violation_steps", "any_violation", "offroad_steps"]
     summary = summarize(episodes, ["method"], metrics, group="train_seed", seed=0)
@@ -190,6 +210,13 @@ def main(argv: list[str] | None = None) -> int:
     history = pd.concat(histories, ignore_index=True)
     minutes = history.groupby(["mode", "train_seed"])["seconds"].sum().groupby("mode").mean() / 60
     summary["minutes"] = summary["method"].map(minutes).astype(float)
+    machines = collections.Counter()
+    for mode in args.modes:
+        for k in args.seeds:
+            _, run_meta = read_table(args.out / "runs" / mode / f"seed{k}" / "history.parquet")
+            machines[f"{run_meta['machine']} ({run_meta.get('cpus', '?')} CPUs, python "
+                     f"{run_meta['python']})"] += 1  # fmt: skip
+    run_machines = "; ".join(f"{m}: {n} run(s)" for m, n in machines.items())
 
     # each improved agent against its own start, same (training seed, track) cells
     agents = episodes[episodes["method"] != "expert"]
@@ -209,6 +236,8 @@ def main(argv: list[str] | None = None) -> int:
         limits_text=dims,
         config=base.to_dict(),
         start_args=START_ARGS,
+        run_machines=run_machines,
+        processes=args.processes,
     )
     meta["command"] = command
     text = markdown(summary, paired, meta)

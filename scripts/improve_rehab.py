@@ -27,6 +27,7 @@ Writes ``OUT/episodes.parquet`` (one row per policy and patient), ``OUT/summary.
 from __future__ import annotations
 
 import argparse
+import multiprocessing
 import shlex
 import sys
 from collections.abc import Callable
@@ -86,28 +87,58 @@ def run_modes(
     start_args: list[str] = START_ARGS,
     on_iteration: Callable[[str, int, dict[str, float]], None] | None = None,
     envs: EnvGroupFactory = LocalEnvs,
+    processes: int = 0,
 ) -> tuple[dict[str, Any], list[pd.DataFrame]]:
     """Per training seed ``k`` its start (``OUT/starts/seed<k>``) and one resumable improvement
     run per mode (``OUT/runs/<mode>/seed<k>``). Returns the policy sources
-    (``imitation/<k>``, ``<mode>/<k>``) and each run's history (``mode``, ``train_seed``)."""
+    (``imitation/<k>``, ``<mode>/<k>``) and each run's history (``mode``, ``train_seed``).
+
+    ``processes`` > 0 runs the improvement runs in that many local processes first (1 torch
+    thread each, envs in-process, started with ``spawn``: a forked child of a process that
+    has used torch can hang; progress lines instead of ``on_iteration``); the runs are
+    then picked up as finished.
+    """
     from safe_bc.bc import load_checkpoint
     from safe_bc.evaluation import NetSource
 
     sources: dict[str, Any] = {}
-    histories = []
+    jobs = []
     for k in seeds:
         start = ensure_start(demos, out / "starts" / f"seed{k}", k, start_args)
         sources[f"imitation/{k}"] = NetSource.from_model(*load_checkpoint(start))
         for mode in modes:
             shield, lagrangian = MODES[mode]
             cfg = replace(base, shield=shield, lagrangian=lagrangian, seed=k)
-            run = out / "runs" / mode / f"seed{k}"
-            report = None if on_iteration is None else partial(on_iteration, mode, k)
-            done = improve(start, run, cfg, metadata={"command": command}, on_iteration=report,
-                           envs=envs)  # fmt: skip
-            histories.append(done.history.assign(mode=mode, train_seed=k))
-            sources[f"{mode}/{k}"] = ImprovedSource.from_run(run)
+            jobs.append((mode, k, start, out / "runs" / mode / f"seed{k}", cfg))
+    if processes > 0:
+        ctx = multiprocessing.get_context("spawn")
+        with ctx.Pool(min(processes, len(jobs))) as pool:
+            waiting = [pool.apply_async(_run_quietly, (start, run, cfg, command, mode, k,
+                                                       on_iteration is not None))
+                       for mode, k, start, run, cfg in jobs]  # fmt: skip
+            for job in waiting:
+                job.get()
+    histories = []
+    for mode, k, start, run, cfg in jobs:
+        report = None if on_iteration is None else partial(on_iteration, mode, k)
+        done = improve(start, run, cfg, metadata={"command": command}, on_iteration=report,
+                       envs=envs)  # fmt: skip
+        histories.append(done.history.assign(mode=mode, train_seed=k))
+        sources[f"{mode}/{k}"] = ImprovedSource.from_run(run)
     return sources, histories
+
+
+def _run_quietly(
+    start: Path, run: Path, cfg: ImproveConfig, command: str, mode: str, k: int, show: bool
+) -> None:
+    """One improvement run in a pool process, with a line of progress per iteration."""
+
+    def line(row: dict[str, float]) -> None:
+        print(f"{mode} seed {k} iteration {int(row['iteration'])}: train reward "
+              f"{row['train_reward']:.2f}, violation steps {row['train_violation_steps']:.2f}, "
+              f"lambda {row['lambda']:.2f}, {row['seconds']:.0f} s", flush=True)  # fmt: skip
+
+    improve(start, run, cfg, metadata={"command": command}, on_iteration=line if show else None)
 
 
 def split_policy(episodes: pd.DataFrame) -> pd.DataFrame:

@@ -76,12 +76,17 @@ def test_parse_cases_rejects_unknown():
 
 @pytest.mark.slow
 def test_quick_study_and_final_cases_measure_ratios():
-    """The study's trials/min at 1 vs 2 concurrent trials and the final phase's episodes/min."""
+    """The study's trials/min at 1 vs 2 concurrent trials, the final phase's episodes/min and
+    the improvement rollout's steps/s on Ray actors vs in-process."""
     rows = bench.run_case("study", bench.QUICK, repeats=1)["rows"]
     rows += bench.run_case("final", bench.QUICK, repeats=1)["rows"]
+    rows += bench.run_case("improve", bench.QUICK, repeats=1)["rows"]
     by = {(r["case"], r["variant"]): r for r in rows}
     two = by[("study", "2 concurrent trials")]
     assert two["baseline"] == "1 concurrent trial" and two["unit"] == "trials/min"
     assert math.isfinite(two["ratio"]) and two["ratio"] > 0
     one = by[("final", "1 worker")]
     assert one["unit"] == "episodes/min" and one["value"] > 0
+    ray_envs = next(r for (c, v), r in by.items() if c == "improve" and v != "in-process")
+    assert ray_envs["baseline"] == "in-process" and ray_envs["unit"] == "steps/s"
+    assert math.isfinite(ray_envs["ratio"]) and ray_envs["ratio"] > 0

@@ -99,7 +99,7 @@ class RayEnvs:
             (a, s) for a, s in zip(self.actors, self.slices, strict=True) if s.start < len(seeds)
         ]
         refs = [a.reset.remote(list(seeds[s.start : s.stop])) for a, s in work]
-        return [obs for part in self._gather(refs) for obs in part]
+        return [np.array(obs) for part in self._gather(refs) for obs in part]
 
     def step(self, index: Sequence[int], actions: np.ndarray) -> list[StepOut]:
         index = np.asarray(index, int)
@@ -112,8 +112,9 @@ class RayEnvs:
             rows.append(mine)
         out: list[StepOut | None] = [None] * len(index)
         for mine, part in zip(rows, self._gather(refs), strict=True):
-            for j, result in zip(mine, part, strict=True):
-                out[j] = result
+            for j, (nobs, r, term, trunc, cost) in zip(mine, part, strict=True):
+                # Ray hands back read-only views of the object store: own copies
+                out[j] = (np.array(nobs), r, term, trunc, np.array(cost))
         return out  # type: ignore[return-value]
 
     def restart(self) -> None:

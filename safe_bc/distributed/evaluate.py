@@ -2,7 +2,8 @@
 
 Each policy's weights are put in the object store once (``ray.put``); actors keep
 the policy they built last, so an actor that evaluates several episodes of the
-same policy builds it once.
+same policy builds it once. With ``workers=0`` everything runs in this process and Ray is
+not imported (a machine without Ray can still evaluate).
 """
 
 from __future__ import annotations
@@ -14,10 +15,8 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 import pandas as pd
-import ray
 from tqdm.auto import tqdm
 
-from safe_bc.distributed.pool import run_on_actors
 from safe_bc.distributed.runtime import cpus_per_actor, ensure_ray
 from safe_bc.envs import EnvConfig, make_env
 from safe_bc.evaluation import EvalConfig, evaluate_episode
@@ -39,7 +38,7 @@ class _Evaluator:
     def run(
         self,
         key: str,
-        source: PolicySource | list[ray.ObjectRef],
+        source: PolicySource | list[Any],
         seed: int,
         thresholds: np.ndarray | None,
         eps: float,
@@ -48,6 +47,8 @@ class _Evaluator:
     ) -> tuple[dict[str, float], dict[str, np.ndarray]]:
         if key != self.key:
             if isinstance(source, list):  # boxed ObjectRef: fetched only when needed
+                import ray
+
                 source = ray.get(source[0])
             self.key, self.policy = key, source.build()
         return evaluate_episode(
@@ -59,9 +60,6 @@ class _Evaluator:
             max_steps=max_steps,
             combine=combine,  # type: ignore[arg-type]
         )
-
-
-EvalWorker = ray.remote(_Evaluator)
 
 
 def evaluate_policies(
@@ -111,11 +109,15 @@ def evaluate_policies(
                 record(task, local.run(task[0], sources[task[0]], task[1], *args))
             local.env.close()
         else:
+            import ray
+
+            from safe_bc.distributed.pool import run_on_actors
+
             ensure_ray()
             refs = {key: [ray.put(src)] for key, src in sources.items()}
             n = min(config.workers, len(tasks))
             cpus = cpus_per_actor(n) if actor_cpus is None else actor_cpus
-            actor_cls = EvalWorker.options(num_cpus=cpus, max_restarts=0)
+            actor_cls = ray.remote(_Evaluator).options(num_cpus=cpus, max_restarts=0)
             run_on_actors(
                 lambda: actor_cls.remote(config.env),
                 n,
