@@ -37,8 +37,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from safe_bc.improve import ImproveConfig, LocalEnvs
-from scripts.eval_cache import evaluate_cached
+from safe_bc.improve import HISTORY, ImproveConfig, LocalEnvs
+from scripts.eval_cache import cache_path, evaluate_cached
 from scripts.improve_rehab import MODES, run_modes, split_policy, write_outputs
 
 LABELS = {
@@ -53,29 +53,49 @@ START_ARGS = ["--alpha", "0.1"]
 """How the starts are trained (with ``--seed k``): Table 1's best row."""
 
 
-def plot_curves(history: pd.DataFrame, path: Path) -> Path:
-    """Training and validation reward, violations and the multiplier vs env steps."""
+MODE_COLOURS = {"ppo": "tab:gray", "shield": "tab:blue", "lagrangian": "tab:orange",
+                "both": "tab:green"}  # fmt: skip
+SEED_STYLES = ["-", "--", ":", "-."]
+
+
+def plot_curves(history: pd.DataFrame, refs: dict[str, float], path: Path) -> Path:
+    """Training and validation reward, violations and the multiplier vs env steps: colour =
+    mode, line style = training seed; dashed black / gray lines: the expert's and the starts'
+    mean held-out reward."""
     import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
 
     from safe_bc.plots import save_figure
 
     panels = [
         ("train_reward", "training reward (stochastic policy)"),
-        ("val_reward", "validation reward (mean action)"),
+        ("val_reward", "validation reward (mean action, 4 tracks)"),
         ("train_violation_steps", "training: steps beyond d_s / episode"),
         ("lambda", "Lagrange multiplier"),
     ]
+    seeds = sorted(history["train_seed"].unique())
     fig, axes = plt.subplots(2, 2, figsize=(11, 7))
     for ax, (col, title) in zip(axes.flat, panels, strict=True):
         for (mode, seed), df in history.groupby(["mode", "train_seed"], sort=False):
             df = df.dropna(subset=[col])
-            ax.plot(df["env_steps"] / 1e3, df[col], marker=".", lw=1,
-                    label=f"{LABELS[mode]}, seed {seed}")  # fmt: skip
+            ax.plot(df["env_steps"] / 1e3, df[col], lw=1.1, color=MODE_COLOURS[mode],
+                    ls=SEED_STYLES[seeds.index(seed) % len(SEED_STYLES)])  # fmt: skip
+        if col == "val_reward":
+            for name, value in refs.items():
+                ax.axhline(value, ls="--", lw=1, color="k" if name == "expert" else "0.6")
         ax.set_title(title, fontsize=9)
         ax.set_xlabel("env steps (thousands)")
-    axes[0, 0].legend(fontsize=7)
+    handles = [Line2D([], [], color=c, label=LABELS[m]) for m, c in MODE_COLOURS.items()
+               if m in set(history["mode"])]  # fmt: skip
+    handles += [Line2D([], [], color="k", ls=SEED_STYLES[i % len(SEED_STYLES)],
+                       label=f"training seed {s}") for i, s in enumerate(seeds)]  # fmt: skip
+    handles += [
+        Line2D([], [], color="k", ls="--", lw=1, label="expert (held-out mean)"),
+        Line2D([], [], color="0.6", ls="--", lw=1, label="starts (held-out mean)"),
+    ]
+    fig.legend(handles=handles, loc="lower center", ncol=4, fontsize=7, frameon=False)
     fig.suptitle("CarRacing improvement learning curves", fontsize=9)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.07, 1, 1))
     return save_figure(fig, path)
 
 
@@ -83,38 +103,63 @@ def _fmt(row: pd.Series, m: str, digits: int = 1) -> str:
     return f"{row[m]:.{digits}f} [{row[m + '_lo']:.{digits}f}, {row[m + '_hi']:.{digits}f}]"
 
 
-def markdown(summary: pd.DataFrame, paired: pd.DataFrame, meta: dict[str, Any]) -> str:
-    """The result table with its provenance."""
+def _machines(metas: list[dict[str, Any]]) -> str:
+    """``"<machine> (<cpus> CPUs, python <v>): <n>"`` per distinct machine in ``metas``."""
+    count = collections.Counter(
+        f"{m['machine']} ({m.get('cpus', '?')} CPUs, python {m['python']})" for m in metas
+    )
+    return "; ".join(f"{machine}: {n}" for machine, n in count.items())
+
+
+def markdown(
+    summary: pd.DataFrame, paired: pd.DataFrame, per_seed: pd.DataFrame, meta: dict[str, Any]
+) -> str:
+    """The result table, the per-seed table and the provenance."""
     lines = [
         "# Beyond the expert: constrained improvement on CarRacing",
         "",
         f"{meta['episodes']} fresh held-out tracks (evaluation seed {meta['eval_seed']}, env "
         f"seeds {meta['env_seeds'][0]}...{meta['env_seeds'][-1]}), the same for every policy; "
-        f"training seeds {meta['train_seeds']}. Mean [95% bootstrap CI; with one training seed "
-        "over tracks only]. Limits d_s (the expert's worst costs in "
-        f"{meta['demos']}, px): {meta['limits_text']}.",
+        f"training seeds {meta['train_seeds']}. Mean [95% two-level bootstrap CI: training "
+        "seeds, then tracks within each; for the expert, trained once, tracks only]. *Paired*: "
+        "the difference to the same seed's start on the same tracks. Limits d_s (the expert's "
+        f"worst costs in {meta['demos']}, px): {meta['limits_text']}.",
         "",
         "| method | reward | reward - start, paired | safety mean (px) | violation steps "
-        "/ episode | episodes with a violation | off-road steps / episode | n | "
-        "compute / run |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "/ episode | violation steps - start, paired | episodes with a violation | off-road "
+        "steps / episode | n | compute / run |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     pairs = paired.set_index("method") if len(paired) else pd.DataFrame()
     for _, r in summary.iterrows():
         m = r["method"]
-        d = ""
+        d_reward = d_viol = ""
         if m in pairs.index:
-            d = _fmt(pairs.loc[m].rename(lambda c: c.removeprefix("d_")), "reward")
+            diff = pairs.loc[m].rename(lambda c: c.removeprefix("d_"))
+            d_reward, d_viol = _fmt(diff, "reward"), _fmt(diff, "violation_steps")
         minutes = f"{r['minutes']:.0f} min" if np.isfinite(r["minutes"]) else ""
         lines.append(
-            f"| {LABELS[m]} | {_fmt(r, 'reward', 0)} | {d} | {_fmt(r, 'safety_mean', 2)} | "
-            f"{_fmt(r, 'violation_steps')} | {int(r['episodes_beyond'])} / "
-            f"{int(r['n_episodes'])} | {_fmt(r, 'offroad_steps')} | {r['n']} | {minutes} |"
+            f"| {LABELS[m]} | {_fmt(r, 'reward', 0)} | {d_reward} | "
+            f"{_fmt(r, 'safety_mean', 2)} | {_fmt(r, 'violation_steps')} | {d_viol} | "
+            f"{int(r['episodes_beyond'])} / {int(r['n_episodes'])} | "
+            f"{_fmt(r, 'offroad_steps')} | {r['n']} | {minutes} |"
         )
+    seeds = list(per_seed.columns)
+    lines += [
+        "",
+        "Per training seed: mean reward on the tracks (episodes with a violation of "
+        f"{meta['episodes']}).",
+        "",
+        "| method | " + " | ".join(f"seed {k}" for k in seeds) + " |",
+        "|---|" + "---|" * len(seeds),
+    ]
+    for m, row in per_seed.iterrows():
+        lines.append(f"| {LABELS[m]} | " + " | ".join(row) + " |")
     lines += [
         "",
         "*compute / run*: wall time of one improvement run (training rollouts, PPO updates and "
-        f"validation), 1 torch thread, mean over training seeds, on {meta['run_machines']}.",
+        "validation), 1 torch thread, mean over training seeds. Runs made on: "
+        f"{meta['run_machines']}. Evaluations made on: {meta['eval_machines']}.",
         "",
         "![learning curves](learning_curves.png)",
         "",
@@ -210,19 +255,23 @@ def main(argv: list[str] | None = None) -> int:
     history = pd.concat(histories, ignore_index=True)
     minutes = history.groupby(["mode", "train_seed"])["seconds"].sum().groupby("mode").mean() / 60
     summary["minutes"] = summary["method"].map(minutes).astype(float)
-    machines = collections.Counter()
-    for mode in args.modes:
-        for k in args.seeds:
-            _, run_meta = read_table(args.out / "runs" / mode / f"seed{k}" / "history.parquet")
-            machines[f"{run_meta['machine']} ({run_meta.get('cpus', '?')} CPUs, python "
-                     f"{run_meta['python']})"] += 1  # fmt: skip
-    run_machines = "; ".join(f"{m}: {n} run(s)" for m, n in machines.items())
+    run_machines = _machines([read_table(args.out / "runs" / mode / f"seed{k}" / HISTORY)[1]
+                              for mode in args.modes for k in args.seeds])  # fmt: skip
+    eval_machines = _machines([read_table(cache_path(args.out / "evaluations", key))[1]
+                               for key in sources])  # fmt: skip
+    beyond = episodes.assign(beyond=episodes["violation_steps"] > 0)
+    cells = beyond[beyond["method"] != "expert"].groupby(["method", "train_seed"])
+    per_seed = (cells["reward"].mean().round(0).astype(int).astype(str) + " ("
+                + cells["beyond"].sum().astype(str) + ")").unstack()  # fmt: skip
+    per_seed = per_seed.loc[[m for m in order if m in per_seed.index]]
 
     # each improved agent against its own start, same (training seed, track) cells
     agents = episodes[episodes["method"] != "expert"]
     paired = paired_differences(agents, "imitation", ["reward", "violation_steps"],
                                 by="method", seed=0)  # fmt: skip
-    plot_curves(history, args.out / "learning_curves.png")
+    means = episodes.groupby("method")["reward"].mean()
+    plot_curves(history, {"expert": means["expert"], "imitation": means["imitation"]},
+                args.out / "learning_curves.png")  # fmt: skip
 
     dims = ", ".join(f"{d} {x:.2f}" for d, x in zip(demos.safety_dims, limits, strict=True))
     meta = run_metadata(
@@ -237,10 +286,11 @@ def main(argv: list[str] | None = None) -> int:
         config=base.to_dict(),
         start_args=START_ARGS,
         run_machines=run_machines,
+        eval_machines=eval_machines,
         processes=args.processes,
     )
     meta["command"] = command
-    text = markdown(summary, paired, meta)
+    text = markdown(summary, paired, per_seed, meta)
     tables = {"episodes": episodes, "summary": summary, "paired": paired, "history": history}
     write_outputs(args.out, tables, meta, text)
     print(text)
