@@ -188,6 +188,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--episodes-per-iter", type=int, default=4)
     p.add_argument("--val-episodes", type=int, default=4)
     p.add_argument("--cost-margin", type=float, default=1.0, help="px inside d_s")
+    p.add_argument("--lambda-lr", type=float, default=ImproveConfig.lambda_lr,
+                   help="multiplier step per iteration and unit of episode cost")  # fmt: skip
     p.add_argument("--episodes", type=int, default=50, help="held-out tracks")
     p.add_argument("--eval-seed", type=int, default=7, help="held-out seed block")
     p.add_argument("--workers", type=int, default=2, help="evaluation actors (0: in-process)")
@@ -213,6 +215,7 @@ def main(argv: list[str] | None = None) -> int:
         eval_every=5,
         eval_episodes=args.val_episodes,
         cost_margin=args.cost_margin,
+        lambda_lr=args.lambda_lr,
         checkpoint_every=1,
     )
     demos = load_demonstrations(args.demos)

@@ -47,7 +47,7 @@ def split_envs(n: int, workers: int) -> list[range]:
     """Env indices ``0..n-1`` as ``min(n, workers)`` contiguous slices of near-equal size.
 
     >>> split_envs(5, 2)
-    [range(0, 3), range(3, 5)]
+    [range(0, 2), range(2, 5)]
     """
     if n < 1 or workers < 1:
         raise ValueError(f"need n >= 1 envs and workers >= 1, got n={n}, workers={workers}")
