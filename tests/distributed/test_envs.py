@@ -84,3 +84,15 @@ def test_improvement_on_ray_envs_is_bit_identical_and_survives_a_dead_actor(
         pd.testing.assert_frame_equal(_history(run.out), _history(local.out), check_exact=True)
         a, b = _weights(run.out), _weights(local.out)
         assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
+
+
+def test_cli_rollout_workers_gives_the_in_process_run(rehab_start: Path, tmp_path: Path, capsys):
+    from safe_bc.cli import main
+
+    base = ["improve", "--start", str(rehab_start), "--iterations", "2",
+            "--episodes-per-iter", "4", "--quiet"]  # fmt: skip
+    assert main([*base, "--out", str(tmp_path / "local")]) == 0
+    assert main([*base, "--out", str(tmp_path / "ray"), "--rollout-workers", "2"]) == 0
+    a, b = _weights(tmp_path / "local"), _weights(tmp_path / "ray")
+    assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
+    assert "2 iterations" in capsys.readouterr().out
