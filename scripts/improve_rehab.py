@@ -150,15 +150,19 @@ def split_policy(episodes: pd.DataFrame) -> pd.DataFrame:
 
 
 def write_outputs(
-    out: Path, tables: dict[str, pd.DataFrame], meta: dict[str, Any], text: str
+    out: Path,
+    tables: dict[str, pd.DataFrame],
+    meta: dict[str, Any],
+    text: str,
+    markdown_name: str = "improve.md",
 ) -> None:
-    """``OUT/<name>.parquet`` for every table (with ``meta``) and ``OUT/improve.md``."""
+    """``OUT/<name>.parquet`` for every table (with ``meta``) and ``OUT/<markdown_name>``."""
     from safe_bc.data.store import write_table_atomic, write_text_atomic
 
     out.mkdir(parents=True, exist_ok=True)
     for name, table in tables.items():
         write_table_atomic(out / f"{name}.parquet", table, meta)
-    write_text_atomic(out / "improve.md", text)
+    write_text_atomic(out / markdown_name, text)
 
 
 def session_outcomes(
