@@ -484,32 +484,36 @@ class Rollout:
 class _Start:
     """What the start checkpoint fixes: its net and configs, the demonstrations, the limits."""
 
-    path: Path
     model: BCNet
     config: BCConfig
     env_id: str
     demos_path: Path
     limits: np.ndarray
     selection: SelectionConfig
-    weights_sha256: str
+
+
+def _start_meta(start: Path, demos: Path | None) -> tuple[dict[str, Any], Path]:
+    """The start checkpoint's metadata and the demonstrations the run uses (``demos``, else
+    the start's own); reads ``config.json`` only."""
+    meta = read_checkpoint_meta(start)
+    extra = meta.get("extra", {})
+    if "env_id" not in extra:
+        raise ValueError(f"{start}: no env_id in the checkpoint; train it with safe-bc train")
+    return meta, Path(demos if demos is not None else extra["demos"])
 
 
 def _load_start(start: Path, demos: Path | None) -> tuple[_Start, Any]:
     from safe_bc.data.store import load_demonstrations, read_table
 
+    meta, demos_path = _start_meta(start, demos)
+    extra = meta["extra"]
     model, cfg = load_checkpoint(start)
-    meta = read_checkpoint_meta(start)
-    extra = meta.get("extra", {})
-    if "env_id" not in extra:
-        raise ValueError(f"{start}: no env_id in the checkpoint; train it with safe-bc train")
     if cfg.preprocess.frame_stack != 1:
         raise ValueError("improvement supports frame_stack = 1 starts only")
-    demos_path = Path(demos if demos is not None else extra["demos"])
     data = load_demonstrations(demos_path)
     _, sel_meta = read_table(start / "selection.parquet")
     selection = SelectionConfig(**sel_meta["config"])
-    s = _Start(start, model, cfg, extra["env_id"], demos_path, data.limits, selection,
-               meta["weights_sha256"])  # fmt: skip
+    s = _Start(model, cfg, extra["env_id"], demos_path, data.limits, selection)
     return s, data
 
 
@@ -854,12 +858,16 @@ class ImproveResult:
     """Iteration whose policy ``out/policy`` holds (see ``ImproveConfig.keep``)."""
 
 
-def _identity(start: _Start, config: ImproveConfig) -> dict[str, Any]:
+def _identity(start: Path, demos: Path | None, config: ImproveConfig) -> dict[str, Any]:
+    """What makes two runs the same run: config, start (path and weights), demonstrations.
+    From the start's ``config.json`` alone, so a finished run is recognised without loading
+    nets or demonstrations."""
+    meta, demos_path = _start_meta(start, demos)
     return {
         "config": config.to_dict(),
-        "start": str(start.path),
-        "start_weights_sha256": start.weights_sha256,
-        "demos": str(start.demos_path),
+        "start": str(start),
+        "start_weights_sha256": meta["weights_sha256"],
+        "demos": str(demos_path),
     }
 
 
@@ -899,13 +907,14 @@ def improve(
     config = config or ImproveConfig()
     start, out = Path(start), Path(out)
     t0 = time.perf_counter()
-    s, data = _load_start(start, Path(demos) if demos is not None else None)
-    identity = _identity(s, config)
+    demos = Path(demos) if demos is not None else None
+    identity = _identity(start, demos, config)
     finished = _finished(out, identity, config.iterations)
     if finished is not None:
         history, kept = finished
         seconds = time.perf_counter() - t0
         return ImproveResult(out, history, config.iterations, config.iterations, seconds, kept)
+    s, data = _load_start(start, demos)
     out.mkdir(parents=True, exist_ok=True)
     state_path = out / STATE
     with torch_settings(config.num_threads):
