@@ -29,6 +29,7 @@ from typing import Any
 import pandas as pd
 
 from scripts.eval_cache import evaluate_cached
+from scripts.improve_carracing import fmt_ci, summary_table
 from scripts.improve_rehab import split_policy, write_outputs
 
 LABELS = {
@@ -40,10 +41,6 @@ LABELS = {
     "ppo": "PPO, no fallback",
     "ppo+expert": "PPO agent, expert in critical states",
 }
-
-
-def _fmt(row: pd.Series, m: str, digits: int = 1) -> str:
-    return f"{row[m]:.{digits}f} [{row[m + '_lo']:.{digits}f}, {row[m + '_hi']:.{digits}f}]"
 
 
 def markdown(summary: pd.DataFrame, paired: pd.DataFrame, meta: dict[str, Any]) -> str:
@@ -68,9 +65,9 @@ def markdown(summary: pd.DataFrame, paired: pd.DataFrame, meta: dict[str, Any]) 
         d_r = d_v = ""
         if m in pairs.index:
             diff = pairs.loc[m].rename(lambda c: c.removeprefix("d_"))
-            d_r, d_v = _fmt(diff, "reward"), _fmt(diff, "violation_steps")
+            d_r, d_v = fmt_ci(diff, "reward"), fmt_ci(diff, "violation_steps")
         lines.append(
-            f"| {LABELS[m]} | {_fmt(r, 'reward', 0)} | {d_r} | {_fmt(r, 'violation_steps')} | "
+            f"| {LABELS[m]} | {fmt_ci(r, 'reward', 0)} | {d_r} | {fmt_ci(r, 'violation_steps')} | "
             f"{d_v} | {int(r['episodes_beyond'])} / {int(r['n_episodes'])} | {r['n']} |"
         )
     lines += [
@@ -89,7 +86,7 @@ def main(argv: list[str] | None = None) -> int:
     from safe_bc.data.store import load_demonstrations
     from safe_bc.evaluation import EvalConfig, ExpertSource, NetSource
     from safe_bc.improve import ImprovedSource
-    from safe_bc.metrics import paired_differences, summarize
+    from safe_bc.metrics import paired_differences
     from safe_bc.provenance import run_metadata
     from safe_bc.tasks import task_defaults
 
@@ -128,17 +125,8 @@ def main(argv: list[str] | None = None) -> int:
                           processes=args.processes, progress=not args.quiet)  # fmt: skip
     episodes = split_policy(raw)
     metrics = ["reward", "violation_steps"]
-    summary = summarize(episodes, ["method"], metrics, group="train_seed", seed=0)
-    order = [m for m in LABELS if m in set(summary["method"])]
-    summary = summary.set_index("method").loc[order].reset_index()
-    by = episodes.groupby("method")
-    summary["episodes_beyond"] = summary["method"].map(
-        by["violation_steps"].apply(lambda s: int((s > 0).sum()))
-    )
-    summary["n_episodes"] = summary["method"].map(by.size())
-    summary["n"] = [
-        f"{1 if m == 'expert' else len(args.seeds)}x{args.episodes}" for m in summary["method"]
-    ]
+    order = [m for m in LABELS if m in set(episodes["method"])]
+    summary = summary_table(episodes, metrics, order, len(args.seeds), args.episodes)
     agents = episodes[episodes["method"] != "expert"]
     paired = paired_differences(agents, "imitation", metrics, by="method", seed=0)
     meta = run_metadata(episodes=args.episodes, eval_seed=args.eval_seed,

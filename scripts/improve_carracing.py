@@ -99,8 +99,27 @@ def plot_curves(history: pd.DataFrame, refs: dict[str, float], path: Path) -> Pa
     return save_figure(fig, path)
 
 
-def _fmt(row: pd.Series, m: str, digits: int = 1) -> str:
+def fmt_ci(row: pd.Series, m: str, digits: int = 1) -> str:
+    """``mean [lo, hi]`` of metric ``m`` in a summary or paired row."""
     return f"{row[m]:.{digits}f} [{row[m + '_lo']:.{digits}f}, {row[m + '_hi']:.{digits}f}]"
+
+
+def summary_table(
+    episodes: pd.DataFrame, metrics: list[str], order: list[str], n_seeds: int, n_tracks: int
+) -> pd.DataFrame:
+    """One row per method in ``order``: :func:`safe_bc.metrics.summarize` over training seeds
+    and tracks, plus ``episodes_beyond`` (episodes with a step beyond d_s), ``n_episodes``
+    and ``n`` (``seeds x tracks``; the expert, trained once, ``1 x tracks``)."""
+    from safe_bc.metrics import summarize
+
+    summary = summarize(episodes, ["method"], metrics, group="train_seed", seed=0)
+    summary = summary.set_index("method").loc[order].reset_index()
+    by = episodes.groupby("method")
+    beyond = by["violation_steps"].apply(lambda v: int((v > 0).sum()))
+    summary["episodes_beyond"] = summary["method"].map(beyond)
+    summary["n_episodes"] = summary["method"].map(by.size())
+    summary["n"] = [f"{1 if m == 'expert' else n_seeds}x{n_tracks}" for m in summary["method"]]
+    return summary
 
 
 def _machines(metas: list[dict[str, Any]]) -> str:
@@ -136,13 +155,13 @@ def markdown(
         d_reward = d_viol = ""
         if m in pairs.index:
             diff = pairs.loc[m].rename(lambda c: c.removeprefix("d_"))
-            d_reward, d_viol = _fmt(diff, "reward"), _fmt(diff, "violation_steps")
+            d_reward, d_viol = fmt_ci(diff, "reward"), fmt_ci(diff, "violation_steps")
         minutes = f"{r['minutes']:.0f} min" if np.isfinite(r["minutes"]) else ""
         lines.append(
-            f"| {LABELS[m]} | {_fmt(r, 'reward', 0)} | {d_reward} | "
-            f"{_fmt(r, 'safety_mean', 2)} | {_fmt(r, 'violation_steps')} | {d_viol} | "
+            f"| {LABELS[m]} | {fmt_ci(r, 'reward', 0)} | {d_reward} | "
+            f"{fmt_ci(r, 'safety_mean', 2)} | {fmt_ci(r, 'violation_steps')} | {d_viol} | "
             f"{int(r['episodes_beyond'])} / {int(r['n_episodes'])} | "
-            f"{_fmt(r, 'offroad_steps')} | {r['n']} | {minutes} |"
+            f"{fmt_ci(r, 'offroad_steps')} | {r['n']} | {minutes} |"
         )
     seeds = list(per_seed.columns)
     lines += [
@@ -177,7 +196,7 @@ def markdown(
 def main(argv: list[str] | None = None) -> int:
     from safe_bc.data.store import load_demonstrations, read_table
     from safe_bc.evaluation import EvalConfig, ExpertSource
-    from safe_bc.metrics import paired_differences, summarize
+    from safe_bc.metrics import paired_differences
     from safe_bc.provenance import run_metadata
     from safe_bc.tasks import task_defaults
 
@@ -245,16 +264,8 @@ def main(argv: list[str] | None = None) -> int:
     episodes = split_policy(raw)
 
     metrics = ["reward", "safety_mean", "violation_steps", "any_violation", "offroad_steps"]
-    summary = summarize(episodes, ["method"], metrics, group="train_seed", seed=0)
     order = ["expert", "imitation", *args.modes]
-    summary = summary.set_index("method").loc[order].reset_index()
-    by = episodes.groupby("method")
-    summary["episodes_beyond"] = summary["method"].map(by["violation_steps"].apply(
-        lambda s: int((s > 0).sum())))  # fmt: skip
-    summary["n_episodes"] = summary["method"].map(by.size())
-    summary["n"] = [
-        f"{1 if m == 'expert' else len(args.seeds)}x{args.episodes}" for m in summary["method"]
-    ]
+    summary = summary_table(episodes, metrics, order, len(args.seeds), args.episodes)
     history = pd.concat(histories, ignore_index=True)
     minutes = history.groupby(["mode", "train_seed"])["seconds"].sum().groupby("mode").mean() / 60
     summary["minutes"] = summary["method"].map(minutes).astype(float)
