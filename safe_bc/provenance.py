@@ -18,9 +18,7 @@ _REPO = Path(__file__).resolve().parent.parent
 def git_revision() -> str:
     """The checkout's commit, with ``-dirty`` when there are uncommitted changes to tracked files.
 
-    Outside a git checkout (an installed wheel, a copy of the tree on another machine) it
-    returns ``$SAFE_BC_GIT_REVISION`` when set (the copy's commit, set by whoever made the
-    copy), else ``"unknown"``.
+    Returns ``"unknown"`` outside a git checkout (e.g. an installed wheel).
     """
     try:
         rev = subprocess.run(
@@ -34,7 +32,7 @@ def git_revision() -> str:
             check=True,
         ).stdout.strip()
     except (OSError, subprocess.CalledProcessError):
-        return os.environ.get("SAFE_BC_GIT_REVISION", "unknown")
+        return "unknown"
     return f"{rev}-dirty" if dirty else rev
 
 
