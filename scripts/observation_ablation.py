@@ -1,0 +1,522 @@
+"""What should a CarRacing agent see? The observation ablation behind ``PreprocessConfig``'s
+defaults, with the copycat check beside it.
+
+    python -m scripts.observation_ablation --processes 2        # the committed table
+    python -m scripts.observation_ablation --seeds 0 --episodes 2 --batches 50 \
+        --cells bar_grey_k1 nobar_grey_k1 --out /tmp/obs_smoke   # a quick look
+
+Every cell (indicator bar kept or cropped x frame stack 1, 2, 4 x grey or colour) trains
+plain behaviour cloning (alpha 0, the default network and budget) on the default
+demonstrations with ``--seeds`` training seeds, and evaluates each agent on the same
+``--episodes`` *selection* tracks (held-out seed block ``--eval-seed`` = 10, which no final
+table uses: Table 1 uses 0, the study 1 and 2, the expert 3, the improvement 7). The expert
+drives the same tracks as a reference.
+
+**Copycat check.** The bar shows the current steering angle (rows 84-95, columns 36-61 of the
+frame: :data:`STEERING_INDICATOR`), a cue behaviour cloning is known to lean on (copy your
+own previous action). Every agent that sees the bar is evaluated a second time on the same
+tracks with that region painted black (the bar's background: the indicator at zero
+steering), and every episode records how much the steering follows itself
+(``steer_autocorr``, the lag-1 autocorrelation of the steering actions over the scored steps,
+and ``steer_change``, the mean absolute step-to-step change), for the agents and the expert.
+An agent that copies its previous steering loses more when the indicator is masked, and
+steers more sluggishly than the expert.
+
+Each (cell, seed) is one job (train, then evaluate); finished jobs are cached in
+``OUT/runs/`` keyed by their settings, so the command resumes. Intervals are crossed
+bootstraps over training seeds x tracks (:func:`safe_bc.metrics.summarize_crossed`,
+:func:`safe_bc.metrics.paired_crossed`; bootstrap seed 0).
+
+Writes ``OUT/episodes.parquet``, ``OUT/summary.parquet``, ``OUT/paired.parquet``,
+``OUT/copycat.parquet``, ``OUT/observation.md`` and ``OUT/observation.png``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import itertools
+import multiprocessing
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from safe_bc.bc.config import BCConfig, PreprocessConfig, TrainConfig
+from safe_bc.data.store import read_table, write_table_atomic, write_text_atomic
+from safe_bc.provenance import run_metadata
+
+STEERING_INDICATOR = (slice(84, 96), slice(36, 62))
+"""Rows and columns of a 96x96 CarRacing frame that hold the steering-angle indicator (the
+green bar, centred on column 48, measured by steering hard left and right: it spans columns
+38-58 at the wheels' lock); the speed, ABS and gyro indicators lie outside it."""
+
+SELECTION_EVAL_SEED = 10
+"""Held-out track block of this ablation (no final table uses it)."""
+
+REPORT_METRICS = (
+    "reward",
+    "any_violation",
+    "violation_steps",
+    "offroad_steps",
+    "safety_mean",
+    "steer_autocorr",
+    "steer_change",
+)
+
+
+def cell_name(pre: PreprocessConfig) -> str:
+    """``bar_grey_k1``-style name of an observation setting.
+
+    >>> cell_name(PreprocessConfig(crop_bar=False, grayscale=False, frame_stack=4))
+    'bar_rgb_k4'
+    """
+    bar = "nobar" if pre.crop_bar else "bar"
+    colour = "grey" if pre.grayscale else "rgb"
+    return f"{bar}_{colour}_k{pre.frame_stack}"
+
+
+def all_cells() -> list[PreprocessConfig]:
+    """The full factorial: bar cropped/kept x grey/colour x frame stack 1, 2, 4."""
+    return [
+        PreprocessConfig(crop_bar=crop, grayscale=grey, frame_stack=k)
+        for crop, grey, k in itertools.product((True, False), (True, False), (1, 2, 4))
+    ]
+
+
+def steering_follow(steer: np.ndarray) -> tuple[float, float]:
+    """Lag-1 autocorrelation of a steering sequence and its mean absolute change.
+
+    >>> a, c = steering_follow(np.array([0.0, 0.5, 1.0, 0.5, 0.0]))
+    >>> round(a, 3), c
+    (0.0, 0.5)
+    """
+    steer = np.asarray(steer, np.float64)
+    if len(steer) < 3:
+        return float("nan"), float("nan")
+    x, y = steer[:-1], steer[1:]
+    change = float(np.abs(y - x).mean())
+    if x.std() == 0 or y.std() == 0:
+        return float("nan"), change
+    return float(np.corrcoef(x, y)[0, 1]), change
+
+
+class MaskedSteering:
+    """A policy that sees every frame with the steering indicator painted black."""
+
+    def __init__(self, inner: Any) -> None:
+        self.inner = inner
+
+    def reset(self, env: Any = None, rng: Any = None) -> None:
+        self.inner.reset(env, rng)
+
+    def act(self, obs: np.ndarray, env: Any = None) -> np.ndarray:
+        obs = np.array(obs, copy=True)
+        obs[STEERING_INDICATOR] = 0
+        return self.inner.act(obs, env)
+
+
+@dataclass(frozen=True)
+class Job:
+    """One (cell, training seed), or the expert (``pre is None``)."""
+
+    pre: PreprocessConfig | None
+    seed: int
+    demos: str
+    episodes: int
+    eval_seed: int
+    batches: int
+    eps: float
+
+    @property
+    def name(self) -> str:
+        return "expert" if self.pre is None else f"{cell_name(self.pre)}/seed{self.seed}"
+
+    def key(self) -> dict[str, Any]:
+        """What the cached result must match to be reused."""
+        out = dataclasses.asdict(self)
+        out["pre"] = None if self.pre is None else dataclasses.asdict(self.pre)
+        return out
+
+
+def _episode_rows(
+    policy: Any, env: Any, seeds: Sequence[int], limits: np.ndarray, eps: float
+) -> list[dict[str, Any]]:
+    from safe_bc.metrics import episode_metrics
+    from safe_bc.rollout import run_episode
+
+    rows = []
+    for env_seed in seeds:
+        ep = run_episode(
+            env, policy, env_seed, np.random.default_rng(env_seed), keep_observations=False
+        )
+        base = env.unwrapped
+        visited = base.tile_visited_count / len(base.track)
+        m = episode_metrics(ep, tiles_visited=visited, thresholds=limits, eps=eps)
+        autocorr, change = steering_follow(ep.actions[~ep.warmup, 0])
+        rows.append({"env_seed": env_seed, **m, "steer_autocorr": autocorr, "steer_change": change})
+    return rows
+
+
+_DEMOS: dict[str, Any] = {}
+
+
+def run_job(job: Job) -> pd.DataFrame:
+    """Train the job's agent (or take the expert) and evaluate it on the selection tracks."""
+    import torch
+
+    from safe_bc.bc.policy import BCPolicy
+    from safe_bc.collection import build_expert, stored_expert_config
+    from safe_bc.data.store import load_demonstrations
+    from safe_bc.envs import make_env
+    from safe_bc.evaluation import EvalConfig
+    from safe_bc.experiment import RunConfig, train_run
+    from safe_bc.selection import SelectionConfig
+    from safe_bc.tasks import dataset_action_bounds, task_defaults
+
+    torch.set_num_threads(1)
+    if job.demos not in _DEMOS:
+        _DEMOS[job.demos] = load_demonstrations(Path(job.demos))
+    demos = _DEMOS[job.demos]
+    limits = demos.limits
+    task = task_defaults("carracing")
+    seeds = EvalConfig(episodes=job.episodes, seed=job.eval_seed, env=task.env).seeds()
+    env = make_env(task.env)
+    labels: dict[str, Any] = {"train_seed": job.seed}
+    started = time.perf_counter()
+    try:
+        if job.pre is None:
+            policies = {"full": build_expert(stored_expert_config(Path(job.demos)))}
+            labels.update(
+                cell="expert",
+                crop_bar=np.nan,
+                grayscale=np.nan,
+                frame_stack=np.nan,
+                final_loss=np.nan,
+            )
+        else:
+            cfg = RunConfig(
+                SelectionConfig(eps=job.eps, alpha=0.0),
+                BCConfig(preprocess=job.pre, train=TrainConfig(batches=job.batches, seed=job.seed)),
+            )
+            bounds = dataset_action_bounds(Path(job.demos))
+            result, _ = train_run(demos, cfg, action_bounds=bounds)
+            policy = BCPolicy(result.model, job.pre)
+            policies = {"full": policy}
+            if not job.pre.crop_bar:
+                policies["steer_masked"] = MaskedSteering(policy)
+            labels.update(
+                cell=cell_name(job.pre),
+                crop_bar=job.pre.crop_bar,
+                grayscale=job.pre.grayscale,
+                frame_stack=job.pre.frame_stack,
+                final_loss=result.final_loss,
+            )
+        frames = []
+        for view, policy in policies.items():
+            rows = _episode_rows(policy, env, seeds, limits, job.eps)
+            frames.append(pd.DataFrame(rows).assign(view=view, **labels))
+    finally:
+        env.close()
+    out = pd.concat(frames, ignore_index=True)
+    out["job_seconds"] = time.perf_counter() - started
+    return out
+
+
+def _cache_file(out: Path, job: Job) -> Path:
+    return out / "runs" / f"{job.name}.parquet"
+
+
+def _cached(out: Path, job: Job) -> pd.DataFrame | None:
+    path = _cache_file(out, job)
+    if not path.exists():
+        return None
+    frame, meta = read_table(path)
+    return frame if meta.get("job") == job.key() else None
+
+
+def _run_and_store(args: tuple[Path, Job]) -> tuple[str, float]:
+    out, job = args
+    frame = run_job(job)
+    write_table_atomic(_cache_file(out, job), frame, {"job": job.key()})
+    return job.name, float(frame["job_seconds"].iloc[0])
+
+
+def run_jobs(jobs: list[Job], out: Path, processes: int) -> pd.DataFrame:
+    """Run the jobs not cached yet (side by side in ``processes`` spawned processes when > 1),
+    then return every job's episodes."""
+    missing = [j for j in jobs if _cached(out, j) is None]
+    print(
+        f"{len(jobs) - len(missing)} of {len(jobs)} jobs cached; running {len(missing)}", flush=True
+    )
+    started = time.perf_counter()
+    work = [(out, j) for j in missing]
+    if processes > 1 and len(missing) > 1:
+        ctx = multiprocessing.get_context("spawn")  # a forked torch process can hang
+        with ctx.Pool(min(processes, len(missing)), maxtasksperchild=4) as pool:
+            for k, (name, secs) in enumerate(pool.imap_unordered(_run_and_store, work), 1):
+                print(
+                    f"[{k}/{len(missing)}] {name}: {secs:.0f} s "
+                    f"({time.perf_counter() - started:.0f} s elapsed)",
+                    flush=True,
+                )
+    else:
+        for k, item in enumerate(work, 1):
+            name, secs = _run_and_store(item)
+            print(f"[{k}/{len(missing)}] {name}: {secs:.0f} s", flush=True)
+    frames = []
+    for j in jobs:
+        frame = _cached(out, j)
+        if frame is None:
+            raise RuntimeError(f"job {j.name} has no cached result after running")
+        frames.append(frame)
+    return pd.concat(frames, ignore_index=True)
+
+
+def summarise(episodes: pd.DataFrame, baseline: str) -> tuple[pd.DataFrame, ...]:
+    """Per (cell, view): crossed means and CIs; paired differences of every cell to
+    ``baseline`` (full view); the masked-minus-full difference per bar-kept cell."""
+    from safe_bc.metrics import paired_crossed, summarize_crossed
+
+    summary = summarize_crossed(episodes, ["cell", "view"], REPORT_METRICS)
+    full = episodes[episodes["view"] == "full"]
+    agents = full[full["cell"] != "expert"]
+    paired = paired_crossed(
+        agents, baseline, ["reward", "violation_steps", "any_violation"], by="cell"
+    )
+    copy_rows = []
+    for cell, df in episodes[episodes["cell"] != "expert"].groupby("cell", sort=True):
+        if "steer_masked" not in set(df["view"]):
+            continue
+        d = paired_crossed(df, "full", ["reward", "violation_steps", "steer_change"], by="view")
+        copy_rows.append(d.assign(cell=cell))
+    copycat = pd.concat(copy_rows, ignore_index=True) if copy_rows else pd.DataFrame()
+    return summary, paired, copycat
+
+
+def choose(summary: pd.DataFrame) -> str:
+    """The default the measurement supports: among the agents' cells, the fewest episodes
+    beyond d_s, then the highest reward (the study maximises reward subject to safety)."""
+    agents = summary[(summary["view"] == "full") & (summary["cell"] != "expert")]
+    best = agents.sort_values(["any_violation", "reward"], ascending=[True, False])
+    return str(best["cell"].iloc[0])
+
+
+def _ci(row: pd.Series, m: str, digits: int = 1, prefix: str = "") -> str:
+    mean, lo, hi = row[f"{prefix}{m}"], row[f"{prefix}{m}_lo"], row[f"{prefix}{m}_hi"]
+    return f"{mean:.{digits}f} [{lo:.{digits}f}, {hi:.{digits}f}]"
+
+
+def markdown(
+    summary: pd.DataFrame,
+    paired: pd.DataFrame,
+    copycat: pd.DataFrame,
+    episodes: pd.DataFrame,
+    meta: dict[str, Any],
+    baseline: str,
+    chosen: str,
+) -> str:
+    full = summary[summary["view"] == "full"].sort_values("reward", ascending=False)
+    counts = (
+        episodes[episodes["view"] == "full"]
+        .groupby("cell")["any_violation"]
+        .agg(lambda s: f"{int(s.sum())}/{len(s)}")
+    )
+    loss = episodes[episodes["view"] == "full"].groupby("cell")["final_loss"].mean()
+    table = pd.DataFrame(
+        {
+            "observation": full["cell"],
+            "seeds x tracks": [f"{r.n_train_seeds} x {r.n_tracks}" for r in full.itertuples()],
+            "reward": [_ci(r, "reward") for _, r in full.iterrows()],
+            "episodes beyond d_s": [counts[c] for c in full["cell"]],
+            "steps beyond d_s / episode": [_ci(r, "violation_steps") for _, r in full.iterrows()],
+            "off-road steps / episode": [_ci(r, "offroad_steps") for _, r in full.iterrows()],
+            "safety mean (px)": [_ci(r, "safety_mean", 2) for _, r in full.iterrows()],
+            "final loss": [
+                f"{loss[c]:.4f}" if c in loss and np.isfinite(loss[c]) else "" for c in full["cell"]
+            ],
+        }
+    )
+    d = paired.sort_values("d_reward", ascending=False)
+    diff = pd.DataFrame(
+        {
+            "observation": d["cell"],
+            f"reward - {baseline}": [_ci(r, "reward", prefix="d_") for _, r in d.iterrows()],
+            "steps beyond d_s": [_ci(r, "violation_steps", prefix="d_") for _, r in d.iterrows()],
+            "share of episodes beyond d_s": [
+                _ci(r, "any_violation", 2, prefix="d_") for _, r in d.iterrows()
+            ],
+            "seeds better": [f"{r.seeds_better}/{r.n_seeds_paired}" for r in d.itertuples()],
+        }
+    )
+    follow = summary[summary["view"].isin(["full", "steer_masked"])]
+    follow = follow[follow["cell"].isin(set(copycat.get("cell", [])) | {"expert"})]
+    follow_tab = pd.DataFrame(
+        {
+            "observation": follow["cell"],
+            "view": follow["view"],
+            "steering lag-1 autocorrelation": [
+                _ci(r, "steer_autocorr", 3) for _, r in follow.iterrows()
+            ],
+            "mean |steering change|": [_ci(r, "steer_change", 3) for _, r in follow.iterrows()],
+        }
+    )
+    mask_tab = (
+        pd.DataFrame(
+            {
+                "observation": copycat["cell"],
+                "reward, masked - full": [
+                    _ci(r, "reward", prefix="d_") for _, r in copycat.iterrows()
+                ],
+                "steps beyond d_s, masked - full": [
+                    _ci(r, "violation_steps", prefix="d_") for _, r in copycat.iterrows()
+                ],
+            }
+        )
+        if len(copycat)
+        else pd.DataFrame()
+    )
+    lines = [
+        "# Observation ablation (CarRacing, plain BC)",
+        "",
+        f"Plain behaviour cloning (alpha 0, default network, {meta['batches']} batches of 64) "
+        f"on the default demonstrations, {len(meta['seeds'])} training seeds "
+        f"({', '.join(map(str, meta['seeds']))}) x {meta['episodes']} selection tracks "
+        f"(held-out seed block {meta['eval_seed']}, used by no final table); the expert on "
+        "the same tracks. Means with 95% crossed-bootstrap intervals (seeds x tracks). "
+        f"Default chosen from this table: **{chosen}** (fewest episodes beyond d_s, then "
+        "highest reward).",
+        "",
+        table.to_markdown(index=False),
+        "",
+        f"## Paired differences to `{baseline}` (the previous default), same seeds x tracks",
+        "",
+        diff.to_markdown(index=False),
+        "",
+        "## Copycat check: does the agent copy its steering from the indicator?",
+        "",
+        "Each bar-kept agent again on the same tracks with the steering indicator painted "
+        "black (`view = steer_masked`); differences masked - full on the same seeds x tracks:",
+        "",
+        mask_tab.to_markdown(index=False) if len(mask_tab) else "(no bar-kept cell)",
+        "",
+        "How much steering follows itself (scored steps of every episode):",
+        "",
+        follow_tab.to_markdown(index=False),
+        "",
+        f"Code {meta['git_revision']}; command `{meta['command']}`; d_s from the "
+        f"demonstrations, eps {meta['eps']} px; created {meta['created_utc']} on "
+        f"{meta['cpus']} CPUs.",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def plot(
+    summary: pd.DataFrame, episodes: pd.DataFrame, expert: pd.Series | None, path: Path
+) -> Path:
+    import matplotlib.pyplot as plt
+
+    from safe_bc.plots import save_figure
+
+    full = summary[(summary["view"] == "full") & (summary["cell"] != "expert")]
+    full = full.sort_values("reward")
+    masked = summary[summary["view"] == "steer_masked"].set_index("cell")
+    y = np.arange(len(full))
+    fig, axes = plt.subplots(1, 2, figsize=(11, 0.45 * len(full) + 1.5), sharey=True)
+    for ax, m, title in (
+        (axes[0], "reward", "reward"),
+        (axes[1], "any_violation", "share of episodes beyond d_s"),
+    ):
+        err = np.vstack([full[m] - full[f"{m}_lo"], full[f"{m}_hi"] - full[m]])
+        ax.errorbar(full[m], y, xerr=err, fmt="o", color="tab:blue", label="full frame")
+        mk = full["cell"].map(lambda c, m=m: masked[m].get(c, np.nan) if len(masked) else np.nan)
+        ax.plot(mk, y, "x", color="tab:red", label="steering indicator masked")
+        if expert is not None:
+            ax.axvline(expert[m], color="k", ls="--", lw=1, label="expert")
+        ax.set_title(title)
+        ax.grid(alpha=0.3)
+    axes[0].set_yticks(y, full["cell"])
+    axes[0].legend(loc="lower right", fontsize=8)
+    fig.suptitle("Observation ablation: plain BC, seeds x selection tracks, 95% crossed CIs")
+    return save_figure(fig, path)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
+    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="training seeds")
+    p.add_argument("--episodes", type=int, default=20, help="selection tracks per agent")
+    p.add_argument(
+        "--eval-seed",
+        type=int,
+        default=SELECTION_EVAL_SEED,
+        help="held-out seed block (selection tracks)",
+    )
+    p.add_argument("--batches", type=int, default=TrainConfig().batches, help="BC batches")
+    p.add_argument("--cells", nargs="+", default=None, help="cell names (default: all 12)")
+    p.add_argument("--baseline", default="nobar_grey_k1", help="cell the others are paired with")
+    p.add_argument("--demos", type=Path, default=Path("data/demos"))
+    p.add_argument("--processes", type=int, default=1, help="> 1: spawned local processes")
+    p.add_argument("--out", type=Path, default=Path("results/ablation/observation"))
+    args = p.parse_args(argv)
+
+    from safe_bc.tasks import task_defaults
+
+    cells = all_cells()
+    if args.cells:
+        known = {cell_name(c): c for c in cells}
+        unknown = sorted(set(args.cells) - set(known))
+        if unknown:
+            p.error(f"unknown cells {unknown}; known: {sorted(known)}")
+        cells = [known[c] for c in args.cells]
+    if not (args.demos / "dataset.json").exists():
+        p.error(f"no demonstrations at {args.demos} (make demos)")
+    eps = task_defaults("carracing").eps
+    common = dict(
+        demos=str(args.demos),
+        episodes=args.episodes,
+        eval_seed=args.eval_seed,
+        batches=args.batches,
+        eps=eps,
+    )
+    jobs = [Job(None, 0, **common)]
+    # seeds outermost: every cell gets its first seed before any gets its second
+    jobs += [Job(c, s, **common) for s in args.seeds for c in cells]
+    args.out.mkdir(parents=True, exist_ok=True)
+    episodes = run_jobs(jobs, args.out, args.processes)
+    baseline = args.baseline if args.baseline in set(episodes["cell"]) else cell_name(cells[0])
+    summary, paired, copycat = summarise(episodes, baseline)
+    chosen = choose(summary)
+    meta = run_metadata(
+        seeds=args.seeds,
+        episodes=args.episodes,
+        eval_seed=args.eval_seed,
+        batches=args.batches,
+        eps=eps,
+        demos=str(args.demos),
+        cells=[cell_name(c) for c in cells],
+        baseline=baseline,
+        chosen=chosen,
+        bootstrap_seed=0,
+    )
+    for name, frame in (
+        ("episodes", episodes),
+        ("summary", summary),
+        ("paired", paired),
+        ("copycat", copycat),
+    ):
+        write_table_atomic(args.out / f"{name}.parquet", frame, meta)
+    text = markdown(summary, paired, copycat, episodes, meta, baseline, chosen)
+    write_text_atomic(args.out / "observation.md", text)
+    exp = summary[summary["cell"] == "expert"]
+    plot(summary, episodes, exp.iloc[0] if len(exp) else None, args.out / "observation.png")
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
