@@ -12,6 +12,7 @@ from typing import Any
 from safe_bc.bc.checkpoint import CheckpointError
 from safe_bc.data.store import DatasetError
 from safe_bc.distributed.runtime import RayUnavailableError, check_ray_address
+from safe_bc.locks import OutputLockedError, output_lock, output_locks
 
 DEFAULT_DEMOS = Path("data/demos")
 
@@ -233,6 +234,11 @@ def _cmd_describe(args: argparse.Namespace) -> int:
 
 
 def _cmd_train(args: argparse.Namespace) -> int:
+    with output_lock(args.out):
+        return _train(args)
+
+
+def _train(args: argparse.Namespace) -> int:
     import json
 
     from safe_bc.bc import BCConfig, NetworkConfig, PreprocessConfig, TrainConfig
@@ -452,9 +458,15 @@ def _cmd_tune(args: argparse.Namespace) -> int:
         command += [f"--{flag.replace('_', '-')}", str(value)]
     command += ["--fresh"] if args.fresh else []
 
-    from safe_bc.distributed.study import format_outcome, run_study
+    from safe_bc.distributed.study import experiment_location, format_outcome, run_study
 
-    outcome = run_study(spec, fresh=args.fresh, command=shlex.join(command))
+    # one study run per results folder and per (local) Tune experiment folder
+    storage, experiment = experiment_location(spec)
+    outputs = [(spec.results / spec.name, "--results")]
+    if "://" not in storage:
+        outputs.append((Path(experiment), "--storage"))
+    with output_locks(outputs):
+        outcome = run_study(spec, fresh=args.fresh, command=shlex.join(command))
     print(format_outcome(outcome, spec.params))
     if not outcome.complete:
         return 130
@@ -483,7 +495,7 @@ def _cmd_improve(args: argparse.Namespace) -> int:
         from safe_bc.distributed.envs import ray_envs
 
         envs = ray_envs(args.rollout_workers)
-    with bar:
+    with output_lock(args.out), bar:
         result = improve(args.start, args.out, config, demos=args.demos, on_iteration=show,
                          envs=envs)  # fmt: skip
     last = result.history.dropna(subset=["val_reward"]).iloc[-1]
@@ -786,7 +798,14 @@ def main(argv: Sequence[str] | None = None) -> int:
 
             ensure_ray()
         return args.func(args)
-    except (DatasetError, ValueError, FileNotFoundError, CheckpointError, RayUnavailableError) as e:
+    except (
+        DatasetError,
+        ValueError,
+        FileNotFoundError,
+        CheckpointError,
+        RayUnavailableError,
+        OutputLockedError,
+    ) as e:
         print(f"safe-bc {args.command}: error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -29,6 +29,7 @@ from safe_bc.data.store import (
 from safe_bc.distributed.pool import run_on_actors
 from safe_bc.distributed.runtime import cpus_per_actor, ensure_ray
 from safe_bc.episode import Episode
+from safe_bc.locks import output_lock
 from safe_bc.provenance import provenance
 
 
@@ -87,13 +88,24 @@ def collect(
 ) -> CollectReport:
     """Collect ``config.episodes`` expert episodes into the dataset at ``out``.
 
+    The dataset folder is locked for the whole call (:func:`safe_bc.locks.output_lock`): a
+    second collection into the same folder is refused before it writes anything.
+
     Raises:
         DatasetError: ``out`` holds a dataset made with other settings or a bad file.
+        OutputLockedError: another process is writing ``out``.
         RuntimeError: an episode's worker died more than ``max_retries`` times.
     """
     out = Path(out)
     if not out.parent.exists():
         raise FileNotFoundError(f"parent directory of --out does not exist: {out.parent}")
+    with output_lock(out):
+        return _collect(config, out, progress=progress, max_retries=max_retries)
+
+
+def _collect(
+    config: CollectConfig, out: Path, *, progress: bool, max_retries: int
+) -> CollectReport:
     meta = init_dataset(out, dataset_meta(config))
     done = set(completed_episodes(out, meta))
     todo = [i for i in range(config.episodes) if i not in done]
