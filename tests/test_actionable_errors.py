@@ -107,3 +107,122 @@ def test_cli_stray_parquet_exits_2(tmp_path: Path, capsys: pytest.CaptureFixture
     code = main(["describe", "--demos", str(tmp_path / "demos"), "--out", str(tmp_path / "o")])
     err = capsys.readouterr().err
     assert code == 2 and "extra.parquet" in err and "not an episode file" in err
+
+
+# ------------------------------------------- a dataset is what its metadata says
+def _rewrite(path: Path, change) -> None:
+    """Rewrite an episode file through ``change(table) -> table``, keeping its metadata."""
+    import pyarrow.parquet as pq
+
+    table = pq.read_table(path)
+    pq.write_table(change(table).replace_schema_metadata(table.schema.metadata), path)
+
+
+def _dataset(root: Path, episodes: int = 2) -> Path:
+    meta = init_dataset(root, make_meta("raw"))
+    for i in range(episodes):
+        write_episode(root, make_episode(i, n=4), meta)
+    return root
+
+
+def _refused(root: Path, match: str, named: Path) -> None:
+    for call in (lambda: read_episodes(root), lambda: load_demonstrations(root)):
+        with pytest.raises(DatasetError, match=match) as info:
+            call()
+        assert str(named) in str(info.value) and "\n" not in str(info.value)
+
+
+def test_episode_of_another_collection_is_refused(tmp_path: Path) -> None:
+    """The issue's mixed folder: episodes of --seed 2 beside a dataset.json of --seed 1."""
+    root = _dataset(tmp_path)
+    other = make_episode(2, n=4, seed=100)
+    path = write_episode(root, other, make_meta("raw", seed=2))
+    _refused(root, "another collection .*seed 2 vs 0", path)
+    with pytest.raises(DatasetError, match="another collection"):  # a resumed collect too
+        completed_episodes(root, init_dataset(root, make_meta("raw")))
+
+
+def test_files_without_embedded_metadata_are_accepted(tmp_path: Path) -> None:
+    """Episode files written by another tool (no embedded dataset.json) load on their schema."""
+    import pyarrow.parquet as pq
+
+    root = _dataset(tmp_path)
+    path = root / "episodes" / "episode-00001.parquet"
+    table = pq.read_table(path)
+    pq.write_table(table.replace_schema_metadata(None), path)
+    assert len(read_episodes(root)) == 2
+
+
+def test_duplicated_rows_are_refused(tmp_path: Path) -> None:
+    import pyarrow as pa
+
+    root = _dataset(tmp_path)
+    path = root / "episodes" / "episode-00001.parquet"
+    _rewrite(path, lambda t: pa.concat_tables([t, t]))
+    _refused(root, r"4 duplicated \(episode_id, step\) row", path)
+
+
+def test_an_episode_under_a_second_name_is_refused(tmp_path: Path) -> None:
+    import shutil
+
+    import pyarrow as pa
+
+    root = _dataset(tmp_path)
+    copy = root / "episodes" / "episode-00002.parquet"
+    shutil.copy(root / "episodes" / "episode-00000.parquet", copy)
+    _refused(root, "not the episode its name says", copy)
+    # the same episode with its id column rewritten: its env seed gives it away
+    _rewrite(copy, lambda t: t.set_column(0, "episode_id", pa.array([2] * len(t), pa.int64())))
+    _refused(root, "duplicated episode", copy)
+
+
+@pytest.mark.parametrize("column", ["action", "executed_action"])
+def test_non_finite_actions_are_refused(tmp_path: Path, column: str) -> None:
+    import pyarrow as pa
+
+    root = _dataset(tmp_path)
+    path = root / "episodes" / "episode-00001.parquet"
+
+    def poison(t):
+        rows = t.column(column).to_pylist()
+        rows[2][1] = float("nan")
+        i = t.schema.get_field_index(column)
+        return t.set_column(i, column, pa.array(rows, pa.list_(pa.float32())))
+
+    _rewrite(path, poison)
+    _refused(root, f"1 step.* non-finite {column}", path)
+
+
+def test_non_finite_vector_observations_are_refused(tmp_path: Path) -> None:
+    import dataclasses
+
+    import numpy as np
+
+    meta = init_dataset(
+        tmp_path, dataclasses.replace(make_meta("raw"), obs_encoding="vector", obs_shape=(4,))
+    )
+    ep = make_episode(0, n=5)
+    obs = np.zeros((5, 4), np.float32)
+    obs[3, 1] = np.inf
+    path = write_episode(tmp_path, dataclasses.replace(ep, observations=obs), meta)
+    _refused(tmp_path, "non-finite observation", path)
+
+
+def test_cli_train_on_nan_actions_exits_2_before_training(
+    tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    import pyarrow as pa
+
+    root = _dataset(tmp_path / "demos")
+    path = root / "episodes" / "episode-00000.parquet"
+
+    def poison(t):
+        rows = t.column("action").to_pylist()
+        rows[0][0] = float("nan")
+        return t.set_column(4, "action", pa.array(rows, pa.list_(pa.float32())))
+
+    _rewrite(path, poison)
+    code = main(["train", "--demos", str(root), "--out", str(tmp_path / "ckpt"), "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and str(path) in err and "non-finite action" in err
+    assert not (tmp_path / "ckpt").exists()

@@ -15,6 +15,16 @@ was executed, differs under perturbation), ``reward``, ``terminated``,
 
 Every write goes to a temporary file in the same directory and is renamed into
 place, so a crash never leaves a partial episode behind.
+
+A dataset is what its metadata says. Every episode file embeds the ``dataset.json`` of the
+collection that wrote it (seed, expert, perturbation, encoding: the identity
+:meth:`DatasetMeta.identity`), and reading checks it against the folder's ``dataset.json``:
+an episode of another collection (another ``--seed``) is refused naming the file. Reading
+also refuses, naming the file, an episode whose ``episode_id`` column is not the id in its
+name (a copy under a second name), whose ``step`` column is not ``0..n-1`` (duplicated or
+missing rows), two files holding the episode of the same env seed, and non-finite actions or
+(vector) observations. A file without embedded metadata (written by another tool) is
+accepted on its schema alone, as before.
 """
 
 from __future__ import annotations
@@ -233,13 +243,33 @@ def _check_schema(path: Path, schema: pa.Schema, meta: DatasetMeta) -> None:
             raise DatasetError(f"{path}: wrong schema, column {f.name} is {got}, expected {f.type}")
 
 
+def _check_identity(path: Path, schema: pa.Schema, meta: DatasetMeta) -> None:
+    """The dataset metadata embedded in an episode file must be the folder's (same identity:
+    seed, expert, perturbation, encoding, ...). Files without it are accepted."""
+    raw = (schema.metadata or {}).get(META_KEY)
+    if raw is None:
+        return
+    own = DatasetMeta.from_json(raw.decode(errors="replace"), source=str(path)).identity()
+    expected = meta.identity()
+    if own != expected:
+        diff = [k for k in expected if own.get(k) != expected.get(k)]
+        detail = f"seed {own.get('seed')} vs {expected.get('seed')}" if "seed" in diff else ""
+        raise DatasetError(
+            f"{path}: episode of another collection than {META_FILE} says "
+            f"({', '.join(diff)}{': ' + detail if detail else ''}); two collections were mixed "
+            "in this folder: move the file out or collect again into an empty folder"
+        )
+
+
 def check_episode_file(path: Path, meta: DatasetMeta) -> None:
-    """Open ``path``'s footer and check its schema (cheap: no data is read)."""
+    """Open ``path``'s footer and check its schema and embedded dataset identity (cheap: no
+    data is read)."""
     try:
         schema = pq.read_schema(path)
     except (pa.ArrowException, OSError) as e:
         raise DatasetError(f"{path}: not a readable Parquet file ({_first_line(e)})") from None
     _check_schema(path, schema, meta)
+    _check_identity(path, schema, meta)
 
 
 def _episode_id_of(path: Path) -> int | None:
@@ -297,9 +327,11 @@ def read_episode(path: Path, meta: DatasetMeta) -> Episode:
     except (pa.ArrowException, OSError) as e:
         raise DatasetError(f"{path}: not a readable Parquet file ({_first_line(e)})") from None
     _check_schema(path, table.schema, meta)
+    _check_identity(path, table.schema, meta)
     n = table.num_rows
     if n == 0:
         raise DatasetError(f"{path}: episode has no steps")
+    _check_rows(path, table)
 
     def col(name: str) -> np.ndarray:
         return table.column(name).to_numpy()
@@ -317,12 +349,17 @@ def read_episode(path: Path, meta: DatasetMeta) -> Episode:
             )
     except ValueError as e:
         raise DatasetError(f"{path}: bad observation data ({e})") from None
+    actions, executed = matrix("action"), matrix("executed_action")
+    for name, values in (("observation", obs), ("action", actions), ("executed_action", executed)):
+        if values.dtype.kind == "f" and not np.isfinite(values).all():
+            bad = int((~np.isfinite(values.reshape(n, -1))).any(axis=1).sum())
+            raise DatasetError(f"{path}: {bad} step(s) with a non-finite {name} (NaN or inf)")
     return Episode(
         episode_id=int(col("episode_id")[0]),
         seed=int(col("seed")[0]),
         observations=obs,
-        actions=matrix("action"),
-        executed_actions=matrix("executed_action"),
+        actions=actions,
+        executed_actions=executed,
         rewards=col("reward").astype(np.float32),
         terminated=col("terminated").astype(bool),
         truncated=col("truncated").astype(bool),
@@ -332,6 +369,23 @@ def read_episode(path: Path, meta: DatasetMeta) -> Episode:
         offroad=col("offroad").astype(bool),
         safety_dims=meta.safety_dims,
     )
+
+
+def _check_rows(path: Path, table: pa.Table) -> None:
+    """One episode per file, named by its id, with steps ``0..n-1`` once each."""
+    ids = np.unique(table.column("episode_id").to_numpy())
+    named = _episode_id_of(path)
+    if len(ids) != 1 or (named is not None and int(ids[0]) != named):
+        held = ", ".join(str(int(i)) for i in ids[:5])
+        raise DatasetError(
+            f"{path}: holds episode {held}, not the episode its name says (a copy under a "
+            "second name?); move it out"
+        )
+    steps = table.column("step").to_numpy()
+    if not np.array_equal(steps, np.arange(len(steps))):
+        dup = len(steps) - len(np.unique(steps))
+        what = f"{dup} duplicated (episode_id, step) row(s)" if dup else "steps out of order"
+        raise DatasetError(f"{path}: {what}; the step column must be 0..{len(steps) - 1}")
 
 
 def read_episodes(root: Path, ids: Iterable[int] | None = None) -> list[Episode]:
@@ -344,7 +398,16 @@ def read_episodes(root: Path, ids: Iterable[int] | None = None) -> list[Episode]
     missing = sorted(set(wanted) - set(stored))
     if missing:
         raise DatasetError(f"{root}: missing episode(s) {missing}")
-    return [read_episode(episode_path(root, i), meta) for i in wanted]
+    episodes = [read_episode(episode_path(root, i), meta) for i in wanted]
+    first: dict[int, int] = {}
+    for ep in episodes:  # every episode of a collection has its own env seed
+        other = first.setdefault(ep.seed, ep.episode_id)
+        if other != ep.episode_id:
+            raise DatasetError(
+                f"{episode_path(root, ep.episode_id)}: the same episode (env seed {ep.seed}) as "
+                f"{episode_path(root, other).name}: a duplicated episode; move one out"
+            )
+    return episodes
 
 
 def load_demonstrations(root: Path) -> Demonstrations:
