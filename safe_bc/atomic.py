@@ -4,14 +4,22 @@ Every file safe_bc writes for keeps (datasets, tables, checkpoints, reports, fig
 through :func:`atomic_write`: the data goes to a temporary file in the target's directory,
 is flushed and fsynced, then renamed over the target (``os.replace``, atomic on POSIX); on
 any error the temporary file is removed and the old target is left as it was.
+
+A folder of files that belong together (a checkpoint: weights, config, selection) goes
+through :func:`atomic_dir`: its files are written into a temporary sibling folder, which
+then replaces the folder as a whole (one ``renameat2(RENAME_EXCHANGE)`` on Linux), so a
+reader sees the old unit or the new one, never a mix.
 """
 
 from __future__ import annotations
 
+import ctypes
+import errno
 import json
 import os
+import shutil
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Collection, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import IO, Any
@@ -84,3 +92,123 @@ def write_json_atomic(path: str | Path, obj: Any, *, indent: int | None = 2, **d
     '{"x": [1, 2]}\\n'
     """
     write_text_atomic(path, json.dumps(obj, indent=indent, **dumps) + "\n")
+
+
+DIR_MODE = 0o755
+"""Permissions of a folder written by :func:`atomic_dir` (``mkdtemp`` would leave ``0o700``)."""
+_AT_FDCWD = -100
+_RENAME_EXCHANGE = 2
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Swap two paths in one step (Linux ``renameat2(RENAME_EXCHANGE)``); ``False`` where the
+    system or the file system cannot."""
+    try:
+        renameat2 = ctypes.CDLL(None, use_errno=True).renameat2
+    except (AttributeError, OSError):
+        return False
+    rc = renameat2(_AT_FDCWD, os.fsencode(a), _AT_FDCWD, os.fsencode(b), _RENAME_EXCHANGE)
+    if rc == 0:
+        return True
+    err = ctypes.get_errno()
+    if err in (errno.EINVAL, errno.ENOSYS, errno.EOPNOTSUPP, errno.ENOTSUP):
+        return False
+    raise OSError(err, os.strerror(err), str(b))
+
+
+def _fsync_dir(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _carry(old: Path, new: Path, unit: Collection[str]) -> None:
+    """Move the entries of ``old`` that are not part of the unit and that ``new`` lacks (e.g.
+    an evaluation folder kept inside a checkpoint folder) into ``new``."""
+    for entry in sorted(old.iterdir()):
+        if entry.name not in unit and not os.path.lexists(new / entry.name):
+            os.rename(entry, new / entry.name)
+
+
+def _leftovers(path: Path) -> list[Path]:
+    return sorted(
+        p
+        for kind in ("new", "old")
+        for p in path.parent.glob(f".{path.name}.{kind}-*")
+        if p.is_dir() and not p.is_symlink()
+    )
+
+
+def recover_dir(path: str | Path, unit: Collection[str] = ()) -> None:
+    """Finish what an interrupted :func:`atomic_dir` of ``path`` left: a folder moved aside
+    and not replaced is moved back, entries that were being carried over are carried, and the
+    temporary folders are removed. Call it holding ``path``'s lock (:mod:`safe_bc.locks`)."""
+    path = Path(path)
+    for stale in _leftovers(path):
+        if stale.name.startswith(f".{path.name}.old-") and not os.path.lexists(path):
+            os.rename(stale, path)  # the old unit, moved aside before a crash
+            continue
+        if os.path.isdir(path):
+            _carry(stale, path, unit)
+        shutil.rmtree(stale)
+
+
+@contextmanager
+def atomic_dir(path: str | Path, unit: Collection[str] = ()) -> Iterator[Path]:
+    """Yield an empty temporary folder beside ``path``; on a clean exit it replaces ``path``.
+
+    Readers see the old folder or the new one whole: the swap is one
+    ``renameat2(RENAME_EXCHANGE)`` where Linux and the file system support it, else two
+    renames (a crash between them leaves ``path`` missing until the next write to it, which
+    moves the old folder back: :func:`recover_dir`). Entries of the old folder whose names
+    are not in ``unit`` and that the new one lacks (an ``eval/`` folder inside a checkpoint
+    folder) are moved into the new one; on any error the temporary folder is removed and
+    ``path`` is left as it was. Meant for a writer that holds ``path``'s lock.
+
+    >>> import tempfile
+    >>> target = Path(tempfile.mkdtemp()) / "unit"
+    >>> with atomic_dir(target) as tmp:
+    ...     _ = (tmp / "a.txt").write_text("one")
+    >>> (target / "keep.txt").write_text("not part of the unit")
+    20
+    >>> with atomic_dir(target, unit={"a.txt", "b.txt"}) as tmp:
+    ...     _ = (tmp / "b.txt").write_text("two")
+    >>> sorted(p.name for p in target.iterdir()), sorted(p.name for p in target.parent.iterdir())
+    (['b.txt', 'keep.txt'], ['unit'])
+    """
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise FileExistsError(errno.EEXIST, "exists and is not a folder", str(path))
+    if path.resolve() in (Path.cwd(), *Path.cwd().parents):
+        raise ValueError(f"{path} is the working folder or one above it; name an output folder")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    recover_dir(path, unit)
+    staging = Path(tempfile.mkdtemp(prefix=f".{path.name}.new-", dir=path.parent))
+    try:
+        yield staging
+        os.chmod(staging, DIR_MODE)
+        _fsync_dir(staging)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+    if not os.path.lexists(path):
+        os.rename(staging, path)
+        _fsync_dir(path.parent)
+        return
+    if _exchange(staging, path):
+        old = staging  # now holds the old folder
+    else:
+        old = Path(tempfile.mkdtemp(prefix=f".{path.name}.old-", dir=path.parent))
+        try:
+            os.rename(path, old)  # replaces the empty folder mkdtemp made
+        except BaseException:
+            shutil.rmtree(staging, ignore_errors=True)
+            old.rmdir()
+            raise
+        os.rename(staging, path)
+    _fsync_dir(path.parent)
+    # from here an error leaves the old folder beside ``path`` for recover_dir to finish
+    _carry(old, path, unit)
+    shutil.rmtree(old)

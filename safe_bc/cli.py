@@ -242,6 +242,7 @@ def _train(args: argparse.Namespace) -> int:
     import json
 
     from safe_bc.bc import BCConfig, NetworkConfig, PreprocessConfig, TrainConfig
+    from safe_bc.bc.checkpoint import checkpoint_unit
     from safe_bc.data.store import load_demonstrations, read_meta
     from safe_bc.experiment import RunConfig, save_selection, train_run
     from safe_bc.provenance import run_metadata
@@ -265,8 +266,9 @@ def _train(args: argparse.Namespace) -> int:
     meta = run_metadata(
         demos=str(args.demos), env_id=env_id, run=run.to_dict(), train=result.summary()
     )
-    result.save(args.out, extra=json.loads(json.dumps(meta, default=str)))
-    save_selection(args.out, demos, selection, meta)
+    with checkpoint_unit(args.out) as unit:  # weights, config and selection: old or new, whole
+        result.save(unit, extra=json.loads(json.dumps(meta, default=str)))
+        save_selection(unit, demos, selection, meta)
     print(
         f"{args.out}: trained {run.bc.train.batches} batches, final loss "
         f"{result.final_loss:.4f}, {result.samples_per_s:.0f} samples/s; "

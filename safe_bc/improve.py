@@ -62,7 +62,15 @@ import torch
 from torch import nn
 
 from safe_bc.atomic import atomic_write
-from safe_bc.bc.checkpoint import load_checkpoint, read_checkpoint_meta, save_checkpoint
+from safe_bc.bc.checkpoint import (
+    SELECTION,
+    CheckpointError,
+    check_checkpoint_files,
+    checkpoint_unit,
+    load_checkpoint,
+    read_checkpoint_meta,
+    save_checkpoint,
+)
 from safe_bc.bc.config import BCConfig, NetworkConfig
 from safe_bc.bc.net import BCNet, ModelSpec
 from safe_bc.bc.policy import BCPolicy
@@ -958,8 +966,9 @@ def improve(
             kept = agent.best[0]
             final.load_state_dict(agent.best[2])
         extra["improve"]["kept_iteration"] = kept
-        save_checkpoint(out / POLICY, final, s.config, extra=extra)
-        _copy_selection(start, out / POLICY)
+        with checkpoint_unit(out / POLICY) as policy:  # net and selection: one unit
+            save_checkpoint(policy, final, s.config, extra=extra)
+            _copy_selection(start, policy)
     history = pd.DataFrame(agent.history)
     seconds = time.perf_counter() - t0
     return ImproveResult(out, history, resumed_at, agent.iteration, seconds, kept)
@@ -990,8 +999,9 @@ def improve_from_net(
     start, run = folder / "start", folder / "run"
     data = load_demonstrations(Path(demos))
     meta = {"env_id": env_id, "demos": str(demos)}
-    save_checkpoint(start, model, bc_config, extra=meta)
-    save_selection(start, data, select_for(data, selection), meta)
+    with checkpoint_unit(start) as unit:
+        save_checkpoint(unit, model, bc_config, extra=meta)
+        save_selection(unit, data, select_for(data, selection), meta)
     try:
         result = improve(start, run, config, demos=demos, metadata=metadata)
     except ValueError as e:
@@ -1009,13 +1019,21 @@ def _finished(
 ) -> tuple[pd.DataFrame, int] | None:
     """``(history, kept iteration)`` of a finished run of this identity in ``out``, else
     ``None``. A finished run is left as it is, provenance included; its ``state.pt`` (kept out
-    of git) is not needed."""
+    of git) is not needed. Its ``policy/`` must be a whole checkpoint unit (weights, config
+    and selection, each matching its recorded SHA-256 where one is recorded); an incomplete
+    one is written again from ``state.pt`` (or the run is redone, bit-identically)."""
     from safe_bc.data.store import read_table
 
     if not (out / POLICY / "config.json").is_file() or not (out / HISTORY).is_file():
         return None
     meta = read_checkpoint_meta(out / POLICY).get("extra", {}).get("improve", {})
     if {k: meta.get(k) for k in identity} != json.loads(json.dumps(identity)):
+        return None
+    try:
+        check_checkpoint_files(out / POLICY)
+    except CheckpointError:
+        return None
+    if not (out / POLICY / SELECTION).is_file():
         return None
     history, _ = read_table(out / HISTORY)
     if len(history) != iterations:
@@ -1028,8 +1046,8 @@ def _copy_selection(start: Path, policy_dir: Path) -> None:
     ``safe-bc evaluate --checkpoint OUT/policy`` measures it against the same limits."""
     from safe_bc.data.store import read_table, write_table_atomic
 
-    table, meta = read_table(start / "selection.parquet")
-    write_table_atomic(policy_dir / "selection.parquet", table, meta)
+    table, meta = read_table(start / SELECTION)
+    write_table_atomic(policy_dir / SELECTION, table, meta)
 
 
 __all__ = [

@@ -2,6 +2,13 @@
 
 ``config.json`` is written last and records the SHA-256 of ``weights.pt``, so a directory
 whose two files do not belong together (a crash between the two writes) is detected.
+
+A checkpoint folder is one unit: :func:`checkpoint_unit` writes it (weights, config and the
+``selection.parquet`` beside them) into a temporary folder that replaces the old one whole
+(:func:`safe_bc.atomic.atomic_dir`), and seals it: ``config.json`` then also records the
+SHA-256 of every other file of the unit (``files_sha256``), which :func:`load_checkpoint`
+and :func:`check_checkpoint_files` verify. Checkpoints written before ``files_sha256``
+existed have only ``weights_sha256``; they load as before.
 """
 
 from __future__ import annotations
@@ -10,17 +17,23 @@ import hashlib
 import json
 import pickle
 import re
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
 import torch
 
-from safe_bc.atomic import atomic_write, write_json_atomic
+from safe_bc.atomic import atomic_dir, atomic_write, write_json_atomic
 from safe_bc.bc.config import BCConfig
 from safe_bc.bc.net import BCNet, ModelSpec
 
 WEIGHTS = "weights.pt"
 CONFIG = "config.json"
+SELECTION = "selection.parquet"
+UNIT = (WEIGHTS, CONFIG, SELECTION)
+"""The files of a checkpoint unit; anything else in the folder (an ``eval/`` folder) is kept
+when the unit is rewritten."""
 FORMAT = "safe_bc.bc/1"
 
 
@@ -80,6 +93,54 @@ def save_checkpoint(
     return directory
 
 
+@contextmanager
+def checkpoint_unit(directory: str | Path) -> Iterator[Path]:
+    """Write a checkpoint folder as one unit: yields a temporary folder beside ``directory``
+    for :func:`save_checkpoint` and the ``selection.parquet``; on a clean exit it is sealed
+    (``files_sha256`` in ``config.json``) and replaces ``directory``'s unit at once. An error
+    (a crash) leaves the old unit as it was and no temporary files (the next write to
+    ``directory`` removes those of a hard kill). Hold ``directory``'s lock while writing."""
+    with atomic_dir(directory, unit=UNIT) as staging:
+        yield staging
+        _seal(staging)
+
+
+def _seal(directory: Path) -> None:
+    """Record the SHA-256 of every file of the unit besides the weights in ``config.json``."""
+    meta = read_checkpoint_meta(directory)
+    meta["files_sha256"] = {
+        p.name: _sha256(p)
+        for p in sorted(directory.iterdir())
+        if p.name in UNIT and p.name not in (WEIGHTS, CONFIG)
+    }
+    write_json_atomic(directory / CONFIG, meta, allow_nan=False)
+
+
+def check_checkpoint_files(directory: str | Path) -> dict[str, Any]:
+    """Check that ``directory`` is a whole unit: ``config.json`` parses, ``weights.pt`` and
+    every file in ``files_sha256`` exist and match their recorded SHA-256. Returns the
+    metadata.
+
+    Raises:
+        CheckpointNotFoundError: the folder or one of its files is missing.
+        CheckpointError: a file does not match (a partial or mixed save).
+    """
+    directory = Path(directory)
+    meta = read_checkpoint_meta(directory)
+    files = meta.get("files_sha256", {})
+    if not isinstance(files, dict):
+        raise CheckpointError(f"malformed {directory / CONFIG}: files_sha256 is not a mapping")
+    for name, digest in {WEIGHTS: meta.get("weights_sha256"), **files}.items():
+        path = directory / name
+        if not path.is_file():
+            raise CheckpointNotFoundError(f"incomplete checkpoint at {directory}: missing {name}")
+        if digest != _sha256(path):
+            raise CheckpointError(
+                f"{path} does not match the sha256 recorded in {CONFIG} (partial or mixed save)"
+            )
+    return meta
+
+
 def read_checkpoint_meta(directory: str | Path) -> dict[str, Any]:
     """The parsed ``config.json`` (``format``, ``spec``, ``config``, ``extra``, ...)."""
     directory = Path(directory)
@@ -107,14 +168,8 @@ def load_checkpoint(directory: str | Path) -> tuple[BCNet, BCConfig]:
         CheckpointError: malformed JSON, configs, weights, or weights from another save.
     """
     directory = Path(directory)
-    meta = read_checkpoint_meta(directory)
+    meta = check_checkpoint_files(directory)
     weights = directory / WEIGHTS
-    if not weights.is_file():
-        raise CheckpointNotFoundError(f"incomplete checkpoint at {directory}: missing {WEIGHTS}")
-    if meta.get("weights_sha256") != _sha256(weights):
-        raise CheckpointError(
-            f"{weights} does not match the sha256 recorded in {CONFIG} (partial or mixed save)"
-        )
     try:
         configs = BCConfig.from_dict(meta["config"])
         spec = ModelSpec.from_dict(meta["spec"])

@@ -1,0 +1,190 @@
+"""A checkpoint folder is one unit: weights, config and selection are replaced together, a
+crash at any point leaves the old unit or the new one (never a mix) and no temporary files,
+a mixed folder is refused in one line, and improve's resume checks completeness the same way."""
+
+from __future__ import annotations
+
+import hashlib
+import shutil
+from dataclasses import replace
+from pathlib import Path
+
+import pandas as pd
+import pytest
+import torch
+
+from safe_bc import atomic
+from safe_bc.atomic import recover_dir
+from safe_bc.bc import BCConfig, BCNet, CheckpointError, ModelSpec, load_checkpoint, save_checkpoint
+from safe_bc.bc.checkpoint import UNIT, check_checkpoint_files, checkpoint_unit
+from safe_bc.cli import main
+from safe_bc.data.store import read_table, write_table_atomic
+
+from .bc.synth import TINY_MLP
+
+
+def _write(directory: Path, seed: int) -> str:
+    """A sealed unit whose net and selection both say ``seed``; returns the weights' sha256."""
+    torch.manual_seed(seed)
+    cfg = BCConfig(network=TINY_MLP)
+    model = BCNet(ModelSpec.for_data((5,), 2), cfg.preprocess, cfg.network)
+    with checkpoint_unit(directory) as unit:
+        save_checkpoint(unit, model, cfg, extra={"seed": seed})
+        write_table_atomic(unit / "selection.parquet", pd.DataFrame({"x": [seed]}), {"seed": seed})
+    return hashlib.sha256((directory / "weights.pt").read_bytes()).hexdigest()
+
+
+def _seed_of(directory: Path) -> int:
+    load_checkpoint(directory)  # the whole unit checks out
+    _, meta = read_table(directory / "selection.parquet")
+    return meta["seed"]
+
+
+def _names(folder: Path) -> list[str]:
+    return sorted(p.name for p in folder.iterdir())
+
+
+def test_units_replace_each_other_and_keep_other_entries(tmp_path: Path) -> None:
+    ckpt = tmp_path / "ckpt"
+    _write(ckpt, 1)
+    (ckpt / "eval").mkdir()
+    (ckpt / "eval" / "summary.parquet").write_bytes(b"an evaluation of the old unit")
+    _write(ckpt, 2)
+    assert _seed_of(ckpt) == 2 and _names(ckpt) == [
+        "config.json",
+        "eval",
+        "selection.parquet",
+        "weights.pt",
+    ]
+    assert (ckpt / "eval" / "summary.parquet").exists()
+    assert _names(tmp_path) == ["ckpt"]
+    assert "selection.parquet" in check_checkpoint_files(ckpt)["files_sha256"]
+
+
+def test_a_crash_while_writing_keeps_the_old_unit(tmp_path: Path) -> None:
+    ckpt = tmp_path / "ckpt"
+    old = _write(ckpt, 1)
+    torch.manual_seed(2)
+    cfg = BCConfig(network=TINY_MLP)
+    with pytest.raises(KeyboardInterrupt), checkpoint_unit(ckpt) as unit:
+        save_checkpoint(unit, BCNet(ModelSpec.for_data((5,), 2), cfg.preprocess, cfg.network), cfg)
+        raise KeyboardInterrupt  # killed before the selection is written
+    assert (
+        _seed_of(ckpt) == 1
+        and hashlib.sha256((ckpt / "weights.pt").read_bytes()).hexdigest() == old
+    )
+    assert _names(tmp_path) == ["ckpt"]
+
+
+def test_a_crash_between_two_renames_is_undone_by_the_next_write(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Where the file system cannot swap two folders in one step: killed after the old unit
+    was moved aside and before the new one took its place."""
+    ckpt = tmp_path / "ckpt"
+    _write(ckpt, 1)
+    monkeypatch.setattr(atomic, "_exchange", lambda a, b: False)
+    renames, real = [], atomic.os.rename
+
+    def rename(a, b):
+        renames.append(a)
+        if len(renames) == 2:
+            raise KeyboardInterrupt
+        real(a, b)
+
+    monkeypatch.setattr(atomic.os, "rename", rename)
+    with pytest.raises(KeyboardInterrupt):
+        _write(ckpt, 2)
+    monkeypatch.undo()
+    assert not ckpt.exists()
+    recover_dir(ckpt, UNIT)  # what the next write (under the lock) does first
+    assert _seed_of(ckpt) == 1 and _names(tmp_path) == ["ckpt"]
+    _write(ckpt, 2)
+    assert _seed_of(ckpt) == 2 and _names(tmp_path) == ["ckpt"]
+
+
+def test_a_crash_after_the_swap_carries_the_rest_on_the_next_write(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    ckpt = tmp_path / "ckpt"
+    _write(ckpt, 1)
+    (ckpt / "eval").mkdir()
+
+    def killed(old, new, unit):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(atomic, "_carry", killed)
+    with pytest.raises(KeyboardInterrupt):
+        _write(ckpt, 2)
+    monkeypatch.undo()
+    assert _seed_of(ckpt) == 2  # the new unit, whole
+    _write(ckpt, 3)
+    assert _seed_of(ckpt) == 3 and (ckpt / "eval").is_dir() and _names(tmp_path) == ["ckpt"]
+
+
+def test_a_mixed_unit_is_refused_in_one_line(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    """The issue's mix: new weights beside another training's selection."""
+    a, b = tmp_path / "a", tmp_path / "b"
+    _write(a, 1)
+    _write(b, 2)
+    shutil.copy(b / "selection.parquet", a / "selection.parquet")
+    with pytest.raises(CheckpointError, match=r"selection\.parquet does not match") as info:
+        load_checkpoint(a)
+    assert "\n" not in str(info.value)
+    code = main(["evaluate", "--checkpoint", str(a), "--out", str(tmp_path / "eval")])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and "partial or mixed save" in err
+    (a / "selection.parquet").unlink()
+    with pytest.raises(CheckpointError, match=r"missing selection\.parquet"):
+        check_checkpoint_files(a)
+
+
+def test_checkpoints_without_files_sha256_still_load(tmp_path: Path) -> None:
+    cfg = BCConfig(network=TINY_MLP)
+    save_checkpoint(tmp_path, BCNet(ModelSpec.for_data((5,), 2), cfg.preprocess, cfg.network), cfg)
+    assert "files_sha256" not in check_checkpoint_files(tmp_path)
+    load_checkpoint(tmp_path)
+
+
+def test_cli_train_killed_before_the_selection_keeps_the_old_checkpoint(
+    rehab_demos: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import safe_bc.experiment
+
+    ckpt = tmp_path / "ckpt"
+    argv = ["train", "--demos", str(rehab_demos), "--out", str(ckpt), "--batches", "5",
+            "--hidden", "8", "--quiet"]  # fmt: skip
+    assert main(argv) == 0
+    weights = (ckpt / "weights.pt").read_bytes()
+
+    def killed(*args, **kw):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(safe_bc.experiment, "save_selection", killed)
+    assert main([*argv, "--eps", "0.5", "--seed", "1"]) == 130
+    monkeypatch.undo()
+    assert (ckpt / "weights.pt").read_bytes() == weights
+    _, meta = read_table(ckpt / "selection.parquet")
+    assert meta["config"]["eps"] != 0.5
+    load_checkpoint(ckpt)
+    assert _names(tmp_path) == ["ckpt"]
+
+
+def test_improve_rewrites_a_policy_missing_its_selection(rehab_start: Path, tmp_path: Path) -> None:
+    """A policy folder without selection.parquet is not a finished run: the rerun writes the
+    whole unit again from state.pt, with the same weights."""
+    from safe_bc.improve import ImprovedSource, improve
+
+    from .test_improve import TINY
+
+    cfg = replace(TINY, iterations=2, eval_every=1)
+    out = tmp_path / "run"
+    improve(rehab_start, out, cfg)
+    weights = (out / "policy" / "weights.pt").read_bytes()
+    (out / "policy" / "selection.parquet").unlink()
+    again = improve(rehab_start, out, cfg)
+    assert again.resumed_at == cfg.iterations  # from state.pt, not returned as finished
+    assert (out / "policy" / "weights.pt").read_bytes() == weights
+    check_checkpoint_files(out / "policy")
+    ImprovedSource.from_run(out)
+    assert _names(out) == ["history.parquet", "policy", "state.pt"]
