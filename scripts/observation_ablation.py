@@ -134,7 +134,12 @@ class Job:
 
     @property
     def name(self) -> str:
-        return "expert" if self.pre is None else f"{cell_name(self.pre)}/seed{self.seed}"
+        """The job's cache name: ``expert``, ``<cell>/seed<k>`` at the default budget, else
+        ``<cell>/seed<k>_b<batches>``."""
+        if self.pre is None:
+            return "expert"
+        budget = "" if self.batches == TrainConfig().batches else f"_b{self.batches}"
+        return f"{cell_name(self.pre)}/seed{self.seed}{budget}"
 
     def key(self) -> dict[str, Any]:
         """What the cached result must match to be reused."""
@@ -242,7 +247,7 @@ def _cached(out: Path, job: Job) -> pd.DataFrame | None:
 def _run_and_store(args: tuple[Path, Job]) -> tuple[str, float]:
     out, job = args
     frame = run_job(job)
-    write_table_atomic(_cache_file(out, job), frame, {"job": job.key()})
+    write_table_atomic(_cache_file(out, job), frame, run_metadata(job=job.key()))
     return job.name, float(frame["job_seconds"].iloc[0])
 
 
@@ -273,7 +278,7 @@ def run_jobs(jobs: list[Job], out: Path, processes: int) -> pd.DataFrame:
         frame = _cached(out, j)
         if frame is None:
             raise RuntimeError(f"job {j.name} has no cached result after running")
-        frames.append(frame)
+        frames.append(frame.assign(batches=j.batches))
     return pd.concat(frames, ignore_index=True)
 
 
@@ -319,6 +324,7 @@ def markdown(
     meta: dict[str, Any],
     baseline: str,
     chosen: str,
+    title: str,
 ) -> str:
     full = summary[summary["view"] == "full"].sort_values("reward", ascending=False)
     counts = (
@@ -381,9 +387,10 @@ def markdown(
         else pd.DataFrame()
     )
     lines = [
-        "# Observation ablation (CarRacing, plain BC)",
+        f"# {title}",
         "",
-        f"Plain behaviour cloning (alpha 0, default network, {meta['batches']} batches of 64) "
+        f"Plain behaviour cloning (alpha 0, default network, "
+        f"{' / '.join(map(str, meta['batches']))} batches of 64) "
         f"on the default demonstrations, {len(meta['seeds'])} training seeds "
         f"({', '.join(map(str, meta['seeds']))}) x {meta['episodes']} selection tracks "
         f"(held-out seed block {meta['eval_seed']}, used by no final table); the expert on "
@@ -393,7 +400,7 @@ def markdown(
         "",
         table.to_markdown(index=False),
         "",
-        f"## Paired differences to `{baseline}` (the previous default), same seeds x tracks",
+        f"## Paired differences to `{baseline}`, same seeds x tracks",
         "",
         diff.to_markdown(index=False),
         "",
@@ -416,9 +423,7 @@ def markdown(
     return "\n".join(lines)
 
 
-def plot(
-    summary: pd.DataFrame, episodes: pd.DataFrame, expert: pd.Series | None, path: Path
-) -> Path:
+def plot(summary: pd.DataFrame, expert: pd.Series | None, path: Path, title: str) -> Path:
     import matplotlib.pyplot as plt
 
     from safe_bc.plots import save_figure
@@ -442,7 +447,7 @@ def plot(
         ax.grid(alpha=0.3)
     axes[0].set_yticks(y, full["cell"])
     axes[0].legend(loc="lower right", fontsize=8)
-    fig.suptitle("Observation ablation: plain BC, seeds x selection tracks, 95% crossed CIs")
+    fig.suptitle(f"{title}: seeds x selection tracks, 95% crossed CIs")
     return save_figure(fig, path)
 
 
@@ -456,7 +461,15 @@ def main(argv: list[str] | None = None) -> int:
         default=SELECTION_EVAL_SEED,
         help="held-out seed block (selection tracks)",
     )
-    p.add_argument("--batches", type=int, default=TrainConfig().batches, help="BC batches")
+    p.add_argument(
+        "--batches",
+        type=int,
+        nargs="+",
+        default=[TrainConfig().batches],
+        help="BC batches (several: a training-budget sweep, cells named cell@batches)",
+    )
+    p.add_argument("--name", default="observation", help="stem of the Markdown and figure files")
+    p.add_argument("--title", default="Observation ablation (CarRacing, plain BC)")
     p.add_argument("--cells", nargs="+", default=None, help="cell names (default: all 12)")
     p.add_argument("--baseline", default="nobar_grey_k1", help="cell the others are paired with")
     p.add_argument("--demos", type=Path, default=Path("data/demos"))
@@ -476,19 +489,26 @@ def main(argv: list[str] | None = None) -> int:
     if not (args.demos / "dataset.json").exists():
         p.error(f"no demonstrations at {args.demos} (make demos)")
     eps = task_defaults("carracing").eps
-    common = dict(
-        demos=str(args.demos),
-        episodes=args.episodes,
-        eval_seed=args.eval_seed,
-        batches=args.batches,
-        eps=eps,
-    )
-    jobs = [Job(None, 0, **common)]
+    common = dict(demos=str(args.demos), episodes=args.episodes, eval_seed=args.eval_seed, eps=eps)
+    jobs = [Job(None, 0, batches=TrainConfig().batches, **common)]
     # seeds outermost: every cell gets its first seed before any gets its second
-    jobs += [Job(c, s, **common) for s in args.seeds for c in cells]
+    jobs += [
+        Job(c, s, batches=b, **common) for s in args.seeds for b in args.batches for c in cells
+    ]
     args.out.mkdir(parents=True, exist_ok=True)
     episodes = run_jobs(jobs, args.out, args.processes)
-    baseline = args.baseline if args.baseline in set(episodes["cell"]) else cell_name(cells[0])
+    if len(args.batches) > 1:  # a budget sweep: one row per cell and budget
+        agent = episodes["cell"] != "expert"
+        episodes.loc[agent, "cell"] = (
+            episodes.loc[agent, "cell"] + "@" + episodes.loc[agent, "batches"].astype(str)
+        )
+        if "@" not in args.baseline:  # the first cell at the default budget (or the first)
+            default = TrainConfig().batches
+            budget = default if default in args.batches else args.batches[0]
+            args.baseline = f"{cell_name(cells[0])}@{budget}"
+    if args.baseline not in set(episodes["cell"]):
+        p.error(f"--baseline {args.baseline} is not among the cells run")
+    baseline = args.baseline
     summary, paired, copycat = summarise(episodes, baseline)
     chosen = choose(summary)
     meta = run_metadata(
@@ -510,10 +530,10 @@ def main(argv: list[str] | None = None) -> int:
         ("copycat", copycat),
     ):
         write_table_atomic(args.out / f"{name}.parquet", frame, meta)
-    text = markdown(summary, paired, copycat, episodes, meta, baseline, chosen)
-    write_text_atomic(args.out / "observation.md", text)
+    text = markdown(summary, paired, copycat, episodes, meta, baseline, chosen, args.title)
+    write_text_atomic(args.out / f"{args.name}.md", text)
     exp = summary[summary["cell"] == "expert"]
-    plot(summary, episodes, exp.iloc[0] if len(exp) else None, args.out / "observation.png")
+    plot(summary, exp.iloc[0] if len(exp) else None, args.out / f"{args.name}.png", args.title)
     print(text)
     return 0
 
