@@ -46,7 +46,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from safe_bc.bc.config import BCConfig, PreprocessConfig, TrainConfig
+from safe_bc.bc.config import BCConfig, NetworkConfig, PreprocessConfig, TrainConfig
 from safe_bc.data.store import read_table, write_table_atomic, write_text_atomic
 from safe_bc.provenance import run_metadata
 
@@ -131,21 +131,34 @@ class Job:
     eval_seed: int
     batches: int
     eps: float
+    channels: tuple[int, ...] | None = None
+    """Conv channels of the network; ``None``: ``NetworkConfig``'s default."""
 
     @property
     def name(self) -> str:
-        """The job's cache name: ``expert``, ``<cell>/seed<k>`` at the default budget, else
-        ``<cell>/seed<k>_b<batches>``."""
+        """The job's cache name: ``expert``, ``<cell>/seed<k>`` at the default budget and
+        network, else with ``_b<batches>`` and ``_c<channels>`` appended."""
         if self.pre is None:
             return "expert"
         budget = "" if self.batches == TrainConfig().batches else f"_b{self.batches}"
-        return f"{cell_name(self.pre)}/seed{self.seed}{budget}"
+        net = "" if self.channels is None else f"_c{channels_name(self.channels)}"
+        return f"{cell_name(self.pre)}/seed{self.seed}{budget}{net}"
 
     def key(self) -> dict[str, Any]:
-        """What the cached result must match to be reused."""
+        """What the cached result must match to be reused (``channels`` only when set, so
+        the default network's results keep their key)."""
         out = dataclasses.asdict(self)
         out["pre"] = None if self.pre is None else dataclasses.asdict(self.pre)
+        if self.channels is None:
+            del out["channels"]
+        else:
+            out["channels"] = list(self.channels)
         return out
+
+
+def channels_name(channels: Sequence[int]) -> str:
+    """``16-32-32`` for ``(16, 32, 32)``."""
+    return "-".join(map(str, channels))
 
 
 def _episode_rows(
@@ -206,7 +219,11 @@ def run_job(job: Job) -> pd.DataFrame:
         else:
             cfg = RunConfig(
                 SelectionConfig(eps=job.eps, alpha=0.0),
-                BCConfig(preprocess=job.pre, train=TrainConfig(batches=job.batches, seed=job.seed)),
+                BCConfig(
+                    preprocess=job.pre,
+                    network=NetworkConfig(channels=job.channels or NetworkConfig().channels),
+                    train=TrainConfig(batches=job.batches, seed=job.seed),
+                ),
             )
             bounds = dataset_action_bounds(Path(job.demos))
             result, _ = train_run(demos, cfg, action_bounds=bounds)
@@ -278,8 +295,21 @@ def run_jobs(jobs: list[Job], out: Path, processes: int) -> pd.DataFrame:
         frame = _cached(out, j)
         if frame is None:
             raise RuntimeError(f"job {j.name} has no cached result after running")
-        frames.append(frame.assign(batches=j.batches))
+        channels = j.channels or NetworkConfig().channels
+        frames.append(frame.assign(batches=j.batches, channels=channels_name(channels)))
     return pd.concat(frames, ignore_index=True)
+
+
+def _variant_labels(episodes: pd.DataFrame, budgets: bool, nets: bool) -> pd.Series | None:
+    """``b<batches>``, ``c<channels>`` or both per row, when a sweep varies them."""
+    parts = []
+    if budgets:
+        parts.append("b" + episodes["batches"].astype(str))
+    if nets:
+        parts.append("c" + episodes["channels"].astype(str))
+    if not parts:
+        return None
+    return parts[0] if len(parts) == 1 else parts[0] + "_" + parts[1]
 
 
 def summarise(episodes: pd.DataFrame, baseline: str) -> tuple[pd.DataFrame, ...]:
@@ -389,7 +419,8 @@ def markdown(
     lines = [
         f"# {title}",
         "",
-        f"Plain behaviour cloning (alpha 0, default network, "
+        f"Plain behaviour cloning (alpha 0, conv channels "
+        f"{' / '.join(meta.get('channels') or [channels_name(NetworkConfig().channels)])}, "
         f"{' / '.join(map(str, meta['batches']))} batches of 64) "
         f"on the default demonstrations, {len(meta['seeds'])} training seeds "
         f"({', '.join(map(str, meta['seeds']))}) x {meta['episodes']} selection tracks "
@@ -466,7 +497,13 @@ def main(argv: list[str] | None = None) -> int:
         type=int,
         nargs="+",
         default=[TrainConfig().batches],
-        help="BC batches (several: a training-budget sweep, cells named cell@batches)",
+        help="BC batches (several: a training-budget sweep, cells named cell@b<batches>)",
+    )
+    p.add_argument(
+        "--channels",
+        nargs="+",
+        default=None,
+        help="conv channels as 16-32-32 (several: a network sweep, cells named cell@c<channels>)",
     )
     p.add_argument("--name", default="observation", help="stem of the Markdown and figure files")
     p.add_argument("--title", default="Observation ablation (CarRacing, plain BC)")
@@ -492,20 +529,36 @@ def main(argv: list[str] | None = None) -> int:
     common = dict(demos=str(args.demos), episodes=args.episodes, eval_seed=args.eval_seed, eps=eps)
     jobs = [Job(None, 0, batches=TrainConfig().batches, **common)]
     # seeds outermost: every cell gets its first seed before any gets its second
+    try:
+        nets = (
+            [None]
+            if args.channels is None
+            else [tuple(int(c) for c in spec.split("-")) for spec in args.channels]
+        )
+        for net in nets:
+            NetworkConfig(channels=net or NetworkConfig().channels)
+    except ValueError as e:
+        p.error(f"--channels: {e}")
     jobs += [
-        Job(c, s, batches=b, **common) for s in args.seeds for b in args.batches for c in cells
+        Job(c, s, batches=b, channels=n, **common)
+        for s in args.seeds
+        for b in args.batches
+        for n in nets
+        for c in cells
     ]
     args.out.mkdir(parents=True, exist_ok=True)
     episodes = run_jobs(jobs, args.out, args.processes)
-    if len(args.batches) > 1:  # a budget sweep: one row per cell and budget
+    variant = _variant_labels(episodes, len(args.batches) > 1, len(nets) > 1)
+    if variant is not None:  # a budget or network sweep: one row per cell and variant
         agent = episodes["cell"] != "expert"
-        episodes.loc[agent, "cell"] = (
-            episodes.loc[agent, "cell"] + "@" + episodes.loc[agent, "batches"].astype(str)
-        )
-        if "@" not in args.baseline:  # the first cell at the default budget (or the first)
-            default = TrainConfig().batches
-            budget = default if default in args.batches else args.batches[0]
-            args.baseline = f"{cell_name(cells[0])}@{budget}"
+        episodes.loc[agent, "cell"] = episodes.loc[agent, "cell"] + "@" + variant[agent]
+        if "@" not in args.baseline:  # the first cell at the default budget and network
+            first = episodes[agent & (episodes["cell"].str.startswith(cell_name(cells[0]) + "@"))]
+            default = first[
+                (first["batches"] == TrainConfig().batches)
+                & (first["channels"] == channels_name(NetworkConfig().channels))
+            ]
+            args.baseline = str((default if len(default) else first)["cell"].iloc[0])
     if args.baseline not in set(episodes["cell"]):
         p.error(f"--baseline {args.baseline} is not among the cells run")
     baseline = args.baseline
@@ -516,6 +569,7 @@ def main(argv: list[str] | None = None) -> int:
         episodes=args.episodes,
         eval_seed=args.eval_seed,
         batches=args.batches,
+        channels=args.channels,
         eps=eps,
         demos=str(args.demos),
         cells=[cell_name(c) for c in cells],
