@@ -13,7 +13,9 @@ of its time in ``_render("state_pixels")``. What changed, and why the pixels sta
   ``(c*x - s*y, s*x + c*y)``; ``_rotation`` reproduces that, and numpy's float64 ``*``, ``-`` and
   ``+`` round exactly like the C and Python operations, so every survivor is drawn from the very
   same float coordinates (gfxdraw then truncates them to ``Sint16`` as before). Colours are read
-  at draw time: tile colours are arrays that the contact listener recolours in place.
+  at draw time: tile colours are arrays that the contact listener recolours in place. Only the
+  polygons whose world centre lies within reach of the visible area (one disc test in world
+  coordinates, a superset of what the exact test keeps) go through that test.
 * **Polygons that cannot touch a visible pixel are skipped.** Stock's margin is ~382 px, so about
   two thirds of the ~67 polygons it draws lie wholly outside the window (or under the indicator
   bar). A filled polygon stays inside the bounding box of its integer vertices and its
@@ -23,7 +25,8 @@ of its time in ``_render("state_pixels")``. What changed, and why the pixels sta
   window with a margin (after the zoom-in) it sets every pixel to its colour and its outline is
   off-screen, so ``Surface.fill`` with the pixel value gfxdraw maps the colour to (read back from
   a 4x4 scratch surface, so domain-randomised float colours map identically) is equivalent.
-  During the zoom-in the stock polygon is drawn.
+  When the car is far from every edge of the playfield that holds without computing the square's
+  vertices. During the zoom-in the stock polygon is drawn.
 * **The font** is loaded once (stock loads ``pygame.font.Font`` from disk every step), and
   reloaded after a ``pygame.quit()`` (counted with a quit hook); the score text is re-rendered
   only when the score string changes.
@@ -77,6 +80,7 @@ from pygame import gfxdraw
 __all__ = ["FastCarRacing"]
 
 _TWO_PI = 2.0 * math.pi
+_SQRT2 = math.sqrt(2.0) * (1.0 + 1e-9)
 _HALF_PI = math.pi / 2.0
 _VECTOR_EPSILON = 1e-6  # pygame's default Vector2 epsilon, used by rotate_rad
 _EXACT_QUARTER_TURNS = {0: (1.0, 0.0), 1: (0.0, 1.0), 2: (-1.0, 0.0), 3: (0.0, -1.0), 4: (1.0, 0.0)}
@@ -86,6 +90,9 @@ _PANEL_TOP = WINDOW_H - _PANEL_ROWS
 _SKIP_MARGIN = 3.0  # px; a polygon further than this outside the kept area draws nothing there
 _BG_MARGIN = 4.0  # px the background square must extend beyond the window to be a plain fill
 _SINT16_SAFE = 30000.0  # gfxdraw casts coordinates to Sint16
+# px from the car's screen point (W / 2, H / 4) to the farthest corner of the window widened by
+# _BG_MARGIN, plus _BG_MARGIN and 8 px of slack for the truncated vertices
+_FIELD_COVER_PX = math.hypot(WINDOW_W / 2 + _BG_MARGIN, 3 * WINDOW_H / 4 + _BG_MARGIN) + 12.0
 
 
 class _PygameSession:
@@ -265,20 +272,7 @@ class FastCarRacing(CarRacing):
         self._draw_background(zoom, translation, angle, visible_top)
 
         self._sync_polygons()
-        # coarse pre-selection on polygon centres: a polygon can only reach the kept area
-        # [0, W] x [visible_top, H] (+ margin) if its centre lies within its radius of it
-        c, s = _rotation(angle)
-        tx, ty = translation
-        wx, wy = self._poly_centre[:, 0], self._poly_centre[:, 1]
-        reach = self._poly_radius * zoom + (_SKIP_MARGIN + 1.0)
-        sx = (c * wx - s * wy) * zoom + tx
-        sy = (s * wx + c * wy) * zoom + ty
-        near = np.flatnonzero(
-            (sx >= -reach)
-            & (sx <= WINDOW_W + reach)
-            & (sy >= visible_top - reach)
-            & (sy <= WINDOW_H + reach)
-        )
+        near = self._near_polygons(zoom, translation, angle, visible_top)
         if near.size == 0:
             return
         px, py = _to_screen(self._poly_xy[near], zoom, translation, angle)  # (K, 4) each
@@ -316,6 +310,33 @@ class FastCarRacing(CarRacing):
             aapolygon(surf, poly, color)
             filled_polygon(surf, poly, color)
 
+    def _near_polygons(
+        self, zoom: float, translation: tuple[float, float], angle: float, visible_top: int
+    ) -> np.ndarray:
+        """Sorted indices of the polygons that may reach the kept area (a superset of those
+        stock would draw there), from a disc test in world coordinates.
+
+        The exact test of ``_render_road`` keeps a polygon whose screen bounding box reaches the
+        kept area ``[0, W] x [visible_top, H]`` widened by the skip margin. That bounding box
+        lies within ``sqrt(2) * radius * zoom`` px of the polygon's centre, and the widened
+        area within ``reach`` px of its own centre; the screen transform is a rotation, a zoom
+        and a translation, so a polygon whose world centre is further than
+        ``sqrt(2) * radius + reach / zoom`` from the world point under that centre cannot pass.
+        """
+        c, s = _rotation(angle)
+        tx, ty = translation
+        margin = _SKIP_MARGIN + 2.0
+        sx = WINDOW_W / 2.0 - tx
+        sy = (visible_top + WINDOW_H) / 2.0 - ty
+        # inverse rotation of the screen offset, then un-zoom: world point under the centre
+        kx = (c * sx + s * sy) / zoom
+        ky = (-s * sx + c * sy) / zoom
+        reach = math.hypot(WINDOW_W / 2.0 + margin, (WINDOW_H - visible_top) / 2.0 + margin)
+        limit = self._poly_radius * _SQRT2 + (reach + 2.0) / zoom
+        dx = self._poly_centre[:, 0] - kx
+        dy = self._poly_centre[:, 1] - ky
+        return np.flatnonzero(dx * dx + dy * dy <= limit * limit)
+
     def _draw_background(
         self, zoom: float, translation: tuple[float, float], angle: float, visible_top: int = 0
     ) -> None:
@@ -326,6 +347,9 @@ class FastCarRacing(CarRacing):
         """
         surf = self.surf
         assert surf is not None
+        if self._field_covers_window(zoom):
+            surf.fill(self._bg_pixel(), (0, visible_top, WINDOW_W, WINDOW_H - visible_top))
+            return
         c, s = _rotation(angle)
         tx, ty = translation
         poly = [((c * x - s * y) * zoom + tx, (s * x + c * y) * zoom + ty) for x, y in _FIELD]
@@ -335,6 +359,22 @@ class FastCarRacing(CarRacing):
         surf.fill(0)  # stock draws on a fresh (zeroed) Surface
         gfxdraw.aapolygon(surf, poly, self.bg_color)
         gfxdraw.filled_polygon(surf, poly, self.bg_color)
+
+    def _field_covers_window(self, zoom: float) -> bool:
+        """A cheap sufficient condition for ``_covers_window`` of the playfield square.
+
+        The car is drawn at screen ``(W / 2, H / 4)`` whatever the rotation, and every point of
+        the window widened by ``_BG_MARGIN`` lies within ``_FIELD_COVER_PX`` px of it. If the
+        car is further than that (in px, plus slack for gfxdraw's integer truncation of the
+        vertices) from every edge of the axis-aligned playfield, the rotated square contains
+        that disc, hence the widened window, at least ``_BG_MARGIN`` inside each of its edges;
+        its vertices then also stay far below gfxdraw's ``Sint16`` limit.
+        """
+        car = self.car
+        assert car is not None
+        x, y = car.hull.position
+        inner = PLAYFIELD - max(abs(x), abs(y))
+        return zoom <= ZOOM * SCALE and inner * zoom > _FIELD_COVER_PX
 
     @staticmethod
     def _covers_window(px: list[float], py: list[float]) -> bool:

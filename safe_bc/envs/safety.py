@@ -89,11 +89,53 @@ def pixel_distances(frame: np.ndarray) -> np.ndarray:
     """
     if frame.shape != (96, 96, 3):
         raise ValueError(f"expected a (96, 96, 3) CarRacing frame, got shape {frame.shape}")
-    g = greenness(frame[: CAR_ROWS.stop])  # rows below the car hold no ray
-    left = _ray_distance(g[CAR_ROWS, LEFT_START::-1]).mean()
-    right = _ray_distance(g[CAR_ROWS, RIGHT_START:]).mean()
-    front = _ray_distance(g[FRONT_START::-1, CAR_COLS].T).mean()
+    # greenness of the ray pixels only (the same float32 operations as ``greenness``), every
+    # ray in one row of ``green``; a ray's cumulative sum runs along its own row, so each
+    # distance is the one ``_ray_distance`` gives for that ray alone
+    f = frame[: CAR_ROWS.stop].astype(np.int16)  # rows below the car hold no ray
+    excess = (f[..., 1] - np.maximum(f[..., 0], f[..., 2])).take(_RAY_FLAT)
+    green = excess.astype(np.float32) / 100.0
+    np.minimum(np.maximum(green, 0.0, out=green), 1.0, out=green)  # == np.clip(.., 0, 1)
+    green[_RAY_PAD] = 1.0
+    csum = np.cumsum(1.0 - green, axis=1)
+    hit = green >= GRASS_LEVEL
+    first = np.where(hit.any(axis=1), hit.argmax(axis=1), green.shape[1] - 1)
+    d = csum.take(_RAY_BASE + first)
+    n = CAR_ROWS.stop - CAR_ROWS.start
+    left = d[:n].mean()
+    right = d[n : 2 * n].mean()
+    front = d[2 * n :].mean()
     return np.array([left, front, right], np.float32)
+
+
+def _ray_pixels() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Pixel indices of every ray, one ray per row, pixel 0 next to the car.
+
+    Rows: the left rays of ``CAR_ROWS``, then their right rays, then the front rays of
+    ``CAR_COLS``; ``(R, L)`` row indices, column indices and a pad mask. Side rays (45 px) are
+    padded to the front rays' 66 px with pixels that count as grass: ``_ray_distance`` stops
+    there at the latest and adds a road fraction of exactly 0, so a side ray's distance is the
+    one of its unpadded pixels.
+    """
+    length = FRONT_START + 1
+    rows, cols, pad = [], [], []
+    for direction in (-1, 1):
+        first = LEFT_START if direction < 0 else RIGHT_START
+        n = first + 1 if direction < 0 else 96 - first
+        for r in range(CAR_ROWS.start, CAR_ROWS.stop):
+            rows.append([r] * length)
+            cols.append([first + direction * min(i, n - 1) for i in range(length)])
+            pad.append([i >= n for i in range(length)])
+    for c in range(CAR_COLS.start, CAR_COLS.stop):
+        rows.append([FRONT_START - i for i in range(length)])
+        cols.append([c] * length)
+        pad.append([False] * length)
+    return np.asarray(rows), np.asarray(cols), np.asarray(pad)
+
+
+_RAY_ROWS, _RAY_COLS, _RAY_PAD = _ray_pixels()
+_RAY_FLAT = _RAY_ROWS * 96 + _RAY_COLS  # (R, L) flat pixel index into a (rows, 96) plane
+_RAY_BASE = np.arange(len(_RAY_ROWS)) * _RAY_ROWS.shape[1]  # flat index of each ray's pixel 0
 
 
 def costs_from_distances(distances: np.ndarray) -> np.ndarray:

@@ -8,7 +8,7 @@ import gymnasium as gym
 import numpy as np
 import pygame
 import pytest
-from gymnasium.envs.box2d.car_racing import CarRacing
+from gymnasium.envs.box2d.car_racing import SCALE, ZOOM, CarRacing
 
 from safe_bc.envs.fast_render import FastCarRacing, _rotation
 
@@ -238,3 +238,119 @@ def test_smoothscale_is_separable_and_flip_commutes_with_x_pass() -> None:
         assert np.array_equal(
             pygame.surfarray.array3d(expected), pygame.surfarray.array3d(composed)
         )
+
+
+def _teleport(env: CarRacing, x: float, y: float) -> None:
+    """Move the car (hull and wheels, keeping their offsets) so the hull sits at ``(x, y)``."""
+    car = env.unwrapped.car
+    hx, hy = car.hull.position
+    for body in [car.hull, *car.wheels]:
+        bx, by = body.position
+        body.position = (bx - hx + x, by - hy + y)
+
+
+def test_frames_identical_near_the_playfield_edge() -> None:
+    """Near the edge of the playfield the background square no longer covers the window:
+    the cheap cover test must fall back to the exact one (and to gfxdraw) there."""
+    from gymnasium.envs.box2d.car_racing import PLAYFIELD
+
+    stock, fast = CarRacing(), FastCarRacing()
+    try:
+        for env in (stock, fast):
+            env.reset(seed=9)
+        actions = _actions(9, 105, reckless=False)
+        covered = []
+        for t, action in enumerate(actions):
+            if t in (55, 75, 90):  # after the zoom-in; then two more spots
+                x, y = {55: (PLAYFIELD - 30.0, 0.0), 75: (-PLAYFIELD + 60.0, PLAYFIELD - 20.0)}.get(
+                    t, (0.0, -PLAYFIELD + 45.0)
+                )
+                for env in (stock, fast):
+                    _teleport(env, x, y)
+            obs_s, rew_s, term_s, *_ = stock.step(action)
+            obs_f, rew_f, term_f, *_ = fast.step(action)
+            assert np.array_equal(obs_s, obs_f), f"step {t}"
+            assert (rew_s, term_s) == (rew_f, term_f)
+            covered.append(fast._field_covers_window(ZOOM * SCALE))
+            if term_s:
+                break
+        assert t > 60 and not all(covered[55:])
+    finally:
+        stock.close()
+        fast.close()
+
+
+def test_cheap_cover_test_implies_the_exact_one() -> None:
+    """``_field_covers_window`` (car far from the playfield's edges) never says yes where
+    ``_covers_window`` (the exact test on gfxdraw's integer vertices) says no."""
+    from gymnasium.envs.box2d.car_racing import PLAYFIELD, WINDOW_H, WINDOW_W
+
+    from safe_bc.envs.fast_render import _FIELD
+
+    env = FastCarRacing()
+    env.reset(seed=0)
+    rng = np.random.default_rng(0)
+    yes = 0
+    try:
+        for _ in range(3000):
+            x, y = rng.uniform(-PLAYFIELD, PLAYFIELD, 2)
+            angle = float(rng.uniform(-10.0, 10.0))
+            zoom = float(rng.choice([ZOOM * SCALE, rng.uniform(0.6, ZOOM * SCALE)]))
+            env.car.hull.position = (float(x), float(y))
+            hx, hy = env.car.hull.position
+            trans = pygame.math.Vector2((-hx * zoom, -hy * zoom)).rotate_rad(-env.car.hull.angle)
+            tx, ty = WINDOW_W / 2 + trans[0], WINDOW_H / 4 + trans[1]
+            c, s = _rotation(-env.car.hull.angle)
+            poly = [((c * a - s * b) * zoom + tx, (s * a + c * b) * zoom + ty) for a, b in _FIELD]
+            env.car.hull.angle = angle
+            if env._field_covers_window(zoom):
+                yes += 1
+                assert env._covers_window([p[0] for p in poly], [p[1] for p in poly])
+    finally:
+        env.close()
+    assert 100 < yes < 3000
+
+
+def test_near_polygons_include_every_polygon_that_could_be_drawn() -> None:
+    """The world-space disc pre-selection keeps every polygon that passes the exact
+    per-vertex test over all polygons, at any zoom, rotation and translation."""
+    from gymnasium.envs.box2d.car_racing import MAX_SHAPE_DIM, WINDOW_H, WINDOW_W
+
+    from safe_bc.envs.fast_render import _SKIP_MARGIN, _to_screen
+
+    env = FastCarRacing()
+    env.reset(seed=1)
+    env._sync_polygons()
+    rng = np.random.default_rng(1)
+    drawn_total = 0
+    try:
+        for _ in range(300):
+            zoom = float(rng.choice([ZOOM * SCALE, rng.uniform(0.5, ZOOM * SCALE)]))
+            angle = float(rng.uniform(-10.0, 10.0))
+            i = int(rng.integers(len(env.track)))
+            _, _, x, y = env.track[i]
+            trans = pygame.math.Vector2((-x * zoom, -y * zoom)).rotate_rad(angle)
+            translation = (WINDOW_W / 2 + trans[0], WINDOW_H / 4 + trans[1])
+            for top in (0, 100):
+                near = env._near_polygons(zoom, translation, angle, top)
+                px, py = _to_screen(env._poly_xy, zoom, translation, angle)
+                inside = (
+                    (px >= -MAX_SHAPE_DIM)
+                    & (px <= WINDOW_W + MAX_SHAPE_DIM)
+                    & (py >= -MAX_SHAPE_DIM)
+                    & (py <= WINDOW_H + MAX_SHAPE_DIM)
+                ).any(axis=1)
+                touches = (
+                    inside
+                    & (px.max(axis=1) >= -_SKIP_MARGIN)
+                    & (px.min(axis=1) <= WINDOW_W + _SKIP_MARGIN)
+                    & (py.max(axis=1) >= top - _SKIP_MARGIN)
+                    & (py.min(axis=1) <= WINDOW_H + _SKIP_MARGIN)
+                )
+                drawn = np.flatnonzero(touches)
+                drawn_total += drawn.size
+                assert set(drawn.tolist()) <= set(near.tolist())
+                assert np.all(np.diff(near) > 0)
+    finally:
+        env.close()
+    assert drawn_total > 1000

@@ -95,3 +95,64 @@ def test_offroad_frames_have_distance_near_zero() -> None:
     env.close()
     assert len(seen) > 10, "the car never left the road"
     assert np.median(seen) < 1.0
+
+
+def _reference_pixel_distances(frame: np.ndarray) -> np.ndarray:
+    """The whole-frame computation ``pixel_distances`` replaced (greenness of every row above
+    the car's bottom, one ``_ray_distance`` call per side): its values must not change."""
+    from safe_bc.envs.safety import (
+        CAR_COLS,
+        CAR_ROWS,
+        FRONT_START,
+        LEFT_START,
+        RIGHT_START,
+        _ray_distance,
+        greenness,
+    )
+
+    g = greenness(frame[: CAR_ROWS.stop])
+    left = _ray_distance(g[CAR_ROWS, LEFT_START::-1]).mean()
+    right = _ray_distance(g[CAR_ROWS, RIGHT_START:]).mean()
+    front = _ray_distance(g[FRONT_START::-1, CAR_COLS].T).mean()
+    return np.array([left, front, right], np.float32)
+
+
+def _assert_bits_equal(frame: np.ndarray) -> None:
+    got, want = pixel_distances(frame), _reference_pixel_distances(frame)
+    assert got.dtype == want.dtype == np.float32
+    assert np.array_equal(got.view(np.uint32), want.view(np.uint32)), (got, want)
+
+
+def test_ray_pixels_cover_each_ray_once() -> None:
+    from safe_bc.envs.safety import _RAY_COLS, _RAY_PAD, _RAY_ROWS
+
+    assert _RAY_ROWS.shape == _RAY_COLS.shape == _RAY_PAD.shape == (30, 66)
+    rays = zip(_RAY_ROWS, _RAY_COLS, _RAY_PAD, strict=True)
+    real = [set(zip(r[~p], c[~p], strict=True)) for r, c, p in rays]
+    assert [len(s) for s in real] == [45] * 24 + [66] * 6
+    assert len(set().union(*real)) == 24 * 45 + 6 * 66
+
+
+def test_pixel_distances_bit_identical_to_whole_frame_computation() -> None:
+    """Random frames (grass and road everywhere, partial edges) and real CarRacing frames
+    (road, curbs, grass, the zoom-in) give the very same float32 distances."""
+    rng = np.random.default_rng(0)
+    for i in range(400):
+        frame = rng.integers(0, 256, (96, 96, 3), dtype=np.uint8)
+        if i % 2:  # more grass-like pixels
+            frame[..., 1] = np.maximum(frame[..., 1], rng.integers(100, 256, (96, 96)))
+        if i % 5 == 0:  # plain road with a random edge on each side
+            frame[:] = _road_frame(int(rng.integers(0, 45)), int(rng.integers(51, 97)))
+        _assert_bits_equal(frame)
+    env = make_env(EnvConfig(max_episode_steps=150))
+    try:
+        obs, _ = env.reset(seed=3)
+        _assert_bits_equal(obs)
+        for t in range(150):
+            steer = 0.0 if t < 55 else 0.7 * np.sin(t / 9.0)
+            obs, _, term, trunc, _ = env.step(np.array([steer, 0.6, 0.0], np.float32))
+            _assert_bits_equal(obs)
+            if term or trunc:
+                break
+    finally:
+        env.close()
