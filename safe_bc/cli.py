@@ -7,12 +7,12 @@ import math
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 from safe_bc.bc.checkpoint import CheckpointError
 from safe_bc.data.store import DatasetError
 from safe_bc.distributed.runtime import RayUnavailableError, check_ray_address
-from safe_bc.locks import OutputLockedError, output_lock, output_locks
+from safe_bc.locks import OutputLockedError, check_output_folder, output_lock, output_locks
 
 DEFAULT_DEMOS = Path("data/demos")
 
@@ -42,11 +42,11 @@ def _non_negative_int(name: str) -> Callable[[str], int]:
 
 
 def _positive_float(name: str) -> Callable[[str], float]:
-    return _number(name, float, lambda v: v > 0, "> 0")
+    return _number(name, float, lambda v: math.isfinite(v) and v > 0, "finite, > 0")
 
 
 def _non_negative_float(name: str) -> Callable[[str], float]:
-    return _number(name, float, lambda v: v >= 0, ">= 0")
+    return _number(name, float, lambda v: math.isfinite(v) and v >= 0, "finite, >= 0")
 
 
 def _unit_interval(name: str) -> Callable[[str], float]:
@@ -176,6 +176,7 @@ def _cmd_describe(args: argparse.Namespace) -> int:
     from safe_bc.selection import SelectionConfig
     from safe_bc.tasks import task_defaults, task_of
 
+    check_output_folder(args.out)
     demos = load_demonstrations(args.demos)
     meta = read_meta(args.demos)
     if args.eps is None:
@@ -286,8 +287,9 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     from safe_bc.evaluation import EvalConfig, NetSource
     from safe_bc.metrics import METRICS
     from safe_bc.provenance import run_metadata
-    from safe_bc.tasks import task_defaults, task_of
+    from safe_bc.tasks import check_net_fits_task, task_defaults, task_of
 
+    check_output_folder(args.out)
     model, bc_cfg = load_checkpoint(args.checkpoint)
     extra = read_checkpoint_meta(args.checkpoint).get("extra", {})
     _, sel_meta = read_table(args.checkpoint / "selection.parquet")
@@ -295,6 +297,8 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
         raise ValueError(
             f"{args.checkpoint}: no env_id in the checkpoint; train with safe-bc train"
         )
+    spec = model.spec
+    check_net_fits_task(spec.obs_shape, spec.action_dim, extra["env_id"], args.checkpoint)
     task = task_defaults(task_of(extra["env_id"]))
     sel_cfg = sel_meta.get("config", {})
     cfg = EvalConfig(
@@ -341,6 +345,7 @@ def _cmd_expert(args: argparse.Namespace) -> int:
     from safe_bc.provenance import run_metadata
     from safe_bc.tasks import task_defaults
 
+    check_output_folder(args.out)
     task = task_defaults(args.env)
     demos_path = args.demos or Path(task.demos)
     ensure_demos(demos_path, task.collect_config(), progress=not args.quiet)
@@ -423,6 +428,7 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     from safe_bc.reproduce import run_reproduce
 
     config = _reproduce_config(args)
+    check_output_folder(config.out)
     if args.render_only:
         from safe_bc.reproduce import rerender
 
@@ -547,11 +553,17 @@ def _cmd_render(args: argparse.Namespace) -> int:
     return 0
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line errors (``safe-bc train: error: ...``, exit code 2) instead of
+    the usage block before them; ``-h`` still shows the usage."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} -h)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``safe-bc``."""
-    parser = argparse.ArgumentParser(
-        prog="safe-bc", description="Safety-focused behaviour cloning as a Ray study."
-    )
+    parser = _Parser(prog="safe-bc", description="Safety-focused behaviour cloning as a Ray study.")
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("collect", help="collect expert demonstrations into Parquet")
@@ -809,6 +821,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         OutputLockedError,
     ) as e:
         print(f"safe-bc {args.command}: error: {e}", file=sys.stderr)
+        return 2
+    except OSError as e:  # writing an output: a full disk, a read-only mount, a file in the way
+        where = f"{e.filename}: " if e.filename else ""
+        detail = e.strerror or " ".join(str(e).split())
+        print(f"safe-bc {args.command}: error: {where}{detail}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(

@@ -197,6 +197,13 @@ class ImproveConfig:
     """``torch.set_num_threads`` during the run (bit-identical weights need the same)."""
 
     def __post_init__(self) -> None:
+        for name in ("eps", "cost_margin", "cost_budget", "lambda_init", "lambda_lr",
+                     "lambda_max", "anchor_coef", "lr", "critic_lr", "gamma", "gae_lambda",
+                     "clip_coef", "target_kl", "max_grad_norm", "init_std",
+                     "ent_coef"):  # fmt: skip
+            value = getattr(self, name)
+            if value is not None and not math.isfinite(value):
+                raise ValueError(f"{name} must be finite, got {value}")
         if self.cost_signal not in get_args(CostSignal):
             raise ValueError(f"cost_signal must be one of {get_args(CostSignal)}")
         if self.anchor not in get_args(Anchor):
@@ -508,6 +515,27 @@ def _start_meta(start: Path, demos: Path | None) -> tuple[dict[str, Any], Path]:
     if "env_id" not in extra:
         raise ValueError(f"{start}: no env_id in the checkpoint; train it with safe-bc train")
     return meta, Path(demos if demos is not None else extra["demos"])
+
+
+def _check_start_fits(start: Path, demos: Path | None) -> None:
+    """Before anything is loaded or written: the start's net fits the task its config names,
+    and the demonstrations are of that task (one-line ``ValueError`` otherwise)."""
+    from safe_bc.data.store import read_meta
+    from safe_bc.tasks import check_net_fits_task
+
+    meta, demos_path = _start_meta(start, demos)
+    env_id = meta["extra"]["env_id"]
+    try:
+        spec = ModelSpec.from_dict(meta["spec"])
+    except (KeyError, TypeError, ValueError) as e:
+        raise CheckpointError(f"malformed spec in {start / 'config.json'}: {e!r}") from None
+    check_net_fits_task(spec.obs_shape, spec.action_dim, env_id, start)
+    demos_env = read_meta(demos_path).env_id
+    if demos_env != env_id:
+        raise ValueError(
+            f"--demos {demos_path} holds {demos_env} demonstrations but the start {start} was "
+            f"trained on {env_id}; pass demonstrations of {env_id} (default: the start's own)"
+        )
 
 
 def _load_start(start: Path, demos: Path | None) -> tuple[_Start, Any]:
@@ -922,6 +950,7 @@ def improve(
         history, kept = finished
         seconds = time.perf_counter() - t0
         return ImproveResult(out, history, config.iterations, config.iterations, seconds, kept)
+    _check_start_fits(start, demos)
     s, data = _load_start(start, demos)
     out.mkdir(parents=True, exist_ok=True)
     state_path = out / STATE

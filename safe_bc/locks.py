@@ -21,6 +21,7 @@ from __future__ import annotations
 import errno
 import fcntl
 import os
+import shutil
 import sys
 from collections.abc import Iterable, Iterator
 from contextlib import ExitStack, contextmanager
@@ -52,9 +53,42 @@ def _holder(path: Path) -> str:
     return f"pid {pid}" + (f", `{command}`" if command else "")
 
 
+MIN_FREE_BYTES = 1 << 20
+"""Free space below which an output is refused before any work (what a run will write is not
+known in advance; this catches a full disk)."""
+
+
+def check_output_folder(output: str | Path, flag: str = "--out") -> None:
+    """Before any work: ``output`` is (or can be made) a folder this process can write, on a
+    file system that is not full.
+
+    Raises:
+        ValueError: one line naming ``output`` and what is wrong.
+    """
+    path = Path(output)
+    if path.exists() and not path.is_dir():
+        raise ValueError(f"{flag} {output}: exists and is not a folder; name a folder")
+    existing = path
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    if not existing.is_dir():
+        raise ValueError(f"{flag} {output}: {existing} is a file, not a folder")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise ValueError(
+            f"{flag} {output}: {existing} is not writable (read-only file system or no "
+            "permission); choose another place"
+        )
+    free = shutil.disk_usage(existing).free
+    if free < MIN_FREE_BYTES:
+        raise ValueError(
+            f"{flag} {output}: the file system of {existing} is full ({free} bytes free)"
+        )
+
+
 @contextmanager
 def output_lock(output: str | Path, flag: str = "--out") -> Iterator[Path]:
-    """Hold ``output``'s lock for the ``with`` block (creating its parent if needed).
+    """Hold ``output``'s lock for the ``with`` block (creating its parent if needed), after
+    :func:`check_output_folder`.
 
     Args:
         output: the folder a command writes.
@@ -62,7 +96,9 @@ def output_lock(output: str | Path, flag: str = "--out") -> Iterator[Path]:
 
     Raises:
         OutputLockedError: another process (or another ``with`` in this one) holds it.
+        ValueError: ``output`` is a file, not writable, or on a full file system.
     """
+    check_output_folder(output, flag)
     path = lock_path(output)
     created = [d for d in (path.parent, *path.parent.parents) if not d.exists()]
     while True:
@@ -121,4 +157,10 @@ def output_locks(outputs: Iterable[tuple[str | Path, str]]) -> Iterator[None]:
         yield
 
 
-__all__ = ["OutputLockedError", "lock_path", "output_lock", "output_locks"]
+__all__ = [
+    "OutputLockedError",
+    "check_output_folder",
+    "lock_path",
+    "output_lock",
+    "output_locks",
+]

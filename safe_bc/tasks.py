@@ -106,6 +106,26 @@ def task_of(env_id: str) -> Task:
     raise ValueError(f"no task uses env {env_id!r} (known: {', '.join(TASKS)})")
 
 
+def check_net_fits_task(
+    obs_shape: tuple[int, ...], action_dim: int, env_id: str, where: Any
+) -> None:
+    """A net trained for one task must not be run on another: its observation rank (frames
+    or vectors) and action count must be the task's. Checked before any env is started.
+
+    Raises:
+        ValueError: one line naming ``where`` (the checkpoint) and both shapes.
+    """
+    task = task_defaults(task_of(env_id))
+    rank, dims = (1 if task.encoding == "vector" else 3), len(task.action_bounds[0])
+    if len(obs_shape) != rank or action_dim != dims:
+        kind = "vectors" if rank == 1 else "frames"
+        raise ValueError(
+            f"{where}: its net takes observations of shape {tuple(obs_shape)} and gives "
+            f"{action_dim} action(s), but it names {env_id} ({kind}, {dims} action(s)); the "
+            "checkpoint's env_id is not the task it was trained on"
+        )
+
+
 def dataset_action_bounds(root: str | Path) -> Bounds:
     """The action bounds of the dataset at ``root``: from its ``dataset.json``, or, for a
     dataset collected before the bounds were recorded there, from its task's entry."""

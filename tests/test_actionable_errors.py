@@ -226,3 +226,130 @@ def test_cli_train_on_nan_actions_exits_2_before_training(
     err = capsys.readouterr().err
     assert code == 2 and err.count("\n") == 1 and str(path) in err and "non-finite action" in err
     assert not (tmp_path / "ckpt").exists()
+
+
+# ------------------------------------------- check before work: settings, outputs, tasks
+def _one_line(capsys: pytest.CaptureFixture, code: int, command: str, *parts: str) -> str:
+    err = capsys.readouterr().err
+    assert code == 2, err
+    assert err.count("\n") == 1 and err.startswith(f"safe-bc {command}: error: "), err
+    for part in parts:
+        assert part in err, err
+    return err
+
+
+def _exit_code(argv: list[str]) -> int:
+    try:
+        return main(argv)
+    except SystemExit as e:  # argparse's refusals
+        return int(e.code or 0)
+
+
+@pytest.mark.parametrize(
+    ("flag", "value"),
+    [
+        ("--lambda-lr", "inf"),
+        ("--cost-budget", "inf"),
+        ("--anchor-coef", "inf"),
+        ("--cost-margin", "nan"),
+        ("--eps", "inf"),
+    ],
+)
+def test_improve_rejects_non_finite_settings_upfront(
+    tmp_path: Path, capsys: pytest.CaptureFixture, flag: str, value: str
+) -> None:
+    argv = ["improve", "--start", str(tmp_path / "none"), "--out", str(tmp_path / "run"), flag,
+            value]  # fmt: skip
+    _one_line(capsys, _exit_code(argv), "improve", flag, "finite")
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("name", ["cost_budget", "lambda_lr", "anchor_coef", "lambda_max"])
+def test_improve_config_rejects_infinity(name: str) -> None:
+    from safe_bc.improve import ImproveConfig
+
+    with pytest.raises(ValueError, match=f"{name} must be finite"):
+        ImproveConfig(**{name: float("inf")})
+
+
+def test_train_lr_inf_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    code = _exit_code(["train", "--out", str(tmp_path / "c"), "--lr", "inf"])
+    _one_line(capsys, code, "train", "--lr must be finite")
+
+
+def test_output_that_is_a_file_is_refused_before_work(
+    tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    demos = _dataset(tmp_path / "demos")
+    target = tmp_path / "taken"
+    target.write_text("a file")
+    code = main(["train", "--demos", str(demos), "--out", str(target), "--quiet"])
+    _one_line(capsys, code, "train", str(target), "not a folder")
+    code = main(["evaluate", "--checkpoint", str(tmp_path / "x"), "--out", str(target)])
+    _one_line(capsys, code, "evaluate", str(target), "not a folder")
+    code = main(["describe", "--demos", str(demos), "--out", str(target / "sub")])
+    _one_line(capsys, code, "describe", "is a file, not a folder")
+    assert target.read_text() == "a file"
+
+
+def test_read_only_output_is_refused_before_work(
+    tmp_path: Path, capsys: pytest.CaptureFixture, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """As root (tests in a container) permissions do not stop a write, so the read-only mount
+    is what os.access reports there."""
+    import safe_bc.locks
+
+    monkeypatch.setattr(safe_bc.locks.os, "access", lambda path, mode: False)
+    code = main(["train", "--demos", str(tmp_path / "none"), "--out", str(tmp_path / "c")])
+    _one_line(capsys, code, "train", "not writable")
+
+
+def test_an_os_error_while_writing_is_one_line_and_keeps_the_old_checkpoint(
+    rehab_demos: Path, tmp_path: Path, capsys: pytest.CaptureFixture, monkeypatch
+) -> None:
+    import errno
+
+    import safe_bc.experiment
+
+    ckpt = tmp_path / "ckpt"
+    argv = ["train", "--demos", str(rehab_demos), "--out", str(ckpt), "--batches", "5",
+            "--hidden", "8", "--quiet"]  # fmt: skip
+    assert main(argv) == 0
+    weights = (ckpt / "weights.pt").read_bytes()
+    capsys.readouterr()
+
+    def full(directory, *args, **kw):
+        raise OSError(errno.ENOSPC, "No space left on device", str(directory / "x.parquet"))
+
+    monkeypatch.setattr(safe_bc.experiment, "save_selection", full)
+    _one_line(capsys, main([*argv, "--seed", "1"]), "train", "No space left on device")
+    assert (ckpt / "weights.pt").read_bytes() == weights
+    load_checkpoint(ckpt)
+
+
+def test_improve_with_demos_of_another_task_is_refused_upfront(
+    rehab_start: Path, tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    demos = _dataset(tmp_path / "carracing")  # CarRacing-v3 demonstrations
+    out = tmp_path / "run"
+    argv = ["improve", "--start", str(rehab_start), "--demos", str(demos), "--out", str(out),
+            "--quiet"]  # fmt: skip
+    _one_line(capsys, main(argv), "improve", "CarRacing-v3 demonstrations", "RehabPathway")
+    assert not out.exists()
+
+
+def test_a_checkpoint_naming_another_task_is_refused_before_evaluation(
+    rehab_start: Path, tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    import shutil
+
+    ckpt = tmp_path / "ckpt"
+    shutil.copytree(rehab_start, ckpt)
+    meta = json.loads((ckpt / "config.json").read_text())
+    meta["extra"]["env_id"] = "CarRacing-v3"
+    (ckpt / "config.json").write_text(json.dumps(meta))
+    code = main(["evaluate", "--checkpoint", str(ckpt), "--out", str(tmp_path / "e"), "--quiet"])
+    _one_line(capsys, code, "evaluate", str(ckpt), "names CarRacing-v3")
+    code = main(["improve", "--start", str(ckpt), "--out", str(tmp_path / "run"), "--quiet"])
+    _one_line(capsys, code, "improve", "names CarRacing-v3")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ckpt"]
