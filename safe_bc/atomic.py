@@ -179,6 +179,8 @@ def atomic_dir(path: str | Path, unit: Collection[str] = ()) -> Iterator[Path]:
     (['b.txt', 'keep.txt'], ['unit'])
     """
     path = Path(path)
+    if path.is_symlink():  # replace the folder it points to, not the link
+        path = path.resolve()
     if path.exists() and not path.is_dir():
         raise FileExistsError(errno.EEXIST, "exists and is not a folder", str(path))
     if path.resolve() in (Path.cwd(), *Path.cwd().parents):

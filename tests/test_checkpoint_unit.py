@@ -188,3 +188,13 @@ def test_improve_rewrites_a_policy_missing_its_selection(rehab_start: Path, tmp_
     check_checkpoint_files(out / "policy")
     ImprovedSource.from_run(out)
     assert _names(out) == ["history.parquet", "policy", "state.pt"]
+
+
+def test_a_symlinked_checkpoint_folder_is_replaced_behind_its_link(tmp_path: Path) -> None:
+    real, link = tmp_path / "real", tmp_path / "link"
+    _write(real, 1)
+    (real / "eval").mkdir()
+    link.symlink_to(real)
+    _write(link, 2)
+    assert link.is_symlink() and _seed_of(link) == 2 and (real / "eval").is_dir()
+    assert _names(tmp_path) == ["link", "real"]
