@@ -24,6 +24,12 @@ class PreprocessConfig:
     crop_bar: bool = True
     """Drop the bottom 12 rows (rows 84-95 of CarRacing: the speed/ABS/steering indicator bar)."""
 
+    mask_steering: bool = False
+    """Paint the steering-angle indicator of a CarRacing frame black (rows 84-95, columns
+    36-61: ``preprocess.STEERING_INDICATOR``) before anything else, keeping the rest of the
+    bar (speed, ABS, gyro); only meaningful with ``crop_bar=False``. Against copycat
+    behaviour: the indicator shows the steering the agent just chose."""
+
     frame_stack: int = 1
     """Number of consecutive frames (oldest first) stacked along channels (features for
     vectors); at an episode's first steps the first frame is repeated."""

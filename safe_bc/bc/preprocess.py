@@ -19,6 +19,11 @@ from safe_bc.bc.config import PreprocessConfig
 BAR_ROWS = 12
 """Rows of the indicator bar at the bottom of a CarRacing frame (rows 84-95 of 96)."""
 
+STEERING_INDICATOR = (slice(84, 96), slice(36, 62))
+"""Rows and columns of a 96x96 CarRacing frame holding the steering-angle indicator (the
+green bar centred on column 48; measured by steering hard left and right, it spans columns
+38-58 at the wheels' lock); the speed, ABS and gyro indicators lie outside it."""
+
 LUMA = (0.299, 0.587, 0.114)
 """ITU-R 601 RGB -> luma weights."""
 
@@ -71,6 +76,11 @@ def preprocess_frames(frames: np.ndarray | torch.Tensor, cfg: PreprocessConfig) 
                 "torch.", ""
             )
         )
+    if cfg.mask_steering:
+        if x.shape[1:3] != (96, 96):
+            raise ValueError(f"mask_steering needs 96x96 CarRacing frames, got {tuple(x.shape)}")
+        x = x.clone()
+        x[:, STEERING_INDICATOR[0], STEERING_INDICATOR[1]] = 0
     if cfg.crop_bar:
         x = x[:, : x.shape[1] - BAR_ROWS]
     if cfg.grayscale:

@@ -7,6 +7,8 @@ import numpy as np
 import pandas as pd
 
 import scripts.observation_ablation as ablation
+from safe_bc.bc.config import PreprocessConfig
+from safe_bc.bc.preprocess import STEERING_INDICATOR, preprocess_frames
 from safe_bc.envs import EnvConfig, make_env
 
 
@@ -29,7 +31,7 @@ def test_steering_indicator_lies_inside_the_masked_region():
         right = _steer(env, 1.0, 16)
     finally:
         env.close()
-    rows, cols = ablation.STEERING_INDICATOR
+    rows, cols = STEERING_INDICATOR
     for frame, side in ((left, "left"), (right, "right")):
         bar = frame[84:96].astype(int)
         green = (bar[..., 1] > 200) & (bar[..., 0] < 60) & (bar[..., 2] < 60)
@@ -59,9 +61,9 @@ def test_masked_policy_blacks_out_only_the_indicator():
     policy.reset()
     policy.act(obs)
     seen = inner.seen[0]
-    assert (seen[ablation.STEERING_INDICATOR] == 0).all()
+    assert (seen[STEERING_INDICATOR] == 0).all()
     outside = np.ones((96, 96), bool)
-    outside[ablation.STEERING_INDICATOR] = False
+    outside[STEERING_INDICATOR] = False
     assert (seen[outside] == 77).all()
     assert (obs == 77).all()  # the caller's frame is untouched
 
@@ -97,3 +99,16 @@ def test_summary_pairs_cells_and_chooses_the_safe_high_reward_cell():
                               "eps": 2.0, "created_utc": "now", "cpus": "2"},
                              "nobar_grey_k1", "bar_grey_k1", "T")  # fmt: skip
     assert "**bar_grey_k1**" in text and "0/15" in text and "15/15" in text
+
+
+def test_mask_steering_preprocessing_equals_masking_the_frame():
+    """Training with ``mask_steering`` sees what the evaluation-time mask shows."""
+    frames = np.random.default_rng(0).integers(0, 256, (3, 96, 96, 3), dtype=np.uint8)
+    masked = frames.copy()
+    masked[:, 84:96, 36:62] = 0
+    cfg = PreprocessConfig(crop_bar=False, mask_steering=True)
+    plain = PreprocessConfig(crop_bar=False)
+    assert preprocess_frames(frames, cfg).equal(preprocess_frames(masked, plain))
+    assert not preprocess_frames(frames, plain).equal(preprocess_frames(masked, plain))
+    assert ablation.cell_name(cfg) == "bar-nosteer_grey_k1"
+    assert len(ablation.all_cells()) == 18
