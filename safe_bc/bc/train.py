@@ -17,7 +17,14 @@ from safe_bc.bc.checkpoint import save_checkpoint
 from safe_bc.bc.config import BCConfig, NetworkConfig, PreprocessConfig, TrainConfig
 from safe_bc.bc.net import BCNet, ModelSpec
 from safe_bc.bc.policy import BCPolicy
-from safe_bc.bc.preprocess import frame_stack_index, gather_inputs, standardization_stats
+from safe_bc.bc.preprocess import (
+    frame_shape,
+    frame_stack_index,
+    gather_inputs,
+    preprocess,
+    stack,
+    standardization_stats,
+)
 from safe_bc.demos import Demonstrations
 from safe_bc.selection import BatchSampler, Selection
 
@@ -26,10 +33,27 @@ LogFn = Callable[[int, dict[str, float]], None]
 the previous call) and ``samples_per_s``."""
 
 
-class BatchBuilder:
-    """Gathers ``(inputs, targets)`` tensors for row indices of in-memory demonstrations."""
+CACHE_LIMIT_BYTES = 2**30
+"""Largest preprocessed-frame cache ``train_bc`` keeps (1 GiB); bigger datasets are
+preprocessed per batch (the same values, more work)."""
 
-    def __init__(self, demos: Demonstrations, pre_cfg: PreprocessConfig) -> None:
+
+class BatchBuilder:
+    """Gathers ``(inputs, targets)`` tensors for row indices of in-memory demonstrations.
+
+    With ``cache_chunk`` set, each frame is preprocessed once, on first use, and kept: the
+    frames a batch needs come from a ``(N, *frame_shape) float32`` cache filled by
+    preprocessing calls of exactly ``cache_chunk`` frames (missing rows first, topped up with
+    other rows not yet cached, padded by repetition when fewer remain). Give it the number of
+    frames one uncached batch preprocesses (``batch_size * frame_stack``): every preprocessing
+    call then has the shape of that batch's, so the cached values are bit for bit the ones the
+    per-batch path computes (torch's CPU kernels for the grayscale matmul may differ between
+    call shapes, not between rows of one call). Without it every batch is preprocessed anew.
+    """
+
+    def __init__(
+        self, demos: Demonstrations, pre_cfg: PreprocessConfig, cache_chunk: int | None = None
+    ) -> None:
         self.observations = demos.observations
         self.actions = torch.tensor(np.asarray(demos.actions, np.float32))  # own copy
         self.pre_cfg = pre_cfg
@@ -38,14 +62,71 @@ class BatchBuilder:
             if pre_cfg.frame_stack > 1
             else None
         )
+        if cache_chunk is not None and cache_chunk < 1:
+            raise ValueError(f"cache_chunk must be >= 1, got {cache_chunk}")
+        self.cache_chunk = cache_chunk
+        self._frames: torch.Tensor | None = None  # (N, *frame_shape) preprocessed, lazily
+        self._cached = np.zeros(len(self.observations), bool)
+        self._stride: tuple[int, ...] | None = None  # preprocess()'s output strides
+
+    @staticmethod
+    def cache_bytes(demos: Demonstrations, pre_cfg: PreprocessConfig) -> int:
+        """Size of the full preprocessed-frame cache for ``demos``."""
+        shape = frame_shape(demos.observations.shape[1:], pre_cfg)
+        return 4 * len(demos.observations) * int(np.prod(shape))
 
     def inputs(self, rows: np.ndarray) -> torch.Tensor:
         """``rows (B,) -> (B, *input_shape) float32``."""
-        return gather_inputs(self.observations, rows, self.pre_cfg, self.stack_index)
+        if self.cache_chunk is None:
+            return gather_inputs(self.observations, rows, self.pre_cfg, self.stack_index)
+        rows = np.asarray(rows, np.int64)
+        k = self.pre_cfg.frame_stack
+        idx = rows if k == 1 else self.stack_index[rows].reshape(-1)
+        x = self._cached_frames(idx)
+        return x if k == 1 else stack(x, k)
 
     def targets(self, rows: np.ndarray) -> torch.Tensor:
         """``rows (B,) -> (B, A) float32`` expert actions."""
         return self.actions[torch.as_tensor(rows)]
+
+    def _cached_frames(self, idx: np.ndarray) -> torch.Tensor:
+        """Preprocessed frames of rows ``idx (M,)``, filling the cache where needed."""
+        missing = idx[~self._cached[idx]]
+        if missing.size:
+            self._fill(np.unique(missing))
+        assert self._frames is not None and self._stride is not None
+        x = self._frames[torch.from_numpy(idx)]
+        # the per-batch path's strides: a grayscale frame's (B, 1, H, W) tensor comes out of
+        # preprocess() with a channel stride of 1, and the conv layers pick their kernels (and
+        # so their rounding) by strides. Strides of size-1 dims address nothing: same memory.
+        if x.stride() != self._stride:
+            dims = zip(x.stride(), self._stride, x.shape, strict=True)
+            if all(a == b or n == 1 for a, b, n in dims):
+                x = x.as_strided(x.shape, self._stride)
+            else:  # not seen: preprocess() outputs are dense, batch-major
+                x = torch.empty_strided(x.shape, self._stride).copy_(x)
+        return x
+
+    def _fill(self, missing: np.ndarray) -> None:
+        """Preprocess the rows ``missing`` (sorted, unique) into the cache."""
+        chunk = self.cache_chunk
+        assert chunk is not None
+        n = len(self.observations)
+        while missing.size:
+            rows, missing = missing[:chunk], missing[chunk:]
+            if len(rows) < chunk:  # top up with uncached rows (any order: rows are independent)
+                free = np.flatnonzero(~self._cached)
+                free = free[~np.isin(free, rows)][: chunk - len(rows)]
+                rows = np.concatenate([rows, free])
+            real = len(rows)
+            if real < chunk:  # fewer than a chunk of rows left at all: pad by repetition
+                rows = np.resize(rows, chunk)
+            x = preprocess(self.observations[rows], self.pre_cfg)
+            if self._frames is None:
+                self._frames = torch.empty((n, *x.shape[1:]), dtype=x.dtype)
+                self._stride = x.stride()
+            self._frames[torch.from_numpy(rows[:real])] = x[:real]
+            self._cached[rows[:real]] = True
 
 
 @dataclass(frozen=True, eq=False)
@@ -182,7 +263,11 @@ def train_bc(
 
     train_cfg = replace(train_cfg, num_threads=training_threads(train_cfg))  # recorded
     spec = ModelSpec.for_data(demos.observations.shape[1:], n_actions, action_bounds)
-    builder = BatchBuilder(demos, pre_cfg)
+    # frames preprocessed once each, in calls shaped like one batch's (same values, see
+    # BatchBuilder); inside the timed loop, where the first batches fill the cache
+    cache = BatchBuilder.cache_bytes(demos, pre_cfg) <= CACHE_LIMIT_BYTES
+    chunk = train_cfg.batch_size * pre_cfg.frame_stack
+    builder = BatchBuilder(demos, pre_cfg, cache_chunk=chunk if cache else None)
     sampler = sampler.with_rng(np.random.default_rng(train_cfg.seed))
     log_steps: list[int] = []
     losses: list[float] = []

@@ -142,3 +142,53 @@ def test_loss_weights_change_the_objective():
     a = train_bc(demos, _sampler(demos, plain), TINY_CNN, SMALL_FRAMES, plain)
     b = train_bc(demos, _sampler(demos, weighted), TINY_CNN, SMALL_FRAMES, weighted)
     assert a.losses[0] != b.losses[0]
+
+
+def _cache_cases():
+    """(demos, preprocessing, net) triples covering the preprocessing paths."""
+    frames = frame_demos(n=90)
+    vectors = vector_demos(n=90)
+    return [
+        (frames, PreprocessConfig(), TINY_CNN),  # grayscale (B, 1, H, W): channel stride 1
+        (frames, PreprocessConfig(frame_stack=3), TINY_CNN),
+        (frames, PreprocessConfig(grayscale=False, resize=24), TINY_CNN),
+        (frames, PreprocessConfig(crop_bar=False, frame_stack=2, resize=32), TINY_CNN),
+        (vectors, PreprocessConfig(frame_stack=2), TINY_MLP),
+    ]
+
+
+@pytest.mark.parametrize("case", range(5))
+def test_cached_batches_equal_per_batch_preprocessing(case):
+    """The frame cache hands out the very tensors the per-batch path builds: values and
+    strides (the conv kernels, hence the weights' last bits, follow the strides)."""
+    from safe_bc.bc.train import BatchBuilder
+
+    demos, pre, _ = _cache_cases()[case]
+    rng = np.random.default_rng(case)
+    for batch in (1, 5, 16):
+        plain = BatchBuilder(demos, pre)
+        cached = BatchBuilder(demos, pre, cache_chunk=batch * pre.frame_stack)
+        for _ in range(12):  # repeated rows within and across batches, cache half full
+            rows = rng.integers(0, len(demos), batch)
+            a, b = plain.inputs(rows), cached.inputs(rows)
+            assert a.shape == b.shape and a.dtype == b.dtype
+            assert a.stride() == b.stride()
+            assert torch.equal(a, b)
+            assert torch.equal(plain.targets(rows), cached.targets(rows))
+        assert cached._cached.any()
+
+
+@pytest.mark.parametrize("case", range(5))
+def test_frame_cache_leaves_the_weights_unchanged(case, monkeypatch):
+    """train_bc with its frame cache gives the weights and losses of the per-batch path (the
+    code before the cache), bit for bit."""
+    import safe_bc.bc.train as train_mod
+
+    demos, pre, net = _cache_cases()[case]
+    cfg = small_train(batches=12)
+    cached = train_bc(demos, _sampler(demos, cfg), net, pre, cfg)
+    monkeypatch.setattr(train_mod, "CACHE_LIMIT_BYTES", -1)  # every batch preprocessed anew
+    plain = train_bc(demos, _sampler(demos, cfg), net, pre, cfg)
+    a, b = _state(cached), _state(plain)
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    assert np.array_equal(cached.losses, plain.losses)
