@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 from safe_bc.bc.checkpoint import CheckpointError
+from safe_bc.bc.config import PreprocessConfig
 from safe_bc.data.store import DatasetError
 from safe_bc.distributed.runtime import RayUnavailableError, check_ray_address
 from safe_bc.locks import OutputLockedError, check_output_folder, output_lock, output_locks
@@ -255,8 +256,16 @@ def _train(args: argparse.Namespace) -> int:
     run = RunConfig(
         _selection_config(args, eps=task.eps),
         BCConfig(
-            preprocess=PreprocessConfig(frame_stack=args.frame_stack),
-            network=NetworkConfig(hidden=args.hidden),
+            preprocess=PreprocessConfig(
+                frame_stack=args.frame_stack,
+                crop_bar=args.crop_bar,
+                grayscale=args.grayscale,
+                mask_steering=args.mask_steering,
+            ),
+            network=NetworkConfig(
+                hidden=args.hidden,
+                **({} if args.channels is None else {"channels": tuple(args.channels)}),
+            ),
             train=TrainConfig(
                 batches=args.batches, batch_size=args.batch_size, lr=args.lr, seed=args.seed
             ),
@@ -600,7 +609,38 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--batch-size", type=_positive("--batch-size"), default=64)
     p.add_argument("--lr", type=_positive_float("--lr"), default=3e-4)
     p.add_argument("--hidden", type=_positive("--hidden"), default=128)
-    p.add_argument("--frame-stack", type=_positive("--frame-stack"), default=1)
+    pre = PreprocessConfig()
+    p.add_argument(
+        "--frame-stack",
+        type=_positive("--frame-stack"),
+        default=pre.frame_stack,
+        help="consecutive frames stacked along channels (PreprocessConfig.frame_stack)",
+    )
+    p.add_argument(
+        "--crop-bar",
+        action=argparse.BooleanOptionalAction,
+        default=pre.crop_bar,
+        help="drop CarRacing's indicator bar, rows 84-95 (PreprocessConfig.crop_bar)",
+    )
+    p.add_argument(
+        "--grayscale",
+        action=argparse.BooleanOptionalAction,
+        default=pre.grayscale,
+        help="one luma channel instead of RGB (PreprocessConfig.grayscale)",
+    )
+    p.add_argument(
+        "--mask-steering",
+        action=argparse.BooleanOptionalAction,
+        default=pre.mask_steering,
+        help="black out the bar's steering-angle indicator (PreprocessConfig.mask_steering)",
+    )
+    p.add_argument(
+        "--channels",
+        type=_positive("--channels"),
+        nargs="*",
+        default=None,
+        help="conv channels of the CNN, e.g. 16 32 32 (default: NetworkConfig.channels)",
+    )
     p.add_argument("--seed", type=_non_negative_int("--seed"), default=0)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_train)

@@ -187,3 +187,22 @@ def test_study_summary_without_errors_says_so(tmp_path: Path) -> None:
     trials = outcome.trials.assign(error="")
     text = format_outcome(dataclasses.replace(outcome, trials=trials), ["selection.eps"])
     assert "no trial finished its evaluation (no trial recorded an error)" in text
+
+
+def test_preprocessing_and_channels_are_train_flags_with_the_config_defaults() -> None:
+    from safe_bc.bc.config import NetworkConfig, PreprocessConfig
+
+    args = build_parser().parse_args(["train", "--out", "x"])
+    pre = PreprocessConfig()
+    assert (args.crop_bar, args.grayscale, args.mask_steering, args.frame_stack) == (
+        pre.crop_bar, pre.grayscale, pre.mask_steering, pre.frame_stack
+    )  # fmt: skip
+    assert args.channels is None and NetworkConfig().channels
+    args = build_parser().parse_args(
+        ["train", "--out", "x", "--no-crop-bar", "--no-grayscale", "--mask-steering",
+         "--frame-stack", "4", "--channels", "8", "16", "16"]
+    )  # fmt: skip
+    assert (args.crop_bar, args.grayscale, args.mask_steering, args.frame_stack) == (
+        False, False, True, 4
+    )  # fmt: skip
+    assert args.channels == [8, 16, 16]
