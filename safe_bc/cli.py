@@ -616,24 +616,17 @@ def build_parser() -> argparse.ArgumentParser:
         default=pre.frame_stack,
         help="consecutive frames stacked along channels (PreprocessConfig.frame_stack)",
     )
-    p.add_argument(
-        "--crop-bar",
-        action=argparse.BooleanOptionalAction,
-        default=pre.crop_bar,
-        help="drop CarRacing's indicator bar, rows 84-95 (PreprocessConfig.crop_bar)",
-    )
-    p.add_argument(
-        "--grayscale",
-        action=argparse.BooleanOptionalAction,
-        default=pre.grayscale,
-        help="one luma channel instead of RGB (PreprocessConfig.grayscale)",
-    )
-    p.add_argument(
-        "--mask-steering",
-        action=argparse.BooleanOptionalAction,
-        default=pre.mask_steering,
-        help="black out the bar's steering-angle indicator (PreprocessConfig.mask_steering)",
-    )
+    for field, what in (
+        ("crop_bar", "drop CarRacing's indicator bar, rows 84-95"),
+        ("grayscale", "one luma channel instead of RGB"),
+        ("mask_steering", "black out the bar's steering-angle indicator"),
+    ):
+        p.add_argument(
+            "--" + field.replace("_", "-"),
+            action=argparse.BooleanOptionalAction,
+            default=getattr(pre, field),
+            help=f"{what} (PreprocessConfig.{field})",
+        )
     p.add_argument(
         "--channels",
         type=_positive("--channels"),
