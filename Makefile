@@ -7,7 +7,7 @@ TRIALS ?=
 ARGS ?=
 STAMP := $(VENV)/.installed
 
-.PHONY: install test test-slow lint format bench tune reproduce demos expert clean
+.PHONY: install test test-slow lint format bench tune reproduce demos expert ablation clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -45,6 +45,12 @@ expert: $(STAMP)
 
 reproduce: $(STAMP)
 	$(BIN)/safe-bc reproduce
+
+# The observation ablation behind PreprocessConfig's defaults (results/ablation/observation/);
+# ARGS=... passes e.g. the committed run's --cells/--screen-cells (see its observation.md).
+ablation: $(STAMP)
+	test -f data/demos/dataset.json || $(MAKE) demos
+	$(BIN)/python -m scripts.observation_ablation --processes 2 $(ARGS)
 
 tune: $(STAMP)
 	$(BIN)/safe-bc tune tune_jobs/$(STUDY).py $(if $(TRIALS),--trials $(TRIALS),) $(ARGS)
