@@ -49,10 +49,17 @@ class BatchBuilder:
     call then has the shape of that batch's, so the cached values are bit for bit the ones the
     per-batch path computes (torch's CPU kernels for the grayscale matmul may differ between
     call shapes, not between rows of one call). Without it every batch is preprocessed anew.
+    ``reuse_output`` (with ``cache_chunk``): ``inputs`` gathers into one reused tensor, which
+    the next call overwrites (a fresh 2 MB tensor per batch costs as much again in page
+    faults); for a loop that is done with a batch before it asks for the next.
     """
 
     def __init__(
-        self, demos: Demonstrations, pre_cfg: PreprocessConfig, cache_chunk: int | None = None
+        self,
+        demos: Demonstrations,
+        pre_cfg: PreprocessConfig,
+        cache_chunk: int | None = None,
+        reuse_output: bool = False,
     ) -> None:
         self.observations = demos.observations
         self.actions = torch.tensor(np.asarray(demos.actions, np.float32))  # own copy
@@ -68,6 +75,8 @@ class BatchBuilder:
         self._frames: torch.Tensor | None = None  # (N, *frame_shape) preprocessed, lazily
         self._cached = np.zeros(len(self.observations), bool)
         self._stride: tuple[int, ...] | None = None  # preprocess()'s output strides
+        self.reuse_output = reuse_output
+        self._out: torch.Tensor | None = None  # the reused gather target
 
     @staticmethod
     def cache_bytes(demos: Demonstrations, pre_cfg: PreprocessConfig) -> int:
@@ -95,7 +104,14 @@ class BatchBuilder:
         if missing.size:
             self._fill(np.unique(missing))
         assert self._frames is not None and self._stride is not None
-        x = self._frames[torch.from_numpy(idx)]
+        index = torch.from_numpy(idx)
+        if self.reuse_output:
+            shape = (len(idx), *self._frames.shape[1:])
+            if self._out is None or self._out.shape != shape:
+                self._out = torch.empty(shape, dtype=self._frames.dtype)
+            x = torch.index_select(self._frames, 0, index, out=self._out)
+        else:
+            x = self._frames[index]
         # the per-batch path's strides: a grayscale frame's (B, 1, H, W) tensor comes out of
         # preprocess() with a channel stride of 1, and the conv layers pick their kernels (and
         # so their rounding) by strides. Strides of size-1 dims address nothing: same memory.
@@ -267,7 +283,7 @@ def train_bc(
     # BatchBuilder); inside the timed loop, where the first batches fill the cache
     cache = BatchBuilder.cache_bytes(demos, pre_cfg) <= CACHE_LIMIT_BYTES
     chunk = train_cfg.batch_size * pre_cfg.frame_stack
-    builder = BatchBuilder(demos, pre_cfg, cache_chunk=chunk if cache else None)
+    builder = BatchBuilder(demos, pre_cfg, cache_chunk=chunk if cache else None, reuse_output=True)
     sampler = sampler.with_rng(np.random.default_rng(train_cfg.seed))
     log_steps: list[int] = []
     losses: list[float] = []

@@ -154,11 +154,13 @@ def _cache_cases():
         (frames, PreprocessConfig(grayscale=False, resize=24), TINY_CNN),
         (frames, PreprocessConfig(crop_bar=False, frame_stack=2, resize=32), TINY_CNN),
         (vectors, PreprocessConfig(frame_stack=2), TINY_MLP),
+        (frames, PreprocessConfig(crop_bar=False, mask_steering=True), TINY_CNN),
     ]
 
 
-@pytest.mark.parametrize("case", range(5))
-def test_cached_batches_equal_per_batch_preprocessing(case):
+@pytest.mark.parametrize("reuse", [False, True])
+@pytest.mark.parametrize("case", range(6))
+def test_cached_batches_equal_per_batch_preprocessing(case, reuse):
     """The frame cache hands out the very tensors the per-batch path builds: values and
     strides (the conv kernels, hence the weights' last bits, follow the strides)."""
     from safe_bc.bc.train import BatchBuilder
@@ -167,7 +169,7 @@ def test_cached_batches_equal_per_batch_preprocessing(case):
     rng = np.random.default_rng(case)
     for batch in (1, 5, 16):
         plain = BatchBuilder(demos, pre)
-        cached = BatchBuilder(demos, pre, cache_chunk=batch * pre.frame_stack)
+        cached = BatchBuilder(demos, pre, cache_chunk=batch * pre.frame_stack, reuse_output=reuse)
         for _ in range(12):  # repeated rows within and across batches, cache half full
             rows = rng.integers(0, len(demos), batch)
             a, b = plain.inputs(rows), cached.inputs(rows)
@@ -178,7 +180,7 @@ def test_cached_batches_equal_per_batch_preprocessing(case):
         assert cached._cached.any()
 
 
-@pytest.mark.parametrize("case", range(5))
+@pytest.mark.parametrize("case", range(6))
 def test_frame_cache_leaves_the_weights_unchanged(case, monkeypatch):
     """train_bc with its frame cache gives the weights and losses of the per-batch path (the
     code before the cache), bit for bit."""
