@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import numpy as np
@@ -491,3 +492,94 @@ def paired_crossed(
             row["n_seeds_paired"] = int(has.sum())
         rows.append(row)
     return pd.DataFrame(rows)
+
+
+# --- one-sided bounds: what a sample certifies --------------------------------------------------
+
+
+def binomial_cdf(k: int, n: int, p: float) -> float:
+    """``P(X <= k)`` for ``X ~ Binomial(n, p)`` (exact sum, in log space).
+
+    >>> round(binomial_cdf(0, 10, 0.1), 6), binomial_cdf(10, 10, 0.3)
+    (0.348678, 1.0)
+    """
+    if k < 0:
+        return 0.0
+    if k >= n or p <= 0.0:
+        return 1.0
+    if p >= 1.0:
+        return 0.0
+    lp, lq = math.log(p), math.log1p(-p)
+    terms = [
+        math.lgamma(n + 1) - math.lgamma(i + 1) - math.lgamma(n - i + 1) + i * lp + (n - i) * lq
+        for i in range(k + 1)
+    ]
+    top = max(terms)
+    return min(1.0, math.exp(top) * sum(math.exp(t - top) for t in terms))
+
+
+def clopper_pearson_upper(k: int, n: int, confidence: float = 0.95) -> float:
+    """One-sided Clopper-Pearson upper confidence bound on a share: with ``k`` of ``n``
+    independent trials counted, the share is at most this with probability ``confidence``
+    (the ``p`` at which ``P(X <= k) = 1 - confidence``; exact, never below the truth's level).
+
+    Zero of ``n`` bounds the share at ``1 - (1 - confidence)^(1/n)``, about ``3 / n`` at 95%
+    (the rule of three).
+
+    >>> round(clopper_pearson_upper(0, 10), 4), round(clopper_pearson_upper(0, 51), 4)
+    (0.2589, 0.057)
+    >>> round(clopper_pearson_upper(17, 51), 4), clopper_pearson_upper(5, 5)
+    (0.4571, 1.0)
+    """
+    if not 0 < confidence < 1:
+        raise ValueError(f"confidence must be in (0, 1), got {confidence}")
+    if n < 1 or not 0 <= k <= n:
+        raise ValueError(f"need 0 <= k <= n and n >= 1, got k={k}, n={n}")
+    if k == n:
+        return 1.0
+    alpha = 1.0 - confidence
+    if k == 0:
+        return 1.0 - alpha ** (1.0 / n)
+    lo, hi = k / n, 1.0
+    for _ in range(200):  # bisection: binomial_cdf falls as p rises
+        mid = (lo + hi) / 2
+        if binomial_cdf(k, n, mid) > alpha:
+            lo = mid
+        else:
+            hi = mid
+    return hi
+
+
+def lower_bound_crossed(
+    cells: np.ndarray, confidence: float = 0.95, *, n_boot: int = 2000, seed: int = 0
+) -> float:
+    """One-sided lower confidence bound on the mean of a crossed ``(training seeds, tracks)``
+    table: the ``1 - confidence`` quantile of :func:`crossed_bootstrap_ci`'s replicates (seeds
+    and tracks resampled independently), from a generator seeded with ``seed`` (the same
+    cells give the same bound). One cell: its value.
+
+    >>> cells = np.array([[700.0, 400.0, 650.0], [690.0, 380.0, 300.0]])
+    >>> lb = lower_bound_crossed(cells, 0.9)
+    >>> bool(cells.min() <= lb < cells.mean()), lb == lower_bound_crossed(cells, 0.9)
+    (True, True)
+    """
+    if not 0.5 <= confidence < 1:
+        raise ValueError(f"confidence must be in [0.5, 1), got {confidence}")
+    rng = np.random.default_rng(seed)
+    mean, lo, _ = crossed_bootstrap_ci(
+        cells, confidence=max(2 * confidence - 1, 1e-9), n_boot=n_boot, rng=rng
+    )
+    return mean if confidence == 0.5 else lo
+
+
+def certified_share(k: int, n: int, confidence: float = 0.95, what: str = "episodes") -> str:
+    """The claim ``k`` of ``n`` supports, in words.
+
+    >>> certified_share(0, 51)
+    'at most 5.7% of episodes cross d_s (95% one-sided Clopper-Pearson bound; 0 of 51 did)'
+    """
+    bound = clopper_pearson_upper(k, n, confidence)
+    return (
+        f"at most {100 * bound:.1f}% of {what} cross d_s ({100 * confidence:g}% one-sided "
+        f"Clopper-Pearson bound; {k} of {n} did)"
+    )

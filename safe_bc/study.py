@@ -217,7 +217,16 @@ class StudySpec:
     trials: int = 20
     """Number of trials (``--trials`` overrides)."""
     max_concurrent: int = 2
-    """Trials running at once."""
+    """Trials running at once (``--concurrent``): how many run at once, never which ones (with
+    :attr:`batch_size`)."""
+    batch_size: int | None = 2
+    """Trials suggested together: every suggestion of a batch is made before any of its
+    results is told to the sampler, the results are told in trial order once the whole batch
+    is in, and the screening compares a trial with the earlier batches only; so the same
+    study file gives the same trials whatever :attr:`max_concurrent` is (a trial of the next
+    batch starts only when the whole batch has finished: slots idle while the slowest trial
+    of a batch runs). ``None``: results are told as trials finish (no waiting, but the
+    trials then depend on the order in which concurrent trials finish)."""
     batches: int = 2000
     """Per-trial budget: training batches (overrides ``base.bc.train.batches``)."""
     eval_episodes: int = 10
@@ -264,7 +273,29 @@ class StudySpec:
     The per-dimension limits still bind step by step: a violation is a step beyond ``d_s`` in
     any dimension."""
     violation_tolerance: float = 0.0
-    """Largest allowed share of evaluated steps beyond the expert's limit ``d_s``."""
+    """Largest allowed share of evaluated steps beyond the expert's limit ``d_s`` (the point
+    constraint, without :attr:`violation_bound`)."""
+    violation_bound: float | None = None
+    """With a confidence (e.g. 0.95), the violation constraint is a bound instead of a point
+    estimate: the one-sided Clopper-Pearson upper confidence bound on the share of episodes
+    with a step beyond ``d_s`` (:func:`safe_bc.metrics.clopper_pearson_upper`, episodes taken
+    as independent) must not exceed :attr:`violation_share_limit`; the final phase applies
+    the same rule to its fresh episodes. ``None`` (default, as before): the share of steps
+    beyond ``d_s`` must not exceed :attr:`violation_tolerance`."""
+    violation_share_limit: float = 0.2
+    """Largest allowed upper bound on the share of episodes beyond ``d_s`` (with
+    :attr:`violation_bound`). Zero violations in ``n`` episodes bound the share at about
+    ``3 / n`` (95%), so a trial needs ``n >~ 3 / limit`` episodes to be feasible at all (15
+    at 0.2: e.g. 2 seeds x 10 tracks)."""
+    train_seeds: int = 1
+    """Training seeds per trial: ``base.bc.train.seed`` and the next ones, each trained and
+    evaluated on the trial's same tracks (a crossed seeds x tracks design); the trial's
+    metrics are means over all its episodes. 1 (default): one seed, as before."""
+    reward_bound: float | None = None
+    """With a confidence (e.g. 0.9), the objective is a one-sided lower confidence bound on the
+    trial's mean reward (``reward_lcb``: crossed bootstrap over its seeds and tracks with a
+    fixed bootstrap seed, :func:`safe_bc.metrics.lower_bound_crossed`); use it with
+    ``train_seeds >= 2``. ``None`` (default): the mean reward."""
     demos: Path = Path("data/demos")
     """Demonstration set (built with ``ensure_demos`` if absent); a shared path on a cluster."""
     storage: str = "results/ray"
@@ -284,6 +315,13 @@ class StudySpec:
     """CPUs reserved per rollout worker of a trial."""
     max_failures: int = 2
     """Retries of a failed trial (it resumes from its post-training checkpoint)."""
+    optuna_storage: str | None = None
+    """Optuna storage URL the study's Optuna trials (parameters, objective, constraint values,
+    Tune trial ids) are copied to after every batch, for Optuna's own tools
+    (``optuna.load_study``, ``optuna-dashboard``): ``None``, a SQLite file beside the tables,
+    ``results/<name>/optuna.db``; an RDB URL (``postgresql://...``) for a cluster. The
+    searcher inside Tune's experiment stays the source of truth (checkpointed and resumed
+    with the study); this is its copy, rewritten whole each time."""
     sampler_seed: int = 0
     """Seed of Optuna's TPE sampler."""
     startup_trials: int = 8
@@ -314,6 +352,12 @@ class StudySpec:
         ):
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"{key} must be an integer >= 1, got {value!r}")
+        if self.batch_size is not None and (
+            isinstance(self.batch_size, bool)
+            or not isinstance(self.batch_size, int)
+            or self.batch_size < 1
+        ):
+            raise ValueError(f"batch_size must be an integer >= 1 or None, got {self.batch_size!r}")
         for key in ("final_candidates", "final_train_seeds"):
             value = getattr(self, key)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
@@ -330,6 +374,20 @@ class StudySpec:
             raise ValueError(
                 f"violation_tolerance must be in [0, 1], got {self.violation_tolerance!r}"
             )
+        for key in ("violation_bound", "reward_bound"):
+            value = getattr(self, key)
+            if value is not None and not (0.5 <= value < 1):
+                raise ValueError(f"{key} must be a confidence in [0.5, 1) or None, got {value!r}")
+        if not (math.isfinite(self.violation_share_limit) and 0 <= self.violation_share_limit <= 1):
+            raise ValueError(
+                f"violation_share_limit must be in [0, 1], got {self.violation_share_limit!r}"
+            )
+        if (
+            isinstance(self.train_seeds, bool)
+            or not isinstance(self.train_seeds, int)
+            or (self.train_seeds < 1)
+        ):
+            raise ValueError(f"train_seeds must be an integer >= 1, got {self.train_seeds!r}")
         if not (math.isfinite(self.critical_eps) and self.critical_eps >= 0):
             raise ValueError(f"critical_eps must be >= 0, got {self.critical_eps!r}")
         for key in ("rollout_workers", "max_failures", "startup_trials"):
@@ -367,6 +425,16 @@ class StudySpec:
     def final_tracks_per_seed(self) -> int:
         """Fresh tracks each training seed of a final candidate is evaluated on."""
         return -(-self.final_episodes // self.final_train_seeds)
+
+    @property
+    def objective(self) -> str:
+        """The trial metric the search maximises: ``reward_lcb`` with :attr:`reward_bound`,
+        else ``reward_mean``."""
+        return "reward_lcb" if self.reward_bound is not None else OBJECTIVE
+
+    def trial_seeds(self) -> list[int]:
+        """The training seeds of every trial (``base.bc.train.seed`` and the next ones)."""
+        return [self.base.bc.train.seed + i for i in range(self.train_seeds)]
 
     @property
     def params(self) -> tuple[str, ...]:
@@ -471,17 +539,20 @@ OBJECTIVE = "reward_mean"
 TRIAL_METRICS = (
     "reward_mean",
     "reward_std",
+    "reward_lcb",
     "safety_mean",
     "safety_std",
     "safety_min",
     "violation_steps",
     "violation_rate",
     "any_violation",
+    "violation_share_ucb",
     "worst_excursion",
     "offroad_steps",
     "critical_share",
     "steps_mean",
     "episodes",
+    "train_seeds",
     "threshold",
     "constraint_safety",
     "constraint_violation",
@@ -504,8 +575,9 @@ TRIAL_METRICS = (
 )
 """What every trial reports (each report carries all keys; NaN where not known yet)."""
 
-TRIAL_INFO = ("trial_id", "status", "iterations")
-"""Bookkeeping columns in front of the table."""
+TRIAL_INFO = ("trial_id", "trial_number", "status", "iterations")
+"""Bookkeeping columns in front of the table (``trial_number``: the suggestion order, also the
+Optuna trial number; -1 when unknown, e.g. an unbatched study run before it was recorded)."""
 
 
 @dataclass(frozen=True)
@@ -520,25 +592,56 @@ class Limits:
     """Largest allowed ``violation_rate``."""
     safety_constraint: SafetyConstraint = "combined"
     """Which safety constraint applies."""
+    violation_bound: float | None = None
+    """With a confidence: the violation constraint is the Clopper-Pearson upper bound on the
+    share of episodes beyond ``d_s`` minus ``violation_share_limit`` (``StudySpec``)."""
+    violation_share_limit: float = 0.2
+    """Largest allowed upper bound on that share."""
 
 
 def constraints(metrics: Mapping[str, float], limits: Limits) -> dict[str, float]:
     """``constraint_safety``, ``constraint_violation`` and their maximum ``constraint`` for a
-    policy's mean metrics (``safety_mean``, ``safety_<dim>_mean``, ``violation_rate``); each
-    ``<= 0`` when met, NaN when a metric is missing.
+    policy's mean metrics (``safety_mean``, ``safety_<dim>_mean``, ``violation_rate``; with
+    ``limits.violation_bound`` the share of episodes with a violation ``any_violation`` and
+    their count ``episodes`` or ``n_episodes``); each ``<= 0`` when met, NaN when a metric is
+    missing.
 
     >>> lim = Limits(6.0, {"left": 7.0}, 0.0, "per_dim")
     >>> constraints({"safety_mean": 6.5, "safety_left_mean": 6.8, "violation_rate": 0.0}, lim)
     {'constraint_safety': 0.2..., 'constraint_violation': 0.0, 'constraint': 0.2...}
+    >>> bound = Limits(6.0, {}, 0.0, violation_bound=0.95, violation_share_limit=0.2)
+    >>> m = {"safety_mean": 7.0, "any_violation": 0.0, "episodes": 20}
+    >>> round(constraints(m, bound)["constraint_violation"], 4)  # 13.9% - 20%
+    -0.0609
     """
     gaps = [constraint_value(limits.threshold, metrics.get("safety_mean", math.nan))]
     if limits.safety_constraint == "per_dim":
         for dim, thr in limits.dim_thresholds.items():
             gaps.append(constraint_value(thr, metrics.get(f"safety_{dim}_mean", math.nan)))
     safety = math.nan if any(math.isnan(g) for g in gaps) else max(gaps)
-    violation = float(metrics.get("violation_rate", math.nan)) - limits.violation_tolerance
+    if limits.violation_bound is None:
+        violation = float(metrics.get("violation_rate", math.nan)) - limits.violation_tolerance
+    else:
+        violation = episode_share_bound(metrics, limits.violation_bound)
+        violation -= limits.violation_share_limit
     both = math.nan if math.isnan(safety) or math.isnan(violation) else max(safety, violation)
     return {"constraint_safety": safety, "constraint_violation": violation, "constraint": both}
+
+
+def episode_share_bound(metrics: Mapping[str, float], confidence: float) -> float:
+    """The Clopper-Pearson upper bound on the share of episodes beyond ``d_s`` from a policy's
+    ``any_violation`` (share) and ``episodes`` (or ``n_episodes``) count; NaN when missing.
+
+    >>> round(episode_share_bound({"any_violation": 0.0, "n_episodes": 51}, 0.95), 4)
+    0.057
+    """
+    from safe_bc.metrics import clopper_pearson_upper
+
+    share = float(metrics.get("any_violation", math.nan))
+    n = float(metrics.get("episodes", metrics.get("n_episodes", math.nan)))
+    if not (math.isfinite(share) and math.isfinite(n) and n >= 1):
+        return math.nan
+    return clopper_pearson_upper(round(share * n), int(n), confidence)
 
 
 def constraint_value(threshold: float, safety_mean: float) -> float:
@@ -558,9 +661,9 @@ def is_feasible(constraint: float) -> bool:
 def trial_table(records: Sequence[Mapping[str, Any]], params: Sequence[str]) -> pd.DataFrame:
     """One row per trial (in the order given): bookkeeping, every config value, every metric.
 
-    ``records`` hold ``trial_id``, ``status``, the parameters and the metrics (missing keys
-    become NaN: e.g. a trial that errored before reporting). ``feasible`` is recomputed from
-    ``constraint`` so that NaN counts as infeasible.
+    ``records`` hold ``trial_id``, ``trial_number``, ``status``, the parameters and the metrics
+    (missing keys become NaN: e.g. a trial that errored before reporting). ``feasible`` is
+    recomputed from ``constraint`` so that NaN counts as infeasible.
     """
     cols = [*TRIAL_INFO, *params, *TRIAL_METRICS]
     frame = pd.DataFrame([{c: r.get(c, np.nan) for c in cols} for r in records], columns=cols)
@@ -571,6 +674,7 @@ def trial_table(records: Sequence[Mapping[str, Any]], params: Sequence[str]) -> 
     )
     for c in ("error", "phase", "eval_seeds", "status", "trial_id"):
         frame[c] = frame[c].map(lambda v: "" if is_missing(v) else str(v))
+    frame["trial_number"] = frame["trial_number"].map(lambda v: -1 if is_missing(v) else int(v))
     return frame
 
 
@@ -588,8 +692,9 @@ class Winner:
     """One line saying how it was chosen."""
 
 
-def choose_winner(trials: pd.DataFrame) -> Winner | None:
-    """The feasible trial with the highest reward, else the least infeasible one.
+def choose_winner(trials: pd.DataFrame, objective: str = OBJECTIVE) -> Winner | None:
+    """The feasible trial with the highest ``objective`` (the reward, or its lower bound),
+    else the least infeasible one.
 
     Only trials with a finite reward and constraint count (finished evaluations). Ties go to
     the higher safety mean, then the lower trial id. ``None`` when no trial finished.
@@ -600,7 +705,7 @@ def choose_winner(trials: pd.DataFrame) -> Winner | None:
     feasible = done[done["constraint"] <= 0]
     if not feasible.empty:
         best = feasible.sort_values(
-            ["reward_mean", "safety_mean", "trial_id"], ascending=[False, False, True]
+            [objective, "safety_mean", "trial_id"], ascending=[False, False, True]
         ).iloc[0]
         msg = (
             f"winner {best['trial_id']}: highest reward {best['reward_mean']:.1f} among "
@@ -609,7 +714,7 @@ def choose_winner(trials: pd.DataFrame) -> Winner | None:
         )
         return Winner(str(best["trial_id"]), True, _row(best), msg)
     best = done.sort_values(
-        ["constraint", "reward_mean", "trial_id"], ascending=[True, False, True]
+        ["constraint", objective, "trial_id"], ascending=[True, False, True]
     ).iloc[0]
     msg = (
         f"no feasible trial among {len(done)}: closest is {best['trial_id']} (safety mean "
@@ -631,15 +736,15 @@ def _finished(trials: pd.DataFrame) -> pd.DataFrame:
     return trials[ok]
 
 
-def choose_candidates(trials: pd.DataFrame, k: int) -> pd.DataFrame:
+def choose_candidates(trials: pd.DataFrame, k: int, objective: str = OBJECTIVE) -> pd.DataFrame:
     """The final phase's candidates: up to ``k`` fully evaluated trials, feasible ones first by
-    reward, then the least infeasible (smallest ``constraint``)."""
+    ``objective``, then the least infeasible (smallest ``constraint``)."""
     done = _finished(trials).assign(_f=lambda t: t["constraint"] <= 0)
     feasible = done[done["_f"]].sort_values(
-        ["reward_mean", "safety_mean", "trial_id"], ascending=[False, False, True]
+        [objective, "safety_mean", "trial_id"], ascending=[False, False, True]
     )
     rest = done[~done["_f"]].sort_values(
-        ["constraint", "reward_mean", "trial_id"], ascending=[True, False, True]
+        ["constraint", objective, "trial_id"], ascending=[True, False, True]
     )
     return pd.concat([feasible, rest]).head(k).drop(columns="_f").reset_index(drop=True)
 

@@ -36,7 +36,7 @@ from safe_bc.distributed.train import train_many
 from safe_bc.distributed.trial import TrialJob, bounds_for, trial_threads
 from safe_bc.evaluation import EvalConfig, ExpertSource, NetSource
 from safe_bc.experiment import RunConfig, train_run
-from safe_bc.metrics import summarize_policies
+from safe_bc.metrics import certified_share, clopper_pearson_upper, summarize_policies
 from safe_bc.study import StudySpec, constraints
 from safe_bc.tasks import Bounds
 
@@ -64,6 +64,9 @@ class FinalOutcome:
     """One line saying how the winner was chosen."""
     configs: dict[str, dict[str, Any]]
     """Method -> its run configuration (the first seed's)."""
+    certified: str = ""
+    """What the winner's fresh episodes certify: the one-sided Clopper-Pearson upper bound on
+    its share of episodes beyond ``d_s`` (at the study's ``violation_bound``, else 95%)."""
 
 
 def final_workers(spec: StudySpec) -> int:
@@ -184,9 +187,21 @@ def final_phase(
     table = pd.concat([table, cons], axis=1)
     table["feasible"] = table["constraint"] <= 0
     table["role"] = ["candidate" if m in cfgs and m != PLAIN_BC else m for m in table["method"]]
+    confidence = 0.95 if spec.violation_bound is None else spec.violation_bound
+    if "episodes_with_violation" in table:
+        table["violation_share_ucb"] = [
+            clopper_pearson_upper(int(k), int(n), confidence)
+            for k, n in zip(table["episodes_with_violation"], table["n_episodes"], strict=True)
+        ]
     winner, feasible, message = choose_final(table)
+    certified = ""
+    if winner is not None and "episodes_with_violation" in table:
+        row = table[table["method"] == winner].iloc[0]
+        certified = certified_share(
+            int(row["episodes_with_violation"]), int(row["n_episodes"]), confidence
+        )
     configs = {m: c.to_dict() for m, c in cfgs.items()}
-    return FinalOutcome(table, episodes, winner, feasible, message, configs)
+    return FinalOutcome(table, episodes, winner, feasible, message, configs, certified)
 
 
 def _improve_candidates(

@@ -6,22 +6,31 @@
   Ray-private attributes of ``OptunaSearch`` (``_ot_trials``, ``_completed_trials``,
   ``_ot_study``); :func:`check_private_api` names them and the tests run it against the
   pinned Ray, so an upgrade that moves them fails loudly.
-* :func:`make_scheduler` is successive halving (``AsyncHyperBandScheduler``) on the trials'
-  cheap first evaluation (``screen_episodes`` tracks).
+* With ``batch_size`` (``StudySpec.batch_size``) the searcher is deterministic whatever the
+  concurrency: suggestions come in batches of that size, every suggestion of a batch is made
+  before any result of it is told, and a batch's results are told to Optuna in trial order
+  once all of them are in (a trial of the next batch is suggested only then). The trial's
+  number (its suggestion order, the Optuna trial number) travels in its config as
+  :data:`NUMBER`.
+* :func:`make_scheduler` is successive halving on the trials' cheap first evaluation
+  (``screen_episodes`` tracks): :class:`BatchHalving` (deterministic, with batches), else
+  Tune's ``AsyncHyperBandScheduler``.
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from optuna.samplers import TPESampler
 from ray.tune.schedulers import AsyncHyperBandScheduler, FIFOScheduler, TrialScheduler
 from ray.tune.search.optuna import OptunaSearch
 
-from safe_bc.study import CONSTRAINTS, OBJECTIVE, Choice, Float, Int, Param, StudySpec
+from safe_bc.study import CONSTRAINTS, Choice, Float, Int, Param, StudySpec
 
 SCORE = "score"
 """Result key of the screening score ASHA compares: the reward, minus :data:`SCREEN_PENALTY`
@@ -31,6 +40,13 @@ ROUND = "eval_round"
 SCREEN_PENALTY = 1e6
 """Subtracted from the screened reward of a trial that breaks a constraint (so feasible
 trials always rank above infeasible ones, and infeasible ones by reward)."""
+
+SCREENED = "screen_score_r1"
+"""Result key keeping a trial's screening score in its later reports (:class:`BatchHalving`
+reads it from every earlier trial's last result)."""
+NUMBER = "trial_number"
+"""Config key of a trial's number: its suggestion order (0, 1, ...), the Optuna trial number
+(set by a batched :class:`ConstrainedOptunaSearch`)."""
 
 PRIVATE_API = ("_ot_trials", "_completed_trials", "_ot_study")
 """``OptunaSearch`` attributes this module relies on (Ray 2.60)."""
@@ -64,13 +80,52 @@ class ConstrainedOptunaSearch(OptunaSearch):
     Results whose objective is not a finite number (the post-training report) are not
     forwarded as intermediate values; a trial without finite constraints (an invalid
     configuration) is told as failed.
+
+    With ``batch_size``, suggestions are made in batches (see the module docstring): the
+    same study file gives the same suggestions whatever the number of trials running at once.
+    ``None``: every result is told as it arrives (the order in which concurrent trials finish
+    then changes later suggestions).
     """
 
     def __init__(
-        self, *args: Any, constraints: Mapping[str, str] = CONSTRAINTS, **kwargs: Any
+        self,
+        *args: Any,
+        constraints: Mapping[str, str] = CONSTRAINTS,
+        batch_size: int | None = None,
+        max_trials: int | None = None,
+        export_to: str | None = None,
+        **kwargs: Any,
     ) -> None:
         self._constraint_keys = dict(constraints)
+        if batch_size is not None and batch_size < 1:
+            raise ValueError(f"batch_size must be >= 1 or None, got {batch_size}")
+        self._batch_size = batch_size
+        self._max_trials = max_trials
+        """The study's trial count: the last batch is complete with the last trial."""
+        self._numbers: dict[str, int] = {}
+        """Tune trial id -> its number (suggestion order)."""
+        self._batch: list[str] = []
+        """Trial ids of the current batch, in suggestion order."""
+        self._held: dict[str, tuple[dict | None, bool]] = {}
+        """Results of the current batch's finished trials, not yet told."""
+        self._export_to = export_to
+        """Optuna storage URL the study is copied to after every tell (``None``: none)."""
         super().__init__(*args, **kwargs)
+
+    def suggest(self, trial_id: str) -> dict | None:
+        size = self.__dict__.get("_batch_size")
+        if size is None:  # unbatched (also a searcher pickled before batches existed)
+            config = super().suggest(trial_id)
+            self._ot_trials[trial_id].set_user_attr("tune_trial_id", trial_id)
+            return config
+        if trial_id not in self._numbers:
+            if len(self._batch) >= size:
+                return None  # wait until the whole batch is in and told
+            self._numbers[trial_id] = len(self._numbers)
+            self._batch.append(trial_id)
+        config = super().suggest(trial_id)
+        self._ot_trials[trial_id].set_user_attr("tune_trial_id", trial_id)
+        return {**config, NUMBER: self._numbers[trial_id]}
 
     def on_trial_result(self, trial_id: str, result: dict) -> None:
         value = result.get(self.metric) if isinstance(self.metric, str) else None
@@ -80,6 +135,35 @@ class ConstrainedOptunaSearch(OptunaSearch):
     def on_trial_complete(
         self, trial_id: str, result: dict | None = None, error: bool = False
     ) -> None:
+        if self.__dict__.get("_batch_size") is None or trial_id not in self._batch:
+            self._tell(trial_id, result, error)
+            self.export()
+            return
+        self._held[trial_id] = (result, error)
+        first = self._numbers[self._batch[0]]
+        total = self.__dict__.get("_max_trials")
+        size = self._batch_size if total is None else min(self._batch_size, total - first)
+        if len(self._batch) >= size and len(self._held) == len(self._batch):
+            for tid in self._batch:  # the batch is in: tell it in trial order
+                if tid not in self._completed_trials:
+                    self._tell(tid, *self._held[tid])
+            self._batch, self._held = [], {}
+            self.export()
+
+    def export(self) -> None:
+        """Copy the Optuna study (every trial with its parameters, value, state, constraints
+        and Tune trial id) to the ``export_to`` storage, replacing an earlier copy."""
+        url = self.__dict__.get("_export_to")
+        if url and self._ot_study is not None:
+            attrs = {"objective": self._metric, "constraints": dict(self._constraint_keys),
+                     "batch_size": self.__dict__.get("_batch_size")}  # fmt: skip
+            export_study(self._ot_study, url, attrs)
+
+    def batch_pending(self) -> list[str]:
+        """Trial ids of the current batch whose results are not in yet."""
+        return [t for t in self.__dict__.get("_batch", []) if t not in self._held]
+
+    def _tell(self, trial_id: str, result: dict | None, error: bool) -> None:
         ot_trial = self._ot_trials.get(trial_id)
         if ot_trial is not None and trial_id not in self._completed_trials and result:
             values = {name: result.get(key) for name, key in self._constraint_keys.items()}
@@ -103,6 +187,59 @@ class ConstrainedOptunaSearch(OptunaSearch):
         return {tid: dict(t.constraints) for tid, t in self._ot_trials.items()}
 
 
+def default_optuna_storage(spec: StudySpec) -> str:
+    """The study's Optuna storage URL: ``spec.optuna_storage``, else a SQLite file beside the
+    tables, ``sqlite:///<results>/<name>/optuna.db`` (absolute path)."""
+    if spec.optuna_storage:
+        return spec.optuna_storage
+    return f"sqlite:///{(spec.results / spec.name / 'optuna.db').resolve()}"
+
+
+def export_study(study: Any, url: str, attrs: Mapping[str, Any] | None = None) -> None:
+    """Write ``study`` (any Optuna study, e.g. the searcher's in-memory one) to the Optuna
+    storage at ``url`` under the same name, replacing a study of that name there; ``attrs``
+    are added to the copy's study user attributes.
+
+    A SQLite file is written to a temporary file and renamed over the old one (a reader or a
+    killed driver never sees half a study); other RDB URLs (PostgreSQL, MySQL) are updated
+    in place (the old study deleted, then the copy added).
+    """
+    import os
+
+    import optuna
+
+    prefix = "sqlite:///"
+    if url.startswith(prefix):
+        path = Path(url.removeprefix(prefix))
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        tmp.unlink(missing_ok=True)
+        try:
+            storage = optuna.storages.RDBStorage(f"{prefix}{tmp}")
+            _copy_into(study, storage, attrs)
+            storage.remove_session()
+            storage.engine.dispose()
+            os.replace(tmp, path)
+        finally:
+            tmp.unlink(missing_ok=True)
+        return
+    storage = optuna.storages.RDBStorage(url)
+    with contextlib.suppress(KeyError):  # no earlier copy
+        optuna.delete_study(study_name=study.study_name, storage=storage)
+    _copy_into(study, storage, attrs)
+
+
+def _copy_into(study: Any, storage: Any, attrs: Mapping[str, Any] | None) -> None:
+    import optuna
+
+    copy = optuna.create_study(
+        storage=storage, study_name=study.study_name, directions=study.directions
+    )
+    for key, value in {**study.user_attrs, **(attrs or {})}.items():
+        copy.set_user_attr(key, value)
+    copy.add_trials(study.get_trials(deepcopy=False))
+
+
 def check_private_api(searcher: OptunaSearch) -> None:
     """Raise ``RuntimeError`` naming the Ray-private attributes a searcher lacks.
 
@@ -117,19 +254,25 @@ def check_private_api(searcher: OptunaSearch) -> None:
 
 
 def make_searcher(spec: StudySpec) -> ConstrainedOptunaSearch:
-    """The study's constrained TPE searcher (maximises ``reward_mean``)."""
+    """The study's constrained TPE searcher (maximises ``spec.objective``), batched when the
+    study says so (``spec.batch_size``). With batches, the constant liar follows the batch
+    size, never ``max_concurrent`` (which ``--concurrent`` changes)."""
+    parallel = spec.batch_size if spec.batch_size is not None else spec.max_concurrent
     sampler = TPESampler(
         seed=spec.sampler_seed,
         n_startup_trials=spec.startup_trials,
         multivariate=True,
-        constant_liar=spec.max_concurrent > 1,
+        constant_liar=parallel > 1,
     )
     return ConstrainedOptunaSearch(
         space=SpaceSampler(spec.space),
-        metric=OBJECTIVE,
+        metric=spec.objective,
         mode="max",
         sampler=sampler,
         study_name=spec.name,
+        batch_size=spec.batch_size,
+        max_trials=spec.trials,
+        export_to=default_optuna_storage(spec),
     )
 
 
@@ -140,14 +283,60 @@ def load_searcher(experiment_path: str | Path) -> ConstrainedOptunaSearch:
     return searcher
 
 
+class BatchHalving(FIFOScheduler):
+    """Deterministic successive halving for batched studies: a trial of batch ``k`` is stopped
+    after its screening when its score is below the median of the screening scores of the
+    trials of batches ``0 .. k-1`` (all finished before batch ``k`` was suggested), whatever
+    order the trials of its own batch finish in. The first batch is never stopped.
+
+    The scores are read from the trials' last results (:data:`SCREENED`), so the rule holds
+    after ``Tuner.restore`` without any state of its own.
+    """
+
+    def __init__(self, batch_size: int) -> None:
+        super().__init__()
+        self.batch_size = batch_size
+
+    def on_trial_result(self, tune_controller: Any, trial: Any, result: dict) -> str:
+        if result.get(ROUND) != 1 or result.get("phase") != "screened":
+            return TrialScheduler.CONTINUE
+        number = trial.config.get(NUMBER)
+        if number is None:
+            return TrialScheduler.CONTINUE
+        start = (int(number) // self.batch_size) * self.batch_size
+        earlier = []
+        for other in tune_controller.get_trials():
+            n = other.config.get(NUMBER)
+            score = (other.last_result or {}).get(SCREENED)
+            if n is not None and int(n) < start and isinstance(score, int | float):
+                earlier.append(float(score))
+        return halving_decision(float(result[SCORE]), earlier)
+
+
+def halving_decision(score: float, earlier: list[float]) -> str:
+    """``STOP`` when ``score`` is below the median of the finite ``earlier`` scores.
+
+    >>> halving_decision(1.0, []), halving_decision(1.0, [0.0, 2.0, 3.0])
+    ('CONTINUE', 'STOP')
+    """
+    finite = [x for x in earlier if math.isfinite(x)]
+    if finite and math.isfinite(score) and score < float(np.median(finite)):
+        return TrialScheduler.STOP
+    return TrialScheduler.CONTINUE
+
+
 def make_scheduler(spec: StudySpec) -> TrialScheduler:
     """Successive halving on the screening round when the study screens, else FIFO.
 
-    Rung 1 is the screened score: a trial is stopped when its score is below the median of
-    the scores recorded at that rung so far (reduction factor 2); round 2 is the end.
+    Rung 1 is the screened score. Batched (``spec.batch_size``): :class:`BatchHalving`.
+    Otherwise Tune's ASHA: a trial is stopped when its score is below the median of the
+    scores recorded at that rung so far (reduction factor 2; which those are depends on the
+    order trials finish in); round 2 is the end.
     """
     if not spec.screens:
         return FIFOScheduler()
+    if spec.batch_size is not None:
+        return BatchHalving(spec.batch_size)
     return AsyncHyperBandScheduler(
         time_attr=ROUND,
         metric=SCORE,

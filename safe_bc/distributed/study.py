@@ -34,6 +34,7 @@ from safe_bc.data.store import read_meta, write_table_atomic
 from safe_bc.distributed.final import FinalOutcome, final_phase
 from safe_bc.distributed.runtime import ensure_ray
 from safe_bc.distributed.search import (
+    NUMBER,
     ConstrainedOptunaSearch,
     SpaceSampler,
     load_searcher,
@@ -197,12 +198,15 @@ def _records(grid: Any, params: Sequence[str]) -> list[dict[str, Any]]:
         rec.update({k: r.config.get(k) for k in params})
         rec.update(
             trial_id=str(m.get("trial_id") or Path(r.path).name.removeprefix("trial_")),
+            trial_number=r.config.get(NUMBER),
             status=status,
             iterations=m.get("training_iteration", 0),
         )
         if r.error:
             rec["error"] = str(r.error).strip().splitlines()[-1][:300]
         records.append(rec)
+    if records and all(r["trial_number"] is not None for r in records):
+        records.sort(key=lambda r: r["trial_number"])  # suggestion order
     return records
 
 
@@ -450,7 +454,7 @@ def _run_study(
         _delete_tree(exp_path)
         for name in ("trials", "history", "final", "final_episodes"):
             (out / f"{name}.parquet").unlink(missing_ok=True)
-        for name in ("best.json", "pareto.png", "study.json", HISTORY):
+        for name in ("best.json", "pareto.png", "study.json", "optuna.db", HISTORY):
             (out / name).unlink(missing_ok=True)
     ensure_ray()
     demos_path = spec.demos.resolve()
@@ -463,14 +467,24 @@ def _run_study(
     expert_safety = demos.safety_mean
     threshold = expert_safety if spec.threshold is None else float(spec.threshold)
     limits = Limits(
-        threshold, demos.dim_safety_means(), spec.violation_tolerance, spec.safety_constraint
+        threshold,
+        demos.dim_safety_means(),
+        spec.violation_tolerance,
+        spec.safety_constraint,
+        spec.violation_bound,
+        spec.violation_share_limit,
     )
     job = TrialJob(spec, str(demos_path), limits, tuple(float(x) for x in demos.limits))
 
     restoring = tune.Tuner.can_restore(exp_path)
     if not restoring:  # a new experiment: rows of an older one do not belong to it
         (out / HISTORY).unlink(missing_ok=True)
-    identity = {"trials": spec.trials, "threshold": threshold, "limits": list(job.cost_limits)}
+    identity = {
+        "trials": spec.trials,
+        "threshold": threshold,
+        "limits": list(job.cost_limits),
+        "batch_size": spec.batch_size,
+    }
     _check_resume(out, identity, restoring)
     resources = tune.PlacementGroupFactory(
         [{"CPU": spec.cpus_per_trial}] + [{"CPU": spec.cpus_per_worker}] * spec.rollout_workers
@@ -530,6 +544,9 @@ def _run_study(
         "threshold": threshold,
         "dim_thresholds": dict(limits.dim_thresholds),
         "violation_tolerance": spec.violation_tolerance,
+        "violation_bound": spec.violation_bound,
+        "violation_share_limit": spec.violation_share_limit,
+        "objective": spec.objective,
         "safety_constraint": spec.safety_constraint,
         "expert_demo_safety_mean": expert_safety,
         "cost_limits": list(job.cost_limits),
@@ -549,7 +566,7 @@ def _run_study(
     }
     write_table_atomic(out / "trials.parquet", trials, meta)
     write_table_atomic(out / "history.parquet", history, meta)
-    winner = choose_winner(trials)
+    winner = choose_winner(trials, spec.objective)
     plot_pareto(
         trials,
         threshold,
@@ -561,7 +578,7 @@ def _run_study(
     if not complete or winner is None:
         return outcome
 
-    candidates = choose_candidates(trials, spec.final_candidates)
+    candidates = choose_candidates(trials, spec.final_candidates, spec.objective)
     checkpoints = _checkpoints(grid, list(candidates["trial_id"]))
     final = final_phase(spec, job, candidates, checkpoints, demos, progress=progress)
     _write_final(spec, final, candidates, meta)
@@ -611,6 +628,7 @@ def _write_final(
         "trial_id": final.winner,
         "feasible": final.feasible,
         "message": final.message,
+        "certified": final.certified,
         "threshold": meta["threshold"],
         "dim_thresholds": meta["dim_thresholds"],
         "violation_tolerance": meta["violation_tolerance"],
@@ -679,5 +697,7 @@ def format_outcome(outcome: StudyOutcome, params: Sequence[str]) -> str:
             )
         )
         lines.append(outcome.final.message)
+        if outcome.final.certified:
+            lines.append(f"the winner, on the fresh tracks: {outcome.final.certified}")
     lines.append(f"outputs in {outcome.out}/")
     return "\n".join(lines)

@@ -13,6 +13,7 @@ training and the evaluation, and the improved agent is what the rounds evaluate.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import random
 import tempfile
@@ -32,12 +33,12 @@ from safe_bc.bc.train import training_threads
 from safe_bc.data.store import load_demonstrations
 from safe_bc.demos import Demonstrations
 from safe_bc.distributed.evaluate import evaluate
-from safe_bc.distributed.search import ROUND, SCORE, screen_score
+from safe_bc.distributed.search import ROUND, SCORE, SCREENED, screen_score
 from safe_bc.evaluation import EvalConfig, NetSource
 from safe_bc.experiment import RunConfig, train_run
-from safe_bc.metrics import mean_metrics
+from safe_bc.metrics import cell_table, lower_bound_crossed, mean_metrics
 from safe_bc.selection import SelectionError
-from safe_bc.study import TRIAL_METRICS, Limits, StudySpec, constraints
+from safe_bc.study import TRIAL_METRICS, Limits, StudySpec, constraints, episode_share_bound
 from safe_bc.tasks import Bounds, dataset_action_bounds
 
 
@@ -127,6 +128,7 @@ def blank_metrics(job: TrialJob) -> dict[str, Any]:
     )
     out[ROUND] = 0  # ASHA reads these on every report: round 0 is before any evaluation
     out[SCORE] = math.nan
+    out[SCREENED] = math.nan  # the screening score, kept in the later reports
     return out
 
 
@@ -162,9 +164,15 @@ def evaluate_source(
     return result.episodes
 
 
-def trial_values(episodes: pd.DataFrame, limits: Limits) -> dict[str, float]:
-    """A trial's metrics from its evaluated episodes: the means of ``metrics.METRICS`` (the
-    same definitions as every other table), the objective and the constraints."""
+def trial_values(
+    episodes: pd.DataFrame, limits: Limits, spec: StudySpec | None = None
+) -> dict[str, float]:
+    """A trial's metrics from its evaluated episodes (every training seed's, ``train_seed``
+    column, on the same tracks): the means of ``metrics.METRICS`` over all episodes (the same
+    definitions as every other table), the reward's lower confidence bound over the (seed,
+    track) cells (``reward_lcb``, at ``spec.reward_bound``, else 95%), the upper bound on
+    the share of episodes beyond ``d_s`` (``violation_share_ucb``, at ``spec.violation_bound``,
+    else 95%) and the constraints."""
     means = mean_metrics(episodes)
     values = {k: v for k, v in means.items() if k not in ("reward", "steps")}
     values.update(
@@ -173,7 +181,14 @@ def trial_values(episodes: pd.DataFrame, limits: Limits) -> dict[str, float]:
         steps_mean=means["steps"],
         episodes=len(episodes),
     )
-    values.update(constraints(means, limits))
+    reward_conf = 0.95 if spec is None or spec.reward_bound is None else spec.reward_bound
+    share_conf = 0.95 if spec is None or spec.violation_bound is None else spec.violation_bound
+    tracks = episodes.assign(train_seed=episodes.get("train_seed", 0))
+    cells = cell_table(tracks, "reward").to_numpy(float)
+    values["reward_lcb"] = lower_bound_crossed(cells, reward_conf)
+    values["violation_share_ucb"] = episode_share_bound(values, share_conf)
+    values["train_seeds"] = int(tracks["train_seed"].nunique())
+    values.update(constraints(values, limits))
     return values
 
 
@@ -183,9 +198,22 @@ def _load(checkpoint: tune.Checkpoint) -> tuple[BCNet, dict[str, Any]]:
         return model, read_checkpoint_meta(d)["extra"]
 
 
-def stored_checkpoint(fs: Any, folder: str) -> tuple[BCNet, dict[str, Any]] | None:
+def _load_seeds(checkpoint: tune.Checkpoint) -> tuple[list[BCNet], dict[str, Any]]:
+    """Every seed's net of a trial checkpoint: the first seed's at its top, the others (a
+    trial with ``train_seeds > 1``) in ``seed_<s>/`` inside it."""
+    with checkpoint.as_directory() as d:
+        model, _ = load_checkpoint(d)
+        extra = read_checkpoint_meta(d)["extra"]
+        others = [load_checkpoint(Path(d) / f"seed_{s}")[0] for s in extra.get("seeds", [])[1:]]
+        return [model, *others], extra
+
+
+def stored_checkpoint(
+    fs: Any, folder: str, *, all_seeds: bool = False
+) -> tuple[Any, dict[str, Any]] | None:
     """The newest complete checkpoint among the ``checkpoint_*`` folders of a trial's folder
-    ``folder`` on the ``pyarrow`` filesystem ``fs``: its net and ``extra`` (``None``: none)."""
+    ``folder`` on the ``pyarrow`` filesystem ``fs``: its net and ``extra`` (``None``: none);
+    with ``all_seeds`` the list of every training seed's net instead of the first's."""
     import pyarrow.fs as pafs
 
     infos = fs.get_file_info(pafs.FileSelector(folder, allow_not_found=True))
@@ -194,16 +222,18 @@ def stored_checkpoint(fs: Any, folder: str) -> tuple[BCNet, dict[str, Any]] | No
         for i in infos
         if i.type == pafs.FileType.Directory and i.base_name.startswith("checkpoint_")
     ]
+    load = _load_seeds if all_seeds else _load
     for d in sorted(dirs, reverse=True):
         try:
-            return _load(tune.Checkpoint(d, filesystem=fs))
+            return load(tune.Checkpoint(d, filesystem=fs))
         except (CheckpointError, OSError):  # cut short by a kill: try an older one
             continue
     return None
 
 
-def resume_point() -> tuple[BCNet, dict[str, Any]] | None:
-    """The trained net and its checkpoint's ``extra`` when this trial has trained before.
+def resume_point() -> tuple[list[BCNet], dict[str, Any]] | None:
+    """Every training seed's trained net and the checkpoint's ``extra`` when this trial has
+    trained before.
 
     Tune hands over the checkpoint it recorded (a retry, a resumed study). A checkpoint the
     trial reported just before the driver stopped (Ctrl-C, or killed) is on the storage but not
@@ -212,9 +242,9 @@ def resume_point() -> tuple[BCNet, dict[str, Any]] | None:
     """
     checkpoint = tune.get_checkpoint()
     if checkpoint is not None:
-        return _load(checkpoint)
+        return _load_seeds(checkpoint)
     storage = tune.get_context().get_storage()
-    return stored_checkpoint(storage.storage_filesystem, storage.trial_fs_path)
+    return stored_checkpoint(storage.storage_filesystem, storage.trial_fs_path, all_seeds=True)
 
 
 def trial_folder() -> Path:
@@ -246,12 +276,19 @@ def improve_trial(
     }
 
 
+def with_seed(cfg: RunConfig, seed: int) -> RunConfig:
+    """``cfg`` with another training seed."""
+    train = dataclasses.replace(cfg.bc.train, seed=seed)
+    return dataclasses.replace(cfg, bc=dataclasses.replace(cfg.bc, train=train))
+
+
 def run_trial(config: dict[str, Any], job: TrialJob) -> None:
-    """One trial: train (or resume from its checkpoint), report, evaluate in rounds, report."""
+    """One trial: train every training seed (or resume from its checkpoint), report, evaluate
+    in rounds (every seed on the same tracks), report."""
     start = time.perf_counter()
     spec = job.spec
-    seed = spec.base.bc.train.seed
-    reset_trial_state(seed)
+    seeds = spec.trial_seeds()
+    reset_trial_state(seeds[0])
     threads = trial_threads(spec)
     torch.set_num_threads(threads)
     run_cfg = spec.run_config({k: config[k] for k in spec.params}, num_threads=threads)
@@ -259,51 +296,75 @@ def run_trial(config: dict[str, Any], job: TrialJob) -> None:
 
     resumed = resume_point()
     if resumed is not None:  # a retry or a resumed study: the weights are already trained
-        model, extra = resumed
+        models, extra = resumed
         metrics.update(extra["train"], resumed=True)
         earlier = float(extra["trained_s"])
     else:
-        try:
-            result, selection = train_run(
-                cached_demos(job.demos), run_cfg, action_bounds=bounds_for(job.demos)
-            )
-        except SelectionError as e:  # a configuration the data cannot support: no retry
-            metrics.update(phase="invalid", error=str(e), duration_s=time.perf_counter() - start)
-            tune.report(metrics)
-            return
-        if not math.isfinite(result.final_loss):  # diverged: nothing to evaluate, no retry
-            metrics.update(phase="invalid", error=f"training diverged (loss {result.final_loss})")
-            metrics.update(duration_s=time.perf_counter() - start)
-            tune.report(metrics)
-            return
-        model, earlier = result.model, 0.0
+        results = []
+        for s in seeds:
+            if s != seeds[0]:
+                reset_trial_state(s)
+            try:
+                result, selection = train_run(
+                    cached_demos(job.demos), with_seed(run_cfg, s),
+                    action_bounds=bounds_for(job.demos),
+                )  # fmt: skip
+            except SelectionError as e:  # a configuration the data cannot support: no retry
+                metrics.update(
+                    phase="invalid", error=str(e), duration_s=time.perf_counter() - start
+                )
+                tune.report(metrics)
+                return
+            if not math.isfinite(result.final_loss):  # diverged: nothing to evaluate, no retry
+                metrics.update(
+                    phase="invalid", error=f"training diverged (loss {result.final_loss})"
+                )
+                metrics.update(duration_s=time.perf_counter() - start)
+                tune.report(metrics)
+                return
+            if s == seeds[0]:
+                first_selection = selection
+            results.append(result)
+        models, earlier = [r.model for r in results], 0.0
         train_info = {
-            "train_loss": result.final_loss,
-            "train_seconds": result.seconds,
-            "n_critical": selection.n_critical,
-            "critical_fraction": selection.n_critical / selection.n_valid,
+            "train_loss": results[0].final_loss,
+            "train_seconds": float(sum(r.seconds for r in results)),
+            "n_critical": first_selection.n_critical,
+            "critical_fraction": first_selection.n_critical / first_selection.n_valid,
         }
         trained_s = time.perf_counter() - start
         metrics.update(train_info, phase="trained", duration_s=trained_s)
         extra = {"train": train_info, "trained_s": trained_s, "run_config": run_cfg.to_dict()}
+        if len(seeds) > 1:
+            extra["seeds"] = seeds
         with tempfile.TemporaryDirectory() as d:
-            result.save(d, extra=extra)
+            results[0].save(d, extra=extra)
+            for s, result in zip(seeds[1:], results[1:], strict=True):
+                result.save(Path(d) / f"seed_{s}", extra={"seed": s})
             tune.report(metrics, checkpoint=tune.Checkpoint.from_directory(d))
 
-    source: Any = NetSource.from_model(model, run_cfg.bc)
+    sources: list[Any] = [NetSource.from_model(m, run_cfg.bc) for m in models]
     if spec.improve is not None:  # its time counts in duration_s, not in eval_seconds
         params = {k: config[k] for k in spec.params}
-        source, values = improve_trial(model, run_cfg, job, params, trial_folder() / "improve")
-        metrics.update(values)
+        improve_s = 0.0
+        for j, (s, model) in enumerate(zip(seeds, models, strict=True)):
+            folder = trial_folder() / ("improve" if j == 0 else f"improve_seed_{s}")
+            sources[j], values = improve_trial(model, with_seed(run_cfg, s), job, params, folder)
+            improve_s += values["improve_seconds"]
+            if j == 0:
+                metrics.update(values)
+        metrics["improve_seconds"] = improve_s
 
     rounds = eval_rounds(spec)
     parts: list[pd.DataFrame] = []
     eval_s = 0.0
     for i, (first, n) in enumerate(rounds, start=1):
         t0 = time.perf_counter()
-        parts.append(evaluate_source(source, run_cfg, job, first, n))
+        for s, source in zip(seeds, sources, strict=True):
+            episodes = evaluate_source(source, run_cfg, job, first, n)
+            parts.append(episodes.assign(train_seed=s))
         eval_s += time.perf_counter() - t0
-        values = trial_values(pd.concat(parts, ignore_index=True), job.limits)
+        values = trial_values(pd.concat(parts, ignore_index=True), job.limits, spec)
         metrics.update(
             values,
             phase="evaluated" if i == len(rounds) else "screened",
@@ -312,5 +373,7 @@ def run_trial(config: dict[str, Any], job: TrialJob) -> None:
             feasible=bool(values["constraint"] <= 0),
         )
         metrics[ROUND] = i
-        metrics[SCORE] = screen_score(values["reward_mean"], values["constraint"])
+        metrics[SCORE] = screen_score(values[spec.objective], values["constraint"])
+        if i == 1:
+            metrics[SCREENED] = metrics[SCORE]
         tune.report(metrics)

@@ -241,6 +241,19 @@ def test_interrupted_study_resumes_and_failed_trial_is_not_retrained(
     for row in t.itertuples():
         assert held[row.trial_id]["safety"] == pytest.approx(row.constraint_safety)
     assert (second.out / "best.json").exists() and second.final is not None
+    # Optuna's own storage beside the tables holds the same trials after the resume
+    import optuna
+
+    stored = optuna.load_study(
+        study_name=spec.name, storage=f"sqlite:///{second.out / 'optuna.db'}"
+    ).get_trials()
+    assert [x.state for x in stored] == [TrialState.COMPLETE] * 3
+    by_id = {x.user_attrs["tune_trial_id"]: x for x in stored}
+    assert set(by_id) == set(t["trial_id"])
+    for row in t.itertuples():
+        assert by_id[row.trial_id].number == row.trial_number
+        assert by_id[row.trial_id].constraints["safety"] == pytest.approx(row.constraint_safety)
+        assert by_id[row.trial_id].value == pytest.approx(row.reward_mean)
 
 
 def test_configuration_the_data_cannot_support_is_recorded_not_retried(

@@ -1,0 +1,157 @@
+"""Same study file, same trials: a batched study gives the same trial table (configurations
+and metrics) at 1 and 2 trials at once."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from ray.tune.schedulers import TrialScheduler
+
+from safe_bc.distributed.search import (
+    NUMBER,
+    ConstrainedOptunaSearch,
+    SpaceSampler,
+    halving_decision,
+)
+from safe_bc.study import Float, load_study
+
+REPO = Path(__file__).resolve().parents[2]
+
+TIMING = ("train_seconds", "improve_seconds", "eval_seconds", "duration_s", "trial_id")
+"""Columns that differ between runs by nature (wall-clock, Tune's random trial ids)."""
+
+
+def _searcher(batch_size: int | None, max_trials: int | None = None) -> ConstrainedOptunaSearch:
+    from optuna.samplers import TPESampler
+
+    return ConstrainedOptunaSearch(
+        space=SpaceSampler({"a": Float(0.0, 1.0)}),
+        metric="reward_mean",
+        mode="max",
+        sampler=TPESampler(seed=0, n_startup_trials=2, constant_liar=True),
+        batch_size=batch_size,
+        max_trials=max_trials,
+    )
+
+
+def _result(a: float) -> dict:
+    return {"reward_mean": -((a - 0.3) ** 2), "constraint_safety": -1.0,
+            "constraint_violation": 0.0}  # fmt: skip
+
+
+def test_batched_searcher_tells_in_trial_order_and_waits_for_the_batch() -> None:
+    suggestions = []
+    for finish_order in ((0, 1), (1, 0)):
+        s = _searcher(batch_size=2, max_trials=5)
+        cfgs = {}
+        for n in range(5):
+            if n % 2 == 0 and n:
+                first, second = (f"t{n - 2 + i}" for i in finish_order)
+                assert s.suggest(f"t{n}") is None  # the batch is not in yet
+                s.on_trial_complete(first, _result(cfgs[first]["a"]))
+                assert s.suggest(f"t{n}") is None and s.batch_pending() == [second]
+                s.on_trial_complete(second, _result(cfgs[second]["a"]))
+            cfg = s.suggest(f"t{n}")
+            assert cfg[NUMBER] == n
+            cfgs[f"t{n}"] = cfg
+        s.on_trial_complete("t4", _result(cfgs["t4"]["a"]))  # the last batch has 1 trial
+        numbers = [t.number for t in s.study.get_trials(deepcopy=False)]
+        assert numbers == [0, 1, 2, 3, 4]
+        assert all(t.state.name == "COMPLETE" for t in s.study.get_trials(deepcopy=False))
+        assert [t.user_attrs["tune_trial_id"] for t in s.study.trials] == [f"t{n}" for n in
+                                                                          range(5)]  # fmt: skip
+        suggestions.append([cfgs[f"t{n}"]["a"] for n in range(5)])
+    assert suggestions[0] == suggestions[1]
+
+
+def test_searcher_copies_its_study_to_an_optuna_storage_that_optuna_loads(tmp_path) -> None:
+    import optuna
+
+    url = f"sqlite:///{tmp_path / 'optuna.db'}"
+    s = _searcher(batch_size=2, max_trials=3)
+    s._export_to = url
+    cfgs = {f"t{n}": s.suggest(f"t{n}") for n in range(2)}
+    s.on_trial_complete("t1", _result(cfgs["t1"]["a"]))
+    assert not (tmp_path / "optuna.db").exists()  # nothing told yet
+    s.on_trial_complete("t0", {**_result(cfgs["t0"]["a"]), "constraint_safety": 0.5})
+    s.suggest("t2")
+    loaded = optuna.load_study(study_name="optuna", storage=url)
+    trials = loaded.get_trials()
+    assert [t.state.name for t in trials] == ["COMPLETE", "COMPLETE"]  # copied at the tell
+    assert trials[0].constraints == {"safety": 0.5, "violations": 0.0}
+    assert trials[1].constraints == {"safety": -1.0, "violations": 0.0}
+    assert [t.params["a"] for t in trials[:2]] == [cfgs["t0"]["a"], cfgs["t1"]["a"]]
+    assert [t.user_attrs["tune_trial_id"] for t in trials] == ["t0", "t1"]
+    assert loaded.user_attrs["objective"] == "reward_mean" and loaded.user_attrs["batch_size"] == 2
+    s.on_trial_complete("t2", _result(0.3))  # the copy is replaced, not appended to
+    trials = optuna.load_study(study_name="optuna", storage=url).get_trials()
+    assert [t.state.name for t in trials] == ["COMPLETE"] * 3
+    assert not list(tmp_path.glob(".*.tmp"))
+
+
+def test_batch_halving_compares_with_earlier_batches_only() -> None:
+    assert halving_decision(5.0, []) == TrialScheduler.CONTINUE
+    assert halving_decision(5.0, [1.0, 9.0, 10.0]) == TrialScheduler.STOP
+    assert halving_decision(5.0, [1.0, 2.0, float("nan")]) == TrialScheduler.CONTINUE
+
+
+def _table(out: Path) -> pd.DataFrame:
+    from safe_bc.data.store import read_table
+
+    t, _ = read_table(out / "trials.parquet")
+    return t.drop(columns=[c for c in TIMING if c in t]).reset_index(drop=True)
+
+
+@pytest.mark.slow
+def test_same_study_same_trials_at_one_and_two_trials_at_once(
+    ray_session, rehab_demos: Path, tmp_path: Path
+) -> None:
+    import optuna
+
+    from safe_bc.distributed.study import run_study
+
+    base = replace(
+        load_study(REPO / "tune_jobs" / "rehab.py"),
+        demos=rehab_demos,
+        trials=4,
+        batch_size=2,
+        batches=20,
+        eval_episodes=3,
+        screen_episodes=1,
+        startup_trials=2,
+        final_episodes=1,
+        final_candidates=1,
+        final_train_seeds=1,
+    )
+    tables = []
+    for concurrent in (1, 2):
+        spec = replace(
+            base,
+            max_concurrent=concurrent,
+            storage=str(tmp_path / f"c{concurrent}" / "ray"),
+            results=tmp_path / f"c{concurrent}" / "results",
+        )
+        outcome = run_study(spec, progress=False)
+        assert outcome.complete and outcome.errors == 0, outcome.trials[["status", "error"]]
+        tables.append(_table(outcome.out))
+        stored = optuna.load_study(
+            study_name=spec.name, storage=f"sqlite:///{outcome.out / 'optuna.db'}"
+        ).get_trials()
+        assert [t.number for t in stored] == [0, 1, 2, 3]
+        table = tables[-1]
+        for t, row in zip(stored, table.itertuples(), strict=True):
+            if row.status == "invalid":
+                assert t.state.name == "FAIL"
+                continue
+            assert t.value == pytest.approx(row.reward_mean)
+            assert t.constraints["safety"] == pytest.approx(row.constraint_safety)
+            assert t.constraints["violations"] == pytest.approx(row.constraint_violation)
+    one, two = tables
+    assert one["trial_number"].tolist() == [0, 1, 2, 3]
+    assert one["status"].isin(["done", "stopped", "invalid"]).all()
+    pd.testing.assert_frame_equal(one, two)
+    assert np.isfinite(one["reward_mean"].astype(float)).any()
