@@ -382,6 +382,22 @@ def crossed_bootstrap_ci(
     return mean, float(lo), float(hi)
 
 
+def keyed_rng(seed: int, key: object, metric: str) -> np.random.Generator:
+    """A generator for one interval: seeded by ``seed``, a stable hash (CRC-32) of ``repr(key)``
+    (a table row's key, e.g. its method) and of ``metric``; the same arguments give the same
+    draws in any table and any process.
+
+    >>> a, b = keyed_rng(0, "a", "reward"), keyed_rng(0, "a", "reward")
+    >>> int(a.integers(1000)) == int(b.integers(1000))
+    True
+    """
+    import zlib
+
+    return np.random.default_rng(
+        [seed, zlib.crc32(repr(key).encode()), zlib.crc32(metric.encode())]
+    )
+
+
 def cell_table(
     episodes: pd.DataFrame, metric: str, *, seeds: str = "train_seed", tracks: str = "env_seed"
 ) -> pd.DataFrame:
@@ -406,9 +422,11 @@ def summarize_crossed(
     ``n_episodes``, ``n_train_seeds`` and ``n_tracks``.
 
     Use it instead of :func:`summarize` when every configuration's agents were evaluated on
-    the same tracks (Table 1): see :func:`crossed_bootstrap_ci` for why.
+    the same tracks (Table 1): see :func:`crossed_bootstrap_ci` for why. Each (row, metric)
+    draws from its own generator, seeded by ``seed``, the row's key and the metric
+    (:func:`keyed_rng`), so the same episodes give the same interval in every table,
+    whatever else the table holds.
     """
-    rng = np.random.default_rng(seed)
     rows = []
     for key, df in episodes.groupby(list(by), sort=True, dropna=False):
         row: dict[str, object] = dict(
@@ -420,7 +438,7 @@ def summarize_crossed(
         for m in metrics:
             cells = cell_table(df, m, seeds=seeds, tracks=tracks).to_numpy(float)
             mean, lo, hi = crossed_bootstrap_ci(
-                cells, confidence=confidence, n_boot=n_boot, rng=rng
+                cells, confidence=confidence, n_boot=n_boot, rng=keyed_rng(seed, key, m)
             )
             row[m], row[f"{m}_lo"], row[f"{m}_hi"] = mean, lo, hi
         rows.append(row)
@@ -451,13 +469,16 @@ def paired_crossed(
     the baseline's same seed (``mean_t D[s, t] > 0``) out of ``n_seeds_paired``. Methods
     without a shared cell (e.g. an expert trained once under another seed) are left out.
 
+    Each (method, metric) draws from its own generator (:func:`keyed_rng` of ``seed``, the
+    method, the baseline and the metric): a comparison's interval does not depend on which
+    other methods the table holds.
+
     >>> df = pd.DataFrame({"method": ["a", "a", "b", "b"], "train_seed": [0, 0, 0, 0],
     ...                    "env_seed": [1, 2, 1, 2], "reward": [10.0, 20.0, 12.0, 23.0]})
     >>> out = paired_crossed(df, "a", ["reward"])
     >>> out[["method", "d_reward", "seeds_better", "n_seeds_paired"]].to_dict("records")
     [{'method': 'b', 'd_reward': 2.5, 'seeds_better': 1, 'n_seeds_paired': 1}]
     """
-    rng = np.random.default_rng(seed)
     names = list(dict.fromkeys([*metrics, *([better] if better else [])]))
     base = episodes[episodes[by] == baseline]
     if base.empty:
@@ -480,8 +501,9 @@ def paired_crossed(
         row: dict[str, object] = {by: method, "n_pairs": n_pairs}
         for m in metrics:
             mean, lo, hi = crossed_bootstrap_ci(
-                diffs[m], confidence=confidence, n_boot=n_boot, rng=rng
-            )
+                diffs[m], confidence=confidence, n_boot=n_boot,
+                rng=keyed_rng(seed, (method, baseline), m),
+            )  # fmt: skip
             row[f"d_{m}"], row[f"d_{m}_lo"], row[f"d_{m}_hi"] = mean, lo, hi
         if better:
             d = diffs[better]

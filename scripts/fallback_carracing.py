@@ -53,7 +53,8 @@ def markdown(summary: pd.DataFrame, paired: pd.DataFrame, meta: dict[str, Any]) 
         f"`{meta['runs']}/improve.md`), training seeds {meta['train_seeds']}. Same nets and "
         "critical zones as the runs; only the fallback differs. The expert is privileged (reads "
         "the track): this bounds what a *safe* fallback would give, it is not a deployable "
-        "policy. Mean [95% two-level bootstrap CI: training seeds, then tracks]; *paired*: "
+        "policy. Mean [95% crossed bootstrap CI: training seeds and tracks resampled "
+        "independently, bootstrap seed 0]; *paired*: "
         "difference to the same seed's start without a fallback on the same tracks.",
         "",
         "| policy | reward | reward - start, paired | violation steps / episode | violation "
@@ -86,7 +87,7 @@ def main(argv: list[str] | None = None) -> int:
     from safe_bc.data.store import load_demonstrations
     from safe_bc.evaluation import EvalConfig, ExpertSource, NetSource
     from safe_bc.improve import ImprovedSource
-    from safe_bc.metrics import paired_differences
+    from safe_bc.metrics import paired_crossed
     from safe_bc.provenance import run_metadata
     from safe_bc.tasks import task_defaults
 
@@ -128,7 +129,7 @@ def main(argv: list[str] | None = None) -> int:
     order = [m for m in LABELS if m in set(episodes["method"])]
     summary = summary_table(episodes, metrics, order, len(args.seeds), args.episodes)
     agents = episodes[episodes["method"] != "expert"]
-    paired = paired_differences(agents, "imitation", metrics, by="method", seed=0)
+    paired = paired_crossed(agents, "imitation", metrics, by="method", seed=0)
     meta = run_metadata(episodes=args.episodes, eval_seed=args.eval_seed,
                         train_seeds=args.seeds, runs=str(args.runs), modes=args.modes)  # fmt: skip
     meta["command"] = command

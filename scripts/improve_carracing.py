@@ -107,12 +107,13 @@ def fmt_ci(row: pd.Series, m: str, digits: int = 1) -> str:
 def summary_table(
     episodes: pd.DataFrame, metrics: list[str], order: list[str], n_seeds: int, n_tracks: int
 ) -> pd.DataFrame:
-    """One row per method in ``order``: :func:`safe_bc.metrics.summarize` over training seeds
-    and tracks, plus ``episodes_beyond`` (episodes with a step beyond d_s), ``n_episodes``
-    and ``n`` (``seeds x tracks``; the expert, trained once, ``1 x tracks``)."""
-    from safe_bc.metrics import summarize
+    """One row per method in ``order``: :func:`safe_bc.metrics.summarize_crossed` over training
+    seeds x tracks (every seed on the same tracks: a crossed design), plus ``episodes_beyond``
+    (episodes with a step beyond d_s), ``n_episodes`` and ``n`` (``seeds x tracks``; the
+    expert, trained once, ``1 x tracks``)."""
+    from safe_bc.metrics import summarize_crossed
 
-    summary = summarize(episodes, ["method"], metrics, group="train_seed", seed=0)
+    summary = summarize_crossed(episodes, ["method"], metrics, seed=0)
     summary = summary.set_index("method").loc[order].reset_index()
     by = episodes.groupby("method")
     beyond = by["violation_steps"].apply(lambda v: int((v > 0).sum()))
@@ -139,8 +140,9 @@ def markdown(
         "",
         f"{meta['episodes']} fresh held-out tracks (evaluation seed {meta['eval_seed']}, env "
         f"seeds {meta['env_seeds'][0]}...{meta['env_seeds'][-1]}), the same for every policy; "
-        f"training seeds {meta['train_seeds']}. Mean [95% two-level bootstrap CI: training "
-        "seeds, then tracks within each; for the expert, trained once, tracks only]. *Paired*: "
+        f"training seeds {meta['train_seeds']}. Mean [95% crossed bootstrap CI: training seeds "
+        "and tracks resampled independently, bootstrap seed 0; for the expert, trained once, "
+        "tracks only]. *Paired*: "
         "the difference to the same seed's start on the same tracks. Limits d_s (the expert's "
         f"worst costs in {meta['demos']}, px): {meta['limits_text']}.",
         "",
@@ -196,7 +198,7 @@ def markdown(
 def main(argv: list[str] | None = None) -> int:
     from safe_bc.data.store import load_demonstrations, read_table
     from safe_bc.evaluation import EvalConfig, ExpertSource
-    from safe_bc.metrics import paired_differences
+    from safe_bc.metrics import paired_crossed
     from safe_bc.provenance import run_metadata
     from safe_bc.tasks import task_defaults
 
@@ -281,8 +283,8 @@ def main(argv: list[str] | None = None) -> int:
 
     # each improved agent against its own start, same (training seed, track) cells
     agents = episodes[episodes["method"] != "expert"]
-    paired = paired_differences(agents, "imitation", ["reward", "violation_steps"],
-                                by="method", seed=0)  # fmt: skip
+    paired = paired_crossed(agents, "imitation", ["reward", "violation_steps"],
+                            by="method", seed=0)  # fmt: skip
     means = episodes.groupby("method")["reward"].mean()
     plot_curves(history, {"expert": means["expert"], "imitation": means["imitation"]},
                 args.out / "learning_curves.png")  # fmt: skip

@@ -245,7 +245,8 @@ def markdown(summary: pd.DataFrame, paired: pd.DataFrame, meta: dict[str, Any]) 
         f"{meta['episodes']} fresh held-out patients (evaluation seed {meta['eval_seed']}, "
         f"env seeds {meta['env_seeds'][0]}...{meta['env_seeds'][-1]}), the same for every "
         f"policy; {len(meta['train_seeds'])} training seeds {meta['train_seeds']}. Mean "
-        "[95% bootstrap CI; two-level over training seeds and patients]. Limits d_s "
+        "[95% crossed bootstrap CI: training seeds and patients resampled independently, "
+        "bootstrap seed 0]. Limits d_s "
         f"(worst guideline cost in {meta['demos']}): {meta['limits_text']}. The Lagrangian "
         f"charges sessions beyond d_s - {meta['config']['cost_margin']} (`cost_margin`: a "
         "safety margin inside d_s, chosen on selection patients disjoint from these, see "
@@ -295,7 +296,7 @@ def main(argv: list[str] | None = None) -> int:
     from safe_bc.data.store import load_demonstrations, read_table
     from safe_bc.distributed.evaluate import evaluate
     from safe_bc.evaluation import EvalConfig, ExpertSource
-    from safe_bc.metrics import paired_differences, summarize
+    from safe_bc.metrics import paired_crossed, summarize_crossed
     from safe_bc.provenance import run_metadata
     from safe_bc.tasks import task_defaults
 
@@ -344,7 +345,7 @@ def main(argv: list[str] | None = None) -> int:
 
     metrics = ["reward", "safety_mean", "violation_steps", "violating_sessions",
                "any_violating_session", "worst_excursion"]  # fmt: skip
-    summary = summarize(episodes, ["method"], metrics, group="train_seed", seed=0)
+    summary = summarize_crossed(episodes, ["method"], metrics, seed=0)
     order = ["expert", "imitation", *args.modes]
     summary = summary.set_index("method").loc[order].reset_index()
     by = episodes.groupby("method")
@@ -362,8 +363,8 @@ def main(argv: list[str] | None = None) -> int:
     expert = episodes[episodes["method"] == "expert"]
     paired_rows = [expert.assign(train_seed=k) for k in args.seeds]
     paired_rows.append(episodes[episodes["method"] != "expert"])
-    paired = paired_differences(pd.concat(paired_rows), "expert", ["reward", "violating_sessions"],
-                                by="method", seed=0)  # fmt: skip
+    paired = paired_crossed(pd.concat(paired_rows), "expert", ["reward", "violating_sessions"],
+                            by="method", seed=0)  # fmt: skip
 
     refs = {"expert": validation_reference(sources["expert"], task.env, limits,
                                            base.eval_episodes)}  # fmt: skip

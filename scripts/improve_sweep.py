@@ -102,15 +102,18 @@ def replay(sources: dict[str, Any], env: Any, seeds: list[int], limits: np.ndarr
 
 
 def gains(df: pd.DataFrame, names: list[str], seeds: list[int], prefix: str) -> pd.DataFrame:
-    """Per candidate: paired gain over the guideline (two-level bootstrap CI) and crossings."""
-    from safe_bc.metrics import paired_differences
+    """Per candidate: paired gain over the guideline (crossed bootstrap CI: every seed on the
+    same patients) and crossings."""
+    from safe_bc.metrics import paired_crossed
 
     if df.empty or not names:
         return pd.DataFrame({"method": []})
     expert = df[df["method"] == "expert"]
     pairs = [expert.assign(train_seed=k) for k in seeds]
     pairs.append(df[df["method"].isin(names)])
-    paired = paired_differences(pd.concat(pairs), "expert", ["replay_reward"], by="method", seed=0)
+    paired = paired_crossed(
+        pd.concat(pairs), "expert", ["replay_reward"], by="method", better=None, seed=0
+    )
     crossed = df.assign(any=df["violating_sessions"] > 0).groupby("method")
     rows = []
     for _, r in paired.iterrows():
@@ -143,7 +146,8 @@ def markdown(sweep: pd.DataFrame, meta: dict[str, Any]) -> str:
         "",
         f"Training seeds {meta['seeds']}; starts `results/improve/rehab/starts`. Gain: "
         "capacity gain minus the guideline clinician's on the same patients (paired; mean "
-        "[95% two-level bootstrap CI over training seeds and patients]). *beyond d_s*: "
+        "[95% crossed bootstrap CI over training seeds and patients, bootstrap seed 0]). "
+        "*beyond d_s*: "
         "programmes with at least one session (the last included) beyond the worst the "
         "guideline reached on its demonstrations.",
         "",
