@@ -137,8 +137,16 @@ def write_table_atomic(path: Path, frame: Any, metadata: dict[str, Any] | None =
     """Write a pandas DataFrame to Parquet atomically, with JSON ``metadata`` embedded.
 
     Result tables (evaluations, studies) go through here so that each file records
-    the command, seeds and code revision that made it.
+    the command, seeds and code revision that made it. A table under the checkout's
+    ``results/`` is refused from a dirty git tree unless ``$SAFE_BC_ALLOW_DIRTY`` gives a
+    reason, which is then recorded under ``"dirty_tree"``
+    (:func:`safe_bc.provenance.check_result_write`).
     """
+    from safe_bc.provenance import check_result_write
+
+    dirty = check_result_write(path)
+    if dirty is not None:
+        metadata = {**(metadata or {}), "dirty_tree": dirty}
     table = pa.Table.from_pandas(frame, preserve_index=False)
     if metadata is not None:
         merged = dict(table.schema.metadata or {})

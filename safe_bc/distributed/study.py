@@ -42,7 +42,7 @@ from safe_bc.distributed.search import (
     make_searcher,
 )
 from safe_bc.distributed.trial import TrialJob, cached_demos, run_trial, stored_checkpoint
-from safe_bc.provenance import provenance
+from safe_bc.provenance import check_result_write, provenance
 from safe_bc.study import (
     OBJECTIVE,
     TRIAL_METRICS,
@@ -449,6 +449,7 @@ def _run_study(
     os.environ.setdefault("TUNE_WARN_EXCESSIVE_EXPERIMENT_CHECKPOINT_SYNC_THRESHOLD_S", "0")
     check_persistence_api()
     out = spec.results / spec.name
+    check_result_write(out / "trials.parquet")  # a dirty tree fails now, not after the trials
     storage, exp_path = experiment_location(spec)
     if fresh:
         _delete_tree(exp_path)

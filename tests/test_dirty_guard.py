@@ -1,0 +1,56 @@
+"""Result tables under results/ are refused from a dirty git tree unless asked, and recorded."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from safe_bc import provenance
+from safe_bc.data.store import read_table, write_table_atomic
+
+
+@pytest.fixture
+def results(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    """A stand-in for the checkout's results/ with a dirty tree."""
+    monkeypatch.setattr(provenance, "RESULTS", tmp_path / "results")
+    monkeypatch.setattr(provenance, "_changed_files", lambda: ["safe_bc/study.py"])
+    monkeypatch.delenv(provenance.ALLOW_DIRTY, raising=False)
+    return tmp_path / "results"
+
+
+def test_dirty_tree_cannot_write_a_result_table(results: Path) -> None:
+    target = results / "default" / "trials.parquet"
+    with pytest.raises(provenance.DirtyTreeError, match=r"SAFE_BC_ALLOW_DIRTY.*recorded"):
+        write_table_atomic(target, pd.DataFrame({"a": [1]}), {"command": "x"})
+    assert not target.exists()
+
+
+@pytest.mark.parametrize("value", ["", "0"])
+def test_an_empty_or_zero_allowance_is_no_allowance(results, monkeypatch, value) -> None:
+    monkeypatch.setenv(provenance.ALLOW_DIRTY, value)
+    with pytest.raises(provenance.DirtyTreeError):
+        provenance.check_result_write(results / "t.parquet")
+
+
+def test_an_explicit_allowance_writes_and_records_it(results: Path, monkeypatch) -> None:
+    monkeypatch.setenv(provenance.ALLOW_DIRTY, "draft rerun")
+    target = results / "default" / "trials.parquet"
+    write_table_atomic(target, pd.DataFrame({"a": [1]}), {"command": "x"})
+    _, meta = read_table(target)
+    assert meta["command"] == "x"
+    assert meta["dirty_tree"] == {"allowed_by": "SAFE_BC_ALLOW_DIRTY", "reason": "draft rerun",
+                                  "changed_files": ["safe_bc/study.py"]}  # fmt: skip
+
+
+def test_tables_elsewhere_and_clean_trees_are_not_checked(results, tmp_path, monkeypatch) -> None:
+    elsewhere = tmp_path / "scratch" / "t.parquet"
+    write_table_atomic(elsewhere, pd.DataFrame({"a": [1]}), {"command": "x"})
+    assert "dirty_tree" not in read_table(elsewhere)[1]
+    monkeypatch.setattr(provenance, "_changed_files", lambda: [])
+    assert provenance.check_result_write(results / "t.parquet") is None
+
+
+def test_the_real_results_folder_is_the_checkouts() -> None:
+    assert Path(provenance.__file__).resolve().parents[1] / "results" == provenance.RESULTS
