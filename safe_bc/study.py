@@ -234,9 +234,10 @@ class StudySpec:
     screening."""
     screen_episodes: int = 3
     """The cheap first evaluation: after this many of its ``eval_episodes`` tracks a trial
-    reports, and successive halving (Tune's ASHA) stops the trials whose screened score
-    (reward, minus a large penalty when a constraint is broken) is in the lower half so
-    far; 0 (or ``>= eval_episodes``) evaluates every trial on all tracks."""
+    reports, and successive halving (``BatchHalving``; Tune's ASHA without batches) stops the
+    trials whose screened score (the objective, minus a large penalty when a constraint is
+    broken) is in the lower half of the earlier ones; 0 (or ``>= eval_episodes``) evaluates
+    every trial on all tracks."""
     max_steps: int | None = None
     """Step cap per evaluation episode (``None``: the env's time limit)."""
     eval_seed: int = 1
@@ -419,7 +420,7 @@ class StudySpec:
 
     @property
     def screens(self) -> bool:
-        """Whether trials are screened on ``screen_episodes`` tracks first (ASHA)."""
+        """Whether trials are screened on ``screen_episodes`` tracks first."""
         return 0 < self.screen_episodes < self.eval_episodes
 
     def final_tracks_per_seed(self) -> int:
@@ -710,7 +711,7 @@ def choose_winner(trials: pd.DataFrame, objective: str = OBJECTIVE) -> Winner | 
         msg = (
             f"winner {best['trial_id']}: highest reward {best['reward_mean']:.1f} among "
             f"{len(feasible)}/{len(done)} feasible trials (safety {best['safety_mean']:.2f} "
-            f">= threshold {best['threshold']:.2f}, no step beyond d_s)"
+            f">= threshold {best['threshold']:.2f}, violation constraint met)"
         )
         return Winner(str(best["trial_id"]), True, _row(best), msg)
     best = done.sort_values(

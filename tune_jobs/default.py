@@ -6,7 +6,7 @@ dimension's mean to reach the expert's, ``safety_constraint="per_dim"``, admitte
 see ``results/default_per_dim/``.)
 
 Budget: 16 trials, 2 at a time with 1 CPU each, 2000 training batches (the paper's budget).
-Each trial is screened on 3 held-out tracks; successive halving (ASHA) stops the weaker half,
+Each trial is screened on 3 held-out tracks; successive halving stops the weaker half,
 the others are evaluated on 10 tracks in all. Then the top 3 feasible trials are retrained
 with 3 training seeds each and re-evaluated on 51 fresh tracks (17 per seed) beside plain BC
 (same seeds) and the expert, on every CPU of the cluster, and the winner is chosen on that

@@ -1,4 +1,5 @@
-"""The study's searcher and scheduler: Optuna's constrained TPE inside Ray Tune, and ASHA.
+"""The study's searcher and scheduler: Optuna's constrained TPE inside Ray Tune, in batches,
+and successive halving.
 
 * :class:`ConstrainedOptunaSearch` hands each finished trial's constraints (``<= 0``
   feasible) to Optuna with ``Trial.set_constraint`` before the usual ``tell``: Ray's
@@ -33,7 +34,7 @@ from ray.tune.search.optuna import OptunaSearch
 from safe_bc.study import CONSTRAINTS, Choice, Float, Int, Param, StudySpec
 
 SCORE = "score"
-"""Result key of the screening score ASHA compares: the reward, minus :data:`SCREEN_PENALTY`
+"""Result key of the screening score the halving compares: the reward, minus :data:`SCREEN_PENALTY`
 when a constraint is broken on the screened tracks."""
 ROUND = "eval_round"
 """Result key counting a trial's evaluation rounds (1: screened, 2: fully evaluated)."""

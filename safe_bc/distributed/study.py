@@ -660,7 +660,7 @@ def format_outcome(outcome: StudyOutcome, params: Sequence[str]) -> str:
     t = outcome.trials
     lines = [
         f"study {outcome.out.name}: {len(t)} trials, {int(t['feasible'].sum())} feasible "
-        f"(safety mean >= {outcome.threshold:.2f} and no step beyond d_s), "
+        f"(safety mean >= {outcome.threshold:.2f} and the violation constraint met), "
         f"{int((t['status'] == 'stopped').sum())} stopped by the screening, "
         f"{outcome.errors} failed",
         summary_lines(t, params),

@@ -126,7 +126,7 @@ def blank_metrics(job: TrialJob) -> dict[str, Any]:
         phase="",
         error="",
     )
-    out[ROUND] = 0  # ASHA reads these on every report: round 0 is before any evaluation
+    out[ROUND] = 0  # the halving reads these on every report: round 0 is before any evaluation
     out[SCORE] = math.nan
     out[SCREENED] = math.nan  # the screening score, kept in the later reports
     return out
