@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import warnings
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -158,7 +159,10 @@ class ConstrainedOptunaSearch(OptunaSearch):
         if url and self._ot_study is not None:
             attrs = {"objective": self._metric, "constraints": dict(self._constraint_keys),
                      "batch_size": self.__dict__.get("_batch_size")}  # fmt: skip
-            export_study(self._ot_study, url, attrs)
+            try:
+                export_study(self._ot_study, url, attrs)
+            except Exception as e:  # a copy for other tools must never stop the study
+                warnings.warn(f"could not copy the Optuna study to {url}: {e}", stacklevel=2)
 
     def batch_pending(self) -> list[str]:
         """Trial ids of the current batch whose results are not in yet."""

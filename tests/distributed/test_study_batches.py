@@ -93,6 +93,15 @@ def test_searcher_copies_its_study_to_an_optuna_storage_that_optuna_loads(tmp_pa
     assert not list(tmp_path.glob(".*.tmp"))
 
 
+def test_a_failing_copy_warns_and_the_study_goes_on() -> None:
+    s = _searcher(batch_size=None)
+    s._export_to = "postgresql://127.0.0.1:1/none"  # no driver, no server
+    cfg = s.suggest("t0")
+    with pytest.warns(UserWarning, match="could not copy the Optuna study"):
+        s.on_trial_complete("t0", _result(cfg["a"]))
+    assert s.study.trials[0].state.name == "COMPLETE"
+
+
 def test_batch_halving_compares_with_earlier_batches_only() -> None:
     assert halving_decision(5.0, []) == TrialScheduler.CONTINUE
     assert halving_decision(5.0, [1.0, 9.0, 10.0]) == TrialScheduler.STOP
