@@ -264,34 +264,42 @@ def _maxrss_mb(who: int) -> float:
 
 
 def bench_env(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
-    """Stock vs fast CarRacing steps/s (wall clock and CPU time) from ``bench_render``."""
+    """Stock vs fast CarRacing steps/s (wall clock and CPU time) from ``bench_render``: the
+    bare renderers, and ``make_env`` with each renderer (safety costs computed every step,
+    gymnasium's wrappers), the default env against stock with the same costs."""
     from benchmarks.bench_render import bench_render
 
-    rows = {r["variant"]: r for r in bench_render(sizes.env_steps, repeats, seed)}
-    stock, fast = rows["stock"], rows["fast"]
+    rows = {r["variant"]: r for r in bench_render(sizes.env_steps, repeats, seed, costs=True)}
     note = f"{sizes.env_steps} env.step calls per variant and repetition; pursuit driver"
+    cost_note = f"{note}; make_env(EnvConfig(renderer=...)): CarRacingSafety costs every step"
     # bench_render only returns the medians of the CPU-time figures
     cpu_note = "CPU time (time.process_time) inside env.step: steadier under load; median only"
-    return [
-        _self_row("env", "stock", stock["steps_per_s_runs"], "steps/s", note),
-        _row(
-            "env",
-            "fast",
-            fast["steps_per_s_runs"],
-            "steps/s",
-            ("stock", stock["steps_per_s_runs"]),
-            note,
-        ),
-        _self_row("env", "stock, CPU time", [stock["cpu_steps_per_s"]], "steps/s", cpu_note),
-        _row(
-            "env",
-            "fast, CPU time",
-            [fast["cpu_steps_per_s"]],
-            "steps/s",
-            ("stock, CPU time", [stock["cpu_steps_per_s"]]),
-            cpu_note,
-        ),
-    ]
+    names = {  # bench_render variant -> (row variant, note)
+        "stock": ("stock", note),
+        "fast": ("fast", note),
+        "stock + costs": ("stock + safety costs", cost_note),
+        "fast + costs": ("make_env default (fast + safety costs)", cost_note),
+    }
+    out = []
+    for cpu in (False, True):
+        for key, (variant, text) in names.items():
+            row = rows[key]
+            base_variant = names[row["baseline"]][0]
+            runs = [row["cpu_steps_per_s"]] if cpu else row["steps_per_s_runs"]
+            base = rows[row["baseline"]]
+            base_runs = [base["cpu_steps_per_s"]] if cpu else base["steps_per_s_runs"]
+            suffix = ", CPU time" if cpu else ""
+            out.append(
+                _row(
+                    "env",
+                    variant + suffix,
+                    runs,
+                    "steps/s",
+                    (base_variant + suffix, base_runs),
+                    cpu_note if cpu else text,
+                )
+            )
+    return out
 
 
 # -------------------------------------------------------------------------- case: collect

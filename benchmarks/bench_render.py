@@ -15,6 +15,7 @@ import argparse
 import statistics
 import time
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 from gymnasium.envs.box2d.car_racing import CarRacing
@@ -23,7 +24,25 @@ from safe_bc.envs.fast_render import FastCarRacing
 
 __all__ = ["bench_render"]
 
-_VARIANTS: dict[str, Callable[[], CarRacing]] = {"stock": CarRacing, "fast": FastCarRacing}
+
+def _make_env(renderer: str) -> Any:
+    """``safe_bc.envs.make_env`` with this renderer: the env safe_bc steps, safety costs in
+    ``info`` (``CarRacingSafety``) and gymnasium's wrappers included."""
+    from safe_bc.envs import EnvConfig, make_env
+
+    return make_env(EnvConfig(renderer=renderer))  # type: ignore[arg-type]
+
+
+_VARIANTS: dict[str, Callable[[], Any]] = {"stock": CarRacing, "fast": FastCarRacing}
+COST_VARIANTS: dict[str, Callable[[], Any]] = {
+    "stock + costs": lambda: _make_env("stock"),
+    "fast + costs": lambda: _make_env("fast"),
+}
+"""``make_env`` with stock gymnasium's renderer, and the default ``make_env()`` (fast renderer):
+both compute the same pixel safety costs every step."""
+BASELINES = {"stock": "stock", "fast": "stock", "stock + costs": "stock + costs"}
+BASELINES["fast + costs"] = "stock + costs"
+"""Each variant's baseline: the stock renderer with the same wrappers and cost computation."""
 
 
 class _PursuitDriver:
@@ -56,9 +75,9 @@ class _PursuitDriver:
         return np.array([steer, gas, brake], dtype=np.float32)
 
 
-def _time_steps(env: CarRacing, steps: int, seed: int) -> tuple[float, float]:
+def _time_steps(env: Any, steps: int, seed: int) -> tuple[float, float]:
     """Wall and CPU seconds spent inside ``env.step`` over ``steps`` steps (resets untimed)."""
-    driver = _PursuitDriver(env, seed)
+    driver = _PursuitDriver(env.unwrapped, seed)
     episode = 0
     env.reset(seed=seed)
     driver.reset()
@@ -77,7 +96,9 @@ def _time_steps(env: CarRacing, steps: int, seed: int) -> tuple[float, float]:
     return wall, cpu
 
 
-def bench_render(steps: int = 1000, repeats: int = 3, seed: int = 0) -> list[dict]:
+def bench_render(
+    steps: int = 1000, repeats: int = 3, seed: int = 0, costs: bool = False
+) -> list[dict]:
     """Steps per second of stock and fast CarRacing-v3, interleaved in this process.
 
     Each repetition runs ``steps`` steps per variant from ``reset(seed=seed)`` with the same
@@ -86,11 +107,14 @@ def bench_render(steps: int = 1000, repeats: int = 3, seed: int = 0) -> list[dic
     "steps_per_s_runs": [...], "ms_per_step": ..., "speedup_vs_stock": ..., "cpu_steps_per_s":
     ..., "cpu_speedup_vs_stock": ..., "steps", "repeats", "seed"}``. Wall-clock ``steps_per_s``
     is the headline; the CPU-time figures (``time.process_time``) are steadier when other
-    processes compete for the cores.
+    processes compete for the cores. ``costs`` adds the ``COST_VARIANTS`` (``make_env`` with
+    each renderer, safety costs computed every step); each row's ``baseline`` names the
+    variant its ``speedup_vs_stock`` is measured against (``BASELINES``).
     """
     if steps < 1 or repeats < 1:
         raise ValueError(f"steps and repeats must be >= 1, got {steps}, {repeats}")
-    envs = {name: make() for name, make in _VARIANTS.items()}
+    makers = {**_VARIANTS, **(COST_VARIANTS if costs else {})}
+    envs = {name: make() for name, make in makers.items()}
     try:
         for env in envs.values():  # warm-up: imports, font, buffers
             _time_steps(env, 5, seed)
@@ -115,9 +139,10 @@ def bench_render(steps: int = 1000, repeats: int = 3, seed: int = 0) -> list[dic
             "steps_per_s": medians[name],
             "steps_per_s_runs": runs[name],
             "ms_per_step": 1000.0 / medians[name],
-            "speedup_vs_stock": medians[name] / medians["stock"],
+            "baseline": BASELINES[name],
+            "speedup_vs_stock": medians[name] / medians[BASELINES[name]],
             "cpu_steps_per_s": cpu_medians[name],
-            "cpu_speedup_vs_stock": cpu_medians[name] / cpu_medians["stock"],
+            "cpu_speedup_vs_stock": cpu_medians[name] / cpu_medians[BASELINES[name]],
             "steps": steps,
             "repeats": repeats,
             "seed": seed,
@@ -127,25 +152,29 @@ def bench_render(steps: int = 1000, repeats: int = 3, seed: int = 0) -> list[dic
 
 
 def main(argv: list[str] | None = None) -> None:
-    """Print stock vs fast steps/s and their ratio."""
+    """Print stock vs fast steps/s and their ratio (with ``--costs``, also through
+    ``make_env`` with the safety costs)."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=1000)
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--costs", action="store_true", help="also make_env with safety costs")
     args = parser.parse_args(argv)
-    rows = bench_render(steps=args.steps, repeats=args.repeats, seed=args.seed)
+    rows = bench_render(steps=args.steps, repeats=args.repeats, seed=args.seed, costs=args.costs)
     for row in rows:
         runs = ", ".join(f"{v:.0f}" for v in row["steps_per_s_runs"])
         print(
-            f"{row['case']:>8} {row['variant']:>5}: {row['steps_per_s']:7.1f} steps/s "
+            f"{row['case']:>8} {row['variant']:>12}: {row['steps_per_s']:7.1f} steps/s "
             f"({row['ms_per_step']:.2f} ms/step; runs {runs}; "
             f"CPU time {row['cpu_steps_per_s']:.1f} steps/s)"
         )
-    fast = next(row for row in rows if row["variant"] == "fast")
-    print(
-        f"fast/stock ratio (medians, same run): {fast['speedup_vs_stock']:.2f}x wall-clock, "
-        f"{fast['cpu_speedup_vs_stock']:.2f}x CPU time"
-    )
+    for row in rows:
+        if row["baseline"] != row["variant"]:
+            print(
+                f"{row['variant']} / {row['baseline']} (medians, same run): "
+                f"{row['speedup_vs_stock']:.2f}x wall-clock, "
+                f"{row['cpu_speedup_vs_stock']:.2f}x CPU time"
+            )
 
 
 if __name__ == "__main__":
