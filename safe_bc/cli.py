@@ -856,7 +856,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"safe-bc {args.command}: error: {e}", file=sys.stderr)
         return 2
     except OSError as e:  # writing an output: a full disk, a read-only mount, a file in the way
-        where = f"{e.filename}: " if e.filename else ""
+        out = getattr(args, "out", None)
+        where = f"{e.filename}: " if e.filename else f"writing {out}: " if out else ""
         detail = e.strerror or " ".join(str(e).split())
         print(f"safe-bc {args.command}: error: {where}{detail}", file=sys.stderr)
         return 2
