@@ -556,16 +556,21 @@ def _time_evaluation(source: Any, config: Any) -> tuple[float, float]:
     return 60.0 * len(episodes) / seconds, len(steps) / seconds
 
 
+BATCHED_ENVS = 4
+"""Frames per batched forward pass in the eval case's inference timing."""
+
+
 def _time_step_parts(net: Any, steps: int, seed: int) -> dict[str, float]:
-    """Mean ms per step of a fast env step, ``BCPolicy.act`` and the expert's ``act`` on one
-    expert-driven trajectory (the net acts on the same frames; its actions are discarded)."""
+    """Mean ms per step of a fast env step, ``BCPolicy.act``, the expert's ``act`` and (per
+    frame) ``BCPolicy.act_batch`` on ``BATCHED_ENVS`` copies of the frame, on one expert-driven
+    trajectory (the net acts on the same frames; its actions are discarded)."""
     from safe_bc.envs import EnvConfig, make_env
     from safe_bc.experts.carracing import CarRacingExpert, ExpertConfig
     from safe_bc.seeds import heldout_seed
 
     env = make_env(EnvConfig(renderer="fast"))
     expert, policy = CarRacingExpert(ExpertConfig()), net.build()
-    totals = {"env": 0.0, "net": 0.0, "expert": 0.0}
+    totals = {"env": 0.0, "net": 0.0, "expert": 0.0, "net batch": 0.0}
     try:
         obs, _ = env.reset(seed=heldout_seed(seed, 0))
         expert.reset(env, np.random.default_rng(seed))
@@ -578,9 +583,12 @@ def _time_step_parts(net: Any, steps: int, seed: int) -> dict[str, float]:
             t2 = time.perf_counter()
             obs, _, terminated, truncated, _ = env.step(action)
             t3 = time.perf_counter()
+            policy.act_batch(np.stack([obs] * BATCHED_ENVS))
+            t4 = time.perf_counter()
             totals["net"] += t1 - t0
             totals["expert"] += t2 - t1
             totals["env"] += t3 - t2
+            totals["net batch"] += (t4 - t3) / BATCHED_ENVS
             if terminated or truncated:
                 break
     finally:
@@ -603,7 +611,7 @@ def bench_eval(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
     _time_step_parts(sources["BC net"], 5, seed)  # warm-up
     eps: dict[str, list[float]] = {name: [] for name in sources}
     sps: dict[str, list[float]] = {name: [] for name in sources}
-    parts: dict[str, list[float]] = {"env": [], "net": [], "expert": []}
+    parts: dict[str, list[float]] = {"env": [], "net": [], "expert": [], "net batch": []}
     for rep in range(repeats):
         for name in _order(list(sources), rep):
             e, s = _time_evaluation(sources[name], config)
@@ -638,6 +646,17 @@ def bench_eval(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
             "ms/step",
             ("fast env step", parts["env"]),
             f"{step_note}; {net_note}",
+        ),
+        _row(
+            "eval",
+            f"BCPolicy.act_batch ({BATCHED_ENVS} frames), per frame",
+            parts["net batch"],
+            "ms/step",
+            ("BCPolicy.act (1 frame)", parts["net"]),
+            f"{step_note}; what a worker stepping {BATCHED_ENVS} envs would pay per frame for "
+            "one batched forward pass. Not used for evaluation: a batched forward pass rounds "
+            "differently from a 1-frame one (other GEMM/conv kernels), so its actions, hence "
+            "its episodes, would not be those of the one-env path",
         ),
         _row(
             "eval",
