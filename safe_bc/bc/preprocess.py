@@ -58,7 +58,7 @@ def frame_shape(obs_shape: Sequence[int], cfg: PreprocessConfig) -> tuple[int, .
 def input_shape(obs_shape: Sequence[int], cfg: PreprocessConfig) -> tuple[int, ...]:
     """Network input shape per sample: ``(C1 * k, H', W')`` or ``(D * k,)``.
 
-    >>> input_shape((96, 96, 3), PreprocessConfig(frame_stack=4))
+    >>> input_shape((96, 96, 3), PreprocessConfig(frame_stack=4, grayscale=True, crop_bar=True))
     (4, 84, 96)
     >>> input_shape((7,), PreprocessConfig(frame_stack=2))
     (14,)

@@ -9,7 +9,7 @@ from safe_bc.demos import Demonstrations
 
 TINY_CNN = NetworkConfig(channels=(4, 8), kernel_sizes=(4, 3), strides=(4, 2), hidden=16)
 TINY_MLP = NetworkConfig(hidden=32, mlp_layers=1)
-SMALL_FRAMES = PreprocessConfig(resize=24)
+SMALL_FRAMES = PreprocessConfig(resize=24, grayscale=True, crop_bar=True)
 
 
 def make_demos(

@@ -15,25 +15,26 @@ from .synth import frame_demos
 def test_frame_shapes_and_range():
     frames = np.random.default_rng(0).integers(0, 256, (5, 96, 96, 3), dtype=np.uint8)
     frames[0] = 255
+    grey_cropped = PreprocessConfig(grayscale=True, crop_bar=True)
     for cfg, shape in [
-        (PreprocessConfig(), (1, 84, 96)),
-        (PreprocessConfig(grayscale=False), (3, 84, 96)),
-        (PreprocessConfig(crop_bar=False), (1, 96, 96)),
-        (PreprocessConfig(resize=32), (1, 32, 32)),
+        (grey_cropped, (1, 84, 96)),
+        (PreprocessConfig(grayscale=False, crop_bar=True), (3, 84, 96)),
+        (PreprocessConfig(grayscale=True, crop_bar=False), (1, 96, 96)),
+        (PreprocessConfig(grayscale=True, resize=32), (1, 32, 32)),
         (PreprocessConfig(grayscale=False, crop_bar=False, resize=48), (3, 48, 48)),
     ]:
         x = preprocess_frames(frames, cfg)
         assert x.shape == (5, *shape) == (5, *input_shape((96, 96, 3), cfg))
         assert x.dtype == torch.float32
         assert x.min() >= 0.0 and x.max() <= 1.0
-    assert torch.allclose(preprocess_frames(frames[:1], PreprocessConfig()), torch.tensor(1.0))
+    assert torch.allclose(preprocess_frames(frames[:1], grey_cropped), torch.tensor(1.0))
 
 
 def test_grayscale_weights_and_rgb_channel_order():
     frames = np.zeros((3, 96, 96, 3), np.uint8)
     for c in range(3):
         frames[c, ..., c] = 255
-    gray = preprocess_frames(frames, PreprocessConfig())[:, 0, 0, 0]
+    gray = preprocess_frames(frames, PreprocessConfig(grayscale=True))[:, 0, 0, 0]
     assert np.allclose(gray.numpy(), [0.299, 0.587, 0.114], atol=1e-6)
     rgb = preprocess_frames(frames, PreprocessConfig(grayscale=False))
     assert rgb[1, 1].min() == 1.0 and rgb[1, 0].max() == 0.0 and rgb[1, 2].max() == 0.0
@@ -42,7 +43,7 @@ def test_grayscale_weights_and_rgb_channel_order():
 def test_crop_drops_the_indicator_bar():
     frames = np.zeros((2, 96, 96, 3), np.uint8)
     frames[:, 84:] = 255  # the bar
-    assert preprocess_frames(frames, PreprocessConfig()).max() == 0.0
+    assert preprocess_frames(frames, PreprocessConfig(crop_bar=True)).max() == 0.0
     assert preprocess_frames(frames, PreprocessConfig(crop_bar=False)).max() == 1.0
 
 

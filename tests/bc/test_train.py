@@ -149,7 +149,7 @@ def _cache_cases():
     frames = frame_demos(n=90)
     vectors = vector_demos(n=90)
     return [
-        (frames, PreprocessConfig(), TINY_CNN),  # grayscale (B, 1, H, W): channel stride 1
+        (frames, PreprocessConfig(grayscale=True), TINY_CNN),  # (B, 1, H, W): channel stride 1
         (frames, PreprocessConfig(frame_stack=3), TINY_CNN),
         (frames, PreprocessConfig(grayscale=False, resize=24), TINY_CNN),
         (frames, PreprocessConfig(crop_bar=False, frame_stack=2, resize=32), TINY_CNN),
