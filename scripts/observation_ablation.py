@@ -52,6 +52,7 @@ import pandas as pd
 from safe_bc.bc.config import BCConfig, NetworkConfig, PreprocessConfig, TrainConfig
 from safe_bc.bc.preprocess import STEERING_INDICATOR
 from safe_bc.data.store import read_table, write_table_atomic, write_text_atomic
+from safe_bc.metrics import paired_crossed
 from safe_bc.provenance import run_metadata
 
 SELECTION_EVAL_SEED = 10
@@ -263,7 +264,9 @@ def _cached(out: Path, job: Job) -> pd.DataFrame | None:
     if not path.exists():
         return None
     frame, meta = read_table(path)
-    return frame if meta.get("job") == job.key() else None
+    if meta.get("job") != job.key():
+        return None
+    return frame.assign(job_revision=meta.get("git_revision", "unrecorded"))
 
 
 def _run_and_store(args: tuple[Path, Job]) -> tuple[str, float]:
@@ -353,9 +356,28 @@ def _ci(row: pd.Series, m: str, digits: int = 1, prefix: str = "") -> str:
     return f"{mean:.{digits}f} [{lo:.{digits}f}, {hi:.{digits}f}]"
 
 
+def _paired_tab(paired: pd.DataFrame, reference: str) -> pd.DataFrame:
+    if paired.empty:  # a single cell: nothing to pair
+        return pd.DataFrame({"observation": [], f"reward - {reference}": []})
+    d = paired.sort_values("d_reward", ascending=False)
+    rows = list(d.iterrows())
+    return pd.DataFrame(
+        {
+            "observation": d["cell"],
+            f"reward - {reference}": [_ci(r, "reward", prefix="d_") for _, r in rows],
+            "steps beyond d_s": [_ci(r, "violation_steps", prefix="d_") for _, r in rows],
+            "share of episodes beyond d_s": [
+                _ci(r, "any_violation", 2, prefix="d_") for _, r in rows
+            ],
+            "seeds better": [f"{r.seeds_better}/{r.n_seeds_paired}" for r in d.itertuples()],
+        }
+    )
+
+
 def markdown(
     summary: pd.DataFrame,
     paired: pd.DataFrame,
+    paired_chosen: pd.DataFrame,
     copycat: pd.DataFrame,
     episodes: pd.DataFrame,
     meta: dict[str, Any],
@@ -384,18 +406,7 @@ def markdown(
             ],
         }
     )
-    d = paired.sort_values("d_reward", ascending=False)
-    diff = pd.DataFrame(
-        {
-            "observation": d["cell"],
-            f"reward - {baseline}": [_ci(r, "reward", prefix="d_") for _, r in d.iterrows()],
-            "steps beyond d_s": [_ci(r, "violation_steps", prefix="d_") for _, r in d.iterrows()],
-            "share of episodes beyond d_s": [
-                _ci(r, "any_violation", 2, prefix="d_") for _, r in d.iterrows()
-            ],
-            "seeds better": [f"{r.seeds_better}/{r.n_seeds_paired}" for r in d.itertuples()],
-        }
-    )
+    diff, diff_chosen = _paired_tab(paired, baseline), _paired_tab(paired_chosen, chosen)
     follow = summary[summary["view"].isin(["full", "steer_masked"])]
     follow = follow[follow["cell"].isin(set(copycat.get("cell", [])) | {"expert"})]
     follow_tab = pd.DataFrame(
@@ -449,6 +460,10 @@ def markdown(
         "",
         diff.to_markdown(index=False),
         "",
+        f"## Paired differences to the chosen `{chosen}`, same seeds x tracks",
+        "",
+        diff_chosen.to_markdown(index=False),
+        "",
         "## Copycat check: does the agent copy its steering from the indicator?",
         "",
         "Each bar-kept agent again on the same tracks with the steering indicator painted "
@@ -462,7 +477,9 @@ def markdown(
         "",
         f"Code {meta['git_revision']}; command `{meta['command']}`; d_s from the "
         f"demonstrations, eps {meta['eps']} px; created {meta['created_utc']} on "
-        f"{meta['cpus']} CPUs.",
+        f"{meta['cpus']} CPUs. Episodes per job revision (each job cached in `runs/` with "
+        f"the revision that ran it; 'unrecorded': jobs cached before revisions were "
+        f"recorded): {meta['job_revisions']}.",
         "",
     ]
     return "\n".join(lines)
@@ -478,17 +495,22 @@ def plot(summary: pd.DataFrame, expert: pd.Series | None, path: Path, title: str
     masked = summary[summary["view"] == "steer_masked"].set_index("cell")
     y = np.arange(len(full))
     fig, axes = plt.subplots(1, 2, figsize=(11, 0.45 * len(full) + 1.5), sharey=True)
-    for ax, m, title in (
+    decides = (full["n_train_seeds"] == full["n_train_seeds"].max()).to_numpy()
+    for ax, m, panel in (
         (axes[0], "reward", "reward"),
         (axes[1], "any_violation", "share of episodes beyond d_s"),
     ):
         err = np.vstack([full[m] - full[f"{m}_lo"], full[f"{m}_hi"] - full[m]])
-        ax.errorbar(full[m], y, xerr=err, fmt="o", color="tab:blue", label="full frame")
+        for keep, style, label in ((decides, "o", "all seeds"), (~decides, "s", "screen (1 seed)")):
+            if keep.any():
+                ax.errorbar(full[m][keep], y[keep], xerr=err[:, keep], fmt=style,
+                            color="tab:blue", mfc="tab:blue" if style == "o" else "white",
+                            label=f"full frame, {label}")  # fmt: skip
         mk = full["cell"].map(lambda c, m=m: masked[m].get(c, np.nan) if len(masked) else np.nan)
         ax.plot(mk, y, "x", color="tab:red", label="steering indicator masked")
         if expert is not None:
             ax.axvline(expert[m], color="k", ls="--", lw=1, label="expert")
-        ax.set_title(title)
+        ax.set_title(panel)
         ax.grid(alpha=0.3)
     axes[0].set_yticks(y, full["cell"])
     axes[0].legend(loc="lower right", fontsize=8)
@@ -591,6 +613,10 @@ def main(argv: list[str] | None = None) -> int:
     baseline = args.baseline
     summary, paired, copycat = summarise(episodes, baseline)
     chosen = choose(summary)
+    agents = episodes[(episodes["view"] == "full") & (episodes["cell"] != "expert")]
+    paired_chosen = paired_crossed(
+        agents, chosen, ["reward", "violation_steps", "any_violation"], by="cell"
+    )
     meta = run_metadata(
         seeds=args.seeds,
         episodes=args.episodes,
@@ -605,15 +631,19 @@ def main(argv: list[str] | None = None) -> int:
         baseline=baseline,
         chosen=chosen,
         bootstrap_seed=0,
+        job_revisions=episodes["job_revision"].value_counts().to_dict(),
     )
     for name, frame in (
         ("episodes", episodes),
         ("summary", summary),
         ("paired", paired),
         ("copycat", copycat),
+        ("paired_chosen", paired_chosen),
     ):
         write_table_atomic(args.out / f"{name}.parquet", frame, meta)
-    text = markdown(summary, paired, copycat, episodes, meta, baseline, chosen, args.title)
+    text = markdown(
+        summary, paired, paired_chosen, copycat, episodes, meta, baseline, chosen, args.title
+    )
     write_text_atomic(args.out / f"{args.name}.md", text)
     exp = summary[summary["cell"] == "expert"]
     plot(summary, exp.iloc[0] if len(exp) else None, args.out / f"{args.name}.png", args.title)

@@ -93,10 +93,14 @@ def test_summary_pairs_cells_and_chooses_the_safe_high_reward_cell():
     assert 590 < row["d_reward"] < 610 and row["d_reward_lo"] > 0
     masked = copycat.set_index("cell").loc["bar_grey_k1"]
     assert masked["d_reward_hi"] < 0  # masking cost reward in this synthetic table
-    text = ablation.markdown(summary, paired, copycat, episodes,
+    to_chosen = ablation.paired_crossed(
+        episodes[episodes["view"] == "full"], "bar_grey_k1", ["reward", "violation_steps",
+        "any_violation"], by="cell")  # fmt: skip
+    text = ablation.markdown(summary, paired, to_chosen, copycat, episodes.assign(job_revision="r"),
                              {"batches": [2000], "seeds": [0, 1, 2], "episodes": 5,
                               "eval_seed": 10, "git_revision": "abc", "command": "x",
-                              "eps": 2.0, "created_utc": "now", "cpus": "2"},
+                              "eps": 2.0, "created_utc": "now", "cpus": "2",
+                              "job_revisions": {"r": 40}},
                              "nobar_grey_k1", "bar_grey_k1", "T")  # fmt: skip
     assert "**bar_grey_k1**" in text and "0/15" in text and "15/15" in text
 
@@ -112,3 +116,15 @@ def test_mask_steering_preprocessing_equals_masking_the_frame():
     assert not preprocess_frames(frames, plain).equal(preprocess_frames(masked, plain))
     assert ablation.cell_name(cfg) == "bar-nosteer_grey_k1"
     assert len(ablation.all_cells()) == 18
+
+
+def test_the_preprocessing_default_is_the_committed_ablations_choice():
+    """The default follows the measurement: change one and the other must follow."""
+    from pathlib import Path
+
+    from safe_bc.data.store import read_table
+
+    table = Path(__file__).resolve().parents[2] / "results/ablation/observation/summary.parquet"
+    summary, meta = read_table(table)
+    assert ablation.cell_name(PreprocessConfig()) == meta["chosen"] == ablation.choose(summary)
+    assert PreprocessConfig().frame_stack == 1 and PreprocessConfig().resize is None
