@@ -16,19 +16,29 @@ def _positive_int(name: str, value: object) -> None:
 
 @dataclass(frozen=True)
 class PreprocessConfig:
-    """Observation -> network input. Image options only apply to ``(H, W, 3) uint8`` frames."""
+    """Observation -> network input. Image options only apply to ``(H, W, 3) uint8`` frames.
 
-    grayscale: bool = True
-    """Collapse RGB to one luma channel (ITU-R 601 weights)."""
+    The image defaults (colour, the indicator bar kept with its steering indicator masked,
+    one frame) are the observation ablation's choice: ``results/ablation/observation/``
+    (``python -m scripts.observation_ablation``; plain BC, 3 training seeds x 20 selection
+    tracks per cell). Until then they were grey, bar cropped: agents blind to their speed."""
 
-    crop_bar: bool = True
-    """Drop the bottom 12 rows (rows 84-95 of CarRacing: the speed/ABS/steering indicator bar)."""
+    grayscale: bool = False
+    """Collapse RGB to one luma channel (ITU-R 601 weights). Off by default: with the bar kept,
+    colour agents crossed d_s in 1-6 of 60 episodes, grey ones in 25-34 (the ablation)."""
 
-    mask_steering: bool = False
+    crop_bar: bool = False
+    """Drop the bottom 12 rows (rows 84-95 of CarRacing: the speed/ABS/steering indicator bar).
+    Off by default: the bar is the only place a single frame shows the car's speed; cropping
+    it cost ~200 reward and ~117 steps beyond d_s per episode (the ablation)."""
+
+    mask_steering: bool = True
     """Paint the steering-angle indicator of a CarRacing frame black (rows 84-95, columns
     36-61: ``preprocess.STEERING_INDICATOR``) before anything else, keeping the rest of the
-    bar (speed, ABS, gyro); only meaningful with ``crop_bar=False``. Against copycat
-    behaviour: the indicator shows the steering the agent just chose."""
+    bar (speed, ABS, gyro); only meaningful with ``crop_bar=False`` and 96x96 frames. Against
+    copycat behaviour: the indicator shows the steering the agent just chose. On by default:
+    the ablation's best cell by episodes beyond d_s (1/60, colour with the bar kept 3/60, not a
+    reliable difference)."""
 
     frame_stack: int = 1
     """Number of consecutive frames (oldest first) stacked along channels (features for
@@ -65,8 +75,9 @@ class NetworkConfig:
 
     strides: tuple[int, ...] = (4, 2, 1)
     """Stride of each conv layer (CNN only; a single entry is used for every layer); no
-    padding. The default (8/4, 4/2, 3/1) is the DQN stack: about 1.7 M multiply-adds per
-    84x96 frame, cheap enough for CPU training."""
+    padding. The default (8/4, 4/2, 3/1) is the DQN stack: about 3.0 M multiply-adds per
+    96x96 colour frame (1.7 M per 84x96 grey one), cheap enough for CPU training. Not chosen
+    by a measurement yet: the default study searches the channels."""
 
     hidden: int = 128
     """Width of the hidden layers of the MLP head / MLP."""
