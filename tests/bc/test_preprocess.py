@@ -36,7 +36,7 @@ def test_grayscale_weights_and_rgb_channel_order():
         frames[c, ..., c] = 255
     gray = preprocess_frames(frames, PreprocessConfig(grayscale=True))[:, 0, 0, 0]
     assert np.allclose(gray.numpy(), [0.299, 0.587, 0.114], atol=1e-6)
-    rgb = preprocess_frames(frames, PreprocessConfig(grayscale=False))
+    rgb = preprocess_frames(frames, PreprocessConfig(grayscale=False, mask_steering=False))
     assert rgb[1, 1].min() == 1.0 and rgb[1, 0].max() == 0.0 and rgb[1, 2].max() == 0.0
 
 
