@@ -15,8 +15,15 @@ import safe_bc
 _REPO = Path(__file__).resolve().parent.parent
 
 
+CODE_PATHSPEC = (".", ":(exclude)results")
+"""What a revision covers: every tracked file but the outputs under ``results/`` (a rerun
+rewrites committed tables one by one; its own earlier outputs do not make the code
+uncommitted)."""
+
+
 def git_revision() -> str:
-    """The checkout's commit, with ``-dirty`` when there are uncommitted changes to tracked files.
+    """The checkout's commit, with ``-dirty`` when there are uncommitted changes to tracked
+    files outside ``results/`` (:data:`CODE_PATHSPEC`).
 
     Returns ``"unknown"`` outside a git checkout (e.g. an installed wheel).
     """
@@ -25,7 +32,7 @@ def git_revision() -> str:
             ["git", "rev-parse", "HEAD"], cwd=_REPO, capture_output=True, text=True, check=True
         ).stdout.strip()
         dirty = subprocess.run(
-            ["git", "status", "--porcelain", "--untracked-files=no"],
+            ["git", "status", "--porcelain", "--untracked-files=no", "--", *CODE_PATHSPEC],
             cwd=_REPO,
             capture_output=True,
             text=True,
@@ -50,7 +57,7 @@ class DirtyTreeError(RuntimeError):
 def _changed_files() -> list[str]:
     try:
         out = subprocess.run(
-            ["git", "status", "--porcelain", "--untracked-files=no"],
+            ["git", "status", "--porcelain", "--untracked-files=no", "--", *CODE_PATHSPEC],
             cwd=_REPO, capture_output=True, text=True, check=True,
         ).stdout  # fmt: skip
     except (OSError, subprocess.CalledProcessError):
@@ -60,9 +67,10 @@ def _changed_files() -> list[str]:
 
 def check_result_write(path: str | Path) -> dict[str, Any] | None:
     """Refuse to write a result table under the checkout's ``results/`` from a dirty git tree
-    (uncommitted changes to tracked files: the table could not be re-derived from any
-    commit), unless ``$SAFE_BC_ALLOW_DIRTY`` says why; then return the record to embed in the
-    table's metadata (``{"allowed_by": ..., "reason": ..., "changed_files": [...]}``).
+    (uncommitted changes to tracked files outside ``results/``: the table could not be
+    re-derived from any commit; the command's own earlier tables do not count), unless
+    ``$SAFE_BC_ALLOW_DIRTY`` says why; then return the record to embed in the table's metadata
+    (``{"allowed_by": ..., "reason": ..., "changed_files": [...]}``).
     ``None``: nothing to record (a clean tree, a path elsewhere, e.g. a test's temporary
     folder, or no git checkout).
 
