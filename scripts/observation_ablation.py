@@ -72,9 +72,10 @@ REPORT_METRICS = (
 def cell_name(pre: PreprocessConfig) -> str:
     """``bar_grey_k1``-style name of an observation setting.
 
-    >>> cell_name(PreprocessConfig(crop_bar=False, grayscale=False, frame_stack=4))
+    >>> cell_name(PreprocessConfig(crop_bar=False, mask_steering=False, grayscale=False,
+    ...                            frame_stack=4))
     'bar_rgb_k4'
-    >>> cell_name(PreprocessConfig(crop_bar=False, mask_steering=True))
+    >>> cell_name(PreprocessConfig(crop_bar=False, mask_steering=True, grayscale=True))
     'bar-nosteer_grey_k1'
     """
     bar = "nobar" if pre.crop_bar else "bar-nosteer" if pre.mask_steering else "bar"

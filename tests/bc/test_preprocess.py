@@ -101,12 +101,13 @@ def test_stack_index_unsorted_rows_and_gaps():
 
 def test_gather_stacks_consecutive_frames_oldest_first():
     demos = frame_demos(n=100)  # two episodes of 50
-    cfg = PreprocessConfig(frame_stack=3, resize=24)
+    cfg = PreprocessConfig(frame_stack=3, resize=24, grayscale=True)
     sidx = frame_stack_index(demos.episode_ids, demos.steps, 3)
     rows = np.array([0, 1, 2, 49, 50, 51, 99])
     x = gather_inputs(demos.observations, rows, cfg, sidx)
     assert x.shape == (7, 3, 24, 24)
-    single = preprocess_frames(demos.observations, PreprocessConfig(resize=24))[:, 0]
+    single = preprocess_frames(demos.observations, PreprocessConfig(resize=24, grayscale=True))
+    single = single[:, 0]
     expect = {0: [0, 0, 0], 1: [0, 0, 1], 2: [0, 1, 2], 49: [47, 48, 49], 50: [50, 50, 50]}
     expect |= {51: [50, 50, 51], 99: [97, 98, 99]}
     for b, r in enumerate(rows):

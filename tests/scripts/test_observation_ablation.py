@@ -110,8 +110,8 @@ def test_mask_steering_preprocessing_equals_masking_the_frame():
     frames = np.random.default_rng(0).integers(0, 256, (3, 96, 96, 3), dtype=np.uint8)
     masked = frames.copy()
     masked[:, 84:96, 36:62] = 0
-    cfg = PreprocessConfig(crop_bar=False, mask_steering=True)
-    plain = PreprocessConfig(crop_bar=False)
+    cfg = PreprocessConfig(crop_bar=False, mask_steering=True, grayscale=True)
+    plain = PreprocessConfig(crop_bar=False, mask_steering=False, grayscale=True)
     assert preprocess_frames(frames, cfg).equal(preprocess_frames(masked, plain))
     assert not preprocess_frames(frames, plain).equal(preprocess_frames(masked, plain))
     assert ablation.cell_name(cfg) == "bar-nosteer_grey_k1"
