@@ -206,3 +206,15 @@ def test_preprocessing_and_channels_are_train_flags_with_the_config_defaults() -
         False, False, True, 4
     )  # fmt: skip
     assert args.channels == [8, 16, 16]
+
+
+def test_every_key_the_default_study_searches_is_a_train_flag() -> None:
+    """A study's winner can be retrained with one ``safe-bc train`` command."""
+    study = load_study(REPO / "tune_jobs" / "default.py")
+    options = {
+        opt for action in build_parser()._subparsers._group_actions[0].choices["train"]._actions
+        for opt in action.option_strings
+    }  # fmt: skip
+    for key in study.space:
+        flag = "--" + key.rsplit(".", 1)[-1].replace("_", "-")
+        assert flag in options, f"{key} has no train flag {flag}"

@@ -1,5 +1,5 @@
-"""The default study: eps, alpha, the eq. 5 reading, network, learning rate, batch size and
-preprocessing, searched by constrained TPE for the highest mean reward subject to two
+"""The default study: eps, alpha, the eq. 5 reading, network, learning rate and batch size,
+searched by constrained TPE for the highest mean reward subject to two
 constraints: a safety mean at least the expert's on its (safe) demonstrations, and no step
 beyond the expert's limit d_s in any dimension (violation rate <= 0). (Also requiring every
 dimension's mean to reach the expert's, ``safety_constraint="per_dim"``, admitted no trial:
@@ -10,8 +10,11 @@ Each trial is screened on 3 held-out tracks; successive halving stops the weaker
 the others are evaluated on 10 tracks in all. Then the top 3 feasible trials are retrained
 with 3 training seeds each and re-evaluated on 51 fresh tracks (17 per seed) beside plain BC
 (same seeds) and the expert, on every CPU of the cluster, and the winner is chosen on that
-re-evaluation. The space leaves out the costliest settings (32-64-64 channels, batch 128,
-4 stacked frames: 3-14x slower to train) to keep the study near 30-40 minutes on 2 cores.
+re-evaluation. The space leaves out the costliest settings (32-64-64 channels, batch 128:
+slower to train) to keep the study near 30-40 minutes on 2 cores. The observation is not
+searched: trials see ``PreprocessConfig``'s default (colour, the indicator bar kept with its
+steering indicator masked, one frame), which the observation ablation chose
+(``results/ablation/observation/``: grey and stacked frames crossed d_s more often).
 
 Run: ``make tune`` (or ``safe-bc tune tune_jobs/default.py``); rerun to resume.
 """
@@ -28,8 +31,6 @@ STUDY = StudySpec(
         "bc.network.hidden": Choice((64, 128, 256)),
         "bc.train.lr": Float(1e-4, 3e-3, log=True),
         "bc.train.batch_size": Choice((32, 64)),
-        "bc.preprocess.frame_stack": Choice((1, 2)),
-        "bc.preprocess.grayscale": Choice((True, False)),
     },
     trials=16,
     max_concurrent=2,
