@@ -585,6 +585,8 @@ def main(argv: list[str] | None = None) -> int:
         )
         for net in nets:
             NetworkConfig(channels=net or NetworkConfig().channels)
+        # the default network is the default's job (cached without a channels key)
+        nets = [None if net == NetworkConfig().channels else net for net in nets]
     except ValueError as e:
         p.error(f"--channels: {e}")
     plan = [(s, c) for s in args.seeds for c in cells]
