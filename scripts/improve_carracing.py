@@ -49,8 +49,9 @@ LABELS = {
     "lagrangian": "Lagrangian only",
     "both": "shield + Lagrangian",
 }
-START_ARGS = ["--alpha", "0.1"]
-"""How the starts are trained (with ``--seed k``): Table 1's best row."""
+START_ALPHA = 0.1
+"""Default safety focus of the starts (``safe-bc train --alpha A --seed k``): the best alpha
+row of the Table 1 made with the cropped bar; ``--start-alpha`` takes the current Table 1's."""
 
 
 MODE_COLOURS = {"ppo": "tab:gray", "shield": "tab:blue", "lagrangian": "tab:orange",
@@ -188,7 +189,7 @@ def markdown(
         "",
         f"* command: `{meta['command']}`",
         f"* git revision: `{meta['git_revision']}`, created {meta['created_utc']}",
-        f"* starts: `safe-bc train --demos {meta['demos']} {' '.join(START_ARGS)} --seed k`",
+        f"* starts: `safe-bc train --demos {meta['demos']} --alpha {meta['start_alpha']} --seed k`",
         f"* improvement config (per mode, `seed` = k): `{meta['config']}`",
         "",
     ]
@@ -204,6 +205,12 @@ def main(argv: list[str] | None = None) -> int:
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    p.add_argument(
+        "--start-alpha",
+        type=float,
+        default=START_ALPHA,
+        help="safety focus of the starts (safe-bc train --alpha), e.g. Table 1's best",
+    )
     p.add_argument("--modes", nargs="+", choices=list(MODES), default=list(MODES))
     p.add_argument("--iterations", type=int, default=20)
     p.add_argument("--episodes-per-iter", type=int, default=4)
@@ -241,6 +248,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     demos = load_demonstrations(args.demos)
     limits = demos.limits
+    start_args = ["--alpha", str(args.start_alpha)]
 
     def report(mode: str, k: int, row: dict[str, float]) -> None:
         if not args.quiet:
@@ -255,7 +263,7 @@ def main(argv: list[str] | None = None) -> int:
 
         envs = ray_envs(args.rollout_workers)
     trained, histories = run_modes(args.demos, args.out, args.seeds, args.modes, base, command,
-                                   start_args=START_ARGS, on_iteration=report, envs=envs,
+                                   start_args=start_args, on_iteration=report, envs=envs,
                                    processes=args.processes)  # fmt: skip
     sources: dict[str, Any] = {"expert": ExpertSource(task.expert), **trained}
 
@@ -300,12 +308,13 @@ def main(argv: list[str] | None = None) -> int:
         limits=[float(x) for x in limits],
         limits_text=dims,
         config=base.to_dict(),
-        start_args=START_ARGS,
+        start_args=start_args,
         run_machines=run_machines,
         eval_machines=eval_machines,
         processes=args.processes,
     )
     meta["command"] = command
+    meta["start_alpha"] = args.start_alpha
     text = markdown(summary, paired, per_seed, meta)
     tables = {"episodes": episodes, "summary": summary, "paired": paired, "history": history}
     write_outputs(args.out, tables, meta, text)

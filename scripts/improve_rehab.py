@@ -66,9 +66,26 @@ START_ARGS = ["--alpha", "0.5"]
 def ensure_start(demos: Path, out: Path, seed: int, start_args: list[str] = START_ARGS) -> Path:
     """The safety-imitation start of ``seed`` (``safe-bc train`` with ``start_args``, unless
     ``out`` holds one)."""
+    import json
+    from dataclasses import asdict
+
+    from safe_bc.bc import PreprocessConfig
     from safe_bc.cli import main
 
-    if not (out / "config.json").exists():
+    if (out / "config.json").exists():  # reuse only a start trained as asked
+        stored = json.loads((out / "config.json").read_text())
+        run = stored.get("extra", {}).get("run", {})
+        i = start_args.index("--alpha") + 1 if "--alpha" in start_args else None
+        want = None if i is None else float(start_args[i])
+        have = run.get("selection", {}).get("alpha")
+        pixels = len(stored.get("spec", {}).get("obs_shape", ())) == 3  # preprocessing matters
+        pre = run.get("bc", {}).get("preprocess") if pixels else None
+        if (want is not None and have != want) or pre not in (None, asdict(PreprocessConfig())):
+            raise SystemExit(
+                f"{out} holds a start trained with alpha {have} and preprocessing {pre}, not "
+                f"the {start_args} and default preprocessing asked for: remove it to retrain"
+            )
+    else:
         argv = ["train", "--demos", str(demos), "--out", str(out), *start_args,
                 "--seed", str(seed), "--quiet"]  # fmt: skip
         if main(argv) != 0:

@@ -409,7 +409,8 @@ def markdown(
     )
     diff, diff_chosen = _paired_tab(paired, baseline), _paired_tab(paired_chosen, chosen)
     follow = summary[summary["view"].isin(["full", "steer_masked"])]
-    follow = follow[follow["cell"].isin(set(copycat.get("cell", [])) | {"expert"})]
+    if len(copycat):  # with masked runs, the cells that have them; else every cell
+        follow = follow[follow["cell"].isin(set(copycat["cell"]) | {"expert"})]
     follow_tab = pd.DataFrame(
         {
             "observation": follow["cell"],
@@ -461,16 +462,24 @@ def markdown(
         "",
         diff.to_markdown(index=False),
         "",
-        f"## Paired differences to the chosen `{chosen}`, same seeds x tracks",
-        "",
-        diff_chosen.to_markdown(index=False),
-        "",
+        *(
+            [
+                f"## Paired differences to the chosen `{chosen}`, same seeds x tracks",
+                "",
+                diff_chosen.to_markdown(index=False),
+                "",
+            ]
+            if chosen != baseline
+            else []
+        ),
         "## Copycat check: does the agent copy its steering from the indicator?",
         "",
         "Each bar-kept agent again on the same tracks with the steering indicator painted "
         "black (`view = steer_masked`); differences masked - full on the same seeds x tracks:",
         "",
-        mask_tab.to_markdown(index=False) if len(mask_tab) else "(no bar-kept cell)",
+        mask_tab.to_markdown(index=False)
+        if len(mask_tab)
+        else "(not run here: no cell was evaluated with the indicator masked)",
         "",
         "How much steering follows itself (scored steps of every episode):",
         "",
