@@ -13,6 +13,7 @@ from safe_bc.bc.checkpoint import CheckpointError
 from safe_bc.bc.config import PreprocessConfig
 from safe_bc.data.store import DatasetError
 from safe_bc.distributed.runtime import RayUnavailableError, check_ray_address
+from safe_bc.docs import field_doc
 from safe_bc.locks import OutputLockedError, check_output_folder, output_lock, output_locks
 
 DEFAULT_DEMOS = Path("data/demos")
@@ -570,6 +571,20 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} -h)\n")
 
 
+TRAIN, NETWORK = ("safe_bc.bc.config", "TrainConfig"), ("safe_bc.bc.config", "NetworkConfig")
+IMPROVE = ("safe_bc.improve", "ImproveConfig")
+DEMOS = "demonstration dataset directory"
+WORKERS = "Ray actors that run the episodes"
+EVAL_SEED = "block of held-out seeds (tracks or patients) the episodes are drawn from"
+MAX_STEPS = "step cap per episode (default: the env's, 1000 for CarRacing)"
+ENV = "the testbed: carracing or rehab"
+
+
+def _doc(where: tuple[str, str], field: str) -> str:
+    """Help text of an option that sets a config field: the field's docstring."""
+    return field_doc(*where, field)
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``safe-bc``."""
     parser = _Parser(prog="safe-bc", description="Safety-focused behaviour cloning as a Ray study.")
@@ -579,20 +594,30 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--episodes", type=_positive("--episodes"), default=None, help="default: 5 (rehab: 150)"
     )
-    p.add_argument("--workers", type=_positive("--workers"), default=2)
-    p.add_argument("--seed", type=_non_negative_int("--seed"), default=0)
+    p.add_argument("--workers", type=_positive("--workers"), default=2, help=WORKERS)
+    p.add_argument(
+        "--seed",
+        type=_non_negative_int("--seed"),
+        default=0,
+        help="seed of the episodes' tracks (patients) and the expert's noise",
+    )
     p.add_argument(
         "--out", type=Path, default=None, help="default: data/demos (rehab: data/rehab_demos)"
     )
-    p.add_argument("--max-steps", type=_positive("--max-steps"), default=None)
-    p.add_argument("--encoding", choices=["png", "raw", "vector"], default=None)
+    p.add_argument("--max-steps", type=_positive("--max-steps"), default=None, help=MAX_STEPS)
+    p.add_argument(
+        "--encoding",
+        choices=["png", "raw", "vector"],
+        default=None,
+        help="how observations are stored (default: png for frames, vector for rehab)",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     _env_args(p)
     p.set_defaults(func=_cmd_collect)
 
     p = sub.add_parser("describe", help="cost histograms and summary of a demonstration set")
-    p.add_argument("--demos", type=Path, default=DEFAULT_DEMOS)
-    p.add_argument("--out", type=Path, default=Path("results/demos"))
+    p.add_argument("--demos", type=Path, default=DEFAULT_DEMOS, help=DEMOS)
+    p.add_argument("--out", type=Path, default=Path("results/demos"), help="where the summary goes")
     p.add_argument(
         "--eps",
         type=_non_negative_float("--eps"),
@@ -602,13 +627,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_describe)
 
     p = sub.add_parser("train", help="select T_eps and train one BC agent (checkpoint)")
-    p.add_argument("--demos", type=Path, default=DEFAULT_DEMOS)
+    p.add_argument("--demos", type=Path, default=DEFAULT_DEMOS, help=DEMOS)
     p.add_argument("--out", type=Path, required=True, help="checkpoint directory")
     _selection_args(p, eps="the task's, 2 px / 0.05")
-    p.add_argument("--batches", type=_positive("--batches"), default=2000)
-    p.add_argument("--batch-size", type=_positive("--batch-size"), default=64)
-    p.add_argument("--lr", type=_positive_float("--lr"), default=3e-4)
-    p.add_argument("--hidden", type=_positive("--hidden"), default=128)
+    p.add_argument("--batches", type=_positive("--batches"), default=2000,
+                   help=_doc(TRAIN, "batches"))  # fmt: skip
+    p.add_argument("--batch-size", type=_positive("--batch-size"), default=64,
+                   help=_doc(TRAIN, "batch_size"))  # fmt: skip
+    p.add_argument("--lr", type=_positive_float("--lr"), default=3e-4, help=_doc(TRAIN, "lr"))
+    p.add_argument("--hidden", type=_positive("--hidden"), default=128,
+                   help=_doc(NETWORK, "hidden"))  # fmt: skip
     pre = PreprocessConfig()
     p.add_argument(
         "--frame-stack",
@@ -634,26 +662,32 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="conv channels of the CNN, e.g. 16 32 32 (default: NetworkConfig.channels)",
     )
-    p.add_argument("--seed", type=_non_negative_int("--seed"), default=0)
+    p.add_argument("--seed", type=_non_negative_int("--seed"), default=0,
+                   help=_doc(TRAIN, "seed"))  # fmt: skip
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_train)
 
     p = sub.add_parser("evaluate", help="evaluate a checkpoint on held-out tracks (or patients)")
-    p.add_argument("--checkpoint", type=Path, required=True)
-    p.add_argument("--episodes", type=_positive("--episodes"), default=10)
-    p.add_argument("--workers", type=_positive("--workers"), default=2)
-    p.add_argument("--eval-seed", type=_non_negative_int("--eval-seed"), default=0)
-    p.add_argument("--max-steps", type=_positive("--max-steps"), default=None)
-    p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--checkpoint", type=Path, required=True, help="a safe-bc train checkpoint")
+    p.add_argument("--episodes", type=_positive("--episodes"), default=10,
+                   help="held-out episodes (tracks or patients), one each")  # fmt: skip
+    p.add_argument("--workers", type=_positive("--workers"), default=2, help=WORKERS)
+    p.add_argument("--eval-seed", type=_non_negative_int("--eval-seed"), default=0,
+                   help=EVAL_SEED)  # fmt: skip
+    p.add_argument("--max-steps", type=_positive("--max-steps"), default=None, help=MAX_STEPS)
+    p.add_argument("--out", type=Path, required=True, help="where the episode table goes")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_evaluate)
 
     p = sub.add_parser("expert", help="measure the expert on held-out tracks (or patients)")
-    p.add_argument("--env", choices=["carracing", "rehab"], default="carracing")
-    p.add_argument("--episodes", type=_positive("--episodes"), default=20)
-    p.add_argument("--workers", type=_positive("--workers"), default=2)
-    p.add_argument("--eval-seed", type=_non_negative_int("--eval-seed"), default=3)
-    p.add_argument("--out", type=Path, default=Path("results/expert"))
+    p.add_argument("--env", choices=["carracing", "rehab"], default="carracing", help=ENV)
+    p.add_argument("--episodes", type=_positive("--episodes"), default=20,
+                   help="held-out episodes (tracks or patients), one each")  # fmt: skip
+    p.add_argument("--workers", type=_positive("--workers"), default=2, help=WORKERS)
+    p.add_argument("--eval-seed", type=_non_negative_int("--eval-seed"), default=3,
+                   help=EVAL_SEED)  # fmt: skip
+    p.add_argument("--out", type=Path, default=Path("results/expert"),
+                   help="where the tables go")  # fmt: skip
     p.add_argument(
         "--demos",
         type=Path,
@@ -665,7 +699,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_expert)
 
     p = sub.add_parser("reproduce", help="rerun the paper's Table 1 with CIs")
-    p.add_argument("--env", choices=["carracing", "rehab"], default="carracing")
+    p.add_argument("--env", choices=["carracing", "rehab"], default="carracing", help=ENV)
     p.add_argument("--demos", type=Path, default=None, help="default: the task's demo set")
     p.add_argument(
         "--out", type=Path, default=None, help="default: results/ (rehab: results/rehab)"
@@ -682,10 +716,12 @@ def build_parser() -> argparse.ArgumentParser:
         default=20,
         help="held-out tracks, the same for every agent (default: 20)",
     )
-    p.add_argument("--workers", type=_positive("--workers"), default=2)
-    p.add_argument("--batches", type=_positive("--batches"), default=2000)
-    p.add_argument("--max-steps", type=_positive("--max-steps"), default=None)
-    p.add_argument("--eval-seed", type=_non_negative_int("--eval-seed"), default=0)
+    p.add_argument("--workers", type=_positive("--workers"), default=2, help=WORKERS)
+    p.add_argument("--batches", type=_positive("--batches"), default=2000,
+                   help=_doc(TRAIN, "batches"))  # fmt: skip
+    p.add_argument("--max-steps", type=_positive("--max-steps"), default=None, help=MAX_STEPS)
+    p.add_argument("--eval-seed", type=_non_negative_int("--eval-seed"), default=0,
+                   help=EVAL_SEED)  # fmt: skip
     p.add_argument(
         "--eps", type=_non_negative_float("--eps"), default=None, help="default: 2 px / 0.05"
     )
@@ -775,15 +811,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--eps", type=_non_negative_float("--eps"), default=None,
                    help="shield's critical-zone width (default: the start's)")  # fmt: skip
     # unset options keep ImproveConfig's defaults (safe_bc/improve.py documents each)
-    p.add_argument("--cost-signal", choices=["indicator", "excursion"], default=None)
-    p.add_argument("--cost-margin", type=_non_negative_float("--cost-margin"), default=None)
-    p.add_argument("--cost-budget", type=_non_negative_float("--cost-budget"), default=None)
-    p.add_argument("--lambda-lr", type=_non_negative_float("--lambda-lr"), default=None)
-    p.add_argument("--anchor", choices=["bc", "kl", "none"], default=None)
-    p.add_argument("--anchor-coef", type=_non_negative_float("--anchor-coef"), default=None)
-    p.add_argument("--iterations", type=_positive("--iterations"), default=None)
-    p.add_argument("--episodes-per-iter", type=_positive("--episodes-per-iter"), default=None)
-    p.add_argument("--seed", type=_non_negative_int("--seed"), default=0)
+    for flag, check, field in (
+        ("--cost-signal", ["indicator", "excursion"], "cost_signal"),
+        ("--cost-margin", _non_negative_float, "cost_margin"),
+        ("--cost-budget", _non_negative_float, "cost_budget"),
+        ("--lambda-lr", _non_negative_float, "lambda_lr"),
+        ("--anchor", ["bc", "kl", "none"], "anchor"),
+        ("--anchor-coef", _non_negative_float, "anchor_coef"),
+        ("--iterations", _positive, "iterations"),
+        ("--episodes-per-iter", _positive, "episodes_per_iter"),
+    ):
+        kind = {"choices": check} if isinstance(check, list) else {"type": check(flag)}
+        p.add_argument(flag, **kind, default=None, help=_doc(IMPROVE, field))
+    p.add_argument("--seed", type=_non_negative_int("--seed"), default=0,
+                   help=_doc(IMPROVE, "seed"))  # fmt: skip
     p.add_argument("--rollout-workers", type=_non_negative_int("--rollout-workers"), default=0,
                    help="Ray actors stepping the rollout envs (0: in-process, right for rehab; "
                    "CarRacing: one per core); the run is bit-identical either way")  # fmt: skip
@@ -791,8 +832,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_improve)
 
     p = sub.add_parser("export", help="export a demonstration set to another format (Minari)")
-    p.add_argument("--demos", type=Path, default=DEFAULT_DEMOS)
-    p.add_argument("--format", choices=["minari"], default="minari")
+    p.add_argument("--demos", type=Path, default=DEFAULT_DEMOS, help=DEMOS)
+    p.add_argument("--format", choices=["minari"], default="minari", help="target format")
     p.add_argument(
         "--dataset-id",
         required=True,
@@ -814,7 +855,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--seed", type=_non_negative_int("--seed"), default=0, help="track seed")
     p.add_argument("--out", type=Path, required=True, help=".mp4, .gif, or .png with --paths")
-    p.add_argument("--max-steps", type=_positive("--max-steps"), default=None)
+    p.add_argument("--max-steps", type=_positive("--max-steps"), default=None, help=MAX_STEPS)
     p.add_argument(
         "--demos",
         type=Path,
@@ -828,7 +869,8 @@ def build_parser() -> argparse.ArgumentParser:
         help="critical-zone width (default: the checkpoint's, else 2 px)",
     )
     p.add_argument("--scale", type=_positive("--scale"), default=4, help="upscaling of frames")
-    p.add_argument("--fps", type=_positive_float("--fps"), default=50.0)
+    p.add_argument("--fps", type=_positive_float("--fps"), default=50.0,
+                   help="frames per second of the video")  # fmt: skip
     p.set_defaults(func=_cmd_render)
     return parser
 

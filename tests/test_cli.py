@@ -218,3 +218,18 @@ def test_every_key_the_default_study_searches_is_a_train_flag() -> None:
     for key in study.space:
         flag = "--" + key.rsplit(".", 1)[-1].replace("_", "-")
         assert flag in options, f"{key} has no train flag {flag}"
+
+
+def test_every_option_of_every_verb_has_help():
+    import argparse
+
+    from safe_bc.cli import build_parser
+
+    (verbs,) = [a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction)]
+    missing = [
+        f"{verb} {'/'.join(action.option_strings) or action.dest}"
+        for verb, sub in verbs.choices.items()
+        for action in sub._actions
+        if not isinstance(action, argparse._HelpAction) and not action.help
+    ]
+    assert not missing, missing
