@@ -791,10 +791,12 @@ def plot_pareto(
     path: Path,
     *,
     winner: str | None = None,
+    candidates: Sequence[str] = (),
     title: str = "",
 ) -> Path:
     """Reward against safety mean per trial: feasible filled, infeasible hollow, Pareto front
-    joined, the threshold as a vertical line and the winner starred."""
+    joined, the threshold as a vertical line, the final phase's ``candidates`` boxed and its
+    ``winner`` starred (pass a winner only when the final phase accepted it)."""
     from safe_bc.plots import plt, save_figure
 
     r = trials["reward_mean"].to_numpy(float)
@@ -814,11 +816,17 @@ def plot_pareto(
     order = np.argsort(s[front])
     ax.plot(s[front][order], r[front][order], "k--", lw=0.8, label="Pareto front")
     ax.axvline(threshold, color="gray", ls=":", label=f"threshold {threshold:.2f}")
+    boxed = trials[trials["trial_id"].isin(list(candidates))]
+    if len(boxed):
+        ax.scatter(
+            boxed["safety_mean"], boxed["reward_mean"], marker="s", s=140, facecolors="none",
+            edgecolors="k", label=f"final-phase candidates ({len(boxed)})", zorder=4,
+        )  # fmt: skip
     if winner is not None and (trials["trial_id"] == winner).any():
         w = trials[trials["trial_id"] == winner].iloc[0]
         ax.scatter(
             [w["safety_mean"]], [w["reward_mean"]], marker="*", s=250, c="gold",
-            edgecolors="k", label="winner", zorder=4,
+            edgecolors="k", label="winner (final phase)", zorder=5,
         )  # fmt: skip
     ax.set_xlabel("safety mean (pixels to the grass, higher is safer)")
     ax.set_ylabel("reward mean")

@@ -187,6 +187,22 @@ def test_pareto_mask_summary_and_figure(tmp_path: Path) -> None:
     assert text.splitlines()[1].split()[0] == "a"  # feasible first
     path = plot_pareto(t, 5.0, tmp_path / "p" / "pareto.png", winner="a", title="t")
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    import matplotlib.pyplot as plt
+
+    labels = []
+    real_save = plt.Figure.savefig
+
+    def grab(fig, *args, **kwargs):  # the legend says what the final phase decided
+        labels.extend(t.get_text() for t in fig.axes[0].get_legend().get_texts())
+        return real_save(fig, *args, **kwargs)
+
+    plt.Figure.savefig = grab
+    try:
+        plot_pareto(t, 5.0, tmp_path / "q.png", candidates=["a", "b"])
+    finally:
+        plt.Figure.savefig = real_save
+    assert "final-phase candidates (2)" in labels
+    assert not any("winner" in x for x in labels)  # no verdict, no star
 
 
 def test_load_study_files(tmp_path: Path) -> None:

@@ -568,13 +568,8 @@ def _run_study(
     write_table_atomic(out / "trials.parquet", trials, meta)
     write_table_atomic(out / "history.parquet", history, meta)
     winner = choose_winner(trials, spec.objective)
-    plot_pareto(
-        trials,
-        threshold,
-        out / "pareto.png",
-        winner=winner.trial_id if winner and complete else None,
-        title=f"{spec.name}: {finished}/{spec.trials} trials",
-    )
+    title = f"{spec.name}: {finished}/{spec.trials} trials"
+    plot_pareto(trials, threshold, out / "pareto.png", title=title)  # no verdict yet
     outcome = StudyOutcome(complete, trials, None, None, threshold, out, exp_path, errors)
     if not complete or winner is None:
         return outcome
@@ -583,6 +578,15 @@ def _run_study(
     checkpoints = _checkpoints(grid, list(candidates["trial_id"]))
     final = final_phase(spec, job, candidates, checkpoints, demos, progress=progress)
     _write_final(spec, final, candidates, meta)
+    plot_pareto(
+        trials,
+        threshold,
+        out / "pareto.png",
+        winner=final.winner if final.feasible else None,
+        candidates=list(candidates["trial_id"]),
+        title=f"{title}; final phase: "
+        + (f"winner {final.winner}" if final.feasible else "no candidate feasible"),
+    )
     return replace(outcome, winner=winner, final=final)
 
 
