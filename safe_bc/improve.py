@@ -76,6 +76,7 @@ from safe_bc.bc.net import BCNet, ModelSpec
 from safe_bc.bc.policy import BCPolicy
 from safe_bc.bc.preprocess import preprocess
 from safe_bc.bc.train import BatchBuilder, torch_settings
+from safe_bc.envs.factory import REHAB_ID
 from safe_bc.evaluation import NetSource
 from safe_bc.metrics import excursion, violations
 from safe_bc.seeds import HELDOUT_OFFSET
@@ -261,16 +262,9 @@ def observed_costs(obs: np.ndarray, env_id: str) -> np.ndarray:
     exactly the env's cost. Rehabilitation: ``[hr_peak_hrr, fatigue, 2 * sbp_peak]`` of the
     observation, the measured (noisy) values of the env's true costs.
     """
-    obs = np.asarray(obs)
-    if env_id == "CarRacing-v3":
-        from safe_bc.envs.safety import costs_from_distances, pixel_distances
+    from safe_bc.tasks import task_defaults, task_of
 
-        return np.stack([costs_from_distances(pixel_distances(f)) for f in obs]).astype(float)
-    from safe_bc.envs.rehab import OBS_INDEX
-
-    o = obs.astype(np.float64)
-    cols = [o[:, OBS_INDEX["hr_peak_hrr"]], o[:, OBS_INDEX["fatigue"]]]
-    return np.stack([*cols, 2.0 * o[:, OBS_INDEX["sbp_peak"]]], axis=1)
+    return task_defaults(task_of(env_id)).observed_costs(np.asarray(obs))
 
 
 @dataclass(frozen=True)
@@ -283,7 +277,7 @@ class Shield:
     """Width of the critical zone (cost units)."""
     combine: Combine = "any"
     """How per-dimension flags combine (the selection's rule)."""
-    env_id: str = "safe_bc/RehabPathway-v0"
+    env_id: str = REHAB_ID
     """Which observation-to-cost mapping applies (:func:`observed_costs`)."""
 
     def critical(self, obs: np.ndarray) -> np.ndarray:

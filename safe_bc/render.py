@@ -28,6 +28,7 @@ import cv2
 import gymnasium as gym
 import numpy as np
 
+from safe_bc.envs.factory import CARRACING_ID
 from safe_bc.envs.safety import CAR_COLS, CAR_ROWS, FRONT_START, LEFT_START, RIGHT_START
 from safe_bc.episode import Episode
 from safe_bc.policy import Policy
@@ -347,7 +348,7 @@ def limits_from_demos(demos: str | Path, eps: float) -> Limits:
 def _checkpoint_env_id(directory: Path) -> str:
     from safe_bc.bc.checkpoint import read_checkpoint_meta
 
-    return str(read_checkpoint_meta(directory).get("extra", {}).get("env_id", "CarRacing-v3"))
+    return str(read_checkpoint_meta(directory).get("extra", {}).get("env_id", CARRACING_ID))
 
 
 def render_command(
@@ -383,7 +384,7 @@ def render_command(
     if checkpoint is not None:
         checkpoint = Path(checkpoint)
         env_id = _checkpoint_env_id(checkpoint)
-        if env_id != "CarRacing-v3":
+        if env_id != CARRACING_ID:
             raise ValueError(
                 f"{checkpoint}: trained on {env_id}; render draws CarRacing frames only"
             )
@@ -396,7 +397,7 @@ def render_command(
             demos = recorded if recorded and (Path(recorded) / "dataset.json").is_file() else None
     if demos is None and (Path("data/demos") / "dataset.json").is_file():
         demos = Path("data/demos")
-    if demos is not None and read_meta(demos).env_id != "CarRacing-v3":
+    if demos is not None and read_meta(demos).env_id != CARRACING_ID:
         raise ValueError(f"{demos}: not CarRacing demonstrations; render draws CarRacing only")
     if limits is None and demos is not None:
         limits = limits_from_demos(demos, default_eps if eps is None else eps)

@@ -4,17 +4,22 @@ dataset, in its ``dataset.json``) rather than testing for CarRacing."""
 
 from __future__ import annotations
 
+import functools
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, get_args
+
+import numpy as np
 
 from safe_bc.data.codec import Encoding
 from safe_bc.envs import SAFETY_DIMS, EnvConfig
+from safe_bc.envs.factory import CARRACING_ID, REHAB_ID
 from safe_bc.experts.carracing import ExpertConfig
 from safe_bc.experts.perturb import PerturbationConfig
 
 Task = Literal["carracing", "rehab"]
-TASKS: tuple[Task, ...] = ("carracing", "rehab")
+TASKS: tuple[Task, ...] = get_args(Task)
 
 Bounds = tuple[tuple[float, ...], tuple[float, ...]]
 """``(low (A,), high (A,))`` of a Box action space."""
@@ -46,6 +51,9 @@ class TaskDefaults:
     """Names of the env's safety dimensions, in the order of its costs."""
     paper_table1: bool
     """Whether the paper reports a Table 1 for this task (``reproduce`` compares with it)."""
+    observed_costs: Callable[[np.ndarray], np.ndarray]
+    """Safety costs as measured from a batch of observations, ``(B, *obs) -> (B, S)``: what a
+    deployed policy can see (the shield and the improvement's cost signal use it)."""
 
     def collect_config(self, **overrides: Any) -> Any:
         """The task's default demonstration collection; ``overrides`` set other fields
@@ -62,40 +70,59 @@ class TaskDefaults:
         return CollectConfig(**{**fields, **overrides})
 
 
-def task_defaults(task: Task, renderer: Literal["fast", "stock"] = "fast") -> TaskDefaults:
-    """Defaults of ``task`` (``carracing`` or ``rehab``)."""
-    if task == "carracing":
-        return TaskDefaults(
-            env=EnvConfig("CarRacing-v3", renderer=renderer),
-            expert=ExpertConfig(),
-            perturbation=PerturbationConfig(),
-            encoding="png",
-            episodes=5,
-            eps=2.0,
-            demos="data/demos",
-            results="results",
-            action_bounds=((-1.0, 0.0, 0.0), (1.0, 1.0, 1.0)),  # steer, gas, brake
-            safety_dims=SAFETY_DIMS,
-            paper_table1=True,
-        )
-    if task == "rehab":
-        from safe_bc.envs.rehab import REHAB_SAFETY_DIMS
-        from safe_bc.experts.rehab import GuidelineConfig
+def _carracing(renderer: Literal["fast", "stock"]) -> TaskDefaults:
+    from safe_bc.envs.safety import frame_costs
 
-        return TaskDefaults(
-            env=EnvConfig("safe_bc/RehabPathway-v0"),
-            expert=GuidelineConfig(),
-            perturbation=PerturbationConfig(mode="none"),
-            encoding="vector",
-            episodes=150,
-            eps=0.05,
-            demos="data/rehab_demos",
-            results="results/rehab",
-            action_bounds=((-1.0, -1.0), (1.0, 1.0)),
-            safety_dims=REHAB_SAFETY_DIMS,
-            paper_table1=False,
-        )
-    raise ValueError(f"unknown task {task!r}: choose carracing or rehab")
+    return TaskDefaults(
+        env=EnvConfig(CARRACING_ID, renderer=renderer),
+        expert=ExpertConfig(),
+        perturbation=PerturbationConfig(),
+        encoding="png",
+        episodes=5,
+        eps=2.0,
+        demos="data/demos",
+        results="results",
+        action_bounds=((-1.0, 0.0, 0.0), (1.0, 1.0, 1.0)),  # steer, gas, brake
+        safety_dims=SAFETY_DIMS,
+        paper_table1=True,
+        observed_costs=frame_costs,
+    )
+
+
+def _rehab(renderer: Literal["fast", "stock"]) -> TaskDefaults:
+    from safe_bc.envs.rehab import REHAB_SAFETY_DIMS, observed_costs
+    from safe_bc.experts.rehab import GuidelineConfig
+
+    return TaskDefaults(
+        env=EnvConfig(REHAB_ID),
+        expert=GuidelineConfig(),
+        perturbation=PerturbationConfig(mode="none"),
+        encoding="vector",
+        episodes=150,
+        eps=0.05,
+        demos="data/rehab_demos",
+        results="results/rehab",
+        action_bounds=((-1.0, -1.0), (1.0, 1.0)),
+        safety_dims=REHAB_SAFETY_DIMS,
+        paper_table1=False,
+        observed_costs=observed_costs,
+    )
+
+
+REGISTRY: dict[Task, Callable[[Literal["fast", "stock"]], TaskDefaults]] = {
+    "carracing": _carracing,
+    "rehab": _rehab,
+}
+"""Task name -> its entry. Adding a task: one entry here (and its env, expert and cost
+modules); ``tests/test_tasks.py`` walks every entry."""
+
+
+@functools.cache
+def task_defaults(task: Task, renderer: Literal["fast", "stock"] = "fast") -> TaskDefaults:
+    """Defaults of ``task`` (a key of :data:`REGISTRY`; frozen, so built once)."""
+    if task not in REGISTRY:
+        raise ValueError(f"unknown task {task!r}: choose {' or '.join(REGISTRY)}")
+    return REGISTRY[task](renderer)
 
 
 def task_of(env_id: str) -> Task:

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import gymnasium as gym
 import numpy as np
 
+from safe_bc.envs.factory import CARRACING_ID
 from safe_bc.envs.safety import pixel_distances
 from safe_bc.experts.carracing import CarRacingExpert, ExpertConfig
 from safe_bc.experts.geometry import lateral_offset
@@ -64,8 +65,8 @@ def make_env(render: bool = True) -> gym.Env:
     is fine for the privileged expert but not for anything that reads pixels.
     """
     if render:
-        return gym.make("CarRacing-v3")
-    env = gym.make("CarRacing-v3", disable_env_checker=True)
+        return gym.make(CARRACING_ID)
+    env = gym.make(CARRACING_ID, disable_env_checker=True)
     env.unwrapped._render = lambda mode: None  # type: ignore[method-assign]
     return env
 

@@ -69,3 +69,34 @@ def test_bounds_are_not_part_of_the_identity():
     other = dataclasses.replace(meta, action_bounds=None)
     assert meta.identity() == other.identity()
     assert "action_bounds" not in meta.identity()
+
+
+def test_registry_entries_are_complete():
+    from safe_bc.tasks import REGISTRY
+
+    assert tuple(REGISTRY) == TASKS
+    for task in TASKS:
+        entry = task_defaults(task)
+        missing = [f.name for f in dataclasses.fields(entry) if getattr(entry, f.name) is None]
+        assert not missing, f"{task}: {missing}"
+        assert entry.eps > 0
+
+
+@pytest.mark.parametrize("task", TASKS)
+def test_observed_costs_have_the_envs_shape(task):
+    """Each entry's cost-from-observation mapping gives one cost per safety dimension, and for
+    CarRacing (costs defined on the frame) exactly the env's costs."""
+    from safe_bc.envs import make_env
+
+    entry = task_defaults(task)
+    env = make_env(dataclasses.replace(entry.env, max_episode_steps=60))
+    try:
+        obs, _ = env.reset(seed=5)
+        for _ in range(5):
+            obs, _, _, _, info = env.step(env.action_space.sample() * 0.0)
+        costs = entry.observed_costs(obs[None])
+        assert costs.shape == (1, len(entry.safety_dims))
+        if task == "carracing":
+            assert costs[0] == pytest.approx(info["cost"])
+    finally:
+        env.close()

@@ -14,9 +14,11 @@ Run: ``make tune STUDY=rehab`` (or ``safe-bc tune tune_jobs/rehab.py``); rerun t
 from pathlib import Path
 
 from safe_bc.bc import BCConfig, NetworkConfig
-from safe_bc.envs import EnvConfig
 from safe_bc.experiment import RunConfig
 from safe_bc.study import Choice, Float, StudySpec
+from safe_bc.tasks import task_defaults
+
+REHAB = task_defaults("rehab")
 
 STUDY = StudySpec(
     name="rehab",
@@ -30,9 +32,9 @@ STUDY = StudySpec(
         "bc.train.batch_size": Choice((32, 64, 128)),
     },
     base=RunConfig(bc=BCConfig(network=NetworkConfig(hidden=64))),
-    env=EnvConfig(env_id="safe_bc/RehabPathway-v0"),
-    demos=Path("data/rehab_demos"),
-    critical_eps=0.05,
+    env=REHAB.env,
+    demos=Path(REHAB.demos),
+    critical_eps=REHAB.eps,
     trials=24,
     max_concurrent=2,
     cpus_per_trial=1.0,

@@ -25,6 +25,7 @@ from safe_bc.experiment import RunConfig
 from safe_bc.improve import ImproveConfig
 from safe_bc.selection import SelectionConfig
 from safe_bc.study import Choice, Float, load_study
+from safe_bc.tasks import task_defaults
 
 # the rehab study's environment, demonstrations and evaluation budget; its own search space,
 # start and improvement stage
@@ -37,7 +38,9 @@ STUDY = replace(
         "improve.lambda_lr": Float(0.05, 0.3, log=True),
         "improve.shield": Choice((False, True)),
     },
-    base=RunConfig(selection=SelectionConfig(eps=0.05, alpha=0.5), bc=BCConfig()),
+    base=RunConfig(
+        selection=SelectionConfig(eps=task_defaults("rehab").eps, alpha=0.5), bc=BCConfig()
+    ),
     improve=ImproveConfig(
         shield=False,
         iterations=100,

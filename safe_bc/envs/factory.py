@@ -3,17 +3,18 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import Literal, get_args
 
 import gymnasium as gym
 
 from safe_bc.envs.wrappers import CarRacingSafety
 
 EnvId = Literal["CarRacing-v3", "safe_bc/RehabPathway-v0"]
+"""The envs a task can name (``safe_bc.tasks`` pairs each with its task)."""
+CARRACING_ID, REHAB_ID = get_args(EnvId)
 Renderer = Literal["fast", "stock"]
 
 FAST_CARRACING_ID = "safe_bc/CarRacingFast-v3"
-REHAB_ID = "safe_bc/RehabPathway-v0"
 ENV_IDS: tuple[str, ...] = (FAST_CARRACING_ID, REHAB_ID)
 """The gymnasium ids that ``import safe_bc`` (or :func:`register_envs`) registers."""
 
@@ -22,7 +23,7 @@ ENV_IDS: tuple[str, ...] = (FAST_CARRACING_ID, REHAB_ID)
 class EnvConfig:
     """Which environment to build, and how."""
 
-    env_id: EnvId = "CarRacing-v3"
+    env_id: EnvId = CARRACING_ID
     """The task: the CarRacing testbed or the rehabilitation pathway."""
     renderer: Renderer = "fast"
     """CarRacing only: ``"fast"`` draws pixel-identical frames faster, ``"stock"`` is
@@ -31,7 +32,7 @@ class EnvConfig:
     """Time limit; ``None`` keeps the env's own (1000 steps for CarRacing)."""
 
     def __post_init__(self) -> None:
-        if self.env_id not in ("CarRacing-v3", "safe_bc/RehabPathway-v0"):
+        if self.env_id not in get_args(EnvId):
             raise ValueError(f"unknown env_id {self.env_id!r}")
         if self.renderer not in ("fast", "stock"):
             raise ValueError(f"renderer must be 'fast' or 'stock', got {self.renderer!r}")
@@ -41,7 +42,7 @@ class EnvConfig:
     @property
     def is_carracing(self) -> bool:
         """True for the pixel-based CarRacing testbed."""
-        return self.env_id == "CarRacing-v3"
+        return self.env_id == CARRACING_ID
 
 
 def register_envs() -> None:
@@ -81,7 +82,7 @@ def make_env(config: EnvConfig | None = None) -> gym.Env:
     if config.max_episode_steps is not None:
         kwargs["max_episode_steps"] = config.max_episode_steps
     if config.is_carracing:
-        env_id = FAST_CARRACING_ID if config.renderer == "fast" else "CarRacing-v3"
+        env_id = FAST_CARRACING_ID if config.renderer == "fast" else CARRACING_ID
         env = gym.make(env_id, continuous=True, domain_randomize=False, **kwargs)
         return CarRacingSafety(env)
     return gym.make(config.env_id, **kwargs)

@@ -133,8 +133,10 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-REHAB_ENV_ID = "safe_bc/RehabPathway-v0"
-"""Gymnasium id registered by :func:`register_rehab`."""
+from safe_bc.envs.factory import REHAB_ID
+
+REHAB_ENV_ID = REHAB_ID
+"""Gymnasium id registered by :func:`register_rehab` (``safe_bc.envs.factory.EnvId``)."""
 
 DEFAULT_N_SESSIONS = 30
 """Default programme length: 3 sessions a week for 10 weeks."""
@@ -710,3 +712,11 @@ __all__ = [
     "sample_patient",
     "training_stimulus",
 ]
+
+
+def observed_costs(obs: np.ndarray) -> np.ndarray:
+    """Measured safety costs of observations ``(B, obs_dim) -> (B, 3) float64``:
+    ``[hr_peak_hrr, fatigue, 2 * sbp_peak]``, the noisy readings of the env's true costs."""
+    o = np.asarray(obs).astype(np.float64)
+    cols = [o[:, OBS_INDEX["hr_peak_hrr"]], o[:, OBS_INDEX["fatigue"]]]
+    return np.stack([*cols, 2.0 * o[:, OBS_INDEX["sbp_peak"]]], axis=1)

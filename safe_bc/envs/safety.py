@@ -138,6 +138,12 @@ _RAY_FLAT = _RAY_ROWS * 96 + _RAY_COLS  # (R, L) flat pixel index into a (rows, 
 _RAY_BASE = np.arange(len(_RAY_ROWS)) * _RAY_ROWS.shape[1]  # flat index of each ray's pixel 0
 
 
+def frame_costs(frames: np.ndarray) -> np.ndarray:
+    """Safety costs of a batch of frames ``(B, 96, 96, 3) -> (B, 3) float64``: exactly the
+    env's costs, which are defined on the frame."""
+    return np.stack([costs_from_distances(pixel_distances(f)) for f in frames]).astype(float)
+
+
 def costs_from_distances(distances: np.ndarray) -> np.ndarray:
     """Safety costs ``MAX_RANGE - distance`` (higher is less safe).
 
