@@ -7,7 +7,7 @@ import math
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import Any, NoReturn, get_args
 
 from safe_bc.bc.checkpoint import CheckpointError
 from safe_bc.bc.config import PreprocessConfig
@@ -15,6 +15,7 @@ from safe_bc.data.store import DatasetError
 from safe_bc.distributed.runtime import RayUnavailableError, check_ray_address
 from safe_bc.docs import field_doc
 from safe_bc.locks import OutputLockedError, check_output_folder, output_lock, output_locks
+from safe_bc.selection import RULES, Baseline
 
 DEFAULT_DEMOS = Path("data/demos")
 
@@ -78,18 +79,19 @@ SELECTION_FLAGS: dict[str, dict[str, Any]] = {
     "segment_steps": {
         "type": _positive("--segment-steps"),
         "help": "BC-Safe's segment length in scored steps",
-        "requires": ("mode", "bc_safe"),
     },
     "beta": {
         "type": _number("--beta", float, lambda v: math.isfinite(v) and v >= 0, "finite, >= 0"),
         "help": "cost-weighted BC's strength",
-        "requires": ("mode", "cost_weighted"),
     },
 }
 """``SelectionConfig`` fields on ``safe-bc train``: field -> ``add_argument`` keywords, plus
 ``requires=(field, value)`` for a flag that only applies with another's value. A field typed
 with a ``Literal`` gets its choices from the type; every flag defaults to the config's default.
 A new field is one entry here (tests/test_cli.py fails while a field has none)."""
+for _mode, _rule in RULES.items():  # a rule's own fields apply with that mode only
+    for _field in _rule.params:
+        SELECTION_FLAGS[_field]["requires"] = ("mode", _mode)
 
 
 def _selection_args(p: argparse.ArgumentParser, **defaults: str) -> None:
@@ -741,9 +743,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--baselines",
-        choices=["bc_safe", "cost_weighted"],
+        choices=list(get_args(Baseline)),
         nargs="*",
-        default=["bc_safe", "cost_weighted"],
+        default=list(get_args(Baseline)),
         help="peer-baseline rows (default: both; none with a bare --baselines)",
     )
     p.add_argument(

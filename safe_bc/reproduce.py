@@ -25,7 +25,7 @@ import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal, get_args
+from typing import Any, get_args
 
 import numpy as np
 import pandas as pd
@@ -39,11 +39,10 @@ from safe_bc.evaluation import EvalConfig, ExpertSource, NetSource
 from safe_bc.experiment import RunConfig, save_selection, select_for
 from safe_bc.metrics import METRICS, combined, paired_crossed, summarize_crossed
 from safe_bc.provenance import run_metadata
-from safe_bc.selection import Rest, SelectionConfig
+from safe_bc.selection import RULES, Baseline, Rest, SelectionConfig
 from safe_bc.tasks import Task, dataset_action_bounds, task_defaults
 
 Reading = Rest
-Baseline = Literal["bc_safe", "cost_weighted"]
 
 PAPER_TABLE1 = pd.DataFrame(
     {
@@ -102,7 +101,7 @@ class ReproduceConfig:
     """Readings of eq. 5 for the alpha rows: the rest drawn from all of T (the text; the
     default) and, opt-in, from ``T \\ T_eps`` (``"noncritical"``). ``alpha = 1`` is the same
     under both, so it is trained once, under ``"all"``, when both are asked for."""
-    baselines: tuple[Baseline, ...] = ("bc_safe", "cost_weighted")
+    baselines: tuple[Baseline, ...] = get_args(Baseline)
     """Peer baselines as extra rows: OSRL's BC-Safe and cost-weighted BC
     (``SelectionConfig.mode``)."""
     segment_steps: int = SelectionConfig.segment_steps
@@ -182,18 +181,14 @@ class ReproduceConfig:
         return rows
 
 
-def method_name(alpha: float, reading: str) -> str:
+def method_name(alpha: float, reading: Rest) -> str:
     """Row label of an alpha-mix configuration, e.g. ``alpha=0.5 (rest=all)``."""
-    return f"alpha={alpha:g} (rest={reading})"
+    return RULES["mix"].label(SelectionConfig(alpha=alpha, rest=reading))
 
 
 def baseline_name(config: SelectionConfig) -> str:
     """Row label of a peer baseline, e.g. ``BC-Safe (K=20)``, ``cost-weighted BC (beta=9)``."""
-    if config.mode == "bc_safe":
-        return f"BC-Safe (K={config.segment_steps})"
-    if config.mode == "cost_weighted":
-        return f"cost-weighted BC (beta={config.beta:g})"
-    return method_name(config.alpha, config.rest)
+    return RULES[config.mode].label(config)
 
 
 def run_reproduce(config: ReproduceConfig, *, progress: bool = True) -> pd.DataFrame:

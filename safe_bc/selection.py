@@ -31,7 +31,7 @@ sampled by :class:`WeightedBatchSampler` instead of the alpha mix:
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any, Literal, Protocol, get_args
 
@@ -40,7 +40,9 @@ import numpy as np
 ThresholdMode = Literal["max", "quantile"]
 Combine = Literal["any", "all"]
 Rest = Literal["all", "noncritical"]
-SelectionMode = Literal["mix", "bc_safe", "cost_weighted"]
+Baseline = Literal["bc_safe", "cost_weighted"]
+"""The peer baselines: every rule of :data:`RULES` but the paper's mix."""
+SelectionMode = Literal["mix", Baseline]
 
 
 class SelectionError(ValueError):
@@ -491,23 +493,9 @@ def select(
     if safety_dims is not None and len(safety_dims) != len(d):
         raise ValueError(f"{len(safety_dims)} safety_dims names for {len(d)} cost columns")
     mask = combine_dims(per_dim, config.combine)
-    weights = segments = None
-    if config.mode == "bc_safe":
-        episodes = np.zeros(len(mask), np.int64) if episode_ids is None else episode_ids
-        segments = segment_ids(episodes, valid_arr, config.segment_steps)
-        kept = safe_segment_rows(mask, segments)
-        if not kept.any():
-            n_seg = len(np.unique(segments[segments >= 0]))
-            raise SelectionError(
-                f"BC-Safe keeps no demonstrations: all {n_seg} segments of "
-                f"{config.segment_steps} consecutive scored steps enter T_eps "
-                f"(eps={config.eps:g}, combine={config.combine!r}: {int(mask.sum())} of "
-                f"{int(valid_arr.sum())} scored rows critical); use a smaller segment_steps "
-                f"or eps"
-            )
-        weights = kept.astype(np.float64)
-    elif config.mode == "cost_weighted":
-        weights = cost_weights(costs, d, config.beta, config.combine, valid_arr)
+    weights, segments = RULES[config.mode].weights(
+        RuleInput(config, np.asarray(costs), d, mask, valid_arr, episode_ids)
+    )
     return Selection(
         config=config,
         thresholds=d,
@@ -518,6 +506,77 @@ def select(
         weights=weights,
         segments=segments,
     )
+
+
+@dataclass(frozen=True)
+class RuleInput:
+    """What a selection rule sees: the config, the costs, ``d_s`` and ``T_eps``."""
+
+    config: SelectionConfig
+    """The selection asked for."""
+    costs: np.ndarray
+    """``(N, S)`` costs of the demonstrations."""
+    limits: np.ndarray
+    """``(S,)`` ``d_s``."""
+    mask: np.ndarray
+    """``(N,) bool`` membership of ``T_eps``."""
+    valid: np.ndarray
+    """``(N,) bool`` scored rows."""
+    episode_ids: np.ndarray | None
+    """``(N,)`` episode of each row, or ``None`` (one episode)."""
+
+
+@dataclass(frozen=True)
+class Rule:
+    """A selection rule: which rows training draws, and how often. Adding one is an entry of
+    :data:`RULES` (its mode name in :data:`Baseline`) and its weights function;
+    ``tests/test_selection.py`` walks every entry."""
+
+    weights: Callable[[RuleInput], tuple[np.ndarray | None, np.ndarray | None]]
+    """``(weights (N,) or None, segments (N,) or None)``: per-row sampling weights (``None``:
+    the alpha mix's two pools) and the row's segment, where the rule has segments."""
+    label: Callable[[SelectionConfig], str]
+    """Row label of a configuration in tables, e.g. ``BC-Safe (K=20)``."""
+    params: tuple[str, ...]
+    """``SelectionConfig`` fields only this rule reads (the CLI refuses them with another
+    mode). The mix's ``alpha`` and ``rest`` are not listed: the baselines ignore them, so a
+    study may search ``mode`` beside ``alpha``."""
+
+
+def _mix(inp: RuleInput) -> tuple[None, None]:
+    return None, None
+
+
+def _bc_safe(inp: RuleInput) -> tuple[np.ndarray, np.ndarray]:
+    config, mask, valid = inp.config, inp.mask, inp.valid
+    episodes = np.zeros(len(mask), np.int64) if inp.episode_ids is None else inp.episode_ids
+    segments = segment_ids(episodes, valid, config.segment_steps)
+    kept = safe_segment_rows(mask, segments)
+    if not kept.any():
+        n_seg = len(np.unique(segments[segments >= 0]))
+        raise SelectionError(
+            f"BC-Safe keeps no demonstrations: all {n_seg} segments of "
+            f"{config.segment_steps} consecutive scored steps enter T_eps "
+            f"(eps={config.eps:g}, combine={config.combine!r}: {int(mask.sum())} of "
+            f"{int(valid.sum())} scored rows critical); use a smaller segment_steps "
+            f"or eps"
+        )
+    return kept.astype(np.float64), segments
+
+
+def _cost_weighted(inp: RuleInput) -> tuple[np.ndarray, None]:
+    c = inp.config
+    return cost_weights(inp.costs, inp.limits, c.beta, c.combine, inp.valid), None
+
+
+RULES: dict[SelectionMode, Rule] = {
+    "mix": Rule(_mix, lambda c: f"alpha={c.alpha:g} (rest={c.rest})", ()),
+    "bc_safe": Rule(_bc_safe, lambda c: f"BC-Safe (K={c.segment_steps})", ("segment_steps",)),
+    "cost_weighted": Rule(
+        _cost_weighted, lambda c: f"cost-weighted BC (beta={c.beta:g})", ("beta",)
+    ),
+}
+"""Selection mode -> its rule (``SelectionConfig.mode``)."""
 
 
 def n_critical_per_batch(alpha: float, batch_size: int) -> int:

@@ -453,3 +453,28 @@ def test_a_study_can_search_the_mode():
     assert cfg.selection.beta == 2.0
     with pytest.raises(ValueError, match="mode"):
         apply_params(RunConfig(), {"selection.mode": "osrl"})
+
+
+def test_every_selection_mode_has_a_complete_rule():
+    """The rule registry: one entry per mode, its own fields real config fields, a label, and
+    weights of one per row (or None for the mix) on toy demonstrations."""
+    import dataclasses
+    from typing import get_args
+
+    from safe_bc.selection import RULES, Baseline, SelectionConfig, SelectionMode, select
+
+    assert tuple(RULES) == get_args(SelectionMode)
+    assert set(get_args(Baseline)) == set(RULES) - {"mix"}
+    fields = {f.name for f in dataclasses.fields(SelectionConfig)}
+    rng = np.random.default_rng(0)
+    costs = rng.uniform(0, 10, size=(200, 3))
+    episodes = np.repeat(np.arange(4), 50)
+    for mode, rule in RULES.items():
+        assert set(rule.params) <= fields, mode
+        cfg = SelectionConfig(eps=1.0, mode=mode, segment_steps=5)
+        assert rule.label(cfg).strip()
+        sel = select(costs, cfg, episode_ids=episodes)
+        if mode == "mix":
+            assert sel.weights is None
+        else:
+            assert sel.weights.shape == (200,) and (sel.weights >= 0).all()
