@@ -100,3 +100,10 @@ def test_observed_costs_have_the_envs_shape(task):
             assert costs[0] == pytest.approx(info["cost"])
     finally:
         env.close()
+
+
+def test_env_ids_agree_with_their_env_modules():
+    from safe_bc.envs.factory import REHAB_ID
+    from safe_bc.envs.rehab import REHAB_ENV_ID
+
+    assert REHAB_ID == REHAB_ENV_ID

@@ -133,10 +133,9 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from safe_bc.envs.factory import REHAB_ID
-
-REHAB_ENV_ID = REHAB_ID
-"""Gymnasium id registered by :func:`register_rehab` (``safe_bc.envs.factory.EnvId``)."""
+REHAB_ENV_ID = "safe_bc/RehabPathway-v0"
+"""Gymnasium id registered by :func:`register_rehab`; ``safe_bc.envs.factory.EnvId`` names
+it for the task registry (a test checks they agree)."""
 
 DEFAULT_N_SESSIONS = 30
 """Default programme length: 3 sessions a week for 10 weeks."""
