@@ -80,7 +80,7 @@ from safe_bc.envs.factory import REHAB_ID
 from safe_bc.evaluation import NetSource
 from safe_bc.metrics import excursion, violations
 from safe_bc.seeds import HELDOUT_OFFSET
-from safe_bc.selection import Combine, SelectionConfig, critical_mask
+from safe_bc.selection import CriticalZone, SelectionConfig
 
 CostSignal = Literal["indicator", "excursion"]
 Anchor = Literal["bc", "kl", "none"]
@@ -271,19 +271,14 @@ def observed_costs(obs: np.ndarray, env_id: str) -> np.ndarray:
 class Shield:
     """Which states are critical: measured cost within ``eps`` of the limits ``d_s``."""
 
-    limits: tuple[float, ...]
-    """``d_s`` per safety dimension."""
-    eps: float
-    """Width of the critical zone (cost units)."""
-    combine: Combine = "any"
-    """How per-dimension flags combine (the selection's rule)."""
+    zone: CriticalZone
+    """``d_s``, eps and combine (the start's selection's, or the run's eps)."""
     env_id: str = REHAB_ID
     """Which observation-to-cost mapping applies (:func:`observed_costs`)."""
 
     def critical(self, obs: np.ndarray) -> np.ndarray:
-        """``(B, *obs_shape) -> (B,) bool``, by :func:`safe_bc.selection.critical_mask`."""
-        costs = observed_costs(obs, self.env_id)
-        return critical_mask(costs, np.asarray(self.limits), self.eps, self.combine)
+        """``(B, *obs_shape) -> (B,) bool``: the measured costs in the critical zone."""
+        return self.zone.critical(observed_costs(obs, self.env_id))
 
 
 class ShieldedPolicy:
@@ -331,7 +326,8 @@ class ImprovedSource:
         if not meta["config"]["shield"]:
             return cls(NetSource.from_model(model, cfg))
         start, start_cfg = load_checkpoint(meta["start"])
-        shield = Shield(tuple(meta["limits"]), meta["eps"], meta["combine"], meta["env_id"])
+        zone = CriticalZone(tuple(meta["limits"]), meta["eps"], meta["combine"])
+        shield = Shield(zone, meta["env_id"])
         return cls(NetSource.from_model(model, cfg), NetSource.from_model(start, start_cfg), shield)
 
 
@@ -580,8 +576,8 @@ class Improver:
         """``(iteration, validation reward, mean-net weights)`` of the best feasible policy."""
 
         eps = start.selection.eps if config.eps is None else config.eps
-        self.shield = Shield(tuple(float(x) for x in start.limits), float(eps),
-                             start.selection.combine, start.env_id)  # fmt: skip
+        zone = CriticalZone(start.limits, float(eps), start.selection.combine)
+        self.shield = Shield(zone, start.env_id)
         self.limits = start.limits
         self.low = np.asarray(start.model.spec.action_low, np.float32)
         self.high = np.asarray(start.model.spec.action_high, np.float32)
@@ -961,7 +957,7 @@ def improve(
             agent.load_state_dict(state)
             resumed_at = agent.iteration
         meta = run_metadata(**identity, limits=[float(x) for x in s.limits],
-                            eps=agent.shield.eps, combine=agent.shield.combine,
+                            eps=agent.shield.zone.eps, combine=agent.shield.zone.combine,
                             env_id=s.env_id, mode=config.mode, **(metadata or {}))  # fmt: skip
 
         def save() -> None:
@@ -981,7 +977,7 @@ def improve(
         finally:
             agent.envs.close()
         save()
-        extra = {"improve": {**meta, "start": str(start), "eps": agent.shield.eps}}
+        extra = {"improve": {**meta, "start": str(start), "eps": agent.shield.zone.eps}}
         extra.update(env_id=s.env_id, demos=str(s.demos_path))
         final = copy.deepcopy(agent.actor.mean_net).eval()
         kept = agent.iteration

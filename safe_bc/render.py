@@ -7,7 +7,7 @@
   rows or columns) to the distance measured in that frame. A ray is green while its
   dimension is outside the critical zone, orange inside it (``c_s >= d_s - eps``), red
   beyond the limit (``c_s > d_s``, a violation) and grey during the zoom-in (not scored);
-  without limits it is cyan. The frame's border shows the combined critical-zone state
+  without a zone it is cyan. The frame's border shows the combined critical-zone state
   (the selection's ``combine`` rule) and a header line the step, distances and state.
 * :func:`draw_paths` draws the track seen from above (``env.unwrapped.road_poly``) with
   each policy's driven path coloured by its safety distance (the smallest of left, front
@@ -33,6 +33,7 @@ from safe_bc.envs.safety import CAR_COLS, CAR_ROWS, FRONT_START, LEFT_START, RIG
 from safe_bc.episode import Episode
 from safe_bc.policy import Policy
 from safe_bc.rollout import run_episode
+from safe_bc.selection import CriticalZone
 
 FPS = 50
 """CarRacing's simulation rate (steps per second), the default video frame rate."""
@@ -47,18 +48,6 @@ GREY = (150, 150, 150)
 CYAN = (0, 220, 230)
 WHITE = (255, 255, 255)
 STATE_COLOURS = {"safe": GREEN, "critical": ORANGE, "violation": RED, "warmup": GREY, "": CYAN}
-
-
-@dataclass(frozen=True)
-class Limits:
-    """What the critical zone is: the demonstrations' limits ``d_s`` and the zone's width."""
-
-    thresholds: np.ndarray
-    """``(S,)`` limits ``d_s`` (costs; a cost above one is a violation)."""
-    eps: float
-    """Critical-zone width: a dimension is critical when ``c_s >= d_s - eps``."""
-    combine: str = "any"
-    """How per-dimension flags combine into the frame's state (``any`` or ``all``)."""
 
 
 @dataclass(frozen=True)
@@ -115,16 +104,16 @@ def record(
     return Trace(episode, np.asarray(recorder.positions, np.float64), road, label)
 
 
-def dim_states(episode: Episode, limits: Limits | None) -> np.ndarray:
+def dim_states(episode: Episode, zone: CriticalZone | None) -> np.ndarray:
     """``(T, S)`` state names per step and dimension: ``safe``, ``critical``, ``violation``,
-    ``warmup`` (not scored), or ``""`` when there are no limits."""
+    ``warmup`` (not scored), or ``""`` without a zone."""
     n, s = episode.safety.shape
-    states = np.full((n, s), "" if limits is None else "safe", dtype=object)
-    if limits is not None:
+    states = np.full((n, s), "" if zone is None else "safe", dtype=object)
+    if zone is not None:
         from safe_bc.selection import critical_dims
 
-        d = np.asarray(limits.thresholds, np.float64)
-        states[critical_dims(episode.costs, d, limits.eps)] = "critical"
+        d = np.asarray(zone.limits, np.float64)
+        states[critical_dims(episode.costs, d, zone.eps)] = "critical"
         states[np.asarray(episode.costs, np.float64) > d] = "violation"
     states[episode.warmup] = "warmup"
     return states
@@ -193,12 +182,12 @@ def overlay(
 
 
 def annotated_frames(
-    trace: Trace, limits: Limits | None = None, scale: int = 4
+    trace: Trace, zone: CriticalZone | None = None, scale: int = 4
 ) -> list[np.ndarray]:
     """Every frame of ``trace`` with its rays, border and header drawn in."""
     ep = trace.episode
-    states = dim_states(ep, limits)
-    combine = limits.combine if limits is not None else "any"
+    states = dim_states(ep, zone)
+    combine = zone.combine if zone is not None else "any"
     frames = []
     for t in range(len(ep)):
         state = frame_state(states[t], combine)
@@ -233,7 +222,7 @@ def render_episode(
     out: str | Path,
     *,
     label: str = "policy",
-    limits: Limits | None = None,
+    zone: CriticalZone | None = None,
     max_steps: int | None = None,
     scale: int = 4,
     fps: float = FPS,
@@ -241,15 +230,15 @@ def render_episode(
     """Roll ``policy`` out on track ``seed`` and write the annotated episode to ``out``
     (one frame per step: the observation each action was chosen in)."""
     trace = record(policy, seed, label=label, max_steps=max_steps)
-    write_video(annotated_frames(trace, limits, scale), out, fps)
+    write_video(annotated_frames(trace, zone, scale), out, fps)
     return trace
 
 
 def draw_paths(
-    traces: list[Trace], out: str | Path, *, limits: Limits | None = None, title: str = ""
+    traces: list[Trace], out: str | Path, *, zone: CriticalZone | None = None, title: str = ""
 ) -> Path:
     """One panel per trace: the road from above, the driven path coloured by the smallest
-    safety distance (px; grey during the zoom-in), violations (with ``limits``) as red
+    safety distance (px; grey during the zoom-in), violations (with ``zone``) as red
     crosses. Colours share one scale across panels."""
     import matplotlib
 
@@ -280,8 +269,8 @@ def draw_paths(
         summary = f"{len(ep)} steps, reward {ep.total_reward:.0f}"
         if (~ep.warmup).any():
             summary += f", closest {d[~ep.warmup].min():.1f} px"
-        if limits is not None:
-            bad = np.any(np.asarray(ep.costs, np.float64) > limits.thresholds, axis=1)
+        if zone is not None:
+            bad = zone.beyond(ep.costs)
             bad &= ~ep.warmup
             if bad.any():
                 ax.plot(*xy[bad].T, "x", color="red", ms=5, label="violation")
@@ -308,31 +297,32 @@ def render_paths(
     seed: int,
     out: str | Path,
     *,
-    limits: Limits | None = None,
+    zone: CriticalZone | None = None,
     max_steps: int | None = None,
 ) -> list[Trace]:
     """Roll each policy out on track ``seed`` and draw their paths side by side."""
     traces = [record(p, seed, label=name, max_steps=max_steps) for name, p in policies.items()]
-    draw_paths(traces, out, limits=limits, title=f"track seed {seed}")
+    draw_paths(traces, out, zone=zone, title=f"track seed {seed}")
     return traces
 
 
-def limits_from_checkpoint(directory: str | Path) -> Limits:
-    """The limits and critical zone a ``safe-bc train`` checkpoint was selected with."""
+def zone_from_checkpoint(directory: str | Path) -> CriticalZone:
+    """The critical zone (``d_s``, eps, combine) a ``safe-bc train`` checkpoint was selected
+    with."""
     from safe_bc.data.store import read_table
 
     _, meta = read_table(Path(directory) / "selection.parquet")
     if "thresholds" not in meta:
         raise ValueError(f"{directory}/selection.parquet: no thresholds in its metadata")
     cfg = meta.get("config", {})
-    return Limits(
+    return CriticalZone(
         np.asarray(meta["thresholds"], np.float64),
         float(cfg.get("eps", 2.0)),
         str(cfg.get("combine", "any")),
     )
 
 
-def limits_from_demos(demos: str | Path, eps: float) -> Limits:
+def zone_from_demos(demos: str | Path, eps: float) -> CriticalZone:
     """``d_s``: the demonstrations' worst cost per dimension over the scored steps (reads
     only the cost and warm-up columns)."""
     from safe_bc.data.store import read_columns, read_meta
@@ -342,7 +332,7 @@ def limits_from_demos(demos: str | Path, eps: float) -> Limits:
     cols = read_columns(Path(demos), [*dims, "warmup"])
     costs = np.stack([cols[c] for c in dims], 1)
     warmup = cols["warmup"].astype(bool)
-    return Limits(thresholds(costs, "max", valid=~warmup), eps)
+    return CriticalZone(thresholds(costs, "max", valid=~warmup), eps)
 
 
 def _checkpoint_env_id(directory: Path) -> str:
@@ -380,7 +370,7 @@ def render_command(
     default_eps = 2.0
     if checkpoint is None and not (expert or paths):
         raise ValueError("render needs --checkpoint DIR (the agent) or --expert")
-    limits = None
+    zone = None
     if checkpoint is not None:
         checkpoint = Path(checkpoint)
         env_id = _checkpoint_env_id(checkpoint)
@@ -389,7 +379,7 @@ def render_command(
                 f"{checkpoint}: trained on {env_id}; render draws CarRacing frames only"
             )
         if (checkpoint / "selection.parquet").is_file():  # a study trial's has none
-            limits = limits_from_checkpoint(checkpoint)
+            zone = zone_from_checkpoint(checkpoint)
         if demos is None:
             from safe_bc.bc.checkpoint import read_checkpoint_meta
 
@@ -399,10 +389,10 @@ def render_command(
         demos = Path("data/demos")
     if demos is not None and read_meta(demos).env_id != CARRACING_ID:
         raise ValueError(f"{demos}: not CarRacing demonstrations; render draws CarRacing only")
-    if limits is None and demos is not None:
-        limits = limits_from_demos(demos, default_eps if eps is None else eps)
-    if limits is not None and eps is not None:
-        limits = Limits(limits.thresholds, eps, limits.combine)
+    if zone is None and demos is not None:
+        zone = zone_from_demos(demos, default_eps if eps is None else eps)
+    if zone is not None and eps is not None:
+        zone = CriticalZone(zone.limits, eps, zone.combine)
     expert_policy = build_expert(
         stored_expert_config(Path(demos)) if demos is not None else ExpertConfig()
     )
@@ -417,35 +407,33 @@ def render_command(
         policies = {"expert": expert_policy}
         if checkpoint is not None:
             policies["agent"] = agent()
-        traces = render_paths(policies, seed, out, limits=limits, max_steps=max_steps)
+        traces = render_paths(policies, seed, out, zone=zone, max_steps=max_steps)
         drawn = ", ".join(f"{t.label} ({len(t.episode)} steps)" for t in traces)
         return f"{out}: paths of {drawn} on track seed {seed}"
     label = "expert" if expert else "agent"
     policy = expert_policy if expert else agent()
     trace = render_episode(
-        policy, seed, out, label=label, limits=limits, max_steps=max_steps, scale=scale, fps=fps
+        policy, seed, out, label=label, zone=zone, max_steps=max_steps, scale=scale, fps=fps
     )
     ep = trace.episode
     scored = ~ep.warmup
     line = f"{out}: {len(ep)} frames of the {label} on track seed {seed}"
     if scored.any():
         line += f", closest {ep.safety[scored].min():.1f} px to the grass"
-    if limits is not None:
-        bad = np.any(np.asarray(ep.costs, np.float64) > limits.thresholds, axis=1) & scored
+    if zone is not None:
+        bad = zone.beyond(ep.costs) & scored
         line += f", {int(bad.sum())} violation step(s) (d_s of the demonstrations)"
     return line
 
 
 __all__ = [
     "FPS",
-    "Limits",
+    "CriticalZone",
     "Trace",
     "annotated_frames",
     "dim_states",
     "draw_paths",
     "frame_state",
-    "limits_from_checkpoint",
-    "limits_from_demos",
     "overlay",
     "ray_segments",
     "record",
@@ -453,4 +441,6 @@ __all__ = [
     "render_episode",
     "render_paths",
     "write_video",
+    "zone_from_checkpoint",
+    "zone_from_demos",
 ]

@@ -253,6 +253,42 @@ def critical_mask(
     return combine_dims(critical_dims(costs, d, eps, valid), combine)
 
 
+@dataclass(frozen=True)
+class CriticalZone:
+    """The critical zone, one concept for selection, the shield, evaluation and rendering:
+    the limits ``d_s`` (the demonstrations' worst cost per dimension), the zone's width eps
+    and how per-dimension flags combine. A state is critical when ``c_s >= d_s - eps``
+    (combined over ``s``) and beyond the limit when ``c_s > d_s`` in any dimension.
+
+    >>> zone = CriticalZone((5.0, 5.0), eps=1.0)
+    >>> zone.critical(np.array([[4.5, 0.0], [3.0, 3.0]])).tolist()
+    [True, False]
+    >>> zone.beyond(np.array([[5.5, 0.0], [5.0, 5.0]])).tolist()
+    [True, False]
+    """
+
+    limits: tuple[float, ...]
+    """``d_s`` per safety dimension (cost units); arrays are stored as a tuple of floats."""
+    eps: float
+    """Width of the zone (cost units), ``>= 0``."""
+    combine: Combine = "any"
+    """How per-dimension flags combine: critical in ``any`` dimension or in ``all``."""
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "limits", tuple(float(x) for x in np.ravel(self.limits)))
+        if not (math.isfinite(self.eps) and self.eps >= 0):
+            raise ValueError(f"eps must be a finite number >= 0, got {self.eps!r}")
+        _check_choice("combine", self.combine, get_args(Combine))
+
+    def critical(self, costs: np.ndarray, valid: np.ndarray | None = None) -> np.ndarray:
+        """``(N, S) -> (N,) bool``: membership of ``T_eps`` (:func:`critical_mask`)."""
+        return critical_mask(costs, np.asarray(self.limits), self.eps, self.combine, valid)
+
+    def beyond(self, costs: np.ndarray) -> np.ndarray:
+        """``(N, S) -> (N,) bool``: a cost beyond its limit in some dimension."""
+        return np.any(np.asarray(costs, np.float64) > np.asarray(self.limits), axis=1)
+
+
 def segment_ids(episode_ids: np.ndarray, valid: np.ndarray, segment_steps: int) -> np.ndarray:
     """BC-Safe's segments: ``(N,) int64`` segment number of each row, ``-1`` for invalid rows.
 
@@ -384,6 +420,11 @@ class Selection:
     safety_dims: tuple[str, ...] | None = field(default=None)
     weights: np.ndarray | None = field(default=None)
     segments: np.ndarray | None = field(default=None)
+
+    @property
+    def zone(self) -> CriticalZone:
+        """The critical zone this selection drew: ``d_s``, eps and combine."""
+        return CriticalZone(self.thresholds, self.config.eps, self.config.combine)
 
     @property
     def n_rows(self) -> int:

@@ -582,8 +582,10 @@ Optuna trial number; -1 when unknown, e.g. an unbatched study run before it was 
 
 
 @dataclass(frozen=True)
-class Limits:
-    """What a study's constraints compare a policy with (from the expert's demonstrations)."""
+class ConstraintBars:
+    """The bars a study's constraints hold a policy to (from the expert's demonstrations):
+    the safety-mean threshold and the violation rule. Not the critical zone
+    (:class:`safe_bc.selection.CriticalZone`)."""
 
     threshold: float
     """The safety-mean threshold (the expert's safety mean, or the study's own)."""
@@ -600,17 +602,17 @@ class Limits:
     """Largest allowed upper bound on that share."""
 
 
-def constraints(metrics: Mapping[str, float], limits: Limits) -> dict[str, float]:
+def constraints(metrics: Mapping[str, float], limits: ConstraintBars) -> dict[str, float]:
     """``constraint_safety``, ``constraint_violation`` and their maximum ``constraint`` for a
     policy's mean metrics (``safety_mean``, ``safety_<dim>_mean``, ``violation_rate``; with
     ``limits.violation_bound`` the share of episodes with a violation ``any_violation`` and
     their count ``episodes`` or ``n_episodes``); each ``<= 0`` when met, NaN when a metric is
     missing.
 
-    >>> lim = Limits(6.0, {"left": 7.0}, 0.0, "per_dim")
+    >>> lim = ConstraintBars(6.0, {"left": 7.0}, 0.0, "per_dim")
     >>> constraints({"safety_mean": 6.5, "safety_left_mean": 6.8, "violation_rate": 0.0}, lim)
     {'constraint_safety': 0.2..., 'constraint_violation': 0.0, 'constraint': 0.2...}
-    >>> bound = Limits(6.0, {}, 0.0, violation_bound=0.95, violation_share_limit=0.2)
+    >>> bound = ConstraintBars(6.0, {}, 0.0, violation_bound=0.95, violation_share_limit=0.2)
     >>> m = {"safety_mean": 7.0, "any_violation": 0.0, "episodes": 20}
     >>> round(constraints(m, bound)["constraint_violation"], 4)  # 13.9% - 20%
     -0.0609

@@ -20,6 +20,7 @@ from safe_bc.improve import (
     multiplier_update,
     observed_costs,
 )
+from safe_bc.selection import CriticalZone
 
 REHAB = "safe_bc/RehabPathway-v0"
 TINY = ImproveConfig(
@@ -95,7 +96,7 @@ def test_shield_gives_critical_states_the_imitation_action(start):
     from safe_bc.evaluation import NetSource
 
     s, demos = _load_start(start, None)
-    shield = Shield(tuple(s.limits), eps=0.15, combine="any", env_id=REHAB)
+    shield = Shield(CriticalZone(tuple(s.limits), eps=0.15, combine="any"), env_id=REHAB)
     moved = NetSource.from_model(s.model, s.config)
     last_bias = [k for k in moved.state if k.startswith("head.") and k.endswith(".bias")][-1]
     moved.state[last_bias] += 0.7  # a different policy everywhere
@@ -166,7 +167,9 @@ def test_cli_and_evaluation_of_a_run(start, tmp_path, capsys):
     source = ImprovedSource.from_run(out)
     assert source.shield is not None and source.imitation is not None
     cfg = EvalConfig(episodes=2, workers=0, env=EnvConfig(REHAB), eps=0.05)
-    result = evaluate({"improved": source}, cfg, np.asarray(source.shield.limits), progress=False)
+    result = evaluate(
+        {"improved": source}, cfg, np.asarray(source.shield.zone.limits), progress=False
+    )
     assert len(result.episodes) == 2 and result.episodes["steps"].eq(30).all()
     with pytest.raises(SystemExit):
         main([*argv[:-1], "--iterations", "0"])

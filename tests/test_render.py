@@ -12,7 +12,7 @@ from safe_bc.collection import build_expert
 from safe_bc.experts.carracing import ExpertConfig
 from safe_bc.render import (
     HEADER,
-    Limits,
+    CriticalZone,
     annotated_frames,
     dim_states,
     draw_paths,
@@ -30,10 +30,10 @@ def expert_trace():
 
 
 def test_mp4_of_a_60_step_expert_episode(tmp_path: Path) -> None:
-    limits = Limits(np.array([40.0, 60.0, 40.0]), eps=2.0)
+    zone = CriticalZone(np.array([40.0, 60.0, 40.0]), eps=2.0)
     out = tmp_path / "episode.mp4"
     trace = render_episode(
-        build_expert(ExpertConfig()), 3, out, label="expert", limits=limits, max_steps=STEPS
+        build_expert(ExpertConfig()), 3, out, label="expert", zone=zone, max_steps=STEPS
     )
     assert len(trace.episode) == STEPS and trace.positions.shape == (STEPS, 2)
     reader = imageio.get_reader(out)
@@ -64,10 +64,10 @@ def test_states_follow_the_critical_zone(expert_trace) -> None:
     # limits at the worst cost seen: nothing beyond, the worst step of each dim critical
     scored = ~ep.warmup
     worst = ep.costs[scored].max(axis=0).astype(np.float64)
-    states = dim_states(ep, Limits(worst, eps=0.0))
+    states = dim_states(ep, CriticalZone(worst, eps=0.0))
     assert not (states == "violation").any()
     assert (states[scored] == "critical").any(axis=0).all()
-    tight = dim_states(ep, Limits(worst - 1.0, eps=0.5))
+    tight = dim_states(ep, CriticalZone(worst - 1.0, eps=0.5))
     assert (tight == "violation").any()
     assert frame_state(np.array(["safe", "critical", "safe"], object)) == "critical"
     assert frame_state(np.array(["safe", "critical", "safe"], object), "all") == "safe"
@@ -79,7 +79,7 @@ def test_paths_png(expert_trace, tmp_path: Path) -> None:
     import dataclasses
 
     other = dataclasses.replace(expert_trace, label="agent")
-    out = draw_paths([expert_trace, other], tmp_path / "paths.png", limits=None)
+    out = draw_paths([expert_trace, other], tmp_path / "paths.png", zone=None)
     image = imageio.imread(out)
     assert image.shape[1] > image.shape[0] > 200  # two panels side by side
 

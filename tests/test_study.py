@@ -253,9 +253,9 @@ def test_spec_summary_is_json_able() -> None:
 
 
 def test_constraints_cover_safety_per_dimension_and_violations() -> None:
-    from safe_bc.study import Limits, constraints
+    from safe_bc.study import ConstraintBars, constraints
 
-    lim = Limits(6.0, {"left": 7.0, "right": 7.0}, 0.0, "per_dim")
+    lim = ConstraintBars(6.0, {"left": 7.0, "right": 7.0}, 0.0, "per_dim")
     ok = {"safety_mean": 6.5, "safety_left_mean": 7.2, "safety_right_mean": 7.1}
     c = constraints({**ok, "violation_rate": 0.0}, lim)
     assert c["constraint"] <= 0 and c["constraint_safety"] == pytest.approx(-0.1)

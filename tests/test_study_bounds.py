@@ -10,7 +10,7 @@ import pytest
 
 from safe_bc.distributed.trial import trial_values
 from safe_bc.metrics import binomial_cdf, clopper_pearson_upper, lower_bound_crossed
-from safe_bc.study import Float, Limits, StudySpec, choose_candidates, constraints
+from safe_bc.study import ConstraintBars, Float, StudySpec, choose_candidates, constraints
 
 SPACE = {"selection.alpha": Float(0.0, 1.0)}
 
@@ -48,7 +48,9 @@ def test_trial_values_with_bounds_over_seeds_and_tracks() -> None:
     spec = StudySpec("b", SPACE, train_seeds=2, reward_bound=0.9, violation_bound=0.95,
                      violation_share_limit=0.2)  # fmt: skip
     assert spec.objective == "reward_lcb" and spec.trial_seeds() == [0, 1]
-    limits = Limits(6.0, {}, 0.0, "combined", spec.violation_bound, spec.violation_share_limit)
+    limits = ConstraintBars(
+        6.0, {}, 0.0, "combined", spec.violation_bound, spec.violation_share_limit
+    )
     clean = trial_values(_episodes(2, 10, 0), limits, spec)
     assert clean["train_seeds"] == 2 and clean["episodes"] == 20
     assert clean["reward_lcb"] < clean["reward_mean"]
@@ -59,7 +61,7 @@ def test_trial_values_with_bounds_over_seeds_and_tracks() -> None:
     assert dirty["violation_share_ucb"] == pytest.approx(clopper_pearson_upper(2, 20))
     assert dirty["constraint"] > 0  # 2 of 20: up to 31.7%
     # the point constraint (default) is what it was: the share of steps beyond d_s
-    point = Limits(6.0, {}, 0.0)
+    point = ConstraintBars(6.0, {}, 0.0)
     assert constraints(dirty, point)["constraint_violation"] == pytest.approx(
         dirty["violation_rate"]
     )

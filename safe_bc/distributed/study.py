@@ -46,7 +46,7 @@ from safe_bc.provenance import check_result_write, provenance
 from safe_bc.study import (
     OBJECTIVE,
     TRIAL_METRICS,
-    Limits,
+    ConstraintBars,
     StudySpec,
     Winner,
     choose_candidates,
@@ -467,7 +467,7 @@ def _run_study(
     demos = cached_demos(str(demos_path))
     expert_safety = demos.safety_mean
     threshold = expert_safety if spec.threshold is None else float(spec.threshold)
-    limits = Limits(
+    limits = ConstraintBars(
         threshold,
         demos.dim_safety_means(),
         spec.violation_tolerance,

@@ -38,7 +38,7 @@ from safe_bc.evaluation import EvalConfig, NetSource
 from safe_bc.experiment import RunConfig, train_run
 from safe_bc.metrics import cell_table, lower_bound_crossed, mean_metrics
 from safe_bc.selection import SelectionError
-from safe_bc.study import TRIAL_METRICS, Limits, StudySpec, constraints, episode_share_bound
+from safe_bc.study import TRIAL_METRICS, ConstraintBars, StudySpec, constraints, episode_share_bound
 from safe_bc.tasks import Bounds, dataset_action_bounds
 
 
@@ -50,7 +50,7 @@ class TrialJob:
     """The study."""
     demos: str
     """Absolute path of the demonstration set (trials run in their own folders)."""
-    limits: Limits
+    limits: ConstraintBars
     """The constraints' thresholds and tolerance (from the expert's demonstrations)."""
     cost_limits: tuple[float, ...]
     """The demonstrations' ``d_s`` (max cost per dimension): violations and critical share."""
@@ -165,7 +165,7 @@ def evaluate_source(
 
 
 def trial_values(
-    episodes: pd.DataFrame, limits: Limits, spec: StudySpec | None = None
+    episodes: pd.DataFrame, limits: ConstraintBars, spec: StudySpec | None = None
 ) -> dict[str, float]:
     """A trial's metrics from its evaluated episodes (every training seed's, ``train_seed``
     column, on the same tracks): the means of ``metrics.METRICS`` over all episodes (the same

@@ -20,7 +20,7 @@ from safe_bc.bc import load_checkpoint, read_checkpoint_meta
 from safe_bc.data.store import load_demonstrations
 from safe_bc.distributed.trial import TrialJob, run_trial
 from safe_bc.experiment import train_run
-from safe_bc.study import Limits, load_study
+from safe_bc.study import ConstraintBars, load_study
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -70,7 +70,7 @@ def test_trial_in_reused_actor_trains_bit_identical_to_in_process_train_run(
         max_concurrent=1,
     )
     demos = load_demonstrations(tiny_demos)
-    limits = Limits(demos.safety_mean, demos.dim_safety_means(), 0.0)
+    limits = ConstraintBars(demos.safety_mean, demos.dim_safety_means(), 0.0)
     job = TrialJob(spec, str(tiny_demos), limits, tuple(float(x) for x in demos.limits))
     trainable = tune.with_resources(
         tune.with_parameters(trial_then_meddle, job=job),
