@@ -574,7 +574,7 @@ class _Parser(argparse.ArgumentParser):
 
 
 TRAIN, NETWORK = ("safe_bc.bc.config", "TrainConfig"), ("safe_bc.bc.config", "NetworkConfig")
-IMPROVE = ("safe_bc.improve", "ImproveConfig")
+IMPROVE = ("safe_bc.improve.config", "ImproveConfig")
 DEMOS = "demonstration dataset directory"
 WORKERS = "Ray actors that run the episodes"
 EVAL_SEED = "block of held-out seeds (tracks or patients) the episodes are drawn from"
@@ -812,7 +812,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="PPO-Lagrangian on the violation cost (default: on)")  # fmt: skip
     p.add_argument("--eps", type=_non_negative_float("--eps"), default=None,
                    help="shield's critical-zone width (default: the start's)")  # fmt: skip
-    # unset options keep ImproveConfig's defaults (safe_bc/improve.py documents each)
+    # unset options keep ImproveConfig's defaults (safe_bc/improve/config.py documents each)
     for flag, check, field in (
         ("--cost-signal", ["indicator", "excursion"], "cost_signal"),
         ("--cost-margin", _non_negative_float, "cost_margin"),

@@ -36,7 +36,7 @@ import pandas as pd
 
 from safe_bc.envs import EnvConfig
 from safe_bc.experiment import RunConfig
-from safe_bc.improve import ImproveConfig
+from safe_bc.improve.config import ImproveConfig
 
 Primitive = bool | int | float | str
 Baseline = Literal["same_network", "default"]

@@ -10,7 +10,7 @@ def test_first_sentence_of_a_field_docstring():
 
 
 def test_long_docstring_stops_at_the_first_sentence():
-    text = field_doc("safe_bc.improve", "ImproveConfig", "cost_margin")
+    text = field_doc("safe_bc.improve.config", "ImproveConfig", "cost_margin")
     assert text.startswith("Tightens the Lagrangian's limit to d_s - cost_margin")
     assert "margin sweep" not in text  # the second sentence is left to the docs
 
