@@ -18,7 +18,7 @@ from safe_bc.metrics import combined, critical_zone, episode_metrics, violations
 from safe_bc.policy import Policy
 from safe_bc.rollout import run_episode
 from safe_bc.seeds import heldout_seed
-from safe_bc.selection import Combine
+from safe_bc.selection import DEFAULT_EPS, Combine
 
 
 @dataclass(frozen=True)
@@ -39,7 +39,7 @@ class EvalConfig:
     """The environment."""
     max_steps: int | None = None
     """Step cap per episode (``None``: the env's time limit)."""
-    eps: float = 2.0
+    eps: float = DEFAULT_EPS
     """Width of the critical zone used for ``critical_share`` (the selection's eps)."""
     combine: Combine = "any"
     """How per-dimension critical flags combine for ``critical_share`` (the selection's)."""

@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 
 from safe_bc.episode import Episode
-from safe_bc.selection import Combine, critical_mask
+from safe_bc.selection import DEFAULT_EPS, Combine, critical_mask
 
 METRICS: tuple[str, ...] = (
     "reward",
@@ -88,7 +88,7 @@ def episode_metrics(
     *,
     tiles_visited: float = float("nan"),
     thresholds: np.ndarray | None = None,
-    eps: float = 5.0,
+    eps: float = DEFAULT_EPS,
     combine: Combine = "any",
 ) -> dict[str, float]:
     """Reward, safety and violations of one evaluated episode (the keys of :data:`METRICS`

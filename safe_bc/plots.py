@@ -14,6 +14,7 @@ import pandas as pd
 
 from safe_bc.atomic import atomic_write
 from safe_bc.demos import Demonstrations
+from safe_bc.selection import DEFAULT_EPS
 
 
 def save_figure(fig: Any, path: Path) -> Path:
@@ -30,7 +31,7 @@ def save_figure(fig: Any, path: Path) -> Path:
 
 
 def plot_cost_histograms(
-    demos: Demonstrations, path: Path, *, eps: float = 5.0, title: str = ""
+    demos: Demonstrations, path: Path, *, eps: float = DEFAULT_EPS, title: str = ""
 ) -> Path:
     """One histogram of safety distances per dimension (the paper's Figures 3, 7, 8).
 

@@ -33,7 +33,7 @@ from safe_bc.envs.safety import CAR_COLS, CAR_ROWS, FRONT_START, LEFT_START, RIG
 from safe_bc.episode import Episode
 from safe_bc.policy import Policy
 from safe_bc.rollout import run_episode
-from safe_bc.selection import CriticalZone
+from safe_bc.selection import DEFAULT_EPS, CriticalZone
 
 FPS = 50
 """CarRacing's simulation rate (steps per second), the default video frame rate."""
@@ -317,7 +317,7 @@ def zone_from_checkpoint(directory: str | Path) -> CriticalZone:
     cfg = meta.get("config", {})
     return CriticalZone(
         np.asarray(meta["thresholds"], np.float64),
-        float(cfg.get("eps", 2.0)),
+        float(cfg.get("eps", DEFAULT_EPS)),
         str(cfg.get("combine", "any")),
     )
 
@@ -367,7 +367,6 @@ def render_command(
     from safe_bc.data.store import read_meta
     from safe_bc.experts.carracing import ExpertConfig
 
-    default_eps = 2.0
     if checkpoint is None and not (expert or paths):
         raise ValueError("render needs --checkpoint DIR (the agent) or --expert")
     zone = None
@@ -390,7 +389,7 @@ def render_command(
     if demos is not None and read_meta(demos).env_id != CARRACING_ID:
         raise ValueError(f"{demos}: not CarRacing demonstrations; render draws CarRacing only")
     if zone is None and demos is not None:
-        zone = zone_from_demos(demos, default_eps if eps is None else eps)
+        zone = zone_from_demos(demos, DEFAULT_EPS if eps is None else eps)
     if zone is not None and eps is not None:
         zone = CriticalZone(zone.limits, eps, zone.combine)
     expert_policy = build_expert(

@@ -45,6 +45,12 @@ Baseline = Literal["bc_safe", "cost_weighted"]
 SelectionMode = Literal["mix", Baseline]
 
 
+DEFAULT_EPS = 2.0
+"""The critical-zone width a config gets when none is given: CarRacing's 2 px (the task
+registry, ``safe_bc.tasks``, gives each task its own; the rehabilitation pathway's is 0.05).
+The one place this number is written."""
+
+
 class SelectionError(ValueError):
     """The data cannot support the requested selection (no valid rows, empty pool, ...)."""
 
@@ -58,7 +64,7 @@ def _check_choice(name: str, value: object, options: tuple[str, ...]) -> None:
 class SelectionConfig:
     """How to pick the safety-critical set ``T_eps`` and how to mix it into batches."""
 
-    eps: float = 2.0
+    eps: float = DEFAULT_EPS
     """Width of the critical edge, in the cost's units (pixels for CarRacing): a row is
     critical in dimension ``s`` when ``c_s >= d_s - eps``. The default 2 px puts ~9% of the
     default CarRacing demonstrations in T_eps (the paper's 5 px was on another scale; here

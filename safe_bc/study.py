@@ -37,6 +37,7 @@ import pandas as pd
 from safe_bc.envs import EnvConfig
 from safe_bc.experiment import RunConfig
 from safe_bc.improve.config import ImproveConfig
+from safe_bc.selection import DEFAULT_EPS
 
 Primitive = bool | int | float | str
 Baseline = Literal["same_network", "default"]
@@ -263,7 +264,7 @@ class StudySpec:
     threshold: float | None = None
     """Safety threshold; ``None``: the expert's safety mean on the demonstrations,
     ``combined(demos.safety[demos.scored]).mean()``."""
-    critical_eps: float = 2.0
+    critical_eps: float = DEFAULT_EPS
     """Width of the critical zone behind ``critical_share`` (fixed, so trials compare)."""
     safety_constraint: SafetyConstraint = "combined"
     """``"combined"``: safety mean (smallest distance) >= the expert's; ``"per_dim"``: that and

@@ -17,6 +17,7 @@ from safe_bc.envs import SAFETY_DIMS, EnvConfig
 from safe_bc.envs.factory import CARRACING_ID, REHAB_ID
 from safe_bc.experts.carracing import ExpertConfig
 from safe_bc.experts.perturb import PerturbationConfig
+from safe_bc.selection import DEFAULT_EPS
 
 Task = Literal["carracing", "rehab"]
 TASKS: tuple[Task, ...] = get_args(Task)
@@ -79,7 +80,7 @@ def _carracing(renderer: Literal["fast", "stock"]) -> TaskDefaults:
         perturbation=PerturbationConfig(),
         encoding="png",
         episodes=5,
-        eps=2.0,
+        eps=DEFAULT_EPS,
         demos="data/demos",
         results="results",
         action_bounds=((-1.0, 0.0, 0.0), (1.0, 1.0, 1.0)),  # steer, gas, brake
