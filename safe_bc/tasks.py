@@ -126,8 +126,9 @@ def task_defaults(task: Task, renderer: Literal["fast", "stock"] = "fast") -> Ta
     return REGISTRY[task](renderer)
 
 
+@functools.cache
 def task_of(env_id: str) -> Task:
-    """The task whose env is ``env_id``."""
+    """The task whose env is ``env_id`` (cached: the shield looks it up every step)."""
     for task in TASKS:
         if task_defaults(task).env.env_id == env_id:
             return task
