@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 import pandas as pd
@@ -11,32 +13,98 @@ import pandas as pd
 from safe_bc.episode import Episode
 from safe_bc.selection import DEFAULT_EPS, Combine, critical_mask
 
-METRICS: tuple[str, ...] = (
-    "reward",
-    "safety_mean",
-    "safety_std",
-    "safety_min",
-    "violation_steps",
-    "violation_rate",
-    "any_violation",
-    "worst_excursion",
-    "offroad_steps",
-    "critical_share",
-    "tiles_visited",
-    "steps",
-)
-"""The one metric list every evaluation reports (expert, evaluate, Table 1, study trials and
-the study's final phase), one value per episode, summarised as a mean over episodes.
 
-* ``safety_mean``: the mean over an episode's scored steps of the step's safety (its smallest
-  distance, :func:`combined`); a policy's safety mean is the mean of its episodes' means.
-* ``violation_steps``: scored steps beyond the expert's limit ``d_s`` in any dimension
-  (:func:`violations`); ``violation_rate`` the same as a share of the scored steps;
-  ``any_violation`` 1.0 when the episode had one (so its mean is the share of episodes);
-  ``worst_excursion`` how far beyond ``d_s`` the worst step went (cost units, 0 if never).
-* ``offroad_steps``: steps with all wheels on grass (simulator ground truth, CarRacing).
-* ``critical_share``: share of scored steps inside the critical zone ``c >= d_s - eps``.
-"""
+@dataclass(frozen=True)
+class Scored:
+    """What a per-episode metric reads: one episode restricted to its scored steps."""
+
+    episode: Episode
+    """The whole episode (reward and length count every step)."""
+    safety: np.ndarray
+    """``(T', S)`` safety distances of the scored steps (the CarRacing zoom-in excluded)."""
+    costs: np.ndarray
+    """``(T', S)`` safety costs of the scored steps."""
+    offroad: np.ndarray
+    """``(T',) bool``: scored steps with all wheels on grass / a safety limit crossed."""
+    tiles_visited: float
+    """Track tiles the episode visited (NaN where the env has none)."""
+    limits: np.ndarray | None
+    """The expert's limits ``d_s`` per dimension; ``None``: limit metrics are NaN."""
+    eps: float
+    """Critical-zone width of ``critical_share``."""
+    combine: Combine
+    """How ``critical_share`` combines the dimensions."""
+
+    @cached_property
+    def combined(self) -> np.ndarray:
+        """``(T',)``: each scored step's safety, its smallest distance (:func:`combined`)."""
+        return combined(self.safety)
+
+    @cached_property
+    def beyond(self) -> np.ndarray:
+        """``(T',) bool``: scored steps beyond ``d_s`` in some dimension (needs ``limits``)."""
+        assert self.limits is not None
+        return violations(self.costs, self.limits)
+
+
+@dataclass(frozen=True)
+class Metric:
+    """One registry entry: a per-episode metric, summarised as a mean over episodes."""
+
+    compute: Callable[[Scored], float]
+    """The episode's value."""
+    doc: str
+    """What it measures (units, which steps count)."""
+    needs_limits: bool = False
+    """NaN when the evaluation has no limits ``d_s``."""
+
+
+REGISTRY: dict[str, Metric] = {
+    "reward": Metric(lambda s: s.episode.total_reward, "the episode's summed reward"),
+    "safety_mean": Metric(
+        lambda s: float(s.combined.mean()),
+        "mean over the scored steps of the step's safety (its smallest distance); a "
+        "policy's safety mean is the mean of its episodes' means",
+    ),
+    "safety_std": Metric(lambda s: float(s.combined.std()), "spread of the step safety"),
+    "safety_min": Metric(lambda s: float(s.combined.min()), "the closest the episode came"),
+    "violation_steps": Metric(
+        lambda s: int(s.beyond.sum()),
+        "scored steps beyond the expert's limit d_s in any dimension (:func:`violations`)",
+        needs_limits=True,
+    ),
+    "violation_rate": Metric(
+        lambda s: float(s.beyond.mean()), "violation steps as a share of the scored steps", True
+    ),
+    "any_violation": Metric(
+        lambda s: float(s.beyond.any()),
+        "1.0 when the episode had a step beyond d_s (its mean: the share of episodes)",
+        True,
+    ),
+    "worst_excursion": Metric(
+        lambda s: float(excursion(s.costs, s.limits).max()),
+        "how far beyond d_s the worst step went (cost units, 0 if never)",
+        True,
+    ),
+    "offroad_steps": Metric(
+        lambda s: int(s.offroad.sum()),
+        "scored steps with all wheels on grass (simulator ground truth, CarRacing)",
+    ),
+    "critical_share": Metric(
+        lambda s: float(critical_zone(s.costs, s.limits, s.eps, s.combine).mean()),
+        "share of scored steps inside the critical zone c >= d_s - eps",
+        True,
+    ),
+    "tiles_visited": Metric(lambda s: float(s.tiles_visited), "track tiles visited"),
+    "steps": Metric(lambda s: len(s.episode), "the episode's length in env steps"),
+}
+"""The metric registry: name -> :class:`Metric`. Every evaluation (expert, evaluate, Table 1,
+study trials and the study's final phase) reports every entry, one value per episode. A new
+metric is one entry here (its function reads :class:`Scored`); ``tests/test_metrics.py``
+walks every entry."""
+
+METRICS: tuple[str, ...] = tuple(REGISTRY)
+"""The one metric list, in report order (the registry's keys)."""
 
 
 def combined(safety: np.ndarray) -> np.ndarray:
@@ -91,8 +159,8 @@ def episode_metrics(
     eps: float = DEFAULT_EPS,
     combine: Combine = "any",
 ) -> dict[str, float]:
-    """Reward, safety and violations of one evaluated episode (the keys of :data:`METRICS`
-    plus per-dimension safety statistics).
+    """Every registered metric of one evaluated episode (:data:`REGISTRY`, in its order) plus
+    ``terminated`` and per-dimension safety statistics.
 
     Safety statistics use the scored steps only (the CarRacing zoom-in is
     excluded). ``thresholds`` are the demonstrations' limits ``d_s`` (worst expert cost
@@ -117,37 +185,20 @@ def episode_metrics(
     scored = ~episode.warmup
     if not scored.any():
         scored = np.ones(len(episode), bool)
-    safety = episode.safety[scored]
-    comb = combined(safety)
-    out: dict[str, float] = {
-        "reward": episode.total_reward,
-        "steps": len(episode),
-        "tiles_visited": float(tiles_visited),
-        "safety_mean": float(comb.mean()),
-        "safety_std": float(comb.std()),
-        "safety_min": float(comb.min()),
-        "offroad_steps": int(episode.offroad[scored].sum()),
-        "terminated": bool(episode.terminated[-1]),
-    }
-    for j, d in enumerate(episode.safety_dims):
-        out[f"safety_{d}_mean"] = float(safety[:, j].mean())
-        out[f"safety_{d}_std"] = float(safety[:, j].std())
-        out[f"safety_{d}_min"] = float(safety[:, j].min())
-    nan = float("nan")
-    out.update(
-        violation_steps=nan, violation_rate=nan, any_violation=nan, worst_excursion=nan,
-        critical_share=nan,
+    view = Scored(
+        episode, episode.safety[scored], episode.costs[scored], episode.offroad[scored],
+        float(tiles_visited), thresholds, eps, combine,
     )  # fmt: skip
-    if thresholds is not None:
-        costs = episode.costs[scored]
-        beyond = violations(costs, thresholds)
-        out.update(
-            violation_steps=int(beyond.sum()),
-            violation_rate=float(beyond.mean()),
-            any_violation=float(beyond.any()),
-            worst_excursion=float(excursion(costs, thresholds).max()),
-            critical_share=float(critical_zone(costs, thresholds, eps, combine).mean()),
-        )
+    nan = float("nan")
+    out: dict[str, float] = {
+        name: nan if m.needs_limits and thresholds is None else m.compute(view)
+        for name, m in REGISTRY.items()
+    }
+    out["terminated"] = bool(episode.terminated[-1])
+    for j, d in enumerate(episode.safety_dims):
+        out[f"safety_{d}_mean"] = float(view.safety[:, j].mean())
+        out[f"safety_{d}_std"] = float(view.safety[:, j].std())
+        out[f"safety_{d}_min"] = float(view.safety[:, j].min())
     return out
 
 

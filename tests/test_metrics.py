@@ -148,3 +148,39 @@ def test_seeds_better_counts_seed_means() -> None:
     assert again["method"].tolist() == ["x"]
     with pytest.raises(ValueError, match="baseline"):
         paired_crossed(episodes, "nope", ["reward"])
+
+
+def _episode(seed: int = 0, T: int = 30):
+    from safe_bc.episode import Episode
+
+    rng = np.random.default_rng(seed)
+    return Episode(
+        0, 1, np.zeros((T, 0)), np.zeros((T, 3)), np.zeros((T, 3)),
+        rng.normal(size=T).astype(np.float32), np.zeros(T, bool), np.zeros(T, bool),
+        (rng.random((T, 3)) * 10).astype(np.float32), (rng.random((T, 3)) * 10).astype(np.float32),
+        np.arange(T) < 3, rng.random(T) < 0.2,
+    )  # fmt: skip
+
+
+@pytest.mark.parametrize("name", list(__import__("safe_bc.metrics").metrics.REGISTRY))
+def test_registry_entries_are_complete(name: str) -> None:
+    """Every registered metric says what it measures and gives one finite number per
+    episode, reported by every evaluation (``episode_metrics``) in the registry's order."""
+    from safe_bc.metrics import METRICS, REGISTRY, episode_metrics
+
+    metric = REGISTRY[name]
+    assert metric.doc.strip(), f"metric {name!r} has no doc"
+    m = episode_metrics(_episode(), thresholds=np.array([7.0, 8.0, 9.0]), tiles_visited=4.0)
+    assert np.isfinite(float(m[name]))
+    assert list(m)[: len(METRICS)] == list(METRICS)
+    if metric.needs_limits:  # without d_s a limit metric is NaN, not a made-up number
+        assert np.isnan(episode_metrics(_episode())[name])
+
+
+def test_a_new_metric_is_one_entry(monkeypatch: pytest.MonkeyPatch) -> None:
+    from safe_bc import metrics
+
+    entry = metrics.Metric(lambda s: float(s.costs.max()), "the largest scored cost")
+    monkeypatch.setitem(metrics.REGISTRY, "max_cost", entry)
+    ep = _episode()
+    assert metrics.episode_metrics(ep)["max_cost"] == pytest.approx(ep.costs[3:].max())
