@@ -38,6 +38,7 @@ from safe_bc.envs import EnvConfig
 from safe_bc.experiment import RunConfig
 from safe_bc.improve.config import ImproveConfig
 from safe_bc.selection import DEFAULT_EPS
+from safe_bc.stages import STAGE_METRICS, STAGES, Stage, stage_of
 
 Primitive = bool | int | float | str
 Baseline = Literal["same_network", "default"]
@@ -161,33 +162,33 @@ def _replace_path(obj: Any, parts: Sequence[str], value: Any, name: str) -> Any:
     return replace(obj, **{head: new})
 
 
-IMPROVE_PREFIX = "improve."
-"""Search-space keys of the optional improvement stage (``improve.cost_margin``, ...) start with
-this; they set fields of :attr:`StudySpec.improve`, every other key a ``RunConfig`` field."""
-
-
-def split_params(params: Mapping[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
-    """``(run_params, improve_params)``: the ``RunConfig`` keys and the improvement keys (their
-    ``improve.`` prefix removed).
+def split_params(params: Mapping[str, Any]) -> tuple[dict[str, Any], dict[str, dict[str, Any]]]:
+    """``(run_params, {stage: stage_params})``: the ``RunConfig`` keys, and each stage's keys
+    (:data:`safe_bc.stages.STAGES`) with its prefix removed.
 
     >>> split_params({"selection.alpha": 0.5, "improve.cost_margin": 0.1})
-    ({'selection.alpha': 0.5}, {'cost_margin': 0.1})
+    ({'selection.alpha': 0.5}, {'improve': {'cost_margin': 0.1}})
     """
-    run = {k: v for k, v in params.items() if not k.startswith(IMPROVE_PREFIX)}
-    imp = {k.removeprefix(IMPROVE_PREFIX): v for k, v in params.items()
-           if k.startswith(IMPROVE_PREFIX)}  # fmt: skip
-    return run, imp
+    run: dict[str, Any] = {}
+    stages: dict[str, dict[str, Any]] = {}
+    for key, value in params.items():
+        name = stage_of(key)
+        if name is None:
+            run[key] = value
+        else:
+            stages.setdefault(name, {})[key.removeprefix(STAGES[name].prefix)] = value
+    return run, stages
 
 
-def apply_improve_params(base: ImproveConfig, params: Mapping[str, Any]) -> ImproveConfig:
-    """``base`` with each improvement parameter (``"cost_margin"``, no prefix) set.
+def apply_stage_params(base: Any, prefix: str, params: Mapping[str, Any]) -> Any:
+    """``base`` (a stage's config) with each parameter (``"cost_margin"``, no prefix) set.
 
     Raises:
         ValueError: an unknown field, or a value the config rejects.
     """
     config = base
     for name, value in params.items():
-        config = _replace_path(config, name.split("."), value, IMPROVE_PREFIX + name)
+        config = _replace_path(config, name.split("."), value, prefix + name)
     return config
 
 
@@ -409,15 +410,17 @@ class StudySpec:
             if not isinstance(param, Float | Int | Choice):
                 raise ValueError(f"space[{name!r}] must be Float, Int or Choice, got {param!r}")
             for value in param.bounds():  # every option / bound builds a valid config
-                if name.startswith(IMPROVE_PREFIX):
-                    if self.improve is None:
-                        raise ValueError(
-                            f"space[{name!r}] searches the improvement stage, but the study "
-                            "has none: set StudySpec(improve=ImproveConfig(...))"
-                        )
-                    apply_improve_params(self.improve, split_params({name: value})[1])
-                else:
+                stage = stage_of(name)
+                if stage is None:
                     apply_params(self.base, {name: value})
+                    continue
+                field_ = STAGES[stage].field
+                if getattr(self, field_) is None:
+                    raise ValueError(
+                        f"space[{name!r}] searches the {stage} stage, but the study has none: "
+                        f"set StudySpec({field_}=...)"
+                    )
+                self.stage_config(stage, {name: value}, seed=0)
 
     @property
     def screens(self) -> bool:
@@ -445,17 +448,25 @@ class StudySpec:
 
     def run_config(self, params: Mapping[str, Any], num_threads: int | None = None) -> RunConfig:
         """The trial's ``RunConfig``: ``base`` + sampled ``params`` (the ``RunConfig`` keys;
-        ``improve.*`` keys go to :meth:`improve_config`) + the batch budget."""
+        stage keys such as ``improve.*`` go to :meth:`stage_config`) + the batch budget."""
         cfg = apply_params(self.base, split_params(params)[0])
         train = replace(cfg.bc.train, batches=self.batches, num_threads=num_threads)
         return replace(cfg, bc=replace(cfg.bc, train=train))
 
-    def improve_config(self, params: Mapping[str, Any], seed: int) -> ImproveConfig | None:
-        """The trial's improvement settings: :attr:`improve` + the sampled ``improve.*``
-        ``params``, with ``seed`` (the BC training seed); ``None`` without a stage."""
-        if self.improve is None:
+    def stages(self) -> list[tuple[str, Stage]]:
+        """The stages this study runs after training (:data:`safe_bc.stages.STAGES` entries
+        whose config field is set), in registry order."""
+        return [(n, st) for n, st in STAGES.items() if getattr(self, st.field) is not None]
+
+    def stage_config(self, stage: str, params: Mapping[str, Any], seed: int) -> Any:
+        """The trial's settings of ``stage``: its config field + the sampled ``<stage>.*``
+        ``params``, with ``seed`` (the BC training seed); ``None`` when the study has none."""
+        entry = STAGES[stage]
+        base = getattr(self, entry.field)
+        if base is None:
             return None
-        return replace(apply_improve_params(self.improve, split_params(params)[1]), seed=seed)
+        own = split_params(params)[1].get(stage, {})
+        return replace(apply_stage_params(base, entry.prefix, own), seed=seed)
 
     def baseline_config(self, winner: RunConfig) -> RunConfig:
         """The alpha = 0 baseline (plain BC: ``rest="all"``) for the re-evaluation."""
@@ -471,7 +482,9 @@ class StudySpec:
         out["env"] = {f.name: getattr(self.env, f.name) for f in fields(self.env)}
         out["demos"], out["results"] = str(self.demos), str(self.results)
         out["space"] = space
-        out["improve"] = None if self.improve is None else self.improve.to_dict()
+        for stage in STAGES.values():
+            config = getattr(self, stage.field)
+            out[stage.field] = None if config is None else config.to_dict()
         return out
 
 
@@ -562,8 +575,7 @@ TRIAL_METRICS = (
     "feasible",
     "train_loss",
     "train_seconds",
-    "improve_seconds",
-    "improve_kept_iteration",
+    *STAGE_METRICS,
     "eval_seconds",
     "duration_s",
     "train_seed",

@@ -38,13 +38,15 @@ def test_improve_keys_set_the_improvement_config_and_leave_the_run_config_alone(
     )  # fmt: skip
     params = {"selection.alpha": 0.3, "improve.cost_margin": 0.1, "improve.shield": True}
     assert split_params(params) == ({"selection.alpha": 0.3},
-                                    {"cost_margin": 0.1, "shield": True})  # fmt: skip
+                                    {"improve": {"cost_margin": 0.1, "shield": True}})  # fmt: skip
     assert spec.run_config(params).selection.alpha == 0.3
-    icfg = spec.improve_config(params, seed=4)
+    assert [name for name, _ in spec.stages()] == ["improve"]
+    icfg = spec.stage_config("improve", params, seed=4)
     assert (icfg.cost_margin, icfg.shield, icfg.iterations, icfg.seed) == (0.1, True, 7, 4)
     assert spec.summary()["improve"]["iterations"] == 7
     plain = StudySpec("p", {"selection.alpha": Float(0.0, 1.0)})
-    assert plain.improve_config({}, seed=0) is None and plain.summary()["improve"] is None
+    assert plain.stage_config("improve", {}, seed=0) is None and plain.summary()["improve"] is None
+    assert plain.stages() == []
 
 
 def test_improve_keys_without_a_stage_or_with_a_bad_value_are_rejected():

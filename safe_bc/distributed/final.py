@@ -9,10 +9,11 @@ track blocks, so the two-level bootstrap (seeds, then tracks within a seed) fits
 for the same number of episodes it covers 3x the tracks of evaluating every seed on every
 track, and an episode costs the same either way.
 
-With an improvement stage (``StudySpec.improve``), every candidate's net of every seed is
-improved (its own ``improve.*`` settings, ``seed`` = the training seed; in the driver, one run
-after the other, resumable under ``results/<study>/final_improve/``) and the improved agents
-are evaluated; plain BC and the expert stay unimproved references.
+With stages (:data:`safe_bc.stages.STAGES`, e.g. ``StudySpec.improve``), every candidate's
+net of every seed goes through them (its own ``<stage>.*`` settings, ``seed`` = the training
+seed; in the driver, one run after the other, resumable under
+``results/<study>/final_<stage>/``) and those agents are evaluated; plain BC and the expert
+stay the references.
 """
 
 from __future__ import annotations
@@ -148,8 +149,7 @@ def final_phase(
     for (method, s, run), model in zip(todo, trained, strict=True):
         nets[(method, s)] = NetSource.from_model(model, run.bc)
         models[(method, s)] = (model, run)
-    if spec.improve is not None:
-        nets.update(_improve_candidates(spec, job, candidates, models, progress))
+    nets.update(_run_stages(spec, job, candidates, models, progress))
 
     per = spec.final_tracks_per_seed()
     expert = ExpertSource(stored_expert_config(Path(job.demos)))
@@ -204,31 +204,31 @@ def final_phase(
     return FinalOutcome(table, episodes, winner, feasible, message, configs, certified)
 
 
-def _improve_candidates(
+def _run_stages(
     spec: StudySpec,
     job: TrialJob,
     candidates: pd.DataFrame,
     models: Mapping[tuple[str, int], tuple[BCNet, RunConfig]],
     progress: bool,
 ) -> dict[tuple[str, int], Any]:
-    """The improved agent of every candidate and seed (plain BC is left as it is)."""
-    from safe_bc.improve import improve_from_net
-
+    """Every candidate's and seed's agent after the study's stages (plain BC is left as it
+    is), each stage in its folder ``results/<study>/final_<stage>/<trial>/seed<k>/``."""
+    stages = spec.stages()
+    if not stages:
+        return {}
     params = {str(r["trial_id"]): {k: r[k] for k in spec.params} for _, r in candidates.iterrows()}
-    root = spec.results / spec.name / "final_improve"
-    out: dict[tuple[str, int], Any] = {}
-    for (method, s), (model, run) in models.items():
-        if method not in params:
-            continue
-        icfg = spec.improve_config(params[method], seed=s)
-        assert icfg is not None
-        if progress:
-            print(f"final phase: improving {method} seed {s}")
-        out[(method, s)], _ = improve_from_net(
-            model, run.bc, run.selection, job.demos, spec.env.env_id,
-            root / method / f"seed{s}", icfg,
-        )  # fmt: skip
-    return out
+    agents: dict[tuple[str, int], Any] = {k: m for k, (m, _) in models.items() if k[0] in params}
+    for name, stage in stages:
+        run_stage = stage.load()
+        root = spec.results / spec.name / f"final_{name}"
+        for (method, s), agent in agents.items():
+            if progress:
+                print(f"final phase: {stage.label or name} {method} seed {s}")
+            agents[(method, s)], _ = run_stage(
+                spec.stage_config(name, params[method], seed=s), agent, models[(method, s)][1],
+                job.demos, spec.env.env_id, root / method / f"seed{s}",
+            )  # fmt: skip
+    return agents
 
 
 def choose_final(table: pd.DataFrame) -> tuple[str | None, bool, str]:

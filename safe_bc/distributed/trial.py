@@ -6,9 +6,9 @@ resumed study never retrains: :func:`resume_point`), is screened on the first
 survives, evaluated on the rest of its ``eval_episodes`` tracks. Every report carries every
 key of ``TRIAL_METRICS``.
 
-With an improvement stage (``StudySpec.improve``), the trained net is improved by constrained
-RL (:func:`safe_bc.improve.improve_from_net`, in the trial's folder, resumable) between the
-training and the evaluation, and the improved agent is what the rounds evaluate.
+Between the training and the evaluation, every stage the study sets
+(:data:`safe_bc.stages.STAGES`, e.g. ``StudySpec.improve``: constrained RL beyond the expert)
+turns each seed's agent into the one the rounds evaluate, in the trial's folder (resumable).
 """
 
 from __future__ import annotations
@@ -258,24 +258,6 @@ def trial_folder() -> Path:
     return Path(tune.get_context().get_trial_dir())
 
 
-def improve_trial(
-    model: BCNet, run_cfg: RunConfig, job: TrialJob, params: dict[str, Any], folder: Path
-) -> tuple[Any, dict[str, float]]:
-    """The trial's improvement stage: the improved agent and its report values."""
-    from safe_bc.improve import improve_from_net
-
-    spec = job.spec
-    icfg = spec.improve_config(params, seed=run_cfg.bc.train.seed)
-    assert icfg is not None
-    source, result = improve_from_net(
-        model, run_cfg.bc, run_cfg.selection, job.demos, spec.env.env_id, folder, icfg
-    )
-    return source, {
-        "improve_seconds": float(result.history["seconds"].sum()),
-        "improve_kept_iteration": float(result.kept_iteration),
-    }
-
-
 def with_seed(cfg: RunConfig, seed: int) -> RunConfig:
     """``cfg`` with another training seed."""
     train = dataclasses.replace(cfg.bc.train, seed=seed)
@@ -344,16 +326,19 @@ def run_trial(config: dict[str, Any], job: TrialJob) -> None:
             tune.report(metrics, checkpoint=tune.Checkpoint.from_directory(d))
 
     sources: list[Any] = [NetSource.from_model(m, run_cfg.bc) for m in models]
-    if spec.improve is not None:  # its time counts in duration_s, not in eval_seconds
-        params = {k: config[k] for k in spec.params}
-        improve_s = 0.0
-        for j, (s, model) in enumerate(zip(seeds, models, strict=True)):
-            folder = trial_folder() / ("improve" if j == 0 else f"improve_seed_{s}")
-            sources[j], values = improve_trial(model, with_seed(run_cfg, s), job, params, folder)
-            improve_s += values["improve_seconds"]
-            if j == 0:
-                metrics.update(values)
-        metrics["improve_seconds"] = improve_s
+    agents: list[Any] = list(models)
+    params = {k: config[k] for k in spec.params}
+    for name, stage in spec.stages():  # their time counts in duration_s, not in eval_seconds
+        run_stage, per_seed = stage.load(), []
+        for j, s in enumerate(seeds):
+            folder = trial_folder() / (name if j == 0 else f"{name}_seed_{s}")
+            agents[j], values = run_stage(
+                spec.stage_config(name, params, seed=s), agents[j], with_seed(run_cfg, s),
+                job.demos, spec.env.env_id, folder,
+            )  # fmt: skip
+            sources[j] = agents[j]
+            per_seed.append(values)
+        metrics.update(stage.reduce(per_seed))
 
     rounds = eval_rounds(spec)
     parts: list[pd.DataFrame] = []

@@ -1,0 +1,45 @@
+"""The study stage registry: every entry is complete, and the trial table has its metrics."""
+
+from __future__ import annotations
+
+import inspect
+from dataclasses import fields
+
+import pytest
+
+from safe_bc.stages import STAGE_METRICS, STAGES, stage_of
+from safe_bc.study import TRIAL_METRICS, StudySpec
+
+
+@pytest.mark.parametrize("name", list(STAGES))
+def test_registry_entries_are_complete(name: str) -> None:
+    """A stage names a ``StudySpec`` field (off by default), a runner with the stage
+    signature, and the metrics its runner reports, which the trial table carries."""
+    stage = STAGES[name]
+    spec_fields = {f.name: f for f in fields(StudySpec)}
+    assert stage.field in spec_fields, f"stage {name!r}: StudySpec has no field {stage.field!r}"
+    assert spec_fields[stage.field].default is None, "a stage must be off unless a study sets it"
+    runner = stage.load()
+    params = list(inspect.signature(runner).parameters)
+    assert params == ["config", "agent", "run_config", "demos", "env_id", "folder"], params
+    assert stage.metrics and set(stage.summed) <= set(stage.metrics)
+    assert set(stage.metrics) <= set(TRIAL_METRICS)
+    assert stage_of(f"{stage.prefix}anything") == name
+
+
+def test_stage_metrics_are_distinct_and_not_core_metrics() -> None:
+    assert len(set(STAGE_METRICS)) == len(STAGE_METRICS)
+    assert len(set(TRIAL_METRICS)) == len(TRIAL_METRICS)
+
+
+def test_reading_a_study_file_imports_no_runner() -> None:
+    """Runners (torch, RL) load only when a stage runs."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, safe_bc.study, safe_bc.stages; "
+        "print(any(m.startswith('safe_bc.improve.stage') for m in sys.modules))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
