@@ -337,6 +337,8 @@ def paired_differences(
 ) -> pd.DataFrame:
     """Per method, the mean difference to ``baseline`` on the same (training seed, track)
     pairs, with a two-level bootstrap CI: ``d_<metric>``, ``d_<metric>_lo``, ``d_<metric>_hi``.
+    For a nested design (each seed on its own tracks); each interval draws from its own
+    generator (:func:`keyed_rng` of ``seed``, the method and baseline, and the metric).
 
     Pairing removes the spread between tracks, which dominates single-method CIs.
     Methods without a matching pair (e.g. the expert, trained once) are left out.
@@ -346,7 +348,6 @@ def paired_differences(
     >>> paired_differences(df, "a", ["reward"])[["method", "d_reward"]].to_dict("records")
     [{'method': 'b', 'd_reward': 2.5}]
     """
-    rng = np.random.default_rng(seed)
     key = list(pair_on)
     base = episodes[episodes[by] == baseline].set_index(key)[list(metrics)]
     rows = []
@@ -359,6 +360,7 @@ def paired_differences(
         groups = diff.index.get_level_values(group).to_numpy()
         row: dict[str, object] = {by: method, "n_pairs": len(diff)}
         for m in metrics:
+            rng = keyed_rng(seed, (method, baseline), m)
             mean, lo, hi = bootstrap_ci(
                 diff[m].to_numpy(float), groups, confidence=confidence, rng=rng
             )

@@ -37,7 +37,12 @@ from safe_bc.distributed.train import train_many
 from safe_bc.distributed.trial import TrialJob, bounds_for, trial_threads
 from safe_bc.evaluation import EvalConfig, ExpertSource, NetSource
 from safe_bc.experiment import RunConfig, train_run
-from safe_bc.metrics import certified_share, clopper_pearson_upper, summarize_policies
+from safe_bc.metrics import (
+    certified_share,
+    clopper_pearson_upper,
+    paired_differences,
+    summarize_policies,
+)
 from safe_bc.study import StudySpec, constraints
 from safe_bc.tasks import Bounds
 
@@ -68,6 +73,8 @@ class FinalOutcome:
     certified: str = ""
     """What the winner's fresh episodes certify: the one-sided Clopper-Pearson upper bound on
     its share of episodes beyond ``d_s`` (at the study's ``violation_bound``, else 95%)."""
+    paired: pd.DataFrame = dataclasses.field(default_factory=pd.DataFrame)
+    """Paired differences on the same tracks (:func:`final_paired`)."""
 
 
 def final_workers(spec: StudySpec) -> int:
@@ -201,7 +208,34 @@ def final_phase(
             int(row["episodes_with_violation"]), int(row["n_episodes"]), confidence
         )
     configs = {m: c.to_dict() for m, c in cfgs.items()}
-    return FinalOutcome(table, episodes, winner, feasible, message, configs, certified)
+    paired = final_paired(episodes, seed=spec.final_seed)
+    return FinalOutcome(table, episodes, winner, feasible, message, configs, certified, paired)
+
+
+PAIRED_METRICS = ("reward", "safety_mean", "violation_steps", "any_violation")
+"""What :func:`final_paired` compares (those the episodes hold)."""
+
+
+def final_paired(episodes: pd.DataFrame, seed: int) -> pd.DataFrame:
+    """Paired differences of the final phase: every method against the expert, and every
+    candidate against plain BC, on the same (training seed, track) pairs (the expert and plain
+    BC ran on every seed's tracks), with the two-level bootstrap that fits the nested design
+    (:func:`safe_bc.metrics.paired_differences`, bootstrap seed ``seed``). One row per
+    (``method``, ``vs``): ``d_<metric>`` and its CI, ``n_pairs``.
+    """
+    metrics = [m for m in PAIRED_METRICS if m in episodes and episodes[m].notna().any()]
+    parts = []
+    for baseline in (EXPERT, PLAIN_BC):
+        if baseline not in set(episodes["method"]):
+            continue
+        rows = episodes if baseline == EXPERT else episodes[episodes["method"] != EXPERT]
+        diff = paired_differences(rows, baseline, metrics, seed=seed)
+        if len(diff):
+            parts.append(diff.assign(vs=baseline))
+    if not parts:
+        return pd.DataFrame()
+    out = pd.concat(parts, ignore_index=True)
+    return out[["method", "vs", *[c for c in out if c not in ("method", "vs")]]]
 
 
 def _run_stages(

@@ -4,7 +4,8 @@ The pieces live in their own modules: the searcher and scheduler (``distributed/
 one trial (``distributed/trial.py``) and the final phase (``distributed/final.py``). Here
 :func:`run_study` builds or restores the Tuner, writes ``trials.parquet``,
 ``history.parquet`` and ``pareto.png``, then runs the final phase on the top trials and writes
-``final.parquet``, ``final_episodes.parquet`` and ``best.json``.
+``final.parquet``, ``final_episodes.parquet``, ``final_paired.parquet`` (paired differences to
+the expert and to plain BC on the same tracks) and ``best.json``.
 """
 
 from __future__ import annotations
@@ -453,7 +454,7 @@ def _run_study(
     storage, exp_path = experiment_location(spec)
     if fresh:
         _delete_tree(exp_path)
-        for name in ("trials", "history", "final", "final_episodes"):
+        for name in ("trials", "history", "final", "final_episodes", "final_paired"):
             (out / f"{name}.parquet").unlink(missing_ok=True)
         for name in ("best.json", "pareto.png", "study.json", "optuna.db", HISTORY):
             (out / name).unlink(missing_ok=True)
@@ -624,6 +625,8 @@ def _write_final(
     }
     write_table_atomic(out / "final.parquet", final.table, final_meta)
     write_table_atomic(out / "final_episodes.parquet", final.episodes, final_meta)
+    if len(final.paired):
+        write_table_atomic(out / "final_paired.parquet", final.paired, final_meta)
     win = candidates[candidates["trial_id"] == final.winner]
     row = win.iloc[0].to_dict() if len(win) else {}
     best = {
@@ -704,5 +707,12 @@ def format_outcome(outcome: StudyOutcome, params: Sequence[str]) -> str:
         lines.append(outcome.final.message)
         if outcome.final.certified:
             lines.append(f"the winner, on the fresh tracks: {outcome.final.certified}")
+        paired = outcome.final.paired
+        if outcome.final.winner is not None and len(paired):
+            for _, r in paired[paired["method"] == outcome.final.winner].iterrows():
+                lines.append(
+                    f"winner - {r['vs']} (paired, same tracks): reward {r['d_reward']:+.1f} "
+                    f"[{r['d_reward_lo']:+.1f}, {r['d_reward_hi']:+.1f}]"
+                )
     lines.append(f"outputs in {outcome.out}/")
     return "\n".join(lines)

@@ -164,6 +164,9 @@ def test_cli_study_end_to_end(tiny_demos: Path, tmp_path: Path, capsys) -> None:
     episodes, _ = read_table(out / "final_episodes.parquet")
     per_seed = episodes[episodes["method"] == "plain_bc"].groupby("train_seed")["env_seed"]
     assert per_seed.apply(frozenset).nunique() == 2  # each seed on its own tracks
+    paired, _ = read_table(out / "final_paired.parquet")  # every method vs the expert
+    assert set(paired.loc[paired["vs"] == "expert", "method"]) == {*cands, "plain_bc"}
+    assert (paired["n_pairs"] == len(episodes[episodes["method"] == "expert"])).all()
     assert (out / "pareto.png").stat().st_size > 0
 
 

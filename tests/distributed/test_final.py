@@ -1,0 +1,46 @@
+"""The final phase's paired table (pure pieces of distributed/final.py)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from safe_bc.distributed.final import EXPERT, PLAIN_BC, final_paired
+
+
+def episodes() -> pd.DataFrame:
+    """2 seeds, each on its own 4 tracks; candidate "a" = expert - 2 on every track, plain BC =
+    expert - 10 on seed 0 and the expert on seed 1."""
+    rng = np.random.default_rng(0)
+    rows = []
+    for seed, tracks in ((0, range(4)), (1, range(4, 8))):
+        for t in tracks:
+            base = float(rng.normal(900, 30))
+            for method, reward in (
+                (EXPERT, base),
+                ("a", base - 2),
+                (PLAIN_BC, base - 10 * (seed == 0)),
+            ):
+                bad = float(method == "a" and t == 0)
+                rows.append({"method": method, "train_seed": seed, "env_seed": t,
+                             "reward": reward, "any_violation": bad})  # fmt: skip
+    return pd.DataFrame(rows)
+
+
+def test_every_method_against_the_expert_and_candidates_against_plain_bc() -> None:
+    out = final_paired(episodes(), seed=2).set_index(["method", "vs"])
+    assert set(out.index) == {("a", EXPERT), (PLAIN_BC, EXPERT), ("a", PLAIN_BC)}
+    a = out.loc[("a", EXPERT)]
+    assert (a["d_reward"], a["d_reward_lo"], a["d_reward_hi"]) == pytest.approx((-2, -2, -2))
+    assert a["n_pairs"] == 8 and a["d_any_violation"] == pytest.approx(1 / 8)
+    assert out.loc[("a", PLAIN_BC), "d_reward"] == pytest.approx(3.0)
+    assert (
+        out.loc[(PLAIN_BC, EXPERT), "d_reward_lo"]
+        <= -5
+        <= out.loc[(PLAIN_BC, EXPERT), "d_reward_hi"]
+    )
+
+
+def test_same_episodes_same_intervals() -> None:
+    pd.testing.assert_frame_equal(final_paired(episodes(), 2), final_paired(episodes(), 2))
