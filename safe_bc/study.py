@@ -270,11 +270,12 @@ class StudySpec:
     safety_constraint: SafetyConstraint = "combined"
     """``"combined"``: safety mean (smallest distance) >= the expert's; ``"per_dim"``: that and
     every dimension's mean >= the expert's mean in that dimension (stricter). The default is
-    ``"combined"`` because, measured on CarRacing, ``"per_dim"`` admitted no trial at all
-    (``results/default_per_dim/``): the left and right distances add up to the road's width,
-    so a policy cannot be further from the grass than the expert on *both* sides on average.
-    The per-dimension limits still bind step by step: a violation is a step beyond ``d_s`` in
-    any dimension."""
+    ``"combined"`` because on CarRacing no policy of Table 1 (8 seeds x 20 fresh tracks,
+    ``results/table1_episodes.parquet``), not even the expert, reaches the demonstrations'
+    mean on every side: the left and right distances add up to the road's width, so a policy
+    further from the grass on one side is closer on the other (expert: left 7.70 >= 7.67,
+    right 7.65 < 7.81). The per-dimension limits still bind step by step: a violation is a
+    step beyond ``d_s`` in any dimension."""
     violation_tolerance: float = 0.0
     """Largest allowed share of evaluated steps beyond the expert's limit ``d_s`` (the point
     constraint, without :attr:`violation_bound`)."""
