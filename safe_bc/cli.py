@@ -16,6 +16,7 @@ from safe_bc.distributed.runtime import RayUnavailableError, check_ray_address
 from safe_bc.docs import field_doc
 from safe_bc.locks import OutputLockedError, check_output_folder, output_lock, output_locks
 from safe_bc.selection import RULES, Baseline
+from safe_bc.tasks import DEFAULT_TASK, TASKS
 
 DEFAULT_DEMOS = Path("data/demos")
 
@@ -134,8 +135,8 @@ def _selection_config(args: argparse.Namespace, **defaults: Any) -> Any:
 def _env_args(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--env",
-        choices=["carracing", "rehab"],
-        default="carracing",
+        choices=TASKS,
+        default=DEFAULT_TASK,
         help="task: CarRacing-v3 (default) or the rehabilitation pathway",
     )
     p.add_argument(
@@ -682,7 +683,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_evaluate)
 
     p = sub.add_parser("expert", help="measure the expert on held-out tracks (or patients)")
-    p.add_argument("--env", choices=["carracing", "rehab"], default="carracing", help=ENV)
+    p.add_argument("--env", choices=TASKS, default=DEFAULT_TASK, help=ENV)
     p.add_argument("--episodes", type=_positive("--episodes"), default=20,
                    help="held-out episodes (tracks or patients), one each")  # fmt: skip
     p.add_argument("--workers", type=_positive("--workers"), default=2, help=WORKERS)
@@ -701,7 +702,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_expert)
 
     p = sub.add_parser("reproduce", help="rerun the paper's Table 1 with CIs")
-    p.add_argument("--env", choices=["carracing", "rehab"], default="carracing", help=ENV)
+    p.add_argument("--env", choices=TASKS, default=DEFAULT_TASK, help=ENV)
     p.add_argument("--demos", type=Path, default=None, help="default: the task's demo set")
     p.add_argument(
         "--out", type=Path, default=None, help="default: results/ (rehab: results/rehab)"

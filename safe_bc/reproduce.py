@@ -40,7 +40,7 @@ from safe_bc.experiment import RunConfig, save_selection, select_for
 from safe_bc.metrics import METRICS, combined, paired_crossed, summarize_crossed
 from safe_bc.provenance import run_metadata
 from safe_bc.selection import RULES, Baseline, Rest, SelectionConfig
-from safe_bc.tasks import Task, dataset_action_bounds, task_defaults
+from safe_bc.tasks import Task, dataset_action_bounds, task_defaults, task_of
 
 Reading = Rest
 
@@ -371,7 +371,7 @@ def rerender(config: ReproduceConfig) -> pd.DataFrame:
         segment_steps=int(stored.get("segment_steps", config.segment_steps)),
         beta=float(stored.get("beta", config.beta)),
         eps=stored.get("eps", config.eps),
-        task=stored.get("task", "carracing" if "CarRacing" in str(stored.get("env")) else "rehab"),
+        task=stored.get("task") or task_of((stored.get("env") or {}).get("env_id", "")),
     )
     return write_outputs(config, episodes, traces, train_df, meta)
 

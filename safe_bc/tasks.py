@@ -21,6 +21,8 @@ from safe_bc.selection import DEFAULT_EPS
 
 Task = Literal["carracing", "rehab"]
 TASKS: tuple[Task, ...] = get_args(Task)
+DEFAULT_TASK: Task = TASKS[0]
+"""The task a command runs when none is named (the CarRacing testbed)."""
 
 Bounds = tuple[tuple[float, ...], tuple[float, ...]]
 """``(low (A,), high (A,))`` of a Box action space."""

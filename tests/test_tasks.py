@@ -102,8 +102,12 @@ def test_observed_costs_have_the_envs_shape(task):
         env.close()
 
 
-def test_env_ids_agree_with_their_env_modules():
-    from safe_bc.envs.factory import REHAB_ID
-    from safe_bc.envs.rehab import REHAB_ENV_ID
+def test_env_ids_are_registered_with_their_env_modules():
+    import gymnasium as gym
 
-    assert REHAB_ID == REHAB_ENV_ID
+    from safe_bc.envs.factory import REHAB_ID, register_envs
+    from safe_bc.envs.rehab import DEFAULT_N_SESSIONS, RehabPathwayEnv
+
+    register_envs()
+    assert gym.spec(REHAB_ID).max_episode_steps == DEFAULT_N_SESSIONS
+    assert isinstance(gym.make(REHAB_ID).unwrapped, RehabPathwayEnv)

@@ -62,9 +62,14 @@ def register_envs() -> None:
             max_episode_steps=1000,
             reward_threshold=900,
         )
-    from safe_bc.envs.rehab import register_rehab
+    if REHAB_ID not in gym.registry:
+        from safe_bc.envs.rehab import DEFAULT_N_SESSIONS
 
-    register_rehab()
+        gym.register(
+            id=REHAB_ID,
+            entry_point="safe_bc.envs.rehab:RehabPathwayEnv",
+            max_episode_steps=DEFAULT_N_SESSIONS,
+        )
 
 
 def make_env(config: EnvConfig | None = None) -> gym.Env:

@@ -98,8 +98,9 @@ differ in age, resting HR and BP, entry capacity, responsiveness to training, HR
 BP reactivity, fatigue recovery and tolerance, so the best pathway is personal.
 
 The programme has ``n_sessions`` sessions (default 30: 3 a week for 10 weeks); the env
-terminates after the last one (``register_rehab`` also puts a ``TimeLimit`` of the same
-length around it, so the last step reports ``terminated=True`` and ``truncated=True``).
+terminates after the last one (its gymnasium registration,
+:func:`safe_bc.envs.factory.register_envs`, also puts a ``TimeLimit`` of the same length
+around it, so the last step reports ``terminated=True`` and ``truncated=True``).
 
 References:
     Karvonen MJ, Kentala E, Mustala O (1957). The effects of training on heart rate; a
@@ -132,10 +133,6 @@ from typing import Any, Literal
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
-
-REHAB_ENV_ID = "safe_bc/RehabPathway-v0"
-"""Gymnasium id registered by :func:`register_rehab`; ``safe_bc.envs.factory.EnvId`` names
-it for the task registry (a test checks they agree)."""
 
 DEFAULT_N_SESSIONS = 30
 """Default programme length: 3 sessions a week for 10 weeks."""
@@ -670,29 +667,10 @@ class RehabPathwayEnv(gym.Env):
         return asdict(self.patient)
 
 
-def register_rehab() -> None:
-    """Register :data:`REHAB_ENV_ID` with gymnasium if it is not registered yet.
-
-    ``max_episode_steps`` is the default programme length, :data:`DEFAULT_N_SESSIONS`.
-
-    >>> register_rehab(); register_rehab()
-    >>> gym.spec(REHAB_ENV_ID).max_episode_steps
-    30
-    """
-    if REHAB_ENV_ID in gym.registry:
-        return
-    gym.register(
-        id=REHAB_ENV_ID,
-        entry_point="safe_bc.envs.rehab:RehabPathwayEnv",
-        max_episode_steps=DEFAULT_N_SESSIONS,
-    )
-
-
 __all__ = [
     "DEFAULT_N_SESSIONS",
     "OBS_INDEX",
     "OBS_NAMES",
-    "REHAB_ENV_ID",
     "REHAB_SAFETY_DIMS",
     "RehabConfig",
     "RehabPathwayEnv",
@@ -705,7 +683,6 @@ __all__ = [
     "is_violation",
     "karvonen_target_hr",
     "prescription_to_action",
-    "register_rehab",
     "rehab_costs",
     "rehab_safety",
     "sample_patient",

@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
 
+from safe_bc.envs.factory import REHAB_ID, register_envs
 from safe_bc.envs.rehab import (
     DEFAULT_N_SESSIONS,
     OBS_INDEX,
     OBS_NAMES,
-    REHAB_ENV_ID,
     REHAB_SAFETY_DIMS,
     RehabConfig,
     RehabPathwayEnv,
@@ -26,7 +26,6 @@ from safe_bc.envs.rehab import (
     is_violation,
     karvonen_target_hr,
     prescription_to_action,
-    register_rehab,
     rehab_costs,
     rehab_safety,
     sample_patient,
@@ -57,18 +56,18 @@ def _rollout(env: gym.Env, seed: int, actions: np.ndarray) -> dict[str, np.ndarr
 
 # ------------------------------------------------------------------ gym contract
 def test_check_env_passes_without_warnings() -> None:
-    register_rehab()
-    env = gym.make(REHAB_ENV_ID)
+    register_envs()
+    env = gym.make(REHAB_ID)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         check_env(env.unwrapped)
 
 
 def test_register_is_idempotent_and_limits_episode_to_programme() -> None:
-    register_rehab()
-    register_rehab()
-    assert gym.spec(REHAB_ENV_ID).max_episode_steps == DEFAULT_N_SESSIONS
-    env = gym.make(REHAB_ENV_ID)
+    register_envs()
+    register_envs()
+    assert gym.spec(REHAB_ID).max_episode_steps == DEFAULT_N_SESSIONS
+    env = gym.make(REHAB_ID)
     assert env.get_wrapper_attr("safety_dims") == REHAB_SAFETY_DIMS
     env.reset(seed=0)
     for t in range(DEFAULT_N_SESSIONS):

@@ -8,15 +8,14 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
+from safe_bc.envs.factory import REHAB_ID, register_envs
 from safe_bc.envs.rehab import (
     DEFAULT_N_SESSIONS,
     OBS_INDEX,
     OBS_NAMES,
-    REHAB_ENV_ID,
     REHAB_SAFETY_DIMS,
     RehabPathwayEnv,
     action_to_prescription,
-    register_rehab,
     sample_patient,
 )
 from safe_bc.experts.rehab import ConstantPrescription, GuidelineConfig, GuidelineExpert
@@ -174,8 +173,8 @@ def test_guideline_is_not_optimal() -> None:
 
 def test_rollout_records_a_safe_episode() -> None:
     rollout = pytest.importorskip("safe_bc.rollout")
-    register_rehab()
-    env = gym.make(REHAB_ENV_ID)
+    register_envs()
+    env = gym.make(REHAB_ID)
     episode = rollout.run_episode(env, GuidelineExpert(), seed=3, rng=np.random.default_rng(0))
     assert len(episode) == DEFAULT_N_SESSIONS
     assert episode.safety_dims == REHAB_SAFETY_DIMS
