@@ -569,6 +569,33 @@ def paired_crossed(
     return pd.DataFrame(rows)
 
 
+def paired_to_reference(
+    episodes: pd.DataFrame,
+    reference: str,
+    metrics: Sequence[str],
+    *,
+    by: str = "method",
+    seeds: str = "train_seed",
+    **kwargs: object,
+) -> pd.DataFrame:
+    """:func:`paired_crossed` against a policy evaluated once on the same tracks (e.g. the
+    expert, not trained per seed): its episode on each track stands beside every training
+    seed's, so ``D[s, t] = method[s, t] - reference[t]``, resampled over seeds and tracks.
+
+    >>> df = pd.DataFrame({"method": ["e", "e", "a", "a", "a", "a"],
+    ...     "train_seed": [-1, -1, 0, 0, 1, 1], "env_seed": [1, 2, 1, 2, 1, 2],
+    ...     "reward": [10.0, 20.0, 11.0, 21.0, 13.0, 23.0]})
+    >>> paired_to_reference(df, "e", ["reward"])[["method", "d_reward", "n_pairs"]].to_dict(
+    ...     "records")
+    [{'method': 'a', 'd_reward': 2.0, 'n_pairs': 4}]
+    """
+    ref = episodes[episodes[by] == reference]
+    others = episodes[episodes[by] != reference]
+    copies = [ref.assign(**{seeds: s}) for s in sorted(others[seeds].unique())]
+    both = pd.concat([others, *copies], ignore_index=True)
+    return paired_crossed(both, reference, metrics, by=by, seeds=seeds, **kwargs)  # type: ignore[arg-type]
+
+
 # --- one-sided bounds: what a sample certifies --------------------------------------------------
 
 

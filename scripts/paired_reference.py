@@ -1,0 +1,64 @@
+"""Every policy of an improvement table against the expert on the same tracks (or patients).
+
+Usage::
+
+    .venv/bin/python -m scripts.paired_reference results/improve/carracing
+
+Reads ``episodes.parquet`` of each folder (written by ``scripts.improve_carracing`` /
+``scripts.improve_rehab``: the expert evaluated once, every other policy per training seed, all
+on the same tracks) and writes ``paired_expert.parquet`` beside it:
+:func:`safe_bc.metrics.paired_to_reference` (crossed bootstrap over training seeds and tracks,
+bootstrap seed 0) of reward, violation steps and the share of episodes beyond ``d_s``. Prints
+a Markdown table per folder. Nothing is rerun.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import pandas as pd
+
+from safe_bc.data.store import read_table, write_table_atomic
+from safe_bc.metrics import paired_to_reference
+from safe_bc.provenance import run_metadata
+
+METRICS = ("reward", "violation_steps", "any_violation", "violating_sessions")
+"""Compared where the episodes hold them (``violating_sessions``: the rehab replay's)."""
+
+
+def ci(r: pd.Series, m: str, digits: int) -> str:
+    """``+d [lo, hi]``."""
+    return f"{r[f'd_{m}']:+.{digits}f} [{r[f'd_{m}_lo']:+.{digits}f}, {r[f'd_{m}_hi']:+.{digits}f}]"
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("folders", type=Path, nargs="+", help="improvement result folders")
+    p.add_argument("--reference", default="expert", help="the policy evaluated once")
+    args = p.parse_args(argv)
+    for folder in args.folders:
+        episodes, meta = read_table(folder / "episodes.parquet")
+        metrics = [m for m in METRICS if m in episodes and episodes[m].notna().any()]
+        paired = paired_to_reference(episodes, args.reference, metrics, seed=0)
+        out_meta = run_metadata(
+            reference=args.reference,
+            bootstrap_seed=0,
+            source={"table": str(folder / "episodes.parquet"), "command": meta.get("command"),
+                    "git_revision": meta.get("git_revision")},
+        )  # fmt: skip
+        write_table_atomic(folder / f"paired_{args.reference}.parquet", paired, out_meta)
+        view = pd.DataFrame({"method": paired["method"], "pairs": paired["n_pairs"]})
+        for m in metrics:
+            view[f"{m} - {args.reference}"] = [ci(r, m, 3 if "any" in m else 1)
+                                               for _, r in paired.iterrows()]  # fmt: skip
+        view["seeds better (reward)"] = (
+            paired["seeds_better"].astype(str) + " / " + paired["n_seeds_paired"].astype(str)
+        )
+        print(f"## {folder}\n\n{view.to_markdown(index=False)}\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
