@@ -5,33 +5,17 @@ This is what a row of Table 1 and every study trial does before evaluation.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
-from safe_bc.bc import BCConfig, TrainResult, sampler_for, train_bc
+from safe_bc.bc import TrainResult, sampler_for, train_bc
 from safe_bc.bc.train import LogFn
 from safe_bc.demos import Demonstrations
+from safe_bc.run_config import RunConfig as RunConfig
 from safe_bc.selection import Selection, SelectionConfig, select
-
-
-@dataclass(frozen=True)
-class RunConfig:
-    """Everything that defines a trained safety-imitation agent."""
-
-    selection: SelectionConfig = field(default_factory=SelectionConfig)
-    """eps, alpha and the eq. 5 reading, or a peer baseline (``mode``: ``"bc_safe"`` with its
-    ``segment_steps``, ``"cost_weighted"`` with its ``beta``); a study searches them as
-    ``selection.mode``, ``selection.segment_steps``, ``selection.beta``."""
-    bc: BCConfig = field(default_factory=BCConfig)
-    """Preprocessing, network and training (its ``train.seed`` is the training seed)."""
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-able nested dict."""
-        return {"selection": self.selection.to_dict(), "bc": self.bc.to_dict()}
 
 
 def select_for(demos: Demonstrations, config: SelectionConfig) -> Selection:

@@ -35,8 +35,8 @@ import numpy as np
 import pandas as pd
 
 from safe_bc.envs import EnvConfig
-from safe_bc.experiment import RunConfig
 from safe_bc.improve.config import ImproveConfig
+from safe_bc.run_config import RunConfig
 from safe_bc.selection import DEFAULT_EPS
 from safe_bc.stages import STAGE_METRICS, STAGES, Stage, stage_of
 

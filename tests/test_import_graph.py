@@ -138,7 +138,7 @@ def hidden_cycles(top: dict[str, set[str]], local: dict[str, dict[str, int]]) ->
 
 def test_graph_sees_the_package():
     top, _ = graph()
-    assert "safe_bc.bc.checkpoint" in top["safe_bc.bc"]
+    assert "safe_bc.bc.config" in top["safe_bc.bc"]  # the rest of bc loads lazily (PEP 562)
     assert "safe_bc.bc.net" in top["safe_bc.bc.checkpoint"]
     assert len(top) > 30
 

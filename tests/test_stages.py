@@ -32,14 +32,18 @@ def test_stage_metrics_are_distinct_and_not_core_metrics() -> None:
     assert len(set(TRIAL_METRICS)) == len(TRIAL_METRICS)
 
 
-def test_reading_a_study_file_imports_no_runner() -> None:
-    """Runners (torch, RL) load only when a stage runs."""
+def test_reading_study_files_imports_no_torch_and_no_runner() -> None:
+    """Every study file reads without torch; runners (torch, RL) load only when a stage runs."""
     import subprocess
     import sys
+    from pathlib import Path
 
+    jobs = sorted(str(p) for p in (Path(__file__).parents[1] / "tune_jobs").glob("*.py"))
     code = (
-        "import sys, safe_bc.study, safe_bc.stages; "
-        "print(any(m.startswith('safe_bc.improve.stage') for m in sys.modules))"
+        "import sys; from safe_bc.study import load_study; "
+        f"[load_study(f) for f in {jobs!r}]; "
+        "print('torch' in sys.modules, any(m.startswith('safe_bc.improve.stage') for m in "
+        "sys.modules))"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
-    assert out.stdout.strip() == "False"
+    assert out.stdout.strip() == "False False"

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from safe_bc.experiment import RunConfig
 from safe_bc.improve import ImproveConfig, ImprovedSource, improve_from_net
+from safe_bc.run_config import RunConfig
 from safe_bc.study import Choice, Float, StudySpec, load_study, split_params
 
 REPO = Path(__file__).resolve().parents[1]

@@ -14,7 +14,7 @@ Run: ``make tune STUDY=rehab`` (or ``safe-bc tune tune_jobs/rehab.py``); rerun t
 from pathlib import Path
 
 from safe_bc.bc import BCConfig, NetworkConfig
-from safe_bc.experiment import RunConfig
+from safe_bc.run_config import RunConfig
 from safe_bc.study import Choice, Float, StudySpec
 from safe_bc.tasks import task_defaults
 

@@ -21,8 +21,8 @@ from dataclasses import replace
 from pathlib import Path
 
 from safe_bc.bc import BCConfig
-from safe_bc.experiment import RunConfig
 from safe_bc.improve import ImproveConfig
+from safe_bc.run_config import RunConfig
 from safe_bc.selection import SelectionConfig
 from safe_bc.study import Choice, Float, load_study
 from safe_bc.tasks import task_defaults

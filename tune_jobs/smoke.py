@@ -6,7 +6,7 @@ the demonstrations).
 """
 
 from safe_bc.bc import BCConfig, NetworkConfig
-from safe_bc.experiment import RunConfig
+from safe_bc.run_config import RunConfig
 from safe_bc.study import Choice, Float, StudySpec
 
 STUDY = StudySpec(

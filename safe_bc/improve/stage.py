@@ -7,9 +7,9 @@ from pathlib import Path
 from typing import Any
 
 from safe_bc.bc.net import BCNet
-from safe_bc.experiment import RunConfig
 from safe_bc.improve.config import ImproveConfig
 from safe_bc.improve.run import improve_from_net
+from safe_bc.run_config import RunConfig
 
 
 def run_stage(

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import torch
 
-from safe_bc.bc import PreprocessConfig, frame_stack_index, gather_inputs, input_shape, preprocess
-from safe_bc.bc.preprocess import preprocess_frames, stack, standardization_stats
+from safe_bc.bc import PreprocessConfig, frame_stack_index, gather_inputs, input_shape
+from safe_bc.bc.preprocess import preprocess, preprocess_frames, stack, standardization_stats
 
 from .synth import frame_demos
 
