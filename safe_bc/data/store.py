@@ -421,3 +421,44 @@ def read_episodes(root: Path, ids: Iterable[int] | None = None) -> list[Episode]
 def load_demonstrations(root: Path) -> Demonstrations:
     """Read a whole dataset into the flat arrays used for training."""
     return Demonstrations.from_episodes(read_episodes(root))
+
+
+# --- experiment storage: the pyarrow filesystems Ray Tune keeps a study on -----------------
+
+
+def subfolders(fs: Any, folder: str, prefix: str = "") -> list[tuple[str, str]]:
+    """``(path, name)`` of the folders directly inside ``folder`` on the ``pyarrow.fs``
+    filesystem ``fs`` whose name starts with ``prefix`` (none when ``folder`` is absent)."""
+    import pyarrow.fs as pafs
+
+    infos = fs.get_file_info(pafs.FileSelector(folder, allow_not_found=True))
+    return [
+        (i.path, i.base_name)
+        for i in infos
+        if i.type == pafs.FileType.Directory and i.base_name.startswith(prefix)
+    ]
+
+
+def storage_folders(uri: str, prefix: str = "") -> tuple[Any, list[tuple[str, str]]]:
+    """The filesystem of ``uri`` (a local path or e.g. ``s3://...``) and
+    :func:`subfolders` of it."""
+    import pyarrow.fs as pafs
+
+    fs, root = pafs.FileSystem.from_uri(uri)
+    return fs, subfolders(fs, root, prefix)
+
+
+def delete_storage_tree(uri: str) -> None:
+    """Delete the folder at ``uri`` (a local path or a URI) with everything in it, if present."""
+    import pyarrow.fs as pafs
+
+    fs, path = pafs.FileSystem.from_uri(uri)
+    if fs.get_file_info(path).type != pafs.FileType.NotFound:
+        fs.delete_dir(path)
+
+
+def is_local_filesystem(fs: Any) -> bool:
+    """Whether the ``pyarrow.fs`` filesystem ``fs`` is this machine's disk."""
+    import pyarrow.fs as pafs
+
+    return isinstance(fs, pafs.LocalFileSystem)

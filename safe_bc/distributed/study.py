@@ -31,7 +31,7 @@ from ray.tune.utils import flatten_dict
 from safe_bc.atomic import write_json_atomic
 from safe_bc.bc import load_checkpoint
 from safe_bc.bc.net import BCNet
-from safe_bc.data.store import read_meta, write_table_atomic
+from safe_bc.data.store import delete_storage_tree, read_meta, storage_folders, write_table_atomic
 from safe_bc.distributed.final import FinalOutcome, final_phase
 from safe_bc.distributed.runtime import ensure_ray
 from safe_bc.distributed.search import (
@@ -132,11 +132,7 @@ def experiment_location(spec: StudySpec) -> tuple[str, str]:
 
 
 def _delete_tree(path: str) -> None:
-    import pyarrow.fs as pafs
-
-    fs, p = pafs.FileSystem.from_uri(path)
-    if fs.get_file_info(p).type != pafs.FileType.NotFound:
-        fs.delete_dir(p)
+    delete_storage_tree(path)
 
 
 def _check_env(spec: StudySpec, demos: Path) -> None:
@@ -225,14 +221,12 @@ def _study_history(history: pd.DataFrame, trials: pd.DataFrame) -> tuple[pd.Data
 def _remove_orphan_trial_dirs(exp_path: str, known: set[str]) -> list[str]:
     """Delete the ``trial_<id>`` folders of trials the experiment does not know (see
     :func:`_study_history`) and return their ids."""
-    import pyarrow.fs as pafs
-
-    fs, root = pafs.FileSystem.from_uri(exp_path)
+    fs, folders = storage_folders(exp_path, prefix="trial_")
     orphans = []
-    for info in fs.get_file_info(pafs.FileSelector(root, allow_not_found=True)):
-        tid = info.base_name.removeprefix("trial_")
-        if info.type == pafs.FileType.Directory and info.base_name != tid and tid not in known:
-            fs.delete_dir(info.path)
+    for path, name in folders:
+        tid = name.removeprefix("trial_")
+        if tid not in known:
+            fs.delete_dir(path)
             orphans.append(tid)
     return sorted(orphans)
 

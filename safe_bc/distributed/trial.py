@@ -30,7 +30,7 @@ from ray import tune
 from safe_bc.bc import CheckpointError, load_checkpoint, read_checkpoint_meta
 from safe_bc.bc.net import BCNet
 from safe_bc.bc.train import training_threads
-from safe_bc.data.store import load_demonstrations
+from safe_bc.data.store import is_local_filesystem, load_demonstrations, subfolders
 from safe_bc.demos import Demonstrations
 from safe_bc.distributed.evaluate import evaluate
 from safe_bc.distributed.search import ROUND, SCORE, SCREENED, screen_score
@@ -214,14 +214,7 @@ def stored_checkpoint(
     """The newest complete checkpoint among the ``checkpoint_*`` folders of a trial's folder
     ``folder`` on the ``pyarrow`` filesystem ``fs``: its net and ``extra`` (``None``: none);
     with ``all_seeds`` the list of every training seed's net instead of the first's."""
-    import pyarrow.fs as pafs
-
-    infos = fs.get_file_info(pafs.FileSelector(folder, allow_not_found=True))
-    dirs = [
-        i.path
-        for i in infos
-        if i.type == pafs.FileType.Directory and i.base_name.startswith("checkpoint_")
-    ]
+    dirs = [path for path, _ in subfolders(fs, folder, prefix="checkpoint_")]
     load = _load_seeds if all_seeds else _load
     for d in sorted(dirs, reverse=True):
         try:
@@ -250,10 +243,8 @@ def resume_point() -> tuple[list[BCNet], dict[str, Any]] | None:
 def trial_folder() -> Path:
     """A folder of this trial that outlives retries and a resumed study: inside the trial's
     folder of the storage when that is local, else the trial's local folder."""
-    import pyarrow.fs as pafs
-
     storage = tune.get_context().get_storage()
-    if isinstance(storage.storage_filesystem, pafs.LocalFileSystem):
+    if is_local_filesystem(storage.storage_filesystem):
         return Path(storage.trial_fs_path)
     return Path(tune.get_context().get_trial_dir())
 
