@@ -850,3 +850,32 @@ def plot_pareto(
     ax.legend(fontsize=8, loc="best")
     ax.grid(alpha=0.3)
     return save_figure(fig, path)
+
+
+# --- what batched suggestions cost in wall-clock -------------------------------------------------
+
+
+def schedule_seconds(
+    durations: Sequence[float], slots: int, batch_size: int | None = None
+) -> float:
+    """Wall-clock of running trials of these ``durations`` (in suggestion order) on ``slots``
+    concurrent slots: each trial starts on the first free slot; with ``batch_size`` a batch's
+    trials start only once every trial of the previous batch has finished (the study's
+    deterministic batches). Start-up and the sampler's own time are left out.
+
+    >>> schedule_seconds([10, 1, 1, 10], slots=2), schedule_seconds([10, 1, 1, 10], 2, 2)
+    (12.0, 20.0)
+    """
+    if slots < 1:
+        raise ValueError(f"slots must be >= 1, got {slots}")
+    size = len(durations) if batch_size is None else batch_size
+    if size < 1:
+        raise ValueError(f"batch_size must be >= 1 or None, got {batch_size}")
+    start = 0.0
+    for i in range(0, len(durations), size):
+        free = [start] * slots
+        for d in durations[i : i + size]:
+            j = int(np.argmin(free))
+            free[j] += float(d)
+        start = max(free)
+    return start
