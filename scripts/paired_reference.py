@@ -3,10 +3,12 @@
 Usage::
 
     .venv/bin/python -m scripts.paired_reference results/improve/carracing
+    .venv/bin/python -m scripts.paired_reference results/table1_episodes.parquet
 
 Reads ``episodes.parquet`` of each folder (written by ``scripts.improve_carracing`` /
-``scripts.improve_rehab``: the expert evaluated once, every other policy per training seed, all
-on the same tracks) and writes ``paired_expert.parquet`` beside it:
+``scripts.improve_rehab``), or the episode table named (Table 1's): the expert evaluated once,
+every other policy per training seed, all on the same tracks. Writes ``paired_expert.parquet``
+beside it (for a named table ``<stem>_paired_expert.parquet``):
 :func:`safe_bc.metrics.paired_to_reference` (crossed bootstrap over training seeds and tracks,
 bootstrap seed 0) of reward, violation steps and the share of episodes beyond ``d_s``. Prints
 a Markdown table per folder. Nothing is rerun.
@@ -35,20 +37,25 @@ def ci(r: pd.Series, m: str, digits: int) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("folders", type=Path, nargs="+", help="improvement result folders")
+    p.add_argument("folders", type=Path, nargs="+",
+                   help="improvement result folders, or episode tables (.parquet)")  # fmt: skip
     p.add_argument("--reference", default="expert", help="the policy evaluated once")
     args = p.parse_args(argv)
     for folder in args.folders:
-        episodes, meta = read_table(folder / "episodes.parquet")
+        source = folder if folder.suffix == ".parquet" else folder / "episodes.parquet"
+        target = (folder.with_name(f"{folder.stem}_paired_{args.reference}.parquet")
+                  if folder.suffix == ".parquet"
+                  else folder / f"paired_{args.reference}.parquet")  # fmt: skip
+        episodes, meta = read_table(source)
         metrics = [m for m in METRICS if m in episodes and episodes[m].notna().any()]
         paired = paired_to_reference(episodes, args.reference, metrics, seed=0)
         out_meta = run_metadata(
             reference=args.reference,
             bootstrap_seed=0,
-            source={"table": str(folder / "episodes.parquet"), "command": meta.get("command"),
+            source={"table": str(source), "command": meta.get("command"),
                     "git_revision": meta.get("git_revision")},
         )  # fmt: skip
-        write_table_atomic(folder / f"paired_{args.reference}.parquet", paired, out_meta)
+        write_table_atomic(target, paired, out_meta)
         view = pd.DataFrame({"method": paired["method"], "pairs": paired["n_pairs"]})
         for m in metrics:
             view[f"{m} - {args.reference}"] = [ci(r, m, 3 if "any" in m else 1)
