@@ -571,7 +571,9 @@ def _run_study(
 
     candidates = choose_candidates(trials, spec.final_candidates, spec.objective)
     checkpoints = _checkpoints(grid, list(candidates["trial_id"]))
+    t0 = time.perf_counter()
     final = final_phase(spec, job, candidates, checkpoints, demos, progress=progress)
+    meta = {**meta, "final_phase_seconds": round(time.perf_counter() - t0, 1)}
     _write_final(spec, final, candidates, meta)
     plot_pareto(
         trials,
