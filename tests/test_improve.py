@@ -189,3 +189,28 @@ def test_a_finished_run_is_returned_untouched_without_its_state(start, tmp_path)
     pd.testing.assert_frame_equal(again.history, done.history)
     longer = improve(start, tmp_path / "run", replace(TINY, iterations=TINY.iterations + 1))
     assert longer.resumed_at == 0  # another config: no finished run of it, a fresh one
+
+
+def test_carracing_zoom_in_frames_carry_no_cost() -> None:
+    """The improvement engine must not charge the zoom-in (the evaluation path does not score
+    it): a LocalEnvs step reports zero costs while ``info["warmup"]``, the env's costs after."""
+    import numpy as np
+
+    from safe_bc.envs import EnvConfig, make_env
+    from safe_bc.envs.factory import CARRACING_ID
+    from safe_bc.improve import LocalEnvs
+
+    group, plain = LocalEnvs(CARRACING_ID, 1), make_env(EnvConfig(CARRACING_ID))
+    try:
+        group.reset([3])
+        plain.reset(seed=3)
+        action = np.zeros((1, 3), np.float32)
+        for _ in range(60):
+            cost = group.step([0], action)[0][4]
+            info = plain.step(action[0])[4]
+            expected = np.zeros(3) if info["warmup"] else np.asarray(info["cost"], np.float64)
+            np.testing.assert_array_equal(cost, expected)
+        assert not info["warmup"] and np.asarray(info["cost"]).any()
+    finally:
+        group.close()
+        plain.close()

@@ -30,7 +30,21 @@ def validation_seeds(n: int) -> list[int]:
 # --------------------------------------------------------------------------- the envs
 StepOut = tuple[np.ndarray, float, bool, bool, np.ndarray]
 """One env step: ``(next_obs, reward, terminated, truncated, cost)``, ``cost`` of shape
-``(S,)`` (the env's ``info["cost"]``, the true costs of ``next_obs``)."""
+``(S,)`` (the env's ``info["cost"]``, the true costs of ``next_obs``; zero on warm-up
+frames, :func:`step_cost`)."""
+
+
+def step_cost(info: dict) -> np.ndarray:
+    """The costs a step is charged: ``info["cost"]``, or zeros while ``info["warmup"]`` (the
+    CarRacing zoom-in, whose pixel distances are not the road's: the evaluation path does not
+    score those frames either, so neither do the Lagrangian's cost, the violation counts nor
+    the validation that picks the kept iteration).
+
+    >>> step_cost({"cost": [50.0, 1.0], "warmup": True}).tolist(), step_cost({"cost": [2.0]})
+    ([0.0, 0.0], array([2.]))
+    """
+    cost = np.asarray(info["cost"], np.float64)
+    return np.zeros_like(cost) if info.get("warmup", False) else cost
 
 
 class EnvsLostError(RuntimeError):
@@ -85,9 +99,7 @@ class LocalEnvs:
         out = []
         for i, a in zip(index, actions, strict=True):
             nobs, r, term, trunc, info = self.envs[i].step(a)
-            out.append(
-                (nobs, float(r), bool(term), bool(trunc), np.asarray(info["cost"], np.float64))
-            )
+            out.append((nobs, float(r), bool(term), bool(trunc), step_cost(info)))
         return out
 
     def restart(self) -> None:
