@@ -34,7 +34,7 @@ from safe_bc.demos import Demonstrations
 from safe_bc.distributed.evaluate import evaluate
 from safe_bc.distributed.runtime import cluster_cpus, ensure_ray
 from safe_bc.distributed.train import train_many
-from safe_bc.distributed.trial import TrialJob, bounds_for, trial_threads
+from safe_bc.distributed.trial import TrialJob, bounds_for, trial_threads, with_seed
 from safe_bc.evaluation import EvalConfig, ExpertSource, NetSource
 from safe_bc.experiment import RunConfig, train_run
 from safe_bc.metrics import (
@@ -83,12 +83,6 @@ def final_workers(spec: StudySpec) -> int:
         return spec.final_workers
     ensure_ray()
     return max(1, int(cluster_cpus()))
-
-
-def with_seed(cfg: RunConfig, seed: int) -> RunConfig:
-    """``cfg`` with another training seed."""
-    train = dataclasses.replace(cfg.bc.train, seed=seed)
-    return dataclasses.replace(cfg, bc=dataclasses.replace(cfg.bc, train=train))
 
 
 def _train(
