@@ -94,6 +94,18 @@ class BatchBuilder:
         x = self._cached_frames(idx)
         return x if k == 1 else stack(x, k)
 
+    def prefill(self, rows: np.ndarray) -> None:
+        """Preprocess the frames that ``rows (B,)`` need into the cache now (with ``cache_chunk``;
+        a no-op without): the same values as filling them on first use, so a training loop can
+        keep preprocessing out of its timed batches."""
+        if self.cache_chunk is None:
+            return
+        rows = np.asarray(rows, np.int64)
+        idx = rows if self.stack_index is None else self.stack_index[rows].reshape(-1)
+        missing = idx[~self._cached[idx]]
+        if missing.size:
+            self._fill(np.unique(missing))
+
     def targets(self, rows: np.ndarray) -> torch.Tensor:
         """``rows (B,) -> (B, A) float32`` expert actions."""
         return self.actions[torch.as_tensor(rows)]
@@ -156,6 +168,8 @@ class TrainResult:
         losses: ``(K,) float64`` mean training loss over the batches since the previous log.
         seconds: wall time of the training loop.
         samples_per_s: ``batches * batch_size / seconds``.
+        prepare_seconds: wall time spent before the loop preprocessing the frames the sampler
+            can draw into the frame cache (0 when the dataset is too big to cache).
     """
 
     model: BCNet
@@ -164,6 +178,7 @@ class TrainResult:
     losses: np.ndarray
     seconds: float
     samples_per_s: float
+    prepare_seconds: float = 0.0
 
     @property
     def final_loss(self) -> float:
@@ -183,6 +198,7 @@ class TrainResult:
             "final_loss": self.final_loss,
             "seconds": self.seconds,
             "samples_per_s": self.samples_per_s,
+            "prepare_seconds": self.prepare_seconds,
         }
 
     def save(self, directory: str | Path, extra: dict[str, Any] | None = None) -> Path:
@@ -280,10 +296,14 @@ def train_bc(
     train_cfg = replace(train_cfg, num_threads=training_threads(train_cfg))  # recorded
     spec = ModelSpec.for_data(demos.observations.shape[1:], n_actions, action_bounds)
     # frames preprocessed once each, in calls shaped like one batch's (same values, see
-    # BatchBuilder); inside the timed loop, where the first batches fill the cache
+    # BatchBuilder), before the timed loop: the rows the sampler can draw (rows outside
+    # ``valid`` that a batch still asks for are filled on first use)
     cache = BatchBuilder.cache_bytes(demos, pre_cfg) <= CACHE_LIMIT_BYTES
     chunk = train_cfg.batch_size * pre_cfg.frame_stack
     builder = BatchBuilder(demos, pre_cfg, cache_chunk=chunk if cache else None, reuse_output=True)
+    prepare_start = time.perf_counter()
+    builder.prefill(np.flatnonzero(sampler.valid))
+    prepare_seconds = time.perf_counter() - prepare_start
     sampler = sampler.with_rng(np.random.default_rng(train_cfg.seed))
     log_steps: list[int] = []
     losses: list[float] = []
@@ -330,6 +350,7 @@ def train_bc(
         losses=np.asarray(losses, np.float64),
         seconds=seconds,
         samples_per_s=train_cfg.batches * train_cfg.batch_size / seconds,
+        prepare_seconds=prepare_seconds,
     )
 
 
