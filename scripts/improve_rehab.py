@@ -61,6 +61,10 @@ LABELS = {
 }
 START_ARGS = ["--alpha", "0.5"]
 """How the starts are trained (with ``--seed k``; the rest are ``safe-bc train`` defaults)."""
+SHIELD_EPS = 0.1
+"""Width of the shield's critical zone on the rehab pathway (``ImproveConfig.eps``; the
+start's selection eps, 0.05, when unset): the margin sweep's choice, shield + Lagrangian with
+``cost_margin`` 0.05 and this zone (``results/improve/rehab/sweep/margin_sweep.md``)."""
 
 
 def ensure_start(demos: Path, out: Path, seed: int, start_args: list[str] = START_ARGS) -> Path:
@@ -266,8 +270,9 @@ def markdown(summary: pd.DataFrame, paired: pd.DataFrame, meta: dict[str, Any]) 
         "bootstrap seed 0]. Limits d_s "
         f"(worst guideline cost in {meta['demos']}): {meta['limits_text']}. The Lagrangian "
         f"charges sessions beyond d_s - {meta['config']['cost_margin']} (`cost_margin`: a "
-        "safety margin inside d_s, chosen on selection patients disjoint from these, see "
-        "[sweep/margin_sweep.md](sweep/margin_sweep.md)).",
+        "safety margin inside d_s) and the shield acts within "
+        f"{meta['config']['eps']} of d_s (`eps`), both chosen on selection patients disjoint "
+        "from these, see [sweep/margin_sweep.md](sweep/margin_sweep.md).",
         "",
         "| method | capacity gain (reward) | gain - guideline, paired | safety mean | "
         "sessions beyond d_s / patient | patients with a session beyond d_s | "
@@ -326,13 +331,19 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--iterations", type=int, default=None, help="override the config's")
     p.add_argument("--demos", type=Path, default=Path("data/rehab_demos"))
     p.add_argument("--out", type=Path, default=Path("results/improve/rehab"))
+    p.add_argument(
+        "--processes",
+        type=int,
+        default=0,
+        help="run the improvement runs in N local processes (0: one after another)",
+    )
     p.add_argument("--quiet", action="store_true")
     args = p.parse_args(argv)
     command = shlex.join([sys.executable.rsplit("/", 1)[-1], "-m", "scripts.improve_rehab",
                           *(sys.argv[1:] if argv is None else argv)])  # fmt: skip
 
     task = task_defaults("rehab")
-    base = ImproveConfig()
+    base = ImproveConfig(eps=SHIELD_EPS)
     if args.iterations is not None:
         base = replace(base, iterations=args.iterations)
     demos = load_demonstrations(args.demos)
@@ -343,7 +354,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{mode} seed {k}: {int(row['iteration'])} iterations", flush=True)
 
     trained, histories = run_modes(args.demos, args.out, args.seeds, args.modes, base, command,
-                                   on_iteration=report)  # fmt: skip
+                                   on_iteration=report, processes=args.processes)  # fmt: skip
     sources: dict[str, Any] = {"expert": ExpertSource(task.expert), **trained}
     start = args.out / "starts" / f"seed{args.seeds[-1]}"
 
