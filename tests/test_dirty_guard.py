@@ -8,7 +8,7 @@ import pandas as pd
 import pytest
 
 from safe_bc import provenance
-from safe_bc.data.store import read_table, write_table_atomic
+from safe_bc.data.store import read_table, read_table_metadata, write_table_atomic
 
 
 @pytest.fixture
@@ -54,3 +54,43 @@ def test_tables_elsewhere_and_clean_trees_are_not_checked(results, tmp_path, mon
 
 def test_the_real_results_folder_is_the_checkouts() -> None:
     assert Path(provenance.__file__).resolve().parents[1] / "results" == provenance.RESULTS
+
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _dirty_revisions(value: object) -> list[str]:
+    """Every ``git_revision`` ending in ``-dirty`` anywhere in a metadata tree."""
+    if isinstance(value, dict):
+        found = [v for k, v in value.items() if k == "git_revision" and str(v).endswith("-dirty")]
+        return found + [r for v in value.values() for r in _dirty_revisions(v)]
+    if isinstance(value, list):
+        return [r for v in value for r in _dirty_revisions(v)]
+    return []
+
+
+def test_no_committed_result_records_a_dirty_revision() -> None:
+    """Every table and report under results/ comes from a clean commit, or says why not
+    (a ``dirty_tree`` allowance recorded by ``$SAFE_BC_ALLOW_DIRTY``)."""
+    tables = sorted((REPO / "results").rglob("*.parquet"))
+    assert tables, "no result tables found"
+    unexplained = []
+    for path in tables:
+        meta = read_table_metadata(path)
+        if _dirty_revisions(meta) and "dirty_tree" not in meta:
+            unexplained.append(str(path.relative_to(REPO)))
+    for path in sorted((REPO / "results").rglob("*.md")):
+        if "-dirty`" in path.read_text() or '-dirty"' in path.read_text():
+            unexplained.append(str(path.relative_to(REPO)))
+    assert not unexplained, f"result files from a dirty tree: {unexplained}"
+
+
+def test_the_dirty_scan_finds_a_dirty_revision(tmp_path: Path) -> None:
+    """The scan above can fail: a nested ``-dirty`` revision is found."""
+    write_table_atomic(
+        tmp_path / "t.parquet",
+        pd.DataFrame({"x": [1]}),
+        {"provenance": {"git_revision": "abc123-dirty"}},
+    )
+    assert _dirty_revisions(read_table_metadata(tmp_path / "t.parquet")) == ["abc123-dirty"]
+    assert read_table_metadata(tmp_path / "t.parquet")["provenance"]["git_revision"]

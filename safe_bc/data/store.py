@@ -170,6 +170,18 @@ def read_table(path: Path) -> tuple[Any, dict[str, Any]]:
     return table.to_pandas(), meta
 
 
+def read_table_metadata(path: Path) -> dict[str, Any]:
+    """The JSON metadata :func:`write_table_atomic` embedded in ``path`` (``{}`` if none),
+    without reading the rows."""
+    path = Path(path)
+    try:
+        schema_meta = pq.read_metadata(path).metadata or {}
+    except (pa.ArrowException, OSError) as e:
+        raise DatasetError(f"{path}: not a readable Parquet file ({_first_line(e)})") from None
+    raw = schema_meta.get(META_KEY)
+    return json.loads(raw) if raw else {}
+
+
 def init_dataset(root: Path, meta: DatasetMeta) -> DatasetMeta:
     """Create ``root`` for ``meta`` or check that an existing dataset there matches it.
 
