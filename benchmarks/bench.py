@@ -267,7 +267,7 @@ def bench_env(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
     """Stock vs fast CarRacing steps/s (wall clock and CPU time) from ``bench_render``: the
     bare renderers, and ``make_env`` with each renderer (safety costs computed every step,
     gymnasium's wrappers), the default env against stock with the same costs."""
-    from benchmarks.bench_render import bench_render
+    from benchmarks.bench_render import bench_render, step_breakdown
 
     rows = {r["variant"]: r for r in bench_render(sizes.env_steps, repeats, seed, costs=True)}
     note = f"{sizes.env_steps} env.step calls per variant and repetition; pursuit driver"
@@ -299,6 +299,16 @@ def bench_env(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
                     cpu_note if cpu else text,
                 )
             )
+    parts = step_breakdown(sizes.env_steps, seed)
+    total = sum(parts.values())
+    part_note = (
+        f"cProfile own time over {sizes.env_steps} steps of make_env() (one run; the "
+        "profiler inflates the Python parts); ratio: share of the profiled step"
+    )
+    out.append(_self_row("env", "profiled step (make_env default)", [total], "ms/step", part_note))
+    for part, ms in parts.items():
+        row = _row("env", f"step part: {part}", [ms], "ms/step", None, part_note)
+        out.append({**row, "baseline": "profiled step (make_env default)", "ratio": ms / total})
     return out
 
 

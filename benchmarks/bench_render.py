@@ -151,6 +151,60 @@ def bench_render(
     ]
 
 
+STEP_PARTS: dict[str, tuple[str, ...]] = {
+    "polygons (gfxdraw aapolygon + filled_polygon)": (
+        "gfxdraw.aapolygon",
+        "gfxdraw.filled_polygon",
+    ),
+    "smoothscale (1000x800 -> 96x96)": ("transform.smoothscale",),
+    "Surface.fill (background)": ("'fill' of 'pygame.surface.Surface'",),
+    "car and indicators (pygame.draw.polygon)": ("pygame.draw.polygon",),
+    "physics (Box2D, car dynamics, contacts)": ("Box2D", "car_dynamics.py", "_contact"),
+    "safety costs (CarRacingSafety)": ("safe_bc/envs/safety.py", "safe_bc/envs/wrappers.py"),
+}
+"""Where a step of the default env goes: part -> substrings of cProfile's function labels
+(``file:line(function)`` or ``{built-in method ...}``); the rest is "other Python"."""
+
+
+def step_breakdown(steps: int = 300, seed: int = 0) -> dict[str, float]:
+    """Milliseconds per ``env.step`` of the default env (``make_env()``, fast renderer and
+    safety costs) in each of :data:`STEP_PARTS` and "other Python", from cProfile's own time
+    per function over ``steps`` steps of the pursuit driver (after a 60-step warm-up past the
+    zoom-in). The profiler's per-call overhead inflates the Python parts; the C parts
+    (drawing, scaling, physics) are close to their unprofiled cost."""
+    import cProfile
+    import pstats
+
+    from safe_bc.envs import make_env
+
+    env = make_env()
+    try:
+        driver = _PursuitDriver(env.unwrapped, seed)
+        env.reset(seed=seed)
+        driver.reset()
+        for _ in range(60):
+            env.step(driver())
+        profile = cProfile.Profile()
+        for _ in range(steps):
+            action = driver()
+            profile.enable()
+            _, _, terminated, truncated, _ = env.step(action)
+            profile.disable()
+            if terminated or truncated:
+                env.reset(seed=seed + 1)
+                driver.reset()
+    finally:
+        env.close()
+    parts = dict.fromkeys([*STEP_PARTS, "other Python"], 0.0)
+    for (file, line, name), (_, _, tottime, _, _) in pstats.Stats(profile).stats.items():
+        label = f"{file}:{line}({name})"
+        part = next(
+            (p for p, keys in STEP_PARTS.items() if any(k in label for k in keys)), "other Python"
+        )
+        parts[part] += 1000.0 * tottime / steps
+    return parts
+
+
 def main(argv: list[str] | None = None) -> None:
     """Print stock vs fast steps/s and their ratio (with ``--costs``, also through
     ``make_env`` with the safety costs)."""
