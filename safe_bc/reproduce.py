@@ -39,6 +39,7 @@ from safe_bc.evaluation import EvalConfig, ExpertSource, NetSource
 from safe_bc.experiment import RunConfig, save_selection, select_for
 from safe_bc.metrics import METRICS, combined, paired_crossed, summarize_crossed
 from safe_bc.provenance import run_metadata
+from safe_bc.report import fmt_ci
 from safe_bc.selection import RULES, Baseline, Rest, SelectionConfig
 from safe_bc.tasks import Task, dataset_action_bounds, task_defaults, task_of
 
@@ -412,9 +413,7 @@ def _metadata(config: ReproduceConfig) -> dict[str, Any]:
 
 
 def _fmt(row: pd.Series, m: str, digits: int = 1) -> str:
-    if pd.isna(row.get(m)):
-        return ""
-    return f"{row[m]:.{digits}f} [{row[m + '_lo']:.{digits}f}, {row[m + '_hi']:.{digits}f}]"
+    return fmt_ci(row, m, digits, blank_missing=True)
 
 
 def render_markdown(table: pd.DataFrame, meta: dict[str, Any], *, paper: bool = True) -> str:

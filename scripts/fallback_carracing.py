@@ -28,8 +28,9 @@ from typing import Any
 
 import pandas as pd
 
+from safe_bc.report import fmt_ci
 from scripts.eval_cache import evaluate_cached
-from scripts.improve_carracing import fmt_ci, summary_table
+from scripts.improve_carracing import summary_table
 from scripts.improve_rehab import split_policy, write_outputs
 
 LABELS = {

@@ -24,6 +24,7 @@ import pandas as pd
 from safe_bc.data.store import read_table, write_table_atomic
 from safe_bc.distributed.final import final_paired
 from safe_bc.provenance import run_metadata
+from safe_bc.report import fmt_ci
 
 
 def markdown(paired: pd.DataFrame) -> str:
@@ -31,12 +32,10 @@ def markdown(paired: pd.DataFrame) -> str:
     rows = []
     for _, r in paired.iterrows():
         row = {"method": r["method"], "vs": r["vs"], "pairs": int(r["n_pairs"]),
-               "reward, paired": f"{r['d_reward']:+.1f} [{r['d_reward_lo']:+.1f}, "
-                                 f"{r['d_reward_hi']:+.1f}]"}  # fmt: skip
+               "reward, paired": fmt_ci(r, "d_reward", 1, signed=True)}  # fmt: skip
         if "d_any_violation" in r:
-            row["share of episodes beyond d_s, paired"] = (
-                f"{r['d_any_violation']:+.3f} [{r['d_any_violation_lo']:+.3f}, "
-                f"{r['d_any_violation_hi']:+.3f}]"
+            row["share of episodes beyond d_s, paired"] = fmt_ci(
+                r, "d_any_violation", 3, signed=True
             )
         rows.append(row)
     return pd.DataFrame(rows).to_markdown(index=False)

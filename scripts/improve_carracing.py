@@ -38,6 +38,7 @@ import numpy as np
 import pandas as pd
 
 from safe_bc.improve import HISTORY, ImproveConfig, LocalEnvs
+from safe_bc.report import fmt_ci
 from scripts.eval_cache import cache_path, evaluate_cached
 from scripts.improve_rehab import MODES, run_modes, split_policy, write_outputs
 
@@ -98,11 +99,6 @@ def plot_curves(history: pd.DataFrame, refs: dict[str, float], path: Path) -> Pa
     fig.suptitle("CarRacing improvement learning curves", fontsize=9)
     fig.tight_layout(rect=(0, 0.07, 1, 1))
     return save_figure(fig, path)
-
-
-def fmt_ci(row: pd.Series, m: str, digits: int = 1) -> str:
-    """``mean [lo, hi]`` of metric ``m`` in a summary or paired row."""
-    return f"{row[m]:.{digits}f} [{row[m + '_lo']:.{digits}f}, {row[m + '_hi']:.{digits}f}]"
 
 
 def summary_table(

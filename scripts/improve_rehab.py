@@ -47,6 +47,7 @@ from safe_bc.improve import (
     improve,
     validation_seeds,
 )
+from safe_bc.report import fmt_ci
 
 MODES = {"ppo": (False, False), "shield": (True, False), "lagrangian": (False, True),
          "both": (True, True)}  # fmt: skip
@@ -254,10 +255,6 @@ def plot_curves(history: pd.DataFrame, refs: dict[str, float], path: Path) -> Pa
     return save_figure(fig, path)
 
 
-def _fmt(row: pd.Series, m: str, digits: int = 2) -> str:
-    return f"{row[m]:.{digits}f} [{row[m + '_lo']:.{digits}f}, {row[m + '_hi']:.{digits}f}]"
-
-
 def markdown(summary: pd.DataFrame, paired: pd.DataFrame, meta: dict[str, Any]) -> str:
     """The result table with its provenance."""
     lines = [
@@ -284,11 +281,11 @@ def markdown(summary: pd.DataFrame, paired: pd.DataFrame, meta: dict[str, Any]) 
         m = r["method"]
         d = ""
         if m in pairs.index:
-            d = _fmt(pairs.loc[m].rename(lambda c: c.removeprefix("d_")), "reward")
+            d = fmt_ci(pairs.loc[m].rename(lambda c: c.removeprefix("d_")), "reward", 2)
         minutes = f"{r['minutes']:.1f} min" if np.isfinite(r["minutes"]) else ""
         lines.append(
-            f"| {LABELS[m]} | {_fmt(r, 'reward')} | {d} | {_fmt(r, 'safety_mean', 3)} | "
-            f"{_fmt(r, 'violating_sessions', 3)} | {int(r['patients_beyond'])} / "
+            f"| {LABELS[m]} | {fmt_ci(r, 'reward', 2)} | {d} | {fmt_ci(r, 'safety_mean', 3)} | "
+            f"{fmt_ci(r, 'violating_sessions', 3)} | {int(r['patients_beyond'])} / "
             f"{int(r['n_episodes'])} | {int(r['last_beyond'])} | "
             f"{int(r['eval_path_violation_steps'])} | {r['n']} | {minutes} |"
         )

@@ -44,6 +44,7 @@ import numpy as np
 import pandas as pd
 
 from safe_bc.improve import ImproveConfig, ImprovedSource, improve, validation_seeds
+from safe_bc.report import fmt_ci
 from scripts.improve_rehab import ensure_start, session_outcomes
 
 CANDIDATES: dict[str, dict[str, Any]] = {
@@ -134,9 +135,7 @@ def gains(df: pd.DataFrame, names: list[str], seeds: list[int], prefix: str) -> 
 
 def markdown(sweep: pd.DataFrame, meta: dict[str, Any]) -> str:
     def ci(r: pd.Series, p: str) -> str:
-        if not np.isfinite(r.get(f"{p}_gain", np.nan)):
-            return ""
-        return f"{r[f'{p}_gain']:+.2f} [{r[f'{p}_gain_lo']:+.2f}, {r[f'{p}_gain_hi']:+.2f}]"
+        return fmt_ci(r, f"{p}_gain", 2, signed=True, blank_missing=True)
 
     def count(r: pd.Series, p: str) -> str:
         if not np.isfinite(r.get(f"{p}_n", np.nan)):

@@ -25,14 +25,10 @@ import pandas as pd
 from safe_bc.data.store import read_table, write_table_atomic
 from safe_bc.metrics import paired_to_reference
 from safe_bc.provenance import run_metadata
+from safe_bc.report import fmt_ci
 
 METRICS = ("reward", "violation_steps", "any_violation", "violating_sessions")
 """Compared where the episodes hold them (``violating_sessions``: the rehab replay's)."""
-
-
-def ci(r: pd.Series, m: str, digits: int) -> str:
-    """``+d [lo, hi]``."""
-    return f"{r[f'd_{m}']:+.{digits}f} [{r[f'd_{m}_lo']:+.{digits}f}, {r[f'd_{m}_hi']:+.{digits}f}]"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -58,8 +54,10 @@ def main(argv: list[str] | None = None) -> int:
         write_table_atomic(target, paired, out_meta)
         view = pd.DataFrame({"method": paired["method"], "pairs": paired["n_pairs"]})
         for m in metrics:
-            view[f"{m} - {args.reference}"] = [ci(r, m, 3 if "any" in m else 1)
-                                               for _, r in paired.iterrows()]  # fmt: skip
+            digits = 3 if "any" in m else 1
+            view[f"{m} - {args.reference}"] = [
+                fmt_ci(r, f"d_{m}", digits, signed=True) for _, r in paired.iterrows()
+            ]
         view["seeds better (reward)"] = (
             paired["seeds_better"].astype(str) + " / " + paired["n_seeds_paired"].astype(str)
         )
