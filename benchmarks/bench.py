@@ -516,7 +516,7 @@ def bench_train(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
             if variant == "pipeline":
                 result = train_run(demos, config)[0]
                 runs[variant].append(result.samples_per_s)
-                samples = result.samples_per_s * result.seconds
+                samples = sizes.train_batches * BATCH_SIZE
                 with_prepare.append(samples / (result.seconds + result.prepare_seconds))
             else:
                 runs[variant].append(_bare_loop(demos, config, prebuilt))

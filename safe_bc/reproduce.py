@@ -21,6 +21,7 @@ Writes under ``out`` (default ``results/``):
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import time
 from dataclasses import dataclass, field
@@ -412,8 +413,8 @@ def _metadata(config: ReproduceConfig) -> dict[str, Any]:
     )
 
 
-def _fmt(row: pd.Series, m: str, digits: int = 1) -> str:
-    return fmt_ci(row, m, digits, blank_missing=True)
+_fmt = functools.partial(fmt_ci, blank_missing=True)
+"""A table cell, blank where the row has no value (e.g. paired columns of the expert)."""
 
 
 def render_markdown(table: pd.DataFrame, meta: dict[str, Any], *, paper: bool = True) -> str:

@@ -80,7 +80,8 @@ def test_no_committed_result_records_a_dirty_revision() -> None:
         if _dirty_revisions(meta) and "dirty_tree" not in meta:
             unexplained.append(str(path.relative_to(REPO)))
     for path in sorted((REPO / "results").rglob("*.md")):
-        if "-dirty`" in path.read_text() or '-dirty"' in path.read_text():
+        text = path.read_text()
+        if "-dirty`" in text or '-dirty"' in text:
             unexplained.append(str(path.relative_to(REPO)))
     assert not unexplained, f"result files from a dirty tree: {unexplained}"
 

@@ -88,20 +88,24 @@ class BatchBuilder:
         """``rows (B,) -> (B, *input_shape) float32``."""
         if self.cache_chunk is None:
             return gather_inputs(self.observations, rows, self.pre_cfg, self.stack_index)
-        rows = np.asarray(rows, np.int64)
         k = self.pre_cfg.frame_stack
-        idx = rows if k == 1 else self.stack_index[rows].reshape(-1)
-        x = self._cached_frames(idx)
+        x = self._cached_frames(self._frame_rows(rows))
         return x if k == 1 else stack(x, k)
 
     def prefill(self, rows: np.ndarray) -> None:
         """Preprocess the frames that ``rows (B,)`` need into the cache now (with ``cache_chunk``;
         a no-op without): the same values as filling them on first use, so a training loop can
         keep preprocessing out of its timed batches."""
-        if self.cache_chunk is None:
-            return
+        if self.cache_chunk is not None:
+            self._ensure_cached(self._frame_rows(rows))
+
+    def _frame_rows(self, rows: np.ndarray) -> np.ndarray:
+        """The frame rows that samples ``rows (B,)`` stack, oldest first: ``(B * k,)``."""
         rows = np.asarray(rows, np.int64)
-        idx = rows if self.stack_index is None else self.stack_index[rows].reshape(-1)
+        return rows if self.stack_index is None else self.stack_index[rows].reshape(-1)
+
+    def _ensure_cached(self, idx: np.ndarray) -> None:
+        """Preprocess the frames of rows ``idx`` that the cache does not hold yet."""
         missing = idx[~self._cached[idx]]
         if missing.size:
             self._fill(np.unique(missing))
@@ -112,9 +116,7 @@ class BatchBuilder:
 
     def _cached_frames(self, idx: np.ndarray) -> torch.Tensor:
         """Preprocessed frames of rows ``idx (M,)``, filling the cache where needed."""
-        missing = idx[~self._cached[idx]]
-        if missing.size:
-            self._fill(np.unique(missing))
+        self._ensure_cached(idx)
         assert self._frames is not None and self._stride is not None
         index = torch.from_numpy(idx)
         if self.reuse_output:
