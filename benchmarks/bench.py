@@ -30,7 +30,7 @@ import tempfile
 import threading
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -570,35 +570,41 @@ def _untrained_source(seed: int) -> Any:
     return NetSource.from_model(model, cfg)
 
 
-def _time_evaluation(source: Any, config: Any) -> tuple[float, float]:
-    """``(episodes/min, steps/s)`` of one in-process ``evaluate_policies`` call."""
+def _time_evaluation(source: Any, config: Any, envs: int = 1) -> tuple[float, float]:
+    """``(episodes/min, steps/s)`` of one in-process ``evaluate_policies`` call stepping
+    ``envs`` envs in lockstep."""
     from safe_bc.distributed.evaluate import evaluate_policies
 
     t0 = time.perf_counter()
-    episodes, steps = evaluate_policies({"policy": source}, config, progress=False)
+    episodes, steps = evaluate_policies(
+        {"policy": source}, config, progress=False, envs_per_worker=envs
+    )
     seconds = time.perf_counter() - t0
     return 60.0 * len(episodes) / seconds, len(steps) / seconds
 
 
 BATCHED_ENVS = 4
-"""Frames per batched forward pass in the eval case's inference timing."""
+"""Envs stepped in lockstep (frames per batched forward pass) in the eval case."""
 
 
 def _time_step_parts(net: Any, steps: int, seed: int) -> dict[str, float]:
     """Mean ms per step of a fast env step, ``BCPolicy.act``, the expert's ``act`` and (per
-    frame) ``BCPolicy.act_batch`` on ``BATCHED_ENVS`` copies of the frame, on one expert-driven
-    trajectory (the net acts on the same frames; its actions are discarded)."""
+    frame) ``BCPolicy.act_batch`` and ``act_slots`` on ``BATCHED_ENVS`` copies of the frame,
+    on one expert-driven trajectory (the net acts on the same frames; its actions are
+    discarded)."""
     from safe_bc.envs import EnvConfig, make_env
     from safe_bc.experts.carracing import CarRacingExpert, ExpertConfig
     from safe_bc.seeds import heldout_seed
 
     env = make_env(EnvConfig(renderer="fast"))
     expert, policy = CarRacingExpert(ExpertConfig()), net.build()
-    totals = {"env": 0.0, "net": 0.0, "expert": 0.0, "net batch": 0.0}
+    totals = {"env": 0.0, "net": 0.0, "expert": 0.0, "net batch": 0.0, "net slots": 0.0}
+    slots = np.arange(BATCHED_ENVS)
     try:
         obs, _ = env.reset(seed=heldout_seed(seed, 0))
         expert.reset(env, np.random.default_rng(seed))
         policy.reset(env, None)
+        policy.reset_slots(BATCHED_ENVS)
         for _ in range(steps):
             t0 = time.perf_counter()
             policy.act(obs, env)
@@ -609,10 +615,13 @@ def _time_step_parts(net: Any, steps: int, seed: int) -> dict[str, float]:
             t3 = time.perf_counter()
             policy.act_batch(np.stack([obs] * BATCHED_ENVS))
             t4 = time.perf_counter()
+            policy.act_slots(np.stack([obs] * BATCHED_ENVS), slots)
+            t5 = time.perf_counter()
             totals["net"] += t1 - t0
             totals["expert"] += t2 - t1
             totals["env"] += t3 - t2
             totals["net batch"] += (t4 - t3) / BATCHED_ENVS
+            totals["net slots"] += (t5 - t4) / BATCHED_ENVS
             if terminated or truncated:
                 break
     finally:
@@ -632,15 +641,20 @@ def bench_eval(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
     config = EvalConfig(
         episodes=sizes.eval_episodes, workers=0, seed=seed, max_steps=sizes.eval_steps
     )
+    lock_config = replace(config, episodes=BATCHED_ENVS)
     _time_step_parts(sources["BC net"], 5, seed)  # warm-up
     eps: dict[str, list[float]] = {name: [] for name in sources}
     sps: dict[str, list[float]] = {name: [] for name in sources}
-    parts: dict[str, list[float]] = {"env": [], "net": [], "expert": [], "net batch": []}
+    lock: dict[int, list[float]] = {1: [], BATCHED_ENVS: []}
+    parts: dict[str, list[float]] = {k: [] for k in ("env", "net", "expert", "net batch",
+                                                     "net slots")}  # fmt: skip
     for rep in range(repeats):
         for name in _order(list(sources), rep):
             e, s = _time_evaluation(sources[name], config)
             eps[name].append(e)
             sps[name].append(s)
+        for envs in _order(list(lock), rep):
+            lock[envs].append(_time_evaluation(sources["BC net"], lock_config, envs)[0])
         for key, ms in _time_step_parts(sources["BC net"], sizes.act_steps, seed).items():
             parts[key].append(ms)
     share = [n / (n + e) for n, e in zip(parts["net"], parts["env"], strict=True)]
@@ -650,6 +664,11 @@ def bench_eval(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
     )
     net_note = "untrained default BCNet (random weights: same compute as a trained one)"
     step_note = f"mean over {sizes.act_steps} expert-driven steps of a fast env; same frames"
+    lock_note = (
+        f"evaluate_policies, workers=0, {BATCHED_ENVS} episodes x <= {sizes.eval_steps} steps, "
+        f"torch threads 1, {net_note}; envs_per_worker={BATCHED_ENVS}: the envs stepped in "
+        "lockstep with one act_slots call per step, the same rows as one env at a time (tested)"
+    )
     return [
         _self_row("eval", "expert", eps["expert"], "episodes/min", ev_note),
         _row(
@@ -677,10 +696,28 @@ def bench_eval(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
             parts["net batch"],
             "ms/step",
             ("BCPolicy.act (1 frame)", parts["net"]),
-            f"{step_note}; what a worker stepping {BATCHED_ENVS} envs would pay per frame for "
-            "one batched forward pass. Not used for evaluation: a batched forward pass rounds "
-            "differently from a 1-frame one (other GEMM/conv kernels), so its actions, hence "
-            "its episodes, would not be those of the one-env path",
+            f"{step_note}; one plain batched forward pass (the improvement's shield uses it). "
+            "Not used for evaluation: it rounds differently from a 1-frame one (other GEMM/conv "
+            "kernels), so its actions would not be those of the one-env path",
+        ),
+        _row(
+            "eval",
+            f"BCPolicy.act_slots ({BATCHED_ENVS} frames), per frame",
+            parts["net slots"],
+            "ms/step",
+            ("BCPolicy.act (1 frame)", parts["net"]),
+            f"{step_note}; what a worker stepping {BATCHED_ENVS} envs in lockstep pays per frame: "
+            "batched where batching keeps the bits (BCNet.forward_rows), the rest per frame; "
+            "bit-identical to act",
+        ),
+        _self_row("eval", "BC net, 1 env", lock[1], "episodes/min", lock_note),
+        _row(
+            "eval",
+            f"BC net, {BATCHED_ENVS} envs in lockstep",
+            lock[BATCHED_ENVS],
+            "episodes/min",
+            ("BC net, 1 env", lock[1]),
+            lock_note,
         ),
         _row(
             "eval",

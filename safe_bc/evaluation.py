@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -14,9 +15,10 @@ from safe_bc.bc.net import BCNet, ModelSpec
 from safe_bc.bc.policy import BCPolicy
 from safe_bc.collection import build_expert
 from safe_bc.envs import EnvConfig
+from safe_bc.episode import Episode
 from safe_bc.metrics import combined, critical_zone, episode_metrics, violations
-from safe_bc.policy import Policy
-from safe_bc.rollout import run_episode
+from safe_bc.policy import BatchPolicy, Policy
+from safe_bc.rollout import run_episode, run_episodes_lockstep
 from safe_bc.seeds import heldout_seed
 from safe_bc.selection import DEFAULT_EPS, Combine
 
@@ -114,6 +116,44 @@ def evaluate_episode(
     """
     rng = np.random.default_rng(seed)
     ep = run_episode(env, policy, seed, rng, keep_observations=False, max_steps=max_steps)
+    return score_episode(env, ep, thresholds=thresholds, eps=eps, combine=combine)
+
+
+def evaluate_episodes(
+    envs: Sequence[gym.Env],
+    policy: Policy,
+    seeds: Sequence[int],
+    *,
+    thresholds: np.ndarray | None,
+    eps: float,
+    max_steps: int | None = None,
+    combine: Combine = "any",
+) -> list[tuple[dict[str, float], dict[str, np.ndarray]]]:
+    """:func:`evaluate_episode` of every seed, the same results, ``len(envs)`` at a time: a
+    :class:`~safe_bc.policy.BatchPolicy` (a BC net) steps them in lockstep with one batched
+    forward pass per step (:func:`~safe_bc.rollout.run_episodes_lockstep`); any other policy
+    runs them one by one in ``envs[0]``."""
+    kw = {"thresholds": thresholds, "eps": eps, "combine": combine}
+    if len(envs) == 1 or not isinstance(policy, BatchPolicy):
+        return [evaluate_episode(envs[0], policy, s, max_steps=max_steps, **kw) for s in seeds]
+    out = []
+    for start in range(0, len(seeds), len(envs)):
+        chunk = list(seeds[start : start + len(envs)])
+        episodes = run_episodes_lockstep(envs[: len(chunk)], policy, chunk, max_steps=max_steps)
+        out += [score_episode(env, ep, **kw) for env, ep in zip(envs, episodes, strict=False)]
+    return out
+
+
+def score_episode(
+    env: gym.Env,
+    ep: Episode,
+    *,
+    thresholds: np.ndarray | None,
+    eps: float,
+    combine: Combine = "any",
+) -> tuple[dict[str, float], dict[str, np.ndarray]]:
+    """Metrics and safety trace of an episode that just ended in ``env`` (see
+    :func:`evaluate_episode`)."""
     base = env.unwrapped  # CarRacing counts visited tiles; other tasks have none
     has_track = hasattr(base, "tile_visited_count") and len(getattr(base, "track", ())) > 0
     visited = base.tile_visited_count / len(base.track) if has_track else float("nan")

@@ -21,3 +21,16 @@ class Policy(Protocol):
 
     def act(self, obs: np.ndarray, env: gym.Env) -> np.ndarray:
         """Return the action for ``obs``, shape ``(A,) float32``."""
+
+
+@runtime_checkable
+class BatchPolicy(Protocol):
+    """A policy that acts for several episodes at once (one per slot), each as ``act`` would
+    in its own episode: the lockstep evaluation's batched path (observations only)."""
+
+    def reset_slots(self, n: int) -> None:
+        """Start ``n`` new episodes, slots ``0 .. n-1``."""
+
+    def act_slots(self, obs: np.ndarray, slots: np.ndarray) -> np.ndarray:
+        """Observations ``(m, *obs_shape)`` of the episodes in ``slots`` ``(m,)`` -> actions
+        ``(m, A) float32``, each equal to what ``act`` would return in its episode."""

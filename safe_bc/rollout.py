@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Protocol
 
 import gymnasium as gym
 import numpy as np
 
 from safe_bc.episode import Episode
-from safe_bc.policy import Policy
+from safe_bc.policy import BatchPolicy, Policy
 
 
 class ActionPerturbation(Protocol):
@@ -95,6 +96,67 @@ def run_episode(
         offroad=np.asarray(cols["offroad"], bool),
         safety_dims=tuple(dims),
     )
+
+
+def run_episodes_lockstep(
+    envs: Sequence[gym.Env],
+    policy: BatchPolicy,
+    seeds: Sequence[int],
+    *,
+    max_steps: int | None = None,
+) -> list[Episode]:
+    """One episode per env, ``envs[i]`` on ``seeds[i]``, stepped together: each step one
+    :meth:`BatchPolicy.act_slots` call for the episodes still running. Each episode is the
+    one :func:`run_episode` gives for its seed (observations not kept, no perturbation),
+    since the policy acts per slot as in its own episode and the envs share nothing."""
+    if len(envs) != len(seeds):
+        raise ValueError(f"{len(envs)} envs for {len(seeds)} seeds")
+    starts = [env.reset(seed=s) for env, s in zip(envs, seeds, strict=True)]
+    obs, infos = [o for o, _ in starts], [info for _, info in starts]
+    policy.reset_slots(len(envs))
+    keys = ("act", "rew", "term", "trunc", "safety", "cost", "warmup", "offroad")
+    cols: list[dict[str, list]] = [{k: [] for k in keys} for _ in envs]
+    running = list(range(len(envs)))
+    t = 0
+    while running:
+        actions = policy.act_slots(np.stack([obs[i] for i in running]), np.asarray(running))
+        still = []
+        for i, action in zip(running, np.asarray(actions, np.float32), strict=True):
+            c = cols[i]
+            for key in ("safety", "cost", "warmup", "offroad"):
+                c[key].append(infos[i][key])
+            c["act"].append(action)
+            obs[i], reward, terminated, truncated, infos[i] = envs[i].step(action)
+            if max_steps is not None and t + 1 >= max_steps:
+                truncated = True
+            c["rew"].append(reward)
+            c["term"].append(terminated)
+            c["trunc"].append(truncated)
+            if not (terminated or truncated):
+                still.append(i)
+        running = still
+        t += 1
+    episodes = []
+    for env, seed, c in zip(envs, seeds, cols, strict=True):
+        actions = np.stack(c["act"])
+        episodes.append(
+            Episode(
+                episode_id=0,
+                seed=seed,
+                observations=np.empty((len(actions), 0), np.uint8),
+                actions=actions,
+                executed_actions=actions.copy(),
+                rewards=np.asarray(c["rew"], np.float32),
+                terminated=np.asarray(c["term"], bool),
+                truncated=np.asarray(c["trunc"], bool),
+                safety=np.stack(c["safety"]).astype(np.float32),
+                costs=np.stack(c["cost"]).astype(np.float32),
+                warmup=np.asarray(c["warmup"], bool),
+                offroad=np.asarray(c["offroad"], bool),
+                safety_dims=_safety_dims(env),
+            )
+        )
+    return episodes
 
 
 def _safety_dims(env: gym.Env) -> tuple[str, ...]:

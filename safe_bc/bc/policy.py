@@ -56,6 +56,30 @@ class BCPolicy:
             x = frame if len(self._frames) == 1 else torch.cat(tuple(self._frames), dim=1)
             return self.model(x)[0].numpy().astype(np.float32, copy=False)
 
+    def reset_slots(self, n: int) -> None:
+        """Start ``n`` episodes for :meth:`act_slots` (a ``safe_bc.policy.BatchPolicy``)."""
+        self._slots: list[deque[torch.Tensor]] = [
+            deque(maxlen=self.pre_cfg.frame_stack) for _ in range(n)
+        ]
+
+    def act_slots(self, obs: np.ndarray, slots: np.ndarray) -> np.ndarray:
+        """One observation per episode in ``slots`` -> ``(m, A) float32``: bit for bit what
+        :meth:`act` returns in each episode (:meth:`BCNet.forward_rows`), one batched pass
+        over the layers where batching does not change the rounding."""
+        obs = np.asarray(obs)
+        if obs.shape[1:] != self.model.spec.obs_shape:
+            raise ValueError(
+                f"obs has shape {obs.shape}, expected (m, *{self.model.spec.obs_shape})"
+            )
+        with torch.inference_mode():
+            rows = []
+            for i, slot in enumerate(slots):
+                frames = self._slots[slot]
+                frame = preprocess(obs[i : i + 1], self.pre_cfg)
+                frames.extend([frame] * (frames.maxlen if not frames else 1))
+                rows.append(frame if len(frames) == 1 else torch.cat(tuple(frames), dim=1))
+            return self.model.forward_rows(torch.cat(rows)).numpy().astype(np.float32, copy=False)
+
     def act_batch(self, obs_batch: np.ndarray) -> np.ndarray:
         """Independent states -> actions ``(B, A) float32``; stateless.
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -163,3 +164,40 @@ def test_network_config_layers():
     for bad in ({"hidden": 0}, {"kind": "rnn"}, {"channels": (4, -1, 2)}, {"mlp_layers": -1}):
         with pytest.raises(ValueError, match=next(iter(bad))):
             NetworkConfig(**bad)
+
+
+@pytest.mark.parametrize("batch", [2, 3, 5])
+def test_forward_rows_is_one_row_at_a_time_bit_for_bit(batch):
+    """The default CarRacing net: batched where batching keeps the bits, the rest per row."""
+    torch.set_num_threads(1)
+    spec = ModelSpec.for_data((96, 96, 3), 3, CAR_RACING_BOUNDS)
+    model = _net(spec, pre=PreprocessConfig(), net=NetworkConfig())
+    x = torch.rand((batch, *model.input_shape), generator=torch.Generator().manual_seed(batch))
+    with torch.inference_mode():
+        rows = torch.cat([model(x[i : i + 1]) for i in range(batch)])
+        assert torch.equal(model.forward_rows(x), rows)
+    assert 0 <= model.invariant_prefix(batch) <= len(model.body)
+
+
+def test_act_slots_is_act_in_each_episode():
+    """Two interleaved episodes (stacked frames, one slot idle for a step) get the actions a
+    fresh policy gives each episode on its own."""
+    spec = ModelSpec.for_data((96, 96, 3), 3, CAR_RACING_BOUNDS)
+    pre = replace(SMALL_FRAMES, frame_stack=2, mask_steering=False)
+    model = _net(spec, pre=pre)
+    rng = np.random.default_rng(0)
+    frames = rng.integers(0, 256, (2, 4, 96, 96, 3), dtype=np.uint8)
+    batched = BCPolicy(model)
+    batched.reset_slots(2)
+    got: list[list[np.ndarray]] = [[], []]
+    for t in range(4):
+        slots = np.array([0, 1]) if t != 2 else np.array([1])
+        for slot, a in zip(slots, batched.act_slots(frames[slots, t], slots), strict=True):
+            got[slot].append(a)
+    a0 = BCPolicy(model)
+    expected0 = [a0.act(frames[0, t]) for t in (0, 1, 3)]
+    a1 = BCPolicy(model)
+    expected1 = [a1.act(frames[1, t]) for t in range(4)]
+    np.testing.assert_array_equal(np.stack(got[0]), np.stack(expected0))
+    np.testing.assert_array_equal(np.stack(got[1]), np.stack(expected1))
+    assert not np.array_equal(expected0[0], expected1[0])  # the slots hold different episodes

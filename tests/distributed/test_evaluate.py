@@ -91,3 +91,28 @@ def test_bad_alpha_and_missing_dataset_are_one_line_errors(tmp_path, capsys) -> 
     assert main(["train", "--demos", str(tmp_path / "none"), "--out", str(tmp_path / "x")]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "no dataset here" in err
+
+
+def test_lockstep_envs_give_the_one_env_rows(tiny_demos) -> None:
+    """envs_per_worker > 1 (one batched forward pass per step for the BC net, the expert one
+    by one) gives exactly the rows and traces of one env at a time, in-process and on actors."""
+    demos = load_demonstrations(tiny_demos)
+    run = RunConfig(
+        SelectionConfig(eps=3.0, alpha=0.5),
+        BCConfig(network=NetworkConfig(hidden=16), train=TrainConfig(batches=10, batch_size=8)),
+    )
+    result, selection = train_run(demos, run)
+    sources = {
+        "bc": NetSource.from_model(result.model, result.config),
+        "expert": ExpertSource(ExpertConfig()),
+    }
+    kw = {"thresholds": selection.thresholds, "progress": False}
+    one = evaluate_policies(sources, EvalConfig(episodes=3, workers=0, max_steps=60), **kw)
+    for workers in (0, 2):
+        cfg = EvalConfig(episodes=3, workers=workers, max_steps=60)
+        many = evaluate_policies(sources, cfg, envs_per_worker=2, **kw)
+        pd.testing.assert_frame_equal(many[0], one[0])
+        pd.testing.assert_frame_equal(
+            many[1].sort_values(["policy", "env_seed", "step"]).reset_index(drop=True),
+            one[1].sort_values(["policy", "env_seed", "step"]).reset_index(drop=True),
+        )
