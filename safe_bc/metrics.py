@@ -685,3 +685,48 @@ def certified_share(k: int, n: int, confidence: float = 0.95, what: str = "episo
         f"at most {100 * bound:.1f}% of {what} cross d_s ({100 * confidence:g}% one-sided "
         f"Clopper-Pearson bound; {k} of {n} did)"
     )
+
+
+@dataclass(frozen=True)
+class VarianceComponents:
+    """Variance of a crossed ``(training seeds, tracks)`` table, one value per cell, split
+    into a training-seed part, a track part and the rest (the random-effects two-way model
+    ``x[s, t] = mu + a_s + b_t + e_st``, method-of-moments estimates, negatives set to 0)."""
+
+    seed: float
+    """Variance of the training-seed effect ``a_s``."""
+    track: float
+    """Variance of the track effect ``b_t``."""
+    residual: float
+    """Variance of the seed x track interaction and the episode's own noise ``e_st``."""
+
+    @classmethod
+    def of(cls, cells: np.ndarray) -> VarianceComponents:
+        """Estimate from a complete ``(S, T)`` table (``S, T >= 2``, no NaN).
+
+        >>> rng = np.random.default_rng(0)
+        >>> seed_effect, track_effect = 10 * rng.normal(size=(40, 1)), rng.normal(size=(1, 60))
+        >>> x = seed_effect + track_effect + 0.1 * rng.normal(size=(40, 60))
+        >>> vc = VarianceComponents.of(x)
+        >>> bool(60 < vc.seed < 150 and 0.5 < vc.track < 1.6 and vc.residual < 0.02)
+        True
+        """
+        x = np.asarray(cells, np.float64)
+        if x.ndim != 2 or min(x.shape) < 2 or np.isnan(x).any():
+            raise ValueError(f"need a complete (seeds >= 2, tracks >= 2) table, got {x.shape}")
+        n_s, n_t = x.shape
+        grand, rows, cols = x.mean(), x.mean(axis=1), x.mean(axis=0)
+        ms_s = n_t * ((rows - grand) ** 2).sum() / (n_s - 1)
+        ms_t = n_s * ((cols - grand) ** 2).sum() / (n_t - 1)
+        resid = x - rows[:, None] - cols[None, :] + grand
+        ms_e = (resid**2).sum() / ((n_s - 1) * (n_t - 1))
+        return cls(max((ms_s - ms_e) / n_t, 0.0), max((ms_t - ms_e) / n_s, 0.0), ms_e)
+
+    def half_width(self, seeds: float, tracks: float, z: float = 1.96) -> float:
+        """Normal-approximation half-width of the mean of a ``seeds x tracks`` crossed table.
+
+        >>> VarianceComponents(4.0, 0.0, 0.0).half_width(4, 10, z=1.0)
+        1.0
+        """
+        var = self.seed / seeds + self.track / tracks + self.residual / (seeds * tracks)
+        return z * math.sqrt(var)
