@@ -212,6 +212,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--episodes-per-iter", type=int, default=4)
     p.add_argument("--val-episodes", type=int, default=4)
     p.add_argument("--cost-margin", type=float, default=1.0, help="px inside d_s")
+    p.add_argument("--init-std", type=float, default=ImproveConfig.init_std,
+                   help="the policy's initial action noise (std, before its learned "
+                   "log-std moves it)")  # fmt: skip
     p.add_argument("--lambda-lr", type=float, default=ImproveConfig.lambda_lr,
                    help="multiplier step per iteration and unit of episode cost")  # fmt: skip
     p.add_argument("--episodes", type=int, default=50, help="held-out tracks")
@@ -240,6 +243,7 @@ def main(argv: list[str] | None = None) -> int:
         eval_episodes=args.val_episodes,
         cost_margin=args.cost_margin,
         lambda_lr=args.lambda_lr,
+        init_std=args.init_std,
         checkpoint_every=1,
     )
     demos = load_demonstrations(args.demos)
