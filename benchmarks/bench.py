@@ -1155,8 +1155,16 @@ def _run_all(args: argparse.Namespace, sizes: Sizes, repeats: int) -> int:
         "argv": sys.argv[1:],
     }
     if rows:
-        write_results(rows, args.out, settings)
+        from safe_bc.provenance import DirtyTreeError
+
         print(format_table(rows))
+        try:
+            write_results(rows, args.out, settings)
+        except DirtyTreeError as e:  # the tree changed during the run: keep the rows elsewhere
+            kept = Path(tempfile.mkdtemp(prefix="safe-bc-bench-")) / args.out.name
+            write_results(rows, kept, settings)
+            print(f"bench: {e}\nbench: the measurements are kept in {kept}", file=sys.stderr)
+            return 2
         print(f"\nwrote {args.out} ({settings['total_seconds']:.0f} s)")
     return 1 if failed else 0
 
@@ -1170,6 +1178,13 @@ def main(argv: list[str] | None = None) -> int:
         _parser().error(f"--repeats must be >= 1, got {repeats}")
     if args.case is not None:
         return _run_one(args, sizes, repeats)
+    from safe_bc.provenance import DirtyTreeError, check_result_write
+
+    try:  # a dirty tree fails now, not after minutes of measuring
+        check_result_write(args.out)
+    except DirtyTreeError as e:
+        print(f"bench: {e}", file=sys.stderr)
+        return 2
     return _run_all(args, sizes, repeats)
 
 

@@ -102,3 +102,18 @@ def test_quick_study_and_final_cases_measure_ratios():
     ray_envs = next(r for (c, v), r in by.items() if c == "improve" and v != "in-process")
     assert ray_envs["baseline"] == "in-process" and ray_envs["unit"] == "steps/s"
     assert math.isfinite(ray_envs["ratio"]) and ray_envs["ratio"] > 0
+
+
+def test_a_dirty_tree_fails_before_measuring(monkeypatch, capsys):
+    """make bench writes under results/: with uncommitted code it stops at once (one line),
+    not after minutes of measuring."""
+    import safe_bc.provenance as provenance
+
+    monkeypatch.setattr(provenance, "_changed_files", lambda: ["safe_bc/some_module.py"])
+    monkeypatch.delenv(provenance.ALLOW_DIRTY, raising=False)
+    ran: list[str] = []
+    monkeypatch.setattr(bench, "_run_all", lambda *a: ran.append("ran") or 0)
+    assert bench.main(["--quick", "--out", str(provenance.RESULTS / "bench.parquet")]) == 2
+    assert ran == []
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "safe_bc/some_module.py" in err[0] and "commit first" in err[0]
