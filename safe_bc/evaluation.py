@@ -139,8 +139,9 @@ def evaluate_episodes(
     out = []
     for start in range(0, len(seeds), len(envs)):
         chunk = list(seeds[start : start + len(envs)])
-        episodes = run_episodes_lockstep(envs[: len(chunk)], policy, chunk, max_steps=max_steps)
-        out += [score_episode(env, ep, **kw) for env, ep in zip(envs, episodes, strict=False)]
+        used = envs[: len(chunk)]
+        episodes = run_episodes_lockstep(used, policy, chunk, max_steps=max_steps)
+        out += [score_episode(env, ep, **kw) for env, ep in zip(used, episodes, strict=True)]
     return out
 
 

@@ -29,6 +29,50 @@ class ActionPerturbation(Protocol):
         current state's ``(S,)`` safety distances (a perturbation may back off near a limit)."""
 
 
+_COLUMNS = ("obs", "act", "exe", "rew", "term", "trunc", "safety", "cost", "warmup", "offroad")
+
+
+class _Recorder:
+    """The columns of one episode as it runs, and the :class:`Episode` they make."""
+
+    def __init__(self, keep_observations: bool) -> None:
+        self.keep_observations = keep_observations
+        self.cols: dict[str, list] = {k: [] for k in _COLUMNS}
+
+    def before_step(
+        self, obs: np.ndarray, info: dict, action: np.ndarray, executed: np.ndarray
+    ) -> None:
+        """The state the policy acted in (its observation and ``info``) and both actions."""
+        self.cols["obs"].append(obs if self.keep_observations else np.empty(0, np.uint8))
+        for key in ("safety", "cost", "warmup", "offroad"):
+            self.cols[key].append(info[key])
+        self.cols["act"].append(action)
+        self.cols["exe"].append(executed)
+
+    def after_step(self, reward: float, terminated: bool, truncated: bool) -> None:
+        self.cols["rew"].append(reward)
+        self.cols["term"].append(terminated)
+        self.cols["trunc"].append(truncated)
+
+    def episode(self, env: gym.Env, seed: int, episode_id: int) -> Episode:
+        c = self.cols
+        return Episode(
+            episode_id=episode_id,
+            seed=seed,
+            observations=np.stack(c["obs"]),
+            actions=np.stack(c["act"]),
+            executed_actions=np.stack(c["exe"]),
+            rewards=np.asarray(c["rew"], np.float32),
+            terminated=np.asarray(c["term"], bool),
+            truncated=np.asarray(c["trunc"], bool),
+            safety=np.stack(c["safety"]).astype(np.float32),
+            costs=np.stack(c["cost"]).astype(np.float32),
+            warmup=np.asarray(c["warmup"], bool),
+            offroad=np.asarray(c["offroad"], bool),
+            safety_dims=_safety_dims(env),
+        )
+
+
 def run_episode(
     env: gym.Env,
     policy: Policy,
@@ -56,8 +100,7 @@ def run_episode(
     policy.reset(env, rng)
     if perturbation is not None:
         perturbation.reset(rng)
-    cols: dict[str, list] = {k: [] for k in ("obs", "act", "exe", "rew", "term", "trunc")}
-    cols.update({k: [] for k in ("safety", "cost", "warmup", "offroad")})
+    rec = _Recorder(keep_observations)
     t = 0
     while True:
         action = np.asarray(policy.act(obs, env), dtype=np.float32)
@@ -66,36 +109,15 @@ def run_episode(
         else:
             executed = action
         executed = np.asarray(executed, dtype=np.float32)
-        cols["obs"].append(obs if keep_observations else np.empty(0, np.uint8))
-        for key in ("safety", "cost", "warmup", "offroad"):
-            cols[key].append(info[key])
-        cols["act"].append(action)
-        cols["exe"].append(executed)
+        rec.before_step(obs, info, action, executed)
         obs, reward, terminated, truncated, info = env.step(executed)
         t += 1
         if max_steps is not None and t >= max_steps:
             truncated = True
-        cols["rew"].append(reward)
-        cols["term"].append(terminated)
-        cols["trunc"].append(truncated)
+        rec.after_step(reward, terminated, truncated)
         if terminated or truncated:
             break
-    dims = _safety_dims(env)
-    return Episode(
-        episode_id=episode_id,
-        seed=seed,
-        observations=np.stack(cols["obs"]),
-        actions=np.stack(cols["act"]),
-        executed_actions=np.stack(cols["exe"]),
-        rewards=np.asarray(cols["rew"], np.float32),
-        terminated=np.asarray(cols["term"], bool),
-        truncated=np.asarray(cols["trunc"], bool),
-        safety=np.stack(cols["safety"]).astype(np.float32),
-        costs=np.stack(cols["cost"]).astype(np.float32),
-        warmup=np.asarray(cols["warmup"], bool),
-        offroad=np.asarray(cols["offroad"], bool),
-        safety_dims=tuple(dims),
-    )
+    return rec.episode(env, seed, episode_id)
 
 
 def run_episodes_lockstep(
@@ -114,49 +136,23 @@ def run_episodes_lockstep(
     starts = [env.reset(seed=s) for env, s in zip(envs, seeds, strict=True)]
     obs, infos = [o for o, _ in starts], [info for _, info in starts]
     policy.reset_slots(len(envs))
-    keys = ("act", "rew", "term", "trunc", "safety", "cost", "warmup", "offroad")
-    cols: list[dict[str, list]] = [{k: [] for k in keys} for _ in envs]
+    recs = [_Recorder(keep_observations=False) for _ in envs]
     running = list(range(len(envs)))
     t = 0
     while running:
         actions = policy.act_slots(np.stack([obs[i] for i in running]), np.asarray(running))
         still = []
         for i, action in zip(running, np.asarray(actions, np.float32), strict=True):
-            c = cols[i]
-            for key in ("safety", "cost", "warmup", "offroad"):
-                c[key].append(infos[i][key])
-            c["act"].append(action)
+            recs[i].before_step(obs[i], infos[i], action, action)
             obs[i], reward, terminated, truncated, infos[i] = envs[i].step(action)
             if max_steps is not None and t + 1 >= max_steps:
                 truncated = True
-            c["rew"].append(reward)
-            c["term"].append(terminated)
-            c["trunc"].append(truncated)
+            recs[i].after_step(reward, terminated, truncated)
             if not (terminated or truncated):
                 still.append(i)
         running = still
         t += 1
-    episodes = []
-    for env, seed, c in zip(envs, seeds, cols, strict=True):
-        actions = np.stack(c["act"])
-        episodes.append(
-            Episode(
-                episode_id=0,
-                seed=seed,
-                observations=np.empty((len(actions), 0), np.uint8),
-                actions=actions,
-                executed_actions=actions.copy(),
-                rewards=np.asarray(c["rew"], np.float32),
-                terminated=np.asarray(c["term"], bool),
-                truncated=np.asarray(c["trunc"], bool),
-                safety=np.stack(c["safety"]).astype(np.float32),
-                costs=np.stack(c["cost"]).astype(np.float32),
-                warmup=np.asarray(c["warmup"], bool),
-                offroad=np.asarray(c["offroad"], bool),
-                safety_dims=_safety_dims(env),
-            )
-        )
-    return episodes
+    return [rec.episode(env, s, 0) for rec, env, s in zip(recs, envs, seeds, strict=True)]
 
 
 def _safety_dims(env: gym.Env) -> tuple[str, ...]:

@@ -31,7 +31,7 @@ import pandas as pd
 
 from safe_bc.bc.config import TrainConfig
 from safe_bc.data.store import read_table, write_table_atomic
-from safe_bc.metrics import VarianceComponents
+from safe_bc.metrics import VarianceComponents, cell_table
 from safe_bc.provenance import run_metadata
 
 TRACKS = (2, 5, 10, 20, 40, 80)
@@ -51,7 +51,7 @@ def comparisons(
         df = episodes[episodes["method"] == method]
         if df.empty:
             raise ValueError(f"no episodes of {method!r} (methods: {sorted(set(episodes.method))})")
-        return df.pivot(index="train_seed", columns="env_seed", values=metric)
+        return cell_table(df, metric)
 
     base = cells(baseline)
     ref = episodes[episodes["method"] == reference].set_index("env_seed")[metric]
@@ -156,10 +156,9 @@ def main(argv: list[str] | None = None) -> int:
         ),
     )  # fmt: skip
     plot(table, args.out / "eval_budget.png", n_tracks)
-    (args.out / "eval_budget.md").write_text(
-        markdown(table, n_seeds, n_tracks, train_s, ep_s, args), encoding="utf-8"
-    )
-    print(markdown(table, n_seeds, n_tracks, train_s, ep_s, args))
+    report = markdown(table, n_seeds, n_tracks, train_s, ep_s, args)
+    (args.out / "eval_budget.md").write_text(report, encoding="utf-8")
+    print(report)
     return 0
 
 

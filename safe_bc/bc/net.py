@@ -114,6 +114,7 @@ class BCNet(nn.Module):
         self.kind = resolve_kind(net_cfg.kind, spec.obs_shape)
         self.input_shape = input_shape(spec.obs_shape, pre_cfg)
         self.vector_input = not is_image(spec.obs_shape)
+        self._prefix_cache: dict[tuple[int, int], int] = {}  # see invariant_prefix
 
         if self.kind == "cnn":
             convs: list[nn.Module] = []
@@ -199,7 +200,7 @@ class BCNet(nn.Module):
         :meth:`forward_rows` still equal, bit for bit, to one row at a time: probed once per
         batch size and torch thread count on a fixed random input (torch chooses its kernels
         by shape, not by values); 0 (every layer row by row) where none can."""
-        cache: dict[tuple[int, int], int] = self.__dict__.setdefault("_prefix_cache", {})
+        cache = self._prefix_cache
         key = (batch, torch.get_num_threads())
         if key not in cache:
             g = torch.Generator().manual_seed(0)

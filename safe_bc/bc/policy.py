@@ -48,13 +48,15 @@ class BCPolicy:
         if obs.shape != self.model.spec.obs_shape:
             raise ValueError(f"obs has shape {obs.shape}, expected {self.model.spec.obs_shape}")
         with torch.inference_mode():
-            frame = preprocess(obs[None], self.pre_cfg)
-            if not self._frames:
-                self._frames.extend([frame] * self.pre_cfg.frame_stack)
-            else:
-                self._frames.append(frame)
-            x = frame if len(self._frames) == 1 else torch.cat(tuple(self._frames), dim=1)
+            x = self._push(self._frames, obs[None])
             return self.model(x)[0].numpy().astype(np.float32, copy=False)
+
+    def _push(self, frames: deque[torch.Tensor], obs: np.ndarray) -> torch.Tensor:
+        """Add one ``(1, *obs_shape)`` observation to an episode's frames (the first one
+        repeated ``frame_stack`` times) and return the net's ``(1, ...)`` input."""
+        frame = preprocess(obs, self.pre_cfg)
+        frames.extend([frame] * (frames.maxlen if not frames else 1))
+        return frame if len(frames) == 1 else torch.cat(tuple(frames), dim=1)
 
     def reset_slots(self, n: int) -> None:
         """Start ``n`` episodes for :meth:`act_slots` (a ``safe_bc.policy.BatchPolicy``)."""
@@ -72,13 +74,8 @@ class BCPolicy:
                 f"obs has shape {obs.shape}, expected (m, *{self.model.spec.obs_shape})"
             )
         with torch.inference_mode():
-            rows = []
-            for i, slot in enumerate(slots):
-                frames = self._slots[slot]
-                frame = preprocess(obs[i : i + 1], self.pre_cfg)
-                frames.extend([frame] * (frames.maxlen if not frames else 1))
-                rows.append(frame if len(frames) == 1 else torch.cat(tuple(frames), dim=1))
-            return self.model.forward_rows(torch.cat(rows)).numpy().astype(np.float32, copy=False)
+            x = torch.cat([self._push(self._slots[s], obs[i : i + 1]) for i, s in enumerate(slots)])
+            return self.model.forward_rows(x).numpy().astype(np.float32, copy=False)
 
     def act_batch(self, obs_batch: np.ndarray) -> np.ndarray:
         """Independent states -> actions ``(B, A) float32``; stateless.
@@ -98,4 +95,4 @@ class BCPolicy:
         flat = obs_batch.reshape(-1, *shape)
         with torch.inference_mode():
             x = stack(preprocess(flat, self.pre_cfg), k)
-            return self.model(x).numpy().astype(np.float32, copy=False)
+            return self.model.forward_rows(x).numpy().astype(np.float32, copy=False)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pandas as pd
+import pytest
 
 from safe_bc.bc import BCConfig, NetworkConfig, TrainConfig
 from safe_bc.data.store import load_demonstrations
@@ -14,7 +15,9 @@ from safe_bc.experts.carracing import ExpertConfig
 from safe_bc.selection import SelectionConfig
 
 
-def test_actors_match_in_process_and_seeds_are_held_out(tiny_demos) -> None:
+@pytest.fixture(scope="module")
+def bc_and_expert(tiny_demos):
+    """``(sources, thresholds, demos)``: a BC net trained for 10 batches and the expert."""
     demos = load_demonstrations(tiny_demos)
     run = RunConfig(
         SelectionConfig(eps=3.0, alpha=0.5),
@@ -25,12 +28,17 @@ def test_actors_match_in_process_and_seeds_are_held_out(tiny_demos) -> None:
         "bc": NetSource.from_model(result.model, result.config),
         "expert": ExpertSource(ExpertConfig()),
     }
+    return sources, selection.thresholds, demos
+
+
+def test_actors_match_in_process_and_seeds_are_held_out(bc_and_expert) -> None:
+    sources, thresholds, demos = bc_and_expert
     cfg = EvalConfig(episodes=2, workers=2, max_steps=70)
-    remote, steps = evaluate_policies(sources, cfg, thresholds=selection.thresholds, progress=False)
+    remote, steps = evaluate_policies(sources, cfg, thresholds=thresholds, progress=False)
     local, _ = evaluate_policies(
         sources,
         EvalConfig(episodes=2, workers=0, max_steps=70),
-        thresholds=selection.thresholds,
+        thresholds=thresholds,
         progress=False,
     )
     pd.testing.assert_frame_equal(remote, local)
@@ -81,8 +89,6 @@ def test_train_then_evaluate_commands(tiny_demos, tmp_path, capsys) -> None:
 
 
 def test_bad_alpha_and_missing_dataset_are_one_line_errors(tmp_path, capsys) -> None:
-    import pytest
-
     from safe_bc.cli import main
 
     with pytest.raises(SystemExit):
@@ -93,20 +99,11 @@ def test_bad_alpha_and_missing_dataset_are_one_line_errors(tmp_path, capsys) -> 
     assert len(err.splitlines()) == 1 and "no dataset here" in err
 
 
-def test_lockstep_envs_give_the_one_env_rows(tiny_demos) -> None:
+def test_lockstep_envs_give_the_one_env_rows(bc_and_expert) -> None:
     """envs_per_worker > 1 (one batched forward pass per step for the BC net, the expert one
     by one) gives exactly the rows and traces of one env at a time, in-process and on actors."""
-    demos = load_demonstrations(tiny_demos)
-    run = RunConfig(
-        SelectionConfig(eps=3.0, alpha=0.5),
-        BCConfig(network=NetworkConfig(hidden=16), train=TrainConfig(batches=10, batch_size=8)),
-    )
-    result, selection = train_run(demos, run)
-    sources = {
-        "bc": NetSource.from_model(result.model, result.config),
-        "expert": ExpertSource(ExpertConfig()),
-    }
-    kw = {"thresholds": selection.thresholds, "progress": False}
+    sources, thresholds, _ = bc_and_expert
+    kw = {"thresholds": thresholds, "progress": False}
     one = evaluate_policies(sources, EvalConfig(episodes=3, workers=0, max_steps=60), **kw)
     for workers in (0, 2):
         cfg = EvalConfig(episodes=3, workers=workers, max_steps=60)
