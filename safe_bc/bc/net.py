@@ -134,7 +134,7 @@ class BCNet(nn.Module):
                     f"{net_cfg.kernel_sizes} / strides {net_cfg.strides}: {e}"
                 ) from e
         else:
-            self.body = nn.Flatten()
+            self.body = nn.Sequential(nn.Flatten())  # a Sequential, as forward_rows slices it
             n_flat = math.prod(self.input_shape)
         self.head = _mlp(n_flat, net_cfg.hidden, net_cfg.mlp_layers, spec.action_dim)
 

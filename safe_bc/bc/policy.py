@@ -95,4 +95,4 @@ class BCPolicy:
         flat = obs_batch.reshape(-1, *shape)
         with torch.inference_mode():
             x = stack(preprocess(flat, self.pre_cfg), k)
-            return self.model.forward_rows(x).numpy().astype(np.float32, copy=False)
+            return self.model(x).numpy().astype(np.float32, copy=False)

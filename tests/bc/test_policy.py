@@ -201,3 +201,13 @@ def test_act_slots_is_act_in_each_episode():
     np.testing.assert_array_equal(np.stack(got[0]), np.stack(expected0))
     np.testing.assert_array_equal(np.stack(got[1]), np.stack(expected1))
     assert not np.array_equal(expected0[0], expected1[0])  # the slots hold different episodes
+
+
+def test_forward_rows_of_a_vector_net_is_one_row_at_a_time():
+    """The MLP path (standardisation, a flatten body) gives the same bits as well."""
+    model = _net(ModelSpec.for_data((3,), 2), PreprocessConfig(), TINY_MLP)
+    model.set_standardization(np.full(3, 50.0), np.full(3, 10.0))
+    x = torch.from_numpy(vector_demos(n=5, d=3).observations)
+    with torch.inference_mode():
+        rows = torch.cat([model(x[i : i + 1]) for i in range(len(x))])
+        assert torch.equal(model.forward_rows(x), rows)
