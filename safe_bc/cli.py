@@ -141,9 +141,10 @@ def _env_args(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--renderer",
-        choices=["fast", "stock"],
+        choices=["fast", "stock", "raster"],
         default="fast",
-        help="CarRacing renderer (fast is pixel-identical to stock)",
+        help="CarRacing renderer (fast is pixel-identical to stock; raster is faster but "
+        "approximate, see results/ablation/renderer/)",
     )
 
 

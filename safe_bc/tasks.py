@@ -14,7 +14,7 @@ import numpy as np
 
 from safe_bc.data.codec import Encoding
 from safe_bc.envs import SAFETY_DIMS, EnvConfig
-from safe_bc.envs.factory import CARRACING_ID, REHAB_ID
+from safe_bc.envs.factory import CARRACING_ID, REHAB_ID, Renderer
 from safe_bc.experts.carracing import ExpertConfig
 from safe_bc.experts.perturb import PerturbationConfig
 from safe_bc.selection import DEFAULT_EPS
@@ -73,7 +73,7 @@ class TaskDefaults:
         return CollectConfig(**{**fields, **overrides})
 
 
-def _carracing(renderer: Literal["fast", "stock"]) -> TaskDefaults:
+def _carracing(renderer: Renderer) -> TaskDefaults:
     from safe_bc.envs.safety import frame_costs
 
     return TaskDefaults(
@@ -92,7 +92,7 @@ def _carracing(renderer: Literal["fast", "stock"]) -> TaskDefaults:
     )
 
 
-def _rehab(renderer: Literal["fast", "stock"]) -> TaskDefaults:
+def _rehab(renderer: Renderer) -> TaskDefaults:
     from safe_bc.envs.rehab import REHAB_SAFETY_DIMS, observed_costs
     from safe_bc.experts.rehab import GuidelineConfig
 
@@ -112,7 +112,7 @@ def _rehab(renderer: Literal["fast", "stock"]) -> TaskDefaults:
     )
 
 
-REGISTRY: dict[Task, Callable[[Literal["fast", "stock"]], TaskDefaults]] = {
+REGISTRY: dict[Task, Callable[[Renderer], TaskDefaults]] = {
     "carracing": _carracing,
     "rehab": _rehab,
 }
@@ -121,7 +121,7 @@ modules); ``tests/test_tasks.py`` walks every entry."""
 
 
 @functools.cache
-def task_defaults(task: Task, renderer: Literal["fast", "stock"] = "fast") -> TaskDefaults:
+def task_defaults(task: Task, renderer: Renderer = "fast") -> TaskDefaults:
     """Defaults of ``task`` (a key of :data:`REGISTRY`; frozen, so built once)."""
     if task not in REGISTRY:
         raise ValueError(f"unknown task {task!r}: choose {' or '.join(REGISTRY)}")

@@ -12,10 +12,13 @@ from safe_bc.envs.wrappers import CarRacingSafety
 EnvId = Literal["CarRacing-v3", "safe_bc/RehabPathway-v0"]
 """The envs a task can name (``safe_bc.tasks`` pairs each with its task)."""
 CARRACING_ID, REHAB_ID = get_args(EnvId)
-Renderer = Literal["fast", "stock"]
+Renderer = Literal["fast", "stock", "raster"]
+"""CarRacing renderers: ``fast`` (default) and ``stock`` draw identical frames; ``raster`` draws
+approximate ones faster (opt-in, measured in ``results/ablation/renderer/``)."""
 
 FAST_CARRACING_ID = "safe_bc/CarRacingFast-v3"
-ENV_IDS: tuple[str, ...] = (FAST_CARRACING_ID, REHAB_ID)
+RASTER_CARRACING_ID = "safe_bc/CarRacingRaster-v3"
+ENV_IDS: tuple[str, ...] = (FAST_CARRACING_ID, RASTER_CARRACING_ID, REHAB_ID)
 """The gymnasium ids that ``import safe_bc`` (or :func:`register_envs`) registers."""
 
 
@@ -27,15 +30,16 @@ class EnvConfig:
     """The task: the CarRacing testbed or the rehabilitation pathway."""
     renderer: Renderer = "fast"
     """CarRacing only: ``"fast"`` draws pixel-identical frames faster, ``"stock"`` is
-    gymnasium's own renderer."""
+    gymnasium's own renderer, ``"raster"`` rasterises approximate frames directly at 96x96
+    (faster still; frames and costs differ from stock at edges: no committed result uses it)."""
     max_episode_steps: int | None = None
     """Time limit; ``None`` keeps the env's own (1000 steps for CarRacing)."""
 
     def __post_init__(self) -> None:
         if self.env_id not in get_args(EnvId):
             raise ValueError(f"unknown env_id {self.env_id!r}")
-        if self.renderer not in ("fast", "stock"):
-            raise ValueError(f"renderer must be 'fast' or 'stock', got {self.renderer!r}")
+        if self.renderer not in get_args(Renderer):
+            raise ValueError(f"renderer must be one of {get_args(Renderer)}, got {self.renderer!r}")
         if self.max_episode_steps is not None and self.max_episode_steps < 1:
             raise ValueError(f"max_episode_steps must be >= 1, got {self.max_episode_steps}")
 
@@ -59,6 +63,13 @@ def register_envs() -> None:
         gym.register(
             id=FAST_CARRACING_ID,
             entry_point="safe_bc.envs.fast_render:FastCarRacing",
+            max_episode_steps=1000,
+            reward_threshold=900,
+        )
+    if RASTER_CARRACING_ID not in gym.registry:
+        gym.register(
+            id=RASTER_CARRACING_ID,
+            entry_point="safe_bc.envs.raster_render:RasterCarRacing",
             max_episode_steps=1000,
             reward_threshold=900,
         )
@@ -87,7 +98,11 @@ def make_env(config: EnvConfig | None = None) -> gym.Env:
     if config.max_episode_steps is not None:
         kwargs["max_episode_steps"] = config.max_episode_steps
     if config.is_carracing:
-        env_id = FAST_CARRACING_ID if config.renderer == "fast" else CARRACING_ID
+        env_id = {
+            "fast": FAST_CARRACING_ID,
+            "raster": RASTER_CARRACING_ID,
+            "stock": CARRACING_ID,
+        }[config.renderer]
         env = gym.make(env_id, continuous=True, domain_randomize=False, **kwargs)
         return CarRacingSafety(env)
     return gym.make(config.env_id, **kwargs)

@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 
 import safe_bc
-from safe_bc.envs.factory import ENV_IDS, FAST_CARRACING_ID, REHAB_ID
+from safe_bc.envs.factory import ENV_IDS, FAST_CARRACING_ID, RASTER_CARRACING_ID, REHAB_ID
 
 
 def test_import_registers_every_id() -> None:
-    assert set(ENV_IDS) == {FAST_CARRACING_ID, REHAB_ID}
+    assert set(ENV_IDS) == {FAST_CARRACING_ID, RASTER_CARRACING_ID, REHAB_ID}
     for env_id in safe_bc.ENV_IDS:
         assert env_id in gym.registry
 

@@ -1,0 +1,273 @@
+"""An approximate CarRacing-v3 renderer that draws the 96x96 state directly (opt-in).
+
+``RasterCarRacing`` is :class:`~safe_bc.envs.fast_render.FastCarRacing` (stock physics,
+rewards, tracks and colours) whose ``state_pixels`` frame is rasterised with OpenCV on a small
+canvas instead of drawn with pygame on a 1000x800 surface and smooth-scaled. The pygame path
+is memory-bound: it fills ~1-2 million pixels per frame (background, grass squares of ~540 px,
+road) and shrinks 700k of them, which the bit-identical renderer cannot avoid. Here the same
+polygons (same culling, same float screen coordinates, same colours, same draw order) are
+filled with ``cv2.fillPoly`` on a ``96 * supersample`` square canvas in the final (flipped,
+non-uniformly scaled) frame coordinates and box-averaged down to 96x96 with
+``cv2.INTER_AREA``; the indicator panel and the score text are drawn the same way.
+
+**Frames are not bit-identical to stock.** Edge pixels differ by the anti-aliasing (box
+average of ``supersample**2`` samples instead of gfxdraw's anti-aliased outline plus
+smoothscale's fixed-point filter), and so do the safety costs read off the frames.
+``scripts/renderer_cost.py`` measures the frame and cost differences and what they do to a
+policy trained on exact frames (``results/ablation/renderer/``); no committed result uses this
+renderer. ``rgb_array``/``human`` renders are the exact ones of ``FastCarRacing``.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import cv2
+import numpy as np
+from gymnasium.envs.box2d.car_dynamics import SIZE, WHEEL_R, WHEEL_W, WHEEL_WHITE
+from gymnasium.envs.box2d.car_racing import (
+    MAX_SHAPE_DIM,
+    SCALE,
+    STATE_H,
+    STATE_W,
+    WINDOW_H,
+    WINDOW_W,
+    ZOOM,
+)
+
+from safe_bc.envs.fast_render import _FIELD, _GRASS, _PANEL_TOP, FastCarRacing, _rotation
+
+__all__ = ["DEFAULT_SUPERSAMPLE", "RasterCarRacing"]
+
+DEFAULT_SUPERSAMPLE = 2
+"""Canvas side = ``96 * supersample``, chosen by ``scripts/renderer_cost.py``: the most
+accurate factor that still reaches 8x stock's steps/s (``results/ablation/renderer/``)."""
+_SHIFT = 4  # fractional bits of the fixed-point vertices passed to cv2.fillPoly
+_ONE = 1 << _SHIFT
+
+
+class RasterCarRacing(FastCarRacing):
+    """gymnasium ``CarRacing`` whose 96x96 state is rasterised directly (approximate frames).
+
+    Args:
+        supersample: canvas side in multiples of 96; the frame is the canvas box-averaged.
+        **kwargs: ``CarRacing``'s own arguments.
+    """
+
+    def __init__(self, *args: Any, supersample: int = DEFAULT_SUPERSAMPLE, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        if not isinstance(supersample, int) or not 1 <= supersample <= 16:
+            raise ValueError(f"supersample must be an int in [1, 16], got {supersample!r}")
+        self.supersample = supersample
+        side = STATE_W * supersample
+        self._canvas = np.zeros((STATE_H * supersample, side, 3), np.uint8)
+        # screen (unflipped 1000x800) -> canvas fixed point: X = x * sx - 0.5, Y = (H - y) * sy
+        # - 0.5 (cv2 puts pixel centres on integers; pygame's pixel j covers [j, j + 1))
+        self._sx = side / WINDOW_W
+        self._sy = STATE_H * supersample / WINDOW_H
+        self._text_small: tuple[str, np.ndarray, tuple[int, int]] | None = None
+        self._bg_canvas: np.ndarray | None = None
+        self._bg_key: tuple[int, ...] = ()
+        halvings = 0
+        while supersample % (2 ** (halvings + 1)) == 0:
+            halvings += 1
+        self._halvings = halvings  # 2x2 INTER_AREA steps before the last resize
+
+    # ------------------------------------------------------------------ geometry
+    def _canvas_points(self, px: np.ndarray, py: np.ndarray) -> np.ndarray:
+        """Unflipped screen coordinates ``(..., K)`` -> ``(..., K, 2)`` int32 fixed point."""
+        x = (px * self._sx - 0.5) * _ONE
+        y = ((WINDOW_H - py) * self._sy - 0.5) * _ONE
+        return np.stack([x, y], axis=-1).round().astype(np.int32)
+
+    def _fill(self, points: np.ndarray, color: Any) -> None:
+        cv2.fillPoly(self._canvas, [points], _bgr_free(color), cv2.LINE_8, _SHIFT)
+
+    # ------------------------------------------------------------------ frame
+    def _render(self, mode: str) -> Any:
+        if mode != "state_pixels" or "t" not in self.__dict__:
+            return super()._render(mode)
+        assert self.car is not None
+        angle = -self.car.hull.angle
+        zoom = 0.1 * SCALE * max(1 - self.t, 0) + ZOOM * SCALE * min(self.t, 1)
+        c, s = _rotation(angle)
+        x0, y0 = self.car.hull.position
+        scroll_x, scroll_y = -x0 * zoom, -y0 * zoom
+        trans = (
+            WINDOW_W / 2 + (c * scroll_x - s * scroll_y),
+            WINDOW_H / 4 + (s * scroll_x + c * scroll_y),
+        )
+        self._draw_field(zoom, trans, c, s)
+        self._draw_polygons(zoom, trans, angle)
+        self._draw_car_raster(zoom, trans, c, s)
+        self._draw_panel()
+        frame = self._canvas
+        for _ in range(
+            self._halvings
+        ):  # 2x2 averages (cv2's fast path; each rounds), then the rest
+            frame = cv2.resize(
+                frame, (frame.shape[1] // 2, frame.shape[0] // 2), interpolation=cv2.INTER_AREA
+            )
+        if frame.shape[0] != STATE_H:
+            frame = cv2.resize(frame, (STATE_W, STATE_H), interpolation=cv2.INTER_AREA)
+        return frame.copy() if frame is self._canvas else frame  # a new array every step
+
+    def _draw_field(self, zoom: float, trans: tuple[float, float], c: float, s: float) -> None:
+        """Stock's background square: a copy of a plain canvas when it covers the window."""
+        key = tuple(int(v) for v in self.bg_color)
+        if self._bg_canvas is None or self._bg_key != key:
+            self._bg_canvas = np.empty_like(self._canvas)
+            self._bg_canvas[:] = key
+            self._bg_key = key
+        if self._field_covers_window(zoom):
+            np.copyto(self._canvas, self._bg_canvas)
+            return
+        self._canvas.fill(0)
+        field = np.asarray(_FIELD, np.float64)
+        px = (c * field[:, 0] - s * field[:, 1]) * zoom + trans[0]
+        py = (s * field[:, 0] + c * field[:, 1]) * zoom + trans[1]
+        self._fill(self._canvas_points(px, py), self.bg_color)
+
+    def _draw_polygons(self, zoom: float, trans: tuple[float, float], angle: float) -> None:
+        """Stock's grass squares and road polygons that reach the frame, in stock's order."""
+        self._sync_polygons()
+        near = self._near_polygons(zoom, trans, angle, 0)
+        if near.size == 0:
+            return
+        c, s = _rotation(angle)
+        xy = self._poly_xy[near]
+        px = (c * xy[..., 0] - s * xy[..., 1]) * zoom + trans[0]
+        py = (s * xy[..., 0] + c * xy[..., 1]) * zoom + trans[1]
+        inside = (
+            (px >= -MAX_SHAPE_DIM)
+            & (px <= WINDOW_W + MAX_SHAPE_DIM)
+            & (py >= -MAX_SHAPE_DIM)
+            & (py <= WINDOW_H + MAX_SHAPE_DIM)
+        ).any(axis=1)
+        touches = (
+            inside
+            & (px.max(axis=1) >= -2.0)
+            & (px.min(axis=1) <= WINDOW_W + 2.0)
+            & (py.max(axis=1) >= WINDOW_H - _PANEL_TOP - 2.0)
+            & (py.min(axis=1) <= WINDOW_H + 2.0)
+        )
+        if not touches.any():
+            return
+        drawn = near[touches]
+        pts = self._canvas_points(px[touches], py[touches])
+        n_grass = len(_GRASS)
+        # stock int()s each channel; tile colours are live arrays (recoloured when visited)
+        colors: list[Any] = [_bgr_free(self.grass_color)] * int((drawn < n_grass).sum())
+        road = (drawn[drawn >= n_grass] - n_grass).tolist()
+        if road:
+            rgb = np.array([self._road_colors[i] for i in road], dtype=np.float64)
+            colors += rgb.astype(np.int64).tolist()
+        canvas = self._canvas
+        for poly, color in zip(pts, colors, strict=True):
+            cv2.fillPoly(canvas, [poly], color, cv2.LINE_8, _SHIFT)
+
+    def _draw_car_raster(self, zoom: float, trans: tuple[float, float], c: float, s: float) -> None:
+        """The hull and wheels (and the wheels' white stripes), as stock's ``Car.draw``.
+
+        Every vertex is moved to the world with its body's position and angle in one numpy
+        expression (stock lets Box2D transform them one by one).
+        """
+        car = self.car
+        assert car is not None
+        if self._car_src is not car:
+            self._car_shapes = [
+                (obj, [list(f.shape.vertices) for f in obj.fixtures]) for obj in car.drawlist
+            ]
+            local, body, sizes, colors = [], [], [], []
+            for b, (obj, shapes) in enumerate(self._car_shapes):
+                for vertices in shapes:
+                    local += vertices
+                    body += [b] * len(vertices)
+                    sizes.append(len(vertices))
+                    colors.append([int(v * 255) for v in obj.color])
+            self._car_local = np.asarray(local, np.float64)
+            self._car_body = np.asarray(body)
+            self._car_split = np.cumsum(sizes)[:-1]
+            self._car_colors = colors
+            self._car_src = car
+        bodies = [obj for obj, _ in self._car_shapes]
+        pos = np.asarray([tuple(obj.position) for obj in bodies], np.float64)
+        ang = np.asarray([obj.angle for obj in bodies], np.float64)
+        polys, colors = [self._car_local], list(self._car_colors)
+        index = [self._car_body]
+        for b, obj in enumerate(bodies):
+            if "phase" not in obj.__dict__:  # wheels have a phase, the hull has not
+                continue
+            a1, a2 = obj.phase, obj.phase + 1.2
+            s1, s2, c1, c2 = math.sin(a1), math.sin(a2), math.cos(a1), math.cos(a2)
+            if s1 > 0 and s2 > 0:
+                continue
+            if s1 > 0:
+                c1 = float(np.sign(c1))
+            if s2 > 0:
+                c2 = float(np.sign(c2))
+            polys.append(
+                np.asarray(
+                    [
+                        (-WHEEL_W * SIZE, +WHEEL_R * c1 * SIZE),
+                        (+WHEEL_W * SIZE, +WHEEL_R * c1 * SIZE),
+                        (+WHEEL_W * SIZE, +WHEEL_R * c2 * SIZE),
+                        (-WHEEL_W * SIZE, +WHEEL_R * c2 * SIZE),
+                    ]
+                )
+            )
+            index.append(np.full(4, b))
+            colors.append(list(WHEEL_WHITE))
+        local = np.concatenate(polys)
+        b = np.concatenate(index)
+        bc, bs = np.cos(ang)[b], np.sin(ang)[b]
+        wx = bc * local[:, 0] - bs * local[:, 1] + pos[b, 0]
+        wy = bs * local[:, 0] + bc * local[:, 1] + pos[b, 1]
+        px = (c * wx - s * wy) * zoom + trans[0]
+        py = (s * wx + c * wy) * zoom + trans[1]
+        pts = self._canvas_points(px, py)
+        n_stripes = len(colors) - len(self._car_colors)
+        split = np.concatenate([self._car_split, len(self._car_local) + 4 * np.arange(n_stripes)])
+        canvas = self._canvas
+        for poly, color in zip(np.split(pts, split), colors, strict=True):
+            cv2.fillPoly(canvas, [poly], color, cv2.LINE_8, _SHIFT)
+
+    def _draw_panel(self) -> None:
+        """The indicator panel (already in flipped coordinates) and the score text."""
+        canvas = self._canvas
+        top = round(_PANEL_TOP * self._sy)
+        canvas[top:] = 0
+        indicators = self._indicator_polygons(WINDOW_W, WINDOW_H)
+        if indicators:
+            p = np.asarray([points for points, _ in indicators], np.float64)  # (K, 4, 2)
+            # already flipped: _canvas_points maps (H - y) to canvas row y * sy
+            pts = self._canvas_points(p[..., 0], WINDOW_H - p[..., 1])
+            for poly, (_, color) in zip(pts, indicators, strict=True):
+                cv2.fillPoly(canvas, [poly], color, cv2.LINE_8, _SHIFT)
+        text, (x, y) = self._small_score()
+        h, w = text.shape[:2]
+        y1, x1 = min(y + h, canvas.shape[0]), min(x + w, canvas.shape[1])
+        canvas[y:y1, x:x1] = text[: y1 - y, : x1 - x]
+
+    def _small_score(self) -> tuple[np.ndarray, tuple[int, int]]:
+        """The score digits scaled to the canvas, and their top-left corner there."""
+        label = f"{self.reward:04.0f}"
+        if self._text_small is None or self._text_small[0] != label:
+            surf = self._score_text()
+            w, h = surf.get_size()
+            import pygame
+
+            rgb = np.frombuffer(pygame.image.tobytes(surf, "RGB"), np.uint8).reshape(h, w, 3)
+            left = 60 - w / 2
+            top = WINDOW_H - WINDOW_H * 2.5 / 40.0 - h / 2
+            x0, y0 = round(left * self._sx), round(top * self._sy)
+            size = (max(1, round(w * self._sx)), max(1, round(h * self._sy)))
+            small = cv2.resize(rgb, size, interpolation=cv2.INTER_AREA)
+            self._text_small = (label, small, (x0, y0))
+        return self._text_small[1], self._text_small[2]
+
+
+def _bgr_free(color: Any) -> list[int]:
+    """A colour as the int list cv2 wants (channels stay in RGB order: the canvas is RGB)."""
+    return [int(v) for v in color]
