@@ -279,6 +279,10 @@ def bench_env(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
         "fast": ("fast", note),
         "stock + costs": ("stock + safety costs", cost_note),
         "fast + costs": ("make_env default (fast + safety costs)", cost_note),
+        "raster + costs": (
+            "raster renderer + safety costs (approximate frames)",
+            f"{cost_note}; not bit-identical: results/ablation/renderer/ measures its error",
+        ),
     }
     out = []
     for cpu in (False, True):
@@ -642,10 +646,16 @@ def bench_eval(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
         episodes=sizes.eval_episodes, workers=0, seed=seed, max_steps=sizes.eval_steps
     )
     lock_config = replace(config, episodes=BATCHED_ENVS)
+    raster_config = replace(lock_config, env=replace(lock_config.env, renderer="raster"))
     _time_step_parts(sources["BC net"], 5, seed)  # warm-up
     eps: dict[str, list[float]] = {name: [] for name in sources}
     sps: dict[str, list[float]] = {name: [] for name in sources}
-    lock: dict[int, list[float]] = {1: [], BATCHED_ENVS: []}
+    lock: dict[tuple[str, int], list[float]] = {
+        ("fast", 1): [],
+        ("fast", BATCHED_ENVS): [],
+        ("raster", 1): [],
+        ("raster", BATCHED_ENVS): [],
+    }
     parts: dict[str, list[float]] = {k: [] for k in ("env", "net", "expert", "net batch",
                                                      "net slots")}  # fmt: skip
     for rep in range(repeats):
@@ -653,8 +663,9 @@ def bench_eval(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
             e, s = _time_evaluation(sources[name], config)
             eps[name].append(e)
             sps[name].append(s)
-        for envs in _order(list(lock), rep):
-            lock[envs].append(_time_evaluation(sources["BC net"], lock_config, envs)[0])
+        for renderer, envs in _order(list(lock), rep):
+            cfg = raster_config if renderer == "raster" else lock_config
+            lock[(renderer, envs)].append(_time_evaluation(sources["BC net"], cfg, envs)[0])
         for key, ms in _time_step_parts(sources["BC net"], sizes.act_steps, seed).items():
             parts[key].append(ms)
     share = [n / (n + e) for n, e in zip(parts["net"], parts["env"], strict=True)]
@@ -710,15 +721,27 @@ def bench_eval(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
             "batched where batching keeps the bits (BCNet.forward_rows), the rest per frame; "
             "bit-identical to act",
         ),
-        _self_row("eval", "BC net, 1 env", lock[1], "episodes/min", lock_note),
+        _self_row("eval", "BC net, 1 env", lock[("fast", 1)], "episodes/min", lock_note),
         _row(
             "eval",
             f"BC net, {BATCHED_ENVS} envs in lockstep",
-            lock[BATCHED_ENVS],
+            lock[("fast", BATCHED_ENVS)],
             "episodes/min",
-            ("BC net, 1 env", lock[1]),
+            ("BC net, 1 env", lock[("fast", 1)]),
             lock_note,
         ),
+        *[
+            _row(
+                "eval",
+                f"BC net, raster renderer, {label}",
+                lock[("raster", envs)],
+                "episodes/min",
+                ("BC net, 1 env", lock[("fast", 1)]),
+                f"{lock_note}; renderer='raster': approximate frames (not the exact env's "
+                "episodes; results/ablation/renderer/ measures the difference)",
+            )
+            for envs, label in ((1, "1 env"), (BATCHED_ENVS, f"{BATCHED_ENVS} envs in lockstep"))
+        ],
         _row(
             "eval",
             "expert act",

@@ -37,11 +37,13 @@ _VARIANTS: dict[str, Callable[[], Any]] = {"stock": CarRacing, "fast": FastCarRa
 COST_VARIANTS: dict[str, Callable[[], Any]] = {
     "stock + costs": lambda: _make_env("stock"),
     "fast + costs": lambda: _make_env("fast"),
+    "raster + costs": lambda: _make_env("raster"),
 }
-"""``make_env`` with stock gymnasium's renderer, and the default ``make_env()`` (fast renderer):
-both compute the same pixel safety costs every step."""
+"""``make_env`` with stock gymnasium's renderer, the default ``make_env()`` (fast renderer,
+identical frames) and the opt-in approximate ``raster`` renderer: all compute the pixel safety
+costs every step."""
 BASELINES = {"stock": "stock", "fast": "stock", "stock + costs": "stock + costs"}
-BASELINES["fast + costs"] = "stock + costs"
+BASELINES["fast + costs"] = BASELINES["raster + costs"] = "stock + costs"
 """Each variant's baseline: the stock renderer with the same wrappers and cost computation."""
 
 

@@ -77,11 +77,12 @@ def cache_path(cache: Path, key: str) -> Path:
 
 
 def _evaluate_one(key: str, source: Any, config: Any, limits: np.ndarray | None) -> pd.DataFrame:
-    from safe_bc.distributed.evaluate import evaluate_policies
+    from safe_bc.distributed.evaluate import LOCKSTEP_ENVS, evaluate_policies
 
     torch.set_num_threads(1)  # one core per process
     config = dataclasses.replace(config, workers=0)
-    episodes, _ = evaluate_policies({key: source}, config, thresholds=limits, progress=False)
+    episodes, _ = evaluate_policies({key: source}, config, thresholds=limits, progress=False,
+                                    envs_per_worker=LOCKSTEP_ENVS)  # fmt: skip
     return episodes
 
 
@@ -134,10 +135,11 @@ def evaluate_cached(
             for key, job in jobs.items():
                 keep(key, job.get())
     elif missing:
-        from safe_bc.distributed.evaluate import evaluate_policies
+        from safe_bc.distributed.evaluate import LOCKSTEP_ENVS, evaluate_policies
 
         episodes, _ = evaluate_policies({k: sources[k] for k in missing}, config,
-                                        thresholds=limits, progress=progress)  # fmt: skip
+                                        thresholds=limits, progress=progress,
+                                        envs_per_worker=LOCKSTEP_ENVS)  # fmt: skip
         for key, frame in episodes.groupby("policy", sort=False):
             keep(str(key), frame.reset_index(drop=True))
     return pd.concat([frames[k] for k in sources], ignore_index=True)

@@ -188,6 +188,11 @@ def main(argv: list[str] | None = None) -> int:
     print(speed[["variant", "steps_per_s", "ratio_vs_stock"]])
     factor = choose_factor(frames, speed)
     print(f"chosen supersample factor: {factor}")
+    if factor != DEFAULT_SUPERSAMPLE:  # the evaluation actors build the raster env's default
+        raise SystemExit(
+            f"the rule chose supersample {factor}, the default is {DEFAULT_SUPERSAMPLE}: set "
+            "raster_render.DEFAULT_SUPERSAMPLE to it and rerun"
+        )
 
     starts = sorted(args.starts.glob("seed*"))
     if not starts:
@@ -201,11 +206,6 @@ def main(argv: list[str] | None = None) -> int:
         env = EnvConfig(renderer=renderer)  # type: ignore[arg-type]
         cfg = EvalConfig(episodes=args.episodes, workers=args.workers, seed=args.eval_seed,
                          env=env)  # fmt: skip
-        if renderer == "raster" and factor != DEFAULT_SUPERSAMPLE:
-            raise SystemExit(
-                f"the rule chose supersample {factor}; set raster_render.DEFAULT_SUPERSAMPLE "
-                "to it and rerun (the raster env is built with its default)"
-            )
         episodes, _ = evaluate_policies(sources, cfg, thresholds=limits)
         rows.append(episodes.assign(renderer="exact" if renderer == "fast" else "raster"))
     episodes = pd.concat(rows, ignore_index=True)

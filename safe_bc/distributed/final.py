@@ -31,7 +31,7 @@ import torch
 from safe_bc.bc.net import BCNet
 from safe_bc.collection import stored_expert_config
 from safe_bc.demos import Demonstrations
-from safe_bc.distributed.evaluate import evaluate
+from safe_bc.distributed.evaluate import LOCKSTEP_ENVS, evaluate
 from safe_bc.distributed.runtime import cluster_cpus, ensure_ray
 from safe_bc.distributed.train import train_many
 from safe_bc.distributed.trial import TrialJob, bounds_for, trial_threads, with_seed
@@ -173,7 +173,8 @@ def final_phase(
             if progress:
                 print(f"final phase: seed {s}, tracks {i * per}..{(i + 1) * per - 1} of block "
                       f"{spec.final_seed}")  # fmt: skip
-            eps = evaluate(sources, config, np.asarray(job.cost_limits), progress=progress)
+            eps = evaluate(sources, config, np.asarray(job.cost_limits), progress=progress,
+                           envs_per_worker=LOCKSTEP_ENVS)  # fmt: skip
             ep = eps.episodes
             ep.insert(0, "train_seed", s)
             ep.insert(0, "method", ep["policy"].str.split(" ").str[0])
