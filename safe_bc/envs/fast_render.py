@@ -226,6 +226,17 @@ class FastCarRacing(CarRacing):
         self._road_src = road_poly
         self._road_len = len(road_poly)
 
+    def _ensure_font(self) -> None:
+        """Stock calls ``pygame.font.init()`` every frame; a font loaded before a
+        ``pygame.quit()`` (say, by closing a human-mode env) must not be used afterwards."""
+        if not pygame.font.get_init():
+            pygame.font.init()
+        generation = _pygame_generation()
+        if generation != self._font_generation:
+            self._font = None
+            self._text_cache = None
+            self._font_generation = generation
+
     def _get_font(self) -> pygame.font.Font:
         """The score font, loaded once (stock loads it from disk every frame)."""
         if self._font is None:
@@ -529,15 +540,7 @@ class FastCarRacing(CarRacing):
     def _render(self, mode: str) -> Any:
         assert mode in self.metadata["render_modes"]
 
-        # stock calls pygame.font.init() every frame; a font loaded before a pygame.quit() (say,
-        # by closing a human-mode env) must not be used afterwards
-        if not pygame.font.get_init():
-            pygame.font.init()
-        generation = _pygame_generation()
-        if generation != self._font_generation:
-            self._font = None
-            self._text_cache = None
-            self._font_generation = generation
+        self._ensure_font()
         if self.screen is None and mode == "human":
             pygame.display.init()
             self.screen = pygame.display.set_mode((WINDOW_W, WINDOW_H))

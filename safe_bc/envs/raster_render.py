@@ -88,6 +88,7 @@ class RasterCarRacing(FastCarRacing):
     def _render(self, mode: str) -> Any:
         if mode != "state_pixels" or "t" not in self.__dict__:
             return super()._render(mode)
+        self._ensure_font()  # the score digits
         assert self.car is not None
         angle = -self.car.hull.angle
         zoom = 0.1 * SCALE * max(1 - self.t, 0) + ZOOM * SCALE * min(self.t, 1)

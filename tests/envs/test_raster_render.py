@@ -83,6 +83,16 @@ def test_other_render_modes_are_exact() -> None:
     env.close()
 
 
+def test_works_without_an_initialised_font_module() -> None:
+    import pygame
+
+    pygame.font.quit()  # a fresh process (an evaluation actor) has never initialised it
+    env = make_env(EnvConfig(renderer="raster"))
+    obs, _ = env.reset(seed=3)
+    assert obs.shape == (96, 96, 3)
+    env.close()
+
+
 def test_renderer_name_checked() -> None:
     with pytest.raises(ValueError, match="renderer must be one of"):
         EnvConfig(renderer="pixel")  # type: ignore[arg-type]
