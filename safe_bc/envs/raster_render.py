@@ -40,7 +40,7 @@ from safe_bc.envs.fast_render import _FIELD, _GRASS, _PANEL_TOP, FastCarRacing, 
 
 __all__ = ["DEFAULT_SUPERSAMPLE", "RasterCarRacing"]
 
-DEFAULT_SUPERSAMPLE = 4
+DEFAULT_SUPERSAMPLE = 2
 """Canvas side = ``96 * supersample``, chosen by ``scripts/renderer_cost.py``: the most
 accurate factor that still reaches 8x stock's steps/s (``results/ablation/renderer/``)."""
 _SHIFT = 4  # fractional bits of the fixed-point vertices passed to cv2.fillPoly
