@@ -21,7 +21,8 @@ training and evaluation all use raster frames, against the committed exact pipel
    crossed bootstrap over training seeds and tracks.
 
 Writes ``pipeline_episodes.parquet``, ``pipeline_paired.parquet`` and ``pipeline.md`` under
-``--out``. Demonstrations and agents go to ``--data`` (not committed).
+``--out``. Demonstrations and agents go to ``--data`` (not committed; reused by a rerun at the
+same revision).
 """
 
 from __future__ import annotations
@@ -37,7 +38,7 @@ import pandas as pd
 from safe_bc.atomic import write_text_atomic
 from safe_bc.cli import main as safe_bc
 from safe_bc.data.store import load_demonstrations, read_table, write_table_atomic
-from safe_bc.provenance import run_metadata
+from safe_bc.provenance import git_revision, run_metadata
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -51,13 +52,17 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     p.add_argument("--alpha", type=float, default=0.1, help="the starts' safety focus")
     p.add_argument("--exact", type=Path, default=Path("results/ablation/renderer/episodes.parquet"))
-    p.add_argument("--data", type=Path, default=Path("data/renderer_pipeline"))
+    p.add_argument("--data", type=Path, default=None,
+                   help="demonstrations and agents (default: data/renderer_pipeline/<revision>, "
+                   "so a renderer change is never reused)")  # fmt: skip
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--out", type=Path, default=Path("results/ablation/renderer"))
     args = p.parse_args(argv)
     command = shlex.join(["python", "-m", "scripts.renderer_pipeline",
                           *(sys.argv[1:] if argv is None else argv)])  # fmt: skip
 
+    if args.data is None:
+        args.data = Path("data/renderer_pipeline") / git_revision()[:12]
     exact_all, exact_meta = read_table(args.exact)
     exact = exact_all[exact_all["renderer"] == "exact"]
     if exact.empty:

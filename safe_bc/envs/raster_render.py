@@ -8,14 +8,18 @@ road) and shrinks 700k of them, which the bit-identical renderer cannot avoid. H
 polygons (same culling, same float screen coordinates, same colours, same draw order) are
 filled with ``cv2.fillPoly`` on a ``96 * supersample`` square canvas in the final (flipped,
 non-uniformly scaled) frame coordinates and box-averaged down to 96x96 with
-``cv2.INTER_AREA``; the indicator panel and the score text are drawn the same way.
+``cv2.INTER_AREA``. The indicator panel (the bottom 12 rows) is drawn the exact way, with
+pygame on its own 1000x100 surface and smoothscale's two passes: agents read their speed off
+the bar's anti-aliased edge, which the canvas would quantise to ``supersample`` levels per
+pixel (its rows differ from stock's by at most 1, from where smoothscale's Y pass starts).
 
-**Frames are not bit-identical to stock.** Edge pixels differ by the anti-aliasing (box
-average of ``supersample**2`` samples instead of gfxdraw's anti-aliased outline plus
-smoothscale's fixed-point filter), and so do the safety costs read off the frames.
-``scripts/renderer_cost.py`` measures the frame and cost differences and what they do to a
-policy trained on exact frames (``results/ablation/renderer/``); no committed result uses this
-renderer. ``rgb_array``/``human`` renders are the exact ones of ``FastCarRacing``.
+**Frames are not bit-identical to stock.** Road, grass and car edges differ by the
+anti-aliasing (a box average of ``supersample**2`` samples instead of gfxdraw's anti-aliased
+outline plus smoothscale's fixed-point filter), and so do the safety costs read off the
+frames. ``scripts/renderer_cost.py`` and ``scripts/renderer_pipeline.py`` measure the frame
+and cost differences and what they do to agents (``results/ablation/renderer/``); no committed
+result uses this renderer. ``rgb_array``/``human`` renders are the exact ones of
+``FastCarRacing``.
 """
 
 from __future__ import annotations
@@ -25,6 +29,7 @@ from typing import Any
 
 import cv2
 import numpy as np
+import pygame
 from gymnasium.envs.box2d.car_dynamics import SIZE, WHEEL_R, WHEEL_W, WHEEL_WHITE
 from gymnasium.envs.box2d.car_racing import (
     MAX_SHAPE_DIM,
@@ -36,7 +41,15 @@ from gymnasium.envs.box2d.car_racing import (
     ZOOM,
 )
 
-from safe_bc.envs.fast_render import _FIELD, _GRASS, _PANEL_TOP, FastCarRacing, _rotation
+from safe_bc.envs.fast_render import (
+    _FIELD,
+    _GRASS,
+    _PANEL_ROWS,
+    _PANEL_TOP,
+    FastCarRacing,
+    _rotation,
+    _surface_rgb,
+)
 
 __all__ = ["DEFAULT_SUPERSAMPLE", "RasterCarRacing"]
 
@@ -44,6 +57,7 @@ DEFAULT_SUPERSAMPLE = 2
 """Canvas side = ``96 * supersample``, chosen by ``scripts/renderer_cost.py``: the smallest
 (fastest) factor whose safety distances stay within 10% of eps of the exact ones on average
 (``results/ablation/renderer/``)."""
+_PANEL_STATE_ROWS = STATE_H * _PANEL_ROWS // WINDOW_H  # 12: the indicator panel in the state
 _SHIFT = 4  # fractional bits of the fixed-point vertices passed to cv2.fillPoly
 _ONE = 1 << _SHIFT
 
@@ -69,6 +83,7 @@ class RasterCarRacing(FastCarRacing):
         self._sy = STATE_H * supersample / WINDOW_H
         self._text_small: tuple[str, np.ndarray, tuple[int, int]] | None = None
         self._bg_canvas: np.ndarray | None = None
+        self._panel_state: pygame.Surface | None = None
         self._bg_key: tuple[int, ...] = ()
         halvings = 0
         while supersample % (2 ** (halvings + 1)) == 0:
@@ -113,7 +128,32 @@ class RasterCarRacing(FastCarRacing):
             )
         if frame.shape[0] != STATE_H:
             frame = cv2.resize(frame, (STATE_W, STATE_H), interpolation=cv2.INTER_AREA)
-        return frame.copy() if frame is self._canvas else frame  # a new array every step
+        frame = frame.copy() if frame is self._canvas else frame  # a new array every step
+        frame[STATE_H - _PANEL_STATE_ROWS :] = self._exact_panel()
+        return frame
+
+    def _exact_panel(self) -> np.ndarray:
+        """The bottom ``_PANEL_STATE_ROWS`` rows drawn the exact way (pygame polygons and text on
+        the 1000x100 panel, smoothscale's X then Y pass): ``(12, 96, 3)`` uint8.
+
+        Agents read their speed off the indicator bar's anti-aliased top edge; on the canvas
+        it takes only ``supersample`` levels per pixel, here smoothscale's fine ones.
+        """
+        bufs = self._buffers()
+        panel = bufs.panel
+        W, H = WINDOW_W, WINDOW_H
+        h = H / 40.0
+        pygame.draw.polygon(
+            panel, color=(0, 0, 0), points=[(W, H), (W, H - 5 * h), (0, H - 5 * h), (0, H)]
+        )
+        for points, color in self._indicator_polygons(W, H):
+            pygame.draw.polygon(panel, points=points, color=color)
+        self._draw_score(panel)
+        if self._panel_state is None or self._panel_state.get_bitsize() != panel.get_bitsize():
+            self._panel_state = pygame.Surface((STATE_W, _PANEL_STATE_ROWS), 0, panel)
+        pygame.transform.smoothscale(bufs.panel_rows, (STATE_W, _PANEL_ROWS), bufs.panel_x)
+        pygame.transform.smoothscale(bufs.panel_x, (STATE_W, _PANEL_STATE_ROWS), self._panel_state)
+        return _surface_rgb(self._panel_state)
 
     def _draw_field(self, zoom: float, trans: tuple[float, float], c: float, s: float) -> None:
         """Stock's background square: a copy of a plain canvas when it covers the window."""
@@ -258,8 +298,6 @@ class RasterCarRacing(FastCarRacing):
         if self._text_small is None or self._text_small[0] != label:
             surf = self._score_text()
             w, h = surf.get_size()
-            import pygame
-
             rgb = np.frombuffer(pygame.image.tobytes(surf, "RGB"), np.uint8).reshape(h, w, 3)
             left = 60 - w / 2
             top = WINDOW_H - WINDOW_H * 2.5 / 40.0 - h / 2

@@ -55,6 +55,12 @@ def test_frames_and_costs_close_to_exact(pair) -> None:
     assert not all(np.array_equal(exact[k], raster[k]) for k in scored)  # it is approximate
 
 
+def test_indicator_panel_is_drawn_the_exact_way(pair) -> None:
+    (exact, _, _), (raster, _, _) = pair
+    for a, b in zip(exact, raster, strict=True):  # speed bar, wheel bars, score digits
+        assert np.abs(a[84:].astype(int) - b[84:].astype(int)).max() <= 1
+
+
 def test_deterministic_and_fresh_arrays() -> None:
     a, _, _ = _drive("raster", 9)
     b, _, _ = _drive("raster", 9)
