@@ -20,9 +20,13 @@ training and evaluation all use raster frames, against the committed exact pipel
    (the committed starts, exact demonstrations and frames, same training seeds and tracks),
    crossed bootstrap over training seeds and tracks.
 
-Writes ``pipeline_episodes.parquet``, ``pipeline_paired.parquet`` and ``pipeline.md`` under
-``--out``. Demonstrations and agents go to ``--data`` (not committed; reused by a rerun at the
-same revision).
+``--exact results/table1_episodes.parquet --method "alpha=0.1 (rest=all)" --seeds 0 1 2 3 4 5
+6 7 --name pipeline_table1`` pairs with a Table 1 row instead (its 8 training seeds x 20
+tracks, its eval seed, its method's alpha).
+
+Writes ``<name>_episodes.parquet``, ``<name>_paired.parquet`` and ``<name>.md`` under
+``--out`` (``--name`` default ``pipeline``). Demonstrations and agents go to ``--data`` (not
+committed; reused by a rerun at the same revision).
 """
 
 from __future__ import annotations
@@ -55,6 +59,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--data", type=Path, default=None,
                    help="demonstrations and agents (default: data/renderer_pipeline/<revision>, "
                    "so a renderer change is never reused)")  # fmt: skip
+    p.add_argument(
+        "--method",
+        default=None,
+        help="pair with this method's rows of --exact (a Table 1 episodes table)",
+    )
+    p.add_argument("--name", default="pipeline", help="output file prefix")
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--out", type=Path, default=Path("results/ablation/renderer"))
     args = p.parse_args(argv)
@@ -64,10 +74,22 @@ def main(argv: list[str] | None = None) -> int:
     if args.data is None:
         args.data = Path("data/renderer_pipeline") / git_revision()[:12]
     exact_all, exact_meta = read_table(args.exact)
-    exact = exact_all[exact_all["renderer"] == "exact"]
+    if args.method is None:  # scripts.renderer_cost's table
+        exact = exact_all[exact_all["renderer"] == "exact"]
+        demos_path, n_tracks = exact_meta["demos"], int(exact_meta["episodes"])
+    else:  # a Table 1 episodes table
+        exact = exact_all[exact_all["method"] == args.method]
+        t1 = exact_meta["config"]
+        if args.method not in t1["methods"]:
+            raise SystemExit(f"{args.exact}: no method {args.method!r}")
+        args.alpha = float(t1["methods"][args.method]["alpha"])
+        demos_path, n_tracks = t1["demos"], int(t1["episodes"])
     if exact.empty:
         raise SystemExit(f"{args.exact}: no exact rows (run scripts.renderer_cost first)")
-    exact_demos = load_demonstrations(Path(exact_meta["demos"]))
+    missing = sorted(set(args.seeds) - set(exact["train_seed"]))
+    if missing:
+        raise SystemExit(f"{args.exact}: no exact rows for training seeds {missing}")
+    exact_demos = load_demonstrations(Path(demos_path))
 
     demos_dir = args.data / "demos"
     if not (demos_dir / "dataset.json").exists():
@@ -89,7 +111,7 @@ def main(argv: list[str] | None = None) -> int:
         sources[f"seed{k}"] = NetSource.from_model(model, cfg)
 
     config = EvalConfig(
-        episodes=int(exact_meta["episodes"]),
+        episodes=n_tracks,
         workers=args.workers,
         seed=int(exact_meta["eval_seed"]),
         env=EnvConfig(renderer="raster"),
@@ -98,7 +120,7 @@ def main(argv: list[str] | None = None) -> int:
     episodes["train_seed"] = episodes["policy"].str.removeprefix("seed").astype(int)
     both = pd.concat(
         [
-            exact.assign(method="exact pipeline"),
+            exact.assign(method="exact pipeline", renderer="exact"),
             episodes.assign(method="raster pipeline", renderer="raster"),
         ],
         ignore_index=True,
@@ -111,15 +133,16 @@ def main(argv: list[str] | None = None) -> int:
         "raster pipeline": [float(x) for x in demos.limits],
     }
     meta = run_metadata(seeds=args.seeds, alpha=args.alpha, demos=str(demos_dir),
+                        exact_method=args.method,
                         exact=str(args.exact), exact_revision=exact_meta.get("git_revision"),
                         episodes=config.episodes, eval_seed=config.seed, limits=limits,
                         demo_pairs={"exact pipeline": len(exact_demos.actions),
                                     "raster pipeline": len(demos.actions)})  # fmt: skip
     meta["command"] = command
-    write_table_atomic(args.out / "pipeline_episodes.parquet", both, meta)
-    write_table_atomic(args.out / "pipeline_paired.parquet", paired, meta)
-    write_text_atomic(args.out / "pipeline.md", markdown(both, paired, meta))
-    print((args.out / "pipeline.md").read_text())
+    write_table_atomic(args.out / f"{args.name}_episodes.parquet", both, meta)
+    write_table_atomic(args.out / f"{args.name}_paired.parquet", paired, meta)
+    write_text_atomic(args.out / f"{args.name}.md", markdown(both, paired, meta))
+    print((args.out / f"{args.name}.md").read_text())
     return 0
 
 
