@@ -14,6 +14,7 @@ from safe_bc.bc.config import PreprocessConfig
 from safe_bc.data.store import DatasetError
 from safe_bc.distributed.runtime import RayUnavailableError, check_ray_address
 from safe_bc.docs import field_doc
+from safe_bc.envs.factory import Renderer
 from safe_bc.locks import OutputLockedError, check_output_folder, output_lock, output_locks
 from safe_bc.selection import RULES, Baseline
 from safe_bc.tasks import DEFAULT_TASK, TASKS
@@ -141,7 +142,7 @@ def _env_args(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--renderer",
-        choices=["fast", "stock", "raster"],
+        choices=list(get_args(Renderer)),
         default="fast",
         help="CarRacing renderer (fast is pixel-identical to stock; raster is faster but "
         "approximate, see results/ablation/renderer/)",

@@ -49,6 +49,18 @@ class EnvConfig:
         return self.env_id == CARRACING_ID
 
 
+CARRACING_IDS: dict[Renderer, str] = {
+    "fast": FAST_CARRACING_ID,
+    "raster": RASTER_CARRACING_ID,
+    "stock": CARRACING_ID,
+}
+"""The gymnasium id that each renderer's CarRacing is made from."""
+_CARRACING_ENTRY_POINTS = {
+    FAST_CARRACING_ID: "safe_bc.envs.fast_render:FastCarRacing",
+    RASTER_CARRACING_ID: "safe_bc.envs.raster_render:RasterCarRacing",
+}
+
+
 def register_envs() -> None:
     """Register safe_bc's environment ids, :data:`ENV_IDS`, with gymnasium (idempotent).
 
@@ -59,20 +71,11 @@ def register_envs() -> None:
     >>> register_envs(); all(env_id in gym.registry for env_id in ENV_IDS)
     True
     """
-    if FAST_CARRACING_ID not in gym.registry:
-        gym.register(
-            id=FAST_CARRACING_ID,
-            entry_point="safe_bc.envs.fast_render:FastCarRacing",
-            max_episode_steps=1000,
-            reward_threshold=900,
-        )
-    if RASTER_CARRACING_ID not in gym.registry:
-        gym.register(
-            id=RASTER_CARRACING_ID,
-            entry_point="safe_bc.envs.raster_render:RasterCarRacing",
-            max_episode_steps=1000,
-            reward_threshold=900,
-        )
+    for env_id, entry_point in _CARRACING_ENTRY_POINTS.items():
+        if env_id not in gym.registry:
+            gym.register(
+                id=env_id, entry_point=entry_point, max_episode_steps=1000, reward_threshold=900
+            )
     if REHAB_ID not in gym.registry:
         from safe_bc.envs.rehab import DEFAULT_N_SESSIONS
 
@@ -98,11 +101,8 @@ def make_env(config: EnvConfig | None = None) -> gym.Env:
     if config.max_episode_steps is not None:
         kwargs["max_episode_steps"] = config.max_episode_steps
     if config.is_carracing:
-        env_id = {
-            "fast": FAST_CARRACING_ID,
-            "raster": RASTER_CARRACING_ID,
-            "stock": CARRACING_ID,
-        }[config.renderer]
-        env = gym.make(env_id, continuous=True, domain_randomize=False, **kwargs)
+        env = gym.make(
+            CARRACING_IDS[config.renderer], continuous=True, domain_randomize=False, **kwargs
+        )
         return CarRacingSafety(env)
     return gym.make(config.env_id, **kwargs)

@@ -282,10 +282,23 @@ class FastCarRacing(CarRacing):
         assert surf is not None
         self._draw_background(zoom, translation, angle, visible_top)
 
+        px, py, colors = self._visible_polygons(zoom, translation, angle, visible_top)
+        pts = np.stack([px, py], axis=-1).tolist()  # (D, 4, 2) Python floats
+        aapolygon = gfxdraw.aapolygon
+        filled_polygon = gfxdraw.filled_polygon
+        for poly, color in zip(pts, colors, strict=True):
+            aapolygon(surf, poly, color)
+            filled_polygon(surf, poly, color)
+
+    def _visible_polygons(
+        self, zoom: float, translation: tuple[float, float], angle: float, visible_top: int
+    ) -> tuple[np.ndarray, np.ndarray, list[Any]]:
+        """The grass and road polygons stock would draw that can reach a kept pixel, in stock's
+        order: their screen coordinates ``px, py`` (``(D, 4)`` float64 each, stock's floats)
+        and colours (the grass colour as stock passes it, road colours int()ed as stock does).
+        """
         self._sync_polygons()
         near = self._near_polygons(zoom, translation, angle, visible_top)
-        if near.size == 0:
-            return
         px, py = _to_screen(self._poly_xy[near], zoom, translation, angle)  # (K, 4) each
         # stock's test: keep a polygon if any vertex is inside the window +- MAX_SHAPE_DIM ...
         inside = (
@@ -303,23 +316,15 @@ class FastCarRacing(CarRacing):
             & (py.min(axis=1) <= WINDOW_H + _SKIP_MARGIN)
         )
         drawn = near[touches]
-        if drawn.size == 0:
-            return
-        pts = np.stack([px[touches], py[touches]], axis=-1).tolist()  # (D, 4, 2) Python floats
         n_grass = len(_GRASS)
-        road_colors = self._road_colors
         road_drawn = (drawn[drawn >= n_grass] - n_grass).tolist()
         # stock int()s each road colour channel (tile colours are float arrays, changed in place
         # when a tile is visited, so they are read every frame); astype truncates the same way
         colors: list[Any] = [self.grass_color] * (drawn.size - len(road_drawn))
         if road_drawn:
-            rgb = np.array([road_colors[i] for i in road_drawn], dtype=np.float64)
+            rgb = np.array([self._road_colors[i] for i in road_drawn], dtype=np.float64)
             colors += rgb.astype(np.int64).tolist()
-        aapolygon = gfxdraw.aapolygon
-        filled_polygon = gfxdraw.filled_polygon
-        for poly, color in zip(pts, colors, strict=True):
-            aapolygon(surf, poly, color)
-            filled_polygon(surf, poly, color)
+        return px[touches], py[touches], colors
 
     def _near_polygons(
         self, zoom: float, translation: tuple[float, float], angle: float, visible_top: int
@@ -448,24 +453,9 @@ class FastCarRacing(CarRacing):
                 )
                 if not has_phase:
                     continue
-                a1 = obj.phase
-                a2 = obj.phase + 1.2  # radians
-                s1 = math.sin(a1)
-                s2 = math.sin(a2)
-                c1 = math.cos(a1)
-                c2 = math.cos(a2)
-                if s1 > 0 and s2 > 0:
+                white_poly = _stripe_polygon(obj.phase)
+                if white_poly is None:
                     continue
-                if s1 > 0:
-                    c1 = np.sign(c1)
-                if s2 > 0:
-                    c2 = np.sign(c2)
-                white_poly = [
-                    (-WHEEL_W * SIZE, +WHEEL_R * c1 * SIZE),
-                    (+WHEEL_W * SIZE, +WHEEL_R * c1 * SIZE),
-                    (+WHEEL_W * SIZE, +WHEEL_R * c2 * SIZE),
-                    (-WHEEL_W * SIZE, +WHEEL_R * c2 * SIZE),
-                ]
                 path = [trans * v for v in white_poly]
                 draw_polygon(
                     surf,
@@ -520,13 +510,20 @@ class FastCarRacing(CarRacing):
 
     def _render_indicators(self, W: float, H: float) -> None:
         """Stock's indicator bar on ``self.surf``."""
-        surf = self.surf
+        self._draw_panel(self.surf, self._indicator_polygons(W, H))
+
+    def _draw_panel(
+        self, panel: pygame.Surface, indicators: list[tuple[list, tuple[int, int, int]]]
+    ) -> None:
+        """Stock's indicator panel without the score (rows 700..799 of the flipped frame,
+        entirely repainted: the black polygon, then ``indicators``) on ``panel``."""
+        W, H = WINDOW_W, WINDOW_H
         h = H / 40.0
         pygame.draw.polygon(
-            surf, color=(0, 0, 0), points=[(W, H), (W, H - 5 * h), (0, H - 5 * h), (0, H)]
+            panel, color=(0, 0, 0), points=[(W, H), (W, H - 5 * h), (0, H - 5 * h), (0, H)]
         )
-        for points, color in self._indicator_polygons(W, H):
-            pygame.draw.polygon(surf, points=points, color=color)
+        for points, color in indicators:
+            pygame.draw.polygon(panel, points=points, color=color)
 
     def _draw_score(self, surf: pygame.Surface) -> bool:
         """Blit the score like stock; return False (drawing nothing) if it would leave the panel."""
@@ -537,6 +534,16 @@ class FastCarRacing(CarRacing):
         return text_rect.top >= _PANEL_TOP
 
     # ------------------------------------------------------------------ frame
+    def _view(self) -> tuple[float, tuple[float, float], float]:
+        """The camera: ``(zoom, translation, angle)``, computed verbatim as stock does."""
+        assert self.car is not None
+        angle = -self.car.hull.angle
+        zoom = 0.1 * SCALE * max(1 - self.t, 0) + ZOOM * SCALE * min(self.t, 1)
+        scroll_x = -(self.car.hull.position[0]) * zoom
+        scroll_y = -(self.car.hull.position[1]) * zoom
+        trans = pygame.math.Vector2((scroll_x, scroll_y)).rotate_rad(angle)
+        return zoom, (WINDOW_W / 2 + trans[0], WINDOW_H / 4 + trans[1]), angle
+
     def _render(self, mode: str) -> Any:
         assert mode in self.metadata["render_modes"]
 
@@ -550,14 +557,7 @@ class FastCarRacing(CarRacing):
         if "t" not in self.__dict__:
             return None  # reset() not called yet
 
-        assert self.car is not None
-        # computing transformations (verbatim from stock)
-        angle = -self.car.hull.angle
-        zoom = 0.1 * SCALE * max(1 - self.t, 0) + ZOOM * SCALE * min(self.t, 1)
-        scroll_x = -(self.car.hull.position[0]) * zoom
-        scroll_y = -(self.car.hull.position[1]) * zoom
-        trans = pygame.math.Vector2((scroll_x, scroll_y)).rotate_rad(angle)
-        trans = (WINDOW_W / 2 + trans[0], WINDOW_H / 4 + trans[1])
+        zoom, trans, angle = self._view()
 
         if mode == "state_pixels":
             indicators = self._indicator_polygons(WINDOW_W, WINDOW_H)
@@ -622,16 +622,8 @@ class FastCarRacing(CarRacing):
         Returns None (having drawn nothing visible) if the score text would leave the panel.
         """
         bufs = self._buffers()
-        # indicator panel: rows 700..799 of the flipped frame, entirely repainted each frame
-        panel = bufs.panel
-        W, H = WINDOW_W, WINDOW_H
-        h = H / 40.0
-        pygame.draw.polygon(
-            panel, color=(0, 0, 0), points=[(W, H), (W, H - 5 * h), (0, H - 5 * h), (0, H)]
-        )
-        for points, color in indicators:
-            pygame.draw.polygon(panel, points=points, color=color)
-        if not self._draw_score(panel):
+        self._draw_panel(bufs.panel, indicators)
+        if not self._draw_score(bufs.panel):
             return None
 
         # road and car, unflipped: flipped rows < 700 are unflipped rows >= 100
@@ -646,6 +638,29 @@ class FastCarRacing(CarRacing):
         smoothscale(bufs.panel_rows, (STATE_W, _PANEL_ROWS), bufs.panel_x)
         smoothscale(bufs.frame_x, (STATE_W, STATE_H), bufs.state)
         return _surface_rgb(bufs.state)
+
+
+def _stripe_polygon(phase: float) -> list[tuple[float, float]] | None:
+    """The white stripe stock's ``Car.draw`` paints on a wheel at ``phase`` (wheel-local
+    vertices, stock's floats), or None where it is hidden."""
+    a1 = phase
+    a2 = phase + 1.2  # radians
+    s1 = math.sin(a1)
+    s2 = math.sin(a2)
+    c1 = math.cos(a1)
+    c2 = math.cos(a2)
+    if s1 > 0 and s2 > 0:
+        return None
+    if s1 > 0:
+        c1 = np.sign(c1)
+    if s2 > 0:
+        c2 = np.sign(c2)
+    return [
+        (-WHEEL_W * SIZE, +WHEEL_R * c1 * SIZE),
+        (+WHEEL_W * SIZE, +WHEEL_R * c1 * SIZE),
+        (+WHEEL_W * SIZE, +WHEEL_R * c2 * SIZE),
+        (-WHEEL_W * SIZE, +WHEEL_R * c2 * SIZE),
+    ]
 
 
 def _surface_rgb(surf: pygame.Surface) -> np.ndarray:

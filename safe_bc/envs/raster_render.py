@@ -24,30 +24,25 @@ result uses this renderer. ``rgb_array``/``human`` renders are the exact ones of
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import cv2
 import numpy as np
 import pygame
-from gymnasium.envs.box2d.car_dynamics import SIZE, WHEEL_R, WHEEL_W, WHEEL_WHITE
+from gymnasium.envs.box2d.car_dynamics import WHEEL_WHITE
 from gymnasium.envs.box2d.car_racing import (
-    MAX_SHAPE_DIM,
-    SCALE,
     STATE_H,
     STATE_W,
     WINDOW_H,
     WINDOW_W,
-    ZOOM,
 )
 
 from safe_bc.envs.fast_render import (
     _FIELD,
-    _GRASS,
     _PANEL_ROWS,
-    _PANEL_TOP,
     FastCarRacing,
     _rotation,
+    _stripe_polygon,
     _surface_rgb,
 )
 
@@ -81,7 +76,6 @@ class RasterCarRacing(FastCarRacing):
         # - 0.5 (cv2 puts pixel centres on integers; pygame's pixel j covers [j, j + 1))
         self._sx = side / WINDOW_W
         self._sy = STATE_H * supersample / WINDOW_H
-        self._text_small: tuple[str, np.ndarray, tuple[int, int]] | None = None
         self._bg_canvas: np.ndarray | None = None
         self._panel_state: pygame.Surface | None = None
         self._bg_key: tuple[int, ...] = ()
@@ -105,20 +99,13 @@ class RasterCarRacing(FastCarRacing):
         if mode != "state_pixels" or "t" not in self.__dict__:
             return super()._render(mode)
         self._ensure_font()  # the score digits
-        assert self.car is not None
-        angle = -self.car.hull.angle
-        zoom = 0.1 * SCALE * max(1 - self.t, 0) + ZOOM * SCALE * min(self.t, 1)
+        zoom, trans, angle = self._view()
         c, s = _rotation(angle)
-        x0, y0 = self.car.hull.position
-        scroll_x, scroll_y = -x0 * zoom, -y0 * zoom
-        trans = (
-            WINDOW_W / 2 + (c * scroll_x - s * scroll_y),
-            WINDOW_H / 4 + (s * scroll_x + c * scroll_y),
-        )
+        indicators = self._indicator_polygons(WINDOW_W, WINDOW_H)
         self._draw_field(zoom, trans, c, s)
         self._draw_polygons(zoom, trans, angle)
         self._draw_car_raster(zoom, trans, c, s)
-        self._draw_panel()
+        self._draw_indicators(indicators)
         frame = self._canvas
         for _ in range(
             self._halvings
@@ -129,10 +116,10 @@ class RasterCarRacing(FastCarRacing):
         if frame.shape[0] != STATE_H:
             frame = cv2.resize(frame, (STATE_W, STATE_H), interpolation=cv2.INTER_AREA)
         frame = frame.copy() if frame is self._canvas else frame  # a new array every step
-        frame[STATE_H - _PANEL_STATE_ROWS :] = self._exact_panel()
+        frame[STATE_H - _PANEL_STATE_ROWS :] = self._exact_panel(indicators)
         return frame
 
-    def _exact_panel(self) -> np.ndarray:
+    def _exact_panel(self, indicators: list[tuple[list, tuple[int, int, int]]]) -> np.ndarray:
         """The bottom ``_PANEL_STATE_ROWS`` rows drawn the exact way (pygame polygons and text on
         the 1000x100 panel, smoothscale's X then Y pass): ``(12, 96, 3)`` uint8.
 
@@ -141,13 +128,7 @@ class RasterCarRacing(FastCarRacing):
         """
         bufs = self._buffers()
         panel = bufs.panel
-        W, H = WINDOW_W, WINDOW_H
-        h = H / 40.0
-        pygame.draw.polygon(
-            panel, color=(0, 0, 0), points=[(W, H), (W, H - 5 * h), (0, H - 5 * h), (0, H)]
-        )
-        for points, color in self._indicator_polygons(W, H):
-            pygame.draw.polygon(panel, points=points, color=color)
+        self._draw_panel(panel, indicators)
         self._draw_score(panel)
         if self._panel_state is None or self._panel_state.get_bitsize() != panel.get_bitsize():
             self._panel_state = pygame.Surface((STATE_W, _PANEL_STATE_ROWS), 0, panel)
@@ -172,42 +153,12 @@ class RasterCarRacing(FastCarRacing):
         self._fill(self._canvas_points(px, py), self.bg_color)
 
     def _draw_polygons(self, zoom: float, trans: tuple[float, float], angle: float) -> None:
-        """Stock's grass squares and road polygons that reach the frame, in stock's order."""
-        self._sync_polygons()
-        near = self._near_polygons(zoom, trans, angle, 0)
-        if near.size == 0:
-            return
-        c, s = _rotation(angle)
-        xy = self._poly_xy[near]
-        px = (c * xy[..., 0] - s * xy[..., 1]) * zoom + trans[0]
-        py = (s * xy[..., 0] + c * xy[..., 1]) * zoom + trans[1]
-        inside = (
-            (px >= -MAX_SHAPE_DIM)
-            & (px <= WINDOW_W + MAX_SHAPE_DIM)
-            & (py >= -MAX_SHAPE_DIM)
-            & (py <= WINDOW_H + MAX_SHAPE_DIM)
-        ).any(axis=1)
-        touches = (
-            inside
-            & (px.max(axis=1) >= -2.0)
-            & (px.min(axis=1) <= WINDOW_W + 2.0)
-            & (py.max(axis=1) >= WINDOW_H - _PANEL_TOP - 2.0)
-            & (py.min(axis=1) <= WINDOW_H + 2.0)
-        )
-        if not touches.any():
-            return
-        drawn = near[touches]
-        pts = self._canvas_points(px[touches], py[touches])
-        n_grass = len(_GRASS)
-        # stock int()s each channel; tile colours are live arrays (recoloured when visited)
-        colors: list[Any] = [_bgr_free(self.grass_color)] * int((drawn < n_grass).sum())
-        road = (drawn[drawn >= n_grass] - n_grass).tolist()
-        if road:
-            rgb = np.array([self._road_colors[i] for i in road], dtype=np.float64)
-            colors += rgb.astype(np.int64).tolist()
+        """Stock's grass squares and road polygons that reach the frame, in stock's order
+        (the exact renderer's culling; rows under the panel are drawn by ``_exact_panel``)."""
+        px, py, colors = self._visible_polygons(zoom, trans, angle, _PANEL_ROWS)
         canvas = self._canvas
-        for poly, color in zip(pts, colors, strict=True):
-            cv2.fillPoly(canvas, [poly], color, cv2.LINE_8, _SHIFT)
+        for poly, color in zip(self._canvas_points(px, py), colors, strict=True):
+            cv2.fillPoly(canvas, [poly], _bgr_free(color), cv2.LINE_8, _SHIFT)
 
     def _draw_car_raster(self, zoom: float, trans: tuple[float, float], c: float, s: float) -> None:
         """The hull and wheels (and the wheels' white stripes), as stock's ``Car.draw``.
@@ -241,24 +192,10 @@ class RasterCarRacing(FastCarRacing):
         for b, obj in enumerate(bodies):
             if "phase" not in obj.__dict__:  # wheels have a phase, the hull has not
                 continue
-            a1, a2 = obj.phase, obj.phase + 1.2
-            s1, s2, c1, c2 = math.sin(a1), math.sin(a2), math.cos(a1), math.cos(a2)
-            if s1 > 0 and s2 > 0:
+            stripe = _stripe_polygon(obj.phase)
+            if stripe is None:
                 continue
-            if s1 > 0:
-                c1 = float(np.sign(c1))
-            if s2 > 0:
-                c2 = float(np.sign(c2))
-            polys.append(
-                np.asarray(
-                    [
-                        (-WHEEL_W * SIZE, +WHEEL_R * c1 * SIZE),
-                        (+WHEEL_W * SIZE, +WHEEL_R * c1 * SIZE),
-                        (+WHEEL_W * SIZE, +WHEEL_R * c2 * SIZE),
-                        (-WHEEL_W * SIZE, +WHEEL_R * c2 * SIZE),
-                    ]
-                )
-            )
+            polys.append(np.asarray(stripe, np.float64))
             index.append(np.full(4, b))
             colors.append(list(WHEEL_WHITE))
         local = np.concatenate(polys)
@@ -275,37 +212,16 @@ class RasterCarRacing(FastCarRacing):
         for poly, color in zip(np.split(pts, split), colors, strict=True):
             cv2.fillPoly(canvas, [poly], color, cv2.LINE_8, _SHIFT)
 
-    def _draw_panel(self) -> None:
-        """The indicator panel (already in flipped coordinates) and the score text."""
-        canvas = self._canvas
-        top = round(_PANEL_TOP * self._sy)
-        canvas[top:] = 0
-        indicators = self._indicator_polygons(WINDOW_W, WINDOW_H)
-        if indicators:
-            p = np.asarray([points for points, _ in indicators], np.float64)  # (K, 4, 2)
-            # already flipped: _canvas_points maps (H - y) to canvas row y * sy
-            pts = self._canvas_points(p[..., 0], WINDOW_H - p[..., 1])
-            for poly, (_, color) in zip(pts, indicators, strict=True):
-                cv2.fillPoly(canvas, [poly], color, cv2.LINE_8, _SHIFT)
-        text, (x, y) = self._small_score()
-        h, w = text.shape[:2]
-        y1, x1 = min(y + h, canvas.shape[0]), min(x + w, canvas.shape[1])
-        canvas[y:y1, x:x1] = text[: y1 - y, : x1 - x]
-
-    def _small_score(self) -> tuple[np.ndarray, tuple[int, int]]:
-        """The score digits scaled to the canvas, and their top-left corner there."""
-        label = f"{self.reward:04.0f}"
-        if self._text_small is None or self._text_small[0] != label:
-            surf = self._score_text()
-            w, h = surf.get_size()
-            rgb = np.frombuffer(pygame.image.tobytes(surf, "RGB"), np.uint8).reshape(h, w, 3)
-            left = 60 - w / 2
-            top = WINDOW_H - WINDOW_H * 2.5 / 40.0 - h / 2
-            x0, y0 = round(left * self._sx), round(top * self._sy)
-            size = (max(1, round(w * self._sx)), max(1, round(h * self._sy)))
-            small = cv2.resize(rgb, size, interpolation=cv2.INTER_AREA)
-            self._text_small = (label, small, (x0, y0))
-        return self._text_small[1], self._text_small[2]
+    def _draw_indicators(self, indicators: list[tuple[list, tuple[int, int, int]]]) -> None:
+        """The indicator bars on the canvas, for the rare frames where one reaches above the
+        panel (its rows are replaced by ``_exact_panel``)."""
+        if not indicators:
+            return
+        p = np.asarray([points for points, _ in indicators], np.float64)  # (K, 4, 2)
+        # already flipped: _canvas_points maps (H - y) to canvas row y * sy
+        pts = self._canvas_points(p[..., 0], WINDOW_H - p[..., 1])
+        for poly, (_, color) in zip(pts, indicators, strict=True):
+            cv2.fillPoly(self._canvas, [poly], color, cv2.LINE_8, _SHIFT)
 
 
 def _bgr_free(color: Any) -> list[int]:
