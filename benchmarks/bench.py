@@ -279,6 +279,10 @@ def bench_env(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
         "fast": ("fast", note),
         "stock + costs": ("stock + safety costs", cost_note),
         "fast + costs": ("make_env default (fast + safety costs)", cost_note),
+        "fast, pygame gfxdraw + costs": (
+            "make_env default, track drawn by pygame's gfxdraw instead of the compiled ports",
+            f"{cost_note}; same frames, the ports switched off (FastCarRacing.compiled_drawing)",
+        ),
         "raster + costs": (
             "raster renderer + safety costs (approximate frames)",
             f"{cost_note}; not bit-identical: results/ablation/renderer/ measures its error",
@@ -303,6 +307,17 @@ def bench_env(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
                     cpu_note if cpu else text,
                 )
             )
+    default, drawn_by_pygame = rows["fast + costs"], rows["fast, pygame gfxdraw + costs"]
+    out.append(
+        _row(
+            "env",
+            "make_env default vs the same with pygame's gfxdraw",
+            default["steps_per_s_runs"],
+            "steps/s",
+            (names["fast, pygame gfxdraw + costs"][0], drawn_by_pygame["steps_per_s_runs"]),
+            f"{cost_note}; what the compiled track drawing gains, same frames",
+        )
+    )
     parts = step_breakdown(sizes.env_steps, seed)
     total = sum(parts.values())
     part_note = (

@@ -21,6 +21,13 @@ of its time in ``_render("state_pixels")``. What changed, and why the pixels sta
   bar). A filled polygon stays inside the bounding box of its integer vertices and its
   anti-aliased outline within a pixel of it, so one whose bounding box is more than 3 px outside
   the kept area changes nothing there. The others are drawn in stock's order with stock's calls.
+* **The track is drawn by compiled code.** Stock draws each polygon with
+  ``gfxdraw.aapolygon`` and ``gfxdraw.filled_polygon``; ``gfx_kernels`` ports those two SDL_gfx
+  functions to numba, integer for integer (line clipping with float32 slopes, Wu's error
+  accumulator, the blend, the 16.16 scanline fill), and draws all polygons of a frame in one
+  call on the surface's pixels, skipping the rows the indicator panel covers. The ports are
+  checked against pygame on random polygons once per process; if numba is missing or the
+  check fails, pygame's calls are used.
 * **The background** is stock's ``PLAYFIELD`` square drawn with ``gfxdraw``. Once it covers the
   window with a margin (after the zoom-in) it sets every pixel to its colour and its outline is
   off-screen, so ``Surface.fill`` with the pixel value gfxdraw maps the colour to (read back from
@@ -56,6 +63,7 @@ Editing ``road_poly`` vertices in place after ``reset()`` is not noticed (append
 from __future__ import annotations
 
 import math
+import warnings
 from typing import Any
 
 import numpy as np
@@ -90,6 +98,7 @@ _PANEL_TOP = WINDOW_H - _PANEL_ROWS
 _SKIP_MARGIN = 3.0  # px; a polygon further than this outside the kept area draws nothing there
 _BG_MARGIN = 4.0  # px the background square must extend beyond the window to be a plain fill
 _SINT16_SAFE = 30000.0  # gfxdraw casts coordinates to Sint16
+_XRGB_MASKS = (0xFF0000, 0xFF00, 0xFF)  # pygame's default 32-bit format, the one gfx_kernels draws
 # px from the car's screen point (W / 2, H / 4) to the farthest corner of the window widened by
 # _BG_MARGIN, plus _BG_MARGIN and 8 px of slack for the truncated vertices
 _FIELD_COVER_PX = math.hypot(WINDOW_W / 2 + _BG_MARGIN, 3 * WINDOW_H / 4 + _BG_MARGIN) + 12.0
@@ -113,6 +122,35 @@ def _pygame_generation() -> int:
         pygame.register_quit(_on_pygame_quit)
         _PygameSession.hooked = True
     return _PygameSession.generation
+
+
+class _Compiled:
+    """The compiled track drawing, resolved once per process (see :func:`_compiled_draw`)."""
+
+    draw: Any = None
+    resolved = False
+
+
+def _compiled_draw() -> Any:
+    """``gfx_kernels.draw_polygons`` if numba is installed and the ports draw exactly what
+    pygame's ``gfxdraw`` draws here (checked once per process on random polygons), else None:
+    the renderer then calls pygame itself and frames stay identical either way."""
+    if not _Compiled.resolved:
+        _Compiled.resolved = True
+        try:
+            from safe_bc.envs import gfx_kernels
+        except ImportError:  # numba is not installed
+            return None
+        if gfx_kernels.matches_pygame():
+            _Compiled.draw = gfx_kernels.draw_polygons
+        else:
+            warnings.warn(
+                "safe_bc: the compiled gfxdraw ports disagree with this pygame-ce; CarRacing "
+                "frames are drawn with pygame's own (slower) calls",
+                RuntimeWarning,
+                stacklevel=2,
+            )
+    return _Compiled.draw
 
 
 def _grass_polygons() -> np.ndarray:
@@ -178,6 +216,10 @@ class FastCarRacing(CarRacing):
     ``(96, 96, 3)`` uint8 frames equal to stock's for the same seed and actions.
     """
 
+    compiled_drawing = True
+    """Draw the track with the compiled ports of ``gfx_kernels`` where they are available (the
+    frames are the same either way; ``False`` calls pygame's gfxdraw, for benchmarks)."""
+
     def __init__(
         self,
         render_mode: str | None = None,
@@ -203,6 +245,7 @@ class FastCarRacing(CarRacing):
         self._poly_radius = np.zeros(len(_GRASS))  # (N,) world distance centre -> farthest vertex
         self._road_colors: list[Any] = []  # road_poly colours (tile colours are live arrays)
         self._fill_cache: tuple[tuple[float, ...], int] | None = None
+        self._rgb_cache: dict[tuple[float, ...], int] = {}  # colour -> 0x00RRGGBB, gfxdraw's
         self._bufs: _Buffers | None = None
         self._car_src: Any = None  # the Car whose fixture vertices are cached below
         self._car_shapes: list[tuple[Any, list[list[tuple[float, float]]]]] = []
@@ -283,12 +326,65 @@ class FastCarRacing(CarRacing):
         self._draw_background(zoom, translation, angle, visible_top)
 
         px, py, colors = self._visible_polygons(zoom, translation, angle, visible_top)
+        if self._draw_compiled(surf, px, py, colors, visible_top):
+            return
         pts = np.stack([px, py], axis=-1).tolist()  # (D, 4, 2) Python floats
         aapolygon = gfxdraw.aapolygon
         filled_polygon = gfxdraw.filled_polygon
         for poly, color in zip(pts, colors, strict=True):
             aapolygon(surf, poly, color)
             filled_polygon(surf, poly, color)
+
+    def _draw_compiled(
+        self,
+        surf: pygame.Surface,
+        px: np.ndarray,
+        py: np.ndarray,
+        colors: list[Any],
+        visible_top: int,
+    ) -> bool:
+        """Stock's ``aapolygon`` + ``filled_polygon`` pairs through the compiled ports in
+        ``gfx_kernels``; False (having drawn nothing) where they cannot be used: numba missing,
+        the once-per-process check against pygame failed, or a surface, colour or coordinate
+        that the ports do not cover."""
+        draw = _compiled_draw() if self.compiled_drawing else None
+        if draw is None or surf.get_bitsize() != 32 or surf.get_masks()[:3] != _XRGB_MASKS:
+            return False
+        if px.size and max(np.abs(px).max(), np.abs(py).max()) > _SINT16_SAFE:
+            return False
+        packed = np.empty(len(colors), np.int64)
+        for i, color in enumerate(colors):
+            rgb = self._gfx_rgb(color)
+            if rgb is None:
+                return False
+            packed[i] = rgb
+        # gfxdraw converts each coordinate with int() (towards zero), then to Sint16
+        vx = np.trunc(px).astype(np.int64)
+        vy = np.trunc(py).astype(np.int64)
+        pixels = pygame.surfarray.pixels2d(surf).T  # (H, W) view; locks surf until deleted
+        try:
+            draw(pixels, vx, vy, packed, visible_top)
+        finally:
+            del pixels
+        return True
+
+    def _gfx_rgb(self, color: Any) -> int | None:
+        """``0x00RRGGBB`` of a colour as gfxdraw reads it, or None if it is not three ints in
+        ``0..255`` (the grass colour, a float array under domain randomisation, is mapped by
+        drawing it once on a scratch surface, as ``_bg_pixel`` does)."""
+        if isinstance(color, list) and len(color) == 3:
+            r, g, b = color
+            if 0 <= r < 256 and 0 <= g < 256 and 0 <= b < 256:
+                return (r << 16) | (g << 8) | b
+            return None
+        key = tuple(float(c) for c in color)
+        cached = self._rgb_cache.get(key)
+        if cached is None:
+            scratch = pygame.Surface((4, 4))
+            gfxdraw.filled_polygon(scratch, [(-8, -8), (8, -8), (8, 8), (-8, 8)], color)
+            r, g, b, _ = scratch.get_at((1, 1))
+            cached = self._rgb_cache[key] = (r << 16) | (g << 8) | b
+        return cached
 
     def _visible_polygons(
         self, zoom: float, translation: tuple[float, float], angle: float, visible_top: int
