@@ -103,3 +103,14 @@ def test_a_failed_self_check_falls_back_to_pygame(monkeypatch: pytest.MonkeyPatc
         env.close()
     assert obs.shape == (96, 96, 3)
     assert fast_render._compiled_draw() is None  # resolved once per process
+
+
+def test_the_environment_variable_switches_the_ports_off(monkeypatch: pytest.MonkeyPatch) -> None:
+    """``SAFE_BC_COMPILED_DRAWING=0`` keeps pygame's calls (and numba unimported)."""
+    monkeypatch.setenv(fast_render.COMPILED_DRAWING_ENV, "0")
+    monkeypatch.setattr(fast_render._Compiled, "resolved", False)
+    monkeypatch.setattr(fast_render._Compiled, "draw", None)
+    assert fast_render._compiled_draw() is None
+    monkeypatch.setenv(fast_render.COMPILED_DRAWING_ENV, "1")
+    monkeypatch.setattr(fast_render._Compiled, "resolved", False)
+    assert fast_render._compiled_draw() is draw_polygons
