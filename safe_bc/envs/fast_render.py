@@ -27,7 +27,8 @@ of its time in ``_render("state_pixels")``. What changed, and why the pixels sta
   accumulator, the blend, the 16.16 scanline fill), and draws all polygons of a frame in one
   call on the surface's pixels, skipping the rows the indicator panel covers. The ports are
   checked against pygame on random polygons once per process; if numba is missing or the
-  check fails, pygame's calls are used.
+  check fails, pygame's calls are used; ``SAFE_BC_COMPILED_DRAWING=0`` chooses them too
+  (numba and LLVM cost ~100 MB per process).
 * **The background** is stock's ``PLAYFIELD`` square drawn with ``gfxdraw``. Once it covers the
   window with a margin (after the zoom-in) it sets every pixel to its colour and its outline is
   off-screen, so ``Surface.fill`` with the pixel value gfxdraw maps the colour to (read back from
