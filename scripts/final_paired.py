@@ -7,8 +7,9 @@ Usage::
 For each study folder: reads ``final_episodes.parquet`` (the final phase's episodes) and
 writes ``final_paired.parquet`` beside it: every method against the expert and every
 candidate against plain BC on the same (training seed, track) pairs, two-level bootstrap
-(:func:`safe_bc.distributed.final.final_paired`, bootstrap seed = the study's
-``final_seed``). Studies run with the current code write this table themselves; this
+(:func:`safe_bc.distributed.final.final_summaries`, bootstrap seed = the study's
+``final_seed``, the candidates' streams keyed by their stored configurations). Studies run
+with the current code write this table themselves; this
 command derives it for studies finished before, without rerunning anything. Prints a
 Markdown table per study.
 """
@@ -22,7 +23,7 @@ from pathlib import Path
 import pandas as pd
 
 from safe_bc.data.store import read_table, write_table_atomic
-from safe_bc.distributed.final import final_paired
+from safe_bc.distributed.final import PLAIN_BC, final_summaries
 from safe_bc.provenance import run_metadata
 from safe_bc.report import fmt_ci
 
@@ -48,7 +49,10 @@ def main(argv: list[str] | None = None) -> int:
     for folder in args.studies:
         episodes, meta = read_table(folder / "final_episodes.parquet")
         seed = int(meta["final_design"]["final_seed"])
-        paired = final_paired(episodes, seed=seed)
+        # the configurations key the candidates' bootstrap streams, as in the study itself
+        configs = meta.get("configs") or {}
+        candidates = {m: c for m, c in configs.items() if m != PLAIN_BC}
+        paired = final_summaries(episodes, candidates, seed)[1]
         source = meta.get("provenance", {})
         out_meta = run_metadata(
             bootstrap_seed=seed,

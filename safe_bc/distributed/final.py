@@ -19,6 +19,8 @@ stay the references.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import json
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -182,7 +184,7 @@ def final_phase(
     finally:
         torch.set_num_threads(previous)
     episodes = pd.concat(parts, ignore_index=True)
-    table = summarize_policies(episodes, ["method"], group="train_seed", seed=spec.final_seed)
+    table, paired = final_summaries(episodes, cfgs, spec.final_seed)
     order = {m: i for i, m in enumerate([*cfgs, EXPERT])}
     table = table.sort_values("method", key=lambda c: c.map(order)).reset_index(drop=True)
     cons = pd.DataFrame([constraints(r, job.limits) for r in table.to_dict("records")])
@@ -203,8 +205,51 @@ def final_phase(
             int(row["episodes_with_violation"]), int(row["n_episodes"]), confidence
         )
     configs = {m: c.to_dict() for m, c in cfgs.items()}
-    paired = final_paired(episodes, seed=spec.final_seed)
     return FinalOutcome(table, episodes, winner, feasible, message, configs, certified, paired)
+
+
+def bootstrap_labels(cfgs: Mapping[str, RunConfig | Mapping[str, Any]]) -> dict[str, str]:
+    """Method -> ``"candidate:<digest>"``, a label that depends only on the method's
+    configuration (SHA-256 of its sorted JSON): the same study rerun gives its candidates the
+    same labels, hence the same bootstrap draws (:func:`safe_bc.metrics.keyed_rng`), whatever
+    trial ids Tune hands out.
+
+    >>> from safe_bc.experiment import RunConfig
+    >>> a = bootstrap_labels({"3f2a9c01": RunConfig()})
+    >>> b = bootstrap_labels({"77aa0b12": RunConfig()})
+    >>> a["3f2a9c01"] == b["77aa0b12"] and a["3f2a9c01"].startswith("candidate:")
+    True
+    """
+    out = {}
+    for method, cfg in cfgs.items():  # a RunConfig, or its to_dict() as a table's metadata holds
+        as_dict = cfg.to_dict() if isinstance(cfg, RunConfig) else cfg
+        text = json.dumps(as_dict, sort_keys=True, default=str)
+        out[method] = "candidate:" + hashlib.sha256(text.encode()).hexdigest()[:16]
+    if len(set(out.values())) != len(out):
+        raise ValueError("two final candidates have the same configuration")
+    return out
+
+
+def final_summaries(
+    episodes: pd.DataFrame, cfgs: Mapping[str, RunConfig | Mapping[str, Any]], seed: int
+) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """The final phase's per-method table (:func:`safe_bc.metrics.summarize_policies`) and its
+    paired differences (:func:`final_paired`), bootstrap seed ``seed``.
+
+    The bootstrap streams are keyed by method name, and the candidates' names are Tune's trial
+    ids, random per run; so their intervals are drawn under :func:`bootstrap_labels` (made from
+    their configurations) and the rows then carry the trial ids again. A rerun of the same
+    study thus gives the same intervals.
+    """
+    labels = bootstrap_labels({m: c for m, c in cfgs.items() if m != PLAIN_BC})
+    by_label = {label: method for method, label in labels.items()}
+    keyed = episodes.assign(method=episodes["method"].replace(labels))
+    table = summarize_policies(keyed, ["method"], group="train_seed", seed=seed)
+    table["method"] = table["method"].replace(by_label)
+    paired = final_paired(keyed, seed=seed)
+    if len(paired):
+        paired["method"] = paired["method"].replace(by_label)
+    return table, paired
 
 
 PAIRED_METRICS = ("reward", "safety_mean", "violation_steps", "any_violation")

@@ -6,7 +6,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from safe_bc.distributed.final import EXPERT, PLAIN_BC, final_paired
+from safe_bc.distributed.final import EXPERT, PLAIN_BC, final_paired, final_summaries
+from safe_bc.experiment import RunConfig
+from safe_bc.selection import SelectionConfig
 
 
 def episodes() -> pd.DataFrame:
@@ -44,3 +46,24 @@ def test_every_method_against_the_expert_and_candidates_against_plain_bc() -> No
 
 def test_same_episodes_same_intervals() -> None:
     pd.testing.assert_frame_equal(final_paired(episodes(), 2), final_paired(episodes(), 2))
+
+
+def test_a_rerun_with_other_trial_ids_gives_the_same_intervals() -> None:
+    """Tune's trial ids are random per run; the final tables' intervals must not depend on
+    them (the same candidates under other ids: same numbers, the ids in the rows)."""
+    eps = episodes()
+    eps["reward"] += np.random.default_rng(1).normal(0, 20, len(eps))  # intervals of width > 0
+    cfgs = {"a": RunConfig(selection=SelectionConfig(eps=1.5)), PLAIN_BC: RunConfig()}
+    table, paired = final_summaries(eps, cfgs, seed=2)
+    renamed = eps.assign(method=eps["method"].replace({"a": "b"}))
+    cfgs_b = {"b": cfgs["a"], PLAIN_BC: cfgs[PLAIN_BC]}
+    table_b, paired_b = final_summaries(renamed, cfgs_b, seed=2)
+    assert set(table["method"]) == {"a", EXPERT, PLAIN_BC}
+    assert set(paired["method"]) == {"a", PLAIN_BC}
+    pd.testing.assert_frame_equal(
+        table.replace({"a": "b"}).sort_values("method").reset_index(drop=True),
+        table_b.sort_values("method").reset_index(drop=True),
+    )
+    pd.testing.assert_frame_equal(paired.replace({"a": "b"}), paired_b)
+    a = paired.set_index(["method", "vs"]).loc[("a", EXPERT)]
+    assert a["d_reward_lo"] < a["d_reward"] < a["d_reward_hi"]
