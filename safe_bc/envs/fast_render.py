@@ -163,6 +163,15 @@ def _compiled_draw() -> Any:
     return _Compiled.draw
 
 
+def _gfxdraw_pixel(color: Any, like: pygame.Surface) -> int:
+    """The pixel value gfxdraw writes for ``color`` on a surface of ``like``'s format: drawn on
+    a 4x4 scratch surface and read back, so float (domain-randomised) colours map as gfxdraw
+    maps them."""
+    scratch = pygame.Surface((4, 4), 0, like)
+    gfxdraw.filled_polygon(scratch, [(-8, -8), (8, -8), (8, 8), (-8, 8)], color)
+    return scratch.get_at_mapped((1, 1))
+
+
 def _grass_polygons() -> np.ndarray:
     """Stock's grass squares, built with the same float expressions; shape ``(400, 4, 2)``."""
     grass = []
@@ -313,9 +322,7 @@ class FastCarRacing(CarRacing):
         key = tuple(float(c) for c in self.bg_color)
         if self._fill_cache is None or self._fill_cache[0] != key:
             assert self.surf is not None
-            scratch = pygame.Surface((4, 4), 0, self.surf)
-            gfxdraw.filled_polygon(scratch, [(-8, -8), (8, -8), (8, 8), (-8, 8)], self.bg_color)
-            self._fill_cache = (key, scratch.get_at_mapped((1, 1)))
+            self._fill_cache = (key, _gfxdraw_pixel(self.bg_color, self.surf))
         return self._fill_cache[1]
 
     # ------------------------------------------------------------------ drawing
@@ -364,7 +371,7 @@ class FastCarRacing(CarRacing):
             return False
         packed = np.empty(len(colors), np.int64)
         for i, color in enumerate(colors):
-            rgb = self._gfx_rgb(color)
+            rgb = self._gfx_rgb(color, surf)
             if rgb is None:
                 return False
             packed[i] = rgb
@@ -378,10 +385,11 @@ class FastCarRacing(CarRacing):
             del pixels
         return True
 
-    def _gfx_rgb(self, color: Any) -> int | None:
-        """``0x00RRGGBB`` of a colour as gfxdraw reads it, or None if it is not three ints in
-        ``0..255`` (the grass colour, a float array under domain randomisation, is mapped by
-        drawing it once on a scratch surface, as ``_bg_pixel`` does)."""
+    def _gfx_rgb(self, color: Any, surf: pygame.Surface) -> int | None:
+        """``0x00RRGGBB`` of a colour as gfxdraw reads it (``surf``: an XRGB surface), or None
+        if it is not three ints in ``0..255`` (the grass colour, a float array under domain
+        randomisation, is mapped by drawing it once, :func:`_gfxdraw_pixel`, as ``_bg_pixel``
+        does)."""
         if isinstance(color, list) and len(color) == 3:
             r, g, b = color
             if 0 <= r < 256 and 0 <= g < 256 and 0 <= b < 256:
@@ -389,11 +397,8 @@ class FastCarRacing(CarRacing):
             return None
         key = tuple(float(c) for c in color)
         cached = self._rgb_cache.get(key)
-        if cached is None:
-            scratch = pygame.Surface((4, 4))
-            gfxdraw.filled_polygon(scratch, [(-8, -8), (8, -8), (8, 8), (-8, 8)], color)
-            r, g, b, _ = scratch.get_at((1, 1))
-            cached = self._rgb_cache[key] = (r << 16) | (g << 8) | b
+        if cached is None:  # surf has _XRGB_MASKS: its pixel value is 0x00RRGGBB
+            cached = self._rgb_cache[key] = _gfxdraw_pixel(color, surf)
         return cached
 
     def _visible_polygons(

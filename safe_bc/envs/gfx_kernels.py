@@ -139,10 +139,9 @@ def _vline(pix: np.ndarray, x: int, y1: int, y2: int, mapped: int, top: int) -> 
 
 
 @njit(cache=True)
-def _aaline(
-    pix: np.ndarray, x1: int, y1: int, x2: int, y2: int, color: int, mapped: int, top: int
-) -> None:
-    """``_aalineColor(..., draw_endpoint=0)`` with an opaque colour."""
+def _aaline(pix: np.ndarray, x1: int, y1: int, x2: int, y2: int, color: int, top: int) -> None:
+    """``_aalineColor(..., draw_endpoint=0)`` with an opaque ``color`` (0x00RRGGBB, which is
+    also its mapped pixel value in pygame's default 32-bit format)."""
     h, w = pix.shape
     ok, x1, y1, x2, y2 = _clip_line(x1, y1, x2, y2, w - 1, h - 1)
     if not ok:
@@ -155,19 +154,19 @@ def _aaline(
     dy = yy1 - yy0
     if dx == 0:
         if dy > 0:
-            _vline(pix, x1, yy0, yy0 + dy, mapped, top)
+            _vline(pix, x1, yy0, yy0 + dy, color, top)
         else:
-            _put(pix, x1, y1, mapped, top)
+            _put(pix, x1, y1, color, top)
         return
     if dy == 0:
-        _hline(pix, xx0, xx0 + dx, y1, mapped, top)
+        _hline(pix, xx0, xx0 + dx, y1, color, top)
         return
     xdir = 1
     if dx < 0:
         xdir = -1
         dx = -dx
     erracc = 0
-    _put(pix, x1, y1, mapped, top)
+    _put(pix, x1, y1, color, top)
     if dy > dx:
         erradj = ((dx << 16) // dy << 16) & _MASK32
         x0pxdir = xx0 + xdir
@@ -265,8 +264,8 @@ def draw_polygons(
         color = colors[d]
         k = vx.shape[1]
         for i in range(1, k):
-            _aaline(pix, vx[d, i - 1], vy[d, i - 1], vx[d, i], vy[d, i], color, color, top)
-        _aaline(pix, vx[d, k - 1], vy[d, k - 1], vx[d, 0], vy[d, 0], color, color, top)
+            _aaline(pix, vx[d, i - 1], vy[d, i - 1], vx[d, i], vy[d, i], color, top)
+        _aaline(pix, vx[d, k - 1], vy[d, k - 1], vx[d, 0], vy[d, 0], color, top)
         _filled_polygon(pix, vx[d], vy[d], color, top, ints)
 
 

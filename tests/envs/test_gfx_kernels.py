@@ -16,8 +16,18 @@ def _pixels(surf: pygame.Surface) -> np.ndarray:
     return np.ascontiguousarray(pygame.surfarray.array2d(surf).astype(np.uint32).T) & 0xFFFFFF
 
 
-def _pack(color: tuple[int, int, int]) -> np.ndarray:
-    return np.array([(color[0] << 16) | (color[1] << 8) | color[2]], np.int64)
+def _draw_both(
+    surf: pygame.Surface, points: list, color: tuple[int, int, int], top: int = 0
+) -> tuple[np.ndarray, np.ndarray]:
+    """Draw ``points`` with pygame's two calls on ``surf`` and with the ports on a copy of its
+    pixels (rows from ``top``); ``(ours, pygame's)``, each ``(H, W)`` RGB."""
+    ours = _pixels(surf)
+    gfxdraw.aapolygon(surf, points, color)
+    gfxdraw.filled_polygon(surf, points, color)
+    xy = np.asarray(points)
+    packed = np.array([(color[0] << 16) | (color[1] << 8) | color[2]], np.int64)
+    draw_polygons(ours, xy[None, :, 0], xy[None, :, 1], packed, top)
+    return ours, _pixels(surf)
 
 
 @pytest.mark.parametrize("size", [(1000, 800), (53, 41), (300, 7)])
@@ -29,15 +39,12 @@ def test_random_polygons_match_pygame(size: tuple[int, int]) -> None:
     for trial in range(60):
         surf = pygame.Surface(size)
         surf.fill(tuple(int(c) for c in rng.integers(0, 256, 3)))
-        ours = _pixels(surf)
         k = int(rng.integers(3, 7))
         scale = (30, 300, 3000)[trial % 3]
-        points = rng.integers(-scale, scale + max(width, height), size=(k, 2))
+        points = rng.integers(-scale, scale + max(width, height), size=(k, 2)).tolist()
         color = tuple(int(c) for c in rng.integers(0, 256, 3))
-        gfxdraw.aapolygon(surf, points.tolist(), color)
-        gfxdraw.filled_polygon(surf, points.tolist(), color)
-        draw_polygons(ours, points[None, :, 0], points[None, :, 1], _pack(color), 0)
-        assert np.array_equal(ours, _pixels(surf)), f"{size} trial {trial}: {points.tolist()}"
+        ours, theirs = _draw_both(surf, points, color)
+        assert np.array_equal(ours, theirs), f"{size} trial {trial}: {points}"
 
 
 def test_axis_aligned_and_degenerate_polygons_match_pygame() -> None:
@@ -53,12 +60,8 @@ def test_axis_aligned_and_degenerate_polygons_match_pygame() -> None:
     for points in polygons:
         surf = pygame.Surface((100, 80))
         surf.fill((30, 60, 90))
-        ours = _pixels(surf)
-        gfxdraw.aapolygon(surf, points, (200, 100, 50))
-        gfxdraw.filled_polygon(surf, points, (200, 100, 50))
-        xy = np.asarray(points)
-        draw_polygons(ours, xy[None, :, 0], xy[None, :, 1], _pack((200, 100, 50)), 0)
-        assert np.array_equal(ours, _pixels(surf)), points
+        ours, theirs = _draw_both(surf, points, (200, 100, 50))
+        assert np.array_equal(ours, theirs), points
 
 
 def test_rows_above_top_are_left_alone() -> None:
@@ -66,12 +69,7 @@ def test_rows_above_top_are_left_alone() -> None:
     points = [(-30, -20), (120, 15), (60, 95), (-10, 70)]
     surf = pygame.Surface((100, 80))
     surf.fill((0, 0, 0))
-    ours = _pixels(surf)
-    gfxdraw.aapolygon(surf, points, (250, 250, 250))
-    gfxdraw.filled_polygon(surf, points, (250, 250, 250))
-    xy = np.asarray(points)
-    draw_polygons(ours, xy[None, :, 0], xy[None, :, 1], _pack((250, 250, 250)), 25)
-    expected = _pixels(surf)
+    ours, expected = _draw_both(surf, points, (250, 250, 250), top=25)
     assert not ours[:25].any()
     assert expected[:25].any()
     assert np.array_equal(ours[25:], expected[25:])
