@@ -110,6 +110,10 @@ class Sizes:
     improve_steps: int = 150
     """Lockstep steps of the improvement rollout's 4 CarRacing envs, per variant and
     repetition."""
+    train_min_repeats: int = 1
+    """At least this many repetitions of the train case, whatever ``--repeats`` says: its
+    ratio sits near the 0.95x target and one run's moved by +-10% (0.84x-1.03x in six runs
+    of 3 repetitions), so it is timed in more back-to-back pairs."""
 
 
 FULL = Sizes(
@@ -121,6 +125,7 @@ FULL = Sizes(
     eval_episodes=2,
     eval_steps=200,
     act_steps=200,
+    train_min_repeats=7,
 )
 QUICK = Sizes(
     env_steps=40,
@@ -161,18 +166,28 @@ def _row(
     unit: str,
     baseline: tuple[str, Sequence[float]] | None = None,
     note: str = "",
+    paired: bool = False,
 ) -> dict[str, Any]:
     """One result row: the median of ``runs`` and its ratio to the baseline's median.
 
     ``baseline`` is ``(variant name, runs)``; a row that is its own baseline has ratio 1, a
-    row without one has ratio NaN and an empty ``baseline``.
+    row without one has ratio NaN and an empty ``baseline``. ``paired``: the ratio is instead
+    the median of the per-repetition ratios ``runs[i] / baseline runs[i]`` (each repetition
+    times both variants back to back, so a slow spell of the machine cancels).
     """
     value = _median(runs)
     if baseline is None:
         base_name, ratio = "", math.nan
     else:
         base_name, base_runs = baseline
-        ratio = value / _median(base_runs)
+        if paired:
+            if len(base_runs) != len(runs):
+                raise ValueError(
+                    f"paired ratio needs equal repetitions: {len(runs)}, {len(base_runs)}"
+                )
+            ratio = _median([v / b for v, b in zip(runs, base_runs, strict=True)])
+        else:
+            ratio = value / _median(base_runs)
     return {
         "case": case,
         "variant": variant,
@@ -530,6 +545,7 @@ def bench_train(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
     prebuilt = _prebuilt_batches(demos, config, min(sizes.train_batches, BARE_DISTINCT_BATCHES))
     runs: dict[str, list[float]] = {"bare": [], "pipeline": []}
     with_prepare: list[float] = []  # the same runs, frame preprocessing before the loop included
+    repeats = max(repeats, sizes.train_min_repeats)
     for rep in range(repeats):
         for variant in _order(list(runs), rep):
             if variant == "pipeline":
@@ -543,7 +559,13 @@ def bench_train(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
         f"{sizes.train_batches} batches x {BATCH_SIZE}, {sizes.train_frames} random frames, "
         "default net, torch threads 1, deterministic algorithms"
     )
-    overhead = _median(runs["bare"]) / _median(runs["pipeline"]) - 1.0
+    overhead = (
+        1.0 / _median([p / b for p, b in zip(runs["pipeline"], runs["bare"], strict=True)]) - 1.0
+    )
+    pairs = (
+        f"ratio: median of the {repeats} per-repetition ratios (each repetition runs both "
+        "variants back to back, in alternating order)"
+    )
     return [
         _self_row(
             "train",
@@ -559,7 +581,9 @@ def bench_train(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
             "samples/s",
             ("bare torch loop", runs["bare"]),
             f"{work}; data pipeline adds {100 * overhead:+.0f}% time per batch (the frames "
-            "are preprocessed before the loop, as the bare loop's batches are pre-built)",
+            f"are preprocessed before the loop, as the bare loop's batches are pre-built); "
+            f"{pairs}",
+            paired=True,
         ),
         _row(
             "train",
@@ -568,7 +592,8 @@ def bench_train(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
             "samples/s",
             ("bare torch loop", runs["bare"]),
             f"{work}; the same runs, timed from the start of the frame preprocessing "
-            f"({sizes.train_frames} frames, once each) to the end of the loop",
+            f"({sizes.train_frames} frames, once each) to the end of the loop; {pairs}",
+            paired=True,
         ),
     ]
 

@@ -80,6 +80,16 @@ def test_format_table_is_aligned():
     assert math.isnan(rows[2]["ratio"])
 
 
+def test_paired_ratio_is_the_median_of_per_repetition_ratios():
+    base, runs = [10.0, 20.0, 30.0], [9.0, 10.0, 33.0]  # ratios 0.9, 0.5, 1.1
+    paired = bench._row("train", "p", runs, "samples/s", ("bare", base), paired=True)
+    plain = bench._row("train", "p", runs, "samples/s", ("bare", base))
+    assert paired["ratio"] == pytest.approx(0.9)
+    assert plain["ratio"] == pytest.approx(0.5)  # median 10 / median 20
+    with pytest.raises(ValueError, match="equal repetitions"):
+        bench._row("train", "p", runs[:2], "samples/s", ("bare", base), paired=True)
+
+
 def test_parse_cases_rejects_unknown():
     assert bench._parse_cases("env, train") == ["env", "train"]
     with pytest.raises(argparse.ArgumentTypeError):
