@@ -720,6 +720,10 @@ def bench_eval(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
         f"torch threads 1, {net_note}; envs_per_worker={BATCHED_ENVS}: the envs stepped in "
         "lockstep with one act_slots call per step, the same rows as one env at a time (tested)"
     )
+    lock_pairs = (
+        "ratio: median of the per-repetition ratios (each repetition times the four "
+        "variants back to back, in alternating order)"
+    )
     return [
         _self_row("eval", "expert", eps["expert"], "episodes/min", ev_note),
         _row(
@@ -768,7 +772,8 @@ def bench_eval(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
             lock[("fast", BATCHED_ENVS)],
             "episodes/min",
             ("BC net, 1 env", lock[("fast", 1)]),
-            lock_note,
+            f"{lock_note}; {lock_pairs}",
+            paired=True,
         ),
         *[
             _row(
@@ -778,7 +783,8 @@ def bench_eval(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
                 "episodes/min",
                 ("BC net, 1 env", lock[("fast", 1)]),
                 f"{lock_note}; renderer='raster': approximate frames (not the exact env's "
-                "episodes; results/ablation/renderer/ measures the difference)",
+                f"episodes; results/ablation/renderer/ measures the difference); {lock_pairs}",
+                paired=True,
             )
             for envs, label in ((1, "1 env"), (BATCHED_ENVS, f"{BATCHED_ENVS} envs in lockstep"))
         ],

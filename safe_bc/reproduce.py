@@ -197,7 +197,7 @@ def run_reproduce(config: ReproduceConfig, *, progress: bool = True) -> pd.DataF
     """Train every (method, seed), evaluate them and the expert on the same tracks, write
     the results."""
     from safe_bc.distributed.collect import ensure_demos
-    from safe_bc.distributed.evaluate import evaluate_policies
+    from safe_bc.distributed.evaluate import LOCKSTEP_ENVS, evaluate_policies
     from safe_bc.distributed.train import train_many
 
     started = time.perf_counter()
@@ -262,7 +262,11 @@ def run_reproduce(config: ReproduceConfig, *, progress: bool = True) -> pd.DataF
         eps=eps,
     )
     episodes, steps = evaluate_policies(
-        sources, eval_cfg, thresholds=base.thresholds, progress=progress
+        sources,
+        eval_cfg,
+        thresholds=base.thresholds,
+        progress=progress,
+        envs_per_worker=LOCKSTEP_ENVS,
     )
     label_df = pd.DataFrame.from_dict(labels, orient="index").rename_axis("policy").reset_index()
     episodes = label_df.merge(episodes, on="policy")

@@ -67,10 +67,10 @@ class _Evaluator:
 
 
 LOCKSTEP_ENVS = 4
-"""``envs_per_worker`` where each worker gets many episodes of one policy (the study's final
-phase, the improvement stage's test tracks): the same rows as one env
+"""``envs_per_worker`` where each worker gets many episodes of one policy (Table 1, the
+study's final phase, the improvement stage's test tracks): the same rows as one env
 (tests/distributed/test_evaluate.py); ``make bench``'s eval case "BC net, 4 envs in
-lockstep" measured 0.99x-1.18x one env across runs (inference is ~21% of a step). Trials
+lockstep" measured 0.99x-1.43x one env across runs (inference is 21-25% of a step). Trials
 keep 1: their few tracks would leave workers idle."""
 
 
