@@ -154,6 +154,21 @@ def _median(values: Sequence[float]) -> float:
     return float(statistics.median(values))
 
 
+PAIRED_NOTE = (
+    "ratio: median of the per-repetition ratios (each repetition times the variants back to "
+    "back, in alternating order)"
+)
+"""Note of a row whose ratio is :func:`_paired_ratio`."""
+
+
+def _paired_ratio(runs: Sequence[float], base_runs: Sequence[float]) -> float:
+    """Median of the per-repetition ratios ``runs[i] / base_runs[i]``: each repetition times
+    both variants back to back, so a slow spell of the machine cancels."""
+    if len(base_runs) != len(runs):
+        raise ValueError(f"paired ratio needs equal repetitions: {len(runs)}, {len(base_runs)}")
+    return _median([v / b for v, b in zip(runs, base_runs, strict=True)])
+
+
 def _order(names: Sequence[str], rep: int) -> list[str]:
     """Variants in the given order on even repetitions, reversed on odd ones."""
     return list(names) if rep % 2 == 0 else list(names)[::-1]
@@ -171,23 +186,15 @@ def _row(
     """One result row: the median of ``runs`` and its ratio to the baseline's median.
 
     ``baseline`` is ``(variant name, runs)``; a row that is its own baseline has ratio 1, a
-    row without one has ratio NaN and an empty ``baseline``. ``paired``: the ratio is instead
-    the median of the per-repetition ratios ``runs[i] / baseline runs[i]`` (each repetition
-    times both variants back to back, so a slow spell of the machine cancels).
+    row without one has ratio NaN and an empty ``baseline``. ``paired``: the ratio is
+    :func:`_paired_ratio` instead.
     """
     value = _median(runs)
     if baseline is None:
         base_name, ratio = "", math.nan
     else:
         base_name, base_runs = baseline
-        if paired:
-            if len(base_runs) != len(runs):
-                raise ValueError(
-                    f"paired ratio needs equal repetitions: {len(runs)}, {len(base_runs)}"
-                )
-            ratio = _median([v / b for v, b in zip(runs, base_runs, strict=True)])
-        else:
-            ratio = value / _median(base_runs)
+        ratio = _paired_ratio(runs, base_runs) if paired else value / _median(base_runs)
     return {
         "case": case,
         "variant": variant,
@@ -559,13 +566,7 @@ def bench_train(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
         f"{sizes.train_batches} batches x {BATCH_SIZE}, {sizes.train_frames} random frames, "
         "default net, torch threads 1, deterministic algorithms"
     )
-    overhead = (
-        1.0 / _median([p / b for p, b in zip(runs["pipeline"], runs["bare"], strict=True)]) - 1.0
-    )
-    pairs = (
-        f"ratio: median of the {repeats} per-repetition ratios (each repetition runs both "
-        "variants back to back, in alternating order)"
-    )
+    overhead = 1.0 / _paired_ratio(runs["pipeline"], runs["bare"]) - 1.0
     return [
         _self_row(
             "train",
@@ -582,7 +583,7 @@ def bench_train(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
             ("bare torch loop", runs["bare"]),
             f"{work}; data pipeline adds {100 * overhead:+.0f}% time per batch (the frames "
             f"are preprocessed before the loop, as the bare loop's batches are pre-built); "
-            f"{pairs}",
+            f"{PAIRED_NOTE}",
             paired=True,
         ),
         _row(
@@ -592,7 +593,7 @@ def bench_train(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
             "samples/s",
             ("bare torch loop", runs["bare"]),
             f"{work}; the same runs, timed from the start of the frame preprocessing "
-            f"({sizes.train_frames} frames, once each) to the end of the loop; {pairs}",
+            f"({sizes.train_frames} frames, once each) to the end of the loop; {PAIRED_NOTE}",
             paired=True,
         ),
     ]
@@ -720,10 +721,6 @@ def bench_eval(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
         f"torch threads 1, {net_note}; envs_per_worker={BATCHED_ENVS}: the envs stepped in "
         "lockstep with one act_slots call per step, the same rows as one env at a time (tested)"
     )
-    lock_pairs = (
-        "ratio: median of the per-repetition ratios (each repetition times the four "
-        "variants back to back, in alternating order)"
-    )
     return [
         _self_row("eval", "expert", eps["expert"], "episodes/min", ev_note),
         _row(
@@ -772,7 +769,7 @@ def bench_eval(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
             lock[("fast", BATCHED_ENVS)],
             "episodes/min",
             ("BC net, 1 env", lock[("fast", 1)]),
-            f"{lock_note}; {lock_pairs}",
+            f"{lock_note}; {PAIRED_NOTE}",
             paired=True,
         ),
         *[
@@ -783,7 +780,7 @@ def bench_eval(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
                 "episodes/min",
                 ("BC net, 1 env", lock[("fast", 1)]),
                 f"{lock_note}; renderer='raster': approximate frames (not the exact env's "
-                f"episodes; results/ablation/renderer/ measures the difference); {lock_pairs}",
+                f"episodes; results/ablation/renderer/ measures the difference); {PAIRED_NOTE}",
                 paired=True,
             )
             for envs, label in ((1, "1 env"), (BATCHED_ENVS, f"{BATCHED_ENVS} envs in lockstep"))
