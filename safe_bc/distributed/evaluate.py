@@ -69,9 +69,9 @@ class _Evaluator:
 LOCKSTEP_ENVS = 4
 """``envs_per_worker`` where each worker gets many episodes of one policy (Table 1, the
 study's final phase, the improvement stage's test tracks): the same rows as one env
-(tests/distributed/test_evaluate.py); ``make bench``'s eval case "BC net, 4 envs in
-lockstep" measured 0.99x-1.43x one env across runs (inference is 21-25% of a step). Trials
-keep 1: their few tracks would leave workers idle."""
+(tests/distributed/test_evaluate.py). The gain is small, inference being about a quarter of
+a step: ``make bench``'s eval case measures it ("BC net, 4 envs in lockstep"). Trials keep 1:
+their few tracks would leave workers idle."""
 
 
 def evaluate_policies(

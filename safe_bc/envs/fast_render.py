@@ -28,7 +28,7 @@ of its time in ``_render("state_pixels")``. What changed, and why the pixels sta
   call on the surface's pixels, skipping the rows the indicator panel covers. The ports are
   checked against pygame on random polygons once per process; if numba is missing or the
   check fails, pygame's calls are used; ``SAFE_BC_COMPILED_DRAWING=0`` chooses them too
-  (numba and LLVM cost ~100 MB per process).
+  (numba and LLVM cost memory in every process: ``make bench``'s memory columns).
 * **The background** is stock's ``PLAYFIELD`` square drawn with ``gfxdraw``. Once it covers the
   window with a margin (after the zoom-in) it sets every pixel to its colour and its outline is
   off-screen, so ``Surface.fill`` with the pixel value gfxdraw maps the colour to (read back from
@@ -134,8 +134,9 @@ class _Compiled:
 
 
 COMPILED_DRAWING_ENV = "SAFE_BC_COMPILED_DRAWING"
-"""Set to ``0`` to draw with pygame's own calls and never import numba: the same frames, ~1.3x
-slower steps, ~100 MB less memory per process that renders CarRacing (numba and LLVM)."""
+"""Set to ``0`` to draw with pygame's own calls and never import numba: the same frames, slower
+steps and less memory per process that renders CarRacing (numba and LLVM); ``make bench``'s
+env case measures both ways."""
 
 
 def _compiled_draw() -> Any:
