@@ -250,7 +250,10 @@ def _against(summary: Mapping[str, Any], vs: str, name: str) -> str:
     if above == n:
         return f"reliably above {name} in all {n} replicates"
     if span == n:
-        return f"no reliable effect against {name} in any of the {n} replicates"
+        return (
+            f"not reliably different from {name} in any of the {n} replicates (every interval "
+            "spans zero: no reliable effect)"
+        )
     parts = [f"reliably below in {below}"] if below else []
     parts += [f"reliably above in {above}"] if above else []
     parts += [f"no reliable effect (interval spans zero) in {span}"] if span else []
@@ -274,8 +277,9 @@ def replicates_verdict(summary: Mapping[str, Any]) -> str:
     >>> print(replicates_verdict(s))  # doctest: +NORMALIZE_WHITESPACE
     the winner is not above the expert: reliably below in 3, no reliable effect (interval
     spans zero) in 1 of 4 replicates (reward difference mean -1.4, range -2.3 to -0.3);
-    no reliable effect against plain BC in any of the 4 replicates; 5 of 204 final-phase
-    episodes beyond d_s; 4 of 4 winners feasible on the fresh tracks
+    not reliably different from plain BC in any of the 4 replicates (every interval spans zero:
+    no reliable effect); 5 of 204 final-phase episodes beyond d_s; 4 of 4 winners feasible on
+    the fresh tracks
     """
     text = "the winner is " + _against(summary, EXPERT, "the expert")
     if math.isfinite(summary.get("d_expert_mean", math.nan)):
