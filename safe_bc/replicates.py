@@ -218,14 +218,18 @@ def replicate_table(results: Sequence[ReplicateResult], params: Sequence[str]) -
 def replicates_summary(table: pd.DataFrame) -> dict[str, Any]:
     """Across replicates: the mean and range of the winner-vs-expert reward difference, how
     many replicates' intervals lie above / below zero or span it (vs the expert and vs plain
-    BC), the total episodes beyond ``d_s``, and the :func:`replicates_verdict`."""
+    BC), the total episodes beyond ``d_s``, how many distinct configurations won (trial ids
+    are per study and say nothing across replicates) and the :func:`replicates_verdict`."""
+    params = [c for c in table.columns if c not in ROW_COLUMNS]
     d = table["d_expert"].astype(float)
     finite = d[np.isfinite(d)]
     out: dict[str, Any] = {
         "replicates": len(table),
         "with_winner": int((table["winner"] != "").sum()),
         "winner_feasible": int(table["winner_feasible"].sum()),
-        "distinct_winners": int(table.loc[table["winner"] != "", "winner"].nunique()),
+        "distinct_configurations": int(
+            table.loc[table["winner"] != "", params].drop_duplicates().shape[0]
+        ),
         "d_expert_mean": float(finite.mean()) if len(finite) else math.nan,
         "d_expert_min": float(finite.min()) if len(finite) else math.nan,
         "d_expert_max": float(finite.max()) if len(finite) else math.nan,
@@ -363,9 +367,9 @@ def replicates_markdown(
         counts.to_markdown(index=False),
         "",
         f"Winner minus expert across replicates: mean {s['d_expert_mean']:.1f}, range "
-        f"{s['d_expert_min']:.1f} to {s['d_expert_max']:.1f}; {s['distinct_winners']} distinct "
-        f"winning trials; {s['crossings_total']} of {s['episodes_total']} final-phase episodes "
-        "beyond d_s.",
+        f"{s['d_expert_min']:.1f} to {s['d_expert_max']:.1f}; {s['distinct_configurations']} "
+        f"distinct winning configurations; {s['crossings_total']} of {s['episodes_total']} "
+        "final-phase episodes beyond d_s.",
         "",
         f"**Verdict:** {s['verdict']}.",
     ]

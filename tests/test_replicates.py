@@ -140,6 +140,7 @@ def test_summary_says_reliably_below_when_every_interval_is_below_zero() -> None
     assert s["d_expert_mean"] == pytest.approx(-3.0)
     assert (s["d_expert_min"], s["d_expert_max"]) == (-4.0, -2.0)
     assert s["crossings_total"] == 3 and s["episodes_total"] == 153
+    assert s["distinct_configurations"] == 3  # alpha 0, 0.25, 0.5
     assert s["verdict"].startswith("the winner is reliably below the expert in all 3 replicates")
     assert "not reliably different from plain BC in any of the 3 replicates" in s["verdict"]
     assert "3 of 153 final-phase episodes beyond d_s" in s["verdict"]
@@ -175,6 +176,7 @@ def test_mixed_replicates_give_a_mixed_verdict_and_a_missing_one_is_counted() ->
     assert "reliably below in 1, reliably above in 1" in s["verdict"]
     assert "of 3 replicates" in s["verdict"]
     assert table.iloc[3]["winner"] == "" and table.iloc[3]["vs_expert"] == "missing"
+    assert s["distinct_configurations"] == 3  # the replicate without winner does not count
     text = replicates_markdown(table, s, PARAMS, note="Made by `x`.")
     assert "-2.3 [-5.1, -1.2]" in text and "2/51" in text and s["verdict"] in text
     assert "alpha=0.25" in text and text.rstrip().endswith("Made by `x`.")
