@@ -480,6 +480,11 @@ def _cmd_tune(args: argparse.Namespace) -> int:
     for flag, value in given.items():
         command += [f"--{flag.replace('_', '-')}", str(value)]
     command += ["--fresh"] if args.fresh else []
+    if args.replicates is not None:
+        from safe_bc.distributed.replicates import tune_replicates
+
+        argv = [*command, "--replicates", str(args.replicates)]
+        return tune_replicates(spec, args.replicates, fresh=args.fresh, argv=argv)
 
     from safe_bc.distributed.study import experiment_location, format_outcome, run_study
 
@@ -801,6 +806,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--results", type=Path, default=None, help="outputs go to RESULTS/<study>/")
     p.add_argument("--fresh", action="store_true", help="discard a previous run of the study")
+    p.add_argument(
+        "--replicates",
+        type=_positive("--replicates"),
+        default=None,
+        help="run N replicates (the study with its seeds shifted) into RESULTS/<study>/"
+        "replicates/r<k>/ and write the winners' table RESULTS/<study>/replicates.parquet, .md",
+    )
     p.set_defaults(func=_cmd_tune)
 
     p = sub.add_parser(
