@@ -62,7 +62,7 @@ def _finite_float(name: str) -> Callable[[str], float]:
     return _number(name, float, math.isfinite, "finite")
 
 
-RAY_COMMANDS = frozenset({"collect", "evaluate", "expert", "reproduce", "tune"})
+RAY_COMMANDS = frozenset({"collect", "compare", "evaluate", "expert", "reproduce", "tune"})
 """Commands that may start or join Ray: with ``RAY_ADDRESS`` set they join the cluster before
 they write anything."""
 
@@ -456,6 +456,20 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_compare(args: argparse.Namespace) -> int:
+    from safe_bc.compare import load_comparison
+    from safe_bc.distributed.compare import rerender, run_comparison
+
+    comparison = load_comparison(args.comparison)
+    check_output_folder(comparison.out)
+    if args.render_only:
+        rerender(comparison)
+    else:
+        run_comparison(comparison, progress=not args.quiet)
+    print(f"wrote {comparison.out / (comparison.name + '.parquet')} and .md")
+    return 0
+
+
 def _cmd_tune(args: argparse.Namespace) -> int:
     import dataclasses
     import shlex
@@ -775,6 +789,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="rebuild the table and figures from the stored per-episode results",
     )
     p.set_defaults(func=_cmd_reproduce)
+
+    p = sub.add_parser("compare", help="run (or resume) a comparison file")
+    p.add_argument("comparison", type=Path, help="e.g. tune_jobs/compare/table1.py")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.add_argument("--render-only", action="store_true", help="rebuild from stored episodes")
+    p.set_defaults(func=_cmd_compare)
 
     p = sub.add_parser("tune", help="run (or resume) a constrained hyper-parameter study")
     p.add_argument("study", type=Path, help="study file defining STUDY, e.g. tune_jobs/default.py")
