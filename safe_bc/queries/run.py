@@ -166,7 +166,7 @@ def run_queries(
             rounds.append(done)
             episodes += load_round(here / QUERIES)
             resumed += 1 if resumed == r else 0
-            agent = _source(here / POLICY)
+            agent = policy_source(here / POLICY)
             continue
         t0 = time.perf_counter()
         if (here / QUERIES).is_file():
@@ -237,7 +237,7 @@ def _model(source: NetSource) -> BCNet:
     return model.eval()
 
 
-def _source(policy: Path) -> NetSource:
+def policy_source(policy: Path) -> NetSource:
     model, cfg = load_checkpoint(policy)
     return NetSource.from_model(model, cfg)
 
