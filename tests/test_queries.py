@@ -238,3 +238,42 @@ def test_the_stage_runs_end_to_end_with_ray_actors(ray_session, tiny_demos, tmp_
     assert report["queries_total"] > 0
     assert report["queries_per_episode"] == report["queries_total"] / 2
     assert source.build() is not None
+
+
+@pytest.mark.slow
+def test_the_measurement_runs_on_a_tiny_budget_without_ray(tmp_path) -> None:
+    """``python -m safe_bc.queries.measure`` with 2 processes, 1 seed, 2 tracks, 20 batches,
+    120-step episodes (collects its 5 demonstrations first: ~3-4 min on 2 cores)."""
+    import pandas as pd
+
+    from safe_bc.queries.measure import main
+
+    out = tmp_path / "out"
+    argv = [
+        "--out",
+        str(out),
+        "--demos",
+        str(tmp_path / "demos"),
+        "--processes",
+        "2",
+        "--seeds",
+        "0",
+        "--tracks",
+        "2",
+        "--batches",
+        "20",
+        "--rounds",
+        "1",
+        "--episodes-per-round",
+        "2",
+        "--max-steps",
+        "120",
+        "--widths",
+        "2",
+        "40",
+    ]
+    assert main(argv) == 0
+    table = pd.read_parquet(out / "summary.parquet")
+    assert set(table["method"]) == {"expert", "bc", "full", "critical", "defer"}
+    assert (table["episodes"] == 2).all() and (out / "summary.md").is_file()
+    assert main(argv) == 0  # resumes: every unit is a file
