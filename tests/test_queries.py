@@ -277,3 +277,25 @@ def test_the_measurement_runs_on_a_tiny_budget_without_ray(tmp_path) -> None:
     assert set(table["method"]) == {"expert", "bc", "full", "critical", "defer"}
     assert (table["episodes"] == 2).all() and (out / "summary.md").is_file()
     assert main(argv) == 0  # resumes: every unit is a file
+
+
+def test_the_query_verb_runs_from_a_checkpoint(rehab_start, rehab_demos, tmp_path) -> None:
+    from safe_bc.cli import main
+
+    argv = [
+        "query",
+        "--checkpoint",
+        str(rehab_start),
+        "--demos",
+        str(rehab_demos),
+        "--out",
+        str(tmp_path / "q"),
+        "--rounds",
+        "1",
+        "--episodes-per-round",
+        "2",
+        "--workers",
+        "0",
+    ]
+    assert main(argv) == 0
+    assert (tmp_path / "q" / round_dir(0) / DONE).is_file()

@@ -82,3 +82,19 @@ def run_stage(
         "queries_per_episode": result.total_queries / max(result.total_episodes, 1),
         "queries_seconds": float(sum(r["seconds"] for r in result.rounds)),
     }
+
+
+def query_checkpoint(
+    checkpoint: str | Path, demos: str | Path, out: str | Path, config: QueryConfig
+) -> QueryResult:
+    """``safe-bc query``: :func:`query_run` from a ``safe-bc train`` checkpoint (its selection
+    config from its ``selection.parquet`` summary, its env from its ``extra``)."""
+    from safe_bc.bc.checkpoint import SELECTION, load_checkpoint, read_checkpoint_meta
+    from safe_bc.data.store import read_table_metadata
+    from safe_bc.selection import SelectionConfig
+
+    model, bc = load_checkpoint(checkpoint)
+    extra = read_checkpoint_meta(checkpoint).get("extra", {})
+    sel = read_table_metadata(Path(checkpoint) / SELECTION)["config"]
+    run_config = RunConfig(SelectionConfig(**sel), bc)
+    return query_run(config, model, run_config, demos, extra["env_id"], out)
