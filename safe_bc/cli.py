@@ -515,6 +515,26 @@ def _cmd_tune(args: argparse.Namespace) -> int:
     return 1 if outcome.errors or outcome.winner is None else 0
 
 
+def _cmd_query(args: argparse.Namespace) -> int:
+    """``safe-bc query``: :func:`safe_bc.queries.stage.query_checkpoint`."""
+    from safe_bc.queries.config import QueryConfig
+    from safe_bc.queries.stage import query_checkpoint
+
+    config = QueryConfig(
+        mode=args.mode,
+        rounds=args.rounds,
+        workers=args.workers,
+        episodes_per_round=args.episodes_per_round,
+        seed=args.seed,
+    )
+    result = query_checkpoint(args.checkpoint, args.demos, args.out, config)
+    print(
+        f"{result.total_queries} queries in {result.total_episodes} episodes; "
+        f"agent: {result.policy}"
+    )
+    return 0
+
+
 def _cmd_improve(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
@@ -867,6 +887,20 @@ def build_parser() -> argparse.ArgumentParser:
                    "CarRacing: one per core); the run is bit-identical either way")  # fmt: skip
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_improve)
+    p = sub.add_parser(
+        "query",
+        help="critical-zone queries: retrain a checkpoint on expert "
+        "labels of its own critical states, per round (resumable)",
+    )
+    p.add_argument("--checkpoint", required=True, help="a safe-bc train checkpoint")
+    p.add_argument("--demos", required=True)
+    p.add_argument("--out", required=True, help="run folder (resumes a run there)")
+    p.add_argument("--mode", choices=["critical", "full"], default="critical")
+    p.add_argument("--rounds", type=int, default=2)
+    p.add_argument("--episodes-per-round", type=int, default=16)
+    p.add_argument("--workers", type=int, default=2, help="Ray rollout actors (0: in-process)")
+    p.add_argument("--seed", type=int, default=0)
+    p.set_defaults(func=_cmd_query)
 
     p = sub.add_parser("export", help="export a demonstration set to another format (Minari)")
     p.add_argument("--demos", type=Path, default=DEFAULT_DEMOS, help=DEMOS)
