@@ -9,7 +9,8 @@ seeds' pipelines are threads of this process that hand every training and episod
    5 episodes) when missing.
 2. Per training seed k: plain BC (``--alpha``, default 0.1: the committed
    ``results/improve/carracing/starts``), then ``critical`` queries from it, then ``full``
-   (DAgger) with a per-round budget of the critical run's mean queries per round.
+   (DAgger) with a per-round budget of the critical run's mean queries per round. The query
+   rounds run while the rest of the pool evaluates plain BC, its deferral and the expert.
 3. Deferral of plain BC on the *selection* tracks (held-out block ``SELECTION_BLOCK``) for each
    width of ``--widths``; the chosen width is the smallest with no episode beyond ``d_s``.
 4. Every method (and deferral at the chosen width, and the expert) on the *fresh* tracks
@@ -179,8 +180,8 @@ def run(a: argparse.Namespace, pool: Any) -> str:
     def train(job: Any) -> Any:
         return pool.apply(_train, (job,))
 
-    def pipeline(seed: int) -> dict[str, Any]:
-        """Plain BC, critical, then full (at the critical run's queries) for one seed."""
+    def train_bc(seed: int) -> Any:
+        """Plain BC for one seed (its checkpoint, reused when present)."""
         from safe_bc.bc.checkpoint import checkpoint_unit, save_checkpoint
         from safe_bc.queries.run import _model
 
@@ -191,8 +192,14 @@ def run(a: argparse.Namespace, pool: Any) -> str:
             src = train(TrainJob(demos, sel, cfg, bounds))
             with checkpoint_unit(bc_dir) as unit:
                 save_checkpoint(unit, _model(src), cfg.bc)
-        bc = policy_source(bc_dir)
-        start = _model(bc)
+        return policy_source(bc_dir)
+
+    def pipeline(seed: int) -> dict[str, Any]:
+        """Critical, then full (at the critical run's queries) from one seed's plain BC."""
+        from safe_bc.queries.run import _model
+
+        cfg = run_config(seed)
+        start = _model(bcs[seed])
         common = {
             "rounds": a.rounds,
             "episodes_per_round": a.episodes_per_round,
@@ -224,13 +231,17 @@ def run(a: argparse.Namespace, pool: Any) -> str:
             **kw,
         )
         return {
-            "bc": (bc, float("nan")),
             "critical": (policy_source(crit.policy), crit.total_queries / crit.total_episodes),
             "full": (policy_source(full.policy), full.total_queries / full.total_episodes),
         }
 
     with ThreadPoolExecutor(len(a.seeds)) as threads:
-        agents = dict(zip(a.seeds, threads.map(pipeline, a.seeds), strict=True))
+        bcs = dict(zip(a.seeds, threads.map(train_bc, a.seeds), strict=True))
+    # the query rounds (a few processes) run while the rest of the pool evaluates plain BC,
+    # its deferral and the expert; the query agents are evaluated once they are trained
+    threads = ThreadPoolExecutor(len(a.seeds))
+    queried = {s: threads.submit(pipeline, s) for s in a.seeds}
+    agents: dict[int, dict[str, Any]] = {s: {"bc": (bcs[s], float("nan"))} for s in a.seeds}
 
     def evaluate(block: int, name: str, seed: int, source: Any) -> pd.DataFrame:
         """One (block, method, seed) unit: its episodes (resumable file)."""
@@ -248,7 +259,7 @@ def run(a: argparse.Namespace, pool: Any) -> str:
         return df
 
     def defer_source(seed: int, w: float) -> Any:
-        return DeferralSource(agents[seed]["bc"][0], expert, tuple(limits), w, base_sel.combine)
+        return DeferralSource(bcs[seed], expert, tuple(limits), w, base_sel.combine)
 
     # widths on the selection tracks, smallest first, until one reaches zero crossings
     crossings: dict[float, int] = {}
@@ -271,11 +282,17 @@ def run(a: argparse.Namespace, pool: Any) -> str:
     for block in (SELECTION_BLOCK, FRESH_BLOCK):
         frames.append(evaluate(block, "expert", -1, ExpertSource(expert)))
         for s in a.seeds:
-            for name in METHODS:
-                frames.append(evaluate(block, name, s, agents[s][name][0]))
+            frames.append(evaluate(block, "bc", s, bcs[s]))
             reuse = block == SELECTION_BLOCK and width in crossings  # measured while choosing
             name = f"defer-{width:g}" if reuse else "defer"
             frames.append(evaluate(block, name, s, defer_source(s, width)).assign(method="defer"))
+    for s in a.seeds:
+        agents[s].update(queried[s].result())
+    threads.shutdown()
+    for block in (SELECTION_BLOCK, FRESH_BLOCK):
+        for s in a.seeds:
+            for name in ("full", "critical"):
+                frames.append(evaluate(block, name, s, agents[s][name][0]))
     episodes = pd.concat(frames, ignore_index=True)
     queries = {m: float(np.mean([agents[s][m][1] for s in a.seeds])) for m in METHODS}
     table = summarize(episodes, queries, width)
