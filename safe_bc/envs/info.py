@@ -78,12 +78,14 @@ def check_info(info: dict[str, Any], safety_dims: tuple[str, ...]) -> StepInfo:
     )
 
 
-class InfoContract(gym.Wrapper):
+class InfoContract(gym.Wrapper, gym.utils.RecordConstructorArgs):
     """Check the ``info`` of each episode's ``reset`` and first ``step``
-    (:func:`check_info`); every other call passes straight through."""
+    (:func:`check_info`); every other call passes straight through. (Recorded in the env's
+    spec, so an env rebuilt from it, e.g. a Minari dataset's, is checked too.)"""
 
     def __init__(self, env: gym.Env) -> None:
-        super().__init__(env)
+        gym.utils.RecordConstructorArgs.__init__(self)
+        gym.Wrapper.__init__(self, env)
         try:
             self._dims = tuple(env.get_wrapper_attr("safety_dims"))
         except AttributeError:
@@ -102,6 +104,6 @@ class InfoContract(gym.Wrapper):
     def step(self, action: Any) -> tuple[Any, Any, bool, bool, dict[str, Any]]:
         out = self.env.step(action)
         if self._check_next:
-            check_info(out[4], self._dims)
             self._check_next = False
+            check_info(out[4], self._dims)
         return out
