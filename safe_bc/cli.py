@@ -138,7 +138,7 @@ def _env_args(p: argparse.ArgumentParser) -> None:
         "--env",
         choices=TASKS,
         default=DEFAULT_TASK,
-        help="task: CarRacing-v3 (default) or the rehabilitation pathway",
+        help=f"task: {' or '.join(TASKS)} (default {DEFAULT_TASK})",
     )
     p.add_argument(
         "--renderer",
@@ -621,7 +621,7 @@ DEMOS = "demonstration dataset directory"
 WORKERS = "Ray actors that run the episodes"
 EVAL_SEED = "block of held-out seeds (tracks or patients) the episodes are drawn from"
 MAX_STEPS = "step cap per episode (default: the env's, 1000 for CarRacing)"
-ENV = "the testbed: carracing or rehab"
+ENV = f"the testbed: {' or '.join(TASKS)}"
 
 
 def _doc(where: tuple[str, str], field: str) -> str:
