@@ -24,7 +24,7 @@ import re
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, get_args
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -34,7 +34,7 @@ from safe_bc.improve.config import ImproveConfig
 from safe_bc.metrics import METRICS, paired_crossed, summarize_crossed
 from safe_bc.report import fmt_ci
 from safe_bc.selection import SelectionConfig
-from safe_bc.tasks import Task
+from safe_bc.tasks import TASKS, Task
 
 EXPERT = "expert"
 """``mode`` (and default name) of the expert's row."""
@@ -190,8 +190,8 @@ class Comparison:
                 raise ValueError(f"figure must be one of {FIGURES}, got {fig!r}")
             if not file.endswith(".png"):
                 raise ValueError(f"figure {fig!r}: file must be a .png, got {file!r}")
-        if self.task not in get_args(Task):
-            raise ValueError(f"task must be one of {get_args(Task)}, got {self.task!r}")
+        if self.task not in TASKS:
+            raise ValueError(f"task must be one of {tuple(TASKS)}, got {self.task!r}")
 
     def method(self, name: str) -> Method:
         """The row called ``name``."""
