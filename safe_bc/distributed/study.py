@@ -208,14 +208,18 @@ def _records(grid: Any, params: Sequence[str]) -> list[dict[str, Any]]:
 
 
 def _study_history(history: pd.DataFrame, trials: pd.DataFrame) -> tuple[pd.DataFrame, list[str]]:
-    """The history rows of the trials in ``trials`` (every trial Tune knows), and the ids of the
-    trials whose rows are set aside: trials that a driver killed before Tune saved them had
+    """The history rows of the trials in ``trials`` (every trial Tune knows; one per trial and
+    phase), and the ids of the trials whose rows are set aside: trials that a driver killed before Tune saved them had
     started (the restored experiment does not know them and ran others in their place)."""
     if history.empty or "trial_id" not in history:
         return history, []
     known = history["trial_id"].isin(set(trials["trial_id"]))
     lost = sorted(set(history.loc[~known, "trial_id"]))
-    return history[known].reset_index(drop=True), lost
+    kept = history[known]
+    if "phase" in kept:  # a round reported again by a restarted trial (from its stored
+        # episodes, :func:`safe_bc.distributed.trial.stored_round`) counts once: the last report
+        kept = kept[~kept.duplicated(["trial_id", "phase"], keep="last")]
+    return kept.reset_index(drop=True), lost
 
 
 def _remove_orphan_trial_dirs(exp_path: str, known: set[str]) -> list[str]:

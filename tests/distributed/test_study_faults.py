@@ -216,8 +216,10 @@ def test_sigkilled_driver_loses_at_most_the_trials_in_flight(
     for tid in finished:
         want = ["trained", "screened"] + (["evaluated"] if status[tid] == "done" else [])
         assert phases[tid] == want, (tid, phases[tid])
-    # no trial Tune knows trained twice (a trained trial resumes from its checkpoint)
+    # no trial Tune knows trained twice (a trained trial resumes from its checkpoint), and none
+    # has a round twice (a restarted trial reports its stored rounds: issue 32, item 3)
     assert all(p.count("trained") == 1 for p in phases.values()), phases
+    assert all(len(p) == len(set(p)) for p in phases.values()), phases
     # trials.parquet and history.parquet agree: the same trials, each trial's last report
     assert set(history["trial_id"]) == set(trials["trial_id"])
     last = history.groupby("trial_id").tail(1).set_index("trial_id")
@@ -240,3 +242,55 @@ def test_sigkilled_driver_loses_at_most_the_trials_in_flight(
     states = [t.state for t in searcher.study.get_trials(deepcopy=False)]
     assert states == [TrialState.COMPLETE] * 6
     assert (out / "best.json").exists()
+
+
+# --- a trial restarted after its last report ----------------------------------------------------
+
+
+def crash_after_evaluation(config: dict, job, marker: str, log: str) -> None:
+    """``run_trial`` that counts its evaluations (one line per call in ``log``) and, the first
+    time in the study, dies after its last report (as when the driver is killed before Tune has
+    saved that the trial ended: the trial runs again)."""
+    import safe_bc.distributed.trial as mod
+
+    original = mod.evaluate_source
+
+    def counted(*args, **kwargs):
+        with open(log, "a") as f:
+            f.write(f"{args[3]}\n")
+        return original(*args, **kwargs)
+
+    mod.evaluate_source = counted
+    try:
+        mod.run_trial(config, job)
+    finally:
+        mod.evaluate_source = original
+    if not os.path.exists(marker):
+        Path(marker).touch()
+        raise RuntimeError("injected death after the evaluated report")
+
+
+def test_a_trial_run_again_after_its_evaluation_reports_it_without_evaluating_again(
+    tiny_demos: Path, tmp_path: Path
+) -> None:
+    import functools
+    from dataclasses import replace
+
+    from safe_bc.distributed.study import run_study
+    from safe_bc.study import load_study
+
+    spec = replace(
+        load_study(SMOKE), demos=tiny_demos, storage=str(tmp_path / "ray"),
+        results=tmp_path / "results", batches=30, max_steps=80, final_episodes=1,
+        final_workers=0, trials=1, max_concurrent=1, max_failures=1,
+    )  # fmt: skip
+    log = tmp_path / "evaluations.log"
+    trial_fn = functools.partial(
+        crash_after_evaluation, marker=str(tmp_path / "died"), log=str(log)
+    )
+    outcome = run_study(spec, progress=False, trial_fn=trial_fn)
+    assert (tmp_path / "died").exists() and outcome.complete and outcome.errors == 0
+    rounds = log.read_text().split()
+    assert len(rounds) == len(set(rounds)) == (2 if spec.screens else 1), rounds
+    history, _ = read_table(outcome.out / "history.parquet")
+    assert history.groupby("phase").size().max() == 1, history[["trial_id", "phase"]]
