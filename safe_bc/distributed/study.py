@@ -209,8 +209,9 @@ def _records(grid: Any, params: Sequence[str]) -> list[dict[str, Any]]:
 
 def _study_history(history: pd.DataFrame, trials: pd.DataFrame) -> tuple[pd.DataFrame, list[str]]:
     """The history rows of the trials in ``trials`` (every trial Tune knows; one per trial and
-    phase), and the ids of the trials whose rows are set aside: trials that a driver killed before Tune saved them had
-    started (the restored experiment does not know them and ran others in their place)."""
+    phase), and the ids of the trials whose rows are set aside: trials that a driver killed
+    before Tune saved them had started (the restored experiment does not know them and ran
+    others in their place)."""
     if history.empty or "trial_id" not in history:
         return history, []
     known = history["trial_id"].isin(set(trials["trial_id"]))
