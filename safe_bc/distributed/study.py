@@ -10,9 +10,11 @@ the expert and to plain BC on the same tracks) and ``best.json``.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
+import shutil
 import signal
 import time
 from collections.abc import Callable, Iterator, Sequence
@@ -31,13 +33,22 @@ from ray.tune.utils import flatten_dict
 from safe_bc.atomic import write_json_atomic
 from safe_bc.bc import load_checkpoint
 from safe_bc.bc.net import BCNet
-from safe_bc.data.store import delete_storage_tree, read_meta, storage_folders, write_table_atomic
+from safe_bc.data.store import (
+    DatasetError,
+    delete_storage_tree,
+    read_meta,
+    read_table,
+    storage_folders,
+    write_table_atomic,
+)
 from safe_bc.distributed.final import FinalOutcome, final_phase
+from safe_bc.distributed.final_store import STORE, FinalStore
 from safe_bc.distributed.runtime import ensure_ray
 from safe_bc.distributed.search import (
     NUMBER,
     ConstrainedOptunaSearch,
     SpaceSampler,
+    default_optuna_storage,
     load_searcher,
     make_scheduler,
     make_searcher,
@@ -442,6 +453,15 @@ def _run_study(
 ) -> StudyOutcome:
     from safe_bc.distributed.collect import ensure_demos
 
+    if not fresh:
+        done = finished_outcome(spec)
+        if done is not None:
+            print(
+                f"study {spec.name!r} finished before with these settings: its result, read "
+                f"from {done.out}/ (pass --fresh to run it again from scratch)"
+            )
+            return done
+
     os.environ.setdefault("TUNE_DISABLE_AUTO_CALLBACK_LOGGERS", "1")
     os.environ.setdefault("RAY_AIR_NEW_OUTPUT", "0")  # the terse status table of CLIReporter
     # SaveOnTrialEnd forces saves; Tune would call two within 5 s "excessive" and blame
@@ -455,8 +475,10 @@ def _run_study(
         _delete_tree(exp_path)
         for name in ("trials", "history", "final", "final_episodes", "final_paired"):
             (out / f"{name}.parquet").unlink(missing_ok=True)
+        (out / FINISHED).unlink(missing_ok=True)  # first: a kill below leaves no claim
         for name in ("best.json", "pareto.png", "study.json", "optuna.db", HISTORY):
             (out / name).unlink(missing_ok=True)
+        shutil.rmtree(out / STORE, ignore_errors=True)
     ensure_ray()
     demos_path = spec.demos.resolve()
     if not (demos_path / "dataset.json").exists():
@@ -480,6 +502,7 @@ def _run_study(
     restoring = tune.Tuner.can_restore(exp_path)
     if not restoring:  # a new experiment: rows of an older one do not belong to it
         (out / HISTORY).unlink(missing_ok=True)
+        (out / FINISHED).unlink(missing_ok=True)
     identity = {
         "trials": spec.trials,
         "threshold": threshold,
@@ -577,7 +600,8 @@ def _run_study(
     candidates = choose_candidates(trials, spec.final_candidates, spec.objective)
     checkpoints = _checkpoints(grid, list(candidates["trial_id"]))
     t0 = time.perf_counter()
-    final = final_phase(spec, job, candidates, checkpoints, demos, progress=progress)
+    store = FinalStore(out / STORE)
+    final = final_phase(spec, job, candidates, checkpoints, demos, progress=progress, store=store)
     meta = {**meta, "final_phase_seconds": round(time.perf_counter() - t0, 1)}
     _write_final(spec, final, candidates, meta)
     plot_pareto(
@@ -589,7 +613,119 @@ def _run_study(
         title=f"{title}; final phase: "
         + (f"winner {final.winner}" if final.feasible else "no candidate feasible"),
     )
+    write_json_atomic(out / FINISHED, _finished_record(spec), default=str)
     return replace(outcome, winner=winner, final=final)
+
+
+FINISHED = "finished.json"
+"""Written last by a study that ran to the end (the final tables written): a rerun of the same
+study only reads the tables back and prints the result (:func:`finished_outcome`)."""
+
+
+def _finished_record(spec: StudySpec) -> dict[str, Any]:
+    return json.loads(json.dumps({"study": spec.summary()}, sort_keys=True, default=str))
+
+
+def finished_outcome(spec: StudySpec) -> StudyOutcome | None:
+    """The outcome of ``spec`` when it ran to the end before with the same settings (its
+    :data:`FINISHED` record matches and its tables read back), else ``None``.
+
+    Raises:
+        ValueError: one line, when the finished study's tables or its Optuna copy
+            (``optuna.db``) are broken or not its own.
+    """
+    out = spec.results / spec.name
+    try:
+        record = json.loads((out / FINISHED).read_text())
+    except (OSError, json.JSONDecodeError):
+        return None
+    if record != _finished_record(spec):
+        return None  # other settings (e.g. --concurrent): the normal path resumes
+    try:
+        trials, meta = read_table(out / "trials.parquet")
+        table, fmeta = read_table(out / "final.parquet")
+        episodes, _ = read_table(out / "final_episodes.parquet")
+        paired = (
+            read_table(out / "final_paired.parquet")[0]
+            if (out / "final_paired.parquet").exists()
+            else pd.DataFrame()
+        )
+        best = json.loads((out / "best.json").read_text())
+    except (DatasetError, OSError, json.JSONDecodeError) as e:
+        raise ValueError(
+            f"the finished study at {out} has a broken output ({' '.join(str(e).split())}); "
+            f"delete {out / FINISHED} and rerun the same command to rewrite the outputs (the "
+            "trials and the final phase's finished work are kept and not redone)"
+        ) from None
+    check_optuna_copy(spec, str(meta.get("experiment_path", "")))
+    final = FinalOutcome(
+        table, episodes, best.get("trial_id"), bool(best.get("feasible")),
+        str(best.get("message", "")), dict(fmeta.get("configs", {})),
+        str(best.get("certified", "")), paired,
+    )  # fmt: skip
+    return StudyOutcome(
+        True,
+        trials,
+        choose_winner(trials, spec.objective),
+        final,
+        float(meta["threshold"]),
+        out,
+        str(meta.get("experiment_path", "")),
+        int((trials["status"] == "error").sum()),
+    )
+
+
+def check_optuna_copy(spec: StudySpec, experiment_path: str) -> None:
+    """A finished study's Optuna copy (``optuna.db`` by default) must be whole and its own:
+    the study of this name with every trial. A missing local copy is written again from the
+    Tune experiment's searcher.
+
+    Raises:
+        ValueError: one line naming the file and the problem (corrupt, cut short, another
+            study's, trials missing).
+    """
+    url = default_optuna_storage(spec)
+    prefix = "sqlite:///"
+    if not url.startswith(prefix):
+        return  # a shared database: checked by its own server
+    path = Path(url.removeprefix(prefix))
+    if not path.exists():
+        if experiment_path and not _is_uri(experiment_path):
+            searcher = load_searcher(experiment_path)
+            searcher._export_to = url
+            searcher.export()
+        return
+    problem = optuna_copy_problem(path, spec.name, spec.trials)
+    if problem:
+        raise ValueError(
+            f"{path}: {problem}; it is only a copy for Optuna's tools: delete it and rerun the "
+            "same command to write it again from the study's Tune experiment"
+        )
+
+
+def optuna_copy_problem(path: Path, name: str, trials: int) -> str:
+    """What is wrong with the Optuna SQLite copy at ``path`` of study ``name`` with ``trials``
+    trials (``""``: nothing). Opened read-only: nothing is created or changed."""
+    import sqlite3
+
+    try:
+        with contextlib.closing(sqlite3.connect(f"file:{path}?mode=ro", uri=True)) as db:
+            rows = db.execute("SELECT study_id FROM studies WHERE study_name = ?", (name,))
+            found = rows.fetchall()
+            if not found:
+                names = [r[0] for r in db.execute("SELECT study_name FROM studies")]
+                return f"holds no study {name!r} (it holds {names or 'none'}): not this study's"
+            (n,) = db.execute(
+                "SELECT COUNT(*) FROM trials WHERE study_id = ?", (found[0][0],)
+            ).fetchone()
+            check = db.execute("PRAGMA quick_check").fetchone()
+    except sqlite3.Error as e:
+        return f"not a whole Optuna database ({e})"
+    if check and check[0] != "ok":
+        return f"a damaged Optuna database ({check[0]})"
+    if n != trials:
+        return f"holds {n} trials of study {name!r}, the study has {trials}"
+    return ""
 
 
 def _checkpoints(grid: Any, trial_ids: Sequence[str]) -> dict[str, BCNet]:

@@ -294,3 +294,68 @@ def test_a_trial_run_again_after_its_evaluation_reports_it_without_evaluating_ag
     assert len(rounds) == len(set(rounds)) == (2 if spec.screens else 1), rounds
     history, _ = read_table(outcome.out / "history.parquet")
     assert history.groupby("phase").size().max() == 1, history[["trial_id", "phase"]]
+
+
+# --- the final phase resumes; a finished study's rerun does no work -----------------------------
+
+
+def test_final_phase_resumes_per_agent_and_evaluation_and_a_finished_study_only_reprints(
+    tiny_demos: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    from dataclasses import replace
+
+    import safe_bc.distributed.final as final_mod
+    from safe_bc.distributed.final_store import STORE
+    from safe_bc.distributed.study import FINISHED, format_outcome, run_study
+    from safe_bc.study import load_study
+
+    spec = replace(
+        load_study(SMOKE), demos=tiny_demos, storage=str(tmp_path / "ray"),
+        results=tmp_path / "results", batches=30, max_steps=60, trials=2, final_candidates=1,
+        final_episodes=2, final_train_seeds=2, final_workers=0, screen_episodes=0,
+    )  # fmt: skip
+    first = run_study(spec, progress=False)
+    assert first.complete and first.final is not None
+    out = first.out
+    episodes, _ = read_table(out / "final_episodes.parquet")
+    store = out / STORE
+    agents = sorted((store / "agents").iterdir())
+    evaluations = sorted((store / "episodes").iterdir())
+    assert len(agents) == 3  # the candidate's second seed, plain BC's two seeds
+    assert len(evaluations) == 6  # (candidate, plain BC) x 2 seeds + the expert per block
+
+    calls: dict[str, list] = {"train": [], "evaluate": []}
+    train_run, evaluate = final_mod.train_run, final_mod.evaluate
+
+    def counted_train(demos, run, **kw):
+        calls["train"].append(run.bc.train.seed)
+        return train_run(demos, run, **kw)
+
+    def counted_evaluate(sources, *args, **kw):
+        calls["evaluate"].append(sorted(sources))
+        return evaluate(sources, *args, **kw)
+
+    monkeypatch.setattr(final_mod, "train_run", counted_train)
+    monkeypatch.setattr(final_mod, "evaluate", counted_evaluate)
+
+    # a finished study: the rerun reads its result back and does nothing else
+    capsys.readouterr()
+    again = run_study(spec, progress=False)
+    assert "finished before" in capsys.readouterr().out
+    assert calls == {"train": [], "evaluate": []}
+    assert format_outcome(again, spec.params) == format_outcome(first, spec.params)
+
+    # killed in the final phase: one agent and one evaluation not finished yet
+    (out / FINISHED).unlink()
+    (out / "final.parquet").unlink()
+    import shutil
+
+    shutil.rmtree(agents[0])
+    evaluations[0].unlink()
+    resumed = run_study(spec, progress=False)
+    assert len(calls["train"]) == 1, calls
+    assert len(calls["evaluate"]) == 1 and len(calls["evaluate"][0]) == 1, calls
+    again, _ = read_table(out / "final_episodes.parquet")
+    pd.testing.assert_frame_equal(again, episodes)
+    pd.testing.assert_frame_equal(resumed.final.table, first.final.table)
+    assert (out / FINISHED).exists()
