@@ -16,6 +16,7 @@ import math
 import os
 import shutil
 import signal
+import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
@@ -110,6 +111,19 @@ class StudyOutcome:
     """The Tune experiment (``storage/<study>``)."""
     errors: int
     """Trials that failed after all retries (a rerun retries them)."""
+    stopped_by: int = 0
+    """The signal that stopped Tune's run of the trials (0: none; SIGINT is seen as an
+    incomplete study, SIGTERM is recorded here)."""
+
+    @property
+    def exit_code(self) -> int:
+        """``safe-bc tune``'s exit status: 143 after SIGTERM, 130 when incomplete (Ctrl-C),
+        1 when trials failed or none finished, else 0."""
+        if self.stopped_by:
+            return 128 + self.stopped_by
+        if not self.complete:
+            return 130
+        return 1 if self.errors or self.winner is None else 0
 
 
 def trial_dirname(trial: Any) -> str:
@@ -170,23 +184,92 @@ def _check_resume(out: Path, identity: dict[str, Any], restoring: bool) -> None:
     write_json_atomic(path, identity)
 
 
+class StudyStopped(KeyboardInterrupt):
+    """Ctrl-C (SIGINT) or SIGTERM outside Tune's ``fit`` (setting up, the final phase): the
+    study stops at once; what finished is kept and a rerun resumes from it."""
+
+    def __init__(self, signum: int) -> None:
+        self.signum = signum
+        self.exit_code = 128 + signum
+        """The shell's code for the signal: 130 (SIGINT), 143 (SIGTERM)."""
+        name = signal.Signals(signum).name
+        super().__init__(
+            f"stopped by {name}; the finished trials and final-phase agents and evaluations "
+            "are kept: rerun the same command to resume from them"
+        )
+
+
+class _Stop:
+    """The study's SIGINT and SIGTERM handlers. Outside ``fit`` both raise
+    :class:`StudyStopped`. During ``fit`` Tune's own SIGINT handler is in place (it saves the
+    experiment and returns); SIGTERM is recorded and handed to it as SIGINT. ``ray.init``
+    sets its own SIGTERM handler (``sys.exit``, which aborted the driver) and ``fit`` leaves
+    Tune's SIGINT handler behind (which swallowed Ctrl-C in the final phase), so
+    :meth:`install` is called again after each."""
+
+    def __init__(self) -> None:
+        self.signum = 0
+        """The signal that stopped the study (0: none)."""
+        self.previous: dict[int, Any] = {}
+
+    def _outside_fit(self, signum: int, frame: Any) -> None:
+        self.signum = self.signum or signum
+        raise StudyStopped(signum)
+
+    def _term(self, signum: int, frame: Any) -> None:
+        if signal.getsignal(signal.SIGINT) == self._outside_fit:
+            self._outside_fit(signum, frame)
+        self.signum = self.signum or signum
+        signal.raise_signal(signal.SIGINT)  # Tune's handler: save and return
+
+    def install(self) -> None:
+        for signum, handler in ((signal.SIGINT, self._outside_fit), (signal.SIGTERM, self._term)):
+            try:
+                old = signal.signal(signum, handler)
+            except ValueError:  # not the main thread
+                return
+            self.previous.setdefault(signum, old)
+
+    def restore(self) -> None:
+        for signum, old in self.previous.items():
+            signal.signal(signum, old)
+
+
+_STOP: _Stop | None = None
+"""The handlers of the study running in this process (see :func:`run_study`)."""
+
+
 @contextmanager
-def _sigterm_as_sigint() -> Iterator[None]:
-    """SIGTERM acts like Ctrl-C: during ``fit`` Tune checkpoints and returns (a rerun resumes),
-    elsewhere it raises ``KeyboardInterrupt``."""
-
-    def handler(signum: int, frame: Any) -> None:
-        signal.raise_signal(signal.SIGINT)
-
+def _stop_signals() -> Iterator[_Stop]:
+    global _STOP
+    stop = _Stop()
+    stop.install()
+    _STOP = stop
     try:
-        previous = signal.signal(signal.SIGTERM, handler)
-    except ValueError:  # not the main thread
-        yield
-        return
-    try:
-        yield
+        yield stop
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        _STOP = None
+        stop.restore()
+
+
+def _reinstall_signals() -> None:
+    if _STOP is not None:
+        _STOP.install()
+
+
+def _fit_stopped() -> int:
+    """After ``fit``: the signal that stopped it (0: none), and the study's handlers back (``fit``
+    leaves Tune's SIGINT handler behind, which swallowed a Ctrl-C in the final phase). Tune's
+    handler puts the one before it (ours) back when it has caught a signal."""
+    if _STOP is None:
+        return 0
+    tune_handled = threading.current_thread() is threading.main_thread() and not int(
+        os.environ.get("TUNE_DISABLE_SIGINT_HANDLER", "0")
+    )
+    if tune_handled and signal.getsignal(signal.SIGINT) == _STOP._outside_fit:
+        _STOP.signum = _STOP.signum or signal.SIGINT
+    _STOP.install()
+    return _STOP.signum
 
 
 def _records(grid: Any, params: Sequence[str]) -> list[dict[str, Any]]:
@@ -194,6 +277,7 @@ def _records(grid: Any, params: Sequence[str]) -> list[dict[str, Any]]:
     records = []
     for r in grid:
         m = dict(r.metrics or {})
+        config = r.config or {}  # None for a trial stopped right after it was suggested
         phase = m.get("phase", "")
         status = (
             "error"
@@ -203,10 +287,10 @@ def _records(grid: Any, params: Sequence[str]) -> list[dict[str, Any]]:
             )
         )
         rec = {k: m.get(k, math.nan) for k in TRIAL_METRICS}
-        rec.update({k: r.config.get(k) for k in params})
+        rec.update({k: config.get(k) for k in params})
         rec.update(
-            trial_id=str(m.get("trial_id") or Path(r.path).name.removeprefix("trial_")),
-            trial_number=r.config.get(NUMBER),
+            trial_id=str(m.get("trial_id") or Path(r.path or "").name.removeprefix("trial_")),
+            trial_number=config.get(NUMBER),
             status=status,
             iterations=m.get("training_iteration", 0),
         )
@@ -439,8 +523,9 @@ def run_study(
         ValueError: a resumed study with another trial count or threshold, or demos of
             another task.
     """
-    with _sigterm_as_sigint():
-        return _run_study(spec, fresh, command, progress, callbacks, trial_fn)
+    with _stop_signals() as stop:
+        outcome = _run_study(spec, fresh, command, progress, callbacks, trial_fn)
+        return replace(outcome, stopped_by=stop.signum) if stop.signum else outcome
 
 
 def _run_study(
@@ -480,6 +565,7 @@ def _run_study(
             (out / name).unlink(missing_ok=True)
         shutil.rmtree(out / STORE, ignore_errors=True)
     ensure_ray()
+    _reinstall_signals()  # ray.init replaced the SIGTERM handler
     demos_path = spec.demos.resolve()
     if not (demos_path / "dataset.json").exists():
         print(f"{spec.demos}: no demonstrations yet; collecting the default set")
@@ -547,6 +633,7 @@ def _run_study(
             ),
         )
     grid = tuner.fit()
+    stopped = _fit_stopped()
 
     trials = trial_table(_records(grid, spec.params), spec.params)
     history, lost = _study_history(read_history(out / HISTORY), trials)
@@ -594,8 +681,8 @@ def _run_study(
     title = f"{spec.name}: {finished}/{spec.trials} trials"
     plot_pareto(trials, threshold, out / "pareto.png", title=title)  # no verdict yet
     outcome = StudyOutcome(complete, trials, None, None, threshold, out, exp_path, errors)
-    if not complete or winner is None:
-        return outcome
+    if not complete or winner is None or stopped:
+        return replace(outcome, stopped_by=stopped)
 
     candidates = choose_candidates(trials, spec.final_candidates, spec.objective)
     checkpoints = _checkpoints(grid, list(candidates["trial_id"]))
@@ -809,7 +896,12 @@ def format_outcome(outcome: StudyOutcome, params: Sequence[str]) -> str:
         f"{outcome.errors} failed",
         summary_lines(t, params),
     ]
-    if not outcome.complete:
+    if outcome.stopped_by:
+        name = signal.Signals(outcome.stopped_by).name
+        what = "the trials" if not outcome.complete else "the final phase"
+        lines.append(f"stopped by {name} before the end of {what}: run the same command again "
+                     "to resume (finished trials are not run again)")  # fmt: skip
+    elif not outcome.complete:
         lines.append("study incomplete: run the same command again to resume")
     elif outcome.winner is not None:
         lines.append(outcome.winner.message)

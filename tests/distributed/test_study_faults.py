@@ -304,7 +304,6 @@ def test_final_phase_resumes_per_agent_and_evaluation_and_a_finished_study_only_
 ) -> None:
     from dataclasses import replace
 
-    import safe_bc.distributed.final as final_mod
     from safe_bc.distributed.final_store import STORE
     from safe_bc.distributed.study import FINISHED, format_outcome, run_study
     from safe_bc.study import load_study
@@ -314,18 +313,26 @@ def test_final_phase_resumes_per_agent_and_evaluation_and_a_finished_study_only_
         results=tmp_path / "results", batches=30, max_steps=60, trials=2, final_candidates=1,
         final_episodes=2, final_train_seeds=2, final_workers=0, screen_episodes=0,
     )  # fmt: skip
-    first = run_study(spec, progress=False)
-    assert first.complete and first.final is not None
-    out = first.out
-    episodes, _ = read_table(out / "final_episodes.parquet")
-    store = out / STORE
-    agents = sorted((store / "agents").iterdir())
-    evaluations = sorted((store / "episodes").iterdir())
-    assert len(agents) == 3  # the candidate's second seed, plain BC's two seeds
-    assert len(evaluations) == 6  # (candidate, plain BC) x 2 seeds + the expert per block
+    import safe_bc.distributed.final as final_mod
+    from safe_bc.distributed.study import StudyStopped
+
+    evaluate = final_mod.evaluate
+
+    def ctrl_c(*args, **kw):  # Ctrl-C once the final phase's agents are trained
+        signal.raise_signal(signal.SIGINT)
+        return evaluate(*args, **kw)
+
+    with monkeypatch.context() as m:
+        m.setattr(final_mod, "evaluate", ctrl_c)
+        with pytest.raises(StudyStopped) as stopped:
+            run_study(spec, progress=False)
+    assert stopped.value.exit_code == 130 and "rerun the same command" in str(stopped.value)
+    out = spec.results / spec.name
+    assert not (out / "final.parquet").exists() and not (out / FINISHED).exists()
+    assert len(list((out / STORE / "agents").iterdir())) == 3  # kept for the rerun
 
     calls: dict[str, list] = {"train": [], "evaluate": []}
-    train_run, evaluate = final_mod.train_run, final_mod.evaluate
+    train_run = final_mod.train_run
 
     def counted_train(demos, run, **kw):
         calls["train"].append(run.bc.train.seed)
@@ -337,6 +344,16 @@ def test_final_phase_resumes_per_agent_and_evaluation_and_a_finished_study_only_
 
     monkeypatch.setattr(final_mod, "train_run", counted_train)
     monkeypatch.setattr(final_mod, "evaluate", counted_evaluate)
+    first = run_study(spec, progress=False)
+    assert first.complete and first.final is not None and first.exit_code in (0, 1)
+    assert calls["train"] == [] and len(calls["evaluate"]) == 2, calls  # no agent retrained
+    calls = {"train": [], "evaluate": []}
+    episodes, _ = read_table(out / "final_episodes.parquet")
+    store = out / STORE
+    agents = sorted((store / "agents").iterdir())
+    evaluations = sorted((store / "episodes").iterdir())
+    assert len(agents) == 3  # the candidate's second seed, plain BC's two seeds
+    assert len(evaluations) == 6  # (candidate, plain BC) x 2 seeds + the expert per block
 
     # a finished study: the rerun reads its result back and does nothing else
     capsys.readouterr()
@@ -359,3 +376,72 @@ def test_final_phase_resumes_per_agent_and_evaluation_and_a_finished_study_only_
     pd.testing.assert_frame_equal(again, episodes)
     pd.testing.assert_frame_equal(resumed.final.table, first.final.table)
     assert (out / FINISHED).exists()
+
+
+# --- Ctrl-C and SIGTERM --------------------------------------------------------------------------
+
+
+def test_ctrl_c_and_sigterm_outside_fit_stop_the_study_with_their_exit_codes() -> None:
+    from safe_bc.distributed.study import StudyStopped, _stop_signals
+
+    for signum, code in ((signal.SIGINT, 130), (signal.SIGTERM, 143)):
+        with _stop_signals() as stop:
+            signal.signal(signal.SIGTERM, lambda *a: None)  # as ray.init replaces it
+            from safe_bc.distributed.study import _reinstall_signals
+
+            _reinstall_signals()
+            with pytest.raises(StudyStopped) as e:
+                signal.raise_signal(signum)
+            assert e.value.exit_code == code and stop.signum == signum
+            assert signal.Signals(signum).name in str(e.value)
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+def test_sigterm_during_fit_goes_to_tunes_handler_and_is_reported_after_it() -> None:
+    from safe_bc.distributed.study import _fit_stopped, _stop_signals
+
+    with _stop_signals() as stop:
+        ours = signal.getsignal(signal.SIGINT)
+        caught = []
+
+        def tune_handler(signum, frame):  # like Ray Tune's: note it, put the old one back
+            caught.append(signum)
+            signal.signal(signal.SIGINT, ours)
+
+        signal.signal(signal.SIGINT, tune_handler)
+        signal.raise_signal(signal.SIGTERM)
+        assert caught == [signal.SIGINT]
+        assert _fit_stopped() == signal.SIGTERM == stop.signum
+
+    with _stop_signals() as stop:  # a fit that ended normally leaves Tune's handler behind
+        signal.signal(signal.SIGINT, lambda *a: None)
+        assert _fit_stopped() == 0
+        assert signal.getsignal(signal.SIGINT) == stop._outside_fit  # a Ctrl-C now stops
+
+    with _stop_signals():  # Ctrl-C caught by Tune: its handler put ours back
+        assert _fit_stopped() == signal.SIGINT
+
+
+def test_a_trial_stopped_right_after_its_suggestion_has_no_config_and_still_gets_a_row() -> None:
+    from safe_bc.distributed.study import _records
+
+    result = SimpleNamespace(metrics=None, config=None, error=None, path=None)
+    done = SimpleNamespace(
+        metrics={"phase": "evaluated", "trial_id": "a", "training_iteration": 2},
+        config={"p": 1, "trial_number": 0}, error=None, path="/x/trial_a",
+    )  # fmt: skip
+    rows = _records([done, result], ["p"])
+    assert [r["status"] for r in rows] == ["done", "unfinished"]
+    assert rows[1]["p"] is None
+
+
+def test_exit_codes_of_an_outcome() -> None:
+    from safe_bc.distributed.study import StudyOutcome
+
+    base = StudyOutcome(True, pd.DataFrame(), object(), None, 0.0, Path("."), "", 0)
+    assert base.exit_code == 0
+    from dataclasses import replace
+
+    assert replace(base, complete=False).exit_code == 130
+    assert replace(base, stopped_by=signal.SIGTERM).exit_code == 143
+    assert replace(base, errors=1).exit_code == 1
