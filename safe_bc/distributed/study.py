@@ -257,6 +257,24 @@ def _reinstall_signals() -> None:
         _STOP.install()
 
 
+def _os_error_in(e: BaseException) -> OSError | None:
+    """The ``OSError`` behind ``e`` (itself, or in its causes), reworded to say what a rerun
+    does; ``None`` when there is none."""
+    seen = set()
+    while e is not None and id(e) not in seen:
+        seen.add(id(e))
+        if isinstance(e, OSError):
+            detail = e.strerror or " ".join(str(e).split()) or type(e).__name__
+            return OSError(
+                e.errno,
+                f"{detail}; the study stopped with its state saved: fix this (e.g. free disk "
+                "space) and rerun the same command to resume",
+                e.filename,
+            )
+        e = e.__cause__ or e.__context__
+    return None
+
+
 def _fit_stopped() -> int:
     """After ``fit``: the signal that stopped it (0: none), and the study's handlers back (``fit``
     leaves Tune's SIGINT handler behind, which swallowed a Ctrl-C in the final phase). Tune's
@@ -347,9 +365,23 @@ class HistoryRecorder(tune.Callback):
         self._ended: list[tuple[str, str]] = []
 
     def _append(self, rows: list[dict[str, Any]]) -> None:
+        """Append whole lines or nothing: a write that fails (a full disk) is cut back to the
+        file's size before it, so no line is left half-written."""
         Path(self.path).parent.mkdir(parents=True, exist_ok=True)
-        with open(self.path, "a") as f:
-            f.write("".join(json.dumps(row, default=str) + "\n" for row in rows))
+        data = "".join(json.dumps(row, default=str) + "\n" for row in rows).encode()
+        fd = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+        try:
+            size = os.fstat(fd).st_size
+            try:
+                view = memoryview(data)
+                while view:
+                    view = view[os.write(fd, view) :]
+            except OSError:
+                with contextlib.suppress(OSError):
+                    os.ftruncate(fd, size)
+                raise
+        finally:
+            os.close(fd)
 
     def on_trial_result(self, iteration: int, trials: list, trial: Any, result: dict, **info):
         row = {k: v for k, v in flatten_dict(result).items() if not k.startswith("config/")}
@@ -524,7 +556,10 @@ def run_study(
             another task.
     """
     with _stop_signals() as stop:
-        outcome = _run_study(spec, fresh, command, progress, callbacks, trial_fn)
+        try:
+            outcome = _run_study(spec, fresh, command, progress, callbacks, trial_fn)
+        except OSError as e:  # one line at the CLI, saying what a rerun does
+            raise _os_error_in(e) from None
         return replace(outcome, stopped_by=stop.signum) if stop.signum else outcome
 
 
@@ -632,7 +667,14 @@ def _run_study(
                 verbose=1 if progress else 0,
             ),
         )
-    grid = tuner.fit()
+    try:
+        grid = tuner.fit()
+    except Exception as e:  # Tune wraps an OSError of a callback (a full disk) in a TuneError
+        _fit_stopped()
+        os_error = _os_error_in(e)
+        if os_error is None:
+            raise
+        raise os_error from None
     stopped = _fit_stopped()
 
     trials = trial_table(_records(grid, spec.params), spec.params)

@@ -445,3 +445,66 @@ def test_exit_codes_of_an_outcome() -> None:
     assert replace(base, complete=False).exit_code == 130
     assert replace(base, stopped_by=signal.SIGTERM).exit_code == 143
     assert replace(base, errors=1).exit_code == 1
+
+
+# --- a full disk -------------------------------------------------------------------------------
+
+
+def test_history_append_on_a_full_disk_leaves_no_half_line(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import errno
+
+    from safe_bc.distributed.study import HistoryRecorder, read_history
+
+    path = tmp_path / "history.jsonl"
+    rec = HistoryRecorder(str(path))
+    rec.on_trial_result(0, [], SimpleNamespace(trial_id="a"), {"phase": "trained"})
+    before = path.read_bytes()
+    real_write = os.write
+
+    def half_then_full(fd, data):
+        if len(data) > 8:
+            return real_write(fd, bytes(data[: len(data) // 2]))
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(os, "write", half_then_full)
+    with pytest.raises(OSError, match="No space"):
+        rec.on_trial_result(0, [], SimpleNamespace(trial_id="a"), {"phase": "screened"})
+    monkeypatch.undo()
+    assert path.read_bytes() == before
+    assert list(read_history(path)["phase"]) == ["trained"]
+
+
+class FullDisk:
+    """A Tune callback whose write fails as on a full disk (Tune wraps it in a TuneError)."""
+
+    def __new__(cls):
+        from ray import tune
+
+        class _Full(tune.Callback):
+            def on_trial_result(self, iteration, trials, trial, result, **info):
+                import errno
+
+                raise OSError(errno.ENOSPC, "No space left on device", "/full/history.jsonl")
+
+        return _Full()
+
+
+def test_an_os_error_inside_tune_is_one_line_saying_what_a_rerun_does(
+    tiny_demos: Path, tmp_path: Path
+) -> None:
+    from dataclasses import replace
+
+    from safe_bc.distributed.study import run_study
+    from safe_bc.study import load_study
+
+    spec = replace(
+        load_study(SMOKE), demos=tiny_demos, storage=str(tmp_path / "ray"),
+        results=tmp_path / "results", batches=10, max_steps=40, trials=1, max_concurrent=1,
+    )  # fmt: skip
+    with pytest.raises(OSError) as e:
+        run_study(spec, progress=False, callbacks=[FullDisk()])
+    assert type(e.value) is OSError and e.value.filename == "/full/history.jsonl"
+    assert "No space left" in e.value.strerror and "rerun the same command" in e.value.strerror
+    assert "\n" not in str(e.value)
