@@ -508,3 +508,44 @@ def test_an_os_error_inside_tune_is_one_line_saying_what_a_rerun_does(
     assert type(e.value) is OSError and e.value.filename == "/full/history.jsonl"
     assert "No space left" in e.value.strerror and "rerun the same command" in e.value.strerror
     assert "\n" not in str(e.value)
+
+
+def test_a_finished_studys_optuna_copy_must_be_whole_and_its_own(tmp_path: Path) -> None:
+    import optuna
+
+    from safe_bc.distributed.study import check_optuna_copy
+    from safe_bc.study import StudySpec
+
+    spec = StudySpec("mine", {"selection.alpha": Float(0.0, 1.0)}, trials=2, results=tmp_path)
+    path = tmp_path / "mine" / "optuna.db"
+    path.parent.mkdir()
+
+    def make(name: str, trials: int) -> None:
+        path.unlink(missing_ok=True)
+        storage = optuna.storages.RDBStorage(f"sqlite:///{path}")
+        study = optuna.create_study(study_name=name, storage=storage)
+        for _ in range(trials):
+            study.tell(study.ask({"x": optuna.distributions.FloatDistribution(0, 1)}), 1.0)
+        storage.remove_session()
+        storage.engine.dispose()
+
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    make("mine", 2)
+    check_optuna_copy(spec, "")  # whole and its own
+    whole = path.read_bytes()
+    cases = {
+        "cut short": whole[:4096],
+        "damaged": b"\0" * 100 + whole[100:],
+    }
+    for what, data in cases.items():
+        path.write_bytes(data)
+        with pytest.raises(ValueError) as e:
+            check_optuna_copy(spec, "")
+        assert str(path) in str(e.value) and "rerun the same command" in str(e.value), what
+        assert "\n" not in str(e.value)
+    make("other", 2)
+    with pytest.raises(ValueError, match=r"holds no study 'mine'.*not this study's"):
+        check_optuna_copy(spec, "")
+    make("mine", 1)
+    with pytest.raises(ValueError, match="holds 1 trials of study 'mine', the study has 2"):
+        check_optuna_copy(spec, "")
