@@ -36,6 +36,7 @@ from safe_bc.demos import Demonstrations
 from safe_bc.distributed.evaluate import LOCKSTEP_ENVS, evaluate
 from safe_bc.distributed.final_store import FinalStore, agent_key, key_of
 from safe_bc.distributed.runtime import cluster_cpus, ensure_ray
+from safe_bc.distributed.stop import deferred_stop, stop_point
 from safe_bc.distributed.train import train_many
 from safe_bc.distributed.trial import TrialJob, bounds_for, trial_threads, with_seed
 from safe_bc.evaluation import EvalConfig, ExpertSource, NetSource
@@ -176,9 +177,11 @@ def final_phase(
         if store is not None:
             run = todo[i][2]
             store.save_agent(agent_key(run, job.demos), result.model, run)
+        stop_point()  # Ctrl-C / SIGTERM: stop now that this agent is kept
 
     runs = [r for *_, r in todo]
-    trained = _train(demos, runs, workers, bounds_for(job.demos), progress, keep)
+    with deferred_stop():
+        trained = _train(demos, runs, workers, bounds_for(job.demos), progress, keep)
     for (method, s, run), model in zip(todo, trained, strict=True):
         nets[(method, s)] = NetSource.from_model(model, run.bc)
         models[(method, s)] = (model, run)
@@ -219,13 +222,15 @@ def final_phase(
             left = {n: src for n, src in sources.items() if n not in done}
             found = []
             if left:
-                eps = evaluate(left, config, np.asarray(job.cost_limits), progress=progress,
-                               envs_per_worker=LOCKSTEP_ENVS)  # fmt: skip
-                for name in left:
-                    mine = eps.episodes[eps.episodes["policy"] == name].reset_index(drop=True)
-                    if store is not None:
-                        store.save_episodes(keys[name], mine)
-                    found.append(mine)
+                with deferred_stop():  # stops after the evaluation, once it is stored
+                    eps = evaluate(left, config, np.asarray(job.cost_limits), progress=progress,
+                                   envs_per_worker=LOCKSTEP_ENVS)  # fmt: skip
+                    for name in left:
+                        mine = eps.episodes[eps.episodes["policy"] == name]
+                        mine = mine.reset_index(drop=True)
+                        if store is not None:
+                            store.save_episodes(keys[name], mine)
+                        found.append(mine)
             ep = pd.concat(
                 [*(done[n].assign(policy=n) for n in sources if n in done), *found],
                 ignore_index=True,

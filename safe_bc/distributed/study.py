@@ -16,10 +16,8 @@ import math
 import os
 import shutil
 import signal
-import threading
 import time
-from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -53,6 +51,11 @@ from safe_bc.distributed.search import (
     load_searcher,
     make_scheduler,
     make_searcher,
+)
+from safe_bc.distributed.stop import (
+    _fit_stopped,
+    _reinstall_signals,
+    _stop_signals,
 )
 from safe_bc.distributed.trial import TrialJob, cached_demos, run_trial, stored_checkpoint
 from safe_bc.provenance import check_result_write, provenance
@@ -184,79 +187,6 @@ def _check_resume(out: Path, identity: dict[str, Any], restoring: bool) -> None:
     write_json_atomic(path, identity)
 
 
-class StudyStopped(KeyboardInterrupt):
-    """Ctrl-C (SIGINT) or SIGTERM outside Tune's ``fit`` (setting up, the final phase): the
-    study stops at once; what finished is kept and a rerun resumes from it."""
-
-    def __init__(self, signum: int) -> None:
-        self.signum = signum
-        self.exit_code = 128 + signum
-        """The shell's code for the signal: 130 (SIGINT), 143 (SIGTERM)."""
-        name = signal.Signals(signum).name
-        super().__init__(
-            f"stopped by {name}; the finished trials and final-phase agents and evaluations "
-            "are kept: rerun the same command to resume from them"
-        )
-
-
-class _Stop:
-    """The study's SIGINT and SIGTERM handlers. Outside ``fit`` both raise
-    :class:`StudyStopped`. During ``fit`` Tune's own SIGINT handler is in place (it saves the
-    experiment and returns); SIGTERM is recorded and handed to it as SIGINT. ``ray.init``
-    sets its own SIGTERM handler (``sys.exit``, which aborted the driver) and ``fit`` leaves
-    Tune's SIGINT handler behind (which swallowed Ctrl-C in the final phase), so
-    :meth:`install` is called again after each."""
-
-    def __init__(self) -> None:
-        self.signum = 0
-        """The signal that stopped the study (0: none)."""
-        self.previous: dict[int, Any] = {}
-
-    def _outside_fit(self, signum: int, frame: Any) -> None:
-        self.signum = self.signum or signum
-        raise StudyStopped(signum)
-
-    def _term(self, signum: int, frame: Any) -> None:
-        if signal.getsignal(signal.SIGINT) == self._outside_fit:
-            self._outside_fit(signum, frame)
-        self.signum = self.signum or signum
-        signal.raise_signal(signal.SIGINT)  # Tune's handler: save and return
-
-    def install(self) -> None:
-        for signum, handler in ((signal.SIGINT, self._outside_fit), (signal.SIGTERM, self._term)):
-            try:
-                old = signal.signal(signum, handler)
-            except ValueError:  # not the main thread
-                return
-            self.previous.setdefault(signum, old)
-
-    def restore(self) -> None:
-        for signum, old in self.previous.items():
-            signal.signal(signum, old)
-
-
-_STOP: _Stop | None = None
-"""The handlers of the study running in this process (see :func:`run_study`)."""
-
-
-@contextmanager
-def _stop_signals() -> Iterator[_Stop]:
-    global _STOP
-    stop = _Stop()
-    stop.install()
-    _STOP = stop
-    try:
-        yield stop
-    finally:
-        _STOP = None
-        stop.restore()
-
-
-def _reinstall_signals() -> None:
-    if _STOP is not None:
-        _STOP.install()
-
-
 def _os_error_in(e: BaseException) -> OSError | None:
     """The ``OSError`` behind ``e`` (itself, or in its causes), reworded to say what a rerun
     does; ``None`` when there is none."""
@@ -273,21 +203,6 @@ def _os_error_in(e: BaseException) -> OSError | None:
             )
         e = e.__cause__ or e.__context__
     return None
-
-
-def _fit_stopped() -> int:
-    """After ``fit``: the signal that stopped it (0: none), and the study's handlers back (``fit``
-    leaves Tune's SIGINT handler behind, which swallowed a Ctrl-C in the final phase). Tune's
-    handler puts the one before it (ours) back when it has caught a signal."""
-    if _STOP is None:
-        return 0
-    tune_handled = threading.current_thread() is threading.main_thread() and not int(
-        os.environ.get("TUNE_DISABLE_SIGINT_HANDLER", "0")
-    )
-    if tune_handled and signal.getsignal(signal.SIGINT) == _STOP._outside_fit:
-        _STOP.signum = _STOP.signum or signal.SIGINT
-    _STOP.install()
-    return _STOP.signum
 
 
 def _records(grid: Any, params: Sequence[str]) -> list[dict[str, Any]]:

@@ -314,7 +314,7 @@ def test_final_phase_resumes_per_agent_and_evaluation_and_a_finished_study_only_
         final_episodes=2, final_train_seeds=2, final_workers=0, screen_episodes=0,
     )  # fmt: skip
     import safe_bc.distributed.final as final_mod
-    from safe_bc.distributed.study import StudyStopped
+    from safe_bc.distributed.stop import StudyStopped
 
     evaluate = final_mod.evaluate
 
@@ -330,6 +330,7 @@ def test_final_phase_resumes_per_agent_and_evaluation_and_a_finished_study_only_
     out = spec.results / spec.name
     assert not (out / "final.parquet").exists() and not (out / FINISHED).exists()
     assert len(list((out / STORE / "agents").iterdir())) == 3  # kept for the rerun
+    assert len(list((out / STORE / "episodes").iterdir())) == 3  # the first seed's block
 
     calls: dict[str, list] = {"train": [], "evaluate": []}
     train_run = final_mod.train_run
@@ -346,7 +347,9 @@ def test_final_phase_resumes_per_agent_and_evaluation_and_a_finished_study_only_
     monkeypatch.setattr(final_mod, "evaluate", counted_evaluate)
     first = run_study(spec, progress=False)
     assert first.complete and first.final is not None and first.exit_code in (0, 1)
-    assert calls["train"] == [] and len(calls["evaluate"]) == 2, calls  # no agent retrained
+    # no agent retrained; the evaluation under way at the Ctrl-C finished and was kept
+    assert calls["train"] == [] and len(calls["evaluate"]) == 1, calls
+    assert all(name.endswith("=1") for name in calls["evaluate"][0]), calls
     calls = {"train": [], "evaluate": []}
     episodes, _ = read_table(out / "final_episodes.parquet")
     store = out / STORE
@@ -382,12 +385,12 @@ def test_final_phase_resumes_per_agent_and_evaluation_and_a_finished_study_only_
 
 
 def test_ctrl_c_and_sigterm_outside_fit_stop_the_study_with_their_exit_codes() -> None:
-    from safe_bc.distributed.study import StudyStopped, _stop_signals
+    from safe_bc.distributed.stop import StudyStopped, _stop_signals
 
     for signum, code in ((signal.SIGINT, 130), (signal.SIGTERM, 143)):
         with _stop_signals() as stop:
             signal.signal(signal.SIGTERM, lambda *a: None)  # as ray.init replaces it
-            from safe_bc.distributed.study import _reinstall_signals
+            from safe_bc.distributed.stop import _reinstall_signals
 
             _reinstall_signals()
             with pytest.raises(StudyStopped) as e:
@@ -398,7 +401,7 @@ def test_ctrl_c_and_sigterm_outside_fit_stop_the_study_with_their_exit_codes() -
 
 
 def test_sigterm_during_fit_goes_to_tunes_handler_and_is_reported_after_it() -> None:
-    from safe_bc.distributed.study import _fit_stopped, _stop_signals
+    from safe_bc.distributed.stop import _fit_stopped, _stop_signals
 
     with _stop_signals() as stop:
         ours = signal.getsignal(signal.SIGINT)
@@ -549,3 +552,51 @@ def test_a_finished_studys_optuna_copy_must_be_whole_and_its_own(tmp_path: Path)
     make("mine", 1)
     with pytest.raises(ValueError, match="holds 1 trials of study 'mine', the study has 2"):
         check_optuna_copy(spec, "")
+
+
+@pytest.mark.slow
+def test_sigterm_and_ctrl_c_in_the_final_phase_stop_in_one_line_and_the_rerun_resumes(
+    tiny_demos: Path, tmp_path: Path
+) -> None:
+    study_file = tmp_path / "tiny.py"
+    study_file.write_text(
+        "from dataclasses import replace\n"
+        "from pathlib import Path\n"
+        "from safe_bc.study import load_study\n"
+        f"STUDY = replace(load_study({str(SMOKE)!r}), demos=Path({str(tiny_demos)!r}),\n"
+        f"    results=Path({str(tmp_path / 'results')!r}), storage={str(tmp_path / 'ray')!r},\n"
+        "    trials=2, max_concurrent=1, batches=30, max_steps=60, screen_episodes=0,\n"
+        "    final_candidates=1, final_train_seeds=3, final_episodes=3, final_workers=0)\n"
+    )
+    command = [sys.executable, "-m", "safe_bc.cli", "tune", str(study_file)]
+    env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}
+    env["RAY_AUTH_MODE"] = "disabled"
+    out = tmp_path / "results" / "smoke"
+    for signum, code in ((signal.SIGTERM, 143), (signal.SIGINT, 130)):
+        log = tmp_path / f"{signum}.log"
+        with open(log, "w") as sink:
+            driver = subprocess.Popen(
+                command, cwd=REPO, env=env, stdout=sink, stderr=subprocess.STDOUT,
+                start_new_session=True,
+            )  # fmt: skip
+            try:
+                deadline = time.monotonic() + 400
+                while "final phase: training" not in log.read_text():
+                    assert driver.poll() is None, log.read_text()[-3000:]
+                    assert time.monotonic() < deadline, "the final phase did not start in time"
+                    time.sleep(0.2)
+                time.sleep(1.0)
+                driver.send_signal(signum)  # the driver only
+                assert driver.wait(timeout=120) == code, log.read_text()[-3000:]
+            finally:
+                _kill_session(driver.pid)
+                driver.wait()
+        text = log.read_text()
+        assert "Traceback" not in text and "Stop signal received" not in text, text[-3000:]
+        assert f"stopped by {signal.Signals(signum).name}" in text and "rerun" in text
+        assert not (out / "final.parquet").exists()
+    rerun = subprocess.run(command, cwd=REPO, env=env, capture_output=True, text=True, timeout=600)
+    assert rerun.returncode in (0, 1), rerun.stdout[-3000:] + rerun.stderr[-3000:]
+    assert (out / "final.parquet").exists() and (out / "finished.json").exists()
+    again = subprocess.run(command, cwd=REPO, env=env, capture_output=True, text=True, timeout=600)
+    assert again.returncode == rerun.returncode and "finished before" in again.stdout
