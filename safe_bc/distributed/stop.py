@@ -65,7 +65,8 @@ class _Stop:
 
     def _term(self, signum: int, frame: Any) -> None:
         if signal.getsignal(signal.SIGINT) == self._outside_fit:
-            self._outside_fit(signum, frame)
+            self._outside_fit(signum, frame)  # raises, or defers (returns)
+            return
         self.signum = self.signum or signum
         signal.raise_signal(signal.SIGINT)  # Tune's handler: save and return
 

@@ -600,3 +600,18 @@ def test_sigterm_and_ctrl_c_in_the_final_phase_stop_in_one_line_and_the_rerun_re
     assert (out / "final.parquet").exists() and (out / "finished.json").exists()
     again = subprocess.run(command, cwd=REPO, env=env, capture_output=True, text=True, timeout=600)
     assert again.returncode == rerun.returncode and "finished before" in again.stdout
+
+
+def test_a_signal_in_a_deferred_block_stops_at_the_next_stop_point_with_its_own_code() -> None:
+    from safe_bc.distributed.stop import StudyStopped, _stop_signals, deferred_stop, stop_point
+
+    for signum, code in ((signal.SIGTERM, 143), (signal.SIGINT, 130)):
+        with _stop_signals(), pytest.raises(StudyStopped) as e, deferred_stop():
+            signal.raise_signal(signum)  # recorded, not raised here
+            done = True
+            stop_point()
+        assert done and e.value.exit_code == code
+        with _stop_signals(), pytest.raises(StudyStopped), deferred_stop():
+            signal.raise_signal(signum)
+            signal.raise_signal(signum)  # a second one stops at once
+            pytest.fail("not stopped by the second signal")
