@@ -20,8 +20,9 @@ from typing import Any
 
 
 class StudyStopped(KeyboardInterrupt):
-    """Ctrl-C (SIGINT) or SIGTERM outside Tune's ``fit`` (setting up, the final phase): the
-    study stops at once; what finished is kept and a rerun resumes from it."""
+    """Ctrl-C (SIGINT) or SIGTERM outside Tune's ``fit`` (setting up; the final phase, once the
+    agent or evaluation under way is kept): what finished is kept and a rerun resumes from
+    it. ``safe-bc tune`` prints it as one line and exits with :attr:`exit_code`."""
 
     def __init__(self, signum: int) -> None:
         self.signum = signum
