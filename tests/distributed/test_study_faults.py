@@ -372,6 +372,15 @@ def test_final_phase_resumes_per_agent_and_evaluation_and_a_finished_study_only_
     assert "finished before" in capsys.readouterr().out
     assert calls == {"train": [], "evaluate": []}
     assert format_outcome(again, spec.params) == format_outcome(first, spec.params)
+    (out / "optuna.db").unlink()  # the copy for Optuna's tools is written again from Tune's
+    run_study(spec, progress=False)
+    from safe_bc.distributed.study import optuna_copy_problem
+
+    assert optuna_copy_problem(out / "optuna.db", spec.name, spec.trials) == ""
+    (out / "optuna.db").write_bytes(b"SQLite format 3\0" + b"\0" * 100)  # cut short
+    with pytest.raises(ValueError, match=r"optuna\.db: .*rerun the same command"):
+        run_study(spec, progress=False)
+    (out / "optuna.db").unlink()
 
     # killed in the final phase: one agent and one evaluation not finished yet
     (out / FINISHED).unlink()
