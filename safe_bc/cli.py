@@ -510,9 +510,7 @@ def _cmd_tune(args: argparse.Namespace) -> int:
     with output_locks(outputs):
         outcome = run_study(spec, fresh=args.fresh, command=shlex.join(command))
     print(format_outcome(outcome, spec.params))
-    if not outcome.complete:
-        return 130
-    return 1 if outcome.errors or outcome.winner is None else 0
+    return outcome.exit_code
 
 
 def _cmd_query(args: argparse.Namespace) -> int:
@@ -974,12 +972,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         detail = e.strerror or " ".join(str(e).split())
         print(f"safe-bc {args.command}: error: {where}{detail}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print(
-            f"safe-bc {args.command}: interrupted; rerun the same command to resume",
-            file=sys.stderr,
-        )
-        return 130
+    except KeyboardInterrupt as e:  # StudyStopped says which signal and what a rerun does
+        what = str(e) or "interrupted; rerun the same command to resume"
+        print(f"safe-bc {args.command}: {what}", file=sys.stderr)
+        return getattr(e, "exit_code", 130)
 
 
 if __name__ == "__main__":

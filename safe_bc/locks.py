@@ -33,9 +33,10 @@ class OutputLockedError(RuntimeError):
 
 
 def lock_path(output: str | Path) -> Path:
-    """The lock file of ``output``: ``PARENT/.NAME.lock`` (the output's real path)."""
-    real = Path(os.path.abspath(output))
-    real = real.parent.resolve() / real.name
+    """The lock file of ``output``: ``PARENT/.NAME.lock`` of the output's resolved path (every
+    symlink followed, the output itself included), so that two names of one folder (a link and
+    its target) share one lock."""
+    real = Path(os.path.abspath(output)).resolve()
     return real.parent / f".{real.name}.lock"
 
 

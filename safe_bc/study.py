@@ -154,6 +154,66 @@ def _coerce(current: Any, value: Any, name: str) -> Any:
     return value.item() if isinstance(value, np.generic) else value
 
 
+def _field_value(obj: Any, parts: Sequence[str], name: str) -> Any:
+    """The current value of the dotted field ``parts`` of ``obj``."""
+    for head in parts:
+        if not is_dataclass(obj) or head not in {f.name for f in fields(obj)}:
+            raise ValueError(
+                f"unknown parameter {name!r}: no field {head!r} in {type(obj).__name__}"
+            )
+        obj = getattr(obj, head)
+    return obj
+
+
+def check_param_type(name: str, param: Any, current: Any) -> None:
+    """``param`` can only give values of the type of the field it searches (its ``current``
+    value): a ``Float`` over an integer field, or a ``Choice`` of text for a number, is refused
+    here, before any trial runs, instead of failing (or silently converting) in a trial.
+
+    >>> check_param_type("bc.train.batch_size", Float(16, 64), 32)
+    Traceback (most recent call last):
+    ...
+    ValueError: space['bc.train.batch_size'] is a Float, but the field is an int (32): use Int(...) or Choice of ints
+    """  # noqa: E501
+
+    def refuse(what: str, use: str) -> ValueError:
+        kind = type(current).__name__
+        return ValueError(
+            f"space[{name!r}] is {what}, but the field is {_article(kind)} ({current!r}): use {use}"
+        )
+
+    def number(v: Any) -> bool:
+        return isinstance(v, int | float) and not isinstance(v, bool)
+
+    if current is None:
+        return  # an optional field: any type its config accepts
+    if isinstance(current, bool):
+        if not (isinstance(param, Choice) and all(isinstance(o, bool) for o in param.options)):
+            raise refuse(_article(type(param).__name__), "Choice((False, True))")
+    elif isinstance(current, int):
+        if isinstance(param, Float):
+            raise refuse("a Float", "Int(...) or Choice of ints")
+        if isinstance(param, Choice) and not all(
+            isinstance(o, int) and not isinstance(o, bool) for o in param.options
+        ):
+            raise refuse(f"a Choice of {param.options!r}", "Choice of ints")
+    elif isinstance(current, float):
+        if isinstance(param, Choice) and not all(number(o) for o in param.options):
+            raise refuse(f"a Choice of {param.options!r}", "Float(...) or Choice of numbers")
+    elif isinstance(current, tuple) and not (
+        isinstance(param, Choice) and all(isinstance(o, tuple | list) for o in param.options)
+    ):
+        raise refuse(_article(type(param).__name__), "Choice of tuples of ints")
+    elif isinstance(current, str) and not (
+        isinstance(param, Choice) and all(isinstance(o, str) for o in param.options)
+    ):
+        raise refuse(_article(type(param).__name__), "Choice of strings")
+
+
+def _article(word: str) -> str:
+    return f"an {word}" if word[:1].lower() in "aeiou" else f"a {word}"
+
+
 def _replace_path(obj: Any, parts: Sequence[str], value: Any, name: str) -> Any:
     head, rest = parts[0], parts[1:]
     if not is_dataclass(obj) or head not in {f.name for f in fields(obj)}:
@@ -416,18 +476,24 @@ class StudySpec:
         for name, param in self.space.items():
             if not isinstance(param, Float | Int | Choice):
                 raise ValueError(f"space[{name!r}] must be Float, Int or Choice, got {param!r}")
+            stage = stage_of(name)
+            if stage is not None and getattr(self, STAGES[stage].field) is None:
+                field_ = STAGES[stage].field
+                raise ValueError(
+                    f"space[{name!r}] searches the {stage} stage, but the study has none: "
+                    f"set StudySpec({field_}=...)"
+                )
+            if stage is None:
+                owner, path = self.base, name
+            else:
+                owner = getattr(self, STAGES[stage].field)
+                path = name.removeprefix(STAGES[stage].prefix)
+            check_param_type(name, param, _field_value(owner, path.split("."), name))
             for value in param.bounds():  # every option / bound builds a valid config
-                stage = stage_of(name)
                 if stage is None:
                     apply_params(self.base, {name: value})
-                    continue
-                field_ = STAGES[stage].field
-                if getattr(self, field_) is None:
-                    raise ValueError(
-                        f"space[{name!r}] searches the {stage} stage, but the study has none: "
-                        f"set StudySpec({field_}=...)"
-                    )
-                self.stage_config(stage, {name: value}, seed=0)
+                else:
+                    self.stage_config(stage, {name: value}, seed=0)
 
     @property
     def screens(self) -> bool:

@@ -12,7 +12,7 @@ import pytest
 import torch
 
 from safe_bc.bc import BCConfig, BCNet, CheckpointError, ModelSpec, load_checkpoint, save_checkpoint
-from safe_bc.bc.checkpoint import UnsafeCheckpointError
+from safe_bc.bc.checkpoint import UnsafeCheckpointError, with_meta_sha256
 from safe_bc.cli import main
 from safe_bc.data.store import (
     DatasetError,
@@ -40,7 +40,7 @@ def _unsafe_checkpoint(directory: Path) -> Path:
     torch.save(state, weights)
     meta = json.loads((directory / "config.json").read_text())
     meta["weights_sha256"] = hashlib.sha256(weights.read_bytes()).hexdigest()
-    (directory / "config.json").write_text(json.dumps(meta))
+    (directory / "config.json").write_text(json.dumps(with_meta_sha256(meta)))
     return weights
 
 
@@ -74,7 +74,7 @@ def test_corrupt_weights_are_one_line(tmp_path: Path) -> None:
     torch.save({"other": torch.zeros(3)}, weights)  # loads safely, fits no net
     meta = json.loads((tmp_path / "config.json").read_text())
     meta["weights_sha256"] = hashlib.sha256(weights.read_bytes()).hexdigest()
-    (tmp_path / "config.json").write_text(json.dumps(meta))
+    (tmp_path / "config.json").write_text(json.dumps(with_meta_sha256(meta)))
     with pytest.raises(CheckpointError, match="do not fit the net") as info:
         load_checkpoint(tmp_path)
     assert "\n" not in str(info.value) and str(weights) in str(info.value)
@@ -347,7 +347,7 @@ def test_a_checkpoint_naming_another_task_is_refused_before_evaluation(
     shutil.copytree(rehab_start, ckpt)
     meta = json.loads((ckpt / "config.json").read_text())
     meta["extra"]["env_id"] = "CarRacing-v3"
-    (ckpt / "config.json").write_text(json.dumps(meta))
+    (ckpt / "config.json").write_text(json.dumps(with_meta_sha256(meta)))
     code = main(["evaluate", "--checkpoint", str(ckpt), "--out", str(tmp_path / "e"), "--quiet"])
     _one_line(capsys, code, "evaluate", str(ckpt), "names CarRacing-v3")
     code = main(["improve", "--start", str(ckpt), "--out", str(tmp_path / "run"), "--quiet"])

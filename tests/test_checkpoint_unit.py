@@ -198,3 +198,24 @@ def test_a_symlinked_checkpoint_folder_is_replaced_behind_its_link(tmp_path: Pat
     _write(link, 2)
     assert link.is_symlink() and _seed_of(link) == 2 and (real / "eval").is_dir()
     assert _names(tmp_path) == ["link", "real"]
+
+
+def test_an_edited_config_json_is_caught_by_its_own_checksum(tmp_path: Path) -> None:
+    import json
+
+    from safe_bc.bc import CheckpointError, load_checkpoint
+    from safe_bc.bc.checkpoint import META_SHA256, save_checkpoint
+    from safe_bc.bc.config import BCConfig
+    from safe_bc.bc.net import BCNet, ModelSpec
+
+    from .bc.synth import TINY_MLP
+
+    cfg = BCConfig(network=TINY_MLP)
+    save_checkpoint(tmp_path, BCNet(ModelSpec.for_data((5,), 2), cfg.preprocess, TINY_MLP), cfg)
+    load_checkpoint(tmp_path)
+    meta = json.loads((tmp_path / "config.json").read_text())
+    assert META_SHA256 in meta
+    meta["extra"]["env_id"] = "CarRacing-v3"  # parses, fits the net: only the checksum can tell
+    (tmp_path / "config.json").write_text(json.dumps(meta))
+    with pytest.raises(CheckpointError, match=r"config\.json does not match the sha256"):
+        load_checkpoint(tmp_path)

@@ -135,3 +135,17 @@ def test_two_collections_into_one_folder_never_mix(tmp_path: Path) -> None:
         meta = read_meta(out)
         episodes = read_episodes(out)
         assert len(episodes) == (4 if meta.seed == 1 else 2)
+
+
+def test_a_folder_and_a_symlink_to_it_share_one_lock(tmp_path: Path) -> None:
+    target = tmp_path / "real" / "study"
+    target.mkdir(parents=True)
+    link = tmp_path / "link"
+    link.symlink_to(target)
+    assert lock_path(link) == lock_path(target) == target.parent / ".study.lock"
+    with (
+        output_lock(target, "--results"),
+        pytest.raises(OutputLockedError, match="being written"),
+        output_lock(link, "--results"),
+    ):
+        pass

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -289,3 +290,37 @@ def test_candidates_are_fully_evaluated_feasible_first() -> None:
     )
     assert choose_candidates(t, 3)["trial_id"].tolist() == ["b", "a", "e"]
     assert choose_candidates(t, 1)["trial_id"].tolist() == ["b"]
+
+
+@pytest.mark.parametrize(
+    ("space", "problem"),
+    [
+        ({"bc.train.batch_size": Float(16.0, 64.0)}, "is a Float, but the field is an int"),
+        ({"bc.train.lr": Choice(("1e-3", "3e-3"))}, "the field is a float"),
+        ({"bc.network.channels": Float(1.0, 2.0)}, "Choice of tuples"),
+        ({"selection.rest": Choice((1, 2))}, "Choice of strings"),
+        ({"bc.preprocess.grayscale": Int(0, 1)}, "Choice((False, True))"),
+    ],
+)
+def test_a_space_of_the_wrong_type_for_its_field_is_one_line_before_ray(
+    space, problem, tmp_path: Path, capsys, monkeypatch
+) -> None:
+    with pytest.raises(ValueError, match=re.escape(problem)):
+        StudySpec("s", space)
+    import safe_bc.distributed.runtime as runtime
+
+    def no_ray(*a, **k):
+        raise AssertionError("ray.init before the space was checked")
+
+    monkeypatch.setattr(runtime, "ensure_ray", no_ray)
+    ((name, param),) = space.items()
+    study = tmp_path / "bad.py"
+    study.write_text(
+        "from safe_bc.study import Choice, Float, Int, StudySpec\n"
+        f"STUDY = StudySpec('s', {{{name!r}: {param!r}}})\n"
+    )
+    from safe_bc.cli import main
+
+    assert main(["tune", str(study), "--results", str(tmp_path / "r")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and problem in err[0] and not (tmp_path / "r").exists()

@@ -89,8 +89,25 @@ def save_checkpoint(
     with atomic_write(directory / WEIGHTS) as f:
         torch.save(state, f)
     meta["weights_sha256"] = _sha256(directory / WEIGHTS)
-    write_json_atomic(directory / CONFIG, meta, allow_nan=False)
+    write_json_atomic(directory / CONFIG, with_meta_sha256(meta), allow_nan=False)
     return directory
+
+
+META_SHA256 = "meta_sha256"
+"""Key in ``config.json`` of the SHA-256 of the rest of ``config.json`` (sorted JSON), so that
+every file of a checkpoint, ``config.json`` included, is covered by a checksum."""
+
+
+def meta_digest(meta: dict[str, Any]) -> str:
+    """SHA-256 of ``meta`` without its :data:`META_SHA256` entry (sorted, compact JSON)."""
+    rest = {k: v for k, v in meta.items() if k != META_SHA256}
+    text = json.dumps(rest, sort_keys=True, separators=(",", ":"), allow_nan=False)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def with_meta_sha256(meta: dict[str, Any]) -> dict[str, Any]:
+    """``meta`` with its :data:`META_SHA256` (re)computed."""
+    return {**meta, META_SHA256: meta_digest(meta)}
 
 
 @contextmanager
@@ -113,12 +130,13 @@ def _seal(directory: Path) -> None:
         for p in sorted(directory.iterdir())
         if p.name in UNIT and p.name not in (WEIGHTS, CONFIG)
     }
-    write_json_atomic(directory / CONFIG, meta, allow_nan=False)
+    write_json_atomic(directory / CONFIG, with_meta_sha256(meta), allow_nan=False)
 
 
 def check_checkpoint_files(directory: str | Path) -> dict[str, Any]:
-    """Check that ``directory`` is a whole unit: ``config.json`` parses, ``weights.pt`` and
-    every file in ``files_sha256`` exist and match their recorded SHA-256. Returns the
+    """Check that ``directory`` is a whole unit: ``config.json`` parses and matches its own
+    ``meta_sha256`` (when recorded), ``weights.pt`` and every file in ``files_sha256`` exist
+    and match their recorded SHA-256. Returns the
     metadata.
 
     Raises:
@@ -127,6 +145,11 @@ def check_checkpoint_files(directory: str | Path) -> dict[str, Any]:
     """
     directory = Path(directory)
     meta = read_checkpoint_meta(directory)
+    if META_SHA256 in meta and meta[META_SHA256] != meta_digest(meta):
+        raise CheckpointError(
+            f"{directory / CONFIG} does not match the sha256 recorded in it (edited or damaged "
+            "after the save); save the checkpoint again"
+        )
     files = meta.get("files_sha256", {})
     if not isinstance(files, dict):
         raise CheckpointError(f"malformed {directory / CONFIG}: files_sha256 is not a mapping")

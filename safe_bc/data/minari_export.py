@@ -156,6 +156,23 @@ def _description(meta: DatasetMeta, root: Path) -> str:
     )
 
 
+def check_dataset_id(dataset_id: str) -> None:
+    """``dataset_id`` must be a Minari id with a version, ``(namespace/)name-vN``.
+
+    Raises:
+        ValueError: one line naming the id and the form it must have.
+    """
+    from minari.dataset.minari_dataset import DATASET_ID_RE
+
+    match = DATASET_ID_RE.fullmatch(dataset_id)
+    if not match or match.group("version") is None:
+        raise ValueError(
+            f"--dataset-id {dataset_id!r} is not a Minari dataset id: it must be "
+            "(namespace/)name-vN, e.g. safe_bc/carracing-drift-v0 (letters, digits, - and _); "
+            "nothing was written"
+        )
+
+
 def export_minari(
     demos: str | Path,
     dataset_id: str,
@@ -181,9 +198,11 @@ def export_minari(
     Raises:
         MinariNotInstalledError: the ``minari`` extra is missing.
         DatasetError: ``demos`` is not a readable safe_bc dataset, or has no episodes.
-        ValueError: a Minari dataset ``dataset_id`` exists already.
+        ValueError: ``dataset_id`` is not a versioned Minari id (checked before anything is
+            created), or a Minari dataset ``dataset_id`` exists already.
     """
     minari = import_minari()
+    check_dataset_id(dataset_id)  # before Minari makes any folder
     from minari.data_collector import EpisodeBuffer
     from minari.storage import get_dataset_path
 

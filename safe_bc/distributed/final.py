@@ -21,7 +21,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -34,7 +34,9 @@ from safe_bc.bc.net import BCNet
 from safe_bc.collection import stored_expert_config
 from safe_bc.demos import Demonstrations
 from safe_bc.distributed.evaluate import LOCKSTEP_ENVS, evaluate
+from safe_bc.distributed.final_store import FinalStore, agent_key, key_of
 from safe_bc.distributed.runtime import cluster_cpus, ensure_ray
+from safe_bc.distributed.stop import deferred_stop, stop_point
 from safe_bc.distributed.train import train_many
 from safe_bc.distributed.trial import TrialJob, bounds_for, trial_threads, with_seed
 from safe_bc.evaluation import EvalConfig, ExpertSource, NetSource
@@ -88,21 +90,32 @@ def final_workers(spec: StudySpec) -> int:
 
 
 def _train(
-    demos: Demonstrations, runs: list[RunConfig], workers: int, bounds: Bounds, progress: bool
+    demos: Demonstrations,
+    runs: list[RunConfig],
+    workers: int,
+    bounds: Bounds,
+    progress: bool,
+    on_done: Callable[[int, Any], None] | None = None,
 ) -> list[BCNet]:
+    """Train ``runs``; ``on_done(i, result)`` as each finishes (see ``train_many``)."""
     if not runs:
         return []
     if workers == 0:  # in the driver, one thread per agent like the trials
         previous = torch.get_num_threads()
         try:
             out = []
-            for r in runs:
+            for i, r in enumerate(runs):
                 torch.set_num_threads(r.bc.train.num_threads or 1)
-                out.append(train_run(demos, r, action_bounds=bounds)[0].model)
+                result = train_run(demos, r, action_bounds=bounds)[0]
+                if on_done is not None:
+                    on_done(i, result)
+                out.append(result.model)
             return out
         finally:
             torch.set_num_threads(previous)
-    trained = train_many(demos, runs, workers=workers, action_bounds=bounds, progress=progress)
+    trained = train_many(
+        demos, runs, workers=workers, action_bounds=bounds, progress=progress, on_done=on_done
+    )
     return [result.model for result, _ in trained]
 
 
@@ -114,6 +127,7 @@ def final_phase(
     demos: Demonstrations,
     *,
     progress: bool = True,
+    store: FinalStore | None = None,
 ) -> FinalOutcome:
     """Retrain ``candidates`` (rows of the trial table) with ``final_train_seeds`` seeds each,
     train plain BC with the same seeds, evaluate all of them and the expert on fresh tracks,
@@ -122,6 +136,8 @@ def final_phase(
     Args:
         checkpoints: trial id -> the trial's trained net (its own seed); a candidate without
             one is retrained for that seed too.
+        store: where finished agents and evaluations are kept as they finish; those already
+            there (an interrupted earlier run) are taken from it, not redone.
     """
     workers = final_workers(spec)
     threads = trial_threads(spec)
@@ -144,11 +160,28 @@ def final_phase(
                 nets[(method, s)] = NetSource.from_model(checkpoints[method], cfg.bc)
                 models[(method, s)] = (checkpoints[method], cfg)
             else:
-                todo.append((method, s, with_seed(cfg, s)))
+                run = with_seed(cfg, s)
+                stored = store.agent(agent_key(run, job.demos)) if store is not None else None
+                if stored is None:
+                    todo.append((method, s, run))
+                else:
+                    nets[(method, s)] = NetSource.from_model(stored, run.bc)
+                    models[(method, s)] = (stored, run)
     if progress:
+        kept = len(cfgs) * len(seeds) - len(todo) - sum(m in checkpoints for m in cfgs)
         print(f"final phase: training {len(todo)} agents ({len(cfgs) - 1} candidates and plain "
-              f"BC x {len(seeds)} seeds) on {max(workers, 1)} worker(s)")  # fmt: skip
-    trained = _train(demos, [r for *_, r in todo], workers, bounds_for(job.demos), progress)
+              f"BC x {len(seeds)} seeds) on {max(workers, 1)} worker(s)"
+              + (f"; {kept} finished before, taken from {store.root}" if kept else ""))  # fmt: skip
+
+    def keep(i: int, result: Any) -> None:
+        if store is not None:
+            run = todo[i][2]
+            store.save_agent(agent_key(run, job.demos), result.model, run)
+        stop_point()  # Ctrl-C / SIGTERM: stop now that this agent is kept
+
+    runs = [r for *_, r in todo]
+    with deferred_stop():
+        trained = _train(demos, runs, workers, bounds_for(job.demos), progress, keep)
     for (method, s, run), model in zip(todo, trained, strict=True):
         nets[(method, s)] = NetSource.from_model(model, run.bc)
         models[(method, s)] = (model, run)
@@ -172,12 +205,39 @@ def final_phase(
                 max_steps=spec.max_steps,
                 eps=spec.critical_eps,
             )
+            what = {
+                f"{m} seed={s}": _agent_identity(spec, job, m, cfgs[m], s, candidates) for m in cfgs
+            }
+            what[f"{EXPERT} block={i}"] = ("expert", str(job.demos))
+            keys = {
+                name: key_of("episodes", what[name], config, list(job.cost_limits))
+                for name in sources
+            }
+            done = {n: store.episodes(k) for n, k in keys.items()} if store is not None else {}
+            done = {n: ep for n, ep in done.items() if ep is not None}
             if progress:
                 print(f"final phase: seed {s}, tracks {i * per}..{(i + 1) * per - 1} of block "
-                      f"{spec.final_seed}")  # fmt: skip
-            eps = evaluate(sources, config, np.asarray(job.cost_limits), progress=progress,
-                           envs_per_worker=LOCKSTEP_ENVS)  # fmt: skip
-            ep = eps.episodes
+                      f"{spec.final_seed}" + (f"; {len(done)} of {len(sources)} evaluations "
+                      "finished before" if done else ""))  # fmt: skip
+            left = {n: src for n, src in sources.items() if n not in done}
+            found = []
+            if left:
+                with deferred_stop():  # stops after the evaluation, once it is stored
+                    eps = evaluate(left, config, np.asarray(job.cost_limits), progress=progress,
+                                   envs_per_worker=LOCKSTEP_ENVS)  # fmt: skip
+                    for name in left:
+                        mine = eps.episodes[eps.episodes["policy"] == name]
+                        mine = mine.reset_index(drop=True)
+                        if store is not None:
+                            store.save_episodes(keys[name], mine)
+                        found.append(mine)
+            ep = pd.concat(
+                [*(done[n].assign(policy=n) for n in sources if n in done), *found],
+                ignore_index=True,
+            )
+            order = {n: j for j, n in enumerate(sources)}
+            ep = ep.sort_values("policy", key=lambda c: c.map(order), kind="stable")
+            ep = ep.reset_index(drop=True)
             ep.insert(0, "train_seed", s)
             ep.insert(0, "method", ep["policy"].str.split(" ").str[0])
             parts.append(ep)
@@ -206,6 +266,27 @@ def final_phase(
         )
     configs = {m: c.to_dict() for m, c in cfgs.items()}
     return FinalOutcome(table, episodes, winner, feasible, message, configs, certified, paired)
+
+
+def _agent_identity(
+    spec: StudySpec,
+    job: TrialJob,
+    method: str,
+    cfg: RunConfig,
+    seed: int,
+    candidates: pd.DataFrame,
+) -> tuple[Any, ...]:
+    """What an evaluated agent is, independent of trial ids: its run (seed included), the
+    demonstrations and, for a candidate, its stages' settings."""
+    stages: list[Any] = []
+    if method != PLAIN_BC:
+        row = candidates[candidates["trial_id"].astype(str) == method].iloc[0]
+        params = {k: row[k] for k in spec.params}
+        stages = [
+            (name, dataclasses.asdict(spec.stage_config(name, params, seed=seed)))
+            for name, _ in spec.stages()
+        ]
+    return ("agent", with_seed(cfg, seed).to_dict(), str(job.demos), stages)
 
 
 def bootstrap_labels(cfgs: Mapping[str, RunConfig | Mapping[str, Any]]) -> dict[str, str]:

@@ -10,13 +10,14 @@ the expert and to plain BC on the same tracks) and ``best.json``.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
+import shutil
 import signal
 import time
-from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -31,16 +32,30 @@ from ray.tune.utils import flatten_dict
 from safe_bc.atomic import write_json_atomic
 from safe_bc.bc import load_checkpoint
 from safe_bc.bc.net import BCNet
-from safe_bc.data.store import delete_storage_tree, read_meta, storage_folders, write_table_atomic
+from safe_bc.data.store import (
+    DatasetError,
+    delete_storage_tree,
+    read_meta,
+    read_table,
+    storage_folders,
+    write_table_atomic,
+)
 from safe_bc.distributed.final import FinalOutcome, final_phase
+from safe_bc.distributed.final_store import STORE, FinalStore
 from safe_bc.distributed.runtime import ensure_ray
 from safe_bc.distributed.search import (
     NUMBER,
     ConstrainedOptunaSearch,
     SpaceSampler,
+    default_optuna_storage,
     load_searcher,
     make_scheduler,
     make_searcher,
+)
+from safe_bc.distributed.stop import (
+    _fit_stopped,
+    _reinstall_signals,
+    _stop_signals,
 )
 from safe_bc.distributed.trial import TrialJob, cached_demos, run_trial, stored_checkpoint
 from safe_bc.provenance import check_result_write, provenance
@@ -99,6 +114,19 @@ class StudyOutcome:
     """The Tune experiment (``storage/<study>``)."""
     errors: int
     """Trials that failed after all retries (a rerun retries them)."""
+    stopped_by: int = 0
+    """The signal that stopped Tune's run of the trials (0: none; SIGINT is seen as an
+    incomplete study, SIGTERM is recorded here)."""
+
+    @property
+    def exit_code(self) -> int:
+        """``safe-bc tune``'s exit status: 143 after SIGTERM, 130 when incomplete (Ctrl-C),
+        1 when trials failed or none finished, else 0."""
+        if self.stopped_by:
+            return 128 + self.stopped_by
+        if not self.complete:
+            return 130
+        return 1 if self.errors or self.winner is None else 0
 
 
 def trial_dirname(trial: Any) -> str:
@@ -159,23 +187,22 @@ def _check_resume(out: Path, identity: dict[str, Any], restoring: bool) -> None:
     write_json_atomic(path, identity)
 
 
-@contextmanager
-def _sigterm_as_sigint() -> Iterator[None]:
-    """SIGTERM acts like Ctrl-C: during ``fit`` Tune checkpoints and returns (a rerun resumes),
-    elsewhere it raises ``KeyboardInterrupt``."""
-
-    def handler(signum: int, frame: Any) -> None:
-        signal.raise_signal(signal.SIGINT)
-
-    try:
-        previous = signal.signal(signal.SIGTERM, handler)
-    except ValueError:  # not the main thread
-        yield
-        return
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
+def _os_error_in(e: BaseException) -> OSError | None:
+    """The ``OSError`` behind ``e`` (itself, or in its causes), reworded to say what a rerun
+    does; ``None`` when there is none."""
+    seen = set()
+    while e is not None and id(e) not in seen:
+        seen.add(id(e))
+        if isinstance(e, OSError):
+            detail = e.strerror or " ".join(str(e).split()) or type(e).__name__
+            return OSError(
+                e.errno,
+                f"{detail}; the study stopped with its state saved: fix this (e.g. free disk "
+                "space) and rerun the same command to resume",
+                e.filename,
+            )
+        e = e.__cause__ or e.__context__
+    return None
 
 
 def _records(grid: Any, params: Sequence[str]) -> list[dict[str, Any]]:
@@ -183,6 +210,7 @@ def _records(grid: Any, params: Sequence[str]) -> list[dict[str, Any]]:
     records = []
     for r in grid:
         m = dict(r.metrics or {})
+        config = r.config or {}  # None for a trial stopped right after it was suggested
         phase = m.get("phase", "")
         status = (
             "error"
@@ -192,10 +220,10 @@ def _records(grid: Any, params: Sequence[str]) -> list[dict[str, Any]]:
             )
         )
         rec = {k: m.get(k, math.nan) for k in TRIAL_METRICS}
-        rec.update({k: r.config.get(k) for k in params})
+        rec.update({k: config.get(k) for k in params})
         rec.update(
-            trial_id=str(m.get("trial_id") or Path(r.path).name.removeprefix("trial_")),
-            trial_number=r.config.get(NUMBER),
+            trial_id=str(m.get("trial_id") or Path(r.path or "").name.removeprefix("trial_")),
+            trial_number=config.get(NUMBER),
             status=status,
             iterations=m.get("training_iteration", 0),
         )
@@ -208,14 +236,19 @@ def _records(grid: Any, params: Sequence[str]) -> list[dict[str, Any]]:
 
 
 def _study_history(history: pd.DataFrame, trials: pd.DataFrame) -> tuple[pd.DataFrame, list[str]]:
-    """The history rows of the trials in ``trials`` (every trial Tune knows), and the ids of the
-    trials whose rows are set aside: trials that a driver killed before Tune saved them had
-    started (the restored experiment does not know them and ran others in their place)."""
+    """The history rows of the trials in ``trials`` (every trial Tune knows; one per trial and
+    phase), and the ids of the trials whose rows are set aside: trials that a driver killed
+    before Tune saved them had started (the restored experiment does not know them and ran
+    others in their place)."""
     if history.empty or "trial_id" not in history:
         return history, []
     known = history["trial_id"].isin(set(trials["trial_id"]))
     lost = sorted(set(history.loc[~known, "trial_id"]))
-    return history[known].reset_index(drop=True), lost
+    kept = history[known]
+    if "phase" in kept:  # a round reported again by a restarted trial (from its stored
+        # episodes, :func:`safe_bc.distributed.trial.stored_round`) counts once: the last report
+        kept = kept[~kept.duplicated(["trial_id", "phase"], keep="last")]
+    return kept.reset_index(drop=True), lost
 
 
 def _remove_orphan_trial_dirs(exp_path: str, known: set[str]) -> list[str]:
@@ -247,9 +280,23 @@ class HistoryRecorder(tune.Callback):
         self._ended: list[tuple[str, str]] = []
 
     def _append(self, rows: list[dict[str, Any]]) -> None:
+        """Append whole lines or nothing: a write that fails (a full disk) is cut back to the
+        file's size before it, so no line is left half-written."""
         Path(self.path).parent.mkdir(parents=True, exist_ok=True)
-        with open(self.path, "a") as f:
-            f.write("".join(json.dumps(row, default=str) + "\n" for row in rows))
+        data = "".join(json.dumps(row, default=str) + "\n" for row in rows).encode()
+        fd = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+        try:
+            size = os.fstat(fd).st_size
+            try:
+                view = memoryview(data)
+                while view:
+                    view = view[os.write(fd, view) :]
+            except OSError:
+                with contextlib.suppress(OSError):
+                    os.ftruncate(fd, size)
+                raise
+        finally:
+            os.close(fd)
 
     def on_trial_result(self, iteration: int, trials: list, trial: Any, result: dict, **info):
         row = {k: v for k, v in flatten_dict(result).items() if not k.startswith("config/")}
@@ -423,8 +470,12 @@ def run_study(
         ValueError: a resumed study with another trial count or threshold, or demos of
             another task.
     """
-    with _sigterm_as_sigint():
-        return _run_study(spec, fresh, command, progress, callbacks, trial_fn)
+    with _stop_signals() as stop:
+        try:
+            outcome = _run_study(spec, fresh, command, progress, callbacks, trial_fn)
+        except OSError as e:  # one line at the CLI, saying what a rerun does
+            raise _os_error_in(e) from None
+        return replace(outcome, stopped_by=stop.signum) if stop.signum else outcome
 
 
 def _run_study(
@@ -436,6 +487,15 @@ def _run_study(
     trial_fn: Callable[[dict[str, Any], TrialJob], None],
 ) -> StudyOutcome:
     from safe_bc.distributed.collect import ensure_demos
+
+    if not fresh:
+        done = finished_outcome(spec)
+        if done is not None:
+            print(
+                f"study {spec.name!r} finished before with these settings: its result, read "
+                f"from {done.out}/ (pass --fresh to run it again from scratch)"
+            )
+            return done
 
     os.environ.setdefault("TUNE_DISABLE_AUTO_CALLBACK_LOGGERS", "1")
     os.environ.setdefault("RAY_AIR_NEW_OUTPUT", "0")  # the terse status table of CLIReporter
@@ -450,9 +510,12 @@ def _run_study(
         _delete_tree(exp_path)
         for name in ("trials", "history", "final", "final_episodes", "final_paired"):
             (out / f"{name}.parquet").unlink(missing_ok=True)
+        (out / FINISHED).unlink(missing_ok=True)  # first: a kill below leaves no claim
         for name in ("best.json", "pareto.png", "study.json", "optuna.db", HISTORY):
             (out / name).unlink(missing_ok=True)
+        shutil.rmtree(out / STORE, ignore_errors=True)
     ensure_ray()
+    _reinstall_signals()  # ray.init replaced the SIGTERM handler
     demos_path = spec.demos.resolve()
     if not (demos_path / "dataset.json").exists():
         print(f"{spec.demos}: no demonstrations yet; collecting the default set")
@@ -475,6 +538,7 @@ def _run_study(
     restoring = tune.Tuner.can_restore(exp_path)
     if not restoring:  # a new experiment: rows of an older one do not belong to it
         (out / HISTORY).unlink(missing_ok=True)
+        (out / FINISHED).unlink(missing_ok=True)
     identity = {
         "trials": spec.trials,
         "threshold": threshold,
@@ -518,7 +582,15 @@ def _run_study(
                 verbose=1 if progress else 0,
             ),
         )
-    grid = tuner.fit()
+    try:
+        grid = tuner.fit()
+    except Exception as e:  # Tune wraps an OSError of a callback (a full disk) in a TuneError
+        _fit_stopped()
+        os_error = _os_error_in(e)
+        if os_error is None:
+            raise
+        raise os_error from None
+    stopped = _fit_stopped()
 
     trials = trial_table(_records(grid, spec.params), spec.params)
     history, lost = _study_history(read_history(out / HISTORY), trials)
@@ -566,13 +638,14 @@ def _run_study(
     title = f"{spec.name}: {finished}/{spec.trials} trials"
     plot_pareto(trials, threshold, out / "pareto.png", title=title)  # no verdict yet
     outcome = StudyOutcome(complete, trials, None, None, threshold, out, exp_path, errors)
-    if not complete or winner is None:
-        return outcome
+    if not complete or winner is None or stopped:
+        return replace(outcome, stopped_by=stopped)
 
     candidates = choose_candidates(trials, spec.final_candidates, spec.objective)
     checkpoints = _checkpoints(grid, list(candidates["trial_id"]))
     t0 = time.perf_counter()
-    final = final_phase(spec, job, candidates, checkpoints, demos, progress=progress)
+    store = FinalStore(out / STORE)
+    final = final_phase(spec, job, candidates, checkpoints, demos, progress=progress, store=store)
     meta = {**meta, "final_phase_seconds": round(time.perf_counter() - t0, 1)}
     _write_final(spec, final, candidates, meta)
     plot_pareto(
@@ -584,7 +657,119 @@ def _run_study(
         title=f"{title}; final phase: "
         + (f"winner {final.winner}" if final.feasible else "no candidate feasible"),
     )
+    write_json_atomic(out / FINISHED, _finished_record(spec), default=str)
     return replace(outcome, winner=winner, final=final)
+
+
+FINISHED = "finished.json"
+"""Written last by a study that ran to the end (the final tables written): a rerun of the same
+study only reads the tables back and prints the result (:func:`finished_outcome`)."""
+
+
+def _finished_record(spec: StudySpec) -> dict[str, Any]:
+    return json.loads(json.dumps({"study": spec.summary()}, sort_keys=True, default=str))
+
+
+def finished_outcome(spec: StudySpec) -> StudyOutcome | None:
+    """The outcome of ``spec`` when it ran to the end before with the same settings (its
+    :data:`FINISHED` record matches and its tables read back), else ``None``.
+
+    Raises:
+        ValueError: one line, when the finished study's tables or its Optuna copy
+            (``optuna.db``) are broken or not its own.
+    """
+    out = spec.results / spec.name
+    try:
+        record = json.loads((out / FINISHED).read_text())
+    except (OSError, json.JSONDecodeError):
+        return None
+    if record != _finished_record(spec):
+        return None  # other settings (e.g. --concurrent): the normal path resumes
+    try:
+        trials, meta = read_table(out / "trials.parquet")
+        table, fmeta = read_table(out / "final.parquet")
+        episodes, _ = read_table(out / "final_episodes.parquet")
+        paired = (
+            read_table(out / "final_paired.parquet")[0]
+            if (out / "final_paired.parquet").exists()
+            else pd.DataFrame()
+        )
+        best = json.loads((out / "best.json").read_text())
+    except (DatasetError, OSError, json.JSONDecodeError) as e:
+        raise ValueError(
+            f"the finished study at {out} has a broken output ({' '.join(str(e).split())}); "
+            f"delete {out / FINISHED} and rerun the same command to rewrite the outputs (the "
+            "trials and the final phase's finished work are kept and not redone)"
+        ) from None
+    check_optuna_copy(spec, str(meta.get("experiment_path", "")))
+    final = FinalOutcome(
+        table, episodes, best.get("trial_id"), bool(best.get("feasible")),
+        str(best.get("message", "")), dict(fmeta.get("configs", {})),
+        str(best.get("certified", "")), paired,
+    )  # fmt: skip
+    return StudyOutcome(
+        True,
+        trials,
+        choose_winner(trials, spec.objective),
+        final,
+        float(meta["threshold"]),
+        out,
+        str(meta.get("experiment_path", "")),
+        int((trials["status"] == "error").sum()),
+    )
+
+
+def check_optuna_copy(spec: StudySpec, experiment_path: str) -> None:
+    """A finished study's Optuna copy (``optuna.db`` by default) must be whole and its own:
+    the study of this name with every trial. A missing local copy is written again from the
+    Tune experiment's searcher.
+
+    Raises:
+        ValueError: one line naming the file and the problem (corrupt, cut short, another
+            study's, trials missing).
+    """
+    url = default_optuna_storage(spec)
+    prefix = "sqlite:///"
+    if not url.startswith(prefix):
+        return  # a shared database: checked by its own server
+    path = Path(url.removeprefix(prefix))
+    if not path.exists():
+        if experiment_path and not _is_uri(experiment_path):
+            searcher = load_searcher(experiment_path)
+            searcher._export_to = url
+            searcher.export()
+        return
+    problem = optuna_copy_problem(path, spec.name, spec.trials)
+    if problem:
+        raise ValueError(
+            f"{path}: {problem}; it is only a copy for Optuna's tools: delete it and rerun the "
+            "same command to write it again from the study's Tune experiment"
+        )
+
+
+def optuna_copy_problem(path: Path, name: str, trials: int) -> str:
+    """What is wrong with the Optuna SQLite copy at ``path`` of study ``name`` with ``trials``
+    trials (``""``: nothing). Opened read-only: nothing is created or changed."""
+    import sqlite3
+
+    try:
+        with contextlib.closing(sqlite3.connect(f"file:{path}?mode=ro", uri=True)) as db:
+            rows = db.execute("SELECT study_id FROM studies WHERE study_name = ?", (name,))
+            found = rows.fetchall()
+            if not found:
+                names = [r[0] for r in db.execute("SELECT study_name FROM studies")]
+                return f"holds no study {name!r} (it holds {names or 'none'}): not this study's"
+            (n,) = db.execute(
+                "SELECT COUNT(*) FROM trials WHERE study_id = ?", (found[0][0],)
+            ).fetchone()
+            check = db.execute("PRAGMA quick_check").fetchone()
+    except sqlite3.Error as e:
+        return f"not a whole Optuna database ({e})"
+    if check and check[0] != "ok":
+        return f"a damaged Optuna database ({check[0]})"
+    if n != trials:
+        return f"holds {n} trials of study {name!r}, the study has {trials}"
+    return ""
 
 
 def _checkpoints(grid: Any, trial_ids: Sequence[str]) -> dict[str, BCNet]:
@@ -668,7 +853,12 @@ def format_outcome(outcome: StudyOutcome, params: Sequence[str]) -> str:
         f"{outcome.errors} failed",
         summary_lines(t, params),
     ]
-    if not outcome.complete:
+    if outcome.stopped_by:
+        name = signal.Signals(outcome.stopped_by).name
+        what = "the trials" if not outcome.complete else "the final phase"
+        lines.append(f"stopped by {name} before the end of {what}: run the same command again "
+                     "to resume (finished trials are not run again)")  # fmt: skip
+    elif not outcome.complete:
         lines.append("study incomplete: run the same command again to resume")
     elif outcome.winner is not None:
         lines.append(outcome.winner.message)

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import ray
@@ -27,8 +27,11 @@ def train_many(
     workers: int = 2,
     action_bounds: Any = None,
     progress: bool = True,
+    on_done: Callable[[int, TrainResult], None] | None = None,
 ) -> list[tuple[TrainResult, Selection]]:
     """Train one agent per run config, ``workers`` at a time; results in ``runs`` order.
+    ``on_done(i, result)`` is called as soon as agent ``i`` has finished (e.g. to store it,
+    so that a killed driver keeps the agents finished so far).
 
     Each agent trains with one torch thread (set in its config), so the weights are
     the same as a sequential run's with one thread: the seed alone decides them.
@@ -50,5 +53,7 @@ def train_many(
         while pending:
             done, pending = ray.wait(pending, num_returns=1)
             results[index[done[0]]] = ray.get(done[0])
+            if on_done is not None:
+                on_done(index[done[0]], results[index[done[0]]][0])
             bar.update(1)
     return results

@@ -14,6 +14,8 @@ turns each seed's agent into the one the rounds evaluate, in the trial's folder 
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import json
 import math
 import random
 import tempfile
@@ -30,7 +32,14 @@ from ray import tune
 from safe_bc.bc import CheckpointError, load_checkpoint, read_checkpoint_meta
 from safe_bc.bc.net import BCNet
 from safe_bc.bc.train import training_threads
-from safe_bc.data.store import is_local_filesystem, load_demonstrations, subfolders
+from safe_bc.data.store import (
+    DatasetError,
+    is_local_filesystem,
+    load_demonstrations,
+    read_table,
+    subfolders,
+    write_table_atomic,
+)
 from safe_bc.demos import Demonstrations
 from safe_bc.distributed.evaluate import evaluate
 from safe_bc.distributed.search import ROUND, SCORE, SCREENED, screen_score
@@ -249,6 +258,41 @@ def trial_folder() -> Path:
     return Path(tune.get_context().get_trial_dir())
 
 
+ROUNDS = "rounds"
+"""Folder (in :func:`trial_folder`) of a trial's evaluated rounds: each round's episodes, kept
+so that a trial restarted after its driver was killed (its report of the round made, Tune's
+saved state not yet saying so) reports them again instead of evaluating them again."""
+
+
+def round_file(run_cfg: RunConfig, spec: StudySpec, seeds: list[int], first: int, n: int) -> str:
+    """``rounds/<first>_<n>_<digest>.parquet``: one evaluation round of a trial, keyed by
+    everything its episodes depend on (the configuration, seeds, tracks, env, stages)."""
+    key = {
+        "run": run_cfg.to_dict(),
+        "seeds": seeds,
+        "first": first,
+        "n": n,
+        "eval_seed": spec.eval_seed,
+        "env": str(spec.env),
+        "max_steps": spec.max_steps,
+        "eps": spec.critical_eps,
+        "stages": [name for name, _ in spec.stages()],
+    }
+    text = json.dumps(key, sort_keys=True, default=str)
+    return f"{ROUNDS}/{first}_{n}_{hashlib.sha256(text.encode()).hexdigest()[:16]}.parquet"
+
+
+def stored_round(path: Path) -> tuple[pd.DataFrame, float] | None:
+    """A stored round's episodes and evaluation seconds (``None``: none, or unreadable)."""
+    if not path.exists():
+        return None
+    try:
+        episodes, meta = read_table(path)
+    except DatasetError:
+        return None
+    return episodes, float(meta.get("eval_seconds", 0.0))
+
+
 def with_seed(cfg: RunConfig, seed: int) -> RunConfig:
     """``cfg`` with another training seed."""
     train = dataclasses.replace(cfg.bc.train, seed=seed)
@@ -334,12 +378,25 @@ def run_trial(config: dict[str, Any], job: TrialJob) -> None:
     rounds = eval_rounds(spec)
     parts: list[pd.DataFrame] = []
     eval_s = 0.0
+    folder = trial_folder()
     for i, (first, n) in enumerate(rounds, start=1):
-        t0 = time.perf_counter()
-        for s, source in zip(seeds, sources, strict=True):
-            episodes = evaluate_source(source, run_cfg, job, first, n)
-            parts.append(episodes.assign(train_seed=s))
-        eval_s += time.perf_counter() - t0
+        path = folder / round_file(run_cfg, spec, seeds, first, n)
+        stored = stored_round(path)
+        if stored is None:  # not evaluated before this trial was stopped or its driver killed
+            t0 = time.perf_counter()
+            episodes = pd.concat(
+                [
+                    evaluate_source(source, run_cfg, job, first, n).assign(train_seed=s)
+                    for s, source in zip(seeds, sources, strict=True)
+                ],
+                ignore_index=True,
+            )
+            seconds = time.perf_counter() - t0
+            write_table_atomic(path, episodes, {"eval_seconds": seconds})
+        else:
+            episodes, seconds = stored
+        parts.append(episodes)
+        eval_s += seconds
         values = trial_values(pd.concat(parts, ignore_index=True), job.limits, spec)
         metrics.update(
             values,

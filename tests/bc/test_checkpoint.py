@@ -22,6 +22,7 @@ from safe_bc.bc import (
     save_checkpoint,
     train_bc,
 )
+from safe_bc.bc.checkpoint import with_meta_sha256
 from safe_bc.selection import MixedBatchSampler
 
 from .synth import SMALL_FRAMES, TINY_CNN, TINY_MLP, frame_demos, small_train, vector_demos
@@ -133,7 +134,7 @@ def test_corrupt(frame_ckpt, tmp_path):
     d = _copy(src, tmp_path / "badconfig")
     meta = json.loads((d / "config.json").read_text())
     meta["config"]["network"]["hidden"] = -3
-    (d / "config.json").write_text(json.dumps(meta))
+    (d / "config.json").write_text(json.dumps(with_meta_sha256(meta)))
     with pytest.raises(CheckpointError, match="hidden"):
         load_checkpoint(d)
 
@@ -141,7 +142,7 @@ def test_corrupt(frame_ckpt, tmp_path):
     (d / "weights.pt").write_bytes(b"garbage")
     meta = json.loads((d / "config.json").read_text())
     meta["weights_sha256"] = hashlib.sha256(b"garbage").hexdigest()
-    (d / "config.json").write_text(json.dumps(meta))
+    (d / "config.json").write_text(json.dumps(with_meta_sha256(meta)))
     with pytest.raises(CheckpointError, match="cannot load weights"):
         load_checkpoint(d)
 

@@ -137,3 +137,18 @@ def test_cli_rehab_round_trip(rehab_demos, tmp_path, monkeypatch, capsys) -> Non
         ]
     )
     assert code == 2 and "already exists" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("dataset_id", ["safe_bc/rehab", "../escape-v0", "a b-v0"])
+def test_a_bad_dataset_id_is_one_line_before_anything_is_created(
+    dataset_id, rehab_demos, tmp_path, monkeypatch, capsys
+) -> None:
+    from safe_bc.cli import main
+
+    root = tmp_path / "minari"
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(root))
+    argv = ["export", "--demos", str(rehab_demos), "--format", "minari", "--dataset-id"]
+    assert main([*argv, dataset_id]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "is not a Minari dataset id" in err[0], err
+    assert not root.exists()

@@ -161,6 +161,11 @@ def _history_rows(path: Path) -> list[dict]:
     return rows
 
 
+def _evaluated(rows: list[dict]) -> set[str]:
+    """Trials that have reported their full evaluation."""
+    return {r["trial_id"] for r in rows if r.get("phase") == "evaluated"}
+
+
 def _ended(rows: list[dict]) -> set[str]:
     """Trials whose end Tune has saved (HistoryRecorder writes the event after the save)."""
     return {r["trial_id"] for r in rows if r.get("event") == "complete"}
@@ -192,10 +197,13 @@ def test_sigkilled_driver_loses_at_most_the_trials_in_flight(
         )  # fmt: skip
         try:
             deadline = time.monotonic() + 400
-            while len(finished := _ended(_history_rows(out / "history.jsonl"))) < 2:
+            # as in issue 32 (item 3): the kill once two trials have logged "evaluated" (a
+            # trial's end may not be saved yet: it runs again, from its stored rounds)
+            while len(_evaluated(rows := _history_rows(out / "history.jsonl"))) < 2:
                 assert driver.poll() is None, log.read_text()[-3000:]
-                assert time.monotonic() < deadline, "no two trials finished in time"
+                assert time.monotonic() < deadline, "no two trials evaluated in time"
                 time.sleep(0.1)
+            finished = _ended(rows)
             assert driver.poll() is None, "the study ended before the kill"
         finally:
             _kill_session(driver.pid)
@@ -216,8 +224,10 @@ def test_sigkilled_driver_loses_at_most_the_trials_in_flight(
     for tid in finished:
         want = ["trained", "screened"] + (["evaluated"] if status[tid] == "done" else [])
         assert phases[tid] == want, (tid, phases[tid])
-    # no trial Tune knows trained twice (a trained trial resumes from its checkpoint)
+    # no trial Tune knows trained twice (a trained trial resumes from its checkpoint), and none
+    # has a round twice (a restarted trial reports its stored rounds: issue 32, item 3)
     assert all(p.count("trained") == 1 for p in phases.values()), phases
+    assert all(len(p) == len(set(p)) for p in phases.values()), phases
     # trials.parquet and history.parquet agree: the same trials, each trial's last report
     assert set(history["trial_id"]) == set(trials["trial_id"])
     last = history.groupby("trial_id").tail(1).set_index("trial_id")
@@ -240,3 +250,385 @@ def test_sigkilled_driver_loses_at_most_the_trials_in_flight(
     states = [t.state for t in searcher.study.get_trials(deepcopy=False)]
     assert states == [TrialState.COMPLETE] * 6
     assert (out / "best.json").exists()
+
+
+# --- a trial restarted after its last report ----------------------------------------------------
+
+
+def crash_after_evaluation(config: dict, job, marker: str, log: str) -> None:
+    """``run_trial`` that counts its evaluations (one line per call in ``log``) and, the first
+    time in the study, dies after its last report (as when the driver is killed before Tune has
+    saved that the trial ended: the trial runs again)."""
+    import safe_bc.distributed.trial as mod
+
+    original = mod.evaluate_source
+
+    def counted(*args, **kwargs):
+        with open(log, "a") as f:
+            f.write(f"{args[3]}\n")
+        return original(*args, **kwargs)
+
+    mod.evaluate_source = counted
+    try:
+        mod.run_trial(config, job)
+    finally:
+        mod.evaluate_source = original
+    if not os.path.exists(marker):
+        Path(marker).touch()
+        raise RuntimeError("injected death after the evaluated report")
+
+
+def test_a_trial_run_again_after_its_evaluation_reports_it_without_evaluating_again(
+    tiny_demos: Path, tmp_path: Path
+) -> None:
+    import functools
+    from dataclasses import replace
+
+    from safe_bc.distributed.study import run_study
+    from safe_bc.study import load_study
+
+    spec = replace(
+        load_study(SMOKE), demos=tiny_demos, storage=str(tmp_path / "ray"),
+        results=tmp_path / "results", batches=30, max_steps=80, final_episodes=1,
+        final_workers=0, trials=1, max_concurrent=1, max_failures=1,
+    )  # fmt: skip
+    log = tmp_path / "evaluations.log"
+    trial_fn = functools.partial(
+        crash_after_evaluation, marker=str(tmp_path / "died"), log=str(log)
+    )
+    outcome = run_study(spec, progress=False, trial_fn=trial_fn)
+    assert (tmp_path / "died").exists() and outcome.complete and outcome.errors == 0
+    rounds = log.read_text().split()
+    assert len(rounds) == len(set(rounds)) == (2 if spec.screens else 1), rounds
+    history, _ = read_table(outcome.out / "history.parquet")
+    assert history.groupby("phase").size().max() == 1, history[["trial_id", "phase"]]
+
+
+# --- the final phase resumes; a finished study's rerun does no work -----------------------------
+
+
+def test_final_phase_resumes_per_agent_and_evaluation_and_a_finished_study_only_reprints(
+    tiny_demos: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    from dataclasses import replace
+
+    from safe_bc.distributed.final_store import STORE
+    from safe_bc.distributed.study import FINISHED, format_outcome, run_study
+    from safe_bc.study import load_study
+
+    spec = replace(
+        load_study(SMOKE), demos=tiny_demos, storage=str(tmp_path / "ray"),
+        results=tmp_path / "results", batches=30, max_steps=60, trials=2, final_candidates=1,
+        final_episodes=2, final_train_seeds=2, final_workers=0, screen_episodes=0,
+    )  # fmt: skip
+    import safe_bc.distributed.final as final_mod
+    from safe_bc.distributed.stop import StudyStopped
+
+    evaluate = final_mod.evaluate
+
+    def ctrl_c(*args, **kw):  # Ctrl-C once the final phase's agents are trained
+        signal.raise_signal(signal.SIGINT)
+        return evaluate(*args, **kw)
+
+    with monkeypatch.context() as m:
+        m.setattr(final_mod, "evaluate", ctrl_c)
+        with pytest.raises(StudyStopped) as stopped:
+            run_study(spec, progress=False)
+    assert stopped.value.exit_code == 130 and "rerun the same command" in str(stopped.value)
+    out = spec.results / spec.name
+    assert not (out / "final.parquet").exists() and not (out / FINISHED).exists()
+    assert len(list((out / STORE / "agents").iterdir())) == 3  # kept for the rerun
+    assert len(list((out / STORE / "episodes").iterdir())) == 3  # the first seed's block
+
+    calls: dict[str, list] = {"train": [], "evaluate": []}
+    train_run = final_mod.train_run
+
+    def counted_train(demos, run, **kw):
+        calls["train"].append(run.bc.train.seed)
+        return train_run(demos, run, **kw)
+
+    def counted_evaluate(sources, *args, **kw):
+        calls["evaluate"].append(sorted(sources))
+        return evaluate(sources, *args, **kw)
+
+    monkeypatch.setattr(final_mod, "train_run", counted_train)
+    monkeypatch.setattr(final_mod, "evaluate", counted_evaluate)
+    first = run_study(spec, progress=False)
+    assert first.complete and first.final is not None and first.exit_code in (0, 1)
+    # no agent retrained; the evaluation under way at the Ctrl-C finished and was kept
+    assert calls["train"] == [] and len(calls["evaluate"]) == 1, calls
+    assert all(name.endswith("=1") for name in calls["evaluate"][0]), calls
+    calls = {"train": [], "evaluate": []}
+    episodes, _ = read_table(out / "final_episodes.parquet")
+    store = out / STORE
+    agents = sorted((store / "agents").iterdir())
+    evaluations = sorted((store / "episodes").iterdir())
+    assert len(agents) == 3  # the candidate's second seed, plain BC's two seeds
+    assert len(evaluations) == 6  # (candidate, plain BC) x 2 seeds + the expert per block
+
+    # a finished study: the rerun reads its result back and does nothing else
+    capsys.readouterr()
+    again = run_study(spec, progress=False)
+    assert "finished before" in capsys.readouterr().out
+    assert calls == {"train": [], "evaluate": []}
+    assert format_outcome(again, spec.params) == format_outcome(first, spec.params)
+    (out / "optuna.db").unlink()  # the copy for Optuna's tools is written again from Tune's
+    run_study(spec, progress=False)
+    from safe_bc.distributed.study import optuna_copy_problem
+
+    assert optuna_copy_problem(out / "optuna.db", spec.name, spec.trials) == ""
+    (out / "optuna.db").write_bytes(b"SQLite format 3\0" + b"\0" * 100)  # cut short
+    with pytest.raises(ValueError, match=r"optuna\.db: .*rerun the same command"):
+        run_study(spec, progress=False)
+    (out / "optuna.db").unlink()
+
+    # killed in the final phase: one agent and one evaluation not finished yet
+    (out / FINISHED).unlink()
+    (out / "final.parquet").unlink()
+    import shutil
+
+    shutil.rmtree(agents[0])
+    evaluations[0].unlink()
+    resumed = run_study(spec, progress=False)
+    assert len(calls["train"]) == 1, calls
+    assert len(calls["evaluate"]) == 1 and len(calls["evaluate"][0]) == 1, calls
+    again, _ = read_table(out / "final_episodes.parquet")
+    pd.testing.assert_frame_equal(again, episodes)
+    pd.testing.assert_frame_equal(resumed.final.table, first.final.table)
+    assert (out / FINISHED).exists()
+
+
+# --- Ctrl-C and SIGTERM --------------------------------------------------------------------------
+
+
+def test_ctrl_c_and_sigterm_outside_fit_stop_the_study_with_their_exit_codes() -> None:
+    from safe_bc.distributed.stop import StudyStopped, _stop_signals
+
+    for signum, code in ((signal.SIGINT, 130), (signal.SIGTERM, 143)):
+        with _stop_signals() as stop:
+            signal.signal(signal.SIGTERM, lambda *a: None)  # as ray.init replaces it
+            from safe_bc.distributed.stop import _reinstall_signals
+
+            _reinstall_signals()
+            with pytest.raises(StudyStopped) as e:
+                signal.raise_signal(signum)
+            assert e.value.exit_code == code and stop.signum == signum
+            assert signal.Signals(signum).name in str(e.value)
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+def test_sigterm_during_fit_goes_to_tunes_handler_and_is_reported_after_it() -> None:
+    from safe_bc.distributed.stop import _fit_stopped, _stop_signals
+
+    with _stop_signals() as stop:
+        ours = signal.getsignal(signal.SIGINT)
+        caught = []
+
+        def tune_handler(signum, frame):  # like Ray Tune's: note it, put the old one back
+            caught.append(signum)
+            signal.signal(signal.SIGINT, ours)
+
+        signal.signal(signal.SIGINT, tune_handler)
+        signal.raise_signal(signal.SIGTERM)
+        assert caught == [signal.SIGINT]
+        assert _fit_stopped() == signal.SIGTERM == stop.signum
+
+    with _stop_signals() as stop:  # a fit that ended normally leaves Tune's handler behind
+        signal.signal(signal.SIGINT, lambda *a: None)
+        assert _fit_stopped() == 0
+        assert signal.getsignal(signal.SIGINT) == stop._outside_fit  # a Ctrl-C now stops
+
+    with _stop_signals():  # Ctrl-C caught by Tune: its handler put ours back
+        assert _fit_stopped() == signal.SIGINT
+
+
+def test_a_trial_stopped_right_after_its_suggestion_has_no_config_and_still_gets_a_row() -> None:
+    from safe_bc.distributed.study import _records
+
+    result = SimpleNamespace(metrics=None, config=None, error=None, path=None)
+    done = SimpleNamespace(
+        metrics={"phase": "evaluated", "trial_id": "a", "training_iteration": 2},
+        config={"p": 1, "trial_number": 0}, error=None, path="/x/trial_a",
+    )  # fmt: skip
+    rows = _records([done, result], ["p"])
+    assert [r["status"] for r in rows] == ["done", "unfinished"]
+    assert rows[1]["p"] is None
+
+
+def test_exit_codes_of_an_outcome() -> None:
+    from safe_bc.distributed.study import StudyOutcome
+
+    base = StudyOutcome(True, pd.DataFrame(), object(), None, 0.0, Path("."), "", 0)
+    assert base.exit_code == 0
+    from dataclasses import replace
+
+    assert replace(base, complete=False).exit_code == 130
+    assert replace(base, stopped_by=signal.SIGTERM).exit_code == 143
+    assert replace(base, errors=1).exit_code == 1
+
+
+# --- a full disk -------------------------------------------------------------------------------
+
+
+def test_history_append_on_a_full_disk_leaves_no_half_line(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import errno
+
+    from safe_bc.distributed.study import HistoryRecorder, read_history
+
+    path = tmp_path / "history.jsonl"
+    rec = HistoryRecorder(str(path))
+    rec.on_trial_result(0, [], SimpleNamespace(trial_id="a"), {"phase": "trained"})
+    before = path.read_bytes()
+    real_write = os.write
+
+    def half_then_full(fd, data):
+        if len(data) > 8:
+            return real_write(fd, bytes(data[: len(data) // 2]))
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(os, "write", half_then_full)
+    with pytest.raises(OSError, match="No space"):
+        rec.on_trial_result(0, [], SimpleNamespace(trial_id="a"), {"phase": "screened"})
+    monkeypatch.undo()
+    assert path.read_bytes() == before
+    assert list(read_history(path)["phase"]) == ["trained"]
+
+
+class FullDisk:
+    """A Tune callback whose write fails as on a full disk (Tune wraps it in a TuneError)."""
+
+    def __new__(cls):
+        from ray import tune
+
+        class _Full(tune.Callback):
+            def on_trial_result(self, iteration, trials, trial, result, **info):
+                import errno
+
+                raise OSError(errno.ENOSPC, "No space left on device", "/full/history.jsonl")
+
+        return _Full()
+
+
+def test_an_os_error_inside_tune_is_one_line_saying_what_a_rerun_does(
+    tiny_demos: Path, tmp_path: Path
+) -> None:
+    from dataclasses import replace
+
+    from safe_bc.distributed.study import run_study
+    from safe_bc.study import load_study
+
+    spec = replace(
+        load_study(SMOKE), demos=tiny_demos, storage=str(tmp_path / "ray"),
+        results=tmp_path / "results", batches=10, max_steps=40, trials=1, max_concurrent=1,
+    )  # fmt: skip
+    with pytest.raises(OSError) as e:
+        run_study(spec, progress=False, callbacks=[FullDisk()])
+    assert type(e.value) is OSError and e.value.filename == "/full/history.jsonl"
+    assert "No space left" in e.value.strerror and "rerun the same command" in e.value.strerror
+    assert "\n" not in str(e.value)
+
+
+def test_a_finished_studys_optuna_copy_must_be_whole_and_its_own(tmp_path: Path) -> None:
+    import optuna
+
+    from safe_bc.distributed.study import check_optuna_copy
+    from safe_bc.study import StudySpec
+
+    spec = StudySpec("mine", {"selection.alpha": Float(0.0, 1.0)}, trials=2, results=tmp_path)
+    path = tmp_path / "mine" / "optuna.db"
+    path.parent.mkdir()
+
+    def make(name: str, trials: int) -> None:
+        path.unlink(missing_ok=True)
+        storage = optuna.storages.RDBStorage(f"sqlite:///{path}")
+        study = optuna.create_study(study_name=name, storage=storage)
+        for _ in range(trials):
+            study.tell(study.ask({"x": optuna.distributions.FloatDistribution(0, 1)}), 1.0)
+        storage.remove_session()
+        storage.engine.dispose()
+
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    make("mine", 2)
+    check_optuna_copy(spec, "")  # whole and its own
+    whole = path.read_bytes()
+    cases = {
+        "cut short": whole[:4096],
+        "damaged": b"\0" * 100 + whole[100:],
+    }
+    for what, data in cases.items():
+        path.write_bytes(data)
+        with pytest.raises(ValueError) as e:
+            check_optuna_copy(spec, "")
+        assert str(path) in str(e.value) and "rerun the same command" in str(e.value), what
+        assert "\n" not in str(e.value)
+    make("other", 2)
+    with pytest.raises(ValueError, match=r"holds no study 'mine'.*not this study's"):
+        check_optuna_copy(spec, "")
+    make("mine", 1)
+    with pytest.raises(ValueError, match="holds 1 trials of study 'mine', the study has 2"):
+        check_optuna_copy(spec, "")
+
+
+@pytest.mark.slow
+def test_sigterm_and_ctrl_c_in_the_final_phase_stop_in_one_line_and_the_rerun_resumes(
+    tiny_demos: Path, tmp_path: Path
+) -> None:
+    study_file = tmp_path / "tiny.py"
+    study_file.write_text(
+        "from dataclasses import replace\n"
+        "from pathlib import Path\n"
+        "from safe_bc.study import load_study\n"
+        f"STUDY = replace(load_study({str(SMOKE)!r}), demos=Path({str(tiny_demos)!r}),\n"
+        f"    results=Path({str(tmp_path / 'results')!r}), storage={str(tmp_path / 'ray')!r},\n"
+        "    trials=2, max_concurrent=1, batches=30, max_steps=60, screen_episodes=0,\n"
+        "    final_candidates=1, final_train_seeds=3, final_episodes=3, final_workers=0)\n"
+    )
+    command = [sys.executable, "-m", "safe_bc.cli", "tune", str(study_file)]
+    env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}
+    env["RAY_AUTH_MODE"] = "disabled"
+    out = tmp_path / "results" / "smoke"
+    for signum, code in ((signal.SIGTERM, 143), (signal.SIGINT, 130)):
+        log = tmp_path / f"{signum}.log"
+        with open(log, "w") as sink:
+            driver = subprocess.Popen(
+                command, cwd=REPO, env=env, stdout=sink, stderr=subprocess.STDOUT,
+                start_new_session=True,
+            )  # fmt: skip
+            try:
+                deadline = time.monotonic() + 400
+                while "final phase: training" not in log.read_text():
+                    assert driver.poll() is None, log.read_text()[-3000:]
+                    assert time.monotonic() < deadline, "the final phase did not start in time"
+                    time.sleep(0.2)
+                time.sleep(1.0)
+                driver.send_signal(signum)  # the driver only
+                assert driver.wait(timeout=120) == code, log.read_text()[-3000:]
+            finally:
+                _kill_session(driver.pid)
+                driver.wait()
+        text = log.read_text()
+        assert "Traceback" not in text and "Stop signal received" not in text, text[-3000:]
+        assert f"stopped by {signal.Signals(signum).name}" in text and "rerun" in text
+        assert not (out / "final.parquet").exists()
+    rerun = subprocess.run(command, cwd=REPO, env=env, capture_output=True, text=True, timeout=600)
+    assert rerun.returncode in (0, 1), rerun.stdout[-3000:] + rerun.stderr[-3000:]
+    assert (out / "final.parquet").exists() and (out / "finished.json").exists()
+    again = subprocess.run(command, cwd=REPO, env=env, capture_output=True, text=True, timeout=600)
+    assert again.returncode == rerun.returncode and "finished before" in again.stdout
+
+
+def test_a_signal_in_a_deferred_block_stops_at_the_next_stop_point_with_its_own_code() -> None:
+    from safe_bc.distributed.stop import StudyStopped, _stop_signals, deferred_stop, stop_point
+
+    for signum, code in ((signal.SIGTERM, 143), (signal.SIGINT, 130)):
+        with _stop_signals(), pytest.raises(StudyStopped) as e, deferred_stop():
+            signal.raise_signal(signum)  # recorded, not raised here
+            done = True
+            stop_point()
+        assert done and e.value.exit_code == code
+        with _stop_signals(), pytest.raises(StudyStopped), deferred_stop():
+            signal.raise_signal(signum)
+            signal.raise_signal(signum)  # a second one stops at once
+            pytest.fail("not stopped by the second signal")
