@@ -41,6 +41,19 @@ class Scored:
         return combined(self.safety)
 
     @cached_property
+    def outcomes_beyond(self) -> np.ndarray:
+        """``(T'',) bool``: per step, whether its outcome (the state it led to: the next
+        step's cost, and for the last step the episode's ``final_cost``) is beyond ``d_s``;
+        outcomes in the CarRacing zoom-in are left out. Empty without a ``final_cost``."""
+        assert self.limits is not None
+        ep = self.episode
+        if ep.final_cost is None:
+            return np.zeros(0, bool)
+        costs = np.concatenate([ep.costs[1:], np.asarray(ep.final_cost)[None]])
+        scored = np.append(~ep.warmup[1:], True)
+        return violations(costs[scored], self.limits)
+
+    @cached_property
     def beyond(self) -> np.ndarray:
         """``(T',) bool``: scored steps beyond ``d_s`` in some dimension (needs ``limits``)."""
         assert self.limits is not None
@@ -84,6 +97,27 @@ REGISTRY: dict[str, Metric] = {
     "worst_excursion": Metric(
         lambda s: float(excursion(s.costs, s.limits).max()),
         "how far beyond d_s the worst step went (cost units, 0 if never)",
+        True,
+    ),
+    "violating_sessions": Metric(
+        lambda s: int(s.outcomes_beyond.sum()) if s.episode.final_cost is not None else np.nan,
+        "steps whose outcome (the state the step led to, the last step's included) is beyond "
+        "d_s: on the rehabilitation pathway the sessions beyond d_s, which "
+        "``violation_steps`` (the state each step starts from) misses for the last session",
+        True,
+    ),
+    "any_violating_session": Metric(
+        lambda s: float(s.outcomes_beyond.any()) if s.episode.final_cost is not None else np.nan,
+        "1.0 when a step's outcome was beyond d_s (its mean: the share of episodes)",
+        True,
+    ),
+    "last_session_violation": Metric(
+        lambda s: (
+            float(violations(np.asarray(s.episode.final_cost)[None], s.limits)[0])
+            if s.episode.final_cost is not None
+            else np.nan
+        ),
+        "1.0 when the last step's outcome was beyond d_s (no later state records it)",
         True,
     ),
     "offroad_steps": Metric(
