@@ -80,6 +80,13 @@ class Method:
     same comparison; no training, no improvement of its own) with the scripted expert acting
     in their critical states (the comparison's zone: costs within ``eps`` of d_s). The expert
     is privileged (it reads the track): this bounds what a safe fallback would give."""
+    seeds: tuple[int, ...] = ()
+    """The training seeds of a trained row, a subset of the comparison's (``()``: all of
+    them), e.g. a screened row with one seed."""
+    masked_of: str = ""
+    """The copycat check: the agents of the BC row named here (no training of their own)
+    evaluated with CarRacing's steering indicator painted black
+    (:class:`safe_bc.evaluation.MaskedSteering`)."""
     label: str = ""
     """How the Markdown names the row (``""``: ``name``). ``name`` stays the table's key and
     seeds the row's bootstrap draws (:func:`safe_bc.metrics.keyed_rng`)."""
@@ -91,11 +98,11 @@ class Method:
 
     def __post_init__(self) -> None:
         kinds = [self.selection is not None, self.expert, self.improve is not None,
-                 bool(self.fallback_of)]  # fmt: skip
+                 bool(self.fallback_of), bool(self.masked_of)]  # fmt: skip
         if sum(kinds) != 1:
             raise ValueError(
                 f"method {self.name!r}: give exactly one of selection, expert=True, improve, "
-                "fallback_of"
+                "fallback_of, masked_of"
             )
         if not self.name:
             raise ValueError("a method needs a name")
@@ -106,9 +113,11 @@ class Method:
 
     @property
     def kind(self) -> str:
-        """``bc``, ``expert``, ``improve`` or ``fallback``."""
+        """``bc``, ``expert``, ``improve``, ``fallback`` or ``masked``."""
         if self.fallback_of:
             return "fallback"
+        if self.masked_of:
+            return "masked"
         return "expert" if self.expert else "improve" if self.improve is not None else "bc"
 
     @property
@@ -207,6 +216,16 @@ class Comparison:
                 raise ValueError(
                     f"method {m.name!r}: start {m.start!r} is not a BC row of {sorted(bc_rows)}"
                 )
+            if not set(m.seeds) <= set(self.train_seeds):
+                raise ValueError(
+                    f"method {m.name!r}: seeds {m.seeds} are not among train_seeds "
+                    f"{self.train_seeds}"
+                )
+            if m.kind == "masked" and m.masked_of not in bc_rows:
+                raise ValueError(
+                    f"method {m.name!r}: masked_of {m.masked_of!r} is not a BC row of "
+                    f"{sorted(bc_rows)}"
+                )
             if m.kind == "fallback" and m.fallback_of not in agents:
                 raise ValueError(
                     f"method {m.name!r}: fallback_of {m.fallback_of!r} is not a BC or "
@@ -245,6 +264,16 @@ class Comparison:
     def method(self, name: str) -> Method:
         """The row called ``name``."""
         return next(m for m in self.methods if m.name == name)
+
+    def seeds_of(self, method: Method) -> tuple[int, ...]:
+        """The training seeds of ``method`` (its own, else the comparison's; derived rows:
+        their source row's; the expert: ``(0,)``)."""
+        if method.expert:
+            return (0,)
+        of = method.masked_of or method.fallback_of or method.start
+        if of:
+            return self.seeds_of(self.method(of))
+        return method.seeds or self.train_seeds
 
     def label_of(self, name: str) -> str:
         """The Markdown name of the row called ``name`` (``name`` if it is no row)."""

@@ -263,3 +263,41 @@ def test_tiny_fallback_rows_share_the_runs_of_another_comparison(rehab_demos, tm
     assert "start, expert fallback" in (tmp_path / "diag.md").read_text()
     with pytest.raises(ValueError, match="fallback_of"):
         Comparison("t", methods=(Method("f", fallback_of="nothing"),))
+
+
+def test_tiny_masked_row_evaluates_the_same_agent_with_the_indicator_black(
+    tiny_demos, tmp_path: Path
+) -> None:
+    """A bar-kept BC row and its masked row on CarRacing: the masked row trains nothing, runs
+    the row's agent on the same tracks, and the evaluation path records the steering-follow
+    metrics; the runner's rows read back as (cell, view) for scripts/observation_choice."""
+    from safe_bc.bc import BCConfig, NetworkConfig, PreprocessConfig, TrainConfig
+    from safe_bc.distributed.compare import run_comparison
+    from scripts.observation_choice import cells_and_views
+
+    pre = PreprocessConfig(crop_bar=False, mask_steering=False)
+    bc = BCConfig(preprocess=pre, network=NetworkConfig(channels=(4, 4, 4), hidden=8),
+                  train=TrainConfig(batches=3, batch_size=8))  # fmt: skip
+    comp = Comparison(
+        "tinyobs",
+        methods=(
+            Method("bar_rgb_k1", selection=SelectionConfig(eps=2.0, alpha=0.0), bc=bc),
+            Method("bar_rgb_k1/steer_masked", masked_of="bar_rgb_k1"),
+        ),
+        demos=tiny_demos,
+        out=tmp_path,
+        episodes=2,
+        eval_seed=10,
+        max_steps=80,
+        workers=1,
+        reference="bar_rgb_k1",
+    )
+    table = run_comparison(comp, progress=False)
+    assert not (tmp_path / "tinyobs_runs/bar_rgb_k1_steer_masked/seed0/agent").exists()
+    episodes, _ = read_table(tmp_path / "tinyobs_episodes.parquet")
+    assert episodes["steer_change"].notna().all()
+    assert table.set_index("method").loc["bar_rgb_k1/steer_masked", "n_pairs"] == 2
+    training, _ = read_table(tmp_path / "tinyobs_training.parquet")
+    views = cells_and_views(episodes, training)
+    assert set(views["cell"]) == {"bar_rgb_k1"} and views["final_loss"].notna().all()
+    assert sorted(set(views["view"])) == ["full", "steer_masked"]

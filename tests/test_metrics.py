@@ -155,7 +155,7 @@ def _episode(seed: int = 0, T: int = 30):
 
     rng = np.random.default_rng(seed)
     return Episode(
-        0, 1, np.zeros((T, 0)), np.zeros((T, 3)), np.zeros((T, 3)),
+        0, 1, np.zeros((T, 0)), rng.normal(size=(T, 3)), np.zeros((T, 3)),
         rng.normal(size=T).astype(np.float32), np.zeros(T, bool), np.zeros(T, bool),
         (rng.random((T, 3)) * 10).astype(np.float32), (rng.random((T, 3)) * 10).astype(np.float32),
         np.arange(T) < 3, rng.random(T) < 0.2,

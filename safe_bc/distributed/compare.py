@@ -37,7 +37,7 @@ from safe_bc.compare import (
     run_slug,
 )
 from safe_bc.data.store import load_demonstrations, read_table, write_table_atomic
-from safe_bc.evaluation import EvalConfig, ExpertSource, NetSource
+from safe_bc.evaluation import EvalConfig, ExpertSource, MaskedSource, NetSource
 from safe_bc.experiment import RunConfig, save_selection, select_for
 from safe_bc.metrics import combined
 from safe_bc.provenance import run_metadata
@@ -88,11 +88,7 @@ def selection_eps(comparison: Comparison) -> float:
 
 
 def _cells(comparison: Comparison) -> list[tuple[Method, int]]:
-    return [
-        (m, 0 if m.expert else s)
-        for m in comparison.methods
-        for s in ((0,) if m.expert else comparison.train_seeds)
-    ]
+    return [(m, s) for m in comparison.methods for s in comparison.seeds_of(m)]
 
 
 def _folder(comparison: Comparison, method: Method, seed: int) -> Path:
@@ -116,6 +112,9 @@ def _stamp(comparison: Comparison, method: Method, seed: int, thresholds: Any) -
     elif method.kind == "fallback":
         of = _stamp(comparison, comparison.method(method.fallback_of), seed, thresholds)["run"]
         run = {"fallback_of": of, "fallback": "expert", "eps": selection_eps(comparison)}
+    elif method.kind == "masked":
+        of = _stamp(comparison, comparison.method(method.masked_of), seed, thresholds)["run"]
+        run = {"masked_of": of, "view": "steering indicator masked"}
     else:
         run = {"expert": str(comparison.demos)}
     return _json(
@@ -272,6 +271,9 @@ def run_comparison(
             from safe_bc.improve import ImprovedSource
 
             sources[key] = ImprovedSource.from_run(_folder(c, m, s) / "improve")
+        elif m.kind == "masked":
+            agent = _folder(c, c.method(m.masked_of), s) / "agent"
+            sources[key] = MaskedSource(NetSource.from_model(*load_checkpoint(agent)))
         else:
             sources[key] = _fallback_source(c, m, s, base.thresholds)
     if progress:
