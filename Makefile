@@ -46,11 +46,11 @@ expert: $(STAMP)
 reproduce: $(STAMP)
 	$(BIN)/safe-bc reproduce
 
-# The observation ablation behind PreprocessConfig's defaults (results/ablation/observation/);
-# ARGS=... passes e.g. the committed run's --cells/--screen-cells (see its observation.md).
+# The observation ablation behind PreprocessConfig's defaults (results/ablation/observation/):
+# the comparison, then the analysis that chooses the default from its episodes.
 ablation: $(STAMP)
-	test -f data/demos/dataset.json || $(MAKE) demos
-	$(BIN)/python -m scripts.observation_ablation --processes 2 $(ARGS)
+	$(BIN)/safe-bc compare tune_jobs/compare/observation.py $(ARGS)
+	$(BIN)/python -m scripts.observation_choice
 
 tune: $(STAMP)
 	$(BIN)/safe-bc tune tune_jobs/$(STUDY).py $(if $(TRIALS),--trials $(TRIALS),) $(ARGS)

@@ -943,8 +943,8 @@ def bench_final(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
 
 
 IMPROVE_ENVS = 4
-"""Envs of the improvement-rollout case (``scripts.improve_carracing``'s episodes per
-iteration)."""
+"""Envs of the improvement-rollout case (the episodes per iteration of
+``tune_jobs/compare/improve_carracing.py``)."""
 
 
 def bench_improve(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:

@@ -16,6 +16,7 @@ This module is pure: the spec, its validation, the table and the Markdown. The r
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import functools
 import importlib.util
@@ -24,7 +25,7 @@ import re
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import pandas as pd
@@ -39,10 +40,11 @@ from safe_bc.tasks import TASKS, Task
 EXPERT = "expert"
 """``mode`` (and default name) of the expert's row."""
 
-FIGURES = ("alpha_sweep", "traces")
+FIGURES = ("alpha_sweep", "traces", "learning_curves")
 """Figures a comparison can ask for: reward and safety against alpha
 (:func:`safe_bc.plots.plot_alpha_sweep`), safety traces of the ``traces`` methods
-(:func:`safe_bc.plots.plot_traces`)."""
+(:func:`safe_bc.plots.plot_traces`), the improvement rows' learning curves
+(:func:`safe_bc.plots.plot_learning_curves`)."""
 
 PAPER_TABLE1 = pd.DataFrame(
     {
@@ -73,12 +75,34 @@ class Method:
     ``seed`` set to the training seed)."""
     start: str = ""
     """An improvement row's start: the name of a BC row of the same comparison."""
+    fallback_of: str = ""
+    """A diagnostic row: the agents of the row named here (a BC or improvement row of the
+    same comparison; no training, no improvement of its own) with the scripted expert acting
+    in their critical states (the comparison's zone: costs within ``eps`` of d_s). The expert
+    is privileged (it reads the track): this bounds what a safe fallback would give."""
+    seeds: tuple[int, ...] = ()
+    """The training seeds of a trained row, a subset of the comparison's (``()``: all of
+    them), e.g. a screened row with one seed."""
+    masked_of: str = ""
+    """The copycat check: the agents of the BC row named here (no training of their own)
+    evaluated with CarRacing's steering indicator painted black
+    (:class:`safe_bc.evaluation.MaskedSteering`)."""
+    label: str = ""
+    """How the Markdown names the row (``""``: ``name``). ``name`` stays the table's key and
+    seeds the row's bootstrap draws (:func:`safe_bc.metrics.keyed_rng`)."""
+
+    @property
+    def shown(self) -> str:
+        """``label``, or ``name``."""
+        return self.label or self.name
 
     def __post_init__(self) -> None:
-        kinds = [self.selection is not None, self.expert, self.improve is not None]
+        kinds = [self.selection is not None, self.expert, self.improve is not None,
+                 bool(self.fallback_of), bool(self.masked_of)]  # fmt: skip
         if sum(kinds) != 1:
             raise ValueError(
-                f"method {self.name!r}: give exactly one of selection, expert=True, improve"
+                f"method {self.name!r}: give exactly one of selection, expert=True, improve, "
+                "fallback_of, masked_of"
             )
         if not self.name:
             raise ValueError("a method needs a name")
@@ -89,14 +113,18 @@ class Method:
 
     @property
     def kind(self) -> str:
-        """``bc``, ``expert`` or ``improve``."""
+        """``bc``, ``expert``, ``improve``, ``fallback`` or ``masked``."""
+        if self.fallback_of:
+            return "fallback"
+        if self.masked_of:
+            return "masked"
         return "expert" if self.expert else "improve" if self.improve is not None else "bc"
 
     @property
     def labels(self) -> dict[str, Any]:
         """Columns that identify the row in the episodes table."""
         if self.selection is None:
-            mode = EXPERT if self.expert else "improve"
+            mode = EXPERT if self.expert else self.kind
             return {"method": self.name, "mode": mode, "alpha": np.nan, "rest": ""}
         mix = self.selection.mode == "mix"
         return {
@@ -123,12 +151,23 @@ class Comparison:
     """Demonstration dataset (built with the task's default collection if absent)."""
     out: Path = Path("results")
     """Where tables, figures and runs go."""
+    runs: str = ""
+    """Stem of the runs folder, ``OUT/<runs>_runs/`` (``""``: ``name``): another comparison's
+    stem shares its trained agents, improvement runs and evaluations (same rows, same
+    settings), e.g. a diagnostic adding rows to a finished comparison."""
     train_seeds: tuple[int, ...] = (0,)
     """Training seeds, shared by every trained method (one agent per method and seed)."""
     episodes: int = 20
     """Held-out tracks, the same for every agent and the expert (one episode each)."""
     eval_seed: int = 0
     """Block of held-out track seeds."""
+    tracks: Literal["heldout", "validation"] = "heldout"
+    """Which seeds: the held-out block ``eval_seed``, or the improvement runs' validation
+    patients (:func:`safe_bc.improve.validation_seeds`; a selection set, e.g. the margin
+    sweep's, disjoint from the held-out blocks)."""
+    first_track: int = 0
+    """Index of the first seed used (of the block or of the validation patients): a set
+    disjoint from the first ``first_track`` ones (e.g. the runs' own validation patients)."""
     workers: int = 2
     """Training and evaluation actors."""
     bc: BCConfig = field(default_factory=BCConfig)
@@ -146,6 +185,12 @@ class Comparison:
     """Rows whose first training seed's agent keeps its per-step safety trace."""
     figures: tuple[tuple[str, str], ...] = ()
     """``(figure, file name)`` pairs, figures from :data:`FIGURES`."""
+    totals: tuple[str, ...] = ()
+    """Metrics whose sum over a row's episodes the table adds as ``total_<metric>`` (e.g.
+    ``any_violating_session``: the episodes with a session beyond d_s)."""
+    per_seed: bool = False
+    """Add to the Markdown a table of each trained row's mean reward per training seed (and
+    its episodes with a violation)."""
     paper: bool = False
     """Append the paper's Table 1 (:data:`PAPER_TABLE1`) to the Markdown."""
     title: str = ""
@@ -165,10 +210,26 @@ class Comparison:
         if dup:
             raise ValueError(f"comparison {self.name!r}: method names repeat: {dup}")
         bc_rows = {m.name for m in self.methods if m.kind == "bc"}
+        agents = bc_rows | {m.name for m in self.methods if m.kind == "improve"}
         for m in self.methods:
             if m.kind == "improve" and m.start not in bc_rows:
                 raise ValueError(
                     f"method {m.name!r}: start {m.start!r} is not a BC row of {sorted(bc_rows)}"
+                )
+            if not set(m.seeds) <= set(self.train_seeds):
+                raise ValueError(
+                    f"method {m.name!r}: seeds {m.seeds} are not among train_seeds "
+                    f"{self.train_seeds}"
+                )
+            if m.kind == "masked" and m.masked_of not in bc_rows:
+                raise ValueError(
+                    f"method {m.name!r}: masked_of {m.masked_of!r} is not a BC row of "
+                    f"{sorted(bc_rows)}"
+                )
+            if m.kind == "fallback" and m.fallback_of not in agents:
+                raise ValueError(
+                    f"method {m.name!r}: fallback_of {m.fallback_of!r} is not a BC or "
+                    f"improvement row of {sorted(agents)}"
                 )
         if not self.train_seeds or len(set(self.train_seeds)) != len(self.train_seeds):
             raise ValueError(f"train_seeds must be distinct and not empty, got {self.train_seeds}")
@@ -176,12 +237,19 @@ class Comparison:
             raise ValueError(f"episodes must be >= 1, got {self.episodes}")
         if self.eval_seed < 0:
             raise ValueError(f"eval_seed must be >= 0, got {self.eval_seed}")
+        if self.tracks not in ("heldout", "validation"):
+            raise ValueError(f"tracks must be 'heldout' or 'validation', got {self.tracks!r}")
+        if self.first_track < 0:
+            raise ValueError(f"first_track must be >= 0, got {self.first_track}")
         if self.workers < 0:
             raise ValueError(f"workers must be >= 0, got {self.workers}")
         if self.eps is not None and not (math.isfinite(self.eps) and self.eps >= 0):
             raise ValueError(f"eps must be a finite number >= 0, got {self.eps}")
         if self.reference is not None and self.reference not in names:
             raise ValueError(f"reference {self.reference!r} is not a method of {names}")
+        for t in self.totals:
+            if t not in METRICS:
+                raise ValueError(f"totals: {t!r} is not a metric of {METRICS}")
         for t in self.traces:
             if t not in names:
                 raise ValueError(f"traces: {t!r} is not a method of {names}")
@@ -196,6 +264,20 @@ class Comparison:
     def method(self, name: str) -> Method:
         """The row called ``name``."""
         return next(m for m in self.methods if m.name == name)
+
+    def seeds_of(self, method: Method) -> tuple[int, ...]:
+        """The training seeds of ``method`` (its own, else the comparison's; derived rows:
+        their source row's; the expert: ``(0,)``)."""
+        if method.expert:
+            return (0,)
+        of = method.masked_of or method.fallback_of or method.start
+        if of:
+            return self.seeds_of(self.method(of))
+        return method.seeds or self.train_seeds
+
+    def label_of(self, name: str) -> str:
+        """The Markdown name of the row called ``name`` (``name`` if it is no row)."""
+        return next((m.shown for m in self.methods if m.name == name), name)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able (the provenance's ``config``)."""
@@ -256,19 +338,73 @@ def with_mode(episodes: pd.DataFrame) -> pd.DataFrame:
     return episodes.assign(mode=np.where(episodes["method"] == EXPERT, EXPERT, "mix"))
 
 
+def label_episodes(comparison: Comparison, episodes: pd.DataFrame) -> pd.DataFrame:
+    """Episodes of a run before this runner (a ``method`` column, no ``mode``, ``alpha``,
+    ``rest``) with the columns the spec's rows give them."""
+    labels = pd.DataFrame([m.labels for m in comparison.methods])
+    keep = [c for c in episodes if c not in ("mode", "alpha", "rest")]
+    return episodes[keep].merge(labels, on="method", how="left", validate="m:1")
+
+
+def _paired_episodes(comparison: Comparison, episodes: pd.DataFrame) -> pd.DataFrame:
+    """The episodes the paired columns compare: the trained rows; against the expert (trained
+    once), its episodes stand in for every training seed on the same tracks."""
+    agents = episodes[episodes["mode"] != EXPERT]
+    ref = comparison.reference
+    if ref is None or not comparison.method(ref).expert:
+        return agents
+    expert = episodes[episodes["method"] == ref]
+    seeds = sorted(agents["train_seed"].unique())
+    return pd.concat([*(expert.assign(train_seed=k) for k in seeds), agents], ignore_index=True)
+
+
+def minutes_per_run(history: pd.DataFrame) -> pd.Series:
+    """Per improvement row: the wall time of one run (its iterations' ``seconds`` summed),
+    in minutes, mean over training seeds."""
+    per_run = history.groupby(["method", "train_seed"])["seconds"].sum()
+    return per_run.groupby("method").mean() / 60
+
+
+def per_seed_table(episodes: pd.DataFrame) -> pd.DataFrame:
+    """Per trained row and training seed: mean reward over the tracks and the episodes with
+    a step beyond d_s (``violation_steps`` > 0)."""
+    agents = episodes[with_mode(episodes)["mode"] != EXPERT]
+    cells = agents.assign(beyond=agents["violation_steps"] > 0).groupby(
+        ["method", "train_seed"], sort=False
+    )
+    return pd.DataFrame(
+        {"reward": cells["reward"].mean(), "episodes_with_violation": cells["beyond"].sum()}
+    ).reset_index()
+
+
+def machines(metas: list[dict[str, Any]]) -> str:
+    """``"<machine> (<cpus> CPUs, python <v>): <n>"`` per distinct machine in ``metas``."""
+    count = collections.Counter(
+        f"{m.get('machine', '?')} ({m.get('cpus', '?')} CPUs, python {m.get('python', '?')})"
+        for m in metas
+    )
+    return "; ".join(f"{machine}: {n}" for machine, n in count.items())
+
+
 def build_table(
-    comparison: Comparison, episodes: pd.DataFrame, train_df: pd.DataFrame | None = None
+    comparison: Comparison,
+    episodes: pd.DataFrame,
+    train_df: pd.DataFrame | None = None,
+    history: pd.DataFrame | None = None,
 ) -> pd.DataFrame:
     """The comparison's table from per-episode results (one row per method, in spec order).
 
     Per method: every metric of :func:`summary_metrics` as a mean over its (training seed,
     track) cells with a 95% crossed bootstrap CI (:func:`safe_bc.metrics.summarize_crossed`:
     seeds and tracks resampled independently, because every agent ran on the same tracks),
-    ``n_train_seeds``, ``n_tracks``, ``episodes_with_violation``; against ``reference`` (when
-    it is a row) the paired differences ``d_<metric>`` on the same cells with the same
-    bootstrap, and ``seeds_better`` of ``n_seeds_paired`` training seeds whose mean reward
-    beats the reference's same seed (the expert, trained once, is not paired). With
-    ``train_df``, the training means (loss, throughput, critical share) per method.
+    ``n_train_seeds``, ``n_tracks``, ``episodes_with_violation``, ``total_<metric>`` of the
+    spec's ``totals``; against ``reference`` (when it is a row) the paired differences
+    ``d_<metric>`` on the same cells with the same bootstrap, and ``seeds_better`` of
+    ``n_seeds_paired`` training seeds whose mean reward beats the reference's same seed (the
+    expert, trained once, is not paired, except as the reference: then its episodes stand in
+    for every training seed). With ``train_df``, the training means (loss, throughput,
+    critical share) per method; with the improvement ``history``, ``minutes`` per run
+    (:func:`minutes_per_run`).
     """
     episodes = with_mode(episodes)
     metrics = summary_metrics(episodes)
@@ -278,9 +414,12 @@ def build_table(
     if "any_violation" in metrics:
         counts = episodes.groupby("method")["any_violation"].sum().astype(int)
         table["episodes_with_violation"] = table["method"].map(counts)
+    for m in comparison.totals:
+        if m in metrics:
+            table[f"total_{m}"] = table["method"].map(episodes.groupby("method")[m].sum())
     ref = comparison.reference
     if ref is not None and ref in set(episodes["method"]):
-        agents = episodes[episodes["mode"] != EXPERT]  # trained once: no seed pairing
+        agents = _paired_episodes(comparison, episodes)
         paired = [m for m in comparison.paired_metrics if m in metrics]
         diffs = paired_crossed(agents, ref, paired, better="reward")
         if len(diffs):
@@ -295,29 +434,49 @@ def build_table(
         table = table.merge(
             train_df.groupby("method")[cols].mean().reset_index(), on="method", how="left"
         )
+    if history is not None and len(history):
+        table["minutes"] = table["method"].map(minutes_per_run(history)).astype(float)
     return table
 
+
+TOTAL_TITLES = {
+    "any_violation": "episodes with a step beyond d_s",
+    "any_violating_session": "episodes with an outcome beyond d_s",
+    "last_session_violation": "episodes whose last outcome was beyond d_s",
+}
+"""Column titles of ``total_<metric>`` for the per-episode indicators (shown ``k/n``)."""
 
 _fmt = functools.partial(fmt_ci, blank_missing=True)
 """A table cell, blank where the row has no value (e.g. paired columns of the expert)."""
 
 
-def display_table(table: pd.DataFrame, reference: str | None = None) -> pd.DataFrame:
+def display_table(
+    table: pd.DataFrame, reference: str | None = None, comparison: Comparison | None = None
+) -> pd.DataFrame:
     """The table's cells as text: mean [95% CI] per metric, counts, paired columns.
 
     Safety is shown with 1 decimal for pixel distances and 3 for margins below 1 (the
     rehabilitation task's normalised limits). Violation columns appear when the evaluation
-    measured them; the paired columns when ``table`` has them.
+    measured them; the paired columns when ``table`` has them; ``total_<metric>`` and
+    ``minutes`` columns when it has them. With ``comparison``, rows and the reference go by
+    their labels.
     """
+    title = comparison.label_of if comparison is not None else str
     sd = 1 if table["safety_mean"].abs().max() >= 1 else 3
     rd = 0 if sd == 1 else 2
     violations = "violation_steps" in table and table["violation_steps"].notna().any()
-    ref = "reference" if reference is None else reference
-    cols: dict[str, list[str]] = {"method": [str(m) for m in table["method"]]}
+    ref = "reference" if reference is None else title(reference)
+    cols: dict[str, list[str]] = {"method": [title(str(m)) for m in table["method"]]}
     rows = [r for _, r in table.iterrows()]
 
     def col(title: str, metric: str, digits: int = 1) -> None:
         cols[title] = [_fmt(r, metric, digits) for r in rows]
+
+    def count(title: str, column: str) -> None:
+        cols[title] = [
+            "" if pd.isna(r.get(column)) else f"{int(r[column])}/{int(r['n_episodes'])}"
+            for r in rows
+        ]
 
     col("reward", "reward", rd)
     col("safety mean", "safety_mean", sd)
@@ -326,11 +485,17 @@ def display_table(table: pd.DataFrame, reference: str | None = None) -> pd.DataF
     col("off-road steps", "offroad_steps")
     if violations:
         col("violation steps", "violation_steps")
-        cols["episodes with a violation"] = [
-            "" if pd.isna(r.get("episodes_with_violation"))
-            else f"{int(r['episodes_with_violation'])}/{int(r['n_episodes'])}"
-            for r in rows
-        ]  # fmt: skip
+        count("episodes with a violation", "episodes_with_violation")
+    if "violating_sessions" in table and table["violating_sessions"].notna().any():
+        col("steps with an outcome beyond d_s", "violating_sessions", 3)
+    for c in (c for c in table.columns if c.startswith("total_")):
+        name = c.removeprefix("total_")
+        if name in TOTAL_TITLES:  # an indicator per episode: its total counts episodes
+            count(TOTAL_TITLES[name], c)
+        else:
+            cols[f"total {name.replace('_', ' ')}"] = [
+                "" if pd.isna(r[c]) else f"{int(r[c])}" for r in rows
+            ]
     col("critical share", "critical_share", 2)
     cols["seeds x tracks"] = [f"{int(r['n_train_seeds'])}x{int(r['n_tracks'])}" for r in rows]
     if "d_reward" in table:
@@ -339,19 +504,56 @@ def display_table(table: pd.DataFrame, reference: str | None = None) -> pd.DataF
             col(f"safety - {ref}", "d_safety_mean", sd)
         if "d_violation_steps" in table:
             col(f"violation steps - {ref}", "d_violation_steps")
+        if "d_violating_sessions" in table:
+            col(f"outcomes beyond d_s - {ref}", "d_violating_sessions", 3)
         cols[f"seeds better than {ref}"] = [
             "" if pd.isna(r.get("seeds_better"))
             else f"{int(r['seeds_better'])}/{int(r['n_seeds_paired'])} seeds better"
             for r in rows
         ]  # fmt: skip
+    if "minutes" in table:
+        cols["minutes / run"] = [
+            "" if pd.isna(r["minutes"]) else f"{r['minutes']:.1f}" for r in rows
+        ]
     return pd.DataFrame(cols)
 
 
-def render_markdown(comparison: Comparison, table: pd.DataFrame, meta: dict[str, Any]) -> str:
-    """The table (:func:`display_table`, via ``DataFrame.to_markdown``), the paper's Table 1
-    when asked for, the spec's note and the provenance."""
+def display_per_seed(comparison: Comparison, episodes: pd.DataFrame) -> pd.DataFrame:
+    """:func:`per_seed_table` as text: a row per trained method, a column per training seed,
+    cells ``mean reward (episodes with a violation)``."""
+    long = per_seed_table(episodes)
+    digits = 0 if long["reward"].abs().max() >= 100 else 2
+    long["cell"] = [
+        f"{r.reward:.{digits}f} ({int(r.episodes_with_violation)})" for r in long.itertuples()
+    ]
+    wide = long.pivot(index="method", columns="train_seed", values="cell")
+    order = [m.name for m in comparison.methods if m.name in wide.index]
+    wide = wide.loc[order]
+    wide.columns = [f"seed {k}" for k in wide.columns]
+    wide.index = [comparison.label_of(m) for m in wide.index]
+    return wide.rename_axis("method").reset_index()
+
+
+def render_markdown(
+    comparison: Comparison,
+    table: pd.DataFrame,
+    meta: dict[str, Any],
+    episodes: pd.DataFrame | None = None,
+) -> str:
+    """The table (:func:`display_table`, via ``DataFrame.to_markdown``), the per-seed table
+    when asked for (from ``episodes``), the paper's Table 1 when asked for, the spec's note,
+    the learning-curves figure and the provenance (with the machines of the runs and
+    evaluations when ``meta`` names them)."""
+    c = comparison
     lines = [f"# {comparison.title}", ""] if comparison.title else []
-    lines += [display_table(table, comparison.reference).to_markdown(index=False), ""]
+    lines += [display_table(table, c.reference, c).to_markdown(index=False), ""]
+    if c.per_seed and episodes is not None:
+        lines += [
+            "Per training seed: mean reward on the tracks (episodes with a violation):",
+            "",
+            display_per_seed(c, episodes).to_markdown(index=False),
+            "",
+        ]
     if comparison.paper:
         paper = PAPER_TABLE1.rename(
             columns={"safety_mean": "safety mean", "safety_std": "safety std"}
@@ -368,9 +570,14 @@ def render_markdown(comparison: Comparison, table: pd.DataFrame, meta: dict[str,
         + "Values: mean [95% crossed bootstrap CI: training seeds and held-out tracks "
         "resampled independently, since every agent ran on the same tracks]. "
         + (
-            f"Paired columns: the difference to {comparison.reference} on the same (training "
-            "seed, track) cells, same bootstrap; k/n seeds better: training seeds whose mean "
-            f"reward over the tracks beats {comparison.reference}'s same seed. "
+            f"Paired columns: the difference to {c.label_of(str(c.reference))} on the same "
+            "(training seed, track) cells, same bootstrap; k/n seeds better: training seeds "
+            f"whose mean reward over the tracks beats {c.label_of(str(c.reference))}'s same seed"
+            + (
+                " (the expert, trained once, stands in for every seed). "
+                if c.method(str(c.reference)).expert
+                else ". "
+            )
             if paired
             else ""
         )
@@ -384,4 +591,13 @@ def render_markdown(comparison: Comparison, table: pd.DataFrame, meta: dict[str,
         ),
         "",
     ]
+    if meta.get("run_machines") or meta.get("eval_machines"):
+        lines += [
+            f"Improvement runs made on: {meta.get('run_machines') or 'none'}. Evaluations made "
+            f"on: {meta.get('eval_machines') or '?'}.",
+            "",
+        ]
+    for figure, file in c.figures:
+        if figure == "learning_curves":
+            lines += [f"![learning curves]({file})", ""]
     return "\n".join(lines)

@@ -35,6 +35,9 @@ class Episode:
         warmup: ``(T,) bool``, steps whose frame is not scored (CarRacing zoom-in).
         offroad: ``(T,) bool``, all wheels off the road (the unsafe event).
         safety_dims: names of the ``S`` safety dimensions.
+        final_cost: ``(S,) float32``, the cost of the state the last step led to (the
+            outcome of the last action, which no later step records); ``None`` where the
+            episode was not recorded by a rollout (e.g. read back from the data store).
     """
 
     episode_id: int
@@ -50,6 +53,7 @@ class Episode:
     warmup: np.ndarray
     offroad: np.ndarray
     safety_dims: tuple[str, ...] = field(default=SAFETY_DIMS)
+    final_cost: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         n = len(self.observations)

@@ -108,6 +108,34 @@ class NetSource:
         return BCPolicy(model.eval(), cfg.preprocess)
 
 
+class MaskedSteering:
+    """A policy that sees every frame with CarRacing's steering indicator painted black (the
+    bar's background: the indicator at zero steering), for the copycat check."""
+
+    def __init__(self, inner: Policy) -> None:
+        self.inner = inner
+
+    def reset(self, env: gym.Env | None = None, rng: np.random.Generator | None = None) -> None:
+        self.inner.reset(env, rng)
+
+    def act(self, obs: np.ndarray, env: gym.Env | None = None) -> np.ndarray:
+        from safe_bc.bc.preprocess import STEERING_INDICATOR
+
+        obs = np.array(obs, copy=True)
+        obs[STEERING_INDICATOR] = 0
+        return self.inner.act(obs, env)
+
+
+@dataclass(frozen=True)
+class MaskedSource:
+    """A policy source evaluated with the steering indicator masked (:class:`MaskedSteering`)."""
+
+    inner: NetSource
+
+    def build(self) -> Policy:
+        return MaskedSteering(self.inner.build())
+
+
 def evaluate_episode(
     env: gym.Env,
     policy: Policy,

@@ -41,6 +41,24 @@ class Scored:
         return combined(self.safety)
 
     @cached_property
+    def steering(self) -> np.ndarray:
+        """``(T',)``: the first action dimension (CarRacing's steering) at the scored steps."""
+        return self.episode.actions[~self.episode.warmup, 0]
+
+    @cached_property
+    def outcomes_beyond(self) -> np.ndarray:
+        """``(T'',) bool``: per step, whether its outcome (the state it led to: the next
+        step's cost, and for the last step the episode's ``final_cost``) is beyond ``d_s``;
+        outcomes in the CarRacing zoom-in are left out. Empty without a ``final_cost``."""
+        assert self.limits is not None
+        ep = self.episode
+        if ep.final_cost is None:
+            return np.zeros(0, bool)
+        costs = np.concatenate([ep.costs[1:], np.asarray(ep.final_cost)[None]])
+        scored = np.append(~ep.warmup[1:], True)
+        return violations(costs[scored], self.limits)
+
+    @cached_property
     def beyond(self) -> np.ndarray:
         """``(T',) bool``: scored steps beyond ``d_s`` in some dimension (needs ``limits``)."""
         assert self.limits is not None
@@ -86,6 +104,27 @@ REGISTRY: dict[str, Metric] = {
         "how far beyond d_s the worst step went (cost units, 0 if never)",
         True,
     ),
+    "violating_sessions": Metric(
+        lambda s: int(s.outcomes_beyond.sum()) if s.episode.final_cost is not None else np.nan,
+        "steps whose outcome (the state the step led to, the last step's included) is beyond "
+        "d_s: on the rehabilitation pathway the sessions beyond d_s, which "
+        "``violation_steps`` (the state each step starts from) misses for the last session",
+        True,
+    ),
+    "any_violating_session": Metric(
+        lambda s: float(s.outcomes_beyond.any()) if s.episode.final_cost is not None else np.nan,
+        "1.0 when a step's outcome was beyond d_s (its mean: the share of episodes)",
+        True,
+    ),
+    "last_session_violation": Metric(
+        lambda s: (
+            float(violations(np.asarray(s.episode.final_cost)[None], s.limits)[0])
+            if s.episode.final_cost is not None
+            else np.nan
+        ),
+        "1.0 when the last step's outcome was beyond d_s (no later state records it)",
+        True,
+    ),
     "offroad_steps": Metric(
         lambda s: int(s.offroad.sum()),
         "scored steps with all wheels on grass (simulator ground truth, CarRacing)",
@@ -96,6 +135,15 @@ REGISTRY: dict[str, Metric] = {
         True,
     ),
     "tiles_visited": Metric(lambda s: float(s.tiles_visited), "track tiles visited"),
+    "steer_autocorr": Metric(
+        lambda s: steering_follow(s.steering)[0],
+        "lag-1 autocorrelation of the first action (CarRacing's steering) over the scored "
+        "steps: how much the steering follows itself (a copycat cue; NaN if constant)",
+    ),
+    "steer_change": Metric(
+        lambda s: steering_follow(s.steering)[1],
+        "mean absolute step-to-step change of the first action over the scored steps",
+    ),
     "steps": Metric(lambda s: len(s.episode), "the episode's length in env steps"),
 }
 """The metric registry: name -> :class:`Metric`. Every evaluation (expert, evaluate, Table 1,
@@ -105,6 +153,24 @@ walks every entry."""
 
 METRICS: tuple[str, ...] = tuple(REGISTRY)
 """The one metric list, in report order (the registry's keys)."""
+
+
+def steering_follow(steer: np.ndarray) -> tuple[float, float]:
+    """Lag-1 autocorrelation of a steering sequence and its mean absolute change (NaN with
+    fewer than 3 steps; the autocorrelation NaN when either lagged series is constant).
+
+    >>> a, c = steering_follow(np.array([0.0, 0.5, 1.0, 0.5, 0.0]))
+    >>> round(a, 3), c
+    (0.0, 0.5)
+    """
+    steer = np.asarray(steer, np.float64)
+    if len(steer) < 3:
+        return float("nan"), float("nan")
+    x, y = steer[:-1], steer[1:]
+    change = float(np.abs(y - x).mean())
+    if x.std() == 0 or y.std() == 0:
+        return float("nan"), change
+    return float(np.corrcoef(x, y)[0, 1]), change
 
 
 def combined(safety: np.ndarray) -> np.ndarray:

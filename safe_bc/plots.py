@@ -1,4 +1,4 @@
-"""Figures (matplotlib, Agg): cost histograms, the alpha sweep, safety traces."""
+"""Figures (matplotlib, Agg): cost histograms, the alpha sweep, safety traces, learning curves."""
 
 from __future__ import annotations
 
@@ -98,4 +98,54 @@ def plot_traces(
         ax.set_ylabel("distance")
         ax.legend(fontsize=7, ncol=4, loc="upper right")
     axes[-1, 0].set_xlabel("step")
+    return save_figure(fig, path)
+
+
+LEARNING_PANELS = (
+    ("train_reward", "training reward (stochastic policy)"),
+    ("val_reward", "validation reward (mean action)"),
+    ("train_violation_steps", "training: steps beyond d_s / episode"),
+    ("lambda", "Lagrange multiplier"),
+)
+"""The panels of :func:`plot_learning_curves`: history column, title."""
+SEED_STYLES = ("-", "--", ":", "-.")
+
+
+def plot_learning_curves(
+    history: pd.DataFrame, refs: dict[str, float], path: Path, *, labels: dict[str, str]
+) -> Path:
+    """Improvement runs' training and validation reward, violations and multiplier against
+    env steps: colour = method, line style = training seed; dashed lines: ``refs`` (e.g. the
+    expert's and the starts' mean held-out reward) on the validation-reward panel.
+
+    ``history`` holds :data:`safe_bc.improve.HISTORY` rows with ``method`` and ``train_seed``;
+    ``labels`` names methods in the legend."""
+    from matplotlib.lines import Line2D
+
+    methods = list(dict.fromkeys(history["method"]))
+    colours = {m: f"C{i}" for i, m in enumerate(methods)}
+    seeds = sorted(history["train_seed"].unique())
+    fig, axes = plt.subplots(2, 2, figsize=(11, 7))
+    for ax, (col, title) in zip(axes.flat, LEARNING_PANELS, strict=True):
+        for (method, seed), df in history.groupby(["method", "train_seed"], sort=False):
+            df = df.dropna(subset=[col])
+            style = SEED_STYLES[seeds.index(seed) % len(SEED_STYLES)]
+            ax.plot(df["env_steps"] / 1e3, df[col], lw=1.1, color=colours[method], ls=style)
+        if col == "val_reward":
+            for i, value in enumerate(refs.values()):
+                ax.axhline(value, ls="--", lw=1, color="k" if i == 0 else "0.6")
+        ax.set_title(title, fontsize=9)
+        ax.set_xlabel("env steps (thousands)")
+    handles = [Line2D([], [], color=colours[m], label=labels.get(m, m)) for m in methods]
+    handles += [
+        Line2D([], [], color="k", ls=SEED_STYLES[i % len(SEED_STYLES)], label=f"seed {s}")
+        for i, s in enumerate(seeds)
+    ]
+    handles += [
+        Line2D([], [], color="k" if i == 0 else "0.6", ls="--", lw=1, label=f"{name} (held-out)")
+        for i, name in enumerate(refs)
+    ]
+    fig.legend(handles=handles, loc="lower center", ncol=4, fontsize=7, frameon=False)
+    fig.suptitle("improvement learning curves", fontsize=9)
+    fig.tight_layout(rect=(0, 0.07, 1, 1))
     return save_figure(fig, path)

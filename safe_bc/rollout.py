@@ -46,6 +46,7 @@ class _Recorder:
     def __init__(self, keep_observations: bool) -> None:
         self.keep_observations = keep_observations
         self.cols: dict[str, list] = {k: [] for k in _COLUMNS}
+        self.final_cost: np.ndarray | None = None
 
     def before_step(
         self, obs: np.ndarray, info: dict, action: np.ndarray, executed: np.ndarray
@@ -57,7 +58,10 @@ class _Recorder:
         self.cols["act"].append(action)
         self.cols["exe"].append(executed)
 
-    def after_step(self, reward: float, terminated: bool, truncated: bool) -> None:
+    def after_step(self, reward: float, terminated: bool, truncated: bool, info: dict) -> None:
+        """What the env returned; ``info["cost"]`` is the outcome of the step (kept for the
+        last step, whose outcome no later state records)."""
+        self.final_cost = np.asarray(info["cost"], np.float32)
         self.cols["rew"].append(reward)
         self.cols["term"].append(terminated)
         self.cols["trunc"].append(truncated)
@@ -78,6 +82,7 @@ class _Recorder:
             warmup=np.asarray(c["warmup"], bool),
             offroad=np.asarray(c["offroad"], bool),
             safety_dims=_safety_dims(env),
+            final_cost=self.final_cost,
         )
 
 
@@ -129,7 +134,7 @@ def run_episode(
         t += 1
         if max_steps is not None and t >= max_steps:
             truncated = True
-        rec.after_step(reward, terminated, truncated)
+        rec.after_step(reward, terminated, truncated, info)
         if terminated or truncated:
             break
     return rec.episode(env, seed, episode_id)
@@ -162,7 +167,7 @@ def run_episodes_lockstep(
             obs[i], reward, terminated, truncated, infos[i] = envs[i].step(action)
             if max_steps is not None and t + 1 >= max_steps:
                 truncated = True
-            recs[i].after_step(reward, terminated, truncated)
+            recs[i].after_step(reward, terminated, truncated, infos[i])
             if not (terminated or truncated):
                 still.append(i)
         running = still

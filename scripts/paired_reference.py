@@ -5,8 +5,9 @@ Usage::
     .venv/bin/python -m scripts.paired_reference results/improve/carracing
     .venv/bin/python -m scripts.paired_reference results/table1_episodes.parquet
 
-Reads ``episodes.parquet`` of each folder (written by ``scripts.improve_carracing`` /
-``scripts.improve_rehab``), or the episode table named (Table 1's): the expert evaluated once,
+Reads ``episodes.parquet`` of each folder (written by the earlier improvement scripts; the
+comparison runner writes ``<name>_episodes.parquet``: name it), or the episode table named
+(Table 1's): the expert evaluated once,
 every other policy per training seed, all on the same tracks. Writes ``paired_expert.parquet``
 beside it (for a named table ``<stem>_paired_expert.parquet``):
 :func:`safe_bc.metrics.paired_to_reference` (crossed bootstrap over training seeds and tracks,

@@ -155,11 +155,38 @@ def _episode(seed: int = 0, T: int = 30):
 
     rng = np.random.default_rng(seed)
     return Episode(
-        0, 1, np.zeros((T, 0)), np.zeros((T, 3)), np.zeros((T, 3)),
+        0, 1, np.zeros((T, 0)), rng.normal(size=(T, 3)), np.zeros((T, 3)),
         rng.normal(size=T).astype(np.float32), np.zeros(T, bool), np.zeros(T, bool),
         (rng.random((T, 3)) * 10).astype(np.float32), (rng.random((T, 3)) * 10).astype(np.float32),
         np.arange(T) < 3, rng.random(T) < 0.2,
+        final_cost=(rng.random(3) * 10).astype(np.float32),
     )  # fmt: skip
+
+
+def test_outcome_violations_count_the_state_each_step_led_to() -> None:
+    """``violating_sessions`` counts the outcomes (next step's cost, the last step's
+    ``final_cost``), which ``violation_steps`` (the state each step starts from) misses for the
+    last step; the zoom-in's outcomes are left out; NaN without a ``final_cost``."""
+    from dataclasses import replace
+
+    from safe_bc.episode import Episode
+    from safe_bc.metrics import episode_metrics
+
+    T = 4
+    costs = np.array([[0, 0, 0], [5, 0, 0], [0, 0, 0], [0, 0, 0]], np.float32)
+    ep = Episode(
+        0, 1, np.zeros((T, 0)), np.zeros((T, 3)), np.zeros((T, 3)), np.ones(T, np.float32),
+        np.zeros(T, bool), np.zeros(T, bool), np.zeros((T, 3), np.float32), costs,
+        np.zeros(T, bool), np.zeros(T, bool), final_cost=np.array([0, 0, 9], np.float32),
+    )  # fmt: skip
+    limits = np.array([1.0, 1.0, 1.0])
+    m = episode_metrics(ep, thresholds=limits)
+    assert (m["violation_steps"], m["violating_sessions"]) == (1, 2)
+    assert (m["any_violating_session"], m["last_session_violation"]) == (1.0, 1.0)
+    zoom = replace(ep, warmup=np.array([True, True, False, False]))  # step 0's outcome: zoom-in
+    assert episode_metrics(zoom, thresholds=limits)["violating_sessions"] == 1
+    assert np.isnan(episode_metrics(replace(ep, final_cost=None), thresholds=limits)[
+        "violating_sessions"])  # fmt: skip
 
 
 @pytest.mark.parametrize("name", list(__import__("safe_bc.metrics").metrics.REGISTRY))

@@ -20,7 +20,7 @@ class PreprocessConfig:
 
     The image defaults (colour, the indicator bar kept with its steering indicator masked,
     one frame) are the observation ablation's choice: ``results/ablation/observation/``
-    (``python -m scripts.observation_ablation``; plain BC, 3 training seeds x 20 selection
+    (``tune_jobs/compare/observation.py``; plain BC, 3 training seeds x 20 selection
     tracks per cell). Until then they were grey, bar cropped: agents blind to their speed."""
 
     grayscale: bool = False

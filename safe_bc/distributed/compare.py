@@ -32,11 +32,12 @@ from safe_bc.compare import (
     Comparison,
     Method,
     build_table,
+    machines,
     render_markdown,
     run_slug,
 )
 from safe_bc.data.store import load_demonstrations, read_table, write_table_atomic
-from safe_bc.evaluation import EvalConfig, ExpertSource, NetSource
+from safe_bc.evaluation import EvalConfig, ExpertSource, MaskedSource, NetSource
 from safe_bc.experiment import RunConfig, save_selection, select_for
 from safe_bc.metrics import combined
 from safe_bc.provenance import run_metadata
@@ -59,14 +60,26 @@ def run_config(comparison: Comparison, method: Method, seed: int) -> RunConfig:
 
 def eval_config(comparison: Comparison) -> EvalConfig:
     """The held-out tracks every policy runs on."""
+    heldout = comparison.tracks == "heldout"
     return EvalConfig(
         episodes=comparison.episodes,
         workers=comparison.workers,
         seed=comparison.eval_seed,
+        first_episode=comparison.first_track if heldout else 0,
         env=task_defaults(comparison.task).env,
         max_steps=comparison.max_steps,
         eps=selection_eps(comparison),
     )
+
+
+def track_seeds(comparison: Comparison) -> list[int]:
+    """The env seeds every policy runs on (:attr:`Comparison.tracks`)."""
+    if comparison.tracks == "heldout":
+        return eval_config(comparison).seeds()
+    from safe_bc.improve import validation_seeds
+
+    first = comparison.first_track
+    return validation_seeds(first + comparison.episodes)[first:]
 
 
 def selection_eps(comparison: Comparison) -> float:
@@ -75,15 +88,12 @@ def selection_eps(comparison: Comparison) -> float:
 
 
 def _cells(comparison: Comparison) -> list[tuple[Method, int]]:
-    return [
-        (m, 0 if m.expert else s)
-        for m in comparison.methods
-        for s in ((0,) if m.expert else comparison.train_seeds)
-    ]
+    return [(m, s) for m in comparison.methods for s in comparison.seeds_of(m)]
 
 
 def _folder(comparison: Comparison, method: Method, seed: int) -> Path:
-    base = comparison.out / f"{comparison.name}_runs" / run_slug(method.name)
+    stem = comparison.runs or comparison.name
+    base = comparison.out / f"{stem}_runs" / run_slug(method.name)
     return base if method.expert else base / f"seed{seed}"
 
 
@@ -91,12 +101,20 @@ def _stamp(comparison: Comparison, method: Method, seed: int, thresholds: Any) -
     """What a stored evaluation must match to be reused."""
     settings = dataclasses.asdict(eval_config(comparison))
     settings.pop("workers")  # where episodes run changes nothing
+    if comparison.tracks != "heldout":
+        settings["seeds"] = track_seeds(comparison)
     if method.kind == "bc":
         run: Any = run_config(comparison, method, seed).to_dict()
     elif method.kind == "improve":
         assert method.improve is not None
         start = run_config(comparison, comparison.method(method.start), seed).to_dict()
         run = {"start": start, "improve": dataclasses.replace(method.improve, seed=seed).to_dict()}
+    elif method.kind == "fallback":
+        of = _stamp(comparison, comparison.method(method.fallback_of), seed, thresholds)["run"]
+        run = {"fallback_of": of, "fallback": "expert", "eps": selection_eps(comparison)}
+    elif method.kind == "masked":
+        of = _stamp(comparison, comparison.method(method.masked_of), seed, thresholds)["run"]
+        run = {"masked_of": of, "view": "steering indicator masked"}
     else:
         run = {"expert": str(comparison.demos)}
     return _json(
@@ -109,12 +127,13 @@ def _stamp(comparison: Comparison, method: Method, seed: int, thresholds: Any) -
     )
 
 
-def _stored(folder: Path, stamp: dict[str, Any]) -> pd.DataFrame | None:
+def _stored(folder: Path, stamp: dict[str, Any]) -> tuple[pd.DataFrame, dict] | None:
+    """The stored evaluation (episodes, metadata) when it matches ``stamp``."""
     path = folder / "episodes.parquet"
     if not path.exists():
         return None
     frame, meta = read_table(path)
-    return frame if meta.get("stamp") == stamp else None
+    return (frame, meta) if meta.get("stamp") == stamp else None
 
 
 def _agent_ok(folder: Path, run: RunConfig) -> bool:
@@ -125,6 +144,27 @@ def _agent_ok(folder: Path, run: RunConfig) -> bool:
     except Exception:  # absent or torn: train again
         return False
     return meta.get("extra", {}).get("run") == _json(run.to_dict())
+
+
+def _fallback_source(comparison: Comparison, method: Method, seed: int, thresholds: Any) -> Any:
+    """A fallback row's policy: the agent of ``fallback_of`` (an improved net without its own
+    shield) with the scripted expert in the critical states (:attr:`Method.fallback_of`)."""
+    from safe_bc.bc import load_checkpoint
+    from safe_bc.collection import stored_expert_config
+    from safe_bc.improve import ImprovedSource
+    from safe_bc.improve.shield import Shield
+    from safe_bc.selection import CriticalZone
+
+    c = comparison
+    of = c.method(method.fallback_of)
+    folder = _folder(c, of, seed)
+    if of.kind == "bc":
+        net = NetSource.from_model(*load_checkpoint(folder / "agent"))
+    else:
+        net = ImprovedSource.from_run(folder / "improve").improved
+    zone = CriticalZone(tuple(float(x) for x in thresholds), selection_eps(c), "any")
+    shield = Shield(zone, task_defaults(c.task).env.env_id)
+    return ImprovedSource(net, ExpertSource(stored_expert_config(c.demos)), shield)
 
 
 def run_comparison(
@@ -193,7 +233,7 @@ def run_comparison(
             save_selection(unit, demos, selection, agent_meta)
 
     # 2. improvement runs (each resumes itself), one after the other in the driver
-    histories = []
+    histories, run_metas = [], []
     for m, s in cells:
         if m.kind != "improve":
             continue
@@ -206,32 +246,42 @@ def run_comparison(
             demos=c.demos, metadata={"command": meta["command"]},
         )  # fmt: skip
         histories.append(done.history.assign(method=m.name, train_seed=s))
+        from safe_bc.improve import HISTORY
+
+        run_metas.append(read_table(_folder(c, m, s) / "improve" / HISTORY)[1])
 
     # 3. evaluation of the cells without a matching stored one, in one call
     sources: dict[str, Any] = {}
     stamps: dict[str, tuple[Method, int, dict[str, Any]]] = {}
     stored: dict[str, pd.DataFrame] = {}
+    eval_metas: list[dict[str, Any]] = []
     for m, s in cells:
         key = EXPERT if m.expert else f"{m.name} seed={s}"
         stamp = _stamp(c, m, s, base.thresholds)
         stamps[key] = (m, s, stamp)
         have = _stored(_folder(c, m, s), stamp)
         if have is not None:
-            stored[key] = have
+            stored[key] = have[0]
+            eval_metas.append(have[1])
         elif m.expert:
             sources[key] = ExpertSource(stored_expert_config(c.demos))
         elif m.kind == "bc":
             sources[key] = NetSource.from_model(*load_checkpoint(_folder(c, m, s) / "agent"))
-        else:
+        elif m.kind == "improve":
             from safe_bc.improve import ImprovedSource
 
             sources[key] = ImprovedSource.from_run(_folder(c, m, s) / "improve")
+        elif m.kind == "masked":
+            agent = _folder(c, c.method(m.masked_of), s) / "agent"
+            sources[key] = MaskedSource(NetSource.from_model(*load_checkpoint(agent)))
+        else:
+            sources[key] = _fallback_source(c, m, s, base.thresholds)
     if progress:
         print(f"compare {c.name}: evaluating {len(sources)} of {len(stamps)} policies")
     if sources:
         episodes, steps = evaluate_policies(
             sources, eval_config(c), thresholds=base.thresholds, progress=progress,
-            envs_per_worker=LOCKSTEP_ENVS,
+            envs_per_worker=LOCKSTEP_ENVS, seeds=track_seeds(c),
         )  # fmt: skip
         for key in sources:
             m, s, stamp = stamps[key]
@@ -243,6 +293,7 @@ def run_comparison(
                 write_table_atomic(folder / "steps.parquet", st, cell_meta)
             write_table_atomic(folder / "episodes.parquet", ep, cell_meta)
             stored[key] = ep
+            eval_metas.append(cell_meta)
 
     # 4. the tables, in spec order
     parts, traces, train_rows = [], [], []
@@ -264,13 +315,15 @@ def run_comparison(
     train_df = pd.DataFrame(train_rows)
     meta["seconds"] = round(time.perf_counter() - started, 1)
     meta["demo_safety_mean"] = float(combined(demos.safety[demos.scored]).mean())
+    meta["run_machines"] = machines(run_metas)
+    meta["eval_machines"] = machines(eval_metas)
     write_table_atomic(c.out / f"{c.name}_episodes.parquet", episodes, meta)
     write_table_atomic(c.out / f"{c.name}_traces.parquet", steps, meta)
     write_table_atomic(c.out / f"{c.name}_training.parquet", train_df, meta)
-    if histories:
-        history = pd.concat(histories, ignore_index=True)
+    history = pd.concat(histories, ignore_index=True) if histories else None
+    if history is not None:
         write_table_atomic(c.out / f"{c.name}_history.parquet", history, meta)
-    return write_outputs(c, episodes, steps, train_df, meta)
+    return write_outputs(c, episodes, steps, train_df, meta, history)
 
 
 def write_outputs(
@@ -279,13 +332,15 @@ def write_outputs(
     traces: pd.DataFrame,
     train_df: pd.DataFrame,
     meta: dict[str, Any],
+    history: pd.DataFrame | None = None,
 ) -> pd.DataFrame:
-    """The table, its Markdown and the figures from per-episode results."""
+    """The table, its Markdown and the figures from per-episode results (and the
+    improvement rows' ``history``)."""
     c = comparison
-    table = build_table(c, episodes, train_df)
+    table = build_table(c, episodes, train_df, history)
     write_table_atomic(c.out / f"{c.name}.parquet", table, meta)
-    write_text_atomic(c.out / f"{c.name}.md", render_markdown(c, table, meta))
-    from safe_bc.plots import plot_alpha_sweep, plot_traces
+    write_text_atomic(c.out / f"{c.name}.md", render_markdown(c, table, meta, episodes))
+    from safe_bc.plots import plot_alpha_sweep, plot_learning_curves, plot_traces
 
     for figure, file in c.figures:
         if figure == "alpha_sweep":
@@ -294,6 +349,15 @@ def write_outputs(
         elif figure == "traces" and len(traces):
             pairs = episodes[["policy", "method"]].drop_duplicates().values
             plot_traces(traces, {p: {"method": m} for p, m in pairs}, c.out / file)
+        elif figure == "learning_curves" and history is not None and len(history):
+            means = episodes.groupby("method")["reward"].mean()
+            refs = {  # the expert's and the starts' held-out mean reward
+                c.label_of(m.name): float(means[m.name])
+                for m in c.methods
+                if m.name in means and (m.expert or m.name in {x.start for x in c.methods})
+            }
+            labels = {m.name: m.shown for m in c.methods}
+            plot_learning_curves(history, refs, c.out / file, labels=labels)
     return table
 
 
@@ -312,5 +376,7 @@ def rerender(comparison: Comparison) -> pd.DataFrame:
     else:  # runs before the training table existed kept these columns in the table
         old, _ = read_table(c.out / f"{c.name}.parquet")
         train_df = old[["method", "final_loss", "samples_per_s"]].dropna()
+    history_path = c.out / f"{c.name}_history.parquet"
+    history = read_table(history_path)[0] if history_path.exists() else None
     meta = {**meta, "rendered": run_metadata()}
-    return write_outputs(c, episodes, traces, train_df, meta)
+    return write_outputs(c, episodes, traces, train_df, meta, history)

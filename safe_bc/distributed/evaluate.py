@@ -8,7 +8,7 @@ not imported (a machine without Ray can still evaluate).
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -82,8 +82,10 @@ def evaluate_policies(
     progress: bool = True,
     actor_cpus: float | None = None,
     envs_per_worker: int = 1,
+    seeds: Sequence[int] | None = None,
 ) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """Evaluate every policy on the same ``config.episodes`` held-out seeds.
+    """Evaluate every policy on the same ``config.episodes`` held-out seeds (or on ``seeds``,
+    e.g. the improvement runs' validation patients, when given).
 
     ``actor_cpus`` is each actor's CPU reservation; ``None`` shares the cluster's CPUs out
     (at most 1 each). Inside a Tune trial pass the size of the trial's worker bundles: actors
@@ -99,7 +101,7 @@ def evaluate_policies(
     """
     if envs_per_worker < 1:
         raise ValueError(f"envs_per_worker must be >= 1, got {envs_per_worker}")
-    seeds = config.seeds()
+    seeds = config.seeds() if seeds is None else list(seeds)
     chunks = [tuple(seeds[i : i + envs_per_worker]) for i in range(0, len(seeds), envs_per_worker)]
     tasks = [(key, chunk) for key in sources for chunk in chunks]
     ep_rows: list[dict[str, Any]] = []

@@ -51,13 +51,13 @@ class ImproveConfig:
     """Tightens the Lagrangian's limit to ``d_s - cost_margin`` (0: exactly ``d_s``), so the
     deterministic policy keeps a margin that the noisy training policy is charged for: a
     safety margin *inside* ``d_s`` (cost units; ``d_s`` is 0.77 / 0.80 / 2.14 on the rehab
-    pathway). 0.05 from the rehab margin sweep (``scripts/improve_sweep.py``,
+    pathway). 0.05 from the rehab margin sweep (``tune_jobs/compare/margin_sweep.py``,
     ``results/improve/rehab/sweep/margin_sweep.md``, 3 training seeds x 512 selection patients
     disjoint from the held-out ones): its rule (the highest selection gain among the candidates
     with no selection programme beyond ``d_s``) chose the shield + Lagrangian with margin 0.05
-    and a shield zone of 0.1 (``eps``, which ``scripts/improve_rehab.py`` sets); Lagrangian
-    only with margins 0.02 / 0.05 / 0.1 let 7 / 4 / 1 of 1536 cross. CarRacing passes its own
-    margin in px (``scripts/improve_carracing.py``: 1 px)."""
+    and a shield zone of 0.1 (``eps``, which ``tune_jobs/compare/improve_rehab.py`` sets);
+    Lagrangian only with margins 0.02 / 0.05 / 0.1 let 7 / 4 / 1 of 1536 cross. CarRacing
+    passes its own margin in px (``tune_jobs/compare/improve_carracing.py``: 1 px)."""
     cost_budget: float = 0.1
     """Allowed expected cost per episode of the *stochastic* training policy at the tightened
     limit, ``J_c <= budget``. With 0 the exploration noise alone keeps the multiplier rising
