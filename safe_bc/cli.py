@@ -47,6 +47,10 @@ REQUIRES = {
 command is refused rather than the setting silently ignored)."""
 
 
+ALIASES = {"train": {"--seed": "--bc.train.seed"}, "reproduce": {"--env": "--task"}}
+"""Short flags kept from the hand-written CLI, per command: alias -> the field's flag."""
+
+
 class UsageError(Exception):
     """Bad command-line input: one line, exit code 2."""
 
@@ -121,14 +125,17 @@ def parse(argv: Sequence[str]) -> tuple[str, Any]:
         print("\n".join([usage, "", "Safety-focused behaviour cloning as a Ray study.", ""]))
         print("\n".join(lines))
         raise SystemExit(0)
-    command, rest = argv[0], list(argv[1:])
+    command = argv[0]
     if command not in COMMANDS:
         raise UsageError(f"unknown command {command!r}: choose {', '.join(COMMANDS)}")
+    rest = _unalias(command, argv[1:])
     cls = getattr(jobs, COMMANDS[command][0])
+    aliases = ", ".join(f"{a} for {f}" for a, f in ALIASES.get(command, {}).items())
+    about = _doc(cls) + (f" (short flags: {aliases})" if aliases else "")
     err = io.StringIO()
     try:
         with contextlib.redirect_stderr(err):
-            job = tyro.cli(cls, args=rest, prog=f"safe-bc {command}")
+            job = tyro.cli(cls, args=rest, prog=f"safe-bc {command}", description=about)
     except SystemExit as e:
         if e.code in (0, None):
             raise
@@ -136,6 +143,16 @@ def parse(argv: Sequence[str]) -> tuple[str, Any]:
     except ValueError as e:  # a flattened config's __post_init__ (tyro lets it through)
         raise UsageError(_flag_of(str(e), cls)) from None
     return command, _task_defaults(command, job, given(rest))
+
+
+def _unalias(command: str, argv: Sequence[str]) -> list[str]:
+    """``argv`` with :data:`ALIASES` spelled out (``--seed=1`` too)."""
+    table = ALIASES.get(command, {})
+    out = []
+    for a in argv:
+        flag, eq, value = a.partition("=")
+        out.append(table.get(flag, flag) + eq + value)
+    return out
 
 
 def _doc(cls: type) -> str:
@@ -170,7 +187,7 @@ def run(command: str, job: Any, argv: Sequence[str]) -> int:
     call: Callable[..., Any] = getattr(api, COMMANDS[command][1])
     kwargs: dict[str, Any] = {}
     if command == "train":
-        kwargs["task_eps"] = "selection.eps" not in given(argv)
+        kwargs["task_eps"] = "selection.eps" not in given(_unalias(command, argv[1:]))
     elif command == "tune":
         kwargs["command"] = shlex.join(["safe-bc", *argv])
     done = call(job, **kwargs)

@@ -185,7 +185,8 @@ def markdown(
         "",
         f"* command: `{meta['command']}`",
         f"* git revision: `{meta['git_revision']}`, created {meta['created_utc']}",
-        f"* starts: `safe-bc train --demos {meta['demos']} --alpha {meta['start_alpha']} --seed k`",
+        f"* starts: `safe-bc train --demos {meta['demos']} --selection.alpha {meta['start_alpha']} "
+        "--seed k`",
         f"* improvement config (per mode, `seed` = k): `{meta['config']}`",
         "",
     ]
@@ -248,7 +249,6 @@ def main(argv: list[str] | None = None) -> int:
     )
     demos = load_demonstrations(args.demos)
     limits = demos.limits
-    start_args = ["--alpha", str(args.start_alpha)]
 
     def report(mode: str, k: int, row: dict[str, float]) -> None:
         if not args.quiet:
@@ -263,7 +263,7 @@ def main(argv: list[str] | None = None) -> int:
 
         envs = ray_envs(args.rollout_workers)
     trained, histories = run_modes(args.demos, args.out, args.seeds, args.modes, base, command,
-                                   start_args=start_args, on_iteration=report, envs=envs,
+                                   start_alpha=args.start_alpha, on_iteration=report, envs=envs,
                                    processes=args.processes)  # fmt: skip
     sources: dict[str, Any] = {"expert": ExpertSource(task.expert), **trained}
 
@@ -308,7 +308,6 @@ def main(argv: list[str] | None = None) -> int:
         limits=[float(x) for x in limits],
         limits_text=dims,
         config=base.to_dict(),
-        start_args=start_args,
         run_machines=run_machines,
         eval_machines=eval_machines,
         processes=args.processes,

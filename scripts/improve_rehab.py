@@ -6,8 +6,8 @@ Usage::
     .venv/bin/python -m scripts.improve_rehab --seeds 0 --episodes 20 --iterations 20 \\
         --out /tmp/improve_smoke                                    # a quick look
 
-For each training seed ``k``: a safety-imitation start (``safe-bc train --alpha 0.5 --seed
-k``, reused when present), then one :func:`safe_bc.improve.improve` run per mode (``ppo``:
+For each training seed ``k``: a safety-imitation start (``safe-bc train --selection.alpha 0.5
+--seed k``, reused when present), then one :func:`safe_bc.improve.improve` run per mode (``ppo``:
 neither mechanism, ``shield``, ``lagrangian``, ``both``), each resumable. Then every policy
 (the guideline clinician, each start, each improved agent) goes through the one evaluation
 path, :func:`safe_bc.distributed.evaluate.evaluate`, on the same fresh held-out patients.
@@ -60,41 +60,42 @@ LABELS = {
     "lagrangian": "Lagrangian only",
     "both": "shield + Lagrangian",
 }
-START_ARGS = ["--alpha", "0.5"]
-"""How the starts are trained (with ``--seed k``; the rest are ``safe-bc train`` defaults)."""
+START_ALPHA = 0.5
+"""Safety focus of the starts (``safe-bc train --selection.alpha``, with ``--seed k``; the rest
+are ``safe-bc train`` defaults, eps the task's)."""
 SHIELD_EPS = 0.1
 """Width of the shield's critical zone on the rehab pathway (``ImproveConfig.eps``; the
 start's selection eps, 0.05, when unset): the margin sweep's choice, shield + Lagrangian with
 ``cost_margin`` 0.05 and this zone (``results/improve/rehab/sweep/margin_sweep.md``)."""
 
 
-def ensure_start(demos: Path, out: Path, seed: int, start_args: list[str] = START_ARGS) -> Path:
-    """The safety-imitation start of ``seed`` (``safe-bc train`` with ``start_args``, unless
+def ensure_start(demos: Path, out: Path, seed: int, alpha: float = START_ALPHA) -> Path:
+    """The safety-imitation start of ``seed`` (``safe-bc train`` with ``alpha``, unless
     ``out`` holds one)."""
     import json
     from dataclasses import asdict
 
+    from safe_bc.api import train
     from safe_bc.bc import PreprocessConfig
-    from safe_bc.cli import main
+    from safe_bc.jobs import TrainJob
+    from safe_bc.run_config import RunConfig
+    from safe_bc.selection import SelectionConfig
 
     if (out / "config.json").exists():  # reuse only a start trained as asked
         stored = json.loads((out / "config.json").read_text())
         run = stored.get("extra", {}).get("run", {})
-        i = start_args.index("--alpha") + 1 if "--alpha" in start_args else None
-        want = None if i is None else float(start_args[i])
         have = run.get("selection", {}).get("alpha")
         pixels = len(stored.get("spec", {}).get("obs_shape", ())) == 3  # preprocessing matters
         pre = run.get("bc", {}).get("preprocess") if pixels else None
-        if (want is not None and have != want) or pre not in (None, asdict(PreprocessConfig())):
+        if have != alpha or pre not in (None, asdict(PreprocessConfig())):
             raise SystemExit(
                 f"{out} holds a start trained with alpha {have} and preprocessing {pre}, not "
-                f"the {start_args} and default preprocessing asked for: remove it to retrain"
+                f"the alpha {alpha} and default preprocessing asked for: remove it to retrain"
             )
     else:
-        argv = ["train", "--demos", str(demos), "--out", str(out), *start_args,
-                "--seed", str(seed), "--quiet"]  # fmt: skip
-        if main(argv) != 0:
-            raise SystemExit(f"training the start {out} failed")
+        run = RunConfig(SelectionConfig(alpha=alpha))
+        run = replace(run, bc=replace(run.bc, train=replace(run.bc.train, seed=seed)))
+        train(TrainJob(out, demos, run, quiet=True), task_eps=True)
     return out
 
 
@@ -106,7 +107,7 @@ def run_modes(
     base: ImproveConfig,
     command: str,
     *,
-    start_args: list[str] = START_ARGS,
+    start_alpha: float = START_ALPHA,
     on_iteration: Callable[[str, int, dict[str, float]], None] | None = None,
     envs: EnvGroupFactory = LocalEnvs,
     processes: int = 0,
@@ -126,7 +127,7 @@ def run_modes(
     sources: dict[str, Any] = {}
     jobs = []
     for k in seeds:
-        start = ensure_start(demos, out / "starts" / f"seed{k}", k, start_args)
+        start = ensure_start(demos, out / "starts" / f"seed{k}", k, start_alpha)
         sources[f"imitation/{k}"] = NetSource.from_model(*load_checkpoint(start))
         for mode in modes:
             shield, lagrangian = MODES[mode]
@@ -304,7 +305,8 @@ def markdown(summary: pd.DataFrame, paired: pd.DataFrame, meta: dict[str, Any]) 
         "",
         f"* command: `{meta['command']}`",
         f"* git revision: `{meta['git_revision']}`, created {meta['created_utc']}",
-        f"* starts: `safe-bc train --demos {meta['demos']} {' '.join(START_ARGS)} --seed k`",
+        f"* starts: `safe-bc train --demos {meta['demos']} --selection.alpha "
+        f"{meta['start_alpha']} --seed k`",
         f"* improvement config (per mode, `seed` = k): `{meta['config']}`",
         "",
     ]
@@ -409,7 +411,7 @@ def main(argv: list[str] | None = None) -> int:
         limits=[float(x) for x in limits],
         limits_text=dims,
         config=base.to_dict(),
-        start_args=START_ARGS,
+        start_alpha=START_ALPHA,
         validation_reference=refs,
     )
     meta["command"] = command
