@@ -62,15 +62,15 @@ def given(argv: Sequence[str]) -> set[str]:
 
 
 def _one_line(box: str) -> str:
-    """tyro's error box as one line: its sections but the helptext ones, joined."""
-    text = re.sub(r"\x1b\[[0-9;]*m", "", box)
+    """tyro's error box (drawn in UTF-8 or ASCII) as one line: its sections but the helptext
+    ones, joined."""
     sections, rows = [], []
-    for line in text.splitlines()[1:-1]:  # drop the box's top and bottom edges
+    for line in re.sub(r"\x1b\[[0-9;]*m", "", box).splitlines()[1:]:  # below the title
         body = line.strip().strip("│").strip()
-        if set(body) <= set("─ "):
+        if set(body) <= set("─-╰╯ "):  # a rule, the bottom edge or an empty line
             sections.append(" ".join(rows))
             rows = []
-        elif body:
+        else:
             rows.append(body)
     sections.append(" ".join(rows))
     keep = [s for s in sections if s and not re.match(r"(Argument|For full) help", s)]
