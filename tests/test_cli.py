@@ -322,3 +322,26 @@ def test_every_key_the_default_study_searches_is_a_train_flag() -> None:
         for part in key.split("."):
             got = getattr(got, part)
         assert got == value, key
+
+
+def test_collect_train_evaluate_through_the_cli(ray_session, tmp_path: Path, capsys) -> None:
+    """A real short run: rehab demonstrations, an agent with the task's eps, its evaluation."""
+    import pandas as pd
+
+    from safe_bc.tasks import task_defaults
+
+    demos, ckpt, out = tmp_path / "demos", tmp_path / "ckpt", tmp_path / "eval"
+    argv = ["collect", "--env", "rehab", "--episodes", "2", "--workers", "1", "--out", str(demos),
+            "--quiet"]  # fmt: skip
+    assert main(argv) == 0
+    assert "2 episode(s) collected" in capsys.readouterr().out
+    argv = ["train", "--demos", str(demos), "--out", str(ckpt), "--bc.train.batches", "3",
+            "--bc.network.hidden", "8", "--seed", "1", "--quiet"]  # fmt: skip
+    assert main(argv) == 0
+    _, sel = read_table(ckpt / "selection.parquet")
+    assert sel["config"]["eps"] == task_defaults("rehab").eps != SelectionConfig().eps
+    argv = ["evaluate", "--checkpoint", str(ckpt), "--episodes", "2", "--workers", "0",
+            "--out", str(out), "--quiet"]  # fmt: skip
+    assert main(argv) == 0
+    assert len(pd.read_parquet(out / "episodes.parquet")) == 2
+    assert "safety_mean" in capsys.readouterr().out
