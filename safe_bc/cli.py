@@ -83,12 +83,15 @@ def _flag_of(message: str, cls: type) -> str:
     import dataclasses
     import typing
 
+    from safe_bc.jobs import Flat
+
     def names(c: Any, prefix: str) -> list[str]:
         out = []
         for f in dataclasses.fields(c):
             hint = typing.get_type_hints(c, include_extras=True)[f.name]
-            flat = typing.get_origin(hint) is typing.Annotated and "name=''" in repr(hint)
-            kind = typing.get_args(hint)[0] if typing.get_origin(hint) is typing.Annotated else hint
+            annotated = typing.get_origin(hint) is typing.Annotated
+            kind = typing.get_args(hint)[0] if annotated else hint
+            flat = annotated and Flat in typing.get_args(hint)[1:]
             inner = prefix if flat else f"{prefix}{f.name}."
             sub = names(kind, inner) if dataclasses.is_dataclass(kind) else []
             out += sub or [f"{prefix}{f.name}"]
@@ -163,13 +166,14 @@ def _task_defaults(command: str, job: Any, flags: set[str]) -> Any:
     """Defaults that depend on the task: ``reproduce``'s demos and out folders; checks the
     ``train`` settings that apply only with another (:data:`REQUIRES`)."""
     import dataclasses
+    from pathlib import Path
 
     if command == "reproduce":
         from safe_bc.tasks import task_defaults
 
         task = task_defaults(job.config.task)
         paths = {"demos": task.demos, "out": task.results}
-        own = {k: type(job.config.demos)(v) for k, v in paths.items() if k not in flags}
+        own = {k: Path(v) for k, v in paths.items() if k not in flags}
         return dataclasses.replace(job, config=dataclasses.replace(job.config, **own))
     if command == "train":
         for name, (other, value) in REQUIRES.items():
