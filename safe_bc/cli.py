@@ -8,6 +8,7 @@ Bad input is one line, ``safe-bc CMD: error: ...``, and exit code 2.
 from __future__ import annotations
 
 import contextlib
+import inspect
 import io
 import re
 import shlex
@@ -134,7 +135,9 @@ def parse(argv: Sequence[str]) -> tuple[str, Any]:
     rest = _unalias(command, argv[1:])
     cls = getattr(jobs, COMMANDS[command][0])
     aliases = ", ".join(f"{a} for {f}" for a, f in ALIASES.get(command, {}).items())
-    about = _doc(cls) + (f" (short flags: {aliases})" if aliases else "")
+    about = inspect.cleandoc(cls.__doc__ or "") + (
+        f"\n\nShort flags: {aliases}." if aliases else ""
+    )
     err = io.StringIO()
     try:
         with contextlib.redirect_stderr(err):

@@ -137,8 +137,9 @@ class ReproduceJob:
 
 @dataclass(frozen=True)
 class TuneJob:
-    """Run (or resume) a constrained hyper-parameter study; unset options keep the study
-    file's StudySpec values."""
+    """Run (or resume) a constrained hyper-parameter study.
+
+    Options left unset keep the study file's StudySpec values."""
 
     study: tyro.conf.Positional[Path]
     """Study file defining STUDY, e.g. tune_jobs/default.py."""
