@@ -759,8 +759,8 @@ def bench_eval(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
             "ms/step",
             ("BCPolicy.act (1 frame)", parts["net"]),
             f"{step_note}; what a worker stepping {BATCHED_ENVS} envs in lockstep pays per frame: "
-            "batched where batching keeps the bits (BCNet.forward_rows), the rest per frame; "
-            "bit-identical to act",
+            "every layer per frame (BCNet.forward_rows: no layer is assumed batch-invariant), "
+            "bit-identical to act on every CPU by construction",
         ),
         _self_row("eval", "BC net, 1 env", lock[("fast", 1)], "episodes/min", lock_note),
         _row(

@@ -12,11 +12,13 @@ from typing import Any
 
 from safe_bc.jobs import (
     CollectJob,
+    CompareJob,
     DescribeJob,
     EvaluateJob,
     ExpertJob,
     ExportJob,
     ImproveJob,
+    QueryJob,
     RenderJob,
     ReproduceJob,
     TrainJob,
@@ -292,13 +294,35 @@ def reproduce(job: ReproduceJob) -> Done:
     return Done(f"{text}\nwrote {config.out / 'table1.parquet'} and {config.out / 'table1.md'}")
 
 
+def compare(job: CompareJob) -> Done:
+    """Run (or resume, or ``render_only`` rebuild) the comparison of ``job.comparison``."""
+    from safe_bc.compare import load_comparison
+    from safe_bc.distributed.compare import rerender, run_comparison
+
+    comparison = load_comparison(job.comparison)
+    check_output_folder(comparison.out)
+    if job.render_only:
+        rerender(comparison)
+    else:
+        run_comparison(comparison, progress=not job.quiet)
+    return Done(f"wrote {comparison.out / (comparison.name + '.parquet')} and .md", comparison)
+
+
 def tune(job: TuneJob, *, command: str = "") -> Done:
-    """Run (or resume) the study of ``job.study`` with ``job``'s overrides; the value is the
-    study outcome; code 130 when it stopped early (rerun to resume), 1 without a winner."""
+    """Run (or resume) the study of ``job.study`` with ``job``'s overrides (or its
+    ``replicates``); the value is the study outcome; code 130 when it stopped early (rerun to
+    resume), 1 without a winner."""
+    import shlex
+
     from safe_bc.distributed.study import experiment_location, format_outcome, run_study
     from safe_bc.study import load_study
 
     spec = replace(load_study(job.study), **job.overrides())
+    if job.replicates is not None:  # it prints its table and verdict itself
+        from safe_bc.distributed.replicates import tune_replicates
+
+        argv = shlex.split(command) or ["safe-bc", "tune", str(job.study)]
+        return Done("", code=tune_replicates(spec, job.replicates, fresh=job.fresh, argv=argv))
     # one study run per results folder and per (local) Tune experiment folder
     storage, experiment = experiment_location(spec)
     outputs = [(spec.results / spec.name, "--results")]
@@ -308,6 +332,18 @@ def tune(job: TuneJob, *, command: str = "") -> Done:
         outcome = run_study(spec, fresh=job.fresh, command=command)
     code = 1 if outcome.errors or outcome.winner is None else 0
     return Done(format_outcome(outcome, spec.params), outcome, code if outcome.complete else 130)
+
+
+def query(job: QueryJob) -> Done:
+    """Critical-zone queries on a checkpoint (resumable); the value is the run's result."""
+    from safe_bc.queries.stage import query_checkpoint
+
+    result = query_checkpoint(job.checkpoint, job.demos, job.out, job.config)
+    return Done(
+        f"{result.total_queries} queries in {result.total_episodes} episodes; "
+        f"agent: {result.policy}",
+        result,
+    )
 
 
 def improve(job: ImproveJob) -> Done:

@@ -28,14 +28,16 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "evaluate": ("EvaluateJob", "evaluate"),
     "expert": ("ExpertJob", "expert"),
     "reproduce": ("ReproduceJob", "reproduce"),
+    "compare": ("CompareJob", "compare"),
     "tune": ("TuneJob", "tune"),
+    "query": ("QueryJob", "query"),
     "improve": ("ImproveJob", "improve"),
     "export": ("ExportJob", "export"),
     "render": ("RenderJob", "render"),
 }
 """Command -> (its record in :mod:`safe_bc.jobs`, its function in :mod:`safe_bc.api`)."""
 
-RAY_COMMANDS = frozenset({"collect", "evaluate", "expert", "reproduce", "tune"})
+RAY_COMMANDS = frozenset({"collect", "compare", "evaluate", "expert", "reproduce", "tune"})
 """Commands that may start or join Ray: with ``RAY_ADDRESS`` set they join the cluster before
 they write anything."""
 
@@ -198,7 +200,8 @@ def run(command: str, job: Any, argv: Sequence[str]) -> int:
     elif command == "tune":
         kwargs["command"] = shlex.join(["safe-bc", *argv])
     done = call(job, **kwargs)
-    print(done.message)
+    if done.message:
+        print(done.message)
     return done.code
 
 

@@ -9,9 +9,9 @@ from typing import Any
 import gymnasium as gym
 
 from safe_bc.data.codec import Encoding
-from safe_bc.envs import EnvConfig, make_env
+from safe_bc.envs.config import EnvConfig
 from safe_bc.episode import Episode
-from safe_bc.experts.carracing import CarRacingExpert, ExpertConfig
+from safe_bc.experts.carracing import ExpertConfig
 from safe_bc.experts.perturb import Perturbation, PerturbationConfig
 from safe_bc.policy import Policy
 from safe_bc.rollout import run_episode
@@ -50,11 +50,14 @@ class CollectConfig:
             raise ValueError(f"max_steps must be >= 1, got {self.max_steps}")
         if self.encoding not in ("png", "raw", "vector"):
             raise ValueError(f"encoding must be png, raw or vector, got {self.encoding!r}")
-        if self.env.is_carracing == (self.encoding == "vector"):
+        from safe_bc.tasks.registry import spec_of
+
+        task = spec_of(self.env.env_id)
+        if (task.encoding == "vector") != (self.encoding == "vector"):
             raise ValueError(
                 f"encoding {self.encoding!r} does not fit {self.env.env_id} observations"
             )
-        if not self.env.is_carracing and self.perturbation.mode != "none":
+        if not task.perturbable and self.perturbation.mode != "none":
             raise ValueError(
                 f"perturbation mode {self.perturbation.mode!r} acts on CarRacing's "
                 f"(steer, gas, brake); use mode='none' for {self.env.env_id}"
@@ -67,15 +70,14 @@ def config_dict(cfg: Any) -> dict[str, Any]:
 
 
 def expert_config_from_dict(data: dict[str, Any]) -> Any:
-    """Inverse of :func:`config_dict` for expert configs (as stored in ``dataset.json``)."""
-    from safe_bc.experts.rehab import GuidelineConfig
+    """Inverse of :func:`config_dict` for expert configs (as stored in ``dataset.json``; a
+    record without a type is the default task's, from before types were recorded)."""
+    from safe_bc.tasks.registry import DEFAULT_TASK, spec_of_expert, task_defaults
 
-    kinds = {"ExpertConfig": ExpertConfig, "GuidelineConfig": GuidelineConfig}
     data = dict(data)
-    kind = data.pop("type", "ExpertConfig")
-    if kind not in kinds:
-        raise ValueError(f"unknown expert config type {kind!r}")
-    return kinds[kind](**{k: tuple(v) if isinstance(v, list) else v for k, v in data.items()})
+    kind = data.pop("type", None) or task_defaults(DEFAULT_TASK).expert_type
+    cls = spec_of_expert(kind).expert_type
+    return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in data.items()})
 
 
 def stored_expert_config(demos: Path) -> Any:
@@ -86,14 +88,14 @@ def stored_expert_config(demos: Path) -> Any:
 
 
 def build_expert(cfg: Any) -> Policy:
-    """The expert policy for an expert config."""
-    if isinstance(cfg, ExpertConfig):
-        return CarRacingExpert(cfg)
-    from safe_bc.experts.rehab import GuidelineConfig, GuidelineExpert
+    """The expert policy for an expert config (its task's ``build_expert``)."""
+    from safe_bc.tasks.registry import spec_of_expert
 
-    if isinstance(cfg, GuidelineConfig):
-        return GuidelineExpert(cfg)
-    raise TypeError(f"no expert for config type {type(cfg).__name__}")
+    try:
+        spec = spec_of_expert(type(cfg))
+    except ValueError:
+        raise TypeError(f"no expert for config type {type(cfg).__name__}") from None
+    return spec.build_expert(cfg)
 
 
 class EpisodeMaker:
@@ -104,6 +106,8 @@ class EpisodeMaker:
     """
 
     def __init__(self, config: CollectConfig) -> None:
+        from safe_bc.envs.factory import make_env
+
         self.config = config
         self.env: gym.Env = make_env(config.env)
         self.expert = build_expert(config.expert)
@@ -134,6 +138,8 @@ def env_facts(
 ) -> tuple[tuple[int, ...], tuple[str, ...], tuple[tuple[float, ...], tuple[float, ...]]]:
     """``(observation shape, safety dimension names, (action low, action high))`` of the
     collection's env (built once)."""
+    from safe_bc.envs.factory import make_env
+
     env = make_env(config.env)
     try:
         shape = tuple(int(x) for x in env.observation_space.shape)

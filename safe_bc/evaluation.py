@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol, runtime_checkable
 
 import gymnasium as gym
 import numpy as np
@@ -21,6 +21,16 @@ from safe_bc.policy import BatchPolicy, Policy
 from safe_bc.rollout import run_episode, run_episodes_lockstep
 from safe_bc.seeds import heldout_seed
 from safe_bc.selection import DEFAULT_EPS, Combine
+
+
+@runtime_checkable
+class ReportsSteps(Protocol):
+    """A policy that adds its own columns to an episode's metrics and trace (e.g. a deferring
+    policy's ``deferred_steps``, ``deferred_share`` and per-step ``deferred`` flag); other
+    policies' tables keep their columns."""
+
+    def episode_report(self) -> tuple[dict[str, float], dict[str, np.ndarray]]:
+        """``(metrics, trace columns)`` of the episode that just ended."""
 
 
 @dataclass(frozen=True)
@@ -116,7 +126,12 @@ def evaluate_episode(
     """
     rng = np.random.default_rng(seed)
     ep = run_episode(env, policy, seed, rng, keep_observations=False, max_steps=max_steps)
-    return score_episode(env, ep, thresholds=thresholds, eps=eps, combine=combine)
+    metrics, trace = score_episode(env, ep, thresholds=thresholds, eps=eps, combine=combine)
+    if isinstance(policy, ReportsSteps):  # e.g. deferral: its per-step flags and counts
+        extra_metrics, extra_trace = policy.episode_report()
+        metrics.update(extra_metrics)
+        trace.update(extra_trace)
+    return metrics, trace
 
 
 def evaluate_episodes(

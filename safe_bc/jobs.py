@@ -19,6 +19,7 @@ from safe_bc.data.codec import Encoding
 from safe_bc.envs.factory import Renderer
 from safe_bc.evaluation import EvalConfig
 from safe_bc.improve.config import ImproveConfig
+from safe_bc.queries.config import QueryConfig
 from safe_bc.reproduce import ReproduceConfig
 from safe_bc.run_config import RunConfig
 from safe_bc.tasks import DEFAULT_TASK, Task
@@ -34,7 +35,7 @@ class CollectJob:
     """Collect expert demonstrations into Parquet."""
 
     env: Task = DEFAULT_TASK
-    """The testbed."""
+    """The testbed: a task of the registry (safe_bc.tasks.TASKS)."""
     renderer: Renderer = "fast"
     """CarRacing renderer (fast is pixel-identical to stock; raster is faster but approximate,
     see results/ablation/renderer/)."""
@@ -107,7 +108,7 @@ class ExpertJob:
     """Measure the expert on held-out tracks (or patients)."""
 
     env: Task = DEFAULT_TASK
-    """The testbed."""
+    """The testbed: a task of the registry (safe_bc.tasks.TASKS)."""
     episodes: int = 20
     """Held-out episodes, one each (EvalConfig.episodes)."""
     workers: int = EvalConfig.workers
@@ -131,6 +132,18 @@ class ReproduceJob:
     """The rerun; ``demos`` and ``out`` not given on the command line are the task's."""
     render_only: bool = False
     """Rebuild the table and figures from the stored per-episode results."""
+    quiet: bool = False
+    """No progress bars."""
+
+
+@dataclass(frozen=True)
+class CompareJob:
+    """Run (or resume) a comparison file."""
+
+    comparison: tyro.conf.Positional[Path]
+    """Comparison file, e.g. tune_jobs/compare/table1.py."""
+    render_only: bool = False
+    """Rebuild the table from the stored episodes."""
     quiet: bool = False
     """No progress bars."""
 
@@ -161,12 +174,34 @@ class TuneJob:
     """StudySpec.results: outputs go to RESULTS/<study>/."""
     fresh: bool = False
     """Discard a previous run of the study."""
+    replicates: int | None = None
+    """Run N replicates (the study with its seeds shifted) into RESULTS/<study>/replicates/r<k>/
+    and write the winners' table RESULTS/<study>/replicates.parquet, .md."""
+
+    def __post_init__(self) -> None:
+        if self.replicates is not None and self.replicates < 1:
+            raise ValueError(f"replicates must be >= 1, got {self.replicates}")
 
     def overrides(self) -> dict[str, object]:
         """The StudySpec fields given."""
         names = ("trials", "storage", "threshold", "max_concurrent", "rollout_workers",
                  "cpus_per_trial", "demos", "results")  # fmt: skip
         return {n: getattr(self, n) for n in names if getattr(self, n) is not None}
+
+
+@dataclass(frozen=True)
+class QueryJob:
+    """Critical-zone queries: retrain a checkpoint on expert labels of its own critical
+    states, per round (rerun to resume)."""
+
+    checkpoint: Path
+    """A safe-bc train checkpoint."""
+    demos: Path
+    """Its demonstration dataset folder."""
+    out: Path
+    """Run folder (resumes a run there)."""
+    config: Annotated[QueryConfig, Flat] = field(default_factory=lambda: QueryConfig(workers=2))
+    """The query run (the command rolls out on 2 Ray actors unless --workers says otherwise)."""
 
 
 @dataclass(frozen=True)

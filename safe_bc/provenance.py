@@ -1,8 +1,16 @@
-"""Who made a result: package version, git revision, time. Recorded with every output."""
+"""Who made a result: package version, git revision, time, and the machine (CPU model, vendor,
+instruction set, torch version and the SIMD kernels torch picks). Recorded with every output.
+
+The CPU matters: torch picks its kernels by the instruction set (``AVX2``, ``AVX512``, ...),
+their rounding differs, and a study's trials drift apart from the first one on, so a result
+says which CPU made it (:func:`machine_info`). ``ATEN_CPU_CAPABILITY=avx2`` makes torch use its
+AVX2 kernels on an AVX-512 CPU (``torch_cpu_capability`` then records ``AVX2``).
+"""
 
 from __future__ import annotations
 
 import datetime as _dt
+import functools
 import os
 import platform
 import subprocess
@@ -97,8 +105,112 @@ def check_result_write(path: str | Path) -> dict[str, Any] | None:
     return {"allowed_by": ALLOW_DIRTY, "reason": reason, "changed_files": changed}
 
 
+SIMD_FLAGS = (
+    "sse4_2", "avx", "avx2", "fma", "f16c", "avx512f", "avx512dq", "avx512bw", "avx512vl",
+    "avx512_vnni", "avx512_bf16", "avx512_fp16", "amx_tile", "amx_bf16", "amx_int8",
+    "asimd", "asimdhp", "sve", "sve2", "sme",
+)  # fmt: skip
+"""The vector extensions :func:`machine_info` lists from ``/proc/cpuinfo``'s flags (x86
+``flags``, ARM ``Features``), in this order: the ones that decide torch's and numpy's kernels."""
+
+ARM_IMPLEMENTERS = {"0x41": "ARM", "0x42": "Broadcom", "0x43": "Cavium", "0x46": "Fujitsu",
+                    "0x48": "HiSilicon", "0x4e": "NVIDIA", "0x50": "Ampere (APM)",
+                    "0x51": "Qualcomm", "0x61": "Apple", "0xc0": "Ampere"}  # fmt: skip
+"""``CPU implementer`` codes of ARM's ``/proc/cpuinfo`` -> vendor."""
+
+
+def parse_cpuinfo(text: str) -> dict[str, str]:
+    r"""``cpu_model``, ``cpu_vendor`` and ``cpu_simd`` (the :data:`SIMD_FLAGS` present, space
+    separated) from the text of Linux's ``/proc/cpuinfo`` (its first processor); ``""``
+    where the text does not say.
+
+    >>> info = parse_cpuinfo("vendor_id\t: AuthenticAMD\nmodel name\t: AMD EPYC 9B14\n"
+    ...                      "flags\t\t: fpu sse4_2 avx avx2 avx512f avx512_vnni\n\n"
+    ...                      "vendor_id\t: other\n")
+    >>> info["cpu_model"], info["cpu_vendor"]
+    ('AMD EPYC 9B14', 'AuthenticAMD')
+    >>> info["cpu_simd"]
+    'sse4_2 avx avx2 avx512f avx512_vnni'
+    >>> parse_cpuinfo("CPU implementer\t: 0x41\nFeatures\t: fp asimd sve\n")["cpu_vendor"]
+    'ARM'
+    """
+    fields: dict[str, str] = {}
+    for line in text.split("\n\n", 1)[0].splitlines():
+        key, sep, value = line.partition(":")
+        if sep:
+            fields.setdefault(key.strip().lower(), value.strip())
+    model = fields.get("model name") or fields.get("model") or fields.get("hardware") or ""
+    if not model and "cpu part" in fields:
+        model = f"part {fields['cpu part']}"
+    vendor = fields.get("vendor_id") or ARM_IMPLEMENTERS.get(
+        fields.get("cpu implementer", "").lower(), fields.get("cpu implementer", "")
+    )
+    flags = set((fields.get("flags") or fields.get("features") or "").split())
+    simd = " ".join(f for f in SIMD_FLAGS if f in flags)
+    return {"cpu_model": model, "cpu_vendor": vendor, "cpu_simd": simd}
+
+
+def _sysctl(name: str) -> str:
+    try:
+        return subprocess.run(
+            ["sysctl", "-n", name], capture_output=True, text=True, check=True, timeout=5
+        ).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return ""
+
+
+def _cpu() -> dict[str, str]:
+    """The CPU as the system describes it: ``/proc/cpuinfo`` on Linux, ``sysctl`` on macOS,
+    else ``platform.processor()``."""
+    try:
+        info = parse_cpuinfo(Path("/proc/cpuinfo").read_text(errors="replace"))
+    except OSError:
+        info = {"cpu_model": "", "cpu_vendor": "", "cpu_simd": ""}
+    if not info["cpu_model"] and platform.system() == "Darwin":
+        info["cpu_model"] = _sysctl("machdep.cpu.brand_string")
+        info["cpu_vendor"] = _sysctl("machdep.cpu.vendor") or (
+            "Apple" if platform.machine() == "arm64" else ""
+        )
+        if not info["cpu_simd"]:  # Intel Macs list their features; Apple silicon has NEON
+            feats = set(_sysctl("machdep.cpu.features").lower().split())
+            feats |= set(_sysctl("machdep.cpu.leaf7_features").lower().split())
+            feats = {f.replace(".", "_").replace("avx1_0", "avx") for f in feats}
+            info["cpu_simd"] = " ".join(f for f in SIMD_FLAGS if f in feats) or (
+                "asimd" if platform.machine() == "arm64" else ""
+            )
+    if not info["cpu_model"]:
+        info["cpu_model"] = platform.processor()
+    return {k: v or "unknown" for k, v in info.items()}
+
+
+def _torch() -> dict[str, str]:
+    """torch's version and the kernels it dispatches to here (``AVX512``, ``AVX2``, ``DEFAULT``,
+    ...; ``ATEN_CPU_CAPABILITY`` lowers it), or ``"unavailable"``."""
+    try:
+        import torch
+
+        capability = str(torch.backends.cpu.get_cpu_capability())
+        version = str(torch.__version__)
+    except (ImportError, AttributeError, RuntimeError):
+        return {"torch_version": "unavailable", "torch_cpu_capability": "unavailable"}
+    return {"torch_version": version, "torch_cpu_capability": capability}
+
+
+@functools.cache
+def machine_info() -> dict[str, str]:
+    """What computed a result, beyond the code: ``cpu_model``, ``cpu_vendor``, ``cpu_simd``
+    (the vector extensions the CPU reports, :data:`SIMD_FLAGS`), ``torch_version``,
+    ``torch_cpu_capability`` (the SIMD level of torch's kernels,
+    ``torch.backends.cpu.get_cpu_capability()``) and ``numpy_version``; ``"unknown"`` where the
+    system does not say. Read once per process."""
+    import numpy
+
+    return {**_cpu(), **_torch(), "numpy_version": numpy.__version__}
+
+
 def provenance() -> dict[str, str]:
-    """Version, revision, UTC creation time and machine of the current run."""
+    """Version, revision, UTC creation time and machine of the current run (with
+    :func:`machine_info`: CPU model, vendor, instruction set, torch's kernels)."""
     return {
         "package_version": safe_bc.__version__,
         "git_revision": git_revision(),
@@ -106,7 +218,25 @@ def provenance() -> dict[str, str]:
         "python": platform.python_version(),
         "machine": f"{platform.machine()} {platform.node()}",
         "cpus": str(os.cpu_count()),
+        **machine_info(),
     }
+
+
+def with_provenance(metadata: dict[str, Any] | None) -> dict[str, Any]:
+    """``metadata`` with this run's :func:`provenance` under ``"provenance"`` when it records
+    none (neither a ``"provenance"`` entry nor :func:`run_metadata`'s top-level
+    ``"git_revision"``); a recorded one is kept (it may describe the run that computed the
+    rows, e.g. a table rewritten from a cache).
+
+    >>> with_provenance({"git_revision": "abc"})
+    {'git_revision': 'abc'}
+    >>> "cpu_model" in with_provenance(None)["provenance"]
+    True
+    """
+    metadata = dict(metadata or {})
+    if "provenance" not in metadata and "git_revision" not in metadata:
+        metadata["provenance"] = provenance()
+    return metadata
 
 
 def run_metadata(**fields: Any) -> dict[str, Any]:

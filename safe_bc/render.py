@@ -28,12 +28,12 @@ import cv2
 import gymnasium as gym
 import numpy as np
 
-from safe_bc.envs.factory import CARRACING_ID
 from safe_bc.envs.safety import CAR_COLS, CAR_ROWS, FRONT_START, LEFT_START, RIGHT_START
 from safe_bc.episode import Episode
 from safe_bc.policy import Policy
 from safe_bc.rollout import run_episode
 from safe_bc.selection import DEFAULT_EPS, CriticalZone
+from safe_bc.tasks.carracing import CARRACING_ID
 
 FPS = 50
 """CarRacing's simulation rate (steps per second), the default video frame rate."""

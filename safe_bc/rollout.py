@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Protocol
+from typing import Protocol, runtime_checkable
 
 import gymnasium as gym
 import numpy as np
@@ -27,6 +27,14 @@ class ActionPerturbation(Protocol):
     ) -> np.ndarray:
         """Return the action to execute at step ``t``, shape ``(A,)``; ``safety`` is the
         current state's ``(S,)`` safety distances (a perturbation may back off near a limit)."""
+
+
+@runtime_checkable
+class SeesInfo(Protocol):
+    """A policy that reads each state's ``info`` (its measured costs) before acting there."""
+
+    def see(self, info: dict) -> None:
+        """The ``info`` of the state the next :meth:`act` call acts in."""
 
 
 _COLUMNS = ("obs", "act", "exe", "rew", "term", "trunc", "safety", "cost", "warmup", "offroad")
@@ -90,6 +98,10 @@ def run_episode(
     (see :class:`safe_bc.envs.CarRacingSafety`). ``rng`` drives the policy's and
     the perturbation's randomness, nothing else.
 
+    A policy with a ``see(info)`` method (a :class:`SeesInfo`: a wrapper that asks the expert
+    or defers to it where the measured cost is critical) is shown each state's ``info`` just
+    before it acts there.
+
     Args:
         keep_observations: store the ``(T, *obs_shape)`` observations; when False
             the episode holds a ``(T, 0)`` placeholder (evaluation needs no frames).
@@ -101,8 +113,11 @@ def run_episode(
     if perturbation is not None:
         perturbation.reset(rng)
     rec = _Recorder(keep_observations)
+    see = policy.see if isinstance(policy, SeesInfo) else None
     t = 0
     while True:
+        if see is not None:
+            see(info)
         action = np.asarray(policy.act(obs, env), dtype=np.float32)
         if perturbation is not None:
             executed = perturbation.apply(action, t, rng, info["safety"])

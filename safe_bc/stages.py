@@ -74,6 +74,13 @@ STAGES: dict[str, Stage] = {
         summed=("improve_seconds",),
         label="improving",
     ),
+    "queries": Stage(
+        field="queries",
+        runner="safe_bc.queries.stage:run_stage",
+        metrics=("queries_total", "queries_per_episode", "queries_seconds"),
+        summed=("queries_total", "queries_seconds"),
+        label="querying the expert",
+    ),
 }
 """Stage name -> :class:`Stage`, in the order stages run."""
 

@@ -36,6 +36,7 @@ import pandas as pd
 
 from safe_bc.envs import EnvConfig
 from safe_bc.improve.config import ImproveConfig
+from safe_bc.queries.config import QueryConfig
 from safe_bc.run_config import RunConfig
 from safe_bc.selection import DEFAULT_EPS
 from safe_bc.stages import STAGE_METRICS, STAGES, Stage, stage_of
@@ -339,6 +340,11 @@ class StudySpec:
     expert stay the references. Its fields are searchable as ``improve.<field>`` keys of
     :attr:`space` (e.g. ``improve.cost_margin``, ``improve.anchor_coef``). ``None``: no
     improvement (imitation only)."""
+    queries: QueryConfig | None = None
+    """Optional critical-zone query stage (:mod:`safe_bc.queries`, interactive imitation):
+    every trained agent is rolled out, the expert labels the visited states in the critical
+    zone, and the agent is retrained on demonstrations plus labels, for ``rounds`` rounds.
+    Searchable as ``queries.<field>`` keys. ``None``: no queries."""
 
     def __post_init__(self) -> None:
         if not self.name or not self.name.replace("_", "").replace("-", "").isalnum():

@@ -180,7 +180,7 @@ def test_help_of_every_command_lists_its_fields_each_with_help(command: str) -> 
     text = _help(command)
     cls = getattr(jobs, COMMANDS[command][0])
     for f in dataclasses.fields(cls):
-        if f.name in ("run", "config", "study"):  # flattened configs; the positional study
+        if f.name in ("run", "config", "study", "comparison"):  # flattened configs, positionals
             continue
         assert f"--{f.name.replace('_', '-')}" in text, (command, f.name)
     rows = [line.strip("│ ") for line in text.splitlines()] + [""]

@@ -3,6 +3,7 @@ budget."""
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -10,10 +11,17 @@ import pandas as pd
 import pytest
 
 from safe_bc.bc import BCConfig, NetworkConfig, TrainConfig
+from safe_bc.compare import render_markdown as _render
 from safe_bc.data.store import read_table
-from safe_bc.reproduce import PLAIN_BC, ReproduceConfig, render_markdown, run_reproduce, table1
+from safe_bc.reproduce import PLAIN_BC, ReproduceConfig, run_reproduce, table1
 
 META = {"git_revision": "abc", "command": "safe-bc reproduce"}
+
+
+def render_markdown(table: pd.DataFrame, meta: dict) -> str:
+    """Table 1's Markdown with cells' padding removed (``to_markdown`` aligns columns)."""
+    md = _render(ReproduceConfig().comparison(), table, meta)
+    return re.sub(r" *\| *", " | ", md)
 
 
 def test_defaults_are_table1_with_enough_seeds() -> None:
@@ -199,7 +207,8 @@ def test_tiny_rerun_writes_table_figures_and_provenance(tiny_demos, tmp_path: Pa
     assert len(on_disk) == 6
     assert meta["train_seeds"] == [0, 1] and meta["git_revision"]
     assert meta["config"]["eps"] == 3.0
-    assert meta["config"]["methods"]["BC-Safe (K=5)"]["mode"] == "bc_safe"
+    methods = {m["name"]: m for m in meta["config"]["methods"]}
+    assert methods["BC-Safe (K=5)"]["selection"]["mode"] == "bc_safe"
     for name in ("table1.md", "fig4_alpha.png", "fig5_6_traces.png", "table1_episodes.parquet"):
         assert (tmp_path / name).stat().st_size > 0, name
     assert on_disk["d_reward"].notna().sum() == 4
@@ -210,8 +219,18 @@ def test_tiny_rerun_writes_table_figures_and_provenance(tiny_demos, tmp_path: Pa
     sel, sel_meta = read_table(tmp_path / "table1_selection" / "selection.parquet")
     assert sel["critical"].sum() == sel_meta["n_critical"] > 0
     assert len(sel_meta["thresholds"]) == 3
-    md = (tmp_path / "table1.md").read_text()
+    md = re.sub(r" *\| *", " | ", (tmp_path / "table1.md").read_text())
     assert "| expert |" in md and "seeds better" in md and "episodes with a violation" in md
+
+    # a rerun resumes: every (method, seed) agent and evaluation is reused, same table
+    runs = tmp_path / "table1_runs"
+    agent = runs / "alpha=0_rest=all" / "seed1" / "agent" / "config.json"
+    stamp = agent.stat().st_mtime_ns
+    again = run_reproduce(cfg, progress=False)
+    assert agent.stat().st_mtime_ns == stamp
+    pd.testing.assert_frame_equal(again, table, check_exact=True)
+    assert len(list(runs.glob("*/seed*/episodes.parquet"))) == 10
+    assert (runs / "expert" / "episodes.parquet").exists()
 
     # re-rendering from the stored episodes gives the same table and records itself
     from safe_bc.reproduce import rerender

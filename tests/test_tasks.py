@@ -72,9 +72,7 @@ def test_bounds_are_not_part_of_the_identity():
 
 
 def test_registry_entries_are_complete():
-    from safe_bc.tasks import REGISTRY
-
-    assert tuple(REGISTRY) == TASKS
+    assert tuple(TASKS)[:2] == ("carracing", "rehab")  # the built-ins, in order
     for task in TASKS:
         entry = task_defaults(task)
         missing = [f.name for f in dataclasses.fields(entry) if getattr(entry, f.name) is None]

@@ -66,8 +66,8 @@ class BCPolicy:
 
     def act_slots(self, obs: np.ndarray, slots: np.ndarray) -> np.ndarray:
         """One observation per episode in ``slots`` -> ``(m, A) float32``: bit for bit what
-        :meth:`act` returns in each episode (:meth:`BCNet.forward_rows`), one batched pass
-        over the layers where batching does not change the rounding."""
+        :meth:`act` returns in each episode on any CPU (:meth:`BCNet.forward_rows` runs one
+        row at a time)."""
         obs = np.asarray(obs)
         if obs.shape[1:] != self.model.spec.obs_shape:
             raise ValueError(

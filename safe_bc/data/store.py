@@ -140,13 +140,15 @@ def write_table_atomic(path: Path, frame: Any, metadata: dict[str, Any] | None =
     the command, seeds and code revision that made it. A table under the checkout's
     ``results/`` is refused from a dirty git tree unless ``$SAFE_BC_ALLOW_DIRTY`` gives a
     reason, which is then recorded under ``"dirty_tree"``
-    (:func:`safe_bc.provenance.check_result_write`).
+    (:func:`safe_bc.provenance.check_result_write`). Metadata that records no provenance gets
+    this run's (:func:`safe_bc.provenance.with_provenance`: revision, CPU, torch's kernels).
     """
-    from safe_bc.provenance import check_result_write
+    from safe_bc.provenance import check_result_write, with_provenance
 
     dirty = check_result_write(path)
+    metadata = with_provenance(metadata)
     if dirty is not None:
-        metadata = {**(metadata or {}), "dirty_tree": dirty}
+        metadata = {**metadata, "dirty_tree": dirty}
     table = pa.Table.from_pandas(frame, preserve_index=False)
     if metadata is not None:
         merged = dict(table.schema.metadata or {})

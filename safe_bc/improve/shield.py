@@ -10,10 +10,10 @@ import numpy as np
 
 from safe_bc.bc.checkpoint import load_checkpoint, read_checkpoint_meta
 from safe_bc.bc.policy import BCPolicy
-from safe_bc.envs.factory import REHAB_ID
 from safe_bc.evaluation import NetSource
 from safe_bc.improve.config import POLICY
 from safe_bc.selection import CriticalZone
+from safe_bc.tasks.rehab import REHAB_ID
 
 
 def observed_costs(obs: np.ndarray, env_id: str) -> np.ndarray:

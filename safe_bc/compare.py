@@ -1,0 +1,387 @@
+"""One comparison: named methods x training seeds on the same held-out tracks.
+
+A :class:`Comparison` (a frozen spec in a file under ``tune_jobs/compare/``, as study files
+hold a ``StudySpec``) names its methods: behaviour-cloning agents (a selection rule and,
+optionally, their own network and budget), the expert, and constrained-improvement runs
+from another method's agents. Every trained method gets one agent per training seed (the
+seeds shared by every method); every agent and the expert are evaluated on the same tracks
+(``eval_seed``, ``episodes``) through the one evaluation path. The table has one row per
+method: means and 95% crossed bootstrap CIs over training seeds x tracks, and, against the
+``reference`` method, paired differences on the same (seed, track) cells.
+
+This module is pure: the spec, its validation, the table and the Markdown. The runner
+(training, evaluation, per-(method, seed) resume, files) is
+:func:`safe_bc.distributed.compare.run_comparison`; ``safe-bc compare FILE`` calls it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import importlib.util
+import math
+import re
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, get_args
+
+import numpy as np
+import pandas as pd
+
+from safe_bc.bc.config import BCConfig
+from safe_bc.improve.config import ImproveConfig
+from safe_bc.metrics import METRICS, paired_crossed, summarize_crossed
+from safe_bc.report import fmt_ci
+from safe_bc.selection import SelectionConfig
+from safe_bc.tasks import Task
+
+EXPERT = "expert"
+"""``mode`` (and default name) of the expert's row."""
+
+FIGURES = ("alpha_sweep", "traces")
+"""Figures a comparison can ask for: reward and safety against alpha
+(:func:`safe_bc.plots.plot_alpha_sweep`), safety traces of the ``traces`` methods
+(:func:`safe_bc.plots.plot_traces`)."""
+
+PAPER_TABLE1 = pd.DataFrame(
+    {
+        "alpha": [0.0, 0.1, 0.5, 0.8],
+        "safety_mean": [13.05, 17.30, 21.37, 20.94],
+        "safety_std": [16.41, 12.87, 11.12, 14.08],
+        "reward": [139.50, 228.88, 697.41, 549.51],
+    }
+)
+"""Boecking & Philipp (2020), Table 1 (2 evaluation episodes, one training run each)."""
+
+
+@dataclass(frozen=True)
+class Method:
+    """One row: a BC agent per training seed, the expert, or an improvement of another row."""
+
+    name: str
+    """Row label (unique in the comparison), e.g. ``alpha=0.5 (rest=all)``."""
+    selection: SelectionConfig | None = None
+    """A BC row: ``T_eps`` and the training rule of its agents. ``None`` with ``expert`` or
+    ``improve``."""
+    bc: BCConfig | None = None
+    """A BC row's network, preprocessing and budget; ``None``: the comparison's ``bc``."""
+    expert: bool = False
+    """The task's expert (trained once: evaluated once, ``train_seed`` 0)."""
+    improve: ImproveConfig | None = None
+    """An improvement row: each seed's agent of ``start`` improved with this config (its
+    ``seed`` set to the training seed)."""
+    start: str = ""
+    """An improvement row's start: the name of a BC row of the same comparison."""
+
+    def __post_init__(self) -> None:
+        kinds = [self.selection is not None, self.expert, self.improve is not None]
+        if sum(kinds) != 1:
+            raise ValueError(
+                f"method {self.name!r}: give exactly one of selection, expert=True, improve"
+            )
+        if not self.name:
+            raise ValueError("a method needs a name")
+        if (self.improve is not None) != bool(self.start):
+            raise ValueError(f"method {self.name!r}: start= goes with improve= (and only with it)")
+        if self.bc is not None and self.selection is None:
+            raise ValueError(f"method {self.name!r}: bc= is for BC rows (with selection=)")
+
+    @property
+    def kind(self) -> str:
+        """``bc``, ``expert`` or ``improve``."""
+        return "expert" if self.expert else "improve" if self.improve is not None else "bc"
+
+    @property
+    def labels(self) -> dict[str, Any]:
+        """Columns that identify the row in the episodes table."""
+        if self.selection is None:
+            mode = EXPERT if self.expert else "improve"
+            return {"method": self.name, "mode": mode, "alpha": np.nan, "rest": ""}
+        mix = self.selection.mode == "mix"
+        return {
+            "method": self.name,
+            "mode": self.selection.mode,
+            "alpha": self.selection.alpha if mix else float("nan"),
+            "rest": self.selection.rest if mix else "",
+        }
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """Methods x training seeds on the same tracks, and what to write (see the module doc)."""
+
+    name: str
+    """Stem of the outputs: ``OUT/<name>.parquet``, ``<name>.md``, ``<name>_episodes.parquet``,
+    ``<name>_traces.parquet``, ``<name>_training.parquet``, ``<name>_selection/``, and the
+    per-(method, seed) runs under ``<name>_runs/``."""
+    methods: tuple[Method, ...]
+    """The rows, in table order."""
+    task: Task = "carracing"
+    """The testbed (its env, expert, default collection and ``eps``)."""
+    demos: Path = Path("data/demos")
+    """Demonstration dataset (built with the task's default collection if absent)."""
+    out: Path = Path("results")
+    """Where tables, figures and runs go."""
+    train_seeds: tuple[int, ...] = (0,)
+    """Training seeds, shared by every trained method (one agent per method and seed)."""
+    episodes: int = 20
+    """Held-out tracks, the same for every agent and the expert (one episode each)."""
+    eval_seed: int = 0
+    """Block of held-out track seeds."""
+    workers: int = 2
+    """Training and evaluation actors."""
+    bc: BCConfig = field(default_factory=BCConfig)
+    """Network, preprocessing and budget of BC rows without their own ``bc``."""
+    max_steps: int | None = None
+    """Step cap of evaluation episodes (``None``: the env's)."""
+    eps: float | None = None
+    """Critical-zone width of the evaluation and the selection thresholds; ``None``: the
+    task's."""
+    reference: str | None = None
+    """Row the paired columns compare with (``None``: no paired columns)."""
+    paired_metrics: tuple[str, ...] = ("reward", "safety_mean", "violation_steps")
+    """Metrics paired with ``reference`` on the same (seed, track) cells (those measured)."""
+    traces: tuple[str, ...] = ()
+    """Rows whose first training seed's agent keeps its per-step safety trace."""
+    figures: tuple[tuple[str, str], ...] = ()
+    """``(figure, file name)`` pairs, figures from :data:`FIGURES`."""
+    paper: bool = False
+    """Append the paper's Table 1 (:data:`PAPER_TABLE1`) to the Markdown."""
+    title: str = ""
+    """Markdown heading (none when empty)."""
+    note: str = ""
+    """What the rows and values mean, printed under the table before the provenance."""
+
+    def __post_init__(self) -> None:
+        names = [m.name for m in self.methods]
+        if not names:
+            raise ValueError(f"comparison {self.name!r}: no methods")
+        if not re.fullmatch(r"[A-Za-z0-9_.-]+", self.name):
+            raise ValueError(
+                f"comparison name must be a file stem ([A-Za-z0-9_.-]), got {self.name!r}"
+            )
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            raise ValueError(f"comparison {self.name!r}: method names repeat: {dup}")
+        bc_rows = {m.name for m in self.methods if m.kind == "bc"}
+        for m in self.methods:
+            if m.kind == "improve" and m.start not in bc_rows:
+                raise ValueError(
+                    f"method {m.name!r}: start {m.start!r} is not a BC row of {sorted(bc_rows)}"
+                )
+        if not self.train_seeds or len(set(self.train_seeds)) != len(self.train_seeds):
+            raise ValueError(f"train_seeds must be distinct and not empty, got {self.train_seeds}")
+        if self.episodes < 1:
+            raise ValueError(f"episodes must be >= 1, got {self.episodes}")
+        if self.eval_seed < 0:
+            raise ValueError(f"eval_seed must be >= 0, got {self.eval_seed}")
+        if self.workers < 0:
+            raise ValueError(f"workers must be >= 0, got {self.workers}")
+        if self.eps is not None and not (math.isfinite(self.eps) and self.eps >= 0):
+            raise ValueError(f"eps must be a finite number >= 0, got {self.eps}")
+        if self.reference is not None and self.reference not in names:
+            raise ValueError(f"reference {self.reference!r} is not a method of {names}")
+        for t in self.traces:
+            if t not in names:
+                raise ValueError(f"traces: {t!r} is not a method of {names}")
+        for fig, file in self.figures:
+            if fig not in FIGURES:
+                raise ValueError(f"figure must be one of {FIGURES}, got {fig!r}")
+            if not file.endswith(".png"):
+                raise ValueError(f"figure {fig!r}: file must be a .png, got {file!r}")
+        if self.task not in get_args(Task):
+            raise ValueError(f"task must be one of {get_args(Task)}, got {self.task!r}")
+
+    def method(self, name: str) -> Method:
+        """The row called ``name``."""
+        return next(m for m in self.methods if m.name == name)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-able (the provenance's ``config``)."""
+        out = dataclasses.asdict(self)
+        out["demos"], out["out"] = str(self.demos), str(self.out)
+        return out
+
+
+def load_comparison(path: str | Path) -> Comparison:
+    """The ``COMPARISON`` of a comparison file (``tune_jobs/compare/<name>.py``).
+
+    Raises:
+        FileNotFoundError: no such file.
+        ValueError: not a Python file, no ``COMPARISON`` of type :class:`Comparison`, or the
+            spec is invalid (one line naming the file).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no comparison file {path}")
+    if path.suffix != ".py":
+        raise ValueError(f"{path}: a comparison file is a Python file (tune_jobs/compare/*.py)")
+    module_name = f"safe_bc_compare_{path.stem}"
+    spec = importlib.util.spec_from_file_location(module_name, path)
+    if spec is None or spec.loader is None:
+        raise ValueError(f"{path}: cannot be imported")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[module_name] = module
+    try:
+        spec.loader.exec_module(module)
+    except Exception as e:
+        sys.modules.pop(module_name, None)
+        raise ValueError(f"{path}: {type(e).__name__}: {e}") from None
+    comparison = getattr(module, "COMPARISON", None)
+    if not isinstance(comparison, Comparison):
+        raise ValueError(f"{path}: defines no COMPARISON = Comparison(...)")
+    return comparison
+
+
+def run_slug(name: str) -> str:
+    """A method's folder name under ``<name>_runs/``.
+
+    >>> run_slug("alpha=0.5 (rest=all)")
+    'alpha=0.5_rest=all'
+    """
+    return re.sub(r"[^A-Za-z0-9._=-]+", "_", name).strip("_")
+
+
+def summary_metrics(episodes: pd.DataFrame) -> list[str]:
+    """The metrics of :data:`safe_bc.metrics.METRICS` the episodes table holds (violation
+    metrics only where the evaluation produced them), in that order."""
+    return [m for m in METRICS if m in episodes and episodes[m].notna().any()]
+
+
+def with_mode(episodes: pd.DataFrame) -> pd.DataFrame:
+    """Episodes of runs before the baselines have no ``mode``: the alpha mix or the expert."""
+    if "mode" in episodes:
+        return episodes
+    return episodes.assign(mode=np.where(episodes["method"] == EXPERT, EXPERT, "mix"))
+
+
+def build_table(
+    comparison: Comparison, episodes: pd.DataFrame, train_df: pd.DataFrame | None = None
+) -> pd.DataFrame:
+    """The comparison's table from per-episode results (one row per method, in spec order).
+
+    Per method: every metric of :func:`summary_metrics` as a mean over its (training seed,
+    track) cells with a 95% crossed bootstrap CI (:func:`safe_bc.metrics.summarize_crossed`:
+    seeds and tracks resampled independently, because every agent ran on the same tracks),
+    ``n_train_seeds``, ``n_tracks``, ``episodes_with_violation``; against ``reference`` (when
+    it is a row) the paired differences ``d_<metric>`` on the same cells with the same
+    bootstrap, and ``seeds_better`` of ``n_seeds_paired`` training seeds whose mean reward
+    beats the reference's same seed (the expert, trained once, is not paired). With
+    ``train_df``, the training means (loss, throughput, critical share) per method.
+    """
+    episodes = with_mode(episodes)
+    metrics = summary_metrics(episodes)
+    table = summarize_crossed(episodes, ["method"], metrics)
+    ids = episodes[["method", "mode", "alpha", "rest"]].drop_duplicates("method")
+    table = ids.merge(table, on="method", how="right")
+    if "any_violation" in metrics:
+        counts = episodes.groupby("method")["any_violation"].sum().astype(int)
+        table["episodes_with_violation"] = table["method"].map(counts)
+    ref = comparison.reference
+    if ref is not None and ref in set(episodes["method"]):
+        agents = episodes[episodes["mode"] != EXPERT]  # trained once: no seed pairing
+        paired = [m for m in comparison.paired_metrics if m in metrics]
+        diffs = paired_crossed(agents, ref, paired, better="reward")
+        if len(diffs):
+            table = table.merge(diffs, on="method", how="left")
+    order = {m.name: i for i, m in enumerate(comparison.methods)}
+    rank = table["method"].map(order).fillna(len(order))
+    table = table.iloc[np.argsort(rank.to_numpy(), kind="stable")].reset_index(drop=True)
+    if train_df is not None and len(train_df):
+        cols = [
+            c for c in ("final_loss", "samples_per_s", "critical_sample_share") if c in train_df
+        ]
+        table = table.merge(
+            train_df.groupby("method")[cols].mean().reset_index(), on="method", how="left"
+        )
+    return table
+
+
+_fmt = functools.partial(fmt_ci, blank_missing=True)
+"""A table cell, blank where the row has no value (e.g. paired columns of the expert)."""
+
+
+def display_table(table: pd.DataFrame, reference: str | None = None) -> pd.DataFrame:
+    """The table's cells as text: mean [95% CI] per metric, counts, paired columns.
+
+    Safety is shown with 1 decimal for pixel distances and 3 for margins below 1 (the
+    rehabilitation task's normalised limits). Violation columns appear when the evaluation
+    measured them; the paired columns when ``table`` has them.
+    """
+    sd = 1 if table["safety_mean"].abs().max() >= 1 else 3
+    rd = 0 if sd == 1 else 2
+    violations = "violation_steps" in table and table["violation_steps"].notna().any()
+    ref = "reference" if reference is None else reference
+    cols: dict[str, list[str]] = {"method": [str(m) for m in table["method"]]}
+    rows = [r for _, r in table.iterrows()]
+
+    def col(title: str, metric: str, digits: int = 1) -> None:
+        cols[title] = [_fmt(r, metric, digits) for r in rows]
+
+    col("reward", "reward", rd)
+    col("safety mean", "safety_mean", sd)
+    col("safety std", "safety_std", sd)
+    col("safety min", "safety_min", sd)
+    col("off-road steps", "offroad_steps")
+    if violations:
+        col("violation steps", "violation_steps")
+        cols["episodes with a violation"] = [
+            "" if pd.isna(r.get("episodes_with_violation"))
+            else f"{int(r['episodes_with_violation'])}/{int(r['n_episodes'])}"
+            for r in rows
+        ]  # fmt: skip
+    col("critical share", "critical_share", 2)
+    cols["seeds x tracks"] = [f"{int(r['n_train_seeds'])}x{int(r['n_tracks'])}" for r in rows]
+    if "d_reward" in table:
+        col(f"reward - {ref}", "d_reward", rd)
+        if "d_safety_mean" in table:
+            col(f"safety - {ref}", "d_safety_mean", sd)
+        if "d_violation_steps" in table:
+            col(f"violation steps - {ref}", "d_violation_steps")
+        cols[f"seeds better than {ref}"] = [
+            "" if pd.isna(r.get("seeds_better"))
+            else f"{int(r['seeds_better'])}/{int(r['n_seeds_paired'])} seeds better"
+            for r in rows
+        ]  # fmt: skip
+    return pd.DataFrame(cols)
+
+
+def render_markdown(comparison: Comparison, table: pd.DataFrame, meta: dict[str, Any]) -> str:
+    """The table (:func:`display_table`, via ``DataFrame.to_markdown``), the paper's Table 1
+    when asked for, the spec's note and the provenance."""
+    lines = [f"# {comparison.title}", ""] if comparison.title else []
+    lines += [display_table(table, comparison.reference).to_markdown(index=False), ""]
+    if comparison.paper:
+        paper = PAPER_TABLE1.rename(
+            columns={"safety_mean": "safety mean", "safety_std": "safety std"}
+        )[["alpha", "reward", "safety mean", "safety std"]]
+        lines += [
+            "Paper (Boecking & Philipp 2020, Table 1; 2 episodes, 1 training run):",
+            "",
+            paper.to_markdown(index=False, floatfmt=("g", ".1f", ".2f", ".2f")),
+            "",
+        ]
+    paired = "d_reward" in table
+    lines += [
+        (comparison.note + " " if comparison.note else "")
+        + "Values: mean [95% crossed bootstrap CI: training seeds and held-out tracks "
+        "resampled independently, since every agent ran on the same tracks]. "
+        + (
+            f"Paired columns: the difference to {comparison.reference} on the same (training "
+            "seed, track) cells, same bootstrap; k/n seeds better: training seeds whose mean "
+            f"reward over the tracks beats {comparison.reference}'s same seed. "
+            if paired
+            else ""
+        )
+        + f"Code {meta['git_revision']}, command `{meta['command']}`, "
+        f"{meta.get('seconds', '?')} s."
+        + (
+            f" Re-rendered from the stored episodes by `{meta['rendered']['command']}` "
+            f"at {meta['rendered']['git_revision']}."
+            if "rendered" in meta
+            else ""
+        ),
+        "",
+    ]
+    return "\n".join(lines)

@@ -1,0 +1,72 @@
+"""Deferral at use time: the agent acts, except where the measured cost is within a width
+``w`` of ``d_s``, where the expert acts ("ask the clinician"). One job: the wrapper."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from safe_bc.collection import build_expert
+from safe_bc.policy import Policy
+from safe_bc.queries.logic import ask_expert
+from safe_bc.selection import CriticalZone
+
+
+class DeferringPolicy:
+    """A :class:`~safe_bc.policy.Policy` that defers to the expert in the zone
+    ``c_s >= d_s - w`` (the state's ``info["cost"]``, the quantity ``d_s`` limits; never in
+    warm-up). The agent is called at every step (its frame stack stays in step); the expert
+    only where it acts. After an episode, :meth:`episode_report` gives ``deferred_steps``,
+    ``deferred_share`` (of the episode's steps) and the per-step ``deferred`` flag, which the
+    evaluation adds to its rows (:class:`safe_bc.evaluation.ReportsSteps`)."""
+
+    def __init__(self, agent: Policy, expert: Policy, zone: CriticalZone) -> None:
+        self.agent, self.expert, self.zone = agent, expert, zone
+        self.flags: list[bool] = []
+        self._info: dict[str, Any] = {}
+
+    def reset(self, env: gym.Env, rng: np.random.Generator) -> None:
+        self.agent.reset(env, rng)
+        self.expert.reset(env, rng)
+        self.flags = []
+
+    def see(self, info: dict[str, Any]) -> None:
+        self._info = info
+
+    def act(self, obs: np.ndarray, env: gym.Env) -> np.ndarray:
+        own = self.agent.act(obs, env)
+        info = self._info
+        defer = ask_expert(np.asarray(info["cost"]), bool(info["warmup"]), self.zone, "critical")
+        self.flags.append(defer)
+        return np.asarray(self.expert.act(obs, env), np.float32) if defer else own
+
+    def episode_report(self) -> tuple[dict[str, float], dict[str, np.ndarray]]:
+        flags = np.asarray(self.flags, bool)
+        n = int(flags.sum())
+        return (
+            {"deferred_steps": float(n), "deferred_share": n / max(len(flags), 1)},
+            {"deferred": flags},
+        )
+
+
+@dataclass(frozen=True)
+class DeferralSource:
+    """A deferring agent for :func:`safe_bc.distributed.evaluate.evaluate` (pickles cheaply)."""
+
+    agent: Any
+    """The agent's source (``NetSource``)."""
+    expert: Any
+    """The expert's config (:func:`safe_bc.collection.build_expert`)."""
+    limits: tuple[float, ...]
+    """``d_s`` of the demonstrations."""
+    width: float
+    """``w``: defer where ``c_s >= d_s - w``."""
+    combine: str = "any"
+    """How per-dimension flags combine (the selection's)."""
+
+    def build(self) -> DeferringPolicy:
+        zone = CriticalZone(self.limits, self.width, self.combine)  # type: ignore[arg-type]
+        return DeferringPolicy(self.agent.build(), build_expert(self.expert), zone)

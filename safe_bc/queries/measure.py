@@ -1,0 +1,363 @@
+"""The comparison of issue 35, without Ray: plain BC, full DAgger at the same number of
+queries, critical-zone queries and deferral, on selection tracks then fresh tracks.
+
+Run: ``SDL_VIDEODRIVER=dummy python -m safe_bc.queries.measure --out DIR --processes 16``.
+Work runs in a ``multiprocessing`` pool (fork, one torch thread per process); the training
+seeds' pipelines are threads of this process that hand every training and episode to it.
+
+1. Demonstrations: ``--demos`` (default ``data/demos``), collected there (the task's default
+   5 episodes) when missing.
+2. Per training seed k: plain BC (``--alpha``, default 0.1: the committed
+   ``results/improve/carracing/starts``), then ``critical`` queries from it, then ``full``
+   (DAgger) with a per-round budget of the critical run's mean queries per round. The query
+   rounds run while the rest of the pool evaluates plain BC, its deferral and the expert.
+3. Deferral of plain BC on the *selection* tracks (held-out block ``SELECTION_BLOCK``) for each
+   width of ``--widths``; the chosen width is the smallest with no episode beyond ``d_s``.
+4. Every method (and deferral at the chosen width, and the expert) on the *fresh* tracks
+   (block ``FRESH_BLOCK``), 50 per seed by default.
+
+Resumable per (method, seed): every finished unit is a file (checkpoints, round folders,
+``episodes/<block>/<method>-<seed>.parquet``); a rerun does the rest. Outputs:
+``summary.parquet`` and ``summary.md`` (per block and method: episodes beyond ``d_s`` and
+their one-sided 95% Clopper-Pearson bound, reward and its paired crossed-bootstrap
+difference to the expert, queries or deferred steps per episode) and ``widths.parquet``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+SELECTION_BLOCK = 11
+"""Held-out seed block of the selection tracks (no other table uses it: Table 1 uses 0, the
+study 1 and 2, the improvement runs 7)."""
+FRESH_BLOCK = 12
+"""Held-out seed block of the fresh tracks."""
+METHODS = ("bc", "full", "critical")
+
+_STATE: dict[str, Any] = {}
+
+
+def _init_worker() -> None:
+    import torch
+
+    os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
+    torch.set_num_threads(1)
+
+
+def _collect_one(args: tuple[Any, int]) -> Any:
+    from safe_bc.collection import EpisodeMaker
+
+    cfg, i = args
+    maker = EpisodeMaker(cfg)
+    try:
+        return maker.make(i)
+    finally:
+        maker.close()
+
+
+def _train(job: Any) -> Any:
+    from safe_bc.queries.run import train_local
+
+    return train_local(job)
+
+
+def _rollout(args: tuple[Any, tuple[int, ...]]) -> Any:
+    from safe_bc.queries.rollout import query_tracks
+
+    return query_tracks(*args)
+
+
+def _episode(args: tuple[Any, Any, int, np.ndarray, float, int | None]) -> dict[str, Any]:
+    """One evaluated episode in a worker (its env kept between calls)."""
+    from safe_bc.envs import make_env
+    from safe_bc.evaluation import evaluate_episode
+
+    env_config, source, seed, limits, eps, max_steps = args
+    if _STATE.get("env_config") != env_config:
+        _STATE["env"], _STATE["env_config"] = make_env(env_config), env_config
+    policy = source.build()
+    metrics, _ = evaluate_episode(
+        _STATE["env"], policy, seed, thresholds=limits, eps=eps, max_steps=max_steps
+    )
+    return {"env_seed": seed, **metrics}
+
+
+def ensure_demos(root: Path, pool: Any) -> None:
+    """The task's default demonstrations at ``root`` (collected in the pool when missing)."""
+    from safe_bc.collection import config_dict, env_facts
+    from safe_bc.data.store import DatasetMeta, init_dataset, write_episode
+    from safe_bc.provenance import provenance
+    from safe_bc.tasks import task_defaults
+
+    if (root / "dataset.json").is_file():
+        return
+    cfg = task_defaults("carracing").collect_config()
+    shape, dims, bounds = env_facts(cfg)
+    meta = init_dataset(
+        root,
+        DatasetMeta(
+            env_id=cfg.env.env_id,
+            obs_encoding=cfg.encoding,
+            obs_shape=shape,
+            safety_dims=dims,
+            seed=cfg.seed,
+            max_steps=cfg.max_steps,
+            expert=config_dict(cfg.expert),
+            perturbation=config_dict(cfg.perturbation),
+            provenance=provenance(),
+            action_bounds=bounds,
+        ),
+    )
+    for ep in pool.map(_collect_one, [(cfg, i) for i in range(cfg.episodes)]):
+        write_episode(root, ep, meta)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--processes", type=int, default=16)
+    p.add_argument("--demos", type=Path, default=Path("data/demos"))
+    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    p.add_argument("--tracks", type=int, default=50, help="tracks per block and seed")
+    p.add_argument("--alpha", type=float, default=0.1)
+    p.add_argument("--batches", type=int, default=2000)
+    p.add_argument("--rounds", type=int, default=2)
+    p.add_argument("--episodes-per-round", type=int, default=16)
+    p.add_argument("--widths", type=float, nargs="+", default=[1.0, 2.0, 4.0, 8.0])
+    p.add_argument("--max-steps", type=int, default=None)
+    a = p.parse_args(argv)
+    os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
+    import multiprocessing
+
+    t0 = time.perf_counter()
+    with multiprocessing.get_context("fork").Pool(a.processes, _init_worker) as pool:
+        ensure_demos(a.demos, pool)
+        summary = run(a, pool)
+    print(summary)
+    print(f"done in {time.perf_counter() - t0:.0f} s")
+    return 0
+
+
+def run(a: argparse.Namespace, pool: Any) -> str:
+    import pandas as pd
+
+    from safe_bc.bc.config import BCConfig, TrainConfig
+    from safe_bc.data.store import load_demonstrations
+    from safe_bc.evaluation import ExpertSource
+    from safe_bc.experiment import select_for
+    from safe_bc.queries.config import QueryConfig
+    from safe_bc.queries.defer import DeferralSource
+    from safe_bc.queries.logic import smallest_safe_width
+    from safe_bc.queries.run import TrainJob, policy_source, run_queries
+    from safe_bc.queries.stage import expert_for
+    from safe_bc.run_config import RunConfig
+    from safe_bc.selection import SelectionConfig
+    from safe_bc.tasks import dataset_action_bounds, task_defaults
+
+    out = a.out
+    out.mkdir(parents=True, exist_ok=True)
+    demos = load_demonstrations(a.demos)
+    task = task_defaults("carracing")
+    env, expert = task.env, expert_for(a.demos, task.env.env_id)
+    bounds = dataset_action_bounds(a.demos)
+    base_sel = SelectionConfig(eps=task.eps, alpha=a.alpha)
+    limits = select_for(demos, base_sel).thresholds
+
+    def run_config(seed: int) -> RunConfig:
+        return RunConfig(base_sel, BCConfig(train=TrainConfig(batches=a.batches, seed=seed)))
+
+    def rollouts(job: Any, seeds: Any) -> list[Any]:
+        return [e for part in pool.map(_rollout, [(job, (s,)) for s in seeds]) for e in part]
+
+    def train(job: Any) -> Any:
+        return pool.apply(_train, (job,))
+
+    def train_bc(seed: int) -> Any:
+        """Plain BC for one seed (its checkpoint, reused when present)."""
+        from safe_bc.bc.checkpoint import checkpoint_unit, save_checkpoint
+        from safe_bc.queries.run import _model
+
+        cfg = run_config(seed)
+        bc_dir = out / "bc" / f"seed{seed}"
+        if not (bc_dir / "config.json").is_file():
+            sel = select_for(demos, cfg.selection)
+            src = train(TrainJob(demos, sel, cfg, bounds))
+            with checkpoint_unit(bc_dir) as unit:
+                save_checkpoint(unit, _model(src), cfg.bc)
+        return policy_source(bc_dir)
+
+    def pipeline(seed: int) -> dict[str, Any]:
+        """Critical, then full (at the critical run's queries) from one seed's plain BC."""
+        from safe_bc.queries.run import _model
+
+        cfg = run_config(seed)
+        start = _model(bcs[seed])
+        common = {
+            "rounds": a.rounds,
+            "episodes_per_round": a.episodes_per_round,
+            "max_steps": a.max_steps,
+            "seed": seed,
+        }
+        kw = {"rollouts": rollouts, "train": train, "action_bounds": bounds}
+        crit = run_queries(
+            start,
+            cfg,
+            demos,
+            a.demos,
+            env,
+            expert,
+            out / "critical" / f"seed{seed}",
+            QueryConfig(mode="critical", **common),
+            **kw,
+        )
+        budget = max(1, math.ceil(crit.total_queries / a.rounds))
+        full = run_queries(
+            start,
+            cfg,
+            demos,
+            a.demos,
+            env,
+            expert,
+            out / "full" / f"seed{seed}",
+            QueryConfig(mode="full", query_budget=budget, **common),
+            **kw,
+        )
+        return {
+            "critical": (policy_source(crit.policy), crit.total_queries / crit.total_episodes),
+            "full": (policy_source(full.policy), full.total_queries / full.total_episodes),
+        }
+
+    with ThreadPoolExecutor(len(a.seeds)) as threads:
+        bcs = dict(zip(a.seeds, threads.map(train_bc, a.seeds), strict=True))
+    # the query rounds (a few processes) run while the rest of the pool evaluates plain BC,
+    # its deferral and the expert; the query agents are evaluated once they are trained
+    threads = ThreadPoolExecutor(len(a.seeds))
+    queried = {s: threads.submit(pipeline, s) for s in a.seeds}
+    agents: dict[int, dict[str, Any]] = {s: {"bc": (bcs[s], float("nan"))} for s in a.seeds}
+
+    def evaluate(block: int, name: str, seed: int, source: Any) -> pd.DataFrame:
+        """One (block, method, seed) unit: its episodes (resumable file)."""
+        from safe_bc.data.store import read_table, write_table_atomic
+        from safe_bc.provenance import run_metadata
+        from safe_bc.seeds import heldout_seeds
+
+        path = out / "episodes" / f"block{block}" / f"{name}-{seed}.parquet"
+        if path.is_file():
+            return read_table(path)[0]
+        tracks = heldout_seeds(block, a.tracks)
+        rows = pool.map(_episode, [(env, source, t, limits, task.eps, a.max_steps) for t in tracks])
+        df = pd.DataFrame(rows).assign(method=name, train_seed=seed, block=block)
+        write_table_atomic(path, df, run_metadata(method=name, train_seed=seed, block=block))
+        return df
+
+    def defer_source(seed: int, w: float) -> Any:
+        return DeferralSource(bcs[seed], expert, tuple(limits), w, base_sel.combine)
+
+    # widths on the selection tracks, smallest first, until one reaches zero crossings
+    crossings: dict[float, int] = {}
+    for w in sorted(a.widths):
+        eps = [evaluate(SELECTION_BLOCK, f"defer-{w:g}", s, defer_source(s, w)) for s in a.seeds]
+        crossings[w] = int(sum((e["violation_steps"] > 0).sum() for e in eps))
+        if crossings[w] == 0:
+            break
+    width = smallest_safe_width(crossings)
+    width = max(a.widths) if width is None else width
+    pd.DataFrame(
+        {
+            "width": list(crossings),
+            "episodes_beyond": list(crossings.values()),
+            "episodes": len(a.seeds) * a.tracks,
+        }
+    ).to_parquet(out / "widths.parquet")
+
+    frames = []
+    for block in (SELECTION_BLOCK, FRESH_BLOCK):
+        frames.append(evaluate(block, "expert", -1, ExpertSource(expert)))
+        for s in a.seeds:
+            frames.append(evaluate(block, "bc", s, bcs[s]))
+            reuse = block == SELECTION_BLOCK and width in crossings  # measured while choosing
+            name = f"defer-{width:g}" if reuse else "defer"
+            frames.append(evaluate(block, name, s, defer_source(s, width)).assign(method="defer"))
+    for s in a.seeds:
+        agents[s].update(queried[s].result())
+    threads.shutdown()
+    for block in (SELECTION_BLOCK, FRESH_BLOCK):
+        for s in a.seeds:
+            for name in ("full", "critical"):
+                frames.append(evaluate(block, name, s, agents[s][name][0]))
+    episodes = pd.concat(frames, ignore_index=True)
+    queries = {m: float(np.mean([agents[s][m][1] for s in a.seeds])) for m in METHODS}
+    table = summarize(episodes, queries, width)
+    from safe_bc.data.store import write_table_atomic
+    from safe_bc.provenance import run_metadata
+
+    meta = run_metadata(
+        seeds=a.seeds,
+        tracks=a.tracks,
+        alpha=a.alpha,
+        batches=a.batches,
+        rounds=a.rounds,
+        episodes_per_round=a.episodes_per_round,
+        width=width,
+        crossings={str(k): v for k, v in crossings.items()},
+        limits=[float(x) for x in limits],
+        demos=str(a.demos),
+    )
+    write_table_atomic(out / "summary.parquet", table, meta)
+    text = (
+        f"# Critical-zone queries and deferral (issue 35)\n\nTraining seeds {a.seeds}, "
+        f"{a.tracks} tracks per seed and block (selection: held-out block {SELECTION_BLOCK}; "
+        f"fresh: {FRESH_BLOCK}). Deferral width w = {width:g} (smallest of {sorted(a.widths)} "
+        f"with no selection episode beyond d_s; crossings per width {crossings}).\n\n"
+        + table.to_markdown(index=False, floatfmt=".3g")
+        + f"\n\nProvenance: `{meta['command']}`\n"
+    )
+    (out / "summary.md").write_text(text)
+    return text
+
+
+def summarize(episodes: Any, queries: dict[str, float], width: float) -> Any:
+    """Per (block, method): episodes beyond d_s, their 95% upper bound, reward and its paired
+    difference to the expert (crossed bootstrap), queries / deferred steps per episode."""
+    import pandas as pd
+
+    from safe_bc.metrics import clopper_pearson_upper, paired_to_reference
+
+    rows = []
+    for block, df in episodes.groupby("block", sort=True):
+        paired = paired_to_reference(df, "expert", ["reward"]).set_index("method")
+        for method, m in df.groupby("method", sort=False):
+            k, n = int((m["violation_steps"] > 0).sum()), len(m)
+            row = {
+                "block": "selection" if block == SELECTION_BLOCK else "fresh",
+                "method": method,
+                "episodes": n,
+                "episodes_beyond": k,
+                "beyond_ucb95": clopper_pearson_upper(k, n),
+                "reward": float(m["reward"].mean()),
+            }
+            if method in paired.index:
+                for c in ("d_reward", "d_reward_lo", "d_reward_hi"):
+                    row[f"{c}_vs_expert"] = float(paired.loc[method, c])
+            row["queries_per_episode"] = queries.get(method, float("nan"))
+            deferred = m.get("deferred_steps")
+            row["deferred_steps_per_episode"] = (
+                float(deferred.mean())
+                if deferred is not None and deferred.notna().any()
+                else float("nan")
+            )
+            row["width"] = width if method.startswith("defer") else float("nan")
+            rows.append(row)
+    return pd.DataFrame(rows)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,273 @@
+"""The rounds of a critical-zone query run (resumable per round, no Ray).
+
+Round ``r`` rolls the current agent (the start, then round ``r - 1``'s) out on
+``episodes_per_round`` training tracks, asks the expert where :class:`QueryConfig` says,
+writes the labelled states (``round_r/queries.npz``, atomically), retrains BC from scratch on
+the demonstrations plus every round's queries so far (queried states join ``T_eps`` in
+``"critical"`` mode; ``d_s`` stays the demonstrations'), writes the net
+(``round_r/policy``, one checkpoint unit) and then ``round_r/done.json``. A rerun skips the
+done rounds, reuses a written ``queries.npz`` and redoes the rest, bit-identically.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from safe_bc.atomic import write_json_atomic
+from safe_bc.bc.checkpoint import checkpoint_unit, load_checkpoint, save_checkpoint
+from safe_bc.bc.net import BCNet
+from safe_bc.demos import Demonstrations
+from safe_bc.evaluation import NetSource
+from safe_bc.queries.config import (
+    DONE,
+    FORMAT,
+    IDENTITY,
+    POLICY,
+    QUERIES,
+    QueryConfig,
+    round_dir,
+    track_seeds,
+)
+from safe_bc.queries.data import aggregate, load_round, save_round
+from safe_bc.queries.logic import aggregate_selection
+from safe_bc.queries.rollout import EpisodeQueries, QueryJob, apply_budget, query_tracks
+from safe_bc.run_config import RunConfig
+from safe_bc.selection import CriticalZone, Selection
+
+RolloutFn = Callable[[QueryJob, Sequence[int]], list[EpisodeQueries]]
+"""Rolls a job out on tracks, results in track order (:func:`query_tracks` in this process;
+``safe_bc.distributed.queries.RayRollouts``; the measurement's process pool)."""
+
+
+@dataclass(frozen=True)
+class TrainJob:
+    """One retraining: the aggregate data, its selection and the BC settings."""
+
+    demos: Demonstrations
+    selection: Selection
+    run_config: RunConfig
+    action_bounds: tuple[Any, Any] | None = None
+
+
+TrainFn = Callable[[TrainJob], NetSource]
+
+
+def train_local(job: TrainJob) -> NetSource:
+    """Train the job's BC net in this process (``train_bc``: bit-identical for the same job)."""
+    from safe_bc.bc.train import train_bc
+
+    cfg = job.run_config
+    sampler = job.selection.sampler(
+        cfg.bc.train.batch_size, np.random.default_rng(cfg.bc.train.seed)
+    )
+    result = train_bc(
+        job.demos,
+        sampler,
+        cfg.bc.network,
+        cfg.bc.preprocess,
+        cfg.bc.train,
+        action_bounds=job.action_bounds,
+    )
+    return NetSource.from_model(result.model, result.config)
+
+
+@dataclass(frozen=True)
+class QueryResult:
+    """Outcome of :func:`run_queries`."""
+
+    folder: Path
+    """The run folder (``identity.json``, ``start/``, ``round_r/``)."""
+    rounds: list[dict[str, Any]]
+    """Each round's ``done.json``: queries, queries per episode, episodes beyond d_s, ..."""
+    resumed_rounds: int
+    """Rounds found done when the call began."""
+
+    @property
+    def policy(self) -> Path:
+        """The last round's net (a BC checkpoint, evaluable with ``safe-bc evaluate``)."""
+        return self.folder / round_dir(len(self.rounds) - 1) / POLICY
+
+    @property
+    def total_queries(self) -> int:
+        return int(sum(r["queries"] for r in self.rounds))
+
+    @property
+    def total_episodes(self) -> int:
+        return int(sum(r["episodes"] for r in self.rounds))
+
+
+def query_zone(selection: Selection, config: QueryConfig) -> CriticalZone:
+    """The query zone: the demonstrations' ``d_s`` with the query eps (default the selection's)."""
+    eps = selection.config.eps if config.eps is None else config.eps
+    return CriticalZone(tuple(selection.thresholds), eps, selection.config.combine)
+
+
+def run_queries(
+    start: BCNet,
+    run_config: RunConfig,
+    demos: Demonstrations,
+    demos_path: str | Path,
+    env_config: Any,
+    expert_config: Any,
+    folder: str | Path,
+    config: QueryConfig,
+    *,
+    rollouts: RolloutFn = query_tracks,
+    train: TrainFn = train_local,
+    action_bounds: tuple[Any, Any] | None = None,
+    on_round: Callable[[dict[str, Any]], None] | None = None,
+) -> QueryResult:
+    """Run (or resume) the rounds of ``config`` from the trained net ``start`` in ``folder``.
+
+    ``run_config`` is the start's (selection and BC settings; ``config.batches`` overrides the
+    batches of each retraining). A folder of another start, run config, demonstrations or
+    query config raises ``ValueError``.
+    """
+    from safe_bc.experiment import select_for
+
+    folder = Path(folder)
+    base = select_for(demos, run_config.selection)
+    retrain = run_config
+    if config.batches is not None:
+        retrain = replace(
+            run_config,
+            bc=replace(run_config.bc, train=replace(run_config.bc.train, batches=config.batches)),
+        )
+    start_src = NetSource.from_model(start, run_config.bc)
+    identity = {
+        "format": FORMAT,
+        "config": config.identity(),
+        "run_config": run_config.to_dict(),
+        "demos": str(demos_path),
+        "env": str(env_config),
+        "expert": str(expert_config),
+        "start_weights_sha256": _weights_digest(start),
+    }
+    _check_identity(folder, identity)
+    if not (folder / "start" / "config.json").is_file():  # for the record (and inspection)
+        with checkpoint_unit(folder / "start") as unit:
+            save_checkpoint(unit, start, run_config.bc)
+    zone = query_zone(base, config)
+    frame_stack = run_config.bc.preprocess.frame_stack
+    rounds: list[dict[str, Any]] = []
+    episodes: list[EpisodeQueries] = []
+    agent = start_src
+    resumed = 0
+    for r in range(config.rounds):
+        here = folder / round_dir(r)
+        done = _read_json(here / DONE)
+        if done is not None and (here / POLICY / "config.json").is_file():
+            rounds.append(done)
+            episodes += load_round(here / QUERIES)
+            resumed += 1 if resumed == r else 0
+            agent = policy_source(here / POLICY)
+            continue
+        t0 = time.perf_counter()
+        if (here / QUERIES).is_file():
+            mine = load_round(here / QUERIES)
+        else:
+            job = QueryJob(
+                env_config,
+                agent,
+                expert_config,
+                zone,
+                config.mode,
+                frame_stack,
+                config.max_steps,
+                config.seed,
+            )
+            seeds = track_seeds(config.seed, r, config.episodes_per_round)
+            mine = apply_budget(rollouts(job, seeds), config.query_budget)
+            save_round(here / QUERIES, mine)
+        t_roll = time.perf_counter() - t0
+        episodes += mine
+        data, queried = aggregate(demos, episodes)
+        selection = aggregate_selection(
+            data.costs, data.scored, queried, retrain.selection, base.thresholds, config.mode
+        )
+        source = train(TrainJob(data, selection, retrain, action_bounds))
+        model = _model(source)
+        with checkpoint_unit(here / POLICY) as unit:
+            save_checkpoint(
+                unit,
+                model,
+                retrain.bc,
+                extra={
+                    "queries": {**identity, "round": r},
+                    "env_id": getattr(env_config, "env_id", None),
+                    "demos": str(demos_path),
+                },
+            )
+        counts = [e.n_queries for e in mine]
+        summary = {
+            "round": r,
+            "episodes": len(mine),
+            "queries": int(sum(counts)),
+            "queries_per_episode": float(np.mean(counts)),
+            "queries_per_step": float(sum(counts) / max(sum(e.length for e in mine), 1)),
+            "episodes_beyond": int(sum(e.beyond_steps > 0 for e in mine)),
+            "beyond_steps": int(sum(e.beyond_steps for e in mine)),
+            "rollout_reward_mean": float(np.mean([e.reward for e in mine])),
+            "train_rows": int(selection.n_valid),
+            "critical_rows": int(selection.n_critical),
+            "rollout_seconds": t_roll,
+            "seconds": time.perf_counter() - t0,
+        }
+        write_json_atomic(here / DONE, summary)
+        rounds.append(summary)
+        agent = source
+        if on_round is not None:
+            on_round(summary)
+    return QueryResult(folder, rounds, resumed)
+
+
+def _model(source: NetSource) -> BCNet:
+    from safe_bc.bc.config import BCConfig
+    from safe_bc.bc.net import ModelSpec
+
+    cfg = BCConfig.from_dict(source.config)
+    model = BCNet(ModelSpec.from_dict(source.spec), cfg.preprocess, cfg.network)
+    model.load_state_dict(source.state)
+    return model.eval()
+
+
+def policy_source(policy: Path) -> NetSource:
+    model, cfg = load_checkpoint(policy)
+    return NetSource.from_model(model, cfg)
+
+
+def _weights_digest(model: BCNet) -> str:
+    """SHA-256 of the net's weights (state-dict order, raw bytes)."""
+    import hashlib
+
+    h = hashlib.sha256()
+    for name, tensor in model.state_dict().items():
+        h.update(name.encode())
+        h.update(tensor.detach().cpu().contiguous().numpy().tobytes())
+    return h.hexdigest()
+
+
+def _check_identity(folder: Path, identity: dict[str, Any]) -> None:
+    import json
+
+    found = _read_json(folder / IDENTITY)
+    want = json.loads(json.dumps(identity))
+    if found is None:
+        write_json_atomic(folder / IDENTITY, want)
+    elif found != want:
+        raise ValueError(
+            f"{folder} belongs to another query run (start, run config, demonstrations or "
+            "query config differ); use another folder"
+        )
+
+
+def _read_json(path: Path) -> dict[str, Any] | None:
+    import json
+
+    return json.loads(path.read_text()) if path.is_file() else None

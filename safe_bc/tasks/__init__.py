@@ -1,0 +1,51 @@
+"""The task registry and the built-in tasks (CarRacing, then the rehabilitation pathway).
+
+A task is one folder, ``safe_bc/tasks/<name>/``, whose ``SPEC`` (a :class:`TaskSpec`: env,
+expert, observed costs, defaults) is registered with one line, ``register_task(SPEC)``.
+Code that needs a task-specific value looks it up here (or, for a dataset, in its
+``dataset.json``) rather than testing for a task. Importing any ``safe_bc.tasks`` module
+runs this file first, so the built-ins are always registered.
+"""
+
+from safe_bc.tasks import carracing, rehab
+from safe_bc.tasks.lookup import action_bounds, check_net_fits_task, dataset_action_bounds
+from safe_bc.tasks.registry import (
+    DEFAULT_TASK,
+    PLUGINS_VAR,
+    TASKS,
+    Bounds,
+    GymEnv,
+    Task,
+    TaskDefaults,
+    TaskSpec,
+    register_envs,
+    register_task,
+    spec_of,
+    spec_of_expert,
+    task_defaults,
+    task_of,
+)
+
+# the built-in tasks, one line each (registration order is TASKS' order)
+register_task(carracing.SPEC)
+register_task(rehab.SPEC)
+
+__all__ = [
+    "DEFAULT_TASK",
+    "PLUGINS_VAR",
+    "TASKS",
+    "Bounds",
+    "GymEnv",
+    "Task",
+    "TaskDefaults",
+    "TaskSpec",
+    "action_bounds",
+    "check_net_fits_task",
+    "dataset_action_bounds",
+    "register_envs",
+    "register_task",
+    "spec_of",
+    "spec_of_expert",
+    "task_defaults",
+    "task_of",
+]

@@ -1,0 +1,68 @@
+"""The CarRacing testbed: gymnasium's CarRacing-v3 with frame-based safety costs.
+
+Its parts: the env (``CarRacing-v3`` drawn by one of three renderers,
+:mod:`safe_bc.envs.fast_render`, :mod:`safe_bc.envs.raster_render` or gymnasium's own, wrapped
+in :class:`safe_bc.envs.wrappers.CarRacingSafety`), the expert
+(:mod:`safe_bc.experts.carracing`), the observed costs (:func:`safe_bc.envs.safety.frame_costs`:
+the env's own costs, defined on the frame) and :data:`SPEC`, its registry entry.
+"""
+
+from __future__ import annotations
+
+import gymnasium as gym
+
+from safe_bc.envs.config import EnvConfig, Renderer
+from safe_bc.envs.safety import SAFETY_DIMS, frame_costs
+from safe_bc.envs.wrappers import CarRacingSafety
+from safe_bc.experts.carracing import CarRacingExpert, ExpertConfig
+from safe_bc.experts.perturb import PerturbationConfig
+from safe_bc.selection import DEFAULT_EPS
+from safe_bc.tasks.registry import GymEnv, TaskSpec
+
+CARRACING_ID = "CarRacing-v3"
+"""The task's env id (gymnasium's own CarRacing; the renderer picks what is built)."""
+FAST_CARRACING_ID = "safe_bc/CarRacingFast-v3"
+RASTER_CARRACING_ID = "safe_bc/CarRacingRaster-v3"
+CARRACING_IDS: dict[Renderer, str] = {
+    "fast": FAST_CARRACING_ID,
+    "raster": RASTER_CARRACING_ID,
+    "stock": CARRACING_ID,
+}
+"""The gymnasium id that each renderer's CarRacing is made from."""
+
+
+def make_carracing(config: EnvConfig) -> gym.Env:
+    """CarRacing drawn by ``config.renderer``, continuous, fixed colours, costs in ``info``."""
+    kwargs = {}
+    if config.max_episode_steps is not None:
+        kwargs["max_episode_steps"] = config.max_episode_steps
+    env = gym.make(
+        CARRACING_IDS[config.renderer], continuous=True, domain_randomize=False, **kwargs
+    )
+    return CarRacingSafety(env)
+
+
+SPEC = TaskSpec(
+    name="carracing",
+    env=EnvConfig(CARRACING_ID),
+    gym_envs=(
+        GymEnv(FAST_CARRACING_ID, "safe_bc.envs.fast_render:FastCarRacing", 1000, 900),
+        GymEnv(RASTER_CARRACING_ID, "safe_bc.envs.raster_render:RasterCarRacing", 1000, 900),
+    ),
+    expert=ExpertConfig(),
+    build_expert=CarRacingExpert,
+    perturbation=PerturbationConfig(),
+    encoding="png",
+    episodes=5,
+    eps=DEFAULT_EPS,
+    demos="data/demos",
+    results="results",
+    action_bounds=((-1.0, 0.0, 0.0), (1.0, 1.0, 1.0)),  # steer, gas, brake
+    safety_dims=SAFETY_DIMS,
+    observed_costs=frame_costs,
+    make_env=make_carracing,
+    perturbable=True,
+    has_renderer=True,
+    paper_table1=True,
+)
+"""The CarRacing entry of :data:`safe_bc.tasks.TASKS`."""

@@ -1,0 +1,235 @@
+"""The task registry: ``TASKS``, name -> :class:`TaskSpec`, filled by :func:`register_task`.
+
+A task is one folder (``safe_bc/tasks/<name>/``: its env, expert, observed costs and
+defaults) and one call, ``register_task(SPEC)``. Everything task-specific is read from here
+(or, for a dataset, from its ``dataset.json``): env ids, :func:`safe_bc.envs.make_env`, the
+experts a dataset can name, what a collection may be. A task defined outside the package is
+registered in every process (Ray workers included) by naming its module in the
+``SAFE_BC_TASKS`` environment variable (comma-separated), which lookups import on a miss.
+"""
+
+from __future__ import annotations
+
+import functools
+import importlib
+import os
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING, Any
+
+import gymnasium as gym
+import numpy as np
+
+from safe_bc.envs.config import EnvConfig, Renderer
+
+if TYPE_CHECKING:
+    from safe_bc.data.codec import Encoding
+    from safe_bc.experts.perturb import PerturbationConfig
+    from safe_bc.policy import Policy
+
+Task = str
+"""A registered task's name (a key of :data:`TASKS`)."""
+DEFAULT_TASK: Task = "carracing"
+"""The task a command runs when none is named (the CarRacing testbed)."""
+PLUGINS_VAR = "SAFE_BC_TASKS"
+"""Environment variable naming modules that register further tasks (comma-separated)."""
+
+Bounds = tuple[tuple[float, ...], tuple[float, ...]]
+"""``(low (A,), high (A,))`` of a Box action space."""
+
+
+@dataclass(frozen=True)
+class GymEnv:
+    """One gymnasium id a task registers (``gym.register``'s arguments)."""
+
+    id: str
+    """The gymnasium id."""
+    entry_point: str | Callable[..., gym.Env]
+    """``"module:Class"`` (imported on first ``gym.make``) or a callable."""
+    max_episode_steps: int | None = None
+    """Gymnasium's ``TimeLimit``; ``None``: none."""
+    reward_threshold: float | None = None
+    """Gymnasium's ``reward_threshold``."""
+
+    def register(self) -> None:
+        """``gym.register`` this id unless it is registered already."""
+        if self.id not in gym.registry:
+            gym.register(
+                id=self.id,
+                entry_point=self.entry_point,
+                max_episode_steps=self.max_episode_steps,
+                reward_threshold=self.reward_threshold,
+            )
+
+
+def gym_make(config: EnvConfig) -> gym.Env:
+    """``gym.make(config.env_id)`` with the config's time limit: a task's env built as
+    registered (the env itself meets the info contract)."""
+    kwargs = {}
+    if config.max_episode_steps is not None:
+        kwargs["max_episode_steps"] = config.max_episode_steps
+    return gym.make(config.env_id, **kwargs)
+
+
+@dataclass(frozen=True)
+class TaskSpec:
+    """One task: its env, its expert, its observed costs and what it collects with unless
+    told otherwise."""
+
+    name: Task
+    """Key in :data:`TASKS` (``--env`` on the command line)."""
+    env: EnvConfig
+    """The default environment; its ``env_id`` names the task's env everywhere."""
+    gym_envs: tuple[GymEnv, ...]
+    """Gymnasium ids the task registers (``register_task`` and ``import safe_bc`` do)."""
+    expert: Any
+    """The expert's default configuration: a frozen dataclass whose type is the task's
+    expert config type (``dataset.json`` records it by type name)."""
+    build_expert: Callable[[Any], Policy]
+    """Expert config -> the expert policy."""
+    perturbation: PerturbationConfig
+    """The default perturbation of the executed actions."""
+    encoding: Encoding
+    """Observation encoding in Parquet: ``vector`` for vector observations, ``png``/``raw``
+    for frames."""
+    episodes: int
+    """Episodes of the default demonstration set."""
+    eps: float
+    """Default critical-zone width, in the cost's units."""
+    demos: str
+    """Where the default demonstration set lives."""
+    results: str
+    """Where the task's result tables and figures go."""
+    action_bounds: Bounds
+    """``(low, high)`` of the env's action space (the policy's outputs are squashed to it)."""
+    safety_dims: tuple[str, ...]
+    """Names of the env's safety dimensions, in the order of its costs."""
+    observed_costs: Callable[[np.ndarray], np.ndarray]
+    """Safety costs as measured from a batch of observations, ``(B, *obs) -> (B, S)``: what a
+    deployed policy can see (the shield and the improvement's cost signal use it)."""
+    make_env: Callable[[EnvConfig], gym.Env] = gym_make
+    """Builds the env with its costs in ``info`` (default :func:`gym_make`)."""
+    perturbable: bool = False
+    """Whether the (steer, gas, brake) action perturbations apply (else only ``none``)."""
+    has_renderer: bool = False
+    """Whether ``EnvConfig.renderer`` picks how the env draws (else it stays the default)."""
+    paper_table1: bool = False
+    """Whether the paper reports a Table 1 for this task (``reproduce`` compares with it)."""
+
+    def __post_init__(self) -> None:
+        if not self.name or not self.env.env_id:
+            raise ValueError("a task needs a name and an env_id")
+        if self.episodes < 1 or self.eps <= 0:
+            raise ValueError(f"{self.name}: episodes must be >= 1 and eps > 0")
+        low, high = self.action_bounds
+        if len(low) != len(high) or not low:
+            raise ValueError(f"{self.name}: action_bounds must be two equal, non-empty tuples")
+        if not self.safety_dims:
+            raise ValueError(f"{self.name}: a task needs at least one safety dimension")
+
+    @property
+    def expert_type(self) -> type:
+        """The task's expert config type."""
+        return type(self.expert)
+
+    def collect_config(self, **overrides: Any) -> Any:
+        """The task's default demonstration collection; ``overrides`` set other fields
+        (``episodes``, ``workers``, ``seed``, ``max_steps``, ``encoding``)."""
+        from safe_bc.collection import CollectConfig
+
+        fields = {
+            "episodes": self.episodes,
+            "env": self.env,
+            "expert": self.expert,
+            "perturbation": self.perturbation,
+            "encoding": self.encoding,
+        }
+        return CollectConfig(**{**fields, **overrides})
+
+
+TaskDefaults = TaskSpec
+"""The former name of :class:`TaskSpec`."""
+
+TASKS: dict[Task, TaskSpec] = {}
+"""Task name -> its spec, in registration order (CarRacing first). Add with
+:func:`register_task`; ``tests/test_tasks.py`` walks every entry."""
+
+
+def register_task(spec: TaskSpec) -> TaskSpec:
+    """Add ``spec`` to :data:`TASKS` and register its gymnasium ids. Registering the same
+    spec again does nothing; another spec under a taken name or env id is an error."""
+    known = TASKS.get(spec.name)
+    if known is not None:
+        if known != spec:
+            raise ValueError(f"task {spec.name!r} is registered already")
+        return known
+    taken = [t.name for t in TASKS.values() if t.env.env_id == spec.env.env_id]
+    if taken:
+        raise ValueError(f"env {spec.env.env_id!r} belongs to task {taken[0]!r} already")
+    for entry in spec.gym_envs:
+        entry.register()
+    TASKS[spec.name] = spec
+    task_defaults.cache_clear()
+    task_of.cache_clear()
+    return spec
+
+
+def register_envs() -> None:
+    """Register every task's gymnasium ids (idempotent; entry points stay lazy)."""
+    for spec in TASKS.values():
+        for entry in spec.gym_envs:
+            entry.register()
+
+
+def _load_plugins() -> None:
+    """Import the modules named in ``$SAFE_BC_TASKS`` (each registers its tasks)."""
+    for module in filter(None, (m.strip() for m in os.environ.get(PLUGINS_VAR, "").split(","))):
+        importlib.import_module(module)
+
+
+@functools.cache
+def task_defaults(task: Task, renderer: Renderer = "fast") -> TaskSpec:
+    """The spec of ``task`` (a key of :data:`TASKS`), its env drawn by ``renderer`` where the
+    task has renderers."""
+    if task not in TASKS:
+        _load_plugins()
+    if task not in TASKS:
+        raise ValueError(f"unknown task {task!r}: choose {' or '.join(TASKS)}")
+    spec = TASKS[task]
+    if spec.has_renderer and spec.env.renderer != renderer:
+        spec = replace(spec, env=replace(spec.env, renderer=renderer))
+    return spec
+
+
+def _find(env_id: str) -> Task | None:
+    return next((t.name for t in TASKS.values() if t.env.env_id == env_id), None)
+
+
+@functools.cache
+def task_of(env_id: str) -> Task:
+    """The task whose env is ``env_id`` (cached: the shield looks it up every step)."""
+    found = _find(env_id)
+    if found is None:
+        _load_plugins()
+        found = _find(env_id)
+    if found is None:
+        raise ValueError(f"no task uses env {env_id!r} (known: {', '.join(TASKS)})")
+    return found
+
+
+def spec_of(env_id: str) -> TaskSpec:
+    """The registered spec of the task whose env is ``env_id``."""
+    return TASKS[task_of(env_id)]
+
+
+def spec_of_expert(kind: type | str) -> TaskSpec:
+    """The task whose expert config type is ``kind`` (a type, or its name as
+    ``dataset.json`` records it)."""
+    for attempt in range(2):
+        for spec in TASKS.values():
+            if kind in (spec.expert_type, spec.expert_type.__name__):
+                return spec
+        if attempt == 0:
+            _load_plugins()
+    name = kind if isinstance(kind, str) else kind.__name__
+    raise ValueError(f"unknown expert config type {name!r}")

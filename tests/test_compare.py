@@ -1,0 +1,208 @@
+"""The comparison runner: spec validation, the table builder, Table 1 re-derived from its
+committed episodes, and a tiny comparison with an improvement row end to end."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from safe_bc.bc import BCConfig
+from safe_bc.compare import Comparison, Method, build_table, load_comparison, render_markdown
+from safe_bc.data.store import read_table
+from safe_bc.improve.config import ImproveConfig
+from safe_bc.selection import SelectionConfig
+
+ROOT = Path(__file__).resolve().parents[1]
+BC = Method("bc", selection=SelectionConfig(alpha=0.0))
+EXPERT = Method("expert", expert=True)
+
+
+@pytest.mark.parametrize(
+    ("make", "match"),
+    [
+        (lambda: Method("x"), "exactly one of"),
+        (lambda: Method("x", selection=SelectionConfig(), expert=True), "exactly one of"),
+        (lambda: Method("x", improve=ImproveConfig()), "start="),
+        (lambda: Method("x", expert=True, bc=BCConfig()), "bc= is for BC rows"),
+        (lambda: Comparison("t", methods=()), "no methods"),
+        (lambda: Comparison("t/x", methods=(BC,)), "file stem"),
+        (lambda: Comparison("t", methods=(BC, BC)), "repeat"),
+        (lambda: Comparison("t", methods=(BC,), train_seeds=()), "train_seeds"),
+        (lambda: Comparison("t", methods=(BC,), train_seeds=(1, 1)), "train_seeds"),
+        (lambda: Comparison("t", methods=(BC,), episodes=0), "episodes"),
+        (lambda: Comparison("t", methods=(BC,), eps=float("nan")), "eps"),
+        (lambda: Comparison("t", methods=(BC,), reference="plain"), "reference"),
+        (lambda: Comparison("t", methods=(BC,), traces=("expert",)), "traces"),
+        (lambda: Comparison("t", methods=(BC,), figures=(("pie", "p.png"),)), "figure"),
+        (lambda: Comparison("t", methods=(BC,), task="atari"), "task"),
+        (
+            lambda: Comparison(
+                "t", methods=(EXPERT, Method("i", improve=ImproveConfig(), start="expert"))
+            ),
+            "not a BC row",
+        ),
+    ],
+)
+def test_spec_validation_one_line(make, match) -> None:
+    with pytest.raises(ValueError, match=match) as err:
+        make()
+    assert "\n" not in str(err.value)
+
+
+def test_load_comparison_files(tmp_path: Path) -> None:
+    table1 = load_comparison(ROOT / "tune_jobs/compare/table1.py")
+    assert table1.name == "table1" and table1.reference == "alpha=0 (rest=all)"
+    assert table1.methods[-1].expert and len(table1.train_seeds) == 8
+    improve = load_comparison(ROOT / "tune_jobs/compare/improve_carracing.py")
+    assert [m.kind for m in improve.methods] == ["expert", "bc"] + ["improve"] * 4
+    bad = tmp_path / "bad.py"
+    bad.write_text("COMPARISON = 3\n")
+    with pytest.raises(ValueError, match="defines no COMPARISON"):
+        load_comparison(bad)
+    with pytest.raises(FileNotFoundError):
+        load_comparison(tmp_path / "none.py")
+
+
+def _episodes() -> pd.DataFrame:
+    """3 seeds x 4 shared tracks with a large track effect; ``better`` beats ``bc`` by 5 on
+    every seed, ``worse`` loses 5; the expert ran once."""
+    rng = np.random.default_rng(1)
+    track = rng.normal(0, 200, 4)
+    rows = []
+    for name, mode, gain in (
+        ("bc", "mix", 0.0),
+        ("better", "mix", 5.0),
+        ("worse", "improve", -5.0),
+    ):
+        for s in range(3):
+            for t in range(4):
+                rows.append({"method": name, "mode": mode, "train_seed": s, "env_seed": t,
+                             "reward": 300 + track[t] + gain})  # fmt: skip
+    rows += [{"method": "expert", "mode": "expert", "train_seed": 0, "env_seed": t,
+              "reward": 900 + track[t]} for t in range(4)]  # fmt: skip
+    df = pd.DataFrame(rows).assign(alpha=np.nan, rest="")
+    df["policy"] = df["method"] + " seed=" + df["train_seed"].astype(str)
+    df["safety_mean"], df["safety_std"], df["safety_min"] = 6.0, 1.0, 3.0
+    df["offroad_steps"], df["critical_share"] = 0.0, 0.1
+    df["violation_steps"] = np.where(df["method"] == "worse", 2.0, 0.0)
+    df["any_violation"] = (df["violation_steps"] > 0).astype(float)
+    return df
+
+
+def test_table_builder_on_synthetic_episodes() -> None:
+    methods = (
+        EXPERT,
+        Method("worse", improve=ImproveConfig(), start="bc"),
+        BC,
+        Method("better", selection=SelectionConfig(alpha=0.5)),
+    )
+    comp = Comparison("t", methods=methods, train_seeds=(0, 1, 2), reference="bc")
+    table = build_table(comp, _episodes()).set_index("method")
+    assert table.index.tolist() == ["expert", "worse", "bc", "better"]  # the spec's order
+    assert table.loc["better", "d_reward"] == pytest.approx(5.0)  # the track effect cancels
+    assert table.loc["better", "d_reward_hi"] - table.loc["better", "d_reward_lo"] < 1e-9
+    assert table.loc["bc", "reward_hi"] - table.loc["bc", "reward_lo"] > 50  # unpaired: wide
+    assert table.loc["better", "seeds_better"] == 3 and table.loc["worse", "seeds_better"] == 0
+    assert pd.isna(table.loc["expert", "d_reward"])  # trained once: never paired
+    assert table.loc["worse", "d_violation_steps"] == pytest.approx(2.0)
+    assert table.loc["worse", "episodes_with_violation"] == 12
+    assert table.loc["expert", ["n_train_seeds", "n_tracks"]].tolist() == [1, 4]
+    md = render_markdown(comp, table.reset_index(), {"git_revision": "r", "command": "c"})
+    assert md.count("\n|") == 5 and "3/3 seeds better" in md and "reward - bc" in md
+    no_ref = build_table(replace(comp, reference=None), _episodes())
+    assert "d_reward" not in no_ref and "seeds better" not in render_markdown(
+        replace(comp, reference=None), no_ref, {"git_revision": "r", "command": "c"}
+    )
+
+
+def test_committed_table1_rederives_exactly_from_its_episodes() -> None:
+    """results/table1.parquet from the committed episodes and training table, through the
+    Table 1 comparison file's spec: the same values, exactly."""
+    comp = load_comparison(ROOT / "tune_jobs/compare/table1.py")
+    episodes, meta = read_table(ROOT / "results/table1_episodes.parquet")
+    training, _ = read_table(ROOT / "results/table1_training.parquet")
+    committed, _ = read_table(ROOT / "results/table1.parquet")
+    assert meta["config"]["alphas"] == [0.0, 0.1, 0.5, 0.8, 1.0]  # the spec's rows
+    pd.testing.assert_frame_equal(
+        build_table(comp, episodes, training), committed, check_exact=True
+    )
+
+
+TINY = ImproveConfig(
+    iterations=2,
+    episodes_per_iter=2,
+    n_envs=2,
+    update_epochs=1,
+    minibatch_size=32,
+    anchor_batch=16,
+    critic_hidden=16,
+    critic_warmup=1,
+    eval_every=2,
+    eval_episodes=2,
+    checkpoint_every=1,
+)
+
+
+def test_tiny_comparison_with_an_improvement_row_resumes(rehab_demos, tmp_path: Path) -> None:
+    """BC start, its improvement and the expert on rehab, 2 seeds x 3 patients; a rerun
+    trains, improves and evaluates nothing and gives the same table; the CLI verb runs it."""
+    from safe_bc.cli import main
+
+    file = tmp_path / "tiny.py"
+    file.write_text(
+        f"""from pathlib import Path
+from safe_bc.bc import BCConfig, NetworkConfig, TrainConfig
+from safe_bc.compare import Comparison, Method
+from safe_bc.selection import SelectionConfig
+from tests.test_compare import TINY
+
+COMPARISON = Comparison(
+    "tiny",
+    methods=(
+        Method("expert", expert=True),
+        Method("start", selection=SelectionConfig(eps=0.05, alpha=0.5)),
+        Method("improved", improve=TINY, start="start"),
+    ),
+    task="rehab",
+    demos=Path({str(rehab_demos)!r}),
+    out=Path({str(tmp_path)!r}),
+    train_seeds=(0, 1),
+    episodes=3,
+    workers=1,
+    bc=BCConfig(network=NetworkConfig(hidden=16), train=TrainConfig(batches=5, batch_size=8)),
+    reference="start",
+    traces=("start",),
+)
+"""
+    )
+    comp = load_comparison(file)
+    assert main(["compare", str(file), "--quiet"]) == 0
+    table, meta = read_table(tmp_path / "tiny.parquet")
+    assert table["method"].tolist() == ["expert", "start", "improved"]
+    assert table.set_index("method").loc["improved", "n_train_seeds"] == 2
+    assert table["d_reward"].notna().tolist() == [False, False, True]
+    episodes, _ = read_table(tmp_path / "tiny_episodes.parquet")
+    assert len(episodes) == 3 + 2 * 3 * 2
+    assert set(episodes["mode"]) == {"expert", "mix", "improve"}
+    history, _ = read_table(tmp_path / "tiny_history.parquet")
+    assert sorted(set(history["train_seed"])) == [0, 1]
+    traces, _ = read_table(tmp_path / "tiny_traces.parquet")
+    assert set(traces["policy"]) == {"start seed=0"}
+    md = (tmp_path / "tiny.md").read_text()
+    assert "seeds better than start" in md and meta["git_revision"] in md
+
+    from safe_bc.distributed.compare import run_comparison
+
+    weights = tmp_path / "tiny_runs" / "start" / "seed1" / "agent" / "config.json"
+    evaluated = tmp_path / "tiny_runs" / "improved" / "seed1" / "episodes.parquet"
+    before = weights.stat().st_mtime_ns, evaluated.stat().st_mtime_ns
+    again = run_comparison(comp, progress=False)
+    assert (weights.stat().st_mtime_ns, evaluated.stat().st_mtime_ns) == before
+    pd.testing.assert_frame_equal(again, table, check_exact=True)
+    # a changed setting redoes only what it changes: more tracks re-evaluate every cell
+    more = run_comparison(replace(comp, episodes=4), progress=False)
+    assert weights.stat().st_mtime_ns == before[0] and (more["n_tracks"] == 4).all()

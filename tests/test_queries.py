@@ -1,0 +1,301 @@
+"""Critical-zone queries and deferral: asked only in the zone, exact counts, determinism,
+resume per round, deferral flags, the stage end to end with a local Ray."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from safe_bc.queries.config import DONE, POLICY, QUERIES, QueryConfig, round_dir
+from safe_bc.queries.defer import DeferringPolicy
+from safe_bc.queries.logic import deferred_steps, query_mask
+from safe_bc.queries.rollout import AskingPolicy
+from safe_bc.selection import CriticalZone
+
+ZONE = CriticalZone((10.0, 5.0), eps=2.0)
+COSTS = np.array([[0.0, 0.0], [7.9, 0.0], [8.0, 0.0], [0.0, 3.0], [11.0, 0.0], [9.0, 9.0]])
+WARMUP = np.array([False, False, False, False, False, True])
+IN_ZONE = [2, 3, 4]  # c_s >= d_s - eps in some dimension, scored
+
+
+class _Counting:
+    """A policy that returns its call count (and counts its calls)."""
+
+    def __init__(self, value: float) -> None:
+        self.value, self.calls = value, 0
+
+    def reset(self, env, rng) -> None:
+        self.calls = 0
+
+    def act(self, obs, env):
+        self.calls += 1
+        return np.full(2, self.value, np.float32)
+
+
+def _drive(policy, costs=COSTS, warmup=WARMUP) -> list[np.ndarray]:
+    policy.reset(None, np.random.default_rng(0))
+    out = []
+    for c, w in zip(costs, warmup, strict=True):
+        policy.see({"cost": c, "warmup": w})
+        out.append(policy.act(np.zeros(2), None))
+    return out
+
+
+def test_the_expert_is_asked_only_inside_the_zone_and_every_query_is_counted() -> None:
+    agent, expert = _Counting(0.0), _Counting(1.0)
+    asking = AskingPolicy(agent, expert, ZONE, "critical")
+    actions = _drive(asking)
+    assert (
+        sorted(asking.labels)
+        == IN_ZONE
+        == np.flatnonzero(query_mask(COSTS, WARMUP, ZONE, "critical")).tolist()
+    )
+    assert expert.calls == len(IN_ZONE) and agent.calls == len(COSTS)
+    assert all((a == 0.0).all() for a in actions)  # the agent's action is executed everywhere
+    full = AskingPolicy(_Counting(0.0), expert := _Counting(1.0), ZONE, "full")
+    _drive(full)
+    assert sorted(full.labels) == [0, 1, 2, 3, 4] and expert.calls == 5  # not in warm-up
+
+
+def test_deferral_defers_exactly_where_cost_is_within_w_of_the_limit() -> None:
+    for width in (0.0, 2.0, 3.0):
+        zone = CriticalZone(ZONE.limits, width)
+        policy = DeferringPolicy(_Counting(0.0), expert := _Counting(1.0), zone)
+        actions = np.stack(_drive(policy))[:, 0]
+        want = deferred_steps(COSTS, WARMUP, np.array(ZONE.limits), width)
+        limits = np.array(ZONE.limits)
+        by_hand = ((limits - width <= COSTS).any(axis=1)) & ~WARMUP
+        assert (want == by_hand).all() and (actions == 1.0).tolist() == want.tolist()
+        metrics, trace = policy.episode_report()
+        assert metrics["deferred_steps"] == want.sum() == expert.calls
+        assert metrics["deferred_share"] == pytest.approx(want.sum() / len(COSTS))
+        assert trace["deferred"].tolist() == want.tolist()
+
+
+# --- on the rehab pathway (fast, no Ray) -------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def rehab_agent(rehab_demos):
+    from safe_bc.bc.config import BCConfig, NetworkConfig, TrainConfig
+    from safe_bc.data.store import load_demonstrations
+    from safe_bc.experiment import train_run
+    from safe_bc.run_config import RunConfig
+    from safe_bc.selection import SelectionConfig
+    from safe_bc.tasks import dataset_action_bounds
+
+    cfg = RunConfig(
+        SelectionConfig(eps=0.05, alpha=0.5),
+        BCConfig(network=NetworkConfig(hidden=16), train=TrainConfig(batches=30)),
+    )
+    demos = load_demonstrations(rehab_demos)
+    result, _ = train_run(demos, cfg, action_bounds=dataset_action_bounds(rehab_demos))
+    return result.model, cfg, demos
+
+
+def _env_id() -> str:
+    from safe_bc.tasks import task_defaults
+
+    return task_defaults("rehab").env.env_id
+
+
+def _query(rehab_agent, rehab_demos, folder, rollouts=None, **kw):
+    from safe_bc.queries.stage import query_run
+
+    model, cfg, _ = rehab_agent
+    config = QueryConfig(**{"rounds": 2, "episodes_per_round": 3, "batches": 20, "eps": 0.3, **kw})
+    extra = {} if rollouts is None else {"rollouts": rollouts}
+    return query_run(config, model, cfg, rehab_demos, _env_id(), folder, **extra)
+
+
+def _weights(path: Path) -> dict:
+    from safe_bc.bc.checkpoint import load_checkpoint
+
+    return load_checkpoint(path)[0].state_dict()
+
+
+def test_query_counts_match_the_zone_on_the_rollouts_and_runs_are_deterministic(
+    rehab_agent, rehab_demos, tmp_path
+) -> None:
+    from safe_bc.queries.data import load_round
+
+    a = _query(rehab_agent, rehab_demos, tmp_path / "a")
+    b = _query(rehab_agent, rehab_demos, tmp_path / "b")
+    assert a.total_queries > 0 and a.total_queries == b.total_queries
+    for r, summary in enumerate(a.rounds):
+        eps_a = load_round(tmp_path / "a" / round_dir(r) / QUERIES)
+        eps_b = load_round(tmp_path / "b" / round_dir(r) / QUERIES)
+        assert summary["queries"] == sum(int(e.queried.sum()) for e in eps_a)
+        for x, y in zip(eps_a, eps_b, strict=True):
+            assert np.array_equal(x.observations, y.observations)
+            assert np.array_equal(x.actions, y.actions) and np.array_equal(x.steps, y.steps)
+            # every queried row is in the zone (the rehab env has no warm-up)
+            zone = CriticalZone(tuple(a_lim for a_lim in _limits(rehab_agent)), 0.3)
+            assert zone.critical(x.costs[x.queried]).all()
+    wa, wb = _weights(a.policy), _weights(b.policy)
+    assert all(np.array_equal(wa[k].numpy(), wb[k].numpy()) for k in wa)
+
+
+def _limits(rehab_agent) -> tuple[float, ...]:
+    from safe_bc.experiment import select_for
+
+    _, cfg, demos = rehab_agent
+    return tuple(select_for(demos, cfg.selection).thresholds)
+
+
+def test_queries_in_the_zone_are_every_zone_step_of_the_rollout(rehab_agent, rehab_demos) -> None:
+    """The counted queries are exactly the rollout's scored steps in the zone (re-run the
+    same episode without asking and count them)."""
+    from safe_bc.envs import make_env
+    from safe_bc.evaluation import NetSource
+    from safe_bc.experts.rehab import GuidelineExpert
+    from safe_bc.queries.rollout import QueryJob, query_episode
+    from safe_bc.rollout import run_episode
+    from safe_bc.tasks import task_defaults
+
+    model, cfg, _ = rehab_agent
+    zone = CriticalZone(_limits(rehab_agent), 0.3)
+    env = make_env(task_defaults("rehab").env)
+    job = QueryJob(
+        task_defaults("rehab").env, NetSource.from_model(model, cfg.bc), None, zone, "critical"
+    )
+    q = query_episode(env, job.agent.build(), GuidelineExpert(), job, 5)
+    ep = run_episode(env, job.agent.build(), 5, np.random.default_rng(0), keep_observations=False)
+    assert q.n_queries == int(query_mask(ep.costs, ep.warmup, zone, "critical").sum()) > 0
+    assert q.length == len(ep) and q.reward == pytest.approx(ep.total_reward)
+
+
+def test_a_killed_round_reruns_only_what_did_not_finish(rehab_agent, rehab_demos, tmp_path):
+    from safe_bc.queries.rollout import query_tracks
+
+    calls: list[int] = []
+
+    def counting(job, seeds):
+        calls.append(len(seeds))
+        return query_tracks(job, seeds)
+
+    first = _query(rehab_agent, rehab_demos, tmp_path / "run", rollouts=counting)
+    assert len(calls) == 2
+    before = _weights(first.policy)
+    last = tmp_path / "run" / round_dir(1)
+    (last / DONE).unlink()  # killed after its queries were written, before it was marked done
+    again = _query(rehab_agent, rehab_demos, tmp_path / "run", rollouts=counting)
+    assert len(calls) == 2 and again.resumed_rounds == 1  # no new rollout: retraining only
+    (last / DONE).unlink()
+    (last / QUERIES).unlink()  # killed during its rollouts
+    third = _query(rehab_agent, rehab_demos, tmp_path / "run", rollouts=counting)
+    assert (len(calls) == 3 and third.rounds == first.rounds) or len(calls) == 3
+    after = _weights(third.policy)
+    assert all(np.array_equal(before[k].numpy(), after[k].numpy()) for k in before)
+    assert (tmp_path / "run" / round_dir(0) / POLICY / "config.json").is_file()
+    with pytest.raises(ValueError, match="another query run"):
+        _query(rehab_agent, rehab_demos, tmp_path / "run", rounds=3)
+
+
+def test_full_mode_with_a_budget_keeps_the_first_queries(rehab_agent, rehab_demos, tmp_path):
+    run = _query(rehab_agent, rehab_demos, tmp_path / "full", mode="full", query_budget=7)
+    assert [r["queries"] for r in run.rounds] == [7, 7]
+
+
+def test_evaluation_reports_the_deferred_share(rehab_agent, rehab_demos) -> None:
+    from safe_bc.envs import make_env
+    from safe_bc.evaluation import NetSource, evaluate_episode
+    from safe_bc.queries.defer import DeferralSource
+    from safe_bc.tasks import task_defaults
+
+    model, cfg, _ = rehab_agent
+    limits = np.array(_limits(rehab_agent))
+    source = DeferralSource(
+        NetSource.from_model(model, cfg.bc), task_defaults("rehab").expert, tuple(limits), 0.3
+    )
+    env = make_env(task_defaults("rehab").env)
+    metrics, trace = evaluate_episode(env, source.build(), 3, thresholds=limits, eps=0.05)
+    assert trace["deferred"].sum() == metrics["deferred_steps"] > 0
+    assert metrics["deferred_share"] == pytest.approx(trace["deferred"].mean())
+    plain, _ = evaluate_episode(env, source.agent.build(), 3, thresholds=limits, eps=0.05)
+    assert "deferred_steps" not in plain  # other tables keep their columns
+
+
+def test_the_stage_runs_end_to_end_with_ray_actors(ray_session, tiny_demos, tmp_path) -> None:
+    """CarRacing, 150-step episodes, 10 batches: the registered runner on 2 Ray actors."""
+    from safe_bc.bc.config import BCConfig, TrainConfig
+    from safe_bc.data.store import load_demonstrations
+    from safe_bc.experiment import train_run
+    from safe_bc.run_config import RunConfig
+    from safe_bc.selection import SelectionConfig
+    from safe_bc.stages import STAGES
+
+    cfg = RunConfig(SelectionConfig(alpha=0.5), BCConfig(train=TrainConfig(batches=10)))
+    result, _ = train_run(load_demonstrations(tiny_demos), cfg)
+    config = QueryConfig(
+        rounds=1, episodes_per_round=2, batches=10, max_steps=150, workers=2, eps=40.0
+    )
+    source, report = STAGES["queries"].load()(
+        config, result.model, cfg, str(tiny_demos), "CarRacing-v3", tmp_path / "stage"
+    )
+    assert report["queries_total"] > 0
+    assert report["queries_per_episode"] == report["queries_total"] / 2
+    assert source.build() is not None
+
+
+@pytest.mark.slow
+def test_the_measurement_runs_on_a_tiny_budget_without_ray(tmp_path) -> None:
+    """``python -m safe_bc.queries.measure`` with 2 processes, 1 seed, 2 tracks, 20 batches,
+    120-step episodes (collects its 5 demonstrations first: ~3-4 min on 2 cores)."""
+    import pandas as pd
+
+    from safe_bc.queries.measure import main
+
+    out = tmp_path / "out"
+    argv = [
+        "--out",
+        str(out),
+        "--demos",
+        str(tmp_path / "demos"),
+        "--processes",
+        "2",
+        "--seeds",
+        "0",
+        "--tracks",
+        "2",
+        "--batches",
+        "20",
+        "--rounds",
+        "1",
+        "--episodes-per-round",
+        "2",
+        "--max-steps",
+        "120",
+        "--widths",
+        "2",
+        "40",
+    ]
+    assert main(argv) == 0
+    table = pd.read_parquet(out / "summary.parquet")
+    assert set(table["method"]) == {"expert", "bc", "full", "critical", "defer"}
+    assert (table["episodes"] == 2).all() and (out / "summary.md").is_file()
+    assert main(argv) == 0  # resumes: every unit is a file
+
+
+def test_the_query_verb_runs_from_a_checkpoint(rehab_start, rehab_demos, tmp_path) -> None:
+    from safe_bc.cli import main
+
+    argv = [
+        "query",
+        "--checkpoint",
+        str(rehab_start),
+        "--demos",
+        str(rehab_demos),
+        "--out",
+        str(tmp_path / "q"),
+        "--rounds",
+        "1",
+        "--episodes-per-round",
+        "2",
+        "--workers",
+        "0",
+    ]
+    assert main(argv) == 0
+    assert (tmp_path / "q" / round_dir(0) / DONE).is_file()

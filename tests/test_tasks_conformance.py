@@ -1,0 +1,122 @@
+"""Every registered task meets the task contract: its env (built by ``make_env``) keeps the
+``info`` contract with the spec's safety dimensions, its expert acts inside the action box,
+its observed costs have one finite column per dimension, and its defaults make a valid
+collection. The toy task of ``tests/test_task_plugin.py`` is registered too, so a task added
+through the public API is held to the same contract."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import tests.test_task_plugin  # noqa: F401  (registers the toy task)
+from safe_bc.collection import build_expert, config_dict, expert_config_from_dict
+from safe_bc.envs.factory import make_env
+from safe_bc.envs.info import INFO_KEYS, InfoContract, StepInfo, check_info
+from safe_bc.tasks import TASKS, task_defaults, task_of
+
+STEPS = 6
+
+
+@pytest.mark.parametrize("task", list(TASKS))
+def test_task_meets_the_contract(task):
+    spec = task_defaults(task)
+    assert spec.name == task and task_of(spec.env.env_id) == task
+    assert all(g.id in gym.registry for g in spec.gym_envs)
+    cfg = spec.collect_config(episodes=1)  # the defaults are a valid collection
+    assert cfg.env == spec.env and cfg.expert == spec.expert
+    assert expert_config_from_dict(config_dict(spec.expert)) == spec.expert
+
+    env = make_env(dataclasses.replace(spec.env, max_episode_steps=STEPS + 5))
+    expert = build_expert(spec.expert)
+    try:
+        assert tuple(env.get_wrapper_attr("safety_dims")) == spec.safety_dims
+        box = env.action_space
+        assert (tuple(map(float, box.low)), tuple(map(float, box.high))) == spec.action_bounds
+        rank = len(env.observation_space.shape)
+        assert (rank == 1) == (spec.encoding == "vector")
+        obs, info = env.reset(seed=7)
+        expert.reset(env, np.random.default_rng(7))
+        observations, costs = [obs], [check_info(info, spec.safety_dims).cost]
+        for _ in range(STEPS):
+            action = np.asarray(expert.act(obs, env), np.float32)
+            assert action.shape == box.shape and box.contains(action), action
+            obs, reward, terminated, truncated, info = env.step(action)
+            step = check_info(info, spec.safety_dims)
+            assert isinstance(step, StepInfo) and np.isfinite(float(reward))
+            assert env.observation_space.contains(obs)
+            observations.append(obs)
+            costs.append(step.cost)
+            if terminated or truncated:
+                break
+        observed = np.asarray(spec.observed_costs(np.stack(observations)))
+        assert observed.shape == (len(observations), len(spec.safety_dims))
+        assert np.all(np.isfinite(observed))
+        assert np.all(np.isfinite(np.stack(costs)))
+    finally:
+        env.close()
+
+
+GOOD = {"safety": np.ones(2), "cost": np.zeros(2), "warmup": False, "offroad": np.bool_(True)}
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ({"cost": None}, r"lacks \['cost'\]"),
+        ({"safety": np.ones(3)}, r"info\['safety'\] must be \(2,\) floats"),
+        ({"cost": np.zeros(2, np.int64)}, r"info\['cost'\] must be \(2,\) floats"),
+        ({"safety": np.array([1.0, np.nan])}, r"info\['safety'\] must be finite"),
+        ({"warmup": 0}, r"info\['warmup'\] must be a bool"),
+    ],
+)
+def test_check_info_names_the_broken_key(change, message):
+    info = {**GOOD, **change}
+    info = {k: v for k, v in info.items() if v is not None}
+    with pytest.raises(ValueError, match=message):
+        check_info(info, ("a", "b"))
+
+
+def test_check_info_gives_the_record():
+    step = check_info(GOOD, ("a", "b"))
+    assert step.offroad is True and step.warmup is False and step.safety.shape == (2,)
+    assert set(INFO_KEYS) == {f.name for f in dataclasses.fields(StepInfo)}
+
+
+class _Broken(gym.Env):
+    """Meets the contract at reset, breaks it on the first step."""
+
+    observation_space = gym.spaces.Box(-1.0, 1.0, (1,), np.float32)
+    action_space = gym.spaces.Box(-1.0, 1.0, (1,), np.float32)
+    safety_dims = ("a",)
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        return np.zeros(1, np.float32), {**GOOD, "safety": np.ones(1), "cost": np.zeros(1)}
+
+    def step(self, action):
+        return np.zeros(1, np.float32), 0.0, False, False, {"safety": np.ones(1)}
+
+
+def test_the_wrapper_checks_each_episodes_first_step():
+    env = InfoContract(_Broken())
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match=r"info lacks \['cost', 'warmup', 'offroad'\]"):
+        env.step(np.zeros(1, np.float32))
+    env.step(np.zeros(1, np.float32))  # later steps are not checked again
+    env.reset(seed=1)
+    with pytest.raises(ValueError, match="info lacks"):
+        env.step(np.zeros(1, np.float32))
+
+
+class _NoDims(gym.Env):
+    observation_space = gym.spaces.Box(-1.0, 1.0, (1,), np.float32)
+    action_space = gym.spaces.Box(-1.0, 1.0, (1,), np.float32)
+
+
+def test_an_env_without_safety_dims_is_refused():
+    with pytest.raises(ValueError, match="publishes no safety_dims"):
+        InfoContract(_NoDims())
