@@ -7,11 +7,11 @@ Usage::
     .venv/bin/python -m scripts.improve_carracing --seeds 0 --modes both --iterations 2 \
         --episodes 4 --out /tmp/improve_cr_smoke                    # a quick look
 
-The starts are the best Table 1 row's recipe (``safe-bc train --alpha 0.1 --seed k``, reused
-when present). One :func:`safe_bc.improve.improve` run per mode (``ppo``: neither mechanism,
-``shield``, ``lagrangian``, ``both``) and training seed, sized for pixels on small machines:
-``--episodes-per-iter`` complete 1000-step episodes per PPO iteration, validation on
-``--val-episodes`` tracks every 5 iterations, and a cost margin of 1 px inside d_s. Each
+The starts are the best Table 1 row's recipe (``safe-bc train --selection.alpha 0.1 --seed
+k``, reused when present). One :func:`safe_bc.improve.improve` run per mode (``ppo``:
+neither mechanism, ``shield``, ``lagrangian``, ``both``) and training seed, sized for pixels
+on small machines: ``--episodes-per-iter`` complete 1000-step episodes per PPO iteration,
+validation on ``--val-episodes`` tracks every 5 iterations, and a cost margin of 1 px inside d_s. Each
 run checkpoints every iteration and resumes when the command is rerun; a finished run is
 reused as it is. Runs go one after another (rollout envs in-process, or on
 ``--rollout-workers`` Ray actors), or with ``--processes N`` side by side in N local
@@ -51,8 +51,9 @@ LABELS = {
     "both": "shield + Lagrangian",
 }
 START_ALPHA = 0.1
-"""Default safety focus of the starts (``safe-bc train --alpha A --seed k``): the best alpha
-row of the Table 1 made with the cropped bar; ``--start-alpha`` takes the current Table 1's."""
+"""Default safety focus of the starts (``safe-bc train --selection.alpha A --seed k``): the best
+alpha row of the Table 1 made with the cropped bar; ``--start-alpha`` takes the current Table
+1's."""
 
 
 MODE_COLOURS = {"ppo": "tab:gray", "shield": "tab:blue", "lagrangian": "tab:orange",
@@ -206,7 +207,7 @@ def main(argv: list[str] | None = None) -> int:
         "--start-alpha",
         type=float,
         default=START_ALPHA,
-        help="safety focus of the starts (safe-bc train --alpha), e.g. Table 1's best",
+        help="safety focus of the starts (safe-bc train --selection.alpha), e.g. Table 1's best",
     )
     p.add_argument("--modes", nargs="+", choices=list(MODES), default=list(MODES))
     p.add_argument("--iterations", type=int, default=20)

@@ -12,8 +12,8 @@ training and evaluation all use raster frames, against the committed exact pipel
 1. ``safe-bc collect --renderer raster`` with the default demonstrations' settings (5
    episodes, seed 0, the same expert and drift perturbation; the drift's release reads the
    frame's safety distance, so the trajectories may differ slightly) into ``--data``;
-2. ``safe-bc train --alpha A --seed K`` for each training seed, the settings of the committed
-   CarRacing improvement starts (``results/improve/carracing/starts``);
+2. ``safe-bc train --selection.alpha A --seed K`` for each training seed, the settings of the
+   committed CarRacing improvement starts (``results/improve/carracing/starts``);
 3. evaluation on the raster env on the tracks of ``renderer_cost`` (its ``--eval-seed`` and
    ``--episodes``), against the raster demonstrations' own d_s;
 4. paired with the exact pipeline's rows of ``results/ablation/renderer/episodes.parquet``
@@ -164,8 +164,9 @@ def markdown(both: pd.DataFrame, paired: pd.DataFrame, meta: dict[str, Any]) -> 
             "",
             f"Command: `{meta['command']}` at `{meta['git_revision']}`; exact rows from "
             f"`{meta['exact']}` (made at `{meta['exact_revision']}`). {n_seeds} training seeds "
-            f"x {n_tracks} tracks (eval seed {meta['eval_seed']}), safe-bc train --alpha "
-            f"{meta['alpha']}; each pipeline's violations count against its own d_s.",
+            f"x {n_tracks} tracks (eval seed {meta['eval_seed']}), safe-bc train "
+            f"--selection.alpha {meta['alpha']}; each pipeline's violations count against its own "
+            "d_s.",
             "",
             table.reset_index().to_markdown(index=False, floatfmt=".4g"),
             "",
