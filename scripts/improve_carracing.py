@@ -11,8 +11,8 @@ The starts are the best Table 1 row's recipe (``safe-bc train --selection.alpha 
 k``, reused when present). One :func:`safe_bc.improve.improve` run per mode (``ppo``:
 neither mechanism, ``shield``, ``lagrangian``, ``both``) and training seed, sized for pixels
 on small machines: ``--episodes-per-iter`` complete 1000-step episodes per PPO iteration,
-validation on ``--val-episodes`` tracks every 5 iterations, and a cost margin of 1 px inside d_s. Each
-run checkpoints every iteration and resumes when the command is rerun; a finished run is
+validation on ``--val-episodes`` tracks every 5 iterations, and a cost margin of 1 px inside
+d_s. Each run checkpoints every iteration and resumes when the command is rerun; a finished run is
 reused as it is. Runs go one after another (rollout envs in-process, or on
 ``--rollout-workers`` Ray actors), or with ``--processes N`` side by side in N local
 processes. Then the expert, each start and each improved agent go through the one
