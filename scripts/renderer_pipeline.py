@@ -12,8 +12,8 @@ training and evaluation all use raster frames, against the committed exact pipel
 1. ``safe-bc collect --renderer raster`` with the default demonstrations' settings (5
    episodes, seed 0, the same expert and drift perturbation; the drift's release reads the
    frame's safety distance, so the trajectories may differ slightly) into ``--data``;
-2. ``safe-bc train --alpha A --seed K`` for each training seed, the settings of the committed
-   CarRacing improvement starts (``results/improve/carracing/starts``);
+2. ``safe-bc train --selection.alpha A --seed K`` for each training seed, the settings of the
+   committed CarRacing improvement starts (``results/improve/carracing/starts``);
 3. evaluation on the raster env on the tracks of ``renderer_cost`` (its ``--eval-seed`` and
    ``--episodes``), against the raster demonstrations' own d_s;
 4. paired with the exact pipeline's rows of ``results/ablation/renderer/episodes.parquet``
@@ -34,13 +34,14 @@ from __future__ import annotations
 import argparse
 import shlex
 import sys
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import pandas as pd
 
+from safe_bc import api
 from safe_bc.atomic import write_text_atomic
-from safe_bc.cli import main as safe_bc
 from safe_bc.data.store import load_demonstrations, read_table, write_table_atomic
 from safe_bc.provenance import git_revision, run_metadata
 
@@ -50,7 +51,10 @@ def main(argv: list[str] | None = None) -> int:
     from safe_bc.distributed.evaluate import evaluate_policies
     from safe_bc.envs import EnvConfig
     from safe_bc.evaluation import EvalConfig, NetSource
+    from safe_bc.jobs import CollectJob, TrainJob
     from safe_bc.metrics import paired_crossed
+    from safe_bc.run_config import RunConfig
+    from safe_bc.selection import SelectionConfig
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
@@ -94,19 +98,17 @@ def main(argv: list[str] | None = None) -> int:
     demos_dir = args.data / "demos"
     if not (demos_dir / "dataset.json").exists():
         demos_dir.parent.mkdir(parents=True, exist_ok=True)
-        rc = safe_bc(["collect", "--renderer", "raster", "--out", str(demos_dir), "--seed", "0",
-                      "--workers", str(args.workers), "--quiet"])  # fmt: skip
-        if rc != 0:
-            raise SystemExit("safe-bc collect failed")
+        api.collect(
+            CollectJob(renderer="raster", out=demos_dir, seed=0, workers=args.workers, quiet=True)
+        )
     demos = load_demonstrations(demos_dir)
     sources: dict[str, Any] = {}
     for k in args.seeds:
         agent = args.data / "agents" / f"seed{k}"
         if not (agent / "weights.pt").exists():
-            rc = safe_bc(["train", "--demos", str(demos_dir), "--out", str(agent), "--quiet",
-                          "--alpha", str(args.alpha), "--seed", str(k)])  # fmt: skip
-            if rc != 0:
-                raise SystemExit(f"safe-bc train failed for seed {k}")
+            run = RunConfig(SelectionConfig(alpha=args.alpha))
+            run = replace(run, bc=replace(run.bc, train=replace(run.bc.train, seed=k)))
+            api.train(TrainJob(agent, demos_dir, run, quiet=True), task_eps=True)
         model, cfg = load_checkpoint(agent)
         sources[f"seed{k}"] = NetSource.from_model(model, cfg)
 
@@ -162,8 +164,9 @@ def markdown(both: pd.DataFrame, paired: pd.DataFrame, meta: dict[str, Any]) -> 
             "",
             f"Command: `{meta['command']}` at `{meta['git_revision']}`; exact rows from "
             f"`{meta['exact']}` (made at `{meta['exact_revision']}`). {n_seeds} training seeds "
-            f"x {n_tracks} tracks (eval seed {meta['eval_seed']}), safe-bc train --alpha "
-            f"{meta['alpha']}; each pipeline's violations count against its own d_s.",
+            f"x {n_tracks} tracks (eval seed {meta['eval_seed']}), safe-bc train "
+            f"--selection.alpha {meta['alpha']}; each pipeline's violations count against its own "
+            "d_s.",
             "",
             table.reset_index().to_markdown(index=False, floatfmt=".4g"),
             "",

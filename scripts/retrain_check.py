@@ -5,7 +5,8 @@ Usage::
     .venv/bin/python -m scripts.retrain_check          # 3 rows: plain BC, alpha 0.5, BC-Safe
 
 Each row (method, training seed) of ``results/table1_training.parquet`` is retrained with
-``safe-bc train`` (the same demonstrations and settings: ``--alpha`` / ``--mode``, ``--seed``)
+``safe_bc.api.train`` (``safe-bc train``: the same demonstrations and selection settings, the
+row's training seed)
 into a scratch folder, and its final training loss is compared with the committed one to
 the last digit: refactors that must not change results (registries, package splits) are
 checked on real training, not only on unit tests. Writes
@@ -19,27 +20,27 @@ import argparse
 import json
 import sys
 import tempfile
+from dataclasses import replace
 from pathlib import Path
 
 import pandas as pd
 
-from safe_bc.cli import main as safe_bc
+from safe_bc.api import train
 from safe_bc.data.store import read_table, write_table_atomic
+from safe_bc.jobs import TrainJob
 from safe_bc.provenance import run_metadata
+from safe_bc.run_config import RunConfig
+from safe_bc.selection import RULES, SelectionConfig
 
 ROWS = (("alpha=0 (rest=all)", 0), ("alpha=0.5 (rest=all)", 1), ("BC-Safe (K=20)", 2))
 """(method, training seed) rows checked by default: the mix at two alphas and a peer rule."""
 
 
-def train_args(method: dict, seed: int) -> list[str]:
-    """``safe-bc train`` options of a Table 1 method (its stored selection settings)."""
-    args = ["--mode", method["mode"], "--alpha", str(method["alpha"]), "--rest", method["rest"],
-            "--eps", str(method["eps"]), "--seed", str(seed)]  # fmt: skip
-    if method["mode"] == "bc_safe":
-        args += ["--segment-steps", str(method["segment_steps"])]
-    if method["mode"] == "cost_weighted":
-        args += ["--beta", str(method["beta"])]
-    return args
+def run_config(method: dict, seed: int) -> RunConfig:
+    """The training settings of a Table 1 method (its stored selection settings) and seed."""
+    keep = ["mode", "alpha", "rest", "eps", *RULES[method["mode"]].params]
+    run = RunConfig(SelectionConfig(**{k: method[k] for k in keep}))
+    return replace(run, bc=replace(run.bc, train=replace(run.bc.train, seed=seed)))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -53,10 +54,8 @@ def main(argv: list[str] | None = None) -> int:
     for method, seed in ROWS:
         committed = training[(training["method"] == method) & (training["train_seed"] == seed)]
         with tempfile.TemporaryDirectory() as d:
-            rc = safe_bc(["train", "--demos", demos, "--out", f"{d}/agent", "--quiet",
-                          *train_args(methods[method], seed)])  # fmt: skip
-            if rc != 0:
-                raise SystemExit(f"safe-bc train failed for {method} seed {seed}")
+            train(TrainJob(Path(f"{d}/agent"), Path(demos), run_config(methods[method], seed),
+                           quiet=True))  # fmt: skip
             stored = json.loads(Path(f"{d}/agent/config.json").read_text())
         loss = float(stored["extra"]["train"]["final_loss"])
         before = float(committed["final_loss"].iloc[0])

@@ -63,7 +63,7 @@ def rehab_start(rehab_demos, tmp_path_factory):
     from safe_bc.cli import main
 
     ckpt = tmp_path_factory.mktemp("improve") / "start"
-    argv = ["train", "--demos", str(rehab_demos), "--out", str(ckpt), "--batches", "50",
-            "--hidden", "16", "--alpha", "0.5", "--quiet"]  # fmt: skip
+    argv = ["train", "--demos", str(rehab_demos), "--out", str(ckpt), "--bc.train.batches", "50",
+            "--bc.network.hidden", "16", "--selection.alpha", "0.5", "--quiet"]  # fmt: skip
     assert main(argv) == 0
     return ckpt

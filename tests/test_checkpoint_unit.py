@@ -152,8 +152,8 @@ def test_cli_train_killed_before_the_selection_keeps_the_old_checkpoint(
     import safe_bc.experiment
 
     ckpt = tmp_path / "ckpt"
-    argv = ["train", "--demos", str(rehab_demos), "--out", str(ckpt), "--batches", "5",
-            "--hidden", "8", "--quiet"]  # fmt: skip
+    argv = ["train", "--demos", str(rehab_demos), "--out", str(ckpt), "--bc.train.batches", "5",
+            "--bc.network.hidden", "8", "--quiet"]  # fmt: skip
     assert main(argv) == 0
     weights = (ckpt / "weights.pt").read_bytes()
 
@@ -161,7 +161,7 @@ def test_cli_train_killed_before_the_selection_keeps_the_old_checkpoint(
         raise KeyboardInterrupt
 
     monkeypatch.setattr(safe_bc.experiment, "save_selection", killed)
-    assert main([*argv, "--eps", "0.5", "--seed", "1"]) == 130
+    assert main([*argv, "--selection.eps", "0.5", "--seed", "1"]) == 130
     monkeypatch.undo()
     assert (ckpt / "weights.pt").read_bytes() == weights
     _, meta = read_table(ckpt / "selection.parquet")

@@ -1,10 +1,14 @@
-"""The command line: one-line errors with exit code 2 (an unreachable RAY_ADDRESS before
-anything is written, a study file that fails to import), every selection setting on
-``safe-bc train``, and a study in which no trial finished."""
+"""The command line generated from the configs: one-line errors with exit code 2 (bad flags
+and values, an unreachable RAY_ADDRESS before anything is written, a study file that fails
+to import), every config field a dotted flag with the config's default and help, and a
+study in which no trial finished."""
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import io
+import itertools
 import os
 import re
 import subprocess
@@ -15,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from safe_bc.cli import SELECTION_FLAGS, _selection_config, build_parser, main
+from safe_bc.cli import COMMANDS, main, parse
 from safe_bc.data.store import init_dataset, read_table, write_episode
 from safe_bc.selection import SelectionConfig
 from safe_bc.study import load_study, trial_table
@@ -90,40 +94,144 @@ def test_broken_study_file_is_one_line_naming_file_and_line(
     assert err.startswith(f"safe-bc tune: error: {study}:{line}: ") and problem in err
 
 
-def test_every_selection_setting_is_a_train_flag() -> None:
-    assert set(SELECTION_FLAGS) == {f.name for f in dataclasses.fields(SelectionConfig)}
-    args = build_parser().parse_args(
-        ["train", "--out", "x", "--threshold", "quantile", "--quantile", "0.9", "--combine", "all"]
-    )
-    assert _selection_config(args, eps=3.0) == SelectionConfig(
+def test_every_selection_setting_is_a_dotted_train_flag() -> None:
+    argv = ["train", "--out", "x", "--selection.threshold", "quantile", "--selection.quantile",
+            "0.9", "--selection.combine", "all", "--selection.eps", "3"]  # fmt: skip
+    assert parse(argv)[1].run.selection == SelectionConfig(
         eps=3.0, threshold="quantile", quantile=0.9, combine="all"
     )
-    args = build_parser().parse_args(["train", "--out", "x", "--mode", "cost_weighted"])
-    assert _selection_config(args, eps=2.0) == SelectionConfig(eps=2.0, mode="cost_weighted")
-    args = build_parser().parse_args(["train", "--out", "x", "--quantile", "0.9"])
-    with pytest.raises(ValueError, match="--quantile applies with --threshold quantile"):
-        _selection_config(args)
+    _, job = parse(["train", "--out", "x", "--selection.mode", "cost_weighted"])
+    assert job.run.selection == SelectionConfig(mode="cost_weighted")
+    names = {f.name for f in dataclasses.fields(SelectionConfig)}
+    assert names <= {f.split(".", 1)[1] for f in _flags("train") if f.startswith("selection.")}
+
+
+def _flags(command: str) -> set[str]:
+    """The dotted flags ``safe-bc COMMAND --help`` lists (hyphens as underscores)."""
+    return {f.replace("-", "_") for f in re.findall(r"--([\w.-]+)", _help(command))}
+
+
+def _help(command: str) -> str:
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out), pytest.raises(SystemExit) as info:
+        parse([command, "--help"])
+    assert info.value.code == 0
+    return out.getvalue()
 
 
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
-        (["--quantile", "1.5"], "--quantile must be in (0, 1], got 1.5"),
-        (["--quantile", "0"], "--quantile must be in (0, 1], got 0.0"),
-        (["--quantile", "high"], "--quantile must be a number, got 'high'"),
-        (["--combine", "most"], "argument --combine: invalid choice: 'most'"),
-        (["--threshold", "mean"], "argument --threshold: invalid choice: 'mean'"),
-        (["--segment-steps", "0"], "--segment-steps must be >= 1, got 0"),
-        (["--beta", "inf"], "--beta must be finite, >= 0, got inf"),
+        (["--selection.quantile", "1.5"], "--selection.quantile: quantile must be in (0, 1]"),
+        (["--selection.quantile", "high"], "--selection.quantile: could not convert string"),
+        (["--selection.combine", "most"], "invalid choice 'most' for argument '--selection.comb"),
+        (["--selection.threshold", "mean"], "invalid choice 'mean'"),
+        (
+            ["--selection.mode", "bc_safe", "--selection.segment-steps", "0"],
+            "--selection.segment-steps: segment_steps must be",
+        ),
+        (["--selection.alpha", "1.5"], "--selection.alpha: alpha must be in [0, 1], got alpha=1.5"),
+        (["--bc.train.lr", "inf"], "--bc.train.lr: lr must be a finite number > 0"),
+        (["--bc.network.channels", "8", "0", "4"], "--bc.network.channels: channels[i] must"),
+        (["--bc.train.batch_size", "x"], "--bc.train.batch-size"),
+        (["--no-such-flag", "1"], "Unrecognized options: --no-such-flag"),
+        (["--selection.quantile", "0.9"], "--selection.quantile applies with --selection.thre"),
+        (["--selection.beta", "2"], "--selection.beta applies with --selection.mode cost_weighted"),
     ],
 )
-def test_bad_selection_flags_exit_2(
+def test_bad_train_flags_are_one_line_exit_2(
     capsys: pytest.CaptureFixture, argv: list[str], message: str
 ) -> None:
+    assert main(["train", "--out", "x", *argv]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("safe-bc train: error: "), err
+    assert message in err, err
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        ([], "safe-bc: error: choose a command: collect, describe, train"),
+        (["fly"], "safe-bc: error: unknown command 'fly'"),
+        (["train"], "safe-bc train: error: Missing from safe-bc train: --out PATH"),
+        (["collect", "--episodes", "0", "--env", "rehab"], "episodes must be >= 1, got 0"),
+        (["improve", "--start", "a", "--out", "b", "--iterations", "0"], "--iterations: "),
+        (["render", "--out", "x.gif", "--scale", "0"], "--scale: scale must be >= 1, got 0"),
+        (["reproduce", "--alphas", "0", "2"], "alpha must be in [0, 1], got 2.0"),
+        (
+            ["tune", "tune_jobs/smoke.py", "--trials", "many"],
+            "--trials: no type matching {None}|INT could be instantiated from ['many']",
+        ),
+        (["evaluate", "--out", "x"], "Missing from safe-bc evaluate: --checkpoint PATH"),
+    ],
+)
+def test_bad_input_of_other_commands_is_one_line_exit_2(
+    capsys: pytest.CaptureFixture, argv: list[str], message: str
+) -> None:
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and message in err, err
+
+
+@pytest.mark.parametrize("command", list(COMMANDS))
+def test_help_of_every_command_lists_its_fields_each_with_help(command: str) -> None:
+    from safe_bc import jobs
+
+    text = _help(command)
+    cls = getattr(jobs, COMMANDS[command][0])
+    for f in dataclasses.fields(cls):
+        if f.name in ("run", "config", "study", "comparison"):  # flattened configs, positionals
+            continue
+        assert f"--{f.name.replace('_', '-')}" in text, (command, f.name)
+    rows = [line.strip("│ ") for line in text.splitlines()] + [""]
+    for row, below in itertools.pairwise(rows):
+        if row.startswith("--") and not row.startswith("--help"):  # the help beside or below
+            doc = (re.split(r" {2,}", row, maxsplit=1)[1:] or [below])[0]
+            assert doc and not doc.startswith("(default"), f"{command} {row} has no help"
+
+
+def test_top_level_help_lists_every_command(capsys: pytest.CaptureFixture) -> None:
     with pytest.raises(SystemExit) as info:
-        main(["train", "--out", "x", *argv])
-    assert info.value.code == 2
-    assert message in capsys.readouterr().err.strip().splitlines()[-1]
+        main(["--help"])
+    assert info.value.code == 0
+    out = capsys.readouterr().out
+    assert all(f"  {c} " in out for c in COMMANDS)
+
+
+def test_default_records_are_the_configs_defaults() -> None:
+    """The same command line builds the same configs: nothing given, the dataclass defaults."""
+    from safe_bc.evaluation import EvalConfig
+    from safe_bc.improve import ImproveConfig
+    from safe_bc.jobs import CollectJob, DescribeJob, ExpertJob, TrainJob
+    from safe_bc.reproduce import ReproduceConfig
+    from safe_bc.run_config import RunConfig
+
+    assert parse(["train", "--out", "x"])[1] == TrainJob(Path("x"))
+    assert parse(["train", "--out", "x"])[1].run == RunConfig()
+    assert parse(["improve", "--start", "a", "--out", "b"])[1].config == ImproveConfig()
+    assert parse(["reproduce"])[1].config == ReproduceConfig()
+    job = parse(["evaluate", "--checkpoint", "c", "--out", "o"])[1]
+    assert (job.episodes, job.workers, job.eval_seed, job.max_steps) == (
+        EvalConfig.episodes, EvalConfig.workers, EvalConfig.seed, EvalConfig.max_steps
+    )  # fmt: skip
+    assert parse(["collect"])[1] == CollectJob()
+    assert parse(["describe"])[1] == DescribeJob()
+    assert parse(["expert"])[1] == ExpertJob()
+    tune = parse(["tune", "tune_jobs/default.py"])[1]
+    assert tune.study == Path("tune_jobs/default.py") and tune.overrides() == {}
+
+
+def test_short_flags_and_task_defaults() -> None:
+    _, job = parse(["train", "--out", "x", "--seed", "3", "--bc.train.lr=1e-3"])
+    assert job.run.bc.train.seed == 3 and job.run.bc.train.lr == 1e-3
+    _, job = parse(["reproduce", "--env", "rehab"])
+    assert (job.config.task, job.config.demos, job.config.out) == (
+        "rehab", Path("data/rehab_demos"), Path("results/rehab")
+    )  # fmt: skip
+    _, job = parse(["reproduce", "--task", "rehab", "--out", "o"])
+    assert job.config.demos == Path("data/rehab_demos") and job.config.out == Path("o")
+    _, job = parse(["tune", "s.py", "--trials", "3", "--max-concurrent", "1", "--fresh"])
+    assert job.overrides() == {"trials": 3, "max_concurrent": 1} and job.fresh
 
 
 def test_train_records_quantile_and_combine(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
@@ -132,15 +240,15 @@ def test_train_records_quantile_and_combine(tmp_path: Path, capsys: pytest.Captu
     for i in range(2):
         write_episode(demos, make_episode(i, n=20), meta)
     out = tmp_path / "run"
-    flags = ["--threshold", "quantile", "--quantile", "0.9", "--combine", "all"]
-    small = ["--batches", "2", "--batch-size", "4", "--hidden", "8", "--alpha", "0", "--quiet"]
+    flags = ["--selection.threshold", "quantile", "--selection.quantile", "0.9",
+             "--selection.combine", "all"]  # fmt: skip
+    small = ["--bc.train.batches", "2", "--bc.train.batch-size", "4", "--bc.network.hidden", "8",
+             "--selection.alpha", "0", "--quiet"]  # fmt: skip
     assert main(["train", "--demos", str(demos), "--out", str(out), *flags, *small]) == 0
     _, sel = read_table(out / "selection.parquet")
     assert sel["config"]["quantile"] == 0.9 and sel["config"]["combine"] == "all"
     assert sel["config"]["threshold"] == "quantile"
-    code = main(["train", "--demos", str(demos), "--out", str(out), "--quantile", "0.9"])
-    err = capsys.readouterr().err.strip()
-    assert code == 2 and err.endswith("--quantile applies with --threshold quantile")
+    assert "trained 2 batches" in capsys.readouterr().out
 
 
 def _invalid_outcome(tmp_path: Path):
@@ -189,47 +297,51 @@ def test_study_summary_without_errors_says_so(tmp_path: Path) -> None:
     assert "no trial finished its evaluation (no trial recorded an error)" in text
 
 
-def test_preprocessing_and_channels_are_train_flags_with_the_config_defaults() -> None:
-    from safe_bc.bc.config import NetworkConfig, PreprocessConfig
+def test_preprocessing_and_network_are_dotted_train_flags() -> None:
+    from safe_bc.bc.config import PreprocessConfig
 
-    args = build_parser().parse_args(["train", "--out", "x"])
-    pre = PreprocessConfig()
-    assert (args.crop_bar, args.grayscale, args.mask_steering, args.frame_stack) == (
-        pre.crop_bar, pre.grayscale, pre.mask_steering, pre.frame_stack
+    _, job = parse(
+        ["train", "--out", "x", "--bc.preprocess.crop-bar", "--bc.preprocess.no-mask-steering",
+         "--bc.preprocess.frame-stack", "4", "--bc.network.channels", "8", "16", "16"]
     )  # fmt: skip
-    assert args.channels is None and NetworkConfig().channels
-    args = build_parser().parse_args(
-        ["train", "--out", "x", "--no-crop-bar", "--no-grayscale", "--mask-steering",
-         "--frame-stack", "4", "--channels", "8", "16", "16"]
-    )  # fmt: skip
-    assert (args.crop_bar, args.grayscale, args.mask_steering, args.frame_stack) == (
-        False, False, True, 4
-    )  # fmt: skip
-    assert args.channels == [8, 16, 16]
+    assert job.run.bc.preprocess == PreprocessConfig(
+        crop_bar=True, mask_steering=False, frame_stack=4
+    )
+    assert job.run.bc.network.channels == (8, 16, 16)
 
 
 def test_every_key_the_default_study_searches_is_a_train_flag() -> None:
-    """A study's winner can be retrained with one ``safe-bc train`` command."""
+    """A study's winner can be retrained with one ``safe-bc train`` command: each searched
+    key, by its dotted name, sets that field."""
     study = load_study(REPO / "tune_jobs" / "default.py")
-    options = {
-        opt for action in build_parser()._subparsers._group_actions[0].choices["train"]._actions
-        for opt in action.option_strings
-    }  # fmt: skip
-    for key in study.space:
-        flag = "--" + key.rsplit(".", 1)[-1].replace("_", "-")
-        assert flag in options, f"{key} has no train flag {flag}"
+    for key, param in study.space.items():
+        value = param.options[0] if hasattr(param, "options") else param.low
+        words = [str(v) for v in value] if isinstance(value, tuple) else [str(value)]
+        _, job = parse(["train", "--out", "x", f"--{key}", *words])
+        got = job.run
+        for part in key.split("."):
+            got = getattr(got, part)
+        assert got == value, key
 
 
-def test_every_option_of_every_verb_has_help():
-    import argparse
+def test_collect_train_evaluate_through_the_cli(ray_session, tmp_path: Path, capsys) -> None:
+    """A real short run: rehab demonstrations, an agent with the task's eps, its evaluation."""
+    import pandas as pd
 
-    from safe_bc.cli import build_parser
+    from safe_bc.tasks import task_defaults
 
-    (verbs,) = [a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction)]
-    missing = [
-        f"{verb} {'/'.join(action.option_strings) or action.dest}"
-        for verb, sub in verbs.choices.items()
-        for action in sub._actions
-        if not isinstance(action, argparse._HelpAction) and not action.help
-    ]
-    assert not missing, missing
+    demos, ckpt, out = tmp_path / "demos", tmp_path / "ckpt", tmp_path / "eval"
+    argv = ["collect", "--env", "rehab", "--episodes", "2", "--workers", "1", "--out", str(demos),
+            "--quiet"]  # fmt: skip
+    assert main(argv) == 0
+    assert "2 episode(s) collected" in capsys.readouterr().out
+    argv = ["train", "--demos", str(demos), "--out", str(ckpt), "--bc.train.batches", "3",
+            "--bc.network.hidden", "8", "--seed", "1", "--quiet"]  # fmt: skip
+    assert main(argv) == 0
+    _, sel = read_table(ckpt / "selection.parquet")
+    assert sel["config"]["eps"] == task_defaults("rehab").eps != SelectionConfig().eps
+    argv = ["evaluate", "--checkpoint", str(ckpt), "--episodes", "2", "--workers", "0",
+            "--out", str(out), "--quiet"]  # fmt: skip
+    assert main(argv) == 0
+    assert len(pd.read_parquet(out / "episodes.parquet")) == 2
+    assert "safety_mean" in capsys.readouterr().out

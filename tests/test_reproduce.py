@@ -158,13 +158,13 @@ def test_table1_without_violation_columns() -> None:
 
 
 def test_cli_arguments_shrink_and_extend_the_table() -> None:
-    from safe_bc.cli import _reproduce_config, build_parser
+    from safe_bc.cli import parse
 
-    args = build_parser().parse_args(
-        ["reproduce", "--train-seeds", "2", "--episodes", "3", "--readings", "all", "noncritical",
-         "--baselines", "--alphas", "0", "0.5", "--out", "/tmp/x"]
+    _, job = parse(
+        ["reproduce", "--train-seeds", "0", "1", "--episodes", "3", "--readings", "all",
+         "noncritical", "--baselines", "--alphas", "0", "0.5", "--out", "/tmp/x"]
     )  # fmt: skip
-    cfg = _reproduce_config(args)
+    cfg = job.config
     assert cfg.train_seeds == (0, 1) and cfg.episodes == 3 and cfg.baselines == ()
     assert [m.name for m in cfg.methods()] == [
         "alpha=0 (rest=all)",
@@ -172,7 +172,7 @@ def test_cli_arguments_shrink_and_extend_the_table() -> None:
         "alpha=0 (rest=noncritical)",
         "alpha=0.5 (rest=noncritical)",
     ]
-    default = _reproduce_config(build_parser().parse_args(["reproduce"]))
+    default = parse(["reproduce"])[1].config
     assert default.train_seeds == tuple(range(8)) and default.episodes == 20
     assert default.baselines == ("bc_safe", "cost_weighted") and default.readings == ("all",)
     assert default.alphas == (0.0, 0.1, 0.5, 0.8, 1.0)

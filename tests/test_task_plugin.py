@@ -166,8 +166,8 @@ def test_collect_train_evaluate_on_the_toy_task(tmp_path: Path):
     np.testing.assert_array_equal(load_demonstrations(again).actions, data.actions)
 
     ckpt = tmp_path / "agent"
-    argv = ["train", "--demos", str(demos), "--out", str(ckpt), "--batches", "40",
-            "--hidden", "16", "--alpha", "0.5", "--quiet"]  # fmt: skip
+    argv = ["train", "--demos", str(demos), "--out", str(ckpt), "--bc.train.batches", "40",
+            "--bc.network.hidden", "16", "--selection.alpha", "0.5", "--quiet"]  # fmt: skip
     assert main(argv) == 0
     assert read_checkpoint_meta(ckpt)["extra"]["env_id"] == TOY_ID
     model, bc_cfg = load_checkpoint(ckpt)

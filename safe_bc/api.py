@@ -1,0 +1,417 @@
+"""What each ``safe-bc`` command does, callable from scripts: a function per command taking
+its :mod:`safe_bc.jobs` record and returning a :class:`Done` (the CLI prints its message and
+exits with its code)."""
+
+from __future__ import annotations
+
+import json
+import sys
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+from safe_bc.jobs import (
+    CollectJob,
+    CompareJob,
+    DescribeJob,
+    EvaluateJob,
+    ExpertJob,
+    ExportJob,
+    ImproveJob,
+    QueryJob,
+    RenderJob,
+    ReproduceJob,
+    TrainJob,
+    TuneJob,
+)
+from safe_bc.locks import check_output_folder, output_lock, output_locks
+
+
+@dataclass(frozen=True)
+class Done:
+    """What a command did."""
+
+    message: str
+    """The summary ``safe-bc`` prints."""
+    value: Any = None
+    """The command's result (e.g. the training result and selection of ``train``)."""
+    code: int = 0
+    """Exit code: 0 done, 1 done without a usable result, 130 interrupted (resumable)."""
+
+
+def collect(job: CollectJob) -> Done:
+    """Collect (or complete) a demonstration set; the value is the collection report."""
+    from safe_bc.distributed.collect import collect as run_collect
+    from safe_bc.tasks import task_defaults
+
+    task = task_defaults(job.env, renderer=job.renderer)
+    out = job.out or Path(task.demos)
+    given = {k: getattr(job, k) for k in ("episodes", "workers", "seed", "encoding")}
+    config = task.collect_config(
+        max_steps=job.max_steps, **{k: v for k, v in given.items() if v is not None}
+    )
+    report = run_collect(config, out, progress=not job.quiet)
+    return Done(
+        f"{out}: {len(report.collected)} episode(s) collected, {len(report.reused)} reused, "
+        f"{report.steps} steps in {report.seconds:.1f} s ({report.steps_per_s:.0f} steps/s), "
+        f"{report.worker_restarts} worker restart(s)",
+        report,
+    )
+
+
+def describe(job: DescribeJob) -> Done:
+    """Cost histograms and ``summary.json`` of a demonstration set (the value)."""
+    from safe_bc.atomic import write_json_atomic
+    from safe_bc.data.store import load_demonstrations, read_episodes, read_meta
+    from safe_bc.experiment import select_for
+    from safe_bc.metrics import combined
+    from safe_bc.plots import plot_cost_histograms
+    from safe_bc.provenance import provenance
+    from safe_bc.selection import SelectionConfig
+    from safe_bc.tasks import task_defaults, task_of
+
+    check_output_folder(job.out)
+    demos = load_demonstrations(job.demos)
+    meta = read_meta(job.demos)
+    eps = task_defaults(task_of(meta.env_id)).eps if job.eps is None else job.eps
+    sel = select_for(demos, SelectionConfig(eps=eps, alpha=0.0))
+    scored = demos.scored
+    offroad = sum(int(ep.offroad.sum()) for ep in read_episodes(job.demos))
+    # the largest cost a state can have: cost + distance is the measurable range per dim
+    top = (demos.costs + demos.safety).max(axis=0)
+    limits = {
+        d: {
+            "d_s": float(sel.thresholds[j]),
+            "closest_distance": float(demos.safety[scored, j].min()),
+            "max_cost": float(top[j]),
+            "inside_range": bool(sel.thresholds[j] < top[j]),
+            "critical_pairs": int(sel.per_dim[:, j].sum()),
+        }
+        for j, d in enumerate(demos.safety_dims)
+    }
+    summary = {
+        "demos": str(job.demos),
+        "pairs": len(demos),
+        "scored_pairs": int(scored.sum()),
+        "episodes": len(set(demos.episode_ids.tolist())),
+        "safety_mean": float(combined(demos.safety[scored]).mean()),
+        "per_dim": {
+            d: {
+                "mean": float(demos.safety[scored, j].mean()),
+                "min": float(demos.safety[scored, j].min()),
+            }
+            for j, d in enumerate(demos.safety_dims)
+        },
+        "offroad_frames": offroad,
+        "limits": limits,
+        "eps": eps,
+        "critical_pairs": int(sel.n_critical),
+        "critical_share": float(sel.n_critical / sel.n_valid),
+        "selection": sel.to_dict(),
+        "dataset": json.loads(meta.to_json()),
+        "described_by": {"command": " ".join(sys.argv), "provenance": provenance()},
+    }
+    job.out.mkdir(parents=True, exist_ok=True)
+    title = f"{job.demos}: {len(demos)} pairs, rev {meta.provenance.get('git_revision', '?')[:12]}"
+    plot_cost_histograms(demos, job.out / "cost_histograms.png", eps=eps, title=title)
+    write_json_atomic(job.out / "summary.json", summary)
+    keys = ("pairs", "episodes", "safety_mean", "offroad_frames", "critical_share")
+    lines = [json.dumps({k: summary[k] for k in keys})]
+    lines += [
+        f"{d:>6}: d_s {v['d_s']:.2f} of {v['max_cost']:.2f} (closest distance "
+        f"{v['closest_distance']:.2f}), critical pairs at eps {eps:g}: {v['critical_pairs']}"
+        for d, v in limits.items()
+    ]
+    lines.append(f"wrote {job.out / 'cost_histograms.png'} and {job.out / 'summary.json'}")
+    return Done("\n".join(lines), summary)
+
+
+def train(job: TrainJob, *, task_eps: bool = False) -> Done:
+    """Select ``T_eps`` and train one agent into the checkpoint ``job.out`` (whole or not at
+    all); ``task_eps``: the selection eps is the demonstrations' task's, not
+    ``job.run.selection.eps``. The value is ``(TrainResult, Selection)``."""
+    with output_lock(job.out):
+        return _train(job, task_eps)
+
+
+def _train(job: TrainJob, task_eps: bool) -> Done:
+    from safe_bc.bc.checkpoint import checkpoint_unit
+    from safe_bc.data.store import load_demonstrations, read_meta
+    from safe_bc.experiment import save_selection, train_run
+    from safe_bc.provenance import run_metadata
+    from safe_bc.tasks import dataset_action_bounds, task_defaults, task_of
+
+    demos = load_demonstrations(job.demos)
+    env_id = read_meta(job.demos).env_id
+    run = job.run
+    if task_eps:
+        eps = task_defaults(task_of(env_id)).eps
+        run = replace(run, selection=replace(run.selection, eps=eps))
+    bounds = dataset_action_bounds(job.demos)
+    result, selection = train_run(demos, run, progress=not job.quiet, action_bounds=bounds)
+    meta = run_metadata(
+        demos=str(job.demos), env_id=env_id, run=run.to_dict(), train=result.summary()
+    )
+    with checkpoint_unit(job.out) as unit:  # weights, config and selection: old or new, whole
+        result.save(unit, extra=json.loads(json.dumps(meta, default=str)))
+        save_selection(unit, demos, selection, meta)
+    return Done(
+        f"{job.out}: trained {run.bc.train.batches} batches, final loss "
+        f"{result.final_loss:.4f}, {result.samples_per_s:.0f} samples/s; "
+        f"|T_eps| = {selection.n_critical} of {selection.n_valid} scored pairs",
+        (result, selection),
+    )
+
+
+def evaluate(job: EvaluateJob) -> Done:
+    """Evaluate a checkpoint on held-out episodes; the value is the evaluation result."""
+    import numpy as np
+
+    from safe_bc.bc import load_checkpoint, read_checkpoint_meta
+    from safe_bc.data.store import read_table, write_table_atomic
+    from safe_bc.distributed.evaluate import evaluate as run_evaluate
+    from safe_bc.evaluation import EvalConfig, NetSource
+    from safe_bc.metrics import METRICS
+    from safe_bc.provenance import run_metadata
+    from safe_bc.tasks import check_net_fits_task, task_defaults, task_of
+
+    check_output_folder(job.out)
+    model, bc_cfg = load_checkpoint(job.checkpoint)
+    extra = read_checkpoint_meta(job.checkpoint).get("extra", {})
+    _, sel_meta = read_table(job.checkpoint / "selection.parquet")
+    if "env_id" not in extra:
+        raise ValueError(f"{job.checkpoint}: no env_id in the checkpoint; train with safe-bc train")
+    spec = model.spec
+    check_net_fits_task(spec.obs_shape, spec.action_dim, extra["env_id"], job.checkpoint)
+    task = task_defaults(task_of(extra["env_id"]))
+    sel_cfg = sel_meta.get("config", {})
+    cfg = EvalConfig(
+        episodes=job.episodes,
+        workers=job.workers,
+        seed=job.eval_seed,
+        env=task.env,
+        max_steps=job.max_steps,
+        eps=float(sel_cfg.get("eps", task.eps)),
+        combine=sel_cfg.get("combine", "any"),
+    )
+    result = run_evaluate(
+        {"agent": NetSource.from_model(model, bc_cfg)},
+        cfg,
+        np.asarray(sel_meta["thresholds"]),
+        progress=not job.quiet,
+    )
+    episodes, steps, table = result.episodes, result.steps, result.summary
+    meta = run_metadata(
+        checkpoint=str(job.checkpoint),
+        trained_with=extra.get("run"),
+        eval_seed=job.eval_seed,
+        env_seeds=episodes["env_seed"].tolist(),
+    )
+    job.out.mkdir(parents=True, exist_ok=True)
+    write_table_atomic(job.out / "episodes.parquet", episodes, meta)
+    write_table_atomic(job.out / "steps.parquet", steps, meta)
+    write_table_atomic(job.out / "summary.parquet", table, meta)
+    r = table.iloc[0]
+    lines = [
+        f"{m:>15}: {r[m]:9.3f}  95% CI [{r[m + '_lo']:.3f}, {r[m + '_hi']:.3f}]"
+        for m in METRICS
+        if m in table
+    ]
+    lines.append(f"wrote {job.out}/episodes.parquet, steps.parquet, summary.parquet")
+    return Done("\n".join(lines), result)
+
+
+def expert(job: ExpertJob) -> Done:
+    """Measure the task's expert on held-out episodes (``expert.md``, the message)."""
+    from safe_bc.atomic import write_text_atomic
+    from safe_bc.data.store import load_demonstrations, write_table_atomic
+    from safe_bc.distributed.collect import ensure_demos
+    from safe_bc.distributed.evaluate import evaluate as run_evaluate
+    from safe_bc.evaluation import EvalConfig, ExpertSource
+    from safe_bc.metrics import METRICS
+    from safe_bc.provenance import run_metadata
+    from safe_bc.tasks import task_defaults
+
+    check_output_folder(job.out)
+    task = task_defaults(job.env)
+    demos_path = job.demos or Path(task.demos)
+    ensure_demos(demos_path, task.collect_config(), progress=not job.quiet)
+    demos = load_demonstrations(demos_path)
+    limits = demos.limits
+    cfg = EvalConfig(
+        episodes=job.episodes, workers=job.workers, seed=job.eval_seed, env=task.env, eps=task.eps
+    )
+    result = run_evaluate(
+        {"expert": ExpertSource(task.expert)}, cfg, limits, progress=not job.quiet
+    )
+    episodes, table = result.episodes, result.summary
+    metrics = [m for m in METRICS if m in table]
+    metrics += [c for c in table.columns if c.startswith("safety_") and c.endswith("_mean")]
+    metrics = list(dict.fromkeys(metrics))
+    meta = run_metadata(
+        expert=repr(task.expert),
+        env=job.env,
+        episodes=job.episodes,
+        eval_seed=job.eval_seed,
+        env_seeds=episodes["env_seed"].tolist(),
+        demos=str(demos_path),
+        limits=[float(x) for x in limits],
+        eps=task.eps,
+    )
+    job.out.mkdir(parents=True, exist_ok=True)
+    write_table_atomic(job.out / "expert_episodes.parquet", episodes, meta)
+    write_table_atomic(job.out / "expert.parquet", table, meta)
+    r = table.iloc[0]
+    dims = ", ".join(f"{d} {x:.2f}" for d, x in zip(demos.safety_dims, limits, strict=True))
+    lines = ["| metric | mean | 95% CI |", "|---|---|---|"]
+    lines += [f"| {m} | {r[m]:.2f} | [{r[m + '_lo']:.2f}, {r[m + '_hi']:.2f}] |" for m in metrics]
+    lines += [
+        "",
+        f"{len(episodes)} held-out episodes (seeds {episodes['env_seed'].min()}..."
+        f"{episodes['env_seed'].max()}); limits d_s (worst cost of the demonstrations in "
+        f"{demos_path}): {dims}; episodes with a violation: "
+        f"{int(r['episodes_with_violation'])}/{len(episodes)}, with an off-road step: "
+        f"{int((episodes['offroad_steps'] > 0).sum())}/{len(episodes)}; "
+        f"min reward {episodes['reward'].min():.1f}; code {meta['git_revision']}, "
+        f"command `{meta['command']}`",
+        "",
+    ]
+    text = "\n".join(lines)
+    write_text_atomic(job.out / "expert.md", text)
+    return Done(text, result)
+
+
+def reproduce(job: ReproduceJob) -> Done:
+    """Rerun Table 1 (or, ``render_only``, rebuild it from stored results); the value is the
+    table."""
+    from safe_bc.reproduce import rerender, run_reproduce
+
+    config = job.config
+    check_output_folder(config.out)
+    table = rerender(config) if job.render_only else run_reproduce(config, progress=not job.quiet)
+    cols = ["method", "reward", "safety_mean", "safety_std", "offroad_steps"]
+    text = table[cols].to_string(index=False, float_format=lambda x: f"{x:.2f}")
+    return Done(f"{text}\nwrote {config.out / 'table1.parquet'} and {config.out / 'table1.md'}")
+
+
+def compare(job: CompareJob) -> Done:
+    """Run (or resume, or ``render_only`` rebuild) the comparison of ``job.comparison``."""
+    from safe_bc.compare import load_comparison
+    from safe_bc.distributed.compare import rerender, run_comparison
+
+    comparison = load_comparison(job.comparison)
+    check_output_folder(comparison.out)
+    if job.render_only:
+        rerender(comparison)
+    else:
+        run_comparison(comparison, progress=not job.quiet)
+    return Done(f"wrote {comparison.out / (comparison.name + '.parquet')} and .md", comparison)
+
+
+def tune(job: TuneJob, *, command: str = "") -> Done:
+    """Run (or resume) the study of ``job.study`` with ``job``'s overrides (or its
+    ``replicates``); the value is the study outcome; its code is the outcome's ``exit_code``
+    (130 / 143 when a signal stopped it: rerun to resume; 1 without a winner)."""
+    import shlex
+
+    from safe_bc.distributed.study import experiment_location, format_outcome, run_study
+    from safe_bc.study import load_study
+
+    spec = replace(load_study(job.study), **job.overrides())
+    if job.replicates is not None:  # it prints its table and verdict itself
+        from safe_bc.distributed.replicates import tune_replicates
+
+        argv = shlex.split(command) or ["safe-bc", "tune", str(job.study)]
+        return Done("", code=tune_replicates(spec, job.replicates, fresh=job.fresh, argv=argv))
+    # one study run per results folder and per (local) Tune experiment folder
+    storage, experiment = experiment_location(spec)
+    outputs = [(spec.results / spec.name, "--results")]
+    if "://" not in storage:
+        outputs.append((Path(experiment), "--storage"))
+    with output_locks(outputs):
+        outcome = run_study(spec, fresh=job.fresh, command=command)
+    return Done(format_outcome(outcome, spec.params), outcome, outcome.exit_code)
+
+
+def query(job: QueryJob) -> Done:
+    """Critical-zone queries on a checkpoint (resumable); the value is the run's result."""
+    from safe_bc.queries.stage import query_checkpoint
+
+    result = query_checkpoint(job.checkpoint, job.demos, job.out, job.config)
+    return Done(
+        f"{result.total_queries} queries in {result.total_episodes} episodes; "
+        f"agent: {result.policy}",
+        result,
+    )
+
+
+def improve(job: ImproveJob) -> Done:
+    """Improve a checkpoint by constrained RL (resumable); the value is the run's result."""
+    from tqdm import tqdm
+
+    from safe_bc.improve import LocalEnvs
+    from safe_bc.improve import improve as run_improve
+
+    config = job.config
+    bar = tqdm(total=config.iterations, desc=f"improve ({config.mode})", disable=job.quiet)
+
+    def show(row: dict[str, float]) -> None:
+        bar.n = int(row["iteration"])
+        bar.set_postfix(reward=f"{row['train_reward']:.2f}", lam=f"{row['lambda']:.2f}",
+                        viol=f"{row['train_violation_steps']:.2f}")  # fmt: skip
+        bar.refresh()
+
+    envs = LocalEnvs
+    if job.rollout_workers:
+        from safe_bc.distributed.envs import ray_envs
+
+        envs = ray_envs(job.rollout_workers)
+    with output_lock(job.out), bar:
+        result = run_improve(job.start, job.out, config, demos=job.demos, on_iteration=show,
+                             envs=envs)  # fmt: skip
+    last = result.history.dropna(subset=["val_reward"]).iloc[-1]
+    return Done(
+        f"{job.out}: {config.mode}, {result.iterations} iterations "
+        f"({'resumed at ' + str(result.resumed_at) if result.resumed_at else 'fresh'}), "
+        f"{int(last['env_steps'])} env steps; validation reward {last['val_reward']:.2f}, "
+        f"violating sessions / patient {last['val_violation_steps']:.3f}, lambda "
+        f"{last['lambda']:.2f}; policy of iteration {result.kept_iteration} in "
+        f"{job.out / 'policy'}",
+        result,
+    )
+
+
+def export(job: ExportJob) -> Done:
+    """Export a demonstration set as a Minari dataset (the value)."""
+    from safe_bc.data.minari_export import MinariNotInstalledError, export_minari
+
+    try:
+        dataset = export_minari(job.demos, job.dataset_id, author=job.author)
+    except MinariNotInstalledError as e:
+        raise ValueError(str(e)) from None
+    return Done(
+        f"{job.demos} -> Minari dataset {job.dataset_id}: {dataset.total_episodes} episode(s), "
+        f"{dataset.total_steps} steps in {dataset.storage.data_path.parent}; load it with "
+        f"minari.load_dataset({job.dataset_id!r})",
+        dataset,
+    )
+
+
+def render(job: RenderJob) -> Done:
+    """A video (or, ``paths``, a track map) of one episode with the safety rays drawn in."""
+    from safe_bc.render import render_command
+
+    given = {k: getattr(job, k) for k in ("scale", "fps") if getattr(job, k) is not None}
+    return Done(
+        render_command(
+            job.out,
+            job.seed,
+            checkpoint=job.checkpoint,
+            expert=job.expert,
+            paths=job.paths,
+            demos=job.demos,
+            eps=job.eps,
+            max_steps=job.max_steps,
+            **given,
+        )
+    )

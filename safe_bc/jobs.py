@@ -1,0 +1,274 @@
+"""What each ``safe-bc`` command takes: one frozen record per command, paths plus the configs.
+
+The command line is generated from these records (``safe_bc.cli``, tyro): a field is a flag,
+its docstring the flag's help, a nested config's fields dotted flags (``--selection.eps``,
+``--bc.train.lr``: the names a study's search space uses). Range checks live in the configs'
+``__post_init__``. ``None`` defaults mean "the task's" or "the config's own default", so no
+default is written twice. The functions of :mod:`safe_bc.api` take these records.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Annotated, Literal
+
+import tyro
+
+from safe_bc.data.codec import Encoding
+from safe_bc.envs.factory import Renderer
+from safe_bc.evaluation import EvalConfig
+from safe_bc.improve.config import ImproveConfig
+from safe_bc.queries.config import QueryConfig
+from safe_bc.reproduce import ReproduceConfig
+from safe_bc.run_config import RunConfig
+from safe_bc.tasks import DEFAULT_TASK, Task
+
+Flat = tyro.conf.arg(name="")
+"""A nested config whose fields are flags without its own prefix (``--selection.eps``, not
+``--run.selection.eps``)."""
+DEMOS = Path("data/demos")
+
+
+@dataclass(frozen=True)
+class CollectJob:
+    """Collect expert demonstrations into Parquet."""
+
+    env: Task = DEFAULT_TASK
+    """The testbed: a task of the registry (safe_bc.tasks.TASKS)."""
+    renderer: Renderer = "fast"
+    """CarRacing renderer (fast is pixel-identical to stock; raster is faster but approximate,
+    see results/ablation/renderer/)."""
+    out: Path | None = None
+    """Dataset folder; None: the task's (data/demos, rehab: data/rehab_demos)."""
+    episodes: int | None = None
+    """CollectConfig.episodes; None: the task's (5, rehab: 150)."""
+    workers: int | None = None
+    """CollectConfig.workers; None: its default."""
+    seed: int | None = None
+    """CollectConfig.seed (the episodes' tracks or patients and the expert's noise); None: its
+    default."""
+    max_steps: int | None = None
+    """CollectConfig.max_steps; None: the env's time limit."""
+    encoding: Encoding | None = None
+    """CollectConfig.encoding; None: the task's (png for frames, vector for rehab)."""
+    quiet: bool = False
+    """No progress bar."""
+
+
+@dataclass(frozen=True)
+class DescribeJob:
+    """Cost histograms and summary of a demonstration set."""
+
+    demos: Path = DEMOS
+    """Demonstration dataset folder."""
+    out: Path = Path("results/demos")
+    """Where the summary goes."""
+    eps: float | None = None
+    """Critical-zone width (SelectionConfig.eps); None: the task's (2 px, rehab: 0.05)."""
+
+
+@dataclass(frozen=True)
+class TrainJob:
+    """Select T_eps and train one BC agent (a checkpoint)."""
+
+    out: Path
+    """Checkpoint folder."""
+    demos: Path = DEMOS
+    """Demonstration dataset folder."""
+    run: Annotated[RunConfig, Flat] = field(default_factory=RunConfig)
+    """Selection and behaviour cloning; ``selection.eps`` not given on the command line is
+    the task's (2 px, rehab: 0.05)."""
+    quiet: bool = False
+    """No progress bar."""
+
+
+@dataclass(frozen=True)
+class EvaluateJob:
+    """Evaluate a checkpoint on held-out tracks (or patients)."""
+
+    checkpoint: Path
+    """A safe-bc train checkpoint."""
+    out: Path
+    """Where the episode tables go."""
+    episodes: int = EvalConfig.episodes
+    """Held-out episodes, one each (EvalConfig.episodes)."""
+    workers: int = EvalConfig.workers
+    """Ray actors that run the episodes (EvalConfig.workers)."""
+    eval_seed: int = EvalConfig.seed
+    """Block of held-out seeds the episodes are drawn from (EvalConfig.seed)."""
+    max_steps: int | None = None
+    """Step cap per episode (EvalConfig.max_steps); None: the env's."""
+    quiet: bool = False
+    """No progress bar."""
+
+
+@dataclass(frozen=True)
+class ExpertJob:
+    """Measure the expert on held-out tracks (or patients)."""
+
+    env: Task = DEFAULT_TASK
+    """The testbed: a task of the registry (safe_bc.tasks.TASKS)."""
+    episodes: int = 20
+    """Held-out episodes, one each (EvalConfig.episodes)."""
+    workers: int = EvalConfig.workers
+    """Ray actors that run the episodes (EvalConfig.workers)."""
+    eval_seed: int = 3
+    """Block of held-out seeds the episodes are drawn from (EvalConfig.seed)."""
+    out: Path = Path("results/expert")
+    """Where the tables go."""
+    demos: Path | None = None
+    """Demonstrations whose worst costs d_s define violations; None: the task's (built if
+    absent)."""
+    quiet: bool = False
+    """No progress bar."""
+
+
+@dataclass(frozen=True)
+class ReproduceJob:
+    """Rerun the paper's Table 1 with confidence intervals."""
+
+    config: Annotated[ReproduceConfig, Flat] = field(default_factory=ReproduceConfig)
+    """The rerun; ``demos`` and ``out`` not given on the command line are the task's."""
+    render_only: bool = False
+    """Rebuild the table and figures from the stored per-episode results."""
+    quiet: bool = False
+    """No progress bars."""
+
+
+@dataclass(frozen=True)
+class CompareJob:
+    """Run (or resume) a comparison file."""
+
+    comparison: tyro.conf.Positional[Path]
+    """Comparison file, e.g. tune_jobs/compare/table1.py."""
+    render_only: bool = False
+    """Rebuild the table from the stored episodes."""
+    quiet: bool = False
+    """No progress bars."""
+
+
+@dataclass(frozen=True)
+class TuneJob:
+    """Run (or resume) a constrained hyper-parameter study.
+
+    Options left unset keep the study file's StudySpec values."""
+
+    study: tyro.conf.Positional[Path]
+    """Study file defining STUDY, e.g. tune_jobs/default.py."""
+    trials: int | None = None
+    """StudySpec.trials."""
+    storage: str | None = None
+    """StudySpec.storage: Tune storage, a folder or URI (s3://...)."""
+    threshold: float | None = None
+    """StudySpec.threshold: the safety threshold."""
+    max_concurrent: int | None = None
+    """StudySpec.max_concurrent: trials at once."""
+    rollout_workers: int | None = None
+    """StudySpec.rollout_workers: evaluation actors per trial."""
+    cpus_per_trial: float | None = None
+    """StudySpec.cpus_per_trial: CPUs of a trial's own process (fractional allowed)."""
+    demos: Path | None = None
+    """StudySpec.demos: the demonstration set (a shared path on a cluster)."""
+    results: Path | None = None
+    """StudySpec.results: outputs go to RESULTS/<study>/."""
+    fresh: bool = False
+    """Discard a previous run of the study."""
+    replicates: int | None = None
+    """Run N replicates (the study with its seeds shifted) into RESULTS/<study>/replicates/r<k>/
+    and write the winners' table RESULTS/<study>/replicates.parquet, .md."""
+
+    def __post_init__(self) -> None:
+        if self.replicates is not None and self.replicates < 1:
+            raise ValueError(f"replicates must be >= 1, got {self.replicates}")
+
+    def overrides(self) -> dict[str, object]:
+        """The StudySpec fields given."""
+        names = ("trials", "storage", "threshold", "max_concurrent", "rollout_workers",
+                 "cpus_per_trial", "demos", "results")  # fmt: skip
+        return {n: getattr(self, n) for n in names if getattr(self, n) is not None}
+
+
+@dataclass(frozen=True)
+class QueryJob:
+    """Critical-zone queries: retrain a checkpoint on expert labels of its own critical
+    states, per round (rerun to resume)."""
+
+    checkpoint: Path
+    """A safe-bc train checkpoint."""
+    demos: Path
+    """Its demonstration dataset folder."""
+    out: Path
+    """Run folder (resumes a run there)."""
+    config: Annotated[QueryConfig, Flat] = field(default_factory=lambda: QueryConfig(workers=2))
+    """The query run (the command rolls out on 2 Ray actors unless --workers says otherwise)."""
+
+
+@dataclass(frozen=True)
+class ImproveJob:
+    """Improve a safety-imitation checkpoint by constrained RL (rerun to resume)."""
+
+    start: Path
+    """A safe-bc train checkpoint."""
+    out: Path
+    """Run folder (rerun to resume)."""
+    demos: Path | None = None
+    """Demonstrations; None: the start's."""
+    config: Annotated[ImproveConfig, Flat] = field(default_factory=ImproveConfig)
+    """The improvement run."""
+    rollout_workers: int = 0
+    """Ray actors stepping the rollout envs (0: in-process, right for rehab; CarRacing: one
+    per core); the run is bit-identical either way."""
+    quiet: bool = False
+    """No progress bar."""
+
+
+@dataclass(frozen=True)
+class ExportJob:
+    """Export a demonstration set to another format (Minari)."""
+
+    dataset_id: str
+    """E.g. safe_bc/carracing-drift-v0; written under $MINARI_DATASETS_PATH (default
+    ~/.minari/datasets)."""
+    demos: Path = DEMOS
+    """Demonstration dataset folder."""
+    format: Literal["minari"] = "minari"
+    """Target format."""
+    author: str | None = None
+    """Recorded in the Minari metadata."""
+
+
+@dataclass(frozen=True)
+class RenderJob:
+    """Video of a CarRacing episode with the safety rays drawn in (or --paths)."""
+
+    out: Path
+    """.mp4, .gif, or .png with --paths."""
+    checkpoint: Path | None = None
+    """The agent (safe-bc train)."""
+    expert: bool = False
+    """Render the expert instead."""
+    paths: bool = False
+    """Draw the track map with the driven paths (expert beside agent) to --out."""
+    seed: int = 0
+    """Track seed."""
+    max_steps: int | None = None
+    """Step cap per episode; None: the env's."""
+    demos: Path | None = None
+    """Expert and limits d_s; None: the checkpoint's, else data/demos."""
+    eps: float | None = None
+    """Critical-zone width; None: the checkpoint's, else 2 px."""
+    scale: int | None = None
+    """Upscaling of frames; None: render_command's (4)."""
+    fps: float | None = None
+    """Frames per second of the video; None: render_command's (50)."""
+
+    def __post_init__(self) -> None:
+        if self.seed < 0:
+            raise ValueError(f"seed must be >= 0, got {self.seed}")
+        if self.max_steps is not None and self.max_steps < 1:
+            raise ValueError(f"max_steps must be >= 1, got {self.max_steps}")
+        if self.scale is not None and self.scale < 1:
+            raise ValueError(f"scale must be >= 1, got {self.scale}")
+        if self.fps is not None and not 0 < self.fps < float("inf"):
+            raise ValueError(f"fps must be finite, > 0, got {self.fps}")
