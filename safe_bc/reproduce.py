@@ -40,7 +40,7 @@ from safe_bc.evaluation import EvalConfig, ExpertSource, NetSource
 from safe_bc.experiment import RunConfig, save_selection, select_for
 from safe_bc.metrics import METRICS, combined, paired_crossed, summarize_crossed
 from safe_bc.provenance import run_metadata
-from safe_bc.report import fmt_ci
+from safe_bc.report import fmt_ci, markdown_table
 from safe_bc.selection import RULES, Baseline, Rest, SelectionConfig
 from safe_bc.tasks import Task, dataset_action_bounds, task_defaults, task_of
 
@@ -440,7 +440,7 @@ def render_markdown(table: pd.DataFrame, meta: dict[str, Any], *, paper: bool = 
     head += ["critical share", "seeds x tracks"]
     if paired:
         head += ["reward - plain BC", "safety - plain BC", "seeds better than plain BC"]
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    rows = []
     for _, r in table.iterrows():
         cells = [
             str(r["method"]),
@@ -467,20 +467,24 @@ def render_markdown(table: pd.DataFrame, meta: dict[str, Any], *, paper: bool = 
                 else f"{int(r['seeds_better'])}/{int(r['n_seeds_paired'])} seeds better"
             )
             cells += [_fmt(r, "d_reward", rd), _fmt(r, "d_safety_mean", sd), better]
-        lines.append("| " + " | ".join(cells) + " |")
+        rows.append(cells)
+    lines = [markdown_table(rows, head)]
     if paper:
+        paper_rows = [
+            [
+                f"{r['alpha']:g}",
+                f"{r['reward']:.1f}",
+                f"{r['safety_mean']:.2f}",
+                f"{r['safety_std']:.2f}",
+            ]
+            for _, r in PAPER_TABLE1.iterrows()
+        ]
         lines += [
             "",
             "Paper (Boecking & Philipp 2020, Table 1; 2 episodes, 1 training run):",
             "",
-            "| alpha | reward | safety mean | safety std |",
-            "|---|---|---|---|",
+            markdown_table(paper_rows, ["alpha", "reward", "safety mean", "safety std"]),
         ]
-        for _, r in PAPER_TABLE1.iterrows():
-            lines.append(
-                f"| {r['alpha']:g} | {r['reward']:.1f} | {r['safety_mean']:.2f} "
-                f"| {r['safety_std']:.2f} |"
-            )
     lines += [
         "",
         "Rows: alpha=0 (rest=all) is plain BC and alpha=1 BC on T_eps only; BC-Safe trains "

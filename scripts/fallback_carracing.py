@@ -28,7 +28,7 @@ from typing import Any
 
 import pandas as pd
 
-from safe_bc.report import fmt_ci
+from safe_bc.report import fmt_ci, markdown_table
 from scripts.eval_cache import evaluate_cached
 from scripts.improve_carracing import summary_table
 from scripts.improve_rehab import split_policy, write_outputs
@@ -58,21 +58,36 @@ def markdown(summary: pd.DataFrame, paired: pd.DataFrame, meta: dict[str, Any]) 
         "independently, bootstrap seed 0]; *paired*: "
         "difference to the same seed's start without a fallback on the same tracks.",
         "",
-        "| policy | reward | reward - start, paired | violation steps / episode | violation "
-        "steps - start, paired | episodes with a violation | n |",
-        "|---|---|---|---|---|---|---|",
     ]
+    head = [
+        "policy",
+        "reward",
+        "reward - start, paired",
+        "violation steps / episode",
+        "violation steps - start, paired",
+        "episodes with a violation",
+        "n",
+    ]
+    rows = []
     for _, r in summary.iterrows():
         m = r["method"]
         d_r = d_v = ""
         if m in pairs.index:
             diff = pairs.loc[m].rename(lambda c: c.removeprefix("d_"))
             d_r, d_v = fmt_ci(diff, "reward"), fmt_ci(diff, "violation_steps")
-        lines.append(
-            f"| {LABELS[m]} | {fmt_ci(r, 'reward', 0)} | {d_r} | {fmt_ci(r, 'violation_steps')} | "
-            f"{d_v} | {int(r['episodes_beyond'])} / {int(r['n_episodes'])} | {r['n']} |"
+        rows.append(
+            [
+                LABELS[m],
+                fmt_ci(r, "reward", 0),
+                d_r,
+                fmt_ci(r, "violation_steps"),
+                d_v,
+                f"{int(r['episodes_beyond'])} / {int(r['n_episodes'])}",
+                r["n"],
+            ]
         )
     lines += [
+        markdown_table(rows, head),
         "",
         "Provenance:",
         "",

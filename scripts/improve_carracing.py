@@ -38,7 +38,7 @@ import numpy as np
 import pandas as pd
 
 from safe_bc.improve import HISTORY, ImproveConfig, LocalEnvs
-from safe_bc.report import fmt_ci
+from safe_bc.report import fmt_ci, markdown_table
 from scripts.eval_cache import cache_path, evaluate_cached
 from scripts.improve_rehab import MODES, run_modes, split_policy, write_outputs
 
@@ -143,11 +143,20 @@ def markdown(
         "the difference to the same seed's start on the same tracks. Limits d_s (the expert's "
         f"worst costs in {meta['demos']}, px): {meta['limits_text']}.",
         "",
-        "| method | reward | reward - start, paired | safety mean (px) | violation steps "
-        "/ episode | violation steps - start, paired | episodes with a violation | off-road "
-        "steps / episode | n | compute / run |",
-        "|---|---|---|---|---|---|---|---|---|---|",
     ]
+    head = [
+        "method",
+        "reward",
+        "reward - start, paired",
+        "safety mean (px)",
+        "violation steps / episode",
+        "violation steps - start, paired",
+        "episodes with a violation",
+        "off-road steps / episode",
+        "n",
+        "compute / run",
+    ]
+    rows = []
     pairs = paired.set_index("method") if len(paired) else pd.DataFrame()
     for _, r in summary.iterrows():
         m = r["method"]
@@ -156,23 +165,32 @@ def markdown(
             diff = pairs.loc[m].rename(lambda c: c.removeprefix("d_"))
             d_reward, d_viol = fmt_ci(diff, "reward"), fmt_ci(diff, "violation_steps")
         minutes = f"{r['minutes']:.0f} min" if np.isfinite(r["minutes"]) else ""
-        lines.append(
-            f"| {LABELS[m]} | {fmt_ci(r, 'reward', 0)} | {d_reward} | "
-            f"{fmt_ci(r, 'safety_mean', 2)} | {fmt_ci(r, 'violation_steps')} | {d_viol} | "
-            f"{int(r['episodes_beyond'])} / {int(r['n_episodes'])} | "
-            f"{fmt_ci(r, 'offroad_steps')} | {r['n']} | {minutes} |"
+        rows.append(
+            [
+                LABELS[m],
+                fmt_ci(r, "reward", 0),
+                d_reward,
+                fmt_ci(r, "safety_mean", 2),
+                fmt_ci(r, "violation_steps"),
+                d_viol,
+                f"{int(r['episodes_beyond'])} / {int(r['n_episodes'])}",
+                fmt_ci(r, "offroad_steps"),
+                r["n"],
+                minutes,
+            ]
         )
     seeds = list(per_seed.columns)
     lines += [
+        markdown_table(rows, head),
         "",
         "Per training seed: mean reward on the tracks (episodes with a violation of "
         f"{meta['episodes']}).",
         "",
-        "| method | " + " | ".join(f"seed {k}" for k in seeds) + " |",
-        "|---|" + "---|" * len(seeds),
+        markdown_table(
+            [[LABELS[m], *row] for m, row in per_seed.iterrows()],
+            ["method", *(f"seed {k}" for k in seeds)],
+        ),
     ]
-    for m, row in per_seed.iterrows():
-        lines.append(f"| {LABELS[m]} | " + " | ".join(row) + " |")
     lines += [
         "",
         "*compute / run*: wall time of one improvement run (training rollouts, PPO updates and "

@@ -47,7 +47,7 @@ from safe_bc.improve import (
     improve,
     validation_seeds,
 )
-from safe_bc.report import fmt_ci
+from safe_bc.report import fmt_ci, markdown_table
 
 MODES = {"ppo": (False, False), "shield": (True, False), "lagrangian": (False, True),
          "both": (True, True)}  # fmt: skip
@@ -271,11 +271,20 @@ def markdown(summary: pd.DataFrame, paired: pd.DataFrame, meta: dict[str, Any]) 
         f"{meta['config']['eps']} of d_s (`eps`), both chosen on selection patients disjoint "
         "from these, see [sweep/margin_sweep.md](sweep/margin_sweep.md).",
         "",
-        "| method | capacity gain (reward) | gain - guideline, paired | safety mean | "
-        "sessions beyond d_s / patient | patients with a session beyond d_s | "
-        "of which last session | eval-path violation steps | n | compute / run |",
-        "|---|---|---|---|---|---|---|---|---|---|",
     ]
+    head = [
+        "method",
+        "capacity gain (reward)",
+        "gain - guideline, paired",
+        "safety mean",
+        "sessions beyond d_s / patient",
+        "patients with a session beyond d_s",
+        "of which last session",
+        "eval-path violation steps",
+        "n",
+        "compute / run",
+    ]
+    rows = []
     pairs = paired.set_index("method") if len(paired) else pd.DataFrame()
     for _, r in summary.iterrows():
         m = r["method"]
@@ -283,13 +292,22 @@ def markdown(summary: pd.DataFrame, paired: pd.DataFrame, meta: dict[str, Any]) 
         if m in pairs.index:
             d = fmt_ci(pairs.loc[m].rename(lambda c: c.removeprefix("d_")), "reward", 2)
         minutes = f"{r['minutes']:.1f} min" if np.isfinite(r["minutes"]) else ""
-        lines.append(
-            f"| {LABELS[m]} | {fmt_ci(r, 'reward', 2)} | {d} | {fmt_ci(r, 'safety_mean', 3)} | "
-            f"{fmt_ci(r, 'violating_sessions', 3)} | {int(r['patients_beyond'])} / "
-            f"{int(r['n_episodes'])} | {int(r['last_beyond'])} | "
-            f"{int(r['eval_path_violation_steps'])} | {r['n']} | {minutes} |"
+        rows.append(
+            [
+                LABELS[m],
+                fmt_ci(r, "reward", 2),
+                d,
+                fmt_ci(r, "safety_mean", 3),
+                fmt_ci(r, "violating_sessions", 3),
+                f"{int(r['patients_beyond'])} / {int(r['n_episodes'])}",
+                int(r["last_beyond"]),
+                int(r["eval_path_violation_steps"]),
+                r["n"],
+                minutes,
+            ]
         )
     lines += [
+        markdown_table(rows, head),
         "",
         "Columns: *sessions beyond d_s* counts every session whose outcome (peak heart rate, "
         "fatigue or peak systolic pressure) exceeded the worst the guideline reached on its "

@@ -44,7 +44,7 @@ import numpy as np
 import pandas as pd
 
 from safe_bc.improve import ImproveConfig, ImprovedSource, improve, validation_seeds
-from safe_bc.report import fmt_ci
+from safe_bc.report import fmt_ci, markdown_table
 from scripts.improve_rehab import ensure_start, session_outcomes
 
 CANDIDATES: dict[str, dict[str, Any]] = {
@@ -168,20 +168,37 @@ def markdown(sweep: pd.DataFrame, meta: dict[str, Any]) -> str:
         "this sweep's first run, at db54bdb), then this run's choice. Its settings are the "
         "defaults of `../improve.md` (all three modes there).",
         "",
-        "| candidate | overrides | seeds | selection gain | selection beyond d_s | "
-        "test gain | test beyond d_s | test sessions beyond d_s |",
-        "|---|---|---|---|---|---|---|---|",
     ]
+    head = [
+        "candidate",
+        "overrides",
+        "seeds",
+        "selection gain",
+        "selection beyond d_s",
+        "test gain",
+        "test beyond d_s",
+        "test sessions beyond d_s",
+    ]
+    rows = []
     for _, r in sweep.iterrows():
         m = r["method"]
         over = ", ".join(f"{k}={v}" for k, v in CANDIDATES.get(m, {}).items())
         tested = np.isfinite(r.get("test_n", np.nan))
         sessions = int(r["test_sessions_beyond"]) if tested else ""
-        lines.append(
-            f"| {m} | {over} | {r['seeds']} | {ci(r, 'select')} | {count(r, 'select')} | "
-            f"{ci(r, 'test')} | {count(r, 'test')} | {sessions} |"
+        rows.append(
+            [
+                m,
+                over,
+                r["seeds"],
+                ci(r, "select"),
+                count(r, "select"),
+                ci(r, "test"),
+                count(r, "test"),
+                sessions,
+            ]
         )
     lines += [
+        markdown_table(rows, head),
         "",
         "Guideline clinician on the same patients: "
         f"{meta['expert_select_beyond']} / {meta['select_n']} selection and "
