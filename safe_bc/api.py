@@ -230,6 +230,7 @@ def expert(job: ExpertJob) -> Done:
     from safe_bc.evaluation import EvalConfig, ExpertSource
     from safe_bc.metrics import METRICS
     from safe_bc.provenance import run_metadata
+    from safe_bc.report import markdown_table
     from safe_bc.tasks import task_defaults
 
     check_output_folder(job.out)
@@ -263,8 +264,8 @@ def expert(job: ExpertJob) -> Done:
     write_table_atomic(job.out / "expert.parquet", table, meta)
     r = table.iloc[0]
     dims = ", ".join(f"{d} {x:.2f}" for d, x in zip(demos.safety_dims, limits, strict=True))
-    lines = ["| metric | mean | 95% CI |", "|---|---|---|"]
-    lines += [f"| {m} | {r[m]:.2f} | [{r[m + '_lo']:.2f}, {r[m + '_hi']:.2f}] |" for m in metrics]
+    cells = [[m, f"{r[m]:.2f}", f"[{r[m + '_lo']:.2f}, {r[m + '_hi']:.2f}]"] for m in metrics]
+    lines = [markdown_table(cells, ["metric", "mean", "95% CI"])]
     lines += [
         "",
         f"{len(episodes)} held-out episodes (seeds {episodes['env_seed'].min()}..."

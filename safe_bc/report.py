@@ -3,10 +3,26 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
-__all__ = ["fmt_ci"]
+import pandas as pd
+
+__all__ = ["fmt_ci", "markdown_table"]
+
+
+def markdown_table(rows: Sequence[Sequence[object]], columns: Sequence[str]) -> str:
+    """A Markdown (pipe) table of cells already formatted as text: ``DataFrame.to_markdown``
+    (tabulate), with number parsing off so that every cell reads as written.
+
+    >>> print(markdown_table([["a", "0.50"], ["b", "904 [891, 913]"]], ["method", "reward"]))
+    | method   | reward         |
+    |:---------|:---------------|
+    | a        | 0.50           |
+    | b        | 904 [891, 913] |
+    """
+    frame = pd.DataFrame([[str(c) for c in r] for r in rows], columns=list(columns))
+    return frame.to_markdown(index=False, disable_numparse=True)
 
 
 def fmt_ci(

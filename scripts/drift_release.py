@@ -20,6 +20,7 @@ import pandas as pd
 from safe_bc.collection import EpisodeMaker
 from safe_bc.data.store import write_table_atomic, write_text_atomic
 from safe_bc.provenance import run_metadata
+from safe_bc.report import markdown_table
 from safe_bc.tasks import task_defaults
 
 
@@ -69,17 +70,28 @@ def main(argv: list[str] | None = None) -> int:
     meta = run_metadata(releases=args.releases, episodes=args.episodes, collection="default")
     args.out.mkdir(parents=True, exist_ok=True)
     write_table_atomic(args.out / "release_sweep.parquet", table, meta)
-    lines = [
-        "| release distance (px) | closest left | closest front | closest right | fewest wheels "
-        "on road | off-road frames | reward |",
-        "|---|---|---|---|---|---|---|",
+    head = [
+        "release distance (px)",
+        "closest left",
+        "closest front",
+        "closest right",
+        "fewest wheels on road",
+        "off-road frames",
+        "reward",
     ]
-    for r in table.itertuples():
-        lines.append(
-            f"| {r.release_distance:g} | {r.closest_left:.2f} | {r.closest_front:.2f} | "
-            f"{r.closest_right:.2f} | {r.fewest_wheels_on_road} | {r.offroad_frames} | "
-            f"{r.reward_mean:.1f} |"
-        )
+    rows = [
+        [
+            f"{r.release_distance:g}",
+            f"{r.closest_left:.2f}",
+            f"{r.closest_front:.2f}",
+            f"{r.closest_right:.2f}",
+            r.fewest_wheels_on_road,
+            r.offroad_frames,
+            f"{r.reward_mean:.1f}",
+        ]
+        for r in table.itertuples()
+    ]
+    lines = [markdown_table(rows, head)]
     lines += ["", f"{args.episodes} default demonstration episodes per row; code "
               f"{meta['git_revision']}; command `{meta['command']}`", ""]  # fmt: skip
     write_text_atomic(args.out / "release_sweep.md", "\n".join(lines))

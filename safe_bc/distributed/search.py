@@ -21,9 +21,10 @@ and successive halving.
 from __future__ import annotations
 
 import contextlib
+import copy
 import math
 import warnings
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -160,7 +161,8 @@ class ConstrainedOptunaSearch(OptunaSearch):
             attrs = {"objective": self._metric, "constraints": dict(self._constraint_keys),
                      "batch_size": self.__dict__.get("_batch_size")}  # fmt: skip
             try:
-                export_study(self._ot_study, url, attrs)
+                export_study(self._ot_study, url, attrs, metric=self._metric,
+                             constraint_names=list(self._constraint_keys))  # fmt: skip
             except Exception as e:  # a copy for other tools must never stop the study
                 warnings.warn(f"could not copy the Optuna study to {url}: {e}", stacklevel=2)
 
@@ -200,10 +202,21 @@ def default_optuna_storage(spec: StudySpec) -> str:
     return f"sqlite:///{(spec.results / spec.name / 'optuna.db').resolve()}"
 
 
-def export_study(study: Any, url: str, attrs: Mapping[str, Any] | None = None) -> None:
+def export_study(
+    study: Any,
+    url: str,
+    attrs: Mapping[str, Any] | None = None,
+    *,
+    metric: str | None = None,
+    constraint_names: Sequence[str] = (),
+) -> None:
     """Write ``study`` (any Optuna study, e.g. the searcher's in-memory one) to the Optuna
     storage at ``url`` under the same name, replacing a study of that name there; ``attrs``
     are added to the copy's study user attributes.
+
+    The copy is made for other tools: ``metric`` names its objective
+    (``Study.set_metric_names``), and every trial's named constraints are also written as the
+    list optuna-dashboard reads (:func:`with_constraint_list`).
 
     A SQLite file is written to a temporary file and renamed over the old one (a reader or a
     killed driver never sees half a study); other RDB URLs (PostgreSQL, MySQL) are updated
@@ -221,7 +234,7 @@ def export_study(study: Any, url: str, attrs: Mapping[str, Any] | None = None) -
         tmp.unlink(missing_ok=True)
         try:
             storage = optuna.storages.RDBStorage(f"{prefix}{tmp}")
-            _copy_into(study, storage, attrs)
+            _copy_into(study, storage, attrs, metric, constraint_names)
             storage.remove_session()
             storage.engine.dispose()
             os.replace(tmp, path)
@@ -231,18 +244,47 @@ def export_study(study: Any, url: str, attrs: Mapping[str, Any] | None = None) -
     storage = optuna.storages.RDBStorage(url)
     with contextlib.suppress(KeyError):  # no earlier copy
         optuna.delete_study(study_name=study.study_name, storage=storage)
-    _copy_into(study, storage, attrs)
+    _copy_into(study, storage, attrs, metric, constraint_names)
 
 
-def _copy_into(study: Any, storage: Any, attrs: Mapping[str, Any] | None) -> None:
+def with_constraint_list(trial: Any, names: Sequence[str] = ()) -> Any:
+    """``trial`` (a ``FrozenTrial``) with its named constraints (``Trial.set_constraint``) also
+    stored as the list form, the system attribute ``constraints`` (``<= 0`` feasible): the
+    form ``TPESampler(constraints_func=...)`` writes and optuna-dashboard 0.21 reads (it shows
+    no constraint of a trial without it). Values follow ``names``, then any other names in
+    sorted order. Optuna reads both forms, so the copy's ``.constraints`` holds each value twice:
+    by name and under its list index (``"0"``, ``"1"``); feasibility is the same.
+    A trial without named constraints, or with a list already, is returned as it is.
+    """
+    named = trial.constraints
+    if not named or "constraints" in trial.system_attrs:
+        return trial
+    order = [n for n in names if n in named] + sorted(set(named) - set(names))
+    out = copy.copy(trial)
+    out.system_attrs = {**trial.system_attrs, "constraints": [float(named[n]) for n in order]}
+    return out
+
+
+def _copy_into(
+    study: Any,
+    storage: Any,
+    attrs: Mapping[str, Any] | None,
+    metric: str | None = None,
+    constraint_names: Sequence[str] = (),
+) -> None:
     import optuna
 
-    copy = optuna.create_study(
+    target = optuna.create_study(
         storage=storage, study_name=study.study_name, directions=study.directions
     )
+    if metric is not None and len(study.directions) == 1:
+        with warnings.catch_warnings():  # experimental since Optuna 3.2, still in 5.0
+            warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
+            target.set_metric_names([metric])
     for key, value in {**study.user_attrs, **(attrs or {})}.items():
-        copy.set_user_attr(key, value)
-    copy.add_trials(study.get_trials(deepcopy=False))
+        target.set_user_attr(key, value)
+    trials = study.get_trials(deepcopy=False)
+    target.add_trials([with_constraint_list(t, constraint_names) for t in trials])
 
 
 def check_private_api(searcher: OptunaSearch) -> None:

@@ -82,8 +82,11 @@ def test_searcher_copies_its_study_to_an_optuna_storage_that_optuna_loads(tmp_pa
     loaded = optuna.load_study(study_name="optuna", storage=url)
     trials = loaded.get_trials()
     assert [t.state.name for t in trials] == ["COMPLETE", "COMPLETE"]  # copied at the tell
-    assert trials[0].constraints == {"safety": 0.5, "violations": 0.0}
-    assert trials[1].constraints == {"safety": -1.0, "violations": 0.0}
+    # named (Optuna 5) and as the list optuna-dashboard reads, in the searcher's order
+    assert trials[0].constraints == {"safety": 0.5, "violations": 0.0, "0": 0.5, "1": 0.0}
+    assert trials[1].system_attrs["constraints"] == [-1.0, 0.0]
+    assert loaded.metric_names == ["reward_mean"]
+    assert s.study.trials[0].constraints == {"safety": 0.5, "violations": 0.0}  # sampler's: as set
     assert [t.params["a"] for t in trials[:2]] == [cfgs["t0"]["a"], cfgs["t1"]["a"]]
     assert [t.user_attrs["tune_trial_id"] for t in trials] == ["t0", "t1"]
     assert loaded.user_attrs["objective"] == "reward_mean" and loaded.user_attrs["batch_size"] == 2
@@ -91,6 +94,20 @@ def test_searcher_copies_its_study_to_an_optuna_storage_that_optuna_loads(tmp_pa
     trials = optuna.load_study(study_name="optuna", storage=url).get_trials()
     assert [t.state.name for t in trials] == ["COMPLETE"] * 3
     assert not list(tmp_path.glob(".*.tmp"))
+
+
+def test_constraint_list_follows_the_given_names_and_leaves_other_trials_alone() -> None:
+    import optuna
+
+    from safe_bc.distributed.search import with_constraint_list
+
+    named = optuna.trial.create_trial(value=1.0, constraints={"violations": 0.2, "safety": -1.0})
+    out = with_constraint_list(named, ["safety", "violations"])
+    assert out.system_attrs["constraints"] == [-1.0, 0.2]
+    assert "constraints" not in named.system_attrs  # the original is not changed
+    assert with_constraint_list(named).system_attrs["constraints"] == [-1.0, 0.2]  # sorted
+    plain = optuna.trial.create_trial(value=1.0)
+    assert with_constraint_list(plain, ["safety"]) is plain
 
 
 def test_a_failing_copy_warns_and_the_study_goes_on() -> None:
