@@ -18,8 +18,8 @@ from safe_bc.selection import SelectionConfig
 ROOT = Path(__file__).resolve().parents[1]
 COMPARE = ROOT / "tune_jobs/compare"
 RENDERER = ROOT / "results/ablation/renderer"
-PAIRED = ["n_pairs", "d_reward", "d_reward_lo", "d_reward_hi", "d_violation_steps",
-          "d_violation_steps_lo", "d_violation_steps_hi", "seeds_better", "n_seeds_paired"]  # fmt: skip
+D = [f"d_{m}{s}" for m in ("reward", "violation_steps") for s in ("", "_lo", "_hi")]
+PAIRED = ["n_pairs", *D, "seeds_better", "n_seeds_paired"]
 BC = Method("bc", selection=SelectionConfig(alpha=0.0))
 
 
@@ -131,8 +131,11 @@ def test_tiny_exact_row_raster_view_and_raster_pipeline(ray_session, tiny_demos,
     assert table.loc["raster", "n_pairs"] == 2 == table.loc["raster pipeline", "n_pairs"]
     stamps = {
         name: read_table(runs / slug / "seed0/episodes.parquet")[1]["stamp"]
-        for name, slug in (("exact", "exact"), ("raster", "raster"),
-                           ("raster pipeline", "raster_pipeline"))  # fmt: skip
+        for name, slug in (
+            ("exact", "exact"),
+            ("raster", "raster"),
+            ("raster pipeline", "raster_pipeline"),
+        )
     }
     assert stamps["exact"]["eval"]["env"]["renderer"] == "fast"
     assert stamps["raster"]["eval"]["env"]["renderer"] == "raster"
