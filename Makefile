@@ -7,7 +7,7 @@ TRIALS ?=
 ARGS ?=
 STAMP := $(VENV)/.installed
 
-.PHONY: install test test-slow lint format bench tune reproduce demos expert ablation clean
+.PHONY: install test test-slow lint format bench tune reproduce demos expert ablation renderer clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -51,6 +51,15 @@ reproduce: $(STAMP)
 ablation: $(STAMP)
 	$(BIN)/safe-bc compare tune_jobs/compare/observation.py $(ARGS)
 	$(BIN)/python -m scripts.observation_choice
+
+# The raster renderer against the exact one (results/ablation/renderer/): frames, cost errors
+# and speeds, then exact agents on raster frames, then the whole pipeline on raster frames.
+renderer: $(STAMP)
+	$(BIN)/python -m benchmarks.render_accuracy
+	$(BIN)/safe-bc compare tune_jobs/compare/renderer.py $(ARGS)
+	$(BIN)/safe-bc compare tune_jobs/compare/renderer_pipeline.py $(ARGS)
+	$(BIN)/safe-bc compare tune_jobs/compare/renderer_pipeline_table1.py $(ARGS)
+	$(BIN)/safe-bc compare tune_jobs/compare/renderer_pipeline_table1_alpha0.py $(ARGS)
 
 tune: $(STAMP)
 	$(BIN)/safe-bc tune tune_jobs/$(STUDY).py $(if $(TRIALS),--trials $(TRIALS),) $(ARGS)

@@ -25,12 +25,13 @@ import re
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, get_args
 
 import numpy as np
 import pandas as pd
 
 from safe_bc.bc.config import BCConfig
+from safe_bc.envs.config import Renderer
 from safe_bc.improve.config import ImproveConfig
 from safe_bc.metrics import METRICS, paired_crossed, summarize_crossed
 from safe_bc.report import fmt_ci
@@ -90,6 +91,17 @@ class Method:
     label: str = ""
     """How the Markdown names the row (``""``: ``name``). ``name`` stays the table's key and
     seeds the row's bootstrap draws (:func:`safe_bc.metrics.keyed_rng`)."""
+    agents_of: str = ""
+    """A view row: the agents of the BC row named here (no training of their own) evaluated
+    as they are, typically with another ``renderer`` (agents trained on exact frames driving
+    on approximate ones)."""
+    renderer: Renderer | None = None
+    """How the row's evaluation env draws (``None``: the task's default, ``fast``); a BC row
+    with its own ``demos`` also collects them with it. Ignored by tasks without renderers."""
+    demos: Path | None = None
+    """A BC row's own demonstration set (``None``: the comparison's), built with the task's
+    default collection drawn by ``renderer`` if absent; its limits d_s are the row's (and its
+    views') evaluation thresholds, e.g. a whole pipeline on the raster renderer."""
 
     @property
     def shown(self) -> str:
@@ -98,11 +110,11 @@ class Method:
 
     def __post_init__(self) -> None:
         kinds = [self.selection is not None, self.expert, self.improve is not None,
-                 bool(self.fallback_of), bool(self.masked_of)]  # fmt: skip
+                 bool(self.fallback_of), bool(self.masked_of), bool(self.agents_of)]  # fmt: skip
         if sum(kinds) != 1:
             raise ValueError(
                 f"method {self.name!r}: give exactly one of selection, expert=True, improve, "
-                "fallback_of, masked_of"
+                "fallback_of, masked_of, agents_of"
             )
         if not self.name:
             raise ValueError("a method needs a name")
@@ -110,14 +122,23 @@ class Method:
             raise ValueError(f"method {self.name!r}: start= goes with improve= (and only with it)")
         if self.bc is not None and self.selection is None:
             raise ValueError(f"method {self.name!r}: bc= is for BC rows (with selection=)")
+        if self.renderer is not None and self.renderer not in get_args(Renderer):
+            raise ValueError(
+                f"method {self.name!r}: renderer must be one of {get_args(Renderer)}, "
+                f"got {self.renderer!r}"
+            )
+        if self.demos is not None and self.selection is None:
+            raise ValueError(f"method {self.name!r}: demos= is for BC rows (with selection=)")
 
     @property
     def kind(self) -> str:
-        """``bc``, ``expert``, ``improve``, ``fallback`` or ``masked``."""
+        """``bc``, ``expert``, ``improve``, ``fallback``, ``masked`` or ``view``."""
         if self.fallback_of:
             return "fallback"
         if self.masked_of:
             return "masked"
+        if self.agents_of:
+            return "view"
         return "expert" if self.expert else "improve" if self.improve is not None else "bc"
 
     @property
@@ -226,6 +247,11 @@ class Comparison:
                     f"method {m.name!r}: masked_of {m.masked_of!r} is not a BC row of "
                     f"{sorted(bc_rows)}"
                 )
+            if m.kind == "view" and m.agents_of not in bc_rows:
+                raise ValueError(
+                    f"method {m.name!r}: agents_of {m.agents_of!r} is not a BC row of "
+                    f"{sorted(bc_rows)}"
+                )
             if m.kind == "fallback" and m.fallback_of not in agents:
                 raise ValueError(
                     f"method {m.name!r}: fallback_of {m.fallback_of!r} is not a BC or "
@@ -270,7 +296,7 @@ class Comparison:
         their source row's; the expert: ``(0,)``)."""
         if method.expert:
             return (0,)
-        of = method.masked_of or method.fallback_of or method.start
+        of = method.masked_of or method.fallback_of or method.agents_of or method.start
         if of:
             return self.seeds_of(self.method(of))
         return method.seeds or self.train_seeds
@@ -283,6 +309,8 @@ class Comparison:
         """JSON-able (the provenance's ``config``)."""
         out = dataclasses.asdict(self)
         out["demos"], out["out"] = str(self.demos), str(self.out)
+        for m in out["methods"]:
+            m["demos"] = None if m["demos"] is None else str(m["demos"])
         return out
 
 

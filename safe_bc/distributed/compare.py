@@ -58,15 +58,17 @@ def run_config(comparison: Comparison, method: Method, seed: int) -> RunConfig:
     )
 
 
-def eval_config(comparison: Comparison) -> EvalConfig:
-    """The held-out tracks every policy runs on."""
+def eval_config(comparison: Comparison, method: Method | None = None) -> EvalConfig:
+    """The held-out tracks every policy runs on, in the env ``method`` is evaluated in (its
+    ``renderer``; ``None``: the task's default env)."""
     heldout = comparison.tracks == "heldout"
+    renderer = method.renderer if method is not None and method.renderer else "fast"
     return EvalConfig(
         episodes=comparison.episodes,
         workers=comparison.workers,
         seed=comparison.eval_seed,
         first_episode=comparison.first_track if heldout else 0,
-        env=task_defaults(comparison.task).env,
+        env=task_defaults(comparison.task, renderer).env,
         max_steps=comparison.max_steps,
         eps=selection_eps(comparison),
     )
@@ -87,6 +89,26 @@ def selection_eps(comparison: Comparison) -> float:
     return task_defaults(comparison.task).eps if comparison.eps is None else comparison.eps
 
 
+def demos_of(comparison: Comparison, method: Method) -> Path:
+    """The demonstrations behind ``method``'s agents (its own ``demos``, those of the row it
+    derives from, else the comparison's): its evaluation thresholds are their limits."""
+    of = method.masked_of or method.fallback_of or method.agents_of or method.start
+    if of:
+        return demos_of(comparison, comparison.method(of))
+    return method.demos or comparison.demos
+
+
+def own_demos(comparison: Comparison) -> dict[Path, Any]:
+    """Each demonstration set the comparison needs -> its default collection (a BC row's own
+    ``demos`` drawn by the row's ``renderer``); the comparison's set first."""
+    task = comparison.task
+    out = {comparison.demos: task_defaults(task).collect_config()}
+    for m in comparison.methods:
+        if m.demos is not None and m.demos not in out:
+            out[m.demos] = task_defaults(task, m.renderer or "fast").collect_config()
+    return out
+
+
 def _cells(comparison: Comparison) -> list[tuple[Method, int]]:
     return [(m, s) for m in comparison.methods for s in comparison.seeds_of(m)]
 
@@ -99,12 +121,14 @@ def _folder(comparison: Comparison, method: Method, seed: int) -> Path:
 
 def _stamp(comparison: Comparison, method: Method, seed: int, thresholds: Any) -> dict[str, Any]:
     """What a stored evaluation must match to be reused."""
-    settings = dataclasses.asdict(eval_config(comparison))
+    settings = dataclasses.asdict(eval_config(comparison, method))
     settings.pop("workers")  # where episodes run changes nothing
     if comparison.tracks != "heldout":
         settings["seeds"] = track_seeds(comparison)
     if method.kind == "bc":
         run: Any = run_config(comparison, method, seed).to_dict()
+        if method.demos is not None:  # (rows on the comparison's demos keep their stamps)
+            run = {**run, "demos": str(method.demos)}
     elif method.kind == "improve":
         assert method.improve is not None
         start = run_config(comparison, comparison.method(method.start), seed).to_dict()
@@ -115,6 +139,9 @@ def _stamp(comparison: Comparison, method: Method, seed: int, thresholds: Any) -
     elif method.kind == "masked":
         of = _stamp(comparison, comparison.method(method.masked_of), seed, thresholds)["run"]
         run = {"masked_of": of, "view": "steering indicator masked"}
+    elif method.kind == "view":
+        of = _stamp(comparison, comparison.method(method.agents_of), seed, thresholds)["run"]
+        run = {"agents_of": of, "view": "as trained"}
     else:
         run = {"expert": str(comparison.demos)}
     return _json(
@@ -136,14 +163,15 @@ def _stored(folder: Path, stamp: dict[str, Any]) -> tuple[pd.DataFrame, dict] | 
     return (frame, meta) if meta.get("stamp") == stamp else None
 
 
-def _agent_ok(folder: Path, run: RunConfig) -> bool:
+def _agent_ok(folder: Path, run: RunConfig, demos: Path) -> bool:
     from safe_bc.bc import read_checkpoint_meta
 
     try:
         meta = read_checkpoint_meta(folder)
     except Exception:  # absent or torn: train again
         return False
-    return meta.get("extra", {}).get("run") == _json(run.to_dict())
+    extra = meta.get("extra", {})
+    return extra.get("run") == _json(run.to_dict()) and extra.get("demos") == str(demos)
 
 
 def _fallback_source(comparison: Comparison, method: Method, seed: int, thresholds: Any) -> Any:
@@ -184,9 +212,11 @@ def run_comparison(
 
     started = time.perf_counter()
     c = comparison
-    task = task_defaults(c.task)
-    ensure_demos(c.demos, task.collect_config(), progress=progress)
-    demos = load_demonstrations(c.demos)
+    sets: dict[Path, Any] = {}  # every demonstration set the rows need, the comparison's first
+    for path, collect in own_demos(c).items():
+        ensure_demos(path, collect, progress=progress)
+        sets[path] = load_demonstrations(path)
+    demos = sets[c.demos]
     meta = run_metadata(
         config=_json(c.to_dict()), train_seeds=list(c.train_seeds), eval_seed=c.eval_seed
     )
@@ -196,25 +226,38 @@ def run_comparison(
     eps = selection_eps(c)
     base = select_for(demos, SelectionConfig(eps=eps, alpha=0.0))
     save_selection(c.out / f"{c.name}_selection", demos, base, meta)
-    bounds = dataset_action_bounds(c.demos)
+    limits = {  # each set's d_s: the evaluation thresholds of the rows behind it
+        path: select_for(d, SelectionConfig(eps=eps, alpha=0.0)).thresholds
+        for path, d in sets.items()
+    }
 
     # 1. BC agents not on disk (fail fast on an impossible rule before any training)
     cells = _cells(c)
     todo = [
         (m, s, run_config(c, m, s))
         for m, s in cells
-        if m.kind == "bc" and not _agent_ok(_folder(c, m, s) / "agent", run_config(c, m, s))
+        if m.kind == "bc"
+        and not _agent_ok(_folder(c, m, s) / "agent", run_config(c, m, s), demos_of(c, m))
     ]
-    for _m, _, run in todo:
-        select_for(demos, run.selection).sampler(run.bc.train.batch_size, np.random.default_rng(0))
+    for m, _, run in todo:
+        select_for(sets[demos_of(c, m)], run.selection).sampler(
+            run.bc.train.batch_size, np.random.default_rng(0)
+        )
     if progress:
         print(f"compare {c.name}: {len(cells)} cells, training {len(todo)} agents")
-    trained = train_many(
-        demos, [r for *_, r in todo], workers=max(c.workers, 1), action_bounds=bounds,
-        progress=progress,
-    )  # fmt: skip
-    env_id = task.env.env_id
+    trained: list[Any] = [None] * len(todo)
+    for path, data in sets.items():  # one training call per demonstration set
+        idx = [i for i, (m, *_) in enumerate(todo) if demos_of(c, m) == path]
+        if not idx:
+            continue
+        results = train_many(
+            data, [todo[i][2] for i in idx], workers=max(c.workers, 1),
+            action_bounds=dataset_action_bounds(path), progress=progress,
+        )  # fmt: skip
+        for i, r in zip(idx, results, strict=True):
+            trained[i] = r
     for (m, s, run), (result, selection) in zip(todo, trained, strict=True):
+        env_id = task_defaults(c.task, m.renderer or "fast").env.env_id
         train_row = {
             "final_loss": result.final_loss,
             "samples_per_s": result.samples_per_s,
@@ -224,7 +267,7 @@ def run_comparison(
         }
         agent_meta = _json(
             run_metadata(
-                demos=str(c.demos), env_id=env_id, run=run.to_dict(), train=result.summary(),
+                demos=str(demos_of(c, m)), env_id=env_id, run=run.to_dict(), train=result.summary(),
                 train_row=train_row,
             )
         )  # fmt: skip
@@ -243,7 +286,7 @@ def run_comparison(
         start = _folder(c, c.method(m.start), s) / "agent"
         done = improve(
             start, _folder(c, m, s) / "improve", dataclasses.replace(m.improve, seed=s),
-            demos=c.demos, metadata={"command": meta["command"]},
+            demos=demos_of(c, m), metadata={"command": meta["command"]},
         )  # fmt: skip
         histories.append(done.history.assign(method=m.name, train_seed=s))
         from safe_bc.improve import HISTORY
@@ -257,7 +300,7 @@ def run_comparison(
     eval_metas: list[dict[str, Any]] = []
     for m, s in cells:
         key = EXPERT if m.expert else f"{m.name} seed={s}"
-        stamp = _stamp(c, m, s, base.thresholds)
+        stamp = _stamp(c, m, s, limits[demos_of(c, m)])
         stamps[key] = (m, s, stamp)
         have = _stored(_folder(c, m, s), stamp)
         if have is not None:
@@ -274,16 +317,25 @@ def run_comparison(
         elif m.kind == "masked":
             agent = _folder(c, c.method(m.masked_of), s) / "agent"
             sources[key] = MaskedSource(NetSource.from_model(*load_checkpoint(agent)))
+        elif m.kind == "view":
+            agent = _folder(c, c.method(m.agents_of), s) / "agent"
+            sources[key] = NetSource.from_model(*load_checkpoint(agent))
         else:
-            sources[key] = _fallback_source(c, m, s, base.thresholds)
+            sources[key] = _fallback_source(c, m, s, limits[demos_of(c, m)])
     if progress:
         print(f"compare {c.name}: evaluating {len(sources)} of {len(stamps)} policies")
-    if sources:
+    groups: dict[tuple[str, Path], list[str]] = {}  # one call per (env, thresholds)
+    for key in sources:
+        m = stamps[key][0]
+        groups.setdefault((m.renderer or "fast", demos_of(c, m)), []).append(key)
+    for keys in groups.values():
+        m = stamps[keys[0]][0]
         episodes, steps = evaluate_policies(
-            sources, eval_config(c), thresholds=base.thresholds, progress=progress,
+            {k: sources[k] for k in keys}, eval_config(c, m),
+            thresholds=limits[demos_of(c, m)], progress=progress,
             envs_per_worker=LOCKSTEP_ENVS, seeds=track_seeds(c),
         )  # fmt: skip
-        for key in sources:
+        for key in keys:
             m, s, stamp = stamps[key]
             folder = _folder(c, m, s)
             cell_meta = {**meta, "stamp": stamp}

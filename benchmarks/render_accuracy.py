@@ -1,13 +1,13 @@
-"""What bit-identical frames cost: the exact renderer against an approximate one.
+"""How the raster renderer's frames and safety costs differ from the exact ones, and what
+each renderer costs per step.
 
 Usage::
 
-    .venv/bin/python -m scripts.renderer_cost        # results/ablation/renderer/
+    python -m benchmarks.render_accuracy        # results/ablation/renderer/frames.parquet, ...
 
-Issue 18 asks for a CarRacing step at >= 8x stock with frames bit-identical to stock. The
-exact renderer (``renderer="fast"``) spends most of a step in pygame filling and shrinking a
-1000x800 surface; ``renderer="raster"`` (:mod:`safe_bc.envs.raster_render`) rasterises the same
-polygons straight onto a ``96 * supersample`` canvas. This measures, in one run:
+The exact renderer (``renderer="fast"``) spends most of a step in pygame filling and shrinking
+a 1000x800 surface; ``renderer="raster"`` (:mod:`safe_bc.envs.raster_render`) rasterises the
+same polygons straight onto a ``96 * supersample`` canvas. This measures, in one run:
 
 1. **Frames and costs** (per supersample factor): the scripted expert (privileged, it never
    reads pixels, so every renderer sees the same trajectory) drives ``--tracks`` fresh tracks
@@ -17,19 +17,16 @@ polygons straight onto a ``96 * supersample`` canvas. This measures, in one run:
    "beyond d_s" flag (any cost above the demonstrations' limit) agrees.
 2. **Speed**: steps/s of stock, exact and each raster factor on the same recorded actions,
    ``--repeats`` alternating repetitions, median; ratios against stock with the same costs.
-3. **Results**: the committed CarRacing improvement starts (``results/improve/carracing/
-   starts/seed*``, BC trained on exact frames) evaluated on ``--episodes`` fresh tracks in the
-   exact env and in the raster env (the chosen factor): paired differences of reward and steps
-   beyond d_s on the same (training seed, track) cells, crossed bootstrap CI.
 
 The factor is chosen by accuracy alone, so that the choice does not move with the machine's
 load (the speed ratios of one factor ranged 7x-11x between runs here): the fastest factor
 (smallest canvas) whose mean safety-distance error (all three dimensions, after the zoom-in)
 is at most 10% of the critical-zone width eps (``selection.DEFAULT_EPS``, 2 px), i.e. one
 that moves a state's cost by a tenth of the zone the method is built on. (The 10% was set
-after a one-track smoke run of this script.)
-Writes ``frames.parquet``, ``speed.parquet``, ``episodes.parquet``,
-``paired.parquet`` and ``renderer.md`` under ``--out``.
+after a one-track smoke run.) Writes ``frames.parquet``, ``speed.parquet`` and
+``render_accuracy.md`` under ``--out``. What the approximation does to agents is a comparison:
+``safe-bc compare tune_jobs/compare/renderer.py`` (exact agents on raster frames) and
+``renderer_pipeline*.py`` (the whole pipeline on raster frames).
 """
 
 from __future__ import annotations
@@ -163,81 +160,44 @@ def choose_factor(frames: pd.DataFrame, eps: float = DEFAULT_EPS) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from safe_bc.bc.checkpoint import load_checkpoint
-    from safe_bc.distributed.evaluate import evaluate_policies
-    from safe_bc.evaluation import EvalConfig, NetSource
-    from safe_bc.metrics import paired_crossed
+    from safe_bc.evaluation import EvalConfig
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--tracks", type=int, default=4, help="expert drives for the frame errors")
     p.add_argument("--steps", type=int, default=600, help="steps per expert drive")
     p.add_argument("--repeats", type=int, default=5, help="speed repetitions")
-    p.add_argument("--starts", type=Path, default=Path("results/improve/carracing/starts"))
-    p.add_argument("--episodes", type=int, default=20, help="fresh tracks per policy")
-    p.add_argument("--eval-seed", type=int, default=11, help="held-out seed block")
-    p.add_argument("--workers", type=int, default=2)
+    p.add_argument("--eval-seed", type=int, default=11,
+                   help="the drives take the tracks of seed block eval-seed + 1")  # fmt: skip
     p.add_argument("--demos", type=Path, default=Path("data/demos"))
     p.add_argument("--out", type=Path, default=Path("results/ablation/renderer"))
     args = p.parse_args(argv)
-    command = shlex.join(["python", "-m", "scripts.renderer_cost",
+    command = shlex.join(["python", "-m", "benchmarks.render_accuracy",
                           *(sys.argv[1:] if argv is None else argv)])  # fmt: skip
     limits = load_demonstrations(args.demos).limits
     tracks = EvalConfig(seed=args.eval_seed + 1, episodes=args.tracks).seeds()
 
     print(f"frames: {len(tracks)} expert drives x {args.steps} steps, factors {FACTORS}")
     frames, actions = frame_errors(tracks, FACTORS, args.steps, limits)
-    print(frames.groupby("factor")[["pixel_abs_diff", "visible_share", "distance_px"]].mean())
     speed = speeds(actions, FACTORS, args.repeats)
-    print(speed[["variant", "steps_per_s", "ratio_vs_stock"]])
     factor = choose_factor(frames)
-    print(f"chosen supersample factor: {factor}")
+    meta = run_metadata(tracks=tracks, steps=args.steps, factors=list(FACTORS), chosen=factor,
+                        demos=str(args.demos), limits=[float(x) for x in limits])  # fmt: skip
+    meta["command"] = command
+    args.out.mkdir(parents=True, exist_ok=True)
+    write_table_atomic(args.out / "frames.parquet", frames, meta)
+    write_table_atomic(args.out / "speed.parquet", speed, meta)
+    write_text_atomic(args.out / "render_accuracy.md", markdown(frames, speed, meta))
+    print((args.out / "render_accuracy.md").read_text())
     if factor != DEFAULT_SUPERSAMPLE:  # the evaluation actors build the raster env's default
         raise SystemExit(
             f"the rule chose supersample {factor}, the default is {DEFAULT_SUPERSAMPLE}: set "
             "raster_render.DEFAULT_SUPERSAMPLE to it and rerun"
         )
-
-    starts = sorted(args.starts.glob("seed*"))
-    if not starts:
-        raise SystemExit(f"{args.starts}: no seed* checkpoints")
-    sources = {}
-    for d in starts:
-        model, cfg = load_checkpoint(d)
-        sources[d.name] = NetSource.from_model(model, cfg)
-    rows = []
-    for renderer in ("fast", "raster"):
-        env = EnvConfig(renderer=renderer)  # type: ignore[arg-type]
-        cfg = EvalConfig(episodes=args.episodes, workers=args.workers, seed=args.eval_seed,
-                         env=env)  # fmt: skip
-        episodes, _ = evaluate_policies(sources, cfg, thresholds=limits)
-        rows.append(episodes.assign(renderer="exact" if renderer == "fast" else "raster"))
-    episodes = pd.concat(rows, ignore_index=True)
-    episodes["train_seed"] = episodes["policy"].str.removeprefix("seed").astype(int)
-    paired = paired_crossed(episodes, "exact", ["reward", "violation_steps"], by="renderer")
-
-    meta = run_metadata(tracks=tracks, steps=args.steps, factors=list(FACTORS), chosen=factor,
-                        episodes=args.episodes, eval_seed=args.eval_seed,
-                        starts=[str(d) for d in starts], demos=str(args.demos),
-                        limits=[float(x) for x in limits])  # fmt: skip
-    meta["command"] = command
-    args.out.mkdir(parents=True, exist_ok=True)
-    write_table_atomic(args.out / "frames.parquet", frames, meta)
-    write_table_atomic(args.out / "speed.parquet", speed, meta)
-    write_table_atomic(args.out / "episodes.parquet", episodes, meta)
-    write_table_atomic(args.out / "paired.parquet", paired, meta)
-    write_text_atomic(args.out / "renderer.md", markdown(frames, speed, episodes, paired, meta))
-    print((args.out / "renderer.md").read_text())
     return 0
 
 
-def markdown(
-    frames: pd.DataFrame,
-    speed: pd.DataFrame,
-    episodes: pd.DataFrame,
-    paired: pd.DataFrame,
-    meta: dict[str, Any],
-) -> str:
-    """The report."""
+def per_factor(frames: pd.DataFrame, speed: pd.DataFrame) -> pd.DataFrame:
+    """Per supersample factor: the frame and cost errors over the drives and the speed ratio."""
     per = frames.groupby("factor").agg(
         steps=("steps", "sum"),
         pixel_abs_diff=("pixel_abs_diff", "mean"),
@@ -249,43 +209,36 @@ def markdown(
         beyond_raster=("beyond_raster", "sum"),
     )
     per["speed_vs_stock"] = speed[speed.factor > 0].set_index("factor")["ratio_vs_stock"]
-    means = episodes.groupby(["renderer"])[["reward", "violation_steps"]].mean()
-    beyond = episodes.assign(b=episodes.violation_steps > 0).groupby("renderer")["b"].sum()
-    n_seeds, n_tracks = episodes.train_seed.nunique(), episodes.env_seed.nunique()
-    lines = [
-        "# What bit-identical frames cost (exact renderer vs raster)",
-        "",
-        f"Command: `{meta['command']}` at `{meta['git_revision']}`.",
-        "",
-        "## Frames and safety costs along the expert's drives",
-        "",
-        f"{len(meta['tracks'])} tracks x <= {meta['steps']} steps (after the zoom-in); pixel "
-        f"values 0-255; distances in px (the safety costs are max range - distance); "
-        f"'beyond' = steps with some cost above d_s.",
-        "",
-        per.reset_index().to_markdown(index=False, floatfmt=".4g"),
-        "",
-        "## Speed (steps/s with the safety costs, same actions, one process)",
-        "",
-        speed[["variant", "steps_per_s", "ratio_vs_stock"]].to_markdown(
-            index=False, floatfmt=".3g"
-        ),
-        "",
-        f"Rule: the fastest factor whose mean distance error is at most {TOLERANCE:.0%} of "
-        f"eps ({TOLERANCE * DEFAULT_EPS:.2f} px). Chosen: **x{meta['chosen']}**; the policy "
-        "rows below use it.",
-        "",
-        f"## A policy trained on exact frames, evaluated on raster frames ({n_seeds} training "
-        f"seeds x {n_tracks} tracks)",
-        "",
-        means.assign(episodes_beyond=beyond).reset_index().to_markdown(index=False, floatfmt=".4g"),
-        "",
-        "Paired raster - exact on the same (training seed, track) cells, 95% crossed bootstrap:",
-        "",
-        paired.to_markdown(index=False, floatfmt=".3g"),
-        "",
-    ]
-    return "\n".join(lines)
+    return per.reset_index()
+
+
+def markdown(frames: pd.DataFrame, speed: pd.DataFrame, meta: dict[str, Any]) -> str:
+    """The report."""
+    return "\n".join(
+        [
+            "# What bit-identical frames cost (exact renderer vs raster)",
+            "",
+            f"Command: `{meta['command']}` at `{meta['git_revision']}`.",
+            "",
+            "## Frames and safety costs along the expert's drives",
+            "",
+            f"{len(meta['tracks'])} tracks x <= {meta['steps']} steps (after the zoom-in); "
+            "pixel values 0-255; distances in px (the safety costs are max range - distance); "
+            "'beyond' = steps with some cost above d_s.",
+            "",
+            per_factor(frames, speed).to_markdown(index=False, floatfmt=".4g"),
+            "",
+            "## Speed (steps/s with the safety costs, same actions, one process)",
+            "",
+            speed[["variant", "steps_per_s", "ratio_vs_stock"]].to_markdown(
+                index=False, floatfmt=".3g"
+            ),
+            "",
+            f"Rule: the fastest factor whose mean distance error is at most {TOLERANCE:.0%} of "
+            f"eps ({TOLERANCE * DEFAULT_EPS:.2f} px). Chosen: **x{meta['chosen']}**.",
+            "",
+        ]
+    )
 
 
 if __name__ == "__main__":

@@ -1,0 +1,56 @@
+"""benchmarks/retrain_check.py (formerly scripts/retrain_check.py): the Table 1 comparison
+gives the checked rows the training settings the old script read from the committed table's
+metadata, the committed check's committed losses are Table 1's, and (slow) one row retrains to
+the committed loss and weights."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import pytest
+
+from benchmarks.retrain_check import ROWS, TABLE1, retrain
+from safe_bc.compare import load_comparison
+from safe_bc.data.store import read_table
+from safe_bc.distributed.compare import run_config
+from safe_bc.run_config import RunConfig
+from safe_bc.selection import RULES, SelectionConfig
+
+ROOT = Path(__file__).resolve().parents[1]
+CHECK = ROOT / "results/checks/table1_retrain.parquet"
+
+
+def _old_run_config(method: dict, seed: int) -> RunConfig:
+    """The removed script's settings: the stored selection fields, the default network."""
+    keep = ["mode", "alpha", "rest", "eps", *RULES[method["mode"]].params]
+    run = RunConfig(SelectionConfig(**{k: method[k] for k in keep}))
+    return replace(run, bc=replace(run.bc, train=replace(run.bc.train, seed=seed)))
+
+
+def test_rows_train_as_the_committed_check_trained_them() -> None:
+    comparison = load_comparison(ROOT / TABLE1)
+    training, meta = read_table(ROOT / "results/table1_training.parquet")
+    committed, check_meta = read_table(CHECK)
+    assert [tuple(r) for r in check_meta["rows"]] == list(ROWS)
+    for method, seed in ROWS:
+        new = run_config(comparison, comparison.method(method), seed)
+        assert new == _old_run_config(meta["config"]["methods"][method], seed)
+    cells = training.set_index(["method", "train_seed"])["final_loss"]
+    want = [cells[(m, s)] for m, s in ROWS]
+    assert committed["committed_final_loss"].tolist() == want
+    assert (
+        committed["identical"].tolist()
+        == (committed["retrained_final_loss"] == committed["committed_final_loss"]).tolist()
+    )
+
+
+@pytest.mark.slow
+def test_one_row_retrains_to_the_committed_loss_and_weights() -> None:
+    comparison = load_comparison(ROOT / TABLE1)
+    comparison = replace(comparison, demos=ROOT / comparison.demos)
+    training, meta = read_table(ROOT / "results/table1_training.parquet")
+    committed, _ = read_table(CHECK)
+    got = retrain(comparison, ROWS[:1], training, meta["git_revision"])
+    assert got["identical"].all()
+    assert got["weights_sha256"].iloc[0] == committed["weights_sha256"].iloc[0]

@@ -1,0 +1,69 @@
+"""Does a pipeline on the approximate (raster) renderer do as well as the exact one?
+
+Rows: ``exact pipeline``: BC agents (alpha 0.1, eps 2 px: the settings of the CarRacing
+improvement starts; training seeds 0-2) on the default demonstrations, evaluated in the exact
+env against their d_s; ``raster pipeline``: the same settings with everything on the raster
+renderer: its own demonstrations (``data/demos_raster``, the task's default collection drawn
+by the raster renderer; the drift's release reads the frame's safety distance, so the
+trajectories may differ slightly), its own d_s, training, and evaluation in the raster env.
+Same 20 held-out tracks (seed block 11); paired raster - exact on the same (training seed,
+track) cells. Row names are the keys of the committed ``results/ablation/renderer/
+pipeline_episodes.parquet``; ``tests/test_compare_renderer.py`` re-derives its
+``pipeline_paired.parquet`` through this spec. ``renderer_pipeline_table1*.py`` pair with a
+Table 1 row's settings instead.
+
+Run: ``safe-bc compare tune_jobs/compare/renderer_pipeline.py``. Writes
+``results/ablation/renderer/pipeline*.parquet`` and ``pipeline.md``.
+"""
+
+from pathlib import Path
+
+from safe_bc.bc.config import BCConfig
+from safe_bc.compare import Comparison, Method
+from safe_bc.selection import SelectionConfig
+
+RASTER_DEMOS = Path("data/demos_raster")
+"""The raster pipeline's demonstrations (the default collection, raster frames)."""
+
+
+def pipelines(
+    name: str,
+    selection: SelectionConfig,
+    bc: BCConfig,
+    train_seeds: tuple[int, ...],
+    eval_seed: int,
+    title: str,
+) -> Comparison:
+    """The exact and the raster pipeline with the same training settings."""
+    return Comparison(
+        name=name,
+        methods=(
+            Method("exact pipeline", selection=selection, bc=bc),
+            Method(
+                "raster pipeline",
+                selection=selection,
+                bc=bc,
+                renderer="raster",
+                demos=RASTER_DEMOS,
+            ),
+        ),
+        task="carracing",
+        out=Path("results/ablation/renderer"),
+        train_seeds=train_seeds,
+        episodes=20,
+        eval_seed=eval_seed,
+        reference="exact pipeline",
+        paired_metrics=("reward", "violation_steps"),
+        title=title,
+        note="Each pipeline's violations count against its own demonstrations' d_s.",
+    )
+
+
+COMPARISON = pipelines(
+    "pipeline",
+    SelectionConfig(eps=2.0, alpha=0.1),
+    BCConfig(),
+    train_seeds=(0, 1, 2),
+    eval_seed=11,
+    title="Exact pipeline vs raster pipeline (demonstrations, d_s, training, evaluation)",
+)
