@@ -104,7 +104,7 @@ def test_env_ids_are_registered_with_their_env_modules():
     import gymnasium as gym
 
     from safe_bc.envs.factory import REHAB_ID, register_envs
-    from safe_bc.envs.rehab import DEFAULT_N_SESSIONS, RehabPathwayEnv
+    from safe_bc.tasks.rehab.env import DEFAULT_N_SESSIONS, RehabPathwayEnv
 
     register_envs()
     assert gym.spec(REHAB_ID).max_episode_steps == DEFAULT_N_SESSIONS

@@ -1,6 +1,6 @@
 """An approximate CarRacing-v3 renderer that draws the 96x96 state directly (opt-in).
 
-``RasterCarRacing`` is :class:`~safe_bc.envs.fast_render.FastCarRacing` (stock physics,
+``RasterCarRacing`` is :class:`~safe_bc.tasks.carracing.fast_render.FastCarRacing` (stock physics,
 rewards, tracks and colours) whose ``state_pixels`` frame is rasterised with OpenCV on a small
 canvas instead of drawn with pygame on a 1000x800 surface and smooth-scaled. The pygame path
 is memory-bound: it fills ~1-2 million pixels per frame (background, grass squares of ~540 px,
@@ -37,7 +37,7 @@ from gymnasium.envs.box2d.car_racing import (
     WINDOW_W,
 )
 
-from safe_bc.envs.fast_render import (
+from safe_bc.tasks.carracing.fast_render import (
     _FIELD,
     _PANEL_ROWS,
     FastCarRacing,
