@@ -75,9 +75,15 @@ def test_registry_entries_are_complete():
     assert tuple(TASKS)[:2] == ("carracing", "rehab")  # the built-ins, in order
     for task in TASKS:
         entry = task_defaults(task)
-        missing = [f.name for f in dataclasses.fields(entry) if getattr(entry, f.name) is None]
+        optional = {"drawing"}  # None: the task cannot be rendered (rehab)
+        missing = [
+            f.name
+            for f in dataclasses.fields(entry)
+            if getattr(entry, f.name) is None and f.name not in optional
+        ]
         assert not missing, f"{task}: {missing}"
         assert entry.eps > 0
+    assert TASKS["carracing"].drawing is not None and TASKS["rehab"].drawing is None
 
 
 @pytest.mark.parametrize("task", TASKS)
