@@ -638,8 +638,8 @@ def _time_step_parts(net: Any, steps: int, seed: int) -> dict[str, float]:
     on one expert-driven trajectory (the net acts on the same frames; its actions are
     discarded)."""
     from safe_bc.envs import EnvConfig, make_env
-    from safe_bc.experts.carracing import CarRacingExpert, ExpertConfig
     from safe_bc.seeds import heldout_seed
+    from safe_bc.tasks.carracing.expert import CarRacingExpert, ExpertConfig
 
     env = make_env(EnvConfig(renderer="fast"))
     expert, policy = CarRacingExpert(ExpertConfig()), net.build()
@@ -679,7 +679,7 @@ def bench_eval(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
     import torch
 
     from safe_bc.evaluation import EvalConfig, ExpertSource
-    from safe_bc.experts.carracing import ExpertConfig
+    from safe_bc.tasks.carracing.expert import ExpertConfig
 
     torch.set_num_threads(1)  # what a 1-CPU Ray evaluation actor gets (OMP_NUM_THREADS=1)
     sources = {"expert": ExpertSource(ExpertConfig()), "BC net": _untrained_source(seed)}

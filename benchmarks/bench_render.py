@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 from gymnasium.envs.box2d.car_racing import CarRacing
 
-from safe_bc.envs.fast_render import FastCarRacing
+from safe_bc.tasks.carracing.fast_render import FastCarRacing
 
 __all__ = ["bench_render"]
 
@@ -173,7 +173,10 @@ STEP_PARTS: dict[str, tuple[str, ...]] = {
     "Surface.fill (background)": ("'fill' of 'pygame.surface.Surface'",),
     "car and indicators (pygame.draw.polygon)": ("pygame.draw.polygon",),
     "physics (Box2D, car dynamics, contacts)": ("Box2D", "car_dynamics.py", "_contact"),
-    "safety costs (CarRacingSafety)": ("safe_bc/envs/safety.py", "safe_bc/envs/wrappers.py"),
+    "safety costs (CarRacingSafety)": (
+        "safe_bc/tasks/carracing/costs.py",
+        "safe_bc/tasks/carracing/wrapper.py",
+    ),
 }
 """Where a step of the default env goes: part -> substrings of cProfile's function labels
 (``file:line(function)`` or ``{built-in method ...}``); the rest is "other Python"."""

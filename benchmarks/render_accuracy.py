@@ -6,8 +6,9 @@ Usage::
     python -m benchmarks.render_accuracy        # results/ablation/renderer/frames.parquet, ...
 
 The exact renderer (``renderer="fast"``) spends most of a step in pygame filling and shrinking
-a 1000x800 surface; ``renderer="raster"`` (:mod:`safe_bc.envs.raster_render`) rasterises the
-same polygons straight onto a ``96 * supersample`` canvas. This measures, in one run:
+a 1000x800 surface; ``renderer="raster"`` (:mod:`safe_bc.tasks.carracing.raster_render`)
+rasterises the same polygons straight onto a ``96 * supersample`` canvas. This measures, in
+one run:
 
 1. **Frames and costs** (per supersample factor): the scripted expert (privileged, it never
    reads pixels, so every renderer sees the same trajectory) drives ``--tracks`` fresh tracks
@@ -44,10 +45,10 @@ import pandas as pd
 from safe_bc.atomic import write_text_atomic
 from safe_bc.data.store import load_demonstrations, write_table_atomic
 from safe_bc.envs import EnvConfig, make_env
-from safe_bc.envs.raster_render import DEFAULT_SUPERSAMPLE
-from safe_bc.envs.wrappers import ZOOM_END_T
 from safe_bc.provenance import run_metadata
 from safe_bc.selection import DEFAULT_EPS
+from safe_bc.tasks.carracing.raster_render import DEFAULT_SUPERSAMPLE
+from safe_bc.tasks.carracing.wrapper import ZOOM_END_T
 
 FACTORS = (1, 2, 4, 8)
 """Supersample factors compared."""
@@ -61,7 +62,7 @@ def _raster(factor: int, max_steps: int | None = None):
     import gymnasium as gym
 
     from safe_bc.envs.factory import RASTER_CARRACING_ID, register_envs
-    from safe_bc.envs.wrappers import CarRacingSafety
+    from safe_bc.tasks.carracing.wrapper import CarRacingSafety
 
     register_envs()
     kw = {} if max_steps is None else {"max_episode_steps": max_steps}

@@ -11,11 +11,12 @@ convention for third-party environments:
 Without a prior import, ``gym.make("safe_bc:safe_bc/RehabPathway-v0")`` imports this
 package first (the part before the colon). The ids are
 ``safe_bc/RehabPathway-v0`` (the rehabilitation pathway, safety costs in ``info``) and
-``safe_bc/CarRacingFast-v3`` (CarRacing-v3 with a faster, pixel-identical renderer;
-wrap it in :class:`safe_bc.envs.CarRacingSafety`, or use :func:`safe_bc.envs.make_env`,
-for the safety distances in ``info``), and ``safe_bc/CarRacingRaster-v3`` (an approximate,
-faster renderer, opt-in: see :mod:`safe_bc.envs.raster_render`). Registration imports
-gymnasium and numpy only (no torch, no Ray).
+``safe_bc/CarRacingFast-v3`` (CarRacing-v3 with a faster, pixel-identical renderer; wrap
+it in :class:`safe_bc.tasks.carracing.wrapper.CarRacingSafety`, or use
+:func:`safe_bc.envs.make_env`, for the safety distances in ``info``), and
+``safe_bc/CarRacingRaster-v3`` (an approximate, faster renderer, opt-in: see
+:mod:`safe_bc.tasks.carracing.raster_render`). Registration imports gymnasium and numpy only
+(no torch, no Ray).
 """
 
 from safe_bc.envs.factory import ENV_IDS, register_envs

@@ -11,11 +11,11 @@ import gymnasium as gym
 from safe_bc.data.codec import Encoding
 from safe_bc.envs.config import EnvConfig
 from safe_bc.episode import Episode
-from safe_bc.experts.carracing import ExpertConfig
-from safe_bc.experts.perturb import Perturbation, PerturbationConfig
 from safe_bc.policy import Policy
 from safe_bc.rollout import run_episode
 from safe_bc.seeds import demo_seed, episode_rng
+from safe_bc.tasks.carracing.expert import ExpertConfig
+from safe_bc.tasks.carracing.perturb import Perturbation, PerturbationConfig
 
 
 @dataclass(frozen=True)

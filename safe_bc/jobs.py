@@ -240,7 +240,7 @@ class ExportJob:
 
 @dataclass(frozen=True)
 class RenderJob:
-    """Video of a CarRacing episode with the safety rays drawn in (or --paths)."""
+    """Video of an episode with its task's safety readings drawn in (or --paths)."""
 
     out: Path
     """.mp4, .gif, or .png with --paths."""
@@ -255,9 +255,9 @@ class RenderJob:
     max_steps: int | None = None
     """Step cap per episode; None: the env's."""
     demos: Path | None = None
-    """Expert and limits d_s; None: the checkpoint's, else data/demos."""
+    """Expert and limits d_s; None: the checkpoint's, else the task's (data/demos)."""
     eps: float | None = None
-    """Critical-zone width; None: the checkpoint's, else 2 px."""
+    """Critical-zone width; None: the checkpoint's, else the task's (2 px)."""
     scale: int | None = None
     """Upscaling of frames; None: render_command's (4)."""
     fps: float | None = None

@@ -1,13 +1,16 @@
-"""Pictures of CarRacing episodes: videos with the safety rays drawn in, and track maps.
+"""Pictures of episodes: videos with the safety readings drawn in, and track maps.
+
+What is drawn over a frame, where the agent is and what the map shows are the task's
+(:class:`safe_bc.tasks.Drawing`, ``TaskSpec.drawing``; CarRacing's is
+:mod:`safe_bc.tasks.carracing.draw`: its three safety rays); a task without a drawing cannot
+be rendered. The rest is here:
 
 * :func:`render_episode` rolls a policy out on one track and writes an MP4 (or a GIF when
-  the file name ends in ``.gif``): each 96x96 frame is upscaled (4x by default) and the
-  three safety rays of :mod:`safe_bc.envs.safety` are drawn over it, from the first pixel
-  outside the car (``LEFT_START``/``FRONT_START``/``RIGHT_START``, centred on the car's
-  rows or columns) to the distance measured in that frame. A ray is green while its
-  dimension is outside the critical zone, orange inside it (``c_s >= d_s - eps``), red
-  beyond the limit (``c_s > d_s``, a violation) and grey during the zoom-in (not scored);
-  without a zone it is cyan. The frame's border shows the combined critical-zone state
+  the file name ends in ``.gif``): each frame is upscaled (4x by default) and the task's
+  safety readings are drawn over it, one colour per dimension: green while the dimension
+  is outside the critical zone, orange inside it (``c_s >= d_s - eps``), red beyond the
+  limit (``c_s > d_s``, a violation) and grey during the warm-up (not scored); without a
+  zone cyan. The frame's border shows the combined critical-zone state
   (the selection's ``combine`` rule) and a header line the step, distances and state.
 * :func:`draw_paths` draws the track seen from above (``env.unwrapped.road_poly``) with
   each policy's driven path coloured by its safety distance (the smallest of left, front
@@ -28,12 +31,11 @@ import cv2
 import gymnasium as gym
 import numpy as np
 
-from safe_bc.envs.safety import CAR_COLS, CAR_ROWS, FRONT_START, LEFT_START, RIGHT_START
 from safe_bc.episode import Episode
 from safe_bc.policy import Policy
 from safe_bc.rollout import run_episode
 from safe_bc.selection import DEFAULT_EPS, CriticalZone
-from safe_bc.tasks.carracing import CARRACING_ID
+from safe_bc.tasks.registry import DEFAULT_TASK, Drawing, Task, TaskSpec, spec_of, task_defaults
 
 FPS = 50
 """CarRacing's simulation rate (steps per second), the default video frame rate."""
@@ -62,13 +64,26 @@ class Trace:
     """The road tiles, ``(4, 2)`` world-coordinate polygons."""
     label: str
     """Name of the policy (panel / video title)."""
+    task: Task = DEFAULT_TASK
+    """The task the episode ran on (its drawing draws it)."""
+
+
+def drawing_of(spec: TaskSpec) -> Drawing:
+    """The task's drawing; a task without one cannot be rendered (one-line error)."""
+    if spec.drawing is None:
+        raise ValueError(
+            f"task {spec.name!r} cannot be rendered: its TaskSpec has no drawing "
+            "(safe_bc.tasks.Drawing)"
+        )
+    return spec.drawing
 
 
 class _Recorder:
     """A policy that remembers where the car was each time it was asked for an action."""
 
-    def __init__(self, policy: Policy) -> None:
+    def __init__(self, policy: Policy, drawing: Drawing) -> None:
         self.policy = policy
+        self.drawing = drawing
         self.positions: list[tuple[float, float]] = []
 
     def reset(self, env: gym.Env, rng: np.random.Generator) -> None:
@@ -76,8 +91,7 @@ class _Recorder:
         self.policy.reset(env, rng)
 
     def act(self, obs: np.ndarray, env: gym.Env) -> np.ndarray:
-        pos = env.unwrapped.car.hull.position
-        self.positions.append((float(pos[0]), float(pos[1])))
+        self.positions.append(self.drawing.position(env))
         return self.policy.act(obs, env)
 
 
@@ -88,20 +102,23 @@ def record(
     label: str = "policy",
     max_steps: int | None = None,
     renderer: str = "fast",
+    task: Task = DEFAULT_TASK,
 ) -> Trace:
-    """Roll ``policy`` out on CarRacing track ``seed`` (``env.reset(seed=seed)``), keeping
+    """Roll ``policy`` out on ``task``'s track ``seed`` (``env.reset(seed=seed)``), keeping
     frames and positions. The policy's randomness is seeded with ``seed`` as in evaluation."""
-    from safe_bc.envs import EnvConfig, make_env
+    from safe_bc.envs import make_env
 
-    env = make_env(EnvConfig(renderer=renderer))  # type: ignore[arg-type]
+    spec = task_defaults(task, renderer)  # type: ignore[arg-type]
+    drawing = drawing_of(spec)
+    env = make_env(spec.env)
     try:
-        recorder = _Recorder(policy)
+        recorder = _Recorder(policy, drawing)
         rng = np.random.default_rng(seed)
         episode = run_episode(env, recorder, seed, rng, max_steps=max_steps)
-        road = [np.asarray(poly, np.float64) for poly, _ in env.unwrapped.road_poly]
+        ground = drawing.ground(env)
     finally:
         env.close()
-    return Trace(episode, np.asarray(recorder.positions, np.float64), road, label)
+    return Trace(episode, np.asarray(recorder.positions, np.float64), ground, label, spec.name)
 
 
 def dim_states(episode: Episode, zone: CriticalZone | None) -> np.ndarray:
@@ -131,24 +148,6 @@ def frame_state(states: np.ndarray, combine: str = "any") -> str:
     return "safe" if "safe" in states else ""
 
 
-def ray_segments(distances: np.ndarray) -> list[tuple[tuple[float, float], tuple[float, float]]]:
-    """The three rays of :func:`safe_bc.envs.safety.pixel_distances` as ``((x0, y0), (x1, y1))``
-    segments in frame coordinates (pixel ``i`` spans ``[i, i + 1)``), left/front/right.
-
-    >>> [tuple(map(tuple, s)) for s in ray_segments(np.array([10.0, 20.0, 5.0]))]
-    [((45.0, 72.0), (35.0, 72.0)), ((48.0, 66.0), (48.0, 46.0)), ((51.0, 72.0), (56.0, 72.0))]
-    """
-    row = (CAR_ROWS.start + CAR_ROWS.stop) / 2  # centre of the side rays' band of rows
-    col = (CAR_COLS.start + CAR_COLS.stop) / 2  # centre of the front ray's band of columns
-    left, front, right = (float(x) for x in distances)
-    x_left, y_front, x_right = LEFT_START + 1.0, FRONT_START + 1.0, float(RIGHT_START)
-    return [
-        ((x_left, row), (x_left - left, row)),
-        ((col, y_front), (col, y_front - front)),
-        ((x_right, row), (x_right + right, row)),
-    ]
-
-
 def overlay(
     frame: np.ndarray,
     distances: np.ndarray,
@@ -156,23 +155,17 @@ def overlay(
     state: str,
     text: str,
     scale: int = 4,
+    drawing: Drawing | None = None,
 ) -> np.ndarray:
-    """Upscale one frame and draw its rays, border and header.
+    """Upscale one frame and draw its safety readings (``drawing``'s overlay, the default
+    task's without one), border and header.
 
     Returns:
-        ``(HEADER + 96 * scale, 96 * scale, 3) uint8`` RGB.
+        ``(HEADER + H * scale, W * scale, 3) uint8`` RGB.
     """
+    drawing = drawing or drawing_of(task_defaults(DEFAULT_TASK))
     big = cv2.resize(frame, None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST)
-    shift = 4  # cv2 fixed-point: coordinates in 1/16 px
-
-    def pt(x: float, y: float) -> tuple[int, int]:
-        return round(x * scale * (1 << shift)), round(y * scale * (1 << shift))
-
-    for (start, end), dim_state in zip(ray_segments(distances), states, strict=True):
-        colour = STATE_COLOURS[str(dim_state)]
-        cv2.line(big, pt(*start), pt(*end), colour, 2, cv2.LINE_AA, shift)
-        cv2.circle(big, pt(*end), 4 << shift, colour, 2, cv2.LINE_AA, shift)
-        cv2.circle(big, pt(*start), 2 << shift, WHITE, -1, cv2.LINE_AA, shift)
+    drawing.overlay(big, distances, [STATE_COLOURS[str(s)] for s in states], scale)
     if state in ("critical", "violation"):
         cv2.rectangle(big, (0, 0), (big.shape[1] - 1, big.shape[0] - 1), STATE_COLOURS[state], 6)
     header = np.zeros((HEADER, big.shape[1], 3), np.uint8)
@@ -184,18 +177,20 @@ def overlay(
 def annotated_frames(
     trace: Trace, zone: CriticalZone | None = None, scale: int = 4
 ) -> list[np.ndarray]:
-    """Every frame of ``trace`` with its rays, border and header drawn in."""
+    """Every frame of ``trace`` with its safety readings, border and header drawn in."""
+    drawing = drawing_of(task_defaults(trace.task))
     ep = trace.episode
     states = dim_states(ep, zone)
     combine = zone.combine if zone is not None else "any"
     frames = []
     for t in range(len(ep)):
         state = frame_state(states[t], combine)
-        left, front, right = ep.safety[t]
-        text = f"{trace.label}  t={t}  L{left:4.1f} F{front:4.1f} R{right:4.1f} px"
+        text = f"{trace.label}  t={t}  {drawing.caption(ep.safety[t])}"
         if state and state != "safe":
             text += f"  {state.upper()}"
-        frames.append(overlay(ep.observations[t], ep.safety[t], states[t], state, text, scale))
+        frames.append(
+            overlay(ep.observations[t], ep.safety[t], states[t], state, text, scale, drawing)
+        )
     return frames
 
 
@@ -226,10 +221,11 @@ def render_episode(
     max_steps: int | None = None,
     scale: int = 4,
     fps: float = FPS,
+    task: Task = DEFAULT_TASK,
 ) -> Trace:
-    """Roll ``policy`` out on track ``seed`` and write the annotated episode to ``out``
-    (one frame per step: the observation each action was chosen in)."""
-    trace = record(policy, seed, label=label, max_steps=max_steps)
+    """Roll ``policy`` out on ``task``'s track ``seed`` and write the annotated episode to
+    ``out`` (one frame per step: the observation each action was chosen in)."""
+    trace = record(policy, seed, label=label, max_steps=max_steps, task=task)
     write_video(annotated_frames(trace, zone, scale), out, fps)
     return trace
 
@@ -237,9 +233,9 @@ def render_episode(
 def draw_paths(
     traces: list[Trace], out: str | Path, *, zone: CriticalZone | None = None, title: str = ""
 ) -> Path:
-    """One panel per trace: the road from above, the driven path coloured by the smallest
-    safety distance (px; grey during the zoom-in), violations (with ``zone``) as red
-    crosses. Colours share one scale across panels."""
+    """One panel per trace: the ground from above (the task's drawing's), the driven path
+    coloured by the smallest safety distance (grey during the warm-up), violations (with
+    ``zone``) as red crosses. Colours share one scale across panels."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -248,6 +244,7 @@ def draw_paths(
 
     if not traces:
         raise ValueError("no traces to draw")
+    drawing = drawing_of(task_defaults(traces[0].task))
     scored = [tr.episode.safety[~tr.episode.warmup].min(axis=1) for tr in traces]
     top = max((float(np.percentile(s, 95)) for s in scored if len(s)), default=1.0)
     norm = plt.Normalize(0.0, max(top, 1.0))
@@ -268,7 +265,7 @@ def draw_paths(
         ax.plot(*xy[0], "o", color="k", ms=5, label="start")
         summary = f"{len(ep)} steps, reward {ep.total_reward:.0f}"
         if (~ep.warmup).any():
-            summary += f", closest {d[~ep.warmup].min():.1f} px"
+            summary += f", closest {d[~ep.warmup].min():.1f} {drawing.unit}"
         if zone is not None:
             bad = zone.beyond(ep.costs)
             bad &= ~ep.warmup
@@ -282,7 +279,7 @@ def draw_paths(
         ax.set_yticks([])
         ax.legend(loc="lower right", fontsize=8)
     assert line is not None
-    fig.colorbar(line, ax=list(axes[0]), shrink=0.8, label="distance to grass (px, min L/F/R)")
+    fig.colorbar(line, ax=list(axes[0]), shrink=0.8, label=drawing.scale_label)
     if title:
         fig.suptitle(title)
     out = Path(out)
@@ -299,9 +296,12 @@ def render_paths(
     *,
     zone: CriticalZone | None = None,
     max_steps: int | None = None,
+    task: Task = DEFAULT_TASK,
 ) -> list[Trace]:
-    """Roll each policy out on track ``seed`` and draw their paths side by side."""
-    traces = [record(p, seed, label=name, max_steps=max_steps) for name, p in policies.items()]
+    """Roll each policy out on ``task``'s track ``seed`` and draw their paths side by side."""
+    traces = [
+        record(p, seed, label=name, max_steps=max_steps, task=task) for name, p in policies.items()
+    ]
     draw_paths(traces, out, zone=zone, title=f"track seed {seed}")
     return traces
 
@@ -338,7 +338,8 @@ def zone_from_demos(demos: str | Path, eps: float) -> CriticalZone:
 def _checkpoint_env_id(directory: Path) -> str:
     from safe_bc.bc.checkpoint import read_checkpoint_meta
 
-    return str(read_checkpoint_meta(directory).get("extra", {}).get("env_id", CARRACING_ID))
+    default = task_defaults(DEFAULT_TASK).env.env_id
+    return str(read_checkpoint_meta(directory).get("extra", {}).get("env_id", default))
 
 
 def render_command(
@@ -356,27 +357,26 @@ def render_command(
 ) -> str:
     """What ``safe-bc render`` does; returns the line it prints.
 
-    The agent is the checkpoint's net; the expert is the one recorded in the
-    demonstrations' ``dataset.json`` (``demos``, else the checkpoint's, else
-    ``data/demos`` when present; the default expert otherwise). The critical zone is the
+    The task is the checkpoint's (else the demonstrations', else the default task); one
+    without a drawing (``TaskSpec.drawing``) cannot be rendered. The agent is the
+    checkpoint's net; the expert is the one recorded in the demonstrations' ``dataset.json``
+    (``demos``, else the checkpoint's, else the task's default demonstrations when present;
+    the task's default expert otherwise). The critical zone is the
     checkpoint's selection (``d_s``, eps, combine), else ``d_s`` of ``demos`` with ``eps``
-    (default 2 px); without either the rays are drawn without states. ``paths`` draws the
+    (default: the task's); without either the readings are drawn without states. ``paths`` draws the
     track map instead: the expert beside the agent (the expert alone without a checkpoint).
     """
     from safe_bc.collection import build_expert, stored_expert_config
     from safe_bc.data.store import read_meta
-    from safe_bc.experts.carracing import ExpertConfig
 
     if checkpoint is None and not (expert or paths):
         raise ValueError("render needs --checkpoint DIR (the agent) or --expert")
     zone = None
+    spec = None
     if checkpoint is not None:
         checkpoint = Path(checkpoint)
-        env_id = _checkpoint_env_id(checkpoint)
-        if env_id != CARRACING_ID:
-            raise ValueError(
-                f"{checkpoint}: trained on {env_id}; render draws CarRacing frames only"
-            )
+        spec = spec_of(_checkpoint_env_id(checkpoint))
+        drawing_of(spec)
         if (checkpoint / "selection.parquet").is_file():  # a study trial's has none
             zone = zone_from_checkpoint(checkpoint)
         if demos is None:
@@ -384,16 +384,21 @@ def render_command(
 
             recorded = read_checkpoint_meta(checkpoint).get("extra", {}).get("demos")
             demos = recorded if recorded and (Path(recorded) / "dataset.json").is_file() else None
-    if demos is None and (Path("data/demos") / "dataset.json").is_file():
-        demos = Path("data/demos")
-    if demos is not None and read_meta(demos).env_id != CARRACING_ID:
-        raise ValueError(f"{demos}: not CarRacing demonstrations; render draws CarRacing only")
+    if demos is not None:
+        demo_spec = spec_of(read_meta(demos).env_id)
+        if spec is not None and demo_spec.name != spec.name:
+            raise ValueError(f"{demos}: {demo_spec.name} demonstrations, not {spec.name}'s")
+        spec = demo_spec
+    spec = spec or task_defaults(DEFAULT_TASK)
+    drawing_of(spec)
+    if demos is None and (Path(spec.demos) / "dataset.json").is_file():
+        demos = Path(spec.demos)
     if zone is None and demos is not None:
-        zone = zone_from_demos(demos, DEFAULT_EPS if eps is None else eps)
+        zone = zone_from_demos(demos, spec.eps if eps is None else eps)
     if zone is not None and eps is not None:
         zone = CriticalZone(zone.limits, eps, zone.combine)
     expert_policy = build_expert(
-        stored_expert_config(Path(demos)) if demos is not None else ExpertConfig()
+        stored_expert_config(Path(demos)) if demos is not None else spec.expert
     )
 
     def agent() -> Policy:
@@ -406,19 +411,27 @@ def render_command(
         policies = {"expert": expert_policy}
         if checkpoint is not None:
             policies["agent"] = agent()
-        traces = render_paths(policies, seed, out, zone=zone, max_steps=max_steps)
+        traces = render_paths(policies, seed, out, zone=zone, max_steps=max_steps, task=spec.name)
         drawn = ", ".join(f"{t.label} ({len(t.episode)} steps)" for t in traces)
         return f"{out}: paths of {drawn} on track seed {seed}"
     label = "expert" if expert else "agent"
     policy = expert_policy if expert else agent()
     trace = render_episode(
-        policy, seed, out, label=label, zone=zone, max_steps=max_steps, scale=scale, fps=fps
+        policy,
+        seed,
+        out,
+        label=label,
+        zone=zone,
+        max_steps=max_steps,
+        scale=scale,
+        fps=fps,
+        task=spec.name,
     )
     ep = trace.episode
     scored = ~ep.warmup
     line = f"{out}: {len(ep)} frames of the {label} on track seed {seed}"
     if scored.any():
-        line += f", closest {ep.safety[scored].min():.1f} px to the grass"
+        line += f", closest {ep.safety[scored].min():.1f} {drawing_of(spec).closest}"
     if zone is not None:
         bad = zone.beyond(ep.costs) & scored
         line += f", {int(bad.sum())} violation step(s) (d_s of the demonstrations)"
@@ -432,9 +445,9 @@ __all__ = [
     "annotated_frames",
     "dim_states",
     "draw_paths",
+    "drawing_of",
     "frame_state",
     "overlay",
-    "ray_segments",
     "record",
     "render_command",
     "render_episode",

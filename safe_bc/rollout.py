@@ -100,8 +100,8 @@ def run_episode(
     """Roll ``policy`` out for one episode on env seed ``seed``.
 
     The env must put ``safety``, ``cost``, ``warmup`` and ``offroad`` in ``info``
-    (see :class:`safe_bc.envs.CarRacingSafety`). ``rng`` drives the policy's and
-    the perturbation's randomness, nothing else.
+    (the info contract, :mod:`safe_bc.envs.info`). ``rng`` drives the policy's and the
+    perturbation's randomness, nothing else.
 
     A policy with a ``see(info)`` method (a :class:`SeesInfo`: a wrapper that asks the expert
     or defers to it where the measured cost is critical) is shown each state's ``info`` just

@@ -22,10 +22,10 @@ import gymnasium as gym
 import numpy as np
 
 from safe_bc.envs.factory import CARRACING_ID
-from safe_bc.envs.safety import pixel_distances
-from safe_bc.experts.carracing import CarRacingExpert, ExpertConfig
-from safe_bc.experts.geometry import lateral_offset
-from safe_bc.experts.perturb import Perturbation, PerturbationConfig
+from safe_bc.tasks.carracing.costs import pixel_distances
+from safe_bc.tasks.carracing.expert import CarRacingExpert, ExpertConfig
+from safe_bc.tasks.carracing.geometry import lateral_offset
+from safe_bc.tasks.carracing.perturb import Perturbation, PerturbationConfig
 
 DEFAULT_FIRST_SEED = 10_000
 """First evaluation seed; tuning used seeds below 100."""

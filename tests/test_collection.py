@@ -10,8 +10,8 @@ import pytest
 
 from safe_bc.collection import EpisodeMaker
 from safe_bc.demos import Demonstrations
-from safe_bc.envs.safety import MAX_RANGE
 from safe_bc.tasks import task_defaults
+from safe_bc.tasks.carracing.costs import MAX_RANGE
 
 
 class WheelLog(gym.Wrapper):

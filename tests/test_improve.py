@@ -79,7 +79,7 @@ def test_multiplier_in_training_follows_the_cost(start):
 
 # ------------------------------------------------------------------ the shield
 def test_observed_costs_match_the_env_without_noise():
-    from safe_bc.envs.rehab import RehabConfig, RehabPathwayEnv, prescription_to_action
+    from safe_bc.tasks.rehab.env import RehabConfig, RehabPathwayEnv, prescription_to_action
 
     env = RehabPathwayEnv(RehabConfig(obs_noise=0.0))
     obs, info = env.reset(seed=3)

@@ -150,10 +150,10 @@ def test_queries_in_the_zone_are_every_zone_step_of_the_rollout(rehab_agent, reh
     same episode without asking and count them)."""
     from safe_bc.envs import make_env
     from safe_bc.evaluation import NetSource
-    from safe_bc.experts.rehab import GuidelineExpert
     from safe_bc.queries.rollout import QueryJob, query_episode
     from safe_bc.rollout import run_episode
     from safe_bc.tasks import task_defaults
+    from safe_bc.tasks.rehab.expert import GuidelineExpert
 
     model, cfg, _ = rehab_agent
     zone = CriticalZone(_limits(rehab_agent), 0.3)

@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 
 from safe_bc.collection import build_expert
-from safe_bc.experts.carracing import ExpertConfig
 from safe_bc.render import (
     HEADER,
     CriticalZone,
@@ -20,6 +19,7 @@ from safe_bc.render import (
     record,
     render_episode,
 )
+from safe_bc.tasks.carracing.expert import ExpertConfig
 
 STEPS = 60
 
@@ -94,3 +94,16 @@ def test_cli_render_expert_gif(tmp_path: Path, monkeypatch, capsys) -> None:
     assert len(imageio.mimread(tmp_path / "e.gif", memtest=False)) == 30
     assert main(["render", "--seed", "3", "--out", "x.mp4"]) == 2
     assert "--checkpoint" in capsys.readouterr().err
+
+
+def test_a_task_without_a_drawing_cannot_be_rendered(rehab_demos, tmp_path: Path, capsys) -> None:
+    from safe_bc.cli import main
+    from safe_bc.render import drawing_of
+    from safe_bc.tasks import task_defaults
+
+    with pytest.raises(ValueError, match="'rehab' cannot be rendered"):
+        drawing_of(task_defaults("rehab"))
+    argv = ["render", "--expert", "--demos", str(rehab_demos), "--out", str(tmp_path / "r.gif")]
+    assert main(argv) == 2
+    assert "cannot be rendered" in capsys.readouterr().err
+    assert not (tmp_path / "r.gif").exists()

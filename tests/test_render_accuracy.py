@@ -12,7 +12,7 @@ import pytest
 
 from benchmarks.render_accuracy import choose_factor, frame_errors, per_factor
 from safe_bc.data.store import read_table
-from safe_bc.envs.raster_render import DEFAULT_SUPERSAMPLE
+from safe_bc.tasks.carracing.raster_render import DEFAULT_SUPERSAMPLE
 
 ROOT = Path(__file__).resolve().parents[1]
 RENDERER = ROOT / "results/ablation/renderer"

@@ -15,8 +15,14 @@ import pytest
 from gymnasium import spaces
 
 from safe_bc.envs.config import EnvConfig
-from safe_bc.experts.perturb import PerturbationConfig
-from safe_bc.tasks import PLUGINS_VAR, TASKS, GymEnv, TaskSpec, register_task
+from safe_bc.tasks import (
+    PLUGINS_VAR,
+    TASKS,
+    GymEnv,
+    PerturbationConfig,
+    TaskSpec,
+    register_task,
+)
 
 TOY_ID = "safe_bc_tests/ToyLane-v0"
 TOY_STEPS = 40

@@ -75,9 +75,15 @@ def test_registry_entries_are_complete():
     assert tuple(TASKS)[:2] == ("carracing", "rehab")  # the built-ins, in order
     for task in TASKS:
         entry = task_defaults(task)
-        missing = [f.name for f in dataclasses.fields(entry) if getattr(entry, f.name) is None]
+        optional = {"drawing"}  # None: the task cannot be rendered (rehab)
+        missing = [
+            f.name
+            for f in dataclasses.fields(entry)
+            if getattr(entry, f.name) is None and f.name not in optional
+        ]
         assert not missing, f"{task}: {missing}"
         assert entry.eps > 0
+    assert TASKS["carracing"].drawing is not None and TASKS["rehab"].drawing is None
 
 
 @pytest.mark.parametrize("task", TASKS)
@@ -104,7 +110,7 @@ def test_env_ids_are_registered_with_their_env_modules():
     import gymnasium as gym
 
     from safe_bc.envs.factory import REHAB_ID, register_envs
-    from safe_bc.envs.rehab import DEFAULT_N_SESSIONS, RehabPathwayEnv
+    from safe_bc.tasks.rehab.env import DEFAULT_N_SESSIONS, RehabPathwayEnv
 
     register_envs()
     assert gym.spec(REHAB_ID).max_episode_steps == DEFAULT_N_SESSIONS

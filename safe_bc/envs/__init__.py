@@ -1,7 +1,9 @@
-"""Environments: the CarRacing testbed with safety costs and the rehabilitation pathway.
+"""What every environment shares: :class:`EnvConfig`, the info contract (``info.py``) and
+:func:`make_env`, which builds a task's env from the task registry. The tasks' own envs live
+in their folders (``safe_bc/tasks/<name>/``).
 
-The names load on first use (PEP 562): ``safe_bc.envs.config`` and the env modules import
-without the task registry, which :func:`make_env` reads.
+The names load on first use (PEP 562): ``safe_bc.envs.config`` imports without the task
+registry, which :func:`make_env` reads.
 """
 
 from __future__ import annotations
@@ -14,11 +16,6 @@ _EXPORTS = {
     "EnvConfig": "safe_bc.envs.config",
     "make_env": "safe_bc.envs.factory",
     "register_envs": "safe_bc.envs.factory",
-    "SAFETY_DIMS": "safe_bc.envs.safety",
-    "costs_from_distances": "safe_bc.envs.safety",
-    "pixel_distances": "safe_bc.envs.safety",
-    "CarRacingSafety": "safe_bc.envs.wrappers",
-    "DomainRandomizationError": "safe_bc.envs.wrappers",
 }
 
 __all__ = sorted(_EXPORTS)

@@ -19,7 +19,7 @@ from safe_bc.tasks.rehab import REHAB_ID
 def observed_costs(obs: np.ndarray, env_id: str) -> np.ndarray:
     """The safety costs of states as measured, from their observations: ``(B, S) float64``.
 
-    CarRacing: the costs are defined on the frame (:mod:`safe_bc.envs.safety`), so this is
+    CarRacing: the costs are defined on the frame (:mod:`safe_bc.tasks.carracing.costs`), so this is
     exactly the env's cost. Rehabilitation: ``[hr_peak_hrr, fatigue, 2 * sbp_peak]`` of the
     observation, the measured (noisy) values of the env's true costs.
     """

@@ -4,16 +4,20 @@ A task is one folder, ``safe_bc/tasks/<name>/``, whose ``SPEC`` (a :class:`TaskS
 expert, observed costs, defaults) is registered with one line, ``register_task(SPEC)``.
 Code that needs a task-specific value looks it up here (or, for a dataset, in its
 ``dataset.json``) rather than testing for a task. Importing any ``safe_bc.tasks`` module
-runs this file first, so the built-ins are always registered.
+runs this file first, so the built-ins are always registered. ``PerturbationConfig`` (the
+type of ``TaskSpec.perturbation``; CarRacing's, ``mode="none"`` for a task without
+perturbations) is re-exported for tasks defined elsewhere.
 """
 
 from safe_bc.tasks import carracing, rehab
+from safe_bc.tasks.carracing.perturb import PerturbationConfig
 from safe_bc.tasks.lookup import action_bounds, check_net_fits_task, dataset_action_bounds
 from safe_bc.tasks.registry import (
     DEFAULT_TASK,
     PLUGINS_VAR,
     TASKS,
     Bounds,
+    Drawing,
     GymEnv,
     Task,
     TaskDefaults,
@@ -35,7 +39,9 @@ __all__ = [
     "PLUGINS_VAR",
     "TASKS",
     "Bounds",
+    "Drawing",
     "GymEnv",
+    "PerturbationConfig",
     "Task",
     "TaskDefaults",
     "TaskSpec",

@@ -13,7 +13,7 @@ from __future__ import annotations
 import functools
 import importlib
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
@@ -24,8 +24,8 @@ from safe_bc.envs.config import EnvConfig, Renderer
 
 if TYPE_CHECKING:
     from safe_bc.data.codec import Encoding
-    from safe_bc.experts.perturb import PerturbationConfig
     from safe_bc.policy import Policy
+    from safe_bc.tasks.carracing.perturb import PerturbationConfig
 
 Task = str
 """A registered task's name (a key of :data:`TASKS`)."""
@@ -72,6 +72,29 @@ def gym_make(config: EnvConfig) -> gym.Env:
 
 
 @dataclass(frozen=True)
+class Drawing:
+    """How ``safe-bc render`` draws a task's episodes (:mod:`safe_bc.render` does the rest:
+    upscaling, the critical-zone colours, border, header, video and track map). A task
+    without one cannot be rendered."""
+
+    overlay: Callable[[np.ndarray, np.ndarray, Sequence[tuple[int, int, int]], int], None]
+    """``(upscaled frame, safety (S,), one RGB colour per dimension, scale)``: draws the
+    safety readings over the upscaled frame in place (CarRacing: the three rays)."""
+    caption: Callable[[np.ndarray], str]
+    """``safety (S,) -> text``: the reading in a frame's header line."""
+    position: Callable[[gym.Env], tuple[float, float]]
+    """Where the agent is in the world now (the track map's path)."""
+    ground: Callable[[gym.Env], list[np.ndarray]]
+    """The world's polygons, ``(n, 2)`` each (the track map's background)."""
+    unit: str
+    """Unit of the safety distances (``closest 3.2 px``)."""
+    closest: str
+    """What the closest distance is measured to, with its unit (``px to the grass``)."""
+    scale_label: str
+    """Label of the track map's colour scale."""
+
+
+@dataclass(frozen=True)
 class TaskSpec:
     """One task: its env, its expert, its observed costs and what it collects with unless
     told otherwise."""
@@ -115,6 +138,8 @@ class TaskSpec:
     """Whether ``EnvConfig.renderer`` picks how the env draws (else it stays the default)."""
     paper_table1: bool = False
     """Whether the paper reports a Table 1 for this task (``reproduce`` compares with it)."""
+    drawing: Drawing | None = None
+    """How ``safe-bc render`` draws its episodes; ``None``: it cannot be rendered."""
 
     def __post_init__(self) -> None:
         if not self.name or not self.env.env_id:

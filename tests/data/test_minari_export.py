@@ -10,7 +10,7 @@ import pytest
 from safe_bc.collection import CollectConfig, EpisodeMaker, config_dict
 from safe_bc.data.store import DatasetMeta, init_dataset, read_episodes, write_episode
 from safe_bc.envs import EnvConfig
-from safe_bc.experts.perturb import PerturbationConfig
+from safe_bc.tasks.carracing.perturb import PerturbationConfig
 
 minari = pytest.importorskip("minari")
 
@@ -49,7 +49,7 @@ def carracing_demos(tmp_path_factory) -> Path:
 @pytest.fixture(scope="module")
 def rehab_demos(tmp_path_factory) -> Path:
     """Two rehab episodes (vector observations, 30 sessions each)."""
-    from safe_bc.experts.rehab import GuidelineConfig
+    from safe_bc.tasks.rehab.expert import GuidelineConfig
 
     config = CollectConfig(
         episodes=2,

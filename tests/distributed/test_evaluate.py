@@ -11,8 +11,8 @@ from safe_bc.data.store import load_demonstrations
 from safe_bc.distributed.evaluate import evaluate_policies
 from safe_bc.evaluation import EvalConfig, ExpertSource, NetSource
 from safe_bc.experiment import RunConfig, train_run
-from safe_bc.experts.carracing import ExpertConfig
 from safe_bc.selection import SelectionConfig
+from safe_bc.tasks.carracing.expert import ExpertConfig
 
 
 @pytest.fixture(scope="module")

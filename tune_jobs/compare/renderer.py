@@ -3,7 +3,7 @@
 Rows: the safety-imitation start of ``improve_carracing.py`` (BC with alpha 0.1, eps 2 px, the
 default network and budget; training seeds 0-2) evaluated in the exact env (``renderer`` fast,
 pixel-identical to gymnasium's), and the same agents (``agents_of``) evaluated in the raster
-env (:mod:`safe_bc.envs.raster_render`, the supersample factor chosen by
+env (:mod:`safe_bc.tasks.carracing.raster_render`, the supersample factor chosen by
 ``python -m benchmarks.render_accuracy``); both against the default demonstrations' d_s, on
 the same 20 held-out tracks (seed block 11). Paired raster - exact on the same (training seed,
 track) cells. Row names are the keys of the committed ``results/ablation/renderer/

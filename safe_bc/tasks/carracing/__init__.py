@@ -1,10 +1,18 @@
 """The CarRacing testbed: gymnasium's CarRacing-v3 with frame-based safety costs.
 
-Its parts: the env (``CarRacing-v3`` drawn by one of three renderers,
-:mod:`safe_bc.envs.fast_render`, :mod:`safe_bc.envs.raster_render` or gymnasium's own, wrapped
-in :class:`safe_bc.envs.wrappers.CarRacingSafety`), the expert
-(:mod:`safe_bc.experts.carracing`), the observed costs (:func:`safe_bc.envs.safety.frame_costs`:
-the env's own costs, defined on the frame) and :data:`SPEC`, its registry entry.
+Everything CarRacing-specific lives in this folder:
+
+* the env: ``CarRacing-v3`` drawn by one of three renderers (:mod:`.fast_render`, the
+  pixel-identical one, with its compiled polygon kernels :mod:`.gfx_kernels`;
+  :mod:`.raster_render`, approximate and opt-in; or gymnasium's own), wrapped in
+  :class:`.wrapper.CarRacingSafety` (costs, warm-up, off-road in ``info``);
+* the costs: :mod:`.costs` (pure: frame -> pixel distances to the grass -> costs; its
+  :func:`~.costs.frame_costs` are also the observed costs);
+* the expert: :mod:`.expert` (pure pursuit on the centre line), :mod:`.geometry` (lateral
+  offsets from the track), :mod:`.perturb` (drift / DART perturbations of the executed
+  action);
+* the pictures: :mod:`.draw` (the safety rays drawn over a frame, the track map);
+* :data:`SPEC`, its registry entry.
 """
 
 from __future__ import annotations
@@ -12,11 +20,12 @@ from __future__ import annotations
 import gymnasium as gym
 
 from safe_bc.envs.config import EnvConfig, Renderer
-from safe_bc.envs.safety import SAFETY_DIMS, frame_costs
-from safe_bc.envs.wrappers import CarRacingSafety
-from safe_bc.experts.carracing import CarRacingExpert, ExpertConfig
-from safe_bc.experts.perturb import PerturbationConfig
 from safe_bc.selection import DEFAULT_EPS
+from safe_bc.tasks.carracing.costs import SAFETY_DIMS, frame_costs
+from safe_bc.tasks.carracing.draw import DRAWING
+from safe_bc.tasks.carracing.expert import CarRacingExpert, ExpertConfig
+from safe_bc.tasks.carracing.perturb import PerturbationConfig
+from safe_bc.tasks.carracing.wrapper import CarRacingSafety
 from safe_bc.tasks.registry import GymEnv, TaskSpec
 
 CARRACING_ID = "CarRacing-v3"
@@ -46,8 +55,10 @@ SPEC = TaskSpec(
     name="carracing",
     env=EnvConfig(CARRACING_ID),
     gym_envs=(
-        GymEnv(FAST_CARRACING_ID, "safe_bc.envs.fast_render:FastCarRacing", 1000, 900),
-        GymEnv(RASTER_CARRACING_ID, "safe_bc.envs.raster_render:RasterCarRacing", 1000, 900),
+        GymEnv(FAST_CARRACING_ID, "safe_bc.tasks.carracing.fast_render:FastCarRacing", 1000, 900),
+        GymEnv(
+            RASTER_CARRACING_ID, "safe_bc.tasks.carracing.raster_render:RasterCarRacing", 1000, 900
+        ),
     ),
     expert=ExpertConfig(),
     build_expert=CarRacingExpert,
@@ -64,5 +75,6 @@ SPEC = TaskSpec(
     perturbable=True,
     has_renderer=True,
     paper_table1=True,
+    drawing=DRAWING,
 )
 """The CarRacing entry of :data:`safe_bc.tasks.TASKS`."""

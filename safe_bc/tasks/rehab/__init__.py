@@ -1,19 +1,20 @@
 """The rehabilitation pathway: a simulated cardiac rehabilitation programme with vector
 observations and three monitored safety quantities.
 
-Its parts: the env (:class:`safe_bc.envs.rehab.RehabPathwayEnv`, costs in ``info`` itself),
-the expert (:class:`safe_bc.experts.rehab.GuidelineExpert`), the observed costs
-(:func:`safe_bc.envs.rehab.observed_costs`, the measured values of the env's true costs) and
-:data:`SPEC`, its registry entry.
+Its parts, all in this folder: the env (:class:`.env.RehabPathwayEnv`, costs in ``info``
+itself), the guideline expert (:class:`.expert.GuidelineExpert`), the observed costs
+(:func:`.env.observed_costs`, the measured values of the env's true costs) and
+:data:`SPEC`, its registry entry. It has no frame drawing (``safe-bc render`` refuses it)
+and no action perturbation (``PerturbationConfig(mode="none")``).
 """
 
 from __future__ import annotations
 
 from safe_bc.envs.config import EnvConfig
-from safe_bc.envs.rehab import DEFAULT_N_SESSIONS, REHAB_SAFETY_DIMS, observed_costs
-from safe_bc.experts.perturb import PerturbationConfig
-from safe_bc.experts.rehab import GuidelineConfig, GuidelineExpert
+from safe_bc.tasks.carracing.perturb import PerturbationConfig
 from safe_bc.tasks.registry import GymEnv, TaskSpec
+from safe_bc.tasks.rehab.env import DEFAULT_N_SESSIONS, REHAB_SAFETY_DIMS, observed_costs
+from safe_bc.tasks.rehab.expert import GuidelineConfig, GuidelineExpert
 
 REHAB_ID = "safe_bc/RehabPathway-v0"
 """The task's env id."""
@@ -21,7 +22,7 @@ REHAB_ID = "safe_bc/RehabPathway-v0"
 SPEC = TaskSpec(
     name="rehab",
     env=EnvConfig(REHAB_ID),
-    gym_envs=(GymEnv(REHAB_ID, "safe_bc.envs.rehab:RehabPathwayEnv", DEFAULT_N_SESSIONS),),
+    gym_envs=(GymEnv(REHAB_ID, "safe_bc.tasks.rehab.env:RehabPathwayEnv", DEFAULT_N_SESSIONS),),
     expert=GuidelineConfig(),
     build_expert=GuidelineExpert,
     perturbation=PerturbationConfig(mode="none"),

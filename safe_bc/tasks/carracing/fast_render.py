@@ -57,7 +57,7 @@ skid-mark particles), flip, indicators and scaling. After a ``state_pixels`` ren
 ``self.surf`` holds the unflipped road-and-car surface rather than the final composed frame.
 Editing ``road_poly`` vertices in place after ``reset()`` is not noticed (appending is).
 
-``tests/envs/test_fast_render.py`` checks frames against stock gymnasium;
+``tests/tasks/carracing/test_fast_render.py`` checks frames against stock gymnasium;
 ``python -m benchmarks.bench_render`` measures the speed-up.
 """
 
@@ -149,7 +149,7 @@ def _compiled_draw() -> Any:
         if os.environ.get(COMPILED_DRAWING_ENV, "1").strip() == "0":
             return None
         try:
-            from safe_bc.envs import gfx_kernels
+            from safe_bc.tasks.carracing import gfx_kernels
         except ImportError:  # numba is not installed
             return None
         if gfx_kernels.matches_pygame():

@@ -8,9 +8,9 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from safe_bc.experts import CarRacingExpert, ExpertConfig, lateral_offset, lateral_offsets
-from safe_bc.experts.geometry import ROAD_HALF_WIDTH
 from safe_bc.policy import Policy
+from safe_bc.tasks.carracing.expert import CarRacingExpert, ExpertConfig
+from safe_bc.tasks.carracing.geometry import ROAD_HALF_WIDTH, lateral_offset, lateral_offsets
 from scripts.evaluate_expert import RolloutStats
 
 from .conftest import STEPS

@@ -1,6 +1,6 @@
 """An approximate CarRacing-v3 renderer that draws the 96x96 state directly (opt-in).
 
-``RasterCarRacing`` is :class:`~safe_bc.envs.fast_render.FastCarRacing` (stock physics,
+``RasterCarRacing`` is :class:`~safe_bc.tasks.carracing.fast_render.FastCarRacing` (stock physics,
 rewards, tracks and colours) whose ``state_pixels`` frame is rasterised with OpenCV on a small
 canvas instead of drawn with pygame on a 1000x800 surface and smooth-scaled. The pygame path
 is memory-bound: it fills ~1-2 million pixels per frame (background, grass squares of ~540 px,
@@ -16,7 +16,7 @@ pixel (its rows differ from stock's by at most 1, from where smoothscale's Y pas
 **Frames are not bit-identical to stock.** Road, grass and car edges differ by the
 anti-aliasing (a box average of ``supersample**2`` samples instead of gfxdraw's anti-aliased
 outline plus smoothscale's fixed-point filter), and so do the safety costs read off the
-frames. ``scripts/renderer_cost.py`` and ``scripts/renderer_pipeline.py`` measure the frame
+frames. ``benchmarks/render_accuracy.py`` and ``tune_jobs/compare/renderer*.py`` measure the frame
 and cost differences and what they do to agents (``results/ablation/renderer/``); no committed
 result uses this renderer. ``rgb_array``/``human`` renders are the exact ones of
 ``FastCarRacing``.
@@ -37,7 +37,7 @@ from gymnasium.envs.box2d.car_racing import (
     WINDOW_W,
 )
 
-from safe_bc.envs.fast_render import (
+from safe_bc.tasks.carracing.fast_render import (
     _FIELD,
     _PANEL_ROWS,
     FastCarRacing,
@@ -49,7 +49,7 @@ from safe_bc.envs.fast_render import (
 __all__ = ["DEFAULT_SUPERSAMPLE", "RasterCarRacing"]
 
 DEFAULT_SUPERSAMPLE = 2
-"""Canvas side = ``96 * supersample``, chosen by ``scripts/renderer_cost.py``: the smallest
+"""Canvas side = ``96 * supersample``, chosen by ``benchmarks/render_accuracy.py``: the smallest
 (fastest) factor whose safety distances stay within 10% of eps of the exact ones on average
 (``results/ablation/renderer/``)."""
 _PANEL_STATE_ROWS = STATE_H * _PANEL_ROWS // WINDOW_H  # 12: the indicator panel in the state

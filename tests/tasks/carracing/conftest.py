@@ -7,7 +7,8 @@ from collections.abc import Iterator
 import gymnasium as gym
 import pytest
 
-from safe_bc.experts import CarRacingExpert, Perturbation, PerturbationConfig
+from safe_bc.tasks.carracing.expert import CarRacingExpert
+from safe_bc.tasks.carracing.perturb import Perturbation, PerturbationConfig
 from scripts.evaluate_expert import RolloutStats, make_env, rollout
 
 TRACK_SEEDS: tuple[int, ...] = (3, 21)

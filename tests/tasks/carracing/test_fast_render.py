@@ -10,7 +10,7 @@ import pygame
 import pytest
 from gymnasium.envs.box2d.car_racing import SCALE, ZOOM, CarRacing
 
-from safe_bc.envs.fast_render import FastCarRacing, _rotation
+from safe_bc.tasks.carracing.fast_render import FastCarRacing, _rotation
 
 
 def _actions(seed: int, steps: int, reckless: bool) -> np.ndarray:
@@ -285,7 +285,7 @@ def test_cheap_cover_test_implies_the_exact_one() -> None:
     ``_covers_window`` (the exact test on gfxdraw's integer vertices) says no."""
     from gymnasium.envs.box2d.car_racing import PLAYFIELD, WINDOW_H, WINDOW_W
 
-    from safe_bc.envs.fast_render import _FIELD
+    from safe_bc.tasks.carracing.fast_render import _FIELD
 
     env = FastCarRacing()
     env.reset(seed=0)
@@ -316,7 +316,7 @@ def test_near_polygons_include_every_polygon_that_could_be_drawn() -> None:
     per-vertex test over all polygons, at any zoom, rotation and translation."""
     from gymnasium.envs.box2d.car_racing import MAX_SHAPE_DIM, WINDOW_H, WINDOW_W
 
-    from safe_bc.envs.fast_render import _SKIP_MARGIN, _to_screen
+    from safe_bc.tasks.carracing.fast_render import _SKIP_MARGIN, _to_screen
 
     env = FastCarRacing()
     env.reset(seed=1)

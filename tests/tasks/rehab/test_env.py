@@ -11,7 +11,7 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 from safe_bc.envs.factory import REHAB_ID, register_envs
-from safe_bc.envs.rehab import (
+from safe_bc.tasks.rehab.env import (
     DEFAULT_N_SESSIONS,
     OBS_INDEX,
     OBS_NAMES,

@@ -6,8 +6,9 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from safe_bc.experts import CarRacingExpert, Perturbation, PerturbationConfig
-from safe_bc.experts.geometry import CAR_HALF_WIDTH, ROAD_HALF_WIDTH
+from safe_bc.tasks.carracing.expert import CarRacingExpert
+from safe_bc.tasks.carracing.geometry import CAR_HALF_WIDTH, ROAD_HALF_WIDTH
+from safe_bc.tasks.carracing.perturb import Perturbation, PerturbationConfig
 from scripts.evaluate_expert import RolloutStats, rollout
 
 from .conftest import STEPS, TRACK_SEEDS

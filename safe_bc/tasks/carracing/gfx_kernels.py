@@ -16,10 +16,11 @@ a 32-bit surface (the transpose of ``pygame.surfarray.pixels2d``):
   as SDL_gfx rounds them, sorted, and filled pairwise with ``hlineColor``'s swap and clip (note
   its min/max ``else if``, reproduced).
 
-``safe_bc.envs.fast_render`` checks these against pygame on random polygons once per process
-(:func:`matches_pygame`) and keeps pygame's own calls if they ever disagree, so a pygame-ce
-release that changes its drawing cannot change a frame. ``tests/envs/test_gfx_kernels.py``
-compares them pixel for pixel, and ``tests/envs/test_fast_render.py`` whole frames with stock.
+``safe_bc.tasks.carracing.fast_render`` checks these against pygame on random polygons once
+per process (:func:`matches_pygame`) and keeps pygame's own calls if they ever disagree, so a
+pygame-ce release that changes its drawing cannot change a frame.
+``tests/tasks/carracing/test_gfx_kernels.py`` compares them pixel for pixel, and
+``tests/tasks/carracing/test_fast_render.py`` whole frames with stock.
 """
 
 from __future__ import annotations

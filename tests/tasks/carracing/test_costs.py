@@ -6,14 +6,14 @@ import numpy as np
 import pytest
 
 from safe_bc.envs import EnvConfig, make_env
-from safe_bc.envs.safety import (
+from safe_bc.metrics import combined
+from safe_bc.tasks.carracing.costs import (
     MAX_RANGE,
     costs_from_distances,
     pixel_distances,
 )
-from safe_bc.experts.carracing import CarRacingExpert, ExpertConfig
-from safe_bc.experts.geometry import lateral_offset
-from safe_bc.metrics import combined
+from safe_bc.tasks.carracing.expert import CarRacingExpert, ExpertConfig
+from safe_bc.tasks.carracing.geometry import lateral_offset
 
 
 def _road_frame(left_edge: int, right_edge: int) -> np.ndarray:
@@ -100,7 +100,7 @@ def test_offroad_frames_have_distance_near_zero() -> None:
 def _reference_pixel_distances(frame: np.ndarray) -> np.ndarray:
     """The whole-frame computation ``pixel_distances`` replaced (greenness of every row above
     the car's bottom, one ``_ray_distance`` call per side): its values must not change."""
-    from safe_bc.envs.safety import (
+    from safe_bc.tasks.carracing.costs import (
         CAR_COLS,
         CAR_ROWS,
         FRONT_START,
@@ -124,7 +124,7 @@ def _assert_bits_equal(frame: np.ndarray) -> None:
 
 
 def test_ray_pixels_cover_each_ray_once() -> None:
-    from safe_bc.envs.safety import _RAY_COLS, _RAY_PAD, _RAY_ROWS
+    from safe_bc.tasks.carracing.costs import _RAY_COLS, _RAY_PAD, _RAY_ROWS
 
     assert _RAY_ROWS.shape == _RAY_COLS.shape == _RAY_PAD.shape == (30, 66)
     rays = zip(_RAY_ROWS, _RAY_COLS, _RAY_PAD, strict=True)

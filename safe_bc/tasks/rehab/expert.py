@@ -1,4 +1,4 @@
-"""Rule-based "blueprint" clinician for :class:`safe_bc.envs.rehab.RehabPathwayEnv`.
+"""Rule-based "blueprint" clinician for :class:`safe_bc.tasks.rehab.env.RehabPathwayEnv`.
 
 The guideline protocol starts low (about 40 % of heart-rate reserve for 15 min; 30 % for
 patients entering with a high resting blood pressure),
@@ -32,7 +32,7 @@ from dataclasses import dataclass, fields, replace
 import gymnasium as gym
 import numpy as np
 
-from safe_bc.envs.rehab import (
+from safe_bc.tasks.rehab.env import (
     DURATION_RANGE,
     INTENSITY_RANGE,
     OBS_INDEX,
@@ -200,7 +200,7 @@ class GuidelineConfig:
 class GuidelineExpert:
     """The blueprint clinician, implementing :class:`~safe_bc.policy.Policy`.
 
-    >>> from safe_bc.envs.rehab import RehabPathwayEnv
+    >>> from safe_bc.tasks.rehab.env import RehabPathwayEnv
     >>> env = RehabPathwayEnv()
     >>> obs, info = env.reset(seed=0)
     >>> expert = GuidelineExpert()

@@ -7,7 +7,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from safe_bc.envs.safety import SAFETY_DIMS, costs_from_distances, pixel_distances
+from safe_bc.tasks.carracing.costs import SAFETY_DIMS, costs_from_distances, pixel_distances
 
 ZOOM_END_T = 1.0
 """CarRacing's zoom-in animation ends when the env clock ``t`` reaches 1 s (50 steps)."""

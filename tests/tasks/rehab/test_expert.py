@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from safe_bc.envs.factory import REHAB_ID, register_envs
-from safe_bc.envs.rehab import (
+from safe_bc.policy import Policy
+from safe_bc.tasks.rehab.env import (
     DEFAULT_N_SESSIONS,
     OBS_INDEX,
     OBS_NAMES,
@@ -18,8 +19,7 @@ from safe_bc.envs.rehab import (
     action_to_prescription,
     sample_patient,
 )
-from safe_bc.experts.rehab import ConstantPrescription, GuidelineConfig, GuidelineExpert
-from safe_bc.policy import Policy
+from safe_bc.tasks.rehab.expert import ConstantPrescription, GuidelineConfig, GuidelineExpert
 
 N_PATIENTS = 50
 

@@ -8,7 +8,7 @@ import pytest
 
 from safe_bc.envs import EnvConfig, make_env
 from safe_bc.envs.factory import RASTER_CARRACING_ID
-from safe_bc.envs.raster_render import RasterCarRacing
+from safe_bc.tasks.carracing.raster_render import RasterCarRacing
 
 STEPS = 90  # the zoom-in ends at step 50; the rest is scored
 

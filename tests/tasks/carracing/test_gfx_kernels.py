@@ -7,8 +7,8 @@ import pygame
 import pytest
 from pygame import gfxdraw
 
-from safe_bc.envs import fast_render
-from safe_bc.envs.gfx_kernels import draw_polygons, matches_pygame
+from safe_bc.tasks.carracing import fast_render
+from safe_bc.tasks.carracing.gfx_kernels import draw_polygons, matches_pygame
 
 
 def _pixels(surf: pygame.Surface) -> np.ndarray:
@@ -85,7 +85,7 @@ def test_self_check_passes_and_the_renderer_uses_the_ports() -> None:
 def test_a_failed_self_check_falls_back_to_pygame(monkeypatch: pytest.MonkeyPatch) -> None:
     """If the ports ever disagree with the installed pygame-ce, the renderer warns once and
     draws with pygame's own calls: frames stay identical."""
-    from safe_bc.envs import gfx_kernels
+    from safe_bc.tasks.carracing import gfx_kernels
 
     monkeypatch.setattr(gfx_kernels, "matches_pygame", lambda: False)
     monkeypatch.setattr(fast_render._Compiled, "resolved", False)

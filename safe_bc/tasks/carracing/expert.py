@@ -40,7 +40,7 @@ from dataclasses import dataclass, fields
 import gymnasium as gym
 import numpy as np
 
-from safe_bc.experts.geometry import ROAD_HALF_WIDTH
+from safe_bc.tasks.carracing.geometry import ROAD_HALF_WIDTH
 
 WHEELBASE: float = (80 + 82) * 0.02
 """Distance between front and rear axles of the CarRacing car, world units."""
