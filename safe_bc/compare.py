@@ -23,6 +23,7 @@ import importlib.util
 import math
 import re
 import sys
+import types
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal, get_args
@@ -312,6 +313,18 @@ class Comparison:
         for m in out["methods"]:
             m["demos"] = None if m["demos"] is None else str(m["demos"])
         return out
+
+
+def sibling(file: str | Path, name: str) -> types.ModuleType:
+    """The comparison file ``name`` beside ``file`` as a module, for a comparison file that
+    builds on another (``obs = sibling(__file__, "observation")``)."""
+    path = Path(file).with_name(f"{name}.py")
+    spec = importlib.util.spec_from_file_location(f"safe_bc_compare_{name}", path)
+    if spec is None or spec.loader is None:
+        raise ValueError(f"{path}: cannot be imported")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
 def load_comparison(path: str | Path) -> Comparison:

@@ -14,18 +14,11 @@ tune_jobs/compare/fallback_carracing.py``. Writes ``results/improve/carracing/fa
 No committed tables: the earlier diagnostic was made on retired starts.
 """
 
-import importlib.util
 from dataclasses import replace
-from pathlib import Path
 
-from safe_bc.compare import Method
+from safe_bc.compare import Method, sibling
 
-_spec = importlib.util.spec_from_file_location(
-    "improve_carracing", Path(__file__).with_name("improve_carracing.py")
-)
-assert _spec is not None and _spec.loader is not None
-_base = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(_base)
+_base = sibling(__file__, "improve_carracing")
 
 ROWS = ("imitation", "both", "ppo")
 """Rows evaluated with the expert as their fallback."""

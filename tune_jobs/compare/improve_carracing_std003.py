@@ -6,16 +6,12 @@ Run: ``safe-bc compare tune_jobs/compare/improve_carracing_std003.py``. Writes
 ``results/improve/carracing_std003/improve*``.
 """
 
-import importlib.util
 from dataclasses import replace
 from pathlib import Path
 
-_spec = importlib.util.spec_from_file_location(
-    "improve_carracing", Path(__file__).with_name("improve_carracing.py")
-)
-assert _spec is not None and _spec.loader is not None
-_base = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(_base)
+from safe_bc.compare import sibling
+
+_base = sibling(__file__, "improve_carracing")
 
 COMPARISON = replace(
     _base.COMPARISON,

@@ -2,16 +2,11 @@
 patients (see ``margin_sweep.py``). Run: ``safe-bc compare
 tune_jobs/compare/margin_sweep_screen.py``; writes ``sweep_screen_seed0*`` there."""
 
-import importlib.util
 from dataclasses import replace
-from pathlib import Path
 
-_spec = importlib.util.spec_from_file_location(
-    "margin_sweep", Path(__file__).with_name("margin_sweep.py")
-)
-assert _spec is not None and _spec.loader is not None
-sweep = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(sweep)
+from safe_bc.compare import sibling
+
+sweep = sibling(__file__, "margin_sweep")
 
 COMPARISON = replace(
     sweep.COMPARISON,

@@ -6,16 +6,12 @@ scripts.observation_choice --episodes results/ablation/budget/budget_episodes.pa
 results/ablation/budget --name budget --title "Training budget (CarRacing, plain BC)"``.
 """
 
-import importlib.util
 from dataclasses import replace
 from pathlib import Path
 
-_spec = importlib.util.spec_from_file_location(
-    "observation", Path(__file__).with_name("observation.py")
-)
-assert _spec is not None and _spec.loader is not None
-obs = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(obs)
+from safe_bc.compare import sibling
+
+obs = sibling(__file__, "observation")
 
 CELL = "bar-nosteer_rgb_k1"
 COMPARISON = replace(

@@ -7,16 +7,12 @@ scripts.observation_choice --episodes results/ablation/network/network_episodes.
 results/ablation/network --name network --title "Network width (CarRacing, plain BC)"``.
 """
 
-import importlib.util
 from dataclasses import replace
 from pathlib import Path
 
-_spec = importlib.util.spec_from_file_location(
-    "observation", Path(__file__).with_name("observation.py")
-)
-assert _spec is not None and _spec.loader is not None
-obs = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(obs)
+from safe_bc.compare import sibling
+
+obs = sibling(__file__, "observation")
 
 CELL = "bar-nosteer_rgb_k1"
 WIDTHS = ((8, 16, 16), (16, 32, 32), (32, 64, 64))

@@ -67,3 +67,21 @@ COMPARISON = pipelines(
     eval_seed=11,
     title="Exact pipeline vs raster pipeline (demonstrations, d_s, training, evaluation)",
 )
+
+
+def table1_pipelines(name: str, row: str, alpha_label: str) -> Comparison:
+    """The exact and the raster pipeline with Table 1's ``row``: its selection, network and
+    budget, its training seeds and held-out tracks."""
+    from safe_bc.reproduce import ReproduceConfig
+
+    table1 = ReproduceConfig().comparison()
+    method = table1.method(row)
+    assert method.selection is not None
+    return pipelines(
+        name,
+        method.selection,
+        method.bc or table1.bc,
+        train_seeds=table1.train_seeds,
+        eval_seed=table1.eval_seed,
+        title=f"Exact pipeline vs raster pipeline, Table 1's {alpha_label} row",
+    )
