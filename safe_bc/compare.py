@@ -37,7 +37,7 @@ from safe_bc.improve.config import ImproveConfig
 from safe_bc.metrics import METRICS, paired_crossed, summarize_crossed
 from safe_bc.report import fmt_ci
 from safe_bc.selection import SelectionConfig
-from safe_bc.tasks import TASKS, Task
+from safe_bc.tasks import TASKS, Task, task_defaults
 
 EXPERT = "expert"
 """``mode`` (and default name) of the expert's row."""
@@ -72,6 +72,10 @@ class Method:
     """A BC row's network, preprocessing and budget; ``None``: the comparison's ``bc``."""
     expert: bool = False
     """The task's expert (trained once: evaluated once, ``train_seed`` 0)."""
+    expert_config: Any = None
+    """An expert row's own configuration (the task's expert config type, e.g. a CarRacing
+    ``ExpertConfig`` with another driving style); ``None``: the one recorded in the
+    comparison's demonstrations. Rows of several settings compare them on the same tracks."""
     improve: ImproveConfig | None = None
     """An improvement row: each seed's agent of ``start`` improved with this config (its
     ``seed`` set to the training seed)."""
@@ -130,6 +134,13 @@ class Method:
             )
         if self.demos is not None and self.selection is None:
             raise ValueError(f"method {self.name!r}: demos= is for BC rows (with selection=)")
+        if self.expert_config is not None and not self.expert:
+            raise ValueError(f"method {self.name!r}: expert_config= is for expert rows")
+        if self.expert_config is not None and not dataclasses.is_dataclass(self.expert_config):
+            raise ValueError(
+                f"method {self.name!r}: expert_config must be an expert config (a dataclass), "
+                f"got {type(self.expert_config).__name__}"
+            )
 
     @property
     def kind(self) -> str:
@@ -257,6 +268,19 @@ class Comparison:
                 raise ValueError(
                     f"method {m.name!r}: fallback_of {m.fallback_of!r} is not a BC or "
                     f"improvement row of {sorted(agents)}"
+                )
+        default_experts = [m.name for m in self.methods if m.expert and m.expert_config is None]
+        if len(default_experts) > 1:
+            raise ValueError(
+                f"comparison {self.name!r}: expert rows {default_experts} are the same expert "
+                "(give the others their own expert_config)"
+            )
+        kind = task_defaults(self.task).expert_type if self.task in TASKS else None
+        for m in self.methods:
+            if m.expert_config is not None and type(m.expert_config) is not kind:
+                raise ValueError(
+                    f"method {m.name!r}: expert_config is a {type(m.expert_config).__name__}, "
+                    f"task {self.task!r} takes a {getattr(kind, '__name__', kind)}"
                 )
         if not self.train_seeds or len(set(self.train_seeds)) != len(self.train_seeds):
             raise ValueError(f"train_seeds must be distinct and not empty, got {self.train_seeds}")
@@ -388,15 +412,17 @@ def label_episodes(comparison: Comparison, episodes: pd.DataFrame) -> pd.DataFra
 
 
 def _paired_episodes(comparison: Comparison, episodes: pd.DataFrame) -> pd.DataFrame:
-    """The episodes the paired columns compare: the trained rows; against the expert (trained
-    once), its episodes stand in for every training seed on the same tracks."""
+    """The episodes the paired columns compare: the trained rows; against an expert row
+    (trained once), the expert rows' episodes (the reference's and those of other expert
+    settings) stand in for every training seed on the same tracks (seed 0 without trained
+    rows)."""
     agents = episodes[episodes["mode"] != EXPERT]
     ref = comparison.reference
     if ref is None or not comparison.method(ref).expert:
         return agents
-    expert = episodes[episodes["method"] == ref]
-    seeds = sorted(agents["train_seed"].unique())
-    return pd.concat([*(expert.assign(train_seed=k) for k in seeds), agents], ignore_index=True)
+    experts = episodes[episodes["mode"] == EXPERT]
+    seeds = sorted(agents["train_seed"].unique()) or [0]
+    return pd.concat([*(experts.assign(train_seed=k) for k in seeds), agents], ignore_index=True)
 
 
 def minutes_per_run(history: pd.DataFrame) -> pd.Series:

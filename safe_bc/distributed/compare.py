@@ -142,8 +142,10 @@ def _stamp(comparison: Comparison, method: Method, seed: int, thresholds: Any) -
     elif method.kind == "view":
         of = _stamp(comparison, comparison.method(method.agents_of), seed, thresholds)["run"]
         run = {"agents_of": of, "view": "as trained"}
-    else:
+    else:  # (the default expert's stamp as before its own settings existed)
         run = {"expert": str(comparison.demos)}
+        if method.expert_config is not None:
+            run["expert_config"] = dataclasses.asdict(method.expert_config)
     return _json(
         {
             "run": run,
@@ -299,7 +301,7 @@ def run_comparison(
     stored: dict[str, pd.DataFrame] = {}
     eval_metas: list[dict[str, Any]] = []
     for m, s in cells:
-        key = EXPERT if m.expert else f"{m.name} seed={s}"
+        key = EXPERT if m.expert and m.expert_config is None else f"{m.name} seed={s}"
         stamp = _stamp(c, m, s, limits[demos_of(c, m)])
         stamps[key] = (m, s, stamp)
         have = _stored(_folder(c, m, s), stamp)
@@ -307,7 +309,9 @@ def run_comparison(
             stored[key] = have[0]
             eval_metas.append(have[1])
         elif m.expert:
-            sources[key] = ExpertSource(stored_expert_config(c.demos))
+            sources[key] = ExpertSource(
+                stored_expert_config(c.demos) if m.expert_config is None else m.expert_config
+            )
         elif m.kind == "bc":
             sources[key] = NetSource.from_model(*load_checkpoint(_folder(c, m, s) / "agent"))
         elif m.kind == "improve":

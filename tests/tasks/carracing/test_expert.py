@@ -11,9 +11,8 @@ import pytest
 from safe_bc.policy import Policy
 from safe_bc.tasks.carracing.expert import CarRacingExpert, ExpertConfig
 from safe_bc.tasks.carracing.geometry import ROAD_HALF_WIDTH, lateral_offset, lateral_offsets
-from scripts.evaluate_expert import RolloutStats
 
-from .conftest import STEPS
+from .conftest import STEPS, RolloutStats
 
 
 def test_expert_is_a_policy() -> None:

@@ -9,9 +9,8 @@ import pytest
 from safe_bc.tasks.carracing.expert import CarRacingExpert
 from safe_bc.tasks.carracing.geometry import CAR_HALF_WIDTH, ROAD_HALF_WIDTH
 from safe_bc.tasks.carracing.perturb import Perturbation, PerturbationConfig
-from scripts.evaluate_expert import RolloutStats, rollout
 
-from .conftest import STEPS, TRACK_SEEDS
+from .conftest import STEPS, TRACK_SEEDS, RolloutStats, rollout
 
 
 def _actions(n: int = 400) -> np.ndarray:
