@@ -25,11 +25,11 @@ difference to the expert, queries or deferred steps per episode) and ``widths.pa
 
 from __future__ import annotations
 
-import argparse
 import math
 import os
 import time
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -120,20 +120,38 @@ def ensure_demos(root: Path, pool: Any) -> None:
         write_episode(root, ep, meta)
 
 
+@dataclass(frozen=True)
+class MeasureConfig:
+    """The measurement's settings (``python -m safe_bc.queries.measure --help``)."""
+
+    out: Path
+    """Output folder (resumable: a rerun does what is missing)."""
+    processes: int = 16
+    """Worker processes (one torch thread each)."""
+    demos: Path = Path("data/demos")
+    """Demonstrations (the task's default 5 episodes collected there when missing)."""
+    seeds: tuple[int, ...] = (0, 1, 2)
+    """Training seeds."""
+    tracks: int = 50
+    """Tracks per block (selection, fresh) and training seed."""
+    alpha: float = 0.1
+    """Plain BC's alpha (0.1: the committed improvement starts)."""
+    batches: int = 2000
+    """Training batches of every BC fit."""
+    rounds: int = 2
+    """Query rounds (critical and full)."""
+    episodes_per_round: int = 16
+    """Rollouts per query round."""
+    widths: tuple[float, ...] = (1.0, 2.0, 4.0, 8.0)
+    """Deferral widths (px) tried on the selection tracks, smallest first."""
+    max_steps: int | None = None
+    """Episode step cap (None: the env's time limit)."""
+
+
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--out", type=Path, required=True)
-    p.add_argument("--processes", type=int, default=16)
-    p.add_argument("--demos", type=Path, default=Path("data/demos"))
-    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
-    p.add_argument("--tracks", type=int, default=50, help="tracks per block and seed")
-    p.add_argument("--alpha", type=float, default=0.1)
-    p.add_argument("--batches", type=int, default=2000)
-    p.add_argument("--rounds", type=int, default=2)
-    p.add_argument("--episodes-per-round", type=int, default=16)
-    p.add_argument("--widths", type=float, nargs="+", default=[1.0, 2.0, 4.0, 8.0])
-    p.add_argument("--max-steps", type=int, default=None)
-    a = p.parse_args(argv)
+    import tyro
+
+    a = tyro.cli(MeasureConfig, args=argv, description=__doc__.splitlines()[0])
     os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
     import multiprocessing
 
@@ -146,7 +164,7 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-def run(a: argparse.Namespace, pool: Any) -> str:
+def run(a: MeasureConfig, pool: Any) -> str:
     import pandas as pd
 
     from safe_bc.bc.config import BCConfig, TrainConfig
