@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -15,7 +16,9 @@ class Demonstrations:
     """``N`` state-action pairs from one or more episodes, in episode/step order.
 
     Attributes:
-        observations: ``(N, *obs_shape)``: ``(N, 96, 96, 3) uint8`` frames or ``(N, D) float32``.
+        observations: ``(N, *obs_shape)``: ``(N, 96, 96, 3) uint8`` frames or ``(N, D) float32``;
+            frames may be a ``safe_bc.data.frames.FrameFile`` (read from disk per index, the
+            same arrays: ``load_demonstrations``'s ``stream`` mode).
         actions: ``(N, A) float32``, the expert's chosen actions (the BC labels).
         costs: ``(N, S) float32``, safety costs (higher is less safe).
         safety: ``(N, S) float32``, safety distances (higher is safer).
@@ -64,8 +67,11 @@ class Demonstrations:
         return {d: float(s[:, j].mean()) for j, d in enumerate(self.safety_dims)}
 
     @classmethod
-    def from_episodes(cls, episodes: Sequence[Episode]) -> Demonstrations:
+    def from_episodes(cls, episodes: Sequence[Episode], observations: Any = None) -> Demonstrations:
         """Concatenate episodes (in the given order) into flat arrays.
+
+        ``observations``: the episodes' concatenated observations held elsewhere (a
+        ``safe_bc.data.frames.FrameFile``, one row per step), used instead of theirs.
 
         >>> import numpy as np
         >>> from safe_bc.episode import Episode
@@ -83,8 +89,14 @@ class Demonstrations:
         dims = episodes[0].safety_dims
         if any(e.safety_dims != dims for e in episodes):
             raise ValueError("episodes disagree on safety dimensions")
+        if observations is None:
+            observations = np.concatenate([e.observations for e in episodes])
+        elif len(observations) != sum(len(e) for e in episodes):
+            raise ValueError(
+                f"{len(observations)} observations for {sum(len(e) for e in episodes)} steps"
+            )
         return cls(
-            observations=np.concatenate([e.observations for e in episodes]),
+            observations=observations,
             actions=np.concatenate([e.actions for e in episodes]).astype(np.float32),
             costs=np.concatenate([e.costs for e in episodes]).astype(np.float32),
             safety=np.concatenate([e.safety for e in episodes]).astype(np.float32),

@@ -29,12 +29,13 @@ accepted on its schema alone, as before.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import re
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import pyarrow as pa
@@ -42,6 +43,7 @@ import pyarrow.parquet as pq
 
 from safe_bc.atomic import atomic_write, write_text_atomic
 from safe_bc.data.codec import Encoding, decode_frames, encode_frames
+from safe_bc.data.frames import FrameFile, FrameFileError, write_frame_file
 from safe_bc.demos import Demonstrations
 from safe_bc.episode import Episode
 
@@ -342,14 +344,21 @@ def read_columns(root: Path, columns: Sequence[str]) -> dict[str, np.ndarray]:
     return {c: np.concatenate([t.column(c).to_numpy() for t in tables]) for c in columns}
 
 
-def read_episode(path: Path, meta: DatasetMeta) -> Episode:
-    """Read and decode one episode file."""
+def read_episode(path: Path, meta: DatasetMeta, observations: bool = True) -> Episode:
+    """Read and decode one episode file. ``observations=False`` leaves the observation column
+    unread (no decoding): the episode's observations are then ``(T, 0) uint8``, as a rollout
+    that does not keep them records."""
     try:
-        table = pq.read_table(path)
+        if observations:
+            table = pq.read_table(path)
+            schema = table.schema
+        else:
+            schema = pq.read_schema(path)
+            table = pq.read_table(path, columns=[c for c in schema.names if c != "observation"])
     except (pa.ArrowException, OSError) as e:
         raise DatasetError(f"{path}: not a readable Parquet file ({_first_line(e)})") from None
-    _check_schema(path, table.schema, meta)
-    _check_identity(path, table.schema, meta)
+    _check_schema(path, schema, meta)
+    _check_identity(path, schema, meta)
     n = table.num_rows
     if n == 0:
         raise DatasetError(f"{path}: episode has no steps")
@@ -363,7 +372,9 @@ def read_episode(path: Path, meta: DatasetMeta) -> Episode:
         return flat.reshape(n, -1).astype(np.float32)
 
     try:
-        if meta.obs_encoding == "vector":
+        if not observations:
+            obs = np.zeros((n, 0), np.uint8)
+        elif meta.obs_encoding == "vector":
             obs = matrix("observation")
         else:
             obs = decode_frames(
@@ -410,8 +421,11 @@ def _check_rows(path: Path, table: pa.Table) -> None:
         raise DatasetError(f"{path}: {what}; the step column must be 0..{len(steps) - 1}")
 
 
-def read_episodes(root: Path, ids: Iterable[int] | None = None) -> list[Episode]:
-    """Read the episodes of the dataset at ``root`` (all, or the given ids) in id order."""
+def read_episodes(
+    root: Path, ids: Iterable[int] | None = None, observations: bool = True
+) -> list[Episode]:
+    """Read the episodes of the dataset at ``root`` (all, or the given ids) in id order
+    (``observations=False``: without their observations, see :func:`read_episode`)."""
     meta = read_meta(root)
     stored = completed_episodes(root, meta)
     if not stored:
@@ -420,7 +434,7 @@ def read_episodes(root: Path, ids: Iterable[int] | None = None) -> list[Episode]
     missing = sorted(set(wanted) - set(stored))
     if missing:
         raise DatasetError(f"{root}: missing episode(s) {missing}")
-    episodes = [read_episode(episode_path(root, i), meta) for i in wanted]
+    episodes = [read_episode(episode_path(root, i), meta, observations) for i in wanted]
     first: dict[int, int] = {}
     for ep in episodes:  # every episode of a collection has its own env seed
         other = first.setdefault(ep.seed, ep.episode_id)
@@ -432,9 +446,92 @@ def read_episodes(root: Path, ids: Iterable[int] | None = None) -> list[Episode]
     return episodes
 
 
-def load_demonstrations(root: Path) -> Demonstrations:
-    """Read a whole dataset into the flat arrays used for training."""
-    return Demonstrations.from_episodes(read_episodes(root))
+FrameMode = Literal["memory", "stream"]
+"""Where :func:`load_demonstrations` keeps a frame dataset's decoded frames: ``memory``, one
+``(N, H, W, 3) uint8`` array (every frame resident); ``stream``, a :class:`FrameFile` under the
+dataset folder that training reads a batch's rows from (see :func:`frame_cache`)."""
+
+DEFAULT_FRAMES: FrameMode = "stream"
+"""The frame mode of :func:`load_demonstrations` (``make bench``'s ``stream`` case: the
+same training speed, peak RSS no longer growing with the number of episodes)."""
+
+FRAME_CACHE_DIR = "frame-cache"
+"""Folder of a dataset holding its decoded-frame file (``frames-<content key>.npy``)."""
+
+
+def load_demonstrations(root: Path, frames: FrameMode = DEFAULT_FRAMES) -> Demonstrations:
+    """Read a whole dataset into the flat arrays used for training.
+
+    ``frames="stream"`` (frame datasets; vectors are always in memory): the observations are a
+    :class:`FrameFile` of the dataset's decoded frames (:func:`frame_cache`), which gives the
+    same arrays for the same rows as ``"memory"`` and so the same batches and weights."""
+    root = Path(root)
+    if frames not in ("memory", "stream"):
+        raise ValueError(f"frames must be 'memory' or 'stream', not {frames!r}")
+    meta = read_meta(root)
+    if frames == "memory" or meta.obs_encoding == "vector":
+        return Demonstrations.from_episodes(read_episodes(root))
+    episodes = read_episodes(root, observations=False)
+    ids = [ep.episode_id for ep in episodes]
+    lengths = [len(ep) for ep in episodes]
+    source = frame_cache(root, meta, ids, lengths)
+    return Demonstrations.from_episodes(episodes, observations=source)
+
+
+def content_key(root: Path, ids: Sequence[int]) -> str:
+    """A hash of the dataset's ``dataset.json`` and the bytes of episode files ``ids``
+    (reads them in 1 MiB pieces): any rewritten, added or removed episode changes it."""
+    h = hashlib.blake2b(digest_size=16)
+    h.update((Path(root) / META_FILE).read_bytes())
+    for i in ids:
+        path = episode_path(root, i)
+        h.update(f"\0{path.name}\0{path.stat().st_size}\0".encode())
+        with open(path, "rb") as f:
+            while piece := f.read(2**20):
+                h.update(piece)
+    return h.hexdigest()
+
+
+def frame_cache(
+    root: Path, meta: DatasetMeta, ids: Sequence[int], lengths: Sequence[int]
+) -> FrameFile:
+    """The decoded frames of episodes ``ids`` (of ``lengths`` steps) of the dataset at
+    ``root``, in order, as a :class:`FrameFile`
+    ``root/frame-cache/frames-<content_key>.npy``.
+
+    Written on first use, one decoded episode at a time and atomically (a reader never sees
+    a partial file); another dataset content (an episode rewritten, added or removed) has
+    another key, so its file is written anew and the folder's older ones are deleted. A file
+    of the right name whose size or header is wrong (truncated) is written again. Two
+    processes writing at once each write a whole file; the last rename wins (same bytes).
+    """
+    root = Path(root)
+    shape = (int(sum(lengths)), *meta.obs_shape)
+    path = root / FRAME_CACHE_DIR / f"frames-{content_key(root, ids)}.npy"
+    if path.exists():
+        try:
+            return FrameFile(path, shape)
+        except FrameFileError:
+            pass  # truncated or damaged: written again below
+
+    def decoded() -> Iterator[np.ndarray]:
+        for i, n in zip(ids, lengths, strict=True):
+            ep = read_episode(episode_path(root, i), meta)
+            if len(ep) != n:
+                raise DatasetError(f"{episode_path(root, i)}: changed while being read")
+            yield ep.observations
+
+    try:
+        write_frame_file(path, shape, decoded())
+    except OSError as e:
+        raise DatasetError(
+            f"{path}: cannot write the decoded-frame cache ({_first_line(e)}); make the "
+            "dataset folder writable or load it with frames='memory'"
+        ) from None
+    for old in path.parent.glob("frames-*.npy"):
+        if old != path:
+            old.unlink(missing_ok=True)
+    return FrameFile(path, shape)
 
 
 # --- experiment storage: the pyarrow filesystems Ray Tune keeps a study on -----------------
