@@ -127,3 +127,18 @@ def test_a_dirty_tree_fails_before_measuring(monkeypatch, capsys):
     assert ran == []
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "safe_bc/some_module.py" in err[0] and "commit first" in err[0]
+
+
+def test_quick_stream_case_compares_memory_and_streamed_frames():
+    """The stream case trains in fresh processes on both frame modes: the same weights, and a
+    peak RSS, speed and load time for each mode and dataset size."""
+    result = bench.run_case("stream", bench.QUICK, repeats=1)
+    rows = {r["variant"]: r for r in result["rows"]}
+    for episodes in bench.QUICK.stream_episodes:
+        for mode in ("memory", "stream"):
+            for what in ("peak RSS", "train_bc", "load"):
+                assert rows[f"{episodes} episodes, {mode}: {what}"]["value"] > 0
+        assert (
+            "weights identical across modes: yes"
+            in rows[f"{episodes} episodes, memory: peak RSS"]["note"]
+        )
