@@ -4,6 +4,8 @@ Layout of a dataset directory ``DIR``::
 
     DIR/dataset.json                    dataset-level metadata (also embedded in every file)
     DIR/episodes/episode-00000.parquet  one file per episode, one row per step
+    DIR/frame-cache/frames-<key>.npy    the decoded frames, written by the first streamed
+                                        load (:func:`frame_cache`); derived, safe to delete
 
 Columns (the contract later work and outside readers rely on): ``episode_id``,
 ``step``, ``seed``, ``observation`` (binary PNG or raw bytes of a ``96x96x3 uint8``
