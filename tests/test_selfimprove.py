@@ -266,3 +266,19 @@ def test_the_improve_verb_runs_selfimitation_from_a_checkpoint(
             "--quiet"]  # fmt: skip
     assert main(argv) == 0
     assert (tmp_path / "si" / round_dir(0) / DONE).is_file()
+
+
+def test_study_keys_set_the_stage_config_and_the_verb_parses_pushes() -> None:
+    from safe_bc.cli import parse
+    from safe_bc.study import Float, StudySpec
+
+    spec = StudySpec(
+        "s", {"selfimprove.margin": Float(0.0, 2.0)}, selfimprove=SelfImproveConfig(rounds=3)
+    )
+    assert [name for name, _ in spec.stages()] == ["selfimprove"]
+    cfg = spec.stage_config("selfimprove", {"selfimprove.margin": 1.0}, seed=4)
+    assert (cfg.margin, cfg.seed, cfg.rounds) == (1.0, 4, 3)
+    job = parse(["improve", "--start", "a", "--out", "b", "--method", "selfimitation",
+                 "--selfimitation.pushes", "1+0.03", "2*0.9"])[1]  # fmt: skip
+    assert job.method == "selfimitation" and job.selfimitation.pushes == ("1+0.03", "2*0.9")
+    assert parse(["improve", "--start", "a", "--out", "b"])[1].method == "ppo_lagrangian"
