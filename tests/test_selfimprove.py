@@ -282,3 +282,29 @@ def test_study_keys_set_the_stage_config_and_the_verb_parses_pushes() -> None:
                  "--selfimitation.pushes", "1+0.03", "2*0.9"])[1]  # fmt: skip
     assert job.method == "selfimitation" and job.selfimitation.pushes == ("1+0.03", "2*0.9")
     assert parse(["improve", "--start", "a", "--out", "b"])[1].method == "ppo_lagrangian"
+
+
+def test_the_stage_runs_on_carracing_with_60_step_episodes(tiny_demos, tmp_path) -> None:
+    """CarRacing, 60-step episodes, 1 track, the default pushes (gas, brake), 10 batches."""
+    from safe_bc.bc.config import BCConfig, TrainConfig
+    from safe_bc.data.store import load_demonstrations
+    from safe_bc.experiment import train_run
+    from safe_bc.run_config import RunConfig
+    from safe_bc.selection import SelectionConfig
+    from safe_bc.selfimprove.config import DEFAULT_PUSHES
+    from safe_bc.selfimprove.data import load_round
+    from safe_bc.stages import STAGES
+
+    cfg = RunConfig(SelectionConfig(alpha=0.5), BCConfig(train=TrainConfig(batches=10)))
+    result, _ = train_run(load_demonstrations(tiny_demos), cfg)
+    config = SelfImproveConfig(
+        rounds=1, tracks_per_round=1, validation_episodes=1, batches=10, max_steps=60
+    )
+    folder = tmp_path / "stage"
+    source, report = STAGES["selfimprove"].load()(
+        config, result.model, cfg, str(tiny_demos), "CarRacing-v3", folder
+    )
+    (track,) = load_round(folder / round_dir(0) / KEPT)
+    assert len(track.push_rewards) == len(DEFAULT_PUSHES["carracing"])
+    assert report["selfimprove_kept_steps"] == sum(track.push_kept)
+    assert source.build() is not None
