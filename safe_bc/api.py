@@ -347,7 +347,10 @@ def query(job: QueryJob) -> Done:
 
 
 def improve(job: ImproveJob) -> Done:
-    """Improve a checkpoint by constrained RL (resumable); the value is the run's result."""
+    """Improve a checkpoint by constrained RL or, ``method="selfimitation"``, by filtered
+    self-imitation (resumable); the value is the run's result."""
+    if job.method == "selfimitation":
+        return _selfimitate(job)
     from tqdm import tqdm
 
     from safe_bc.improve import LocalEnvs
@@ -378,6 +381,23 @@ def improve(job: ImproveJob) -> Done:
         f"violating sessions / patient {last['val_violation_steps']:.3f}, lambda "
         f"{last['lambda']:.2f}; policy of iteration {result.kept_iteration} in "
         f"{job.out / 'policy'}",
+        result,
+    )
+
+
+def _selfimitate(job: ImproveJob) -> Done:
+    from safe_bc.selfimprove.stage import selfimprove_checkpoint
+
+    with output_lock(job.out):
+        result = selfimprove_checkpoint(job.start, job.demos, job.out, job.selfimitation)
+    last = result.rounds[-1]
+    return Done(
+        f"{job.out}: selfimitation, {len(result.rounds)} rounds ({result.resumed_rounds} "
+        f"resumed), {result.accepted_rounds} accepted, {result.kept_steps} kept steps; "
+        f"validation reward {last['validation_reward']:.2f} (previous "
+        f"{last['previous_validation_reward']:.2f}), {last['validation_beyond']} of "
+        f"{job.selfimitation.validation_episodes} validation episodes beyond d_s; agent: "
+        f"{result.policy}",
         result,
     )
 

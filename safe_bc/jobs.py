@@ -22,6 +22,7 @@ from safe_bc.improve.config import ImproveConfig
 from safe_bc.queries.config import QueryConfig
 from safe_bc.reproduce import ReproduceConfig
 from safe_bc.run_config import RunConfig
+from safe_bc.selfimprove.config import SelfImproveConfig
 from safe_bc.tasks import DEFAULT_TASK, Task
 
 Flat = tyro.conf.arg(name="")
@@ -204,21 +205,32 @@ class QueryJob:
     """The query run (the command rolls out on 2 Ray actors unless --workers says otherwise)."""
 
 
+ImproveMethod = Literal["ppo_lagrangian", "selfimitation"]
+
+
 @dataclass(frozen=True)
 class ImproveJob:
-    """Improve a safety-imitation checkpoint by constrained RL (rerun to resume)."""
+    """Improve a safety-imitation checkpoint by constrained RL or filtered self-imitation
+    (rerun to resume)."""
 
     start: Path
     """A safe-bc train checkpoint."""
     out: Path
     """Run folder (rerun to resume)."""
+    method: ImproveMethod = "ppo_lagrangian"
+    """ppo_lagrangian: constrained RL (--mode, --iterations, ...); selfimitation: iterated,
+    filtered self-imitation inside d_s (--selfimitation.rounds, --selfimitation.pushes, ...,
+    safe_bc.selfimprove)."""
     demos: Path | None = None
     """Demonstrations; None: the start's."""
     config: Annotated[ImproveConfig, Flat] = field(default_factory=ImproveConfig)
-    """The improvement run."""
+    """The improvement run (method ppo_lagrangian)."""
+    selfimitation: SelfImproveConfig = field(default_factory=SelfImproveConfig)
+    """The self-imitation run (method selfimitation); --selfimitation.workers: its Ray
+    rollout actors (0: in-process), the run is bit-identical either way."""
     rollout_workers: int = 0
     """Ray actors stepping the rollout envs (0: in-process, right for rehab; CarRacing: one
-    per core); the run is bit-identical either way."""
+    per core); the run is bit-identical either way (method ppo_lagrangian)."""
     quiet: bool = False
     """No progress bar."""
 

@@ -81,6 +81,13 @@ STAGES: dict[str, Stage] = {
         summed=("queries_total", "queries_seconds"),
         label="querying the expert",
     ),
+    "selfimprove": Stage(
+        field="selfimprove",
+        runner="safe_bc.selfimprove.stage:run_stage",
+        metrics=("selfimprove_accepted_rounds", "selfimprove_kept_steps", "selfimprove_seconds"),
+        summed=("selfimprove_kept_steps", "selfimprove_seconds"),
+        label="self-imitating",
+    ),
 }
 """Stage name -> :class:`Stage`, in the order stages run."""
 

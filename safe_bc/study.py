@@ -39,6 +39,7 @@ from safe_bc.improve.config import ImproveConfig
 from safe_bc.queries.config import QueryConfig
 from safe_bc.run_config import RunConfig
 from safe_bc.selection import DEFAULT_EPS
+from safe_bc.selfimprove.config import SelfImproveConfig
 from safe_bc.stages import STAGE_METRICS, STAGES, Stage, stage_of
 
 Primitive = bool | int | float | str
@@ -405,6 +406,12 @@ class StudySpec:
     every trained agent is rolled out, the expert labels the visited states in the critical
     zone, and the agent is retrained on demonstrations plus labels, for ``rounds`` rounds.
     Searchable as ``queries.<field>`` keys. ``None``: no queries."""
+    selfimprove: SelfImproveConfig | None = None
+    """Optional self-imitation stage (:mod:`safe_bc.selfimprove`, expert iteration inside
+    ``d_s``): every trained agent's own rollouts, pushed to explore, are kept where they stay
+    inside ``d_s`` minus a margin and beat the unperturbed run, and the agent is retrained on
+    demonstrations plus kept data, for ``rounds`` rounds; a round's agent is kept only when it
+    passes the keep rule. Searchable as ``selfimprove.<field>`` keys. ``None``: off."""
 
     def __post_init__(self) -> None:
         if not self.name or not self.name.replace("_", "").replace("-", "").isalnum():

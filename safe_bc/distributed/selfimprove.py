@@ -1,0 +1,49 @@
+"""Self-imitation rollouts and validation episodes on persistent Ray actors (the pool of
+:func:`safe_bc.distributed.pool.run_on_actors`: a dead actor's tracks run again elsewhere)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+
+class _Runner:
+    """One actor: runs a job on its tracks (``job.run(seeds)``)."""
+
+    def run(self, boxed: list[Any], seeds: tuple[int, ...]) -> list[Any]:
+        import ray
+
+        return ray.get(boxed[0]).run(seeds)
+
+
+class RayRollouts:
+    """A :data:`safe_bc.selfimprove.run.RolloutFn` on ``workers`` Ray actors: the tracks in
+    ``workers`` contiguous chunks, results in track order (the same as in-process)."""
+
+    def __init__(self, workers: int, actor_cpus: float | None = None) -> None:
+        if workers < 1:
+            raise ValueError(f"workers must be >= 1, got {workers}")
+        self.workers, self.actor_cpus = workers, actor_cpus
+
+    def __call__(self, job: Any, seeds: Sequence[int]) -> list[Any]:
+        import ray
+
+        from safe_bc.distributed.pool import run_on_actors
+        from safe_bc.distributed.runtime import cpus_per_actor, ensure_ray
+
+        ensure_ray()
+        n = min(self.workers, len(seeds))
+        size = -(-len(seeds) // n)
+        chunks = [tuple(seeds[i : i + size]) for i in range(0, len(seeds), size)]
+        boxed = [ray.put(job)]
+        cpus = cpus_per_actor(n) if self.actor_cpus is None else self.actor_cpus
+        actor_cls = ray.remote(_Runner).options(num_cpus=cpus, max_restarts=0)
+        done: dict[tuple[int, ...], list[Any]] = {}
+        run_on_actors(
+            lambda: actor_cls.remote(),
+            n,
+            chunks,
+            lambda actor, chunk: actor.run.remote(boxed, chunk),
+            lambda chunk, value: done.__setitem__(chunk, value),
+        )
+        return [item for chunk in chunks for item in done[chunk]]

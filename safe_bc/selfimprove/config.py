@@ -1,0 +1,160 @@
+"""The settings of a self-imitation run, its push specs and fixed names (stdlib only, so that
+a study file or the CLI reads :class:`SelfImproveConfig` without importing torch or Ray)."""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import asdict, dataclass
+from typing import Any, Literal, get_args
+
+KeepUnit = Literal["episode", "segment"]
+KeptIn = Literal["rest", "zone", "critical"]
+
+FORMAT = "safe_bc.selfimprove/1"
+IDENTITY = "identity.json"
+KEPT = "kept.npz"
+POLICY = "policy"
+DONE = "done.json"
+START_VALIDATION = "start_validation.json"
+
+DEFAULT_PUSHES: dict[str, tuple[str, ...]] = {
+    "carracing": ("1+0.03", "1+0.05", "2*0.9", "2*0.8", "2*0.5"),
+    "rehab": ("0+0.05", "0-0.05", "1+0.05", "1-0.05"),
+}
+"""Each task's pushes when :attr:`SelfImproveConfig.pushes` is ``None``. CarRacing: gas
++0.03 / +0.05, brake x0.9 / x0.8 / x0.5 (the user's measured loop, issue 31); rehab:
+intensity and duration +-0.05 (not yet chosen by a measurement)."""
+
+_TERM = re.compile(r"^(\d+)([+*-])([0-9.eE+-]+)$")
+
+
+def parse_push(spec: str) -> tuple[tuple[int, str, float], ...]:
+    """The terms of a push spec: ``"<dim><op><value>"`` joined by ``,``; ``op`` is ``+`` or
+    ``-`` (an offset added to the executed action's dimension ``dim``) or ``*`` (a scale).
+
+    >>> parse_push("1+0.03"), parse_push("2*0.5,0-0.1")
+    (((1, '+', 0.03),), ((2, '*', 0.5), (0, '+', -0.1)))
+    """
+    terms = []
+    for part in spec.replace(" ", "").split(","):
+        m = _TERM.match(part)
+        try:
+            value = float(m.group(3)) if m else math.nan
+        except ValueError:
+            value = math.nan
+        if m is None or not math.isfinite(value):
+            raise ValueError(f"push term must read like '1+0.03', '2*0.9' or '0-0.1', got {part!r}")
+        dim, op = int(m.group(1)), m.group(2)
+        terms.append((dim, "+", -value) if op == "-" else (dim, op, value))
+    return tuple(terms)
+
+
+def pushes_for(config: SelfImproveConfig, task: str) -> tuple[str, ...]:
+    """The run's pushes: the config's, else the task's :data:`DEFAULT_PUSHES`."""
+    if config.pushes is not None:
+        return config.pushes
+    if task not in DEFAULT_PUSHES:
+        raise ValueError(f"task {task!r} has no default pushes; set SelfImproveConfig.pushes")
+    return DEFAULT_PUSHES[task]
+
+
+def round_dir(r: int) -> str:
+    """Folder name of round ``r`` (``round_000``)."""
+    return f"round_{r:03d}"
+
+
+@dataclass(frozen=True)
+class SelfImproveConfig:
+    """One self-imitation run: push the agent's own rollouts, keep the safe better ones,
+    retrain on demonstrations plus kept data, accept the round's agent by the keep rule,
+    repeat. Defaults are not yet chosen by a measurement (issue 31, item 2) unless a field
+    says so."""
+
+    rounds: int = 2
+    """Rounds of roll-out, filter, retraining and keep rule (the user's loop: 1 and 2)."""
+    tracks_per_round: int = 24
+    """Training tracks (patients) per round (:func:`safe_bc.queries.config.track_seeds`,
+    shared with the query stage): each is run once unperturbed (the reference) and once per
+    push. 24 is the user's loop."""
+    pushes: tuple[str, ...] | None = None
+    """Executed-action pushes, one rollout each (:func:`parse_push`: ``"1+0.03"`` adds 0.03
+    to dimension 1, ``"2*0.9"`` scales dimension 2; the result is clipped to the action
+    bounds). The agent's own action is recorded, the executed one is the label of kept rows.
+    ``None``: the task's :data:`DEFAULT_PUSHES`."""
+    keep_unit: KeepUnit = "episode"
+    """``"episode"``: a pushed episode is kept whole when none of its scored states (nor the
+    last step's outcome) is beyond ``d_s - margin`` and its reward beats the reference run's;
+    ``"segment"``: every window of :attr:`segment_steps` steps that stays inside
+    ``d_s - margin`` and beats the reference over the same steps is kept."""
+    segment_steps: int = 50
+    """Window length of ``keep_unit="segment"`` (steps; windows start at 0, do not overlap)."""
+    margin: float = 0.0
+    """Kept data stay at least this far inside ``d_s`` (cost units, every dimension): a kept
+    state has ``c_s <= d_s - margin``. The user's loop had fewer crossings with 1 px."""
+    backoff: bool = True
+    """No push in states of the critical zone (``c_s >= d_s - backoff_eps``): the agent's own
+    action is executed there."""
+    backoff_eps: float | None = None
+    """Width of the back-off zone in cost units; ``None``: the selection's eps."""
+    kept_in: KeptIn = "rest"
+    """Where kept rows go in the alpha mix: ``"rest"`` (the rest pool only: ``T_eps`` stays
+    the demonstrations' critical rows), ``"zone"`` (by the selection's rule, like a
+    demonstration row) or ``"critical"`` (every kept row joins ``T_eps``)."""
+    beyond_limit: float = 0.1
+    """Keep rule: a round's agent is accepted only when the one-sided 95% Clopper-Pearson upper
+    bound on its share of validation episodes beyond ``d_s`` is below this, and its mean
+    validation reward is not below the previous agent's; else the previous agent stays."""
+    validation_episodes: int = 32
+    """Validation tracks of the keep rule (the improvement stage's validation seeds, disjoint
+    from training and held-out evaluation tracks)."""
+    batches: int | None = None
+    """BC batches of each retraining (``None``: the run config's ``bc.train.batches``)."""
+    max_steps: int | None = None
+    """Step cap per episode, rollouts and validation (``None``: the env's time limit)."""
+    workers: int = 0
+    """Rollout actors (Ray); 0 rolls out in this process. Results do not depend on it."""
+    seed: int = 0
+    """Picks the rollout tracks; the study stage sets it to the training seed."""
+
+    def __post_init__(self) -> None:
+        if self.keep_unit not in get_args(KeepUnit):
+            raise ValueError(
+                f"keep_unit must be one of {get_args(KeepUnit)}, got {self.keep_unit!r}"
+            )
+        if self.kept_in not in get_args(KeptIn):
+            raise ValueError(f"kept_in must be one of {get_args(KeptIn)}, got {self.kept_in!r}")
+        for name in ("rounds", "tracks_per_round", "segment_steps", "validation_episodes"):
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        for name in ("batches", "max_steps"):
+            value = getattr(self, name)
+            if value is not None and int(value) < 1:
+                raise ValueError(f"{name} must be >= 1 or None, got {value}")
+        for name in ("margin", "backoff_eps"):
+            value = getattr(self, name)
+            if value is not None and not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"{name} must be a finite number >= 0, got {value}")
+        if not 0 < self.beyond_limit <= 1:
+            raise ValueError(f"beyond_limit must be in (0, 1], got {self.beyond_limit}")
+        if self.pushes is not None:
+            object.__setattr__(self, "pushes", tuple(self.pushes))
+            if not self.pushes:
+                raise ValueError("pushes must name at least one push (or be None)")
+            for spec in self.pushes:
+                parse_push(spec)
+        if self.workers < 0 or self.seed < 0:
+            raise ValueError(f"workers and seed must be >= 0, got {self.workers}, {self.seed}")
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-able field dict."""
+        out = asdict(self)
+        if self.pushes is not None:
+            out["pushes"] = list(self.pushes)
+        return out
+
+    def identity(self) -> dict[str, Any]:
+        """The fields that change the run's data or weights (``workers`` does not)."""
+        out = self.to_dict()
+        out.pop("workers")
+        return out

@@ -1,0 +1,107 @@
+"""Round files (``kept.npz``, written atomically: the round's track outcomes and kept pieces)
+and the training data: demonstrations plus the kept rows (numpy only, no torch)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from safe_bc.atomic import atomic_write
+from safe_bc.demos import Demonstrations
+from safe_bc.selfimprove.rollout import KeptPiece, TrackResult
+
+_ROW_FIELDS = ("steps", "trained", "observations", "actions", "costs")
+
+
+def save_round(path: Path, tracks: Sequence[TrackResult]) -> None:
+    """One round's track results to ``path`` (``.npz``), atomically: a killed write leaves
+    none."""
+    pieces = [p for t in tracks for p in t.pieces]
+    arrays: dict[str, np.ndarray] = {
+        "seed": np.asarray([t.seed for t in tracks], np.int64),
+        "reference_reward": np.asarray([t.reference_reward for t in tracks], np.float64),
+        "reference_beyond": np.asarray([t.reference_beyond for t in tracks], np.int64),
+        "push_rewards": np.asarray([t.push_rewards for t in tracks], np.float64),
+        "push_beyond": np.asarray([t.push_beyond for t in tracks], np.int64),
+        "push_kept": np.asarray([t.push_kept for t in tracks], np.int64),
+        "piece_track": np.asarray([i for i, t in enumerate(tracks) for _ in t.pieces], np.int64),
+        "piece_push": np.asarray([p.push for p in pieces], np.int64),
+        "piece_rows": np.asarray([len(p.steps) for p in pieces], np.int64),
+    }
+    for name in _ROW_FIELDS:
+        parts = [getattr(p, name) for p in pieces]
+        arrays[name] = np.concatenate(parts) if parts else np.empty((0,), np.float32)
+    with atomic_write(path) as f:
+        np.savez(f, **arrays)
+
+
+def load_round(path: Path) -> list[TrackResult]:
+    """The track results :func:`save_round` wrote."""
+    with np.load(path) as z:
+        a = {k: z[k] for k in z.files}
+    bounds = np.r_[0, np.cumsum(a["piece_rows"])]
+    pieces: list[list[KeptPiece]] = [[] for _ in a["seed"]]
+    for j, track in enumerate(a["piece_track"]):
+        rows = slice(int(bounds[j]), int(bounds[j + 1]))
+        pieces[int(track)].append(
+            KeptPiece(
+                seed=int(a["seed"][track]),
+                push=int(a["piece_push"][j]),
+                steps=a["steps"][rows].astype(np.int64),
+                trained=a["trained"][rows].astype(bool),
+                observations=a["observations"][rows],
+                actions=a["actions"][rows],
+                costs=a["costs"][rows],
+            )
+        )
+    return [
+        TrackResult(
+            seed=int(a["seed"][i]),
+            reference_reward=float(a["reference_reward"][i]),
+            reference_beyond=int(a["reference_beyond"][i]),
+            push_rewards=tuple(float(x) for x in a["push_rewards"][i]),
+            push_beyond=tuple(int(x) for x in a["push_beyond"][i]),
+            push_kept=tuple(int(x) for x in a["push_kept"][i]),
+            pieces=tuple(pieces[i]),
+        )
+        for i in range(len(a["seed"]))
+    ]
+
+
+def aggregate(
+    demos: Demonstrations, pieces: Sequence[KeptPiece]
+) -> tuple[Demonstrations, np.ndarray]:
+    """Demonstrations followed by the kept pieces' rows, and ``(N,) bool`` kept.
+
+    Each piece gets its own episode id after the demonstrations'; its context rows (frames
+    only stacked, never trained on) are marked as warm-up (not scored). Kept rows have no
+    safety distances (``NaN``; training does not read them).
+    """
+    parts = [p for p in pieces if len(p.steps)]
+    if not parts:
+        return demos, np.zeros(len(demos), bool)
+    first_id = int(demos.episode_ids.max()) + 1 if len(demos) else 0
+    n_new = sum(len(p.steps) for p in parts)
+    s = demos.costs.shape[1]
+    agg = Demonstrations(
+        observations=np.concatenate([demos.observations, *[p.observations for p in parts]]),
+        actions=np.concatenate([demos.actions, *[p.actions for p in parts]]).astype(np.float32),
+        costs=np.concatenate([demos.costs, *[p.costs for p in parts]]).astype(np.float32),
+        safety=np.concatenate([demos.safety, np.full((n_new, s), np.nan, np.float32)]),
+        episode_ids=np.concatenate(
+            [
+                demos.episode_ids,
+                *[np.full(len(p.steps), first_id + i, np.int64) for i, p in enumerate(parts)],
+            ]
+        ),
+        steps=np.concatenate([demos.steps, *[p.steps.astype(np.int64) for p in parts]]),
+        seeds=np.concatenate(
+            [demos.seeds, *[np.full(len(p.steps), p.seed, np.int64) for p in parts]]
+        ),
+        warmup=np.concatenate([demos.warmup, *[~p.trained for p in parts]]),
+        safety_dims=demos.safety_dims,
+    )
+    kept = np.concatenate([np.zeros(len(demos), bool), *[p.trained for p in parts]])
+    return agg, kept

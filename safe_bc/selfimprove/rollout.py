@@ -1,0 +1,229 @@
+"""One training track of a self-imitation round (the agent unperturbed, then once per push,
+the kept steps cut out in the worker) and the validation episodes of the keep rule (through
+:func:`safe_bc.evaluation.evaluate_episodes`, the one evaluation path). No Ray: a job's
+:meth:`run` is what an actor or this process calls."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from safe_bc.policy import Policy
+from safe_bc.queries.logic import context_rows
+from safe_bc.rollout import run_episode
+from safe_bc.selfimprove.config import KeepUnit, parse_push
+from safe_bc.selfimprove.logic import kept_steps, push_action, push_allowed
+
+
+class Push:
+    """An :class:`~safe_bc.rollout.ActionPerturbation`: the executed action is the agent's,
+    pushed by fixed terms (:func:`~safe_bc.selfimprove.logic.push_action`), except while
+    :attr:`allowed` is False (set by :class:`ZoneWatch` from the state's measured cost)."""
+
+    def __init__(self, spec: str, low: np.ndarray, high: np.ndarray) -> None:
+        self.terms = parse_push(spec)
+        self.low, self.high = np.asarray(low, np.float32), np.asarray(high, np.float32)
+        self.allowed = True
+
+    def reset(self, rng: np.random.Generator) -> None:
+        self.allowed = True
+
+    def apply(
+        self, action: np.ndarray, t: int, rng: np.random.Generator, safety: Any = None
+    ) -> np.ndarray:
+        if not self.allowed:
+            return action
+        return push_action(action, self.terms, self.low, self.high)
+
+
+class ZoneWatch:
+    """The agent as a :class:`~safe_bc.rollout.SeesInfo` policy: before each action it tells
+    the push whether the state allows one (not in the back-off zone ``c_s >= d_s - eps``;
+    ``eps=None``: always)."""
+
+    def __init__(
+        self, agent: Policy, push: Push, limits: Sequence[float], eps: float | None
+    ) -> None:
+        self.agent, self.push, self.limits, self.eps = agent, push, np.asarray(limits), eps
+
+    def reset(self, env: gym.Env, rng: np.random.Generator) -> None:
+        self.agent.reset(env, rng)
+
+    def see(self, info: dict[str, Any]) -> None:
+        self.push.allowed = push_allowed(np.asarray(info["cost"]), self.limits, self.eps)
+
+    def act(self, obs: np.ndarray, env: gym.Env) -> np.ndarray:
+        return self.agent.act(obs, env)
+
+
+@dataclass(frozen=True)
+class KeptPiece:
+    """The kept steps of one pushed episode, with the frames their inputs need."""
+
+    seed: int
+    """Track (patient) seed."""
+    push: int
+    """Index of the push in the run's pushes."""
+    steps: np.ndarray
+    """``(R,) int64`` step index of each row."""
+    trained: np.ndarray
+    """``(R,) bool``: a kept scored step (else a context row: only stacked)."""
+    observations: np.ndarray = field(repr=False)
+    """``(R, *obs_shape)``."""
+    actions: np.ndarray = field(repr=False)
+    """``(R, A) float32`` the executed (pushed) actions: the labels."""
+    costs: np.ndarray = field(repr=False)
+    """``(R, S) float32`` the rows' costs."""
+
+
+@dataclass(frozen=True)
+class TrackResult:
+    """One track of a round: the reference run's outcome, each push's, and the kept pieces."""
+
+    seed: int
+    """Track (patient) seed."""
+    reference_reward: float
+    """Reward of the unperturbed run."""
+    reference_beyond: int
+    """Scored steps beyond ``d_s`` of the unperturbed run."""
+    push_rewards: tuple[float, ...]
+    """Reward of each pushed run."""
+    push_beyond: tuple[int, ...]
+    """Scored steps beyond ``d_s`` of each pushed run."""
+    push_kept: tuple[int, ...]
+    """Kept (trained) steps of each pushed run."""
+    pieces: tuple[KeptPiece, ...]
+    """The pushed runs with kept steps, in push order."""
+
+
+@dataclass(frozen=True)
+class ExploreJob:
+    """What a rollout worker needs for the training tracks (pickles cheaply)."""
+
+    env: Any
+    """The env's ``EnvConfig``."""
+    agent: Any
+    """A policy source (``build() -> Policy``)."""
+    pushes: tuple[str, ...]
+    """Push specs (:func:`~safe_bc.selfimprove.config.parse_push`)."""
+    action_bounds: tuple[Any, Any]
+    """``(low, high)`` of the action space: pushed actions are clipped to them."""
+    limits: tuple[float, ...]
+    """``d_s`` of the demonstrations."""
+    unit: KeepUnit = "episode"
+    """Keep whole episodes or windows (:func:`~safe_bc.selfimprove.logic.kept_steps`)."""
+    segment_steps: int = 50
+    """Window length for ``unit="segment"``."""
+    margin: float = 0.0
+    """Kept states have ``c_s <= d_s - margin``."""
+    backoff_eps: float | None = None
+    """No push where ``c_s >= d_s - backoff_eps``; ``None``: push everywhere."""
+    frame_stack: int = 1
+    """Context depth of the agent's inputs."""
+    max_steps: int | None = None
+    """Step cap per episode."""
+    rng_seed: int = 0
+    """With the track and push, seeds each episode's generator."""
+
+    def run(self, seeds: Sequence[int]) -> list[TrackResult]:
+        """:func:`explore_track` of every track in this process (one env, one agent)."""
+        from safe_bc.envs import make_env
+
+        env = make_env(self.env)
+        try:
+            agent = self.agent.build()
+            return [explore_track(env, agent, self, s) for s in seeds]
+        finally:
+            env.close()
+
+
+def explore_track(env: gym.Env, agent: Policy, job: ExploreJob, seed: int) -> TrackResult:
+    """Roll ``agent`` out on track ``seed`` unperturbed, then once per push; cut out the
+    kept steps of each pushed run (labels: the executed actions)."""
+    limits = np.asarray(job.limits, np.float64)
+    low, high = (np.asarray(b, np.float32) for b in job.action_bounds)
+
+    def rng(k: int) -> np.random.Generator:
+        return np.random.default_rng([job.rng_seed, int(seed), k])
+
+    ref = run_episode(env, agent, seed, rng(0), keep_observations=False, max_steps=job.max_steps)
+    rewards, beyond, kept, pieces = [], [], [], []
+    for i, spec in enumerate(job.pushes):
+        push = Push(spec, low, high)
+        watch = ZoneWatch(agent, push, job.limits, job.backoff_eps)
+        ep = run_episode(env, watch, seed, rng(i + 1), perturbation=push, max_steps=job.max_steps)
+        scored = ~ep.warmup
+        keep = kept_steps(
+            job.unit, ep.costs, scored, ep.final_cost, ep.rewards, ref.rewards, limits,
+            job.margin, job.segment_steps,
+        )  # fmt: skip
+        trained = np.flatnonzero(keep & scored)
+        rewards.append(ep.total_reward)
+        beyond.append(int((np.any(ep.costs > limits, axis=1) & scored).sum()))
+        kept.append(len(trained))
+        if len(trained):
+            rows = context_rows(trained, job.frame_stack)
+            pieces.append(
+                KeptPiece(
+                    seed=int(seed),
+                    push=i,
+                    steps=rows,
+                    trained=np.isin(rows, trained),
+                    observations=ep.observations[rows].copy(),
+                    actions=ep.executed_actions[rows].astype(np.float32),
+                    costs=ep.costs[rows].astype(np.float32),
+                )
+            )
+    return TrackResult(
+        seed=int(seed),
+        reference_reward=ref.total_reward,
+        reference_beyond=int((np.any(ref.costs > limits, axis=1) & ~ref.warmup).sum()),
+        push_rewards=tuple(rewards),
+        push_beyond=tuple(beyond),
+        push_kept=tuple(kept),
+        pieces=tuple(pieces),
+    )
+
+
+@dataclass(frozen=True)
+class ValidateJob:
+    """The keep rule's validation episodes of one agent (pickles cheaply)."""
+
+    env: Any
+    """The env's ``EnvConfig``."""
+    agent: Any
+    """A policy source (``build() -> Policy``)."""
+    limits: tuple[float, ...]
+    """``d_s`` of the demonstrations."""
+    eps: float
+    """The selection's eps (for the evaluation's ``critical_share``)."""
+    combine: str = "any"
+    """The selection's combine."""
+    max_steps: int | None = None
+    """Step cap per episode."""
+
+    def run(self, seeds: Sequence[int]) -> list[dict[str, float]]:
+        """The evaluation's metrics of every validation track
+        (:func:`safe_bc.evaluation.evaluate_episodes`)."""
+        from safe_bc.envs import make_env
+        from safe_bc.evaluation import evaluate_episodes
+
+        env = make_env(self.env)
+        try:
+            rows = evaluate_episodes(
+                [env], self.agent.build(), seeds, thresholds=np.asarray(self.limits),
+                eps=self.eps, max_steps=self.max_steps, combine=self.combine,  # type: ignore[arg-type]
+            )  # fmt: skip
+        finally:
+            env.close()
+        return [metrics for metrics, _ in rows]
+
+
+def local_rollouts(job: ExploreJob | ValidateJob, seeds: Sequence[int]) -> list[Any]:
+    """A job's tracks in this process (``job.run``); Ray actors give the same results
+    (``safe_bc.distributed.selfimprove.RayRollouts``)."""
+    return job.run(seeds)

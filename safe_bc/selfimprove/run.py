@@ -1,0 +1,263 @@
+"""The rounds of a self-imitation run (resumable per round, no Ray).
+
+Round ``r`` rolls the current agent (the start, then the last accepted round's) out on
+``tracks_per_round`` training tracks, unperturbed and once per push, keeps the pushed steps
+that stay inside ``d_s - margin`` and beat the unperturbed run
+(:func:`~safe_bc.selfimprove.logic.kept_steps`), writes them (``round_r/kept.npz``,
+atomically), retrains BC from scratch on the demonstrations plus the kept rows of every
+accepted round and this one (labels: the executed actions; ``d_s`` and ``T_eps`` stay the
+demonstrations' unless ``kept_in`` says otherwise), writes the net (``round_r/policy``, one
+checkpoint unit), validates it and applies the keep rule
+(:func:`~safe_bc.selfimprove.logic.accept_round`) and then writes ``round_r/done.json``. A
+rejected round's agent and kept rows are dropped: the next round starts from the previous
+agent. A rerun skips the done rounds, reuses a written ``kept.npz`` and redoes the rest,
+bit-identically.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from safe_bc.atomic import write_json_atomic
+from safe_bc.bc.checkpoint import checkpoint_unit, save_checkpoint
+from safe_bc.bc.net import BCNet
+from safe_bc.demos import Demonstrations
+from safe_bc.evaluation import NetSource
+from safe_bc.improve.config import VALIDATION_SEED_BASE
+from safe_bc.queries.config import track_seeds
+from safe_bc.queries.run import TrainFn, TrainJob, policy_source, train_local
+from safe_bc.run_config import RunConfig
+from safe_bc.selfimprove.config import (
+    DONE,
+    FORMAT,
+    IDENTITY,
+    KEPT,
+    POLICY,
+    START_VALIDATION,
+    SelfImproveConfig,
+    round_dir,
+)
+from safe_bc.selfimprove.data import aggregate, load_round, save_round
+from safe_bc.selfimprove.logic import accept_round, kept_selection
+from safe_bc.selfimprove.rollout import (
+    ExploreJob,
+    KeptPiece,
+    TrackResult,
+    ValidateJob,
+    local_rollouts,
+)
+
+RolloutFn = Callable[[Any, Sequence[int]], list[Any]]
+"""Runs a job (:class:`ExploreJob` or :class:`ValidateJob`) on tracks, results in track order
+(:func:`local_rollouts` in this process; ``safe_bc.distributed.selfimprove.RayRollouts``)."""
+
+
+@dataclass(frozen=True)
+class SelfImproveResult:
+    """Outcome of :func:`run_selfimprove`."""
+
+    folder: Path
+    """The run folder (``identity.json``, ``start/``, ``round_r/``)."""
+    rounds: list[dict[str, Any]]
+    """Each round's ``done.json``: kept steps, crossings, validation, accepted, ..."""
+    resumed_rounds: int
+    """Rounds found done when the call began."""
+    agent: str
+    """Folder (in :attr:`folder`) of the agent the run ends with: ``"start"`` or the last
+    accepted round's."""
+
+    @property
+    def policy(self) -> Path:
+        """The final agent's net (a BC checkpoint, evaluable with ``safe-bc evaluate``)."""
+        return self.folder / "start" if self.agent == "start" else self.folder / self.agent / POLICY
+
+    @property
+    def accepted_rounds(self) -> int:
+        return int(sum(bool(r["accepted"]) for r in self.rounds))
+
+    @property
+    def kept_steps(self) -> int:
+        return int(sum(r["kept_steps"] for r in self.rounds))
+
+
+def validation_seeds(n: int) -> list[int]:
+    """The keep rule's validation tracks: the improvement stage's (``VALIDATION_SEED_BASE - k``),
+    disjoint from training and held-out evaluation tracks."""
+    return [VALIDATION_SEED_BASE - k for k in range(n)]
+
+
+def run_selfimprove(
+    start: BCNet,
+    run_config: RunConfig,
+    demos: Demonstrations,
+    demos_path: str | Path,
+    env_config: Any,
+    folder: str | Path,
+    config: SelfImproveConfig,
+    *,
+    pushes: tuple[str, ...],
+    action_bounds: tuple[Any, Any],
+    rollouts: RolloutFn = local_rollouts,
+    train: TrainFn = train_local,
+    on_round: Callable[[dict[str, Any]], None] | None = None,
+) -> SelfImproveResult:
+    """Run (or resume) the rounds of ``config`` from the trained net ``start`` in ``folder``.
+
+    ``run_config`` is the start's (selection and BC settings; ``config.batches`` overrides the
+    batches of each retraining); ``pushes`` the resolved push specs. A folder of another
+    start, run config, demonstrations or config raises ``ValueError``.
+    """
+    from safe_bc.experiment import select_for
+
+    folder = Path(folder)
+    base = select_for(demos, run_config.selection)
+    limits = tuple(float(x) for x in base.thresholds)
+    retrain = run_config
+    if config.batches is not None:
+        train_cfg = replace(run_config.bc.train, batches=config.batches)
+        retrain = replace(run_config, bc=replace(run_config.bc, train=train_cfg))
+    start_src = NetSource.from_model(start, run_config.bc)
+    identity = {
+        "format": FORMAT,
+        "config": {**config.identity(), "pushes": list(pushes)},
+        "run_config": run_config.to_dict(),
+        "demos": str(demos_path),
+        "env": str(env_config),
+        "start_weights_sha256": weights_digest(start_src),
+    }
+    _check_identity(folder, identity)
+    if not (folder / "start" / "config.json").is_file():  # the final agent when none is kept
+        with checkpoint_unit(folder / "start") as unit:
+            save_checkpoint(
+                unit, start, run_config.bc,
+                extra={"env_id": getattr(env_config, "env_id", None), "demos": str(demos_path)},
+            )  # fmt: skip
+    sel = run_config.selection
+    seeds_val = validation_seeds(config.validation_episodes)
+
+    def validate(agent: NetSource) -> dict[str, float]:
+        job = ValidateJob(env_config, agent, limits, sel.eps, sel.combine, config.max_steps)
+        rows = rollouts(job, seeds_val)
+        return {
+            "validation_beyond": int(sum(m["any_violation"] > 0 for m in rows)),
+            "validation_reward": float(np.mean([m["reward"] for m in rows])),
+        }
+
+    start_val = _read_json(folder / START_VALIDATION)
+    if start_val is None:
+        start_val = validate(start_src)
+        write_json_atomic(folder / START_VALIDATION, start_val)
+    backoff = None
+    if config.backoff:
+        backoff = sel.eps if config.backoff_eps is None else config.backoff_eps
+    agent, agent_name, reward_now = start_src, "start", float(start_val["validation_reward"])
+    kept_so_far: list[KeptPiece] = []
+    rounds: list[dict[str, Any]] = []
+    resumed = 0
+    for r in range(config.rounds):
+        here = folder / round_dir(r)
+        done = _read_json(here / DONE)
+        if done is not None and (here / POLICY / "config.json").is_file():
+            rounds.append(done)
+            resumed += 1 if resumed == r else 0
+            if done["accepted"]:
+                kept_so_far += [p for t in load_round(here / KEPT) for p in t.pieces]
+                agent, agent_name = policy_source(here / POLICY), round_dir(r)
+                reward_now = float(done["validation_reward"])
+            continue
+        t0 = time.perf_counter()
+        if (here / KEPT).is_file():
+            tracks: list[TrackResult] = load_round(here / KEPT)
+        else:
+            job = ExploreJob(
+                env_config, agent, tuple(pushes), action_bounds, limits, config.keep_unit,
+                config.segment_steps, config.margin, backoff,
+                run_config.bc.preprocess.frame_stack, config.max_steps, config.seed,
+            )  # fmt: skip
+            tracks = rollouts(job, track_seeds(config.seed, r, config.tracks_per_round))
+            save_round(here / KEPT, tracks)
+        t_roll = time.perf_counter() - t0
+        mine = [p for t in tracks for p in t.pieces]
+        data, kept = aggregate(demos, kept_so_far + mine)
+        selection = kept_selection(
+            data.costs, data.scored, kept, retrain.selection, base.thresholds, config.kept_in
+        )
+        source = train(TrainJob(data, selection, retrain, action_bounds))
+        with checkpoint_unit(here / POLICY) as unit:
+            save_checkpoint(
+                unit,
+                source.build().model,  # type: ignore[attr-defined]
+                retrain.bc,
+                extra={
+                    "selfimprove": {**identity, "round": r},
+                    "env_id": getattr(env_config, "env_id", None),
+                    "demos": str(demos_path),
+                },
+            )
+        val = validate(source)
+        accepted, bound = accept_round(
+            val["validation_beyond"], config.validation_episodes, val["validation_reward"],
+            reward_now, config.beyond_limit,
+        )  # fmt: skip
+        pushed = np.asarray([t.push_beyond for t in tracks])
+        summary = {
+            "round": r,
+            "tracks": len(tracks),
+            "pushed_episodes": int(pushed.size),
+            "pushed_episodes_beyond": int((pushed > 0).sum()),
+            "reference_episodes_beyond": int(sum(t.reference_beyond > 0 for t in tracks)),
+            "reference_reward_mean": float(np.mean([t.reference_reward for t in tracks])),
+            "pushed_reward_mean": float(np.mean([t.push_rewards for t in tracks])),
+            "kept_pieces": len(mine),
+            "kept_steps": int(sum(int(p.trained.sum()) for p in mine)),
+            "train_rows": int(selection.n_valid),
+            "critical_rows": int(selection.n_critical),
+            **val,
+            "previous_validation_reward": reward_now,
+            "validation_beyond_upper": bound,
+            "accepted": accepted,
+            "rollout_seconds": t_roll,
+            "seconds": time.perf_counter() - t0,
+        }
+        if accepted:
+            agent, agent_name, reward_now = source, round_dir(r), val["validation_reward"]
+            kept_so_far += mine
+        summary["agent"] = agent_name
+        write_json_atomic(here / DONE, summary)
+        rounds.append(summary)
+        if on_round is not None:
+            on_round(summary)
+    return SelfImproveResult(folder, rounds, resumed, agent_name)
+
+
+def weights_digest(source: NetSource) -> str:
+    """SHA-256 of a net's weights (state-dict order, raw bytes)."""
+    h = hashlib.sha256()
+    for name, tensor in source.state.items():
+        h.update(name.encode())
+        h.update(tensor.detach().cpu().contiguous().numpy().tobytes())
+    return h.hexdigest()
+
+
+def _check_identity(folder: Path, identity: dict[str, Any]) -> None:
+    found = _read_json(folder / IDENTITY)
+    want = json.loads(json.dumps(identity))
+    if found is None:
+        write_json_atomic(folder / IDENTITY, want)
+    elif found != want:
+        raise ValueError(
+            f"{folder} belongs to another self-imitation run (start, run config, "
+            "demonstrations or config differ); use another folder"
+        )
+
+
+def _read_json(path: Path) -> dict[str, Any] | None:
+    return json.loads(path.read_text()) if path.is_file() else None

@@ -1,0 +1,85 @@
+"""The study's self-imitation stage (:data:`safe_bc.stages.STAGES` ``"selfimprove"``): a
+trial's trained net, improved by filtered self-imitation in the stage's folder (resumable per
+round), and ``safe-bc improve --method selfimitation`` from a checkpoint."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from safe_bc.bc.net import BCNet
+from safe_bc.run_config import RunConfig
+from safe_bc.selfimprove.config import SelfImproveConfig, pushes_for
+from safe_bc.selfimprove.run import SelfImproveResult, run_selfimprove
+
+
+def selfimprove_run(
+    config: SelfImproveConfig,
+    agent: BCNet,
+    run_config: RunConfig,
+    demos: str | Path,
+    env_id: str,
+    folder: str | Path,
+    **kwargs: Any,
+) -> SelfImproveResult:
+    """:func:`run_selfimprove` with the task's env, pushes and the demonstrations' action
+    bounds, rolled out on ``config.workers`` Ray actors (0: in this process)."""
+    from safe_bc.data.store import load_demonstrations
+    from safe_bc.tasks import dataset_action_bounds, task_defaults, task_of
+
+    if config.workers > 0 and "rollouts" not in kwargs:
+        from safe_bc.distributed.selfimprove import RayRollouts
+
+        kwargs["rollouts"] = RayRollouts(config.workers)
+    task = task_of(env_id)
+    return run_selfimprove(
+        agent,
+        run_config,
+        load_demonstrations(Path(demos)),
+        demos,
+        task_defaults(task).env,
+        folder,
+        config,
+        pushes=pushes_for(config, task),
+        action_bounds=dataset_action_bounds(demos),
+        **kwargs,
+    )
+
+
+def run_stage(
+    config: SelfImproveConfig,
+    agent: Any,
+    run_config: RunConfig,
+    demos: str,
+    env_id: str,
+    folder: Path,
+) -> tuple[Any, dict[str, float]]:
+    """The final agent of ``agent`` (a trained :class:`BCNet`) and its report values."""
+    from safe_bc.queries.run import policy_source
+
+    if not isinstance(agent, BCNet):
+        raise TypeError(f"the self-imitation stage starts from a trained BCNet, got {type(agent)}")
+    result = selfimprove_run(config, agent, run_config, demos, env_id, folder)
+    return policy_source(result.policy), {
+        "selfimprove_accepted_rounds": float(result.accepted_rounds),
+        "selfimprove_kept_steps": float(result.kept_steps),
+        "selfimprove_seconds": float(sum(r["seconds"] for r in result.rounds)),
+    }
+
+
+def selfimprove_checkpoint(
+    checkpoint: str | Path, demos: str | Path | None, out: str | Path, config: SelfImproveConfig
+) -> SelfImproveResult:
+    """``safe-bc improve --method selfimitation``: :func:`selfimprove_run` from a
+    ``safe-bc train`` checkpoint (its selection config from its ``selection.parquet``
+    summary, its env and, without ``demos``, its demonstrations from its ``extra``)."""
+    from safe_bc.bc.checkpoint import SELECTION, load_checkpoint, read_checkpoint_meta
+    from safe_bc.data.store import read_table_metadata
+    from safe_bc.selection import SelectionConfig
+
+    model, bc = load_checkpoint(checkpoint)
+    extra = read_checkpoint_meta(checkpoint).get("extra", {})
+    sel = read_table_metadata(Path(checkpoint) / SELECTION)["config"]
+    run_config = RunConfig(SelectionConfig(**sel), bc)
+    data = demos if demos is not None else extra["demos"]
+    return selfimprove_run(config, model, run_config, data, extra["env_id"], out)

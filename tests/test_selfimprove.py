@@ -1,0 +1,310 @@
+"""Filtered self-imitation: kept data never go beyond d_s - margin (property), pushes back off
+in the zone, determinism, resume per round, the keep rule's discard, the stage end to end on
+Ray actors and the ``safe-bc improve --method selfimitation`` verb (rehab: fast)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from safe_bc.selfimprove.config import DONE, KEPT, POLICY, SelfImproveConfig, round_dir
+from safe_bc.selfimprove.logic import kept_steps, push_action, window_sums
+
+# --- the keep filter (pure) ----------------------------------------------------------------
+
+
+@st.composite
+def _episodes(draw):
+    t = draw(st.integers(1, 40))
+    s = draw(st.integers(1, 3))
+    rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
+    # costs straddle the bound often: limits in [1, 3], costs in [0, 4]
+    costs = rng.uniform(0, 4, (t, s)).round(1)
+    limits = rng.uniform(1, 3, s).round(1)
+    final = rng.uniform(0, 4, s).round(1) if draw(st.booleans()) else None
+    scored = rng.random(t) < 0.85
+    rewards = rng.normal(0, 1, t)
+    reference = rng.normal(-0.2, 1, draw(st.integers(1, 45)))
+    margin = draw(st.sampled_from([0.0, 0.3, 1.0]))
+    unit = draw(st.sampled_from(["episode", "segment"]))
+    length = draw(st.integers(1, 12))
+    return costs, scored, final, rewards, reference, limits, margin, unit, length
+
+
+@settings(max_examples=300, deadline=None)
+@given(_episodes())
+def test_kept_steps_never_start_or_end_beyond_the_limit_minus_the_margin(case) -> None:
+    costs, scored, final, rewards, reference, limits, margin, unit, length = case
+    keep = kept_steps(unit, costs, scored, final, rewards, reference, limits, margin, length)
+    bound = limits - margin
+    for t in np.flatnonzero(keep):
+        if scored[t]:  # the state a kept step acted in
+            assert np.all(costs[t] <= bound), (t, costs[t], bound)
+        if t + 1 < len(costs) and scored[t + 1]:  # the state it led to
+            assert np.all(costs[t + 1] <= bound)
+        if t + 1 == len(costs) and final is not None and scored[t]:  # the last outcome
+            assert np.all(final <= bound)
+    n = len(rewards)
+    if unit == "episode":
+        assert keep.all() or not keep.any()
+        if keep.any():
+            assert rewards.sum() > reference.sum()
+    else:  # every kept window beats the reference over the same steps
+        mine, ref = window_sums(rewards, length, n), window_sums(reference, length, n)
+        for w in range(len(mine)):
+            chunk = keep[w * length : (w + 1) * length]
+            assert chunk.all() or not chunk.any()
+            if chunk.any():
+                assert mine[w] > ref[w]
+
+
+def test_a_safe_better_episode_is_kept_and_one_step_past_the_margin_drops_it() -> None:
+    """Not vacuous: the filter keeps what it may (the property above holds for keep-all)."""
+    costs, scored = np.full((6, 1), 1.0), np.ones(6, bool)
+    args = (np.ones(6), np.zeros(6), np.array([2.0]), 0.5)
+    assert kept_steps("episode", costs, scored, np.array([1.0]), *args).all()
+    assert not kept_steps("episode", costs, scored, np.array([1.6]), *args).any()  # outcome
+    costs[3] = 1.6
+    assert not kept_steps("episode", costs, scored, None, *args).any()
+    seg = kept_steps("segment", costs, scored, None, *args, segment_steps=2)
+    assert seg.tolist() == [True, True, False, False, True, True]  # 2 and 3 touch step 3
+    assert kept_steps("segment", costs, ~np.eye(6, dtype=bool)[3], None, *args, 2).all()
+
+
+def test_pushes_back_off_in_the_zone_and_record_the_agents_own_action() -> None:
+    """On rehab: where the state is in the back-off zone the agent's action is executed,
+    elsewhere the pushed one; the recorded action is always the agent's."""
+    from safe_bc.envs import make_env
+    from safe_bc.rollout import run_episode
+    from safe_bc.selfimprove.rollout import Push, ZoneWatch
+    from safe_bc.tasks import task_defaults
+
+    class _Fixed:
+        def reset(self, env, rng) -> None:
+            pass
+
+        def act(self, obs, env):
+            return np.array([0.5, 0.2], np.float32)
+
+    env = make_env(task_defaults("rehab").env)
+    low, high = np.array([-1.0, -1.0]), np.array([1.0, 1.0])
+    probe = run_episode(env, _Fixed(), 3, np.random.default_rng(0))
+    limits, eps = np.median(probe.costs, axis=0), 0.0  # the zone cuts through the episode
+    push = Push("0+0.3", low, high)
+    ep = run_episode(
+        env, ZoneWatch(_Fixed(), push, limits, eps), 3, np.random.default_rng(0), perturbation=push
+    )
+    zone = np.any(ep.costs >= limits - eps, axis=1)
+    assert zone.any() and (~zone).any()
+    assert np.allclose(ep.actions, [0.5, 0.2])
+    assert np.allclose(ep.executed_actions[zone], [0.5, 0.2])
+    assert np.allclose(ep.executed_actions[~zone], [0.8, 0.2])
+    assert push_action(np.array([0.9, 0.0]), [(0, "+", 0.3)], low, high).tolist() == [1.0, 0.0]
+    env.close()
+
+
+def test_the_config_checks_its_fields() -> None:
+    with pytest.raises(ValueError, match="push term"):
+        SelfImproveConfig(pushes=("1~0.3",))
+    with pytest.raises(ValueError, match="keep_unit"):
+        SelfImproveConfig(keep_unit="step")  # type: ignore[arg-type]
+    assert SelfImproveConfig(workers=3).identity() == SelfImproveConfig().identity()
+
+
+# --- on the rehab pathway ------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def rehab_agent(rehab_demos):
+    from safe_bc.bc.config import BCConfig, NetworkConfig, TrainConfig
+    from safe_bc.data.store import load_demonstrations
+    from safe_bc.experiment import train_run
+    from safe_bc.run_config import RunConfig
+    from safe_bc.selection import SelectionConfig
+    from safe_bc.tasks import dataset_action_bounds
+
+    cfg = RunConfig(
+        SelectionConfig(eps=0.05, alpha=0.5),
+        BCConfig(network=NetworkConfig(hidden=16), train=TrainConfig(batches=30)),
+    )
+    demos = load_demonstrations(rehab_demos)
+    result, _ = train_run(demos, cfg, action_bounds=dataset_action_bounds(rehab_demos))
+    return result.model, cfg
+
+
+TINY = {
+    "rounds": 2,
+    "tracks_per_round": 3,
+    "pushes": ("0+0.15", "1+0.15", "0-0.15"),
+    "validation_episodes": 4,
+    "batches": 20,
+    "beyond_limit": 1.0,
+}
+
+
+def _run(rehab_agent, rehab_demos, folder, rollouts=None, **kw):
+    from safe_bc.selfimprove.stage import selfimprove_run
+    from safe_bc.tasks import task_defaults
+
+    model, cfg = rehab_agent
+    config = SelfImproveConfig(**{**TINY, **kw})
+    extra = {} if rollouts is None else {"rollouts": rollouts}
+    env_id = task_defaults("rehab").env.env_id
+    return selfimprove_run(config, model, cfg, rehab_demos, env_id, folder, **extra)
+
+
+def _weights(path: Path) -> dict:
+    from safe_bc.bc.checkpoint import load_checkpoint
+
+    return {k: v.numpy() for k, v in load_checkpoint(path)[0].state_dict().items()}
+
+
+def _same(a: dict, b: dict) -> bool:
+    return a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
+
+
+def test_two_runs_keep_the_same_data_and_train_the_same_weights(
+    rehab_agent, rehab_demos, tmp_path
+) -> None:
+    from safe_bc.selfimprove.data import load_round
+
+    a = _run(rehab_agent, rehab_demos, tmp_path / "a")
+    b = _run(rehab_agent, rehab_demos, tmp_path / "b")
+    assert _no_seconds(a.rounds, b.rounds)
+    for r in range(2):
+        ta = load_round(tmp_path / "a" / round_dir(r) / KEPT)
+        tb = load_round(tmp_path / "b" / round_dir(r) / KEPT)
+        assert [t.push_kept for t in ta] == [t.push_kept for t in tb]
+        pa = [p for t in ta for p in t.pieces]
+        pb = [p for t in tb for p in t.pieces]
+        assert len(pa) == len(pb)
+        for x, y in zip(pa, pb, strict=True):
+            for name in ("steps", "trained", "observations", "actions", "costs"):
+                assert np.array_equal(getattr(x, name), getattr(y, name))
+        wa, wb = (
+            _weights(tmp_path / "a" / round_dir(r) / POLICY),
+            _weights(tmp_path / "b" / round_dir(r) / POLICY),
+        )
+        assert _same(wa, wb)
+    assert a.kept_steps > 0  # the runs compared kept something
+
+
+def _no_seconds(x: list[dict], y: list[dict]) -> bool:
+    drop = ("seconds", "rollout_seconds")
+    return [{k: v for k, v in r.items() if k not in drop} for r in x] == [
+        {k: v for k, v in r.items() if k not in drop} for r in y
+    ]
+
+
+def test_a_killed_round_reruns_only_what_did_not_finish(rehab_agent, rehab_demos, tmp_path):
+    from safe_bc.selfimprove.rollout import ExploreJob, local_rollouts
+
+    explored: list[int] = []
+
+    def counting(job, seeds):
+        if isinstance(job, ExploreJob):
+            explored.append(len(seeds))
+        return local_rollouts(job, seeds)
+
+    first = _run(rehab_agent, rehab_demos, tmp_path / "run", rollouts=counting)
+    assert len(explored) == 2 and first.resumed_rounds == 0
+    before = _weights(tmp_path / "run" / round_dir(1) / POLICY)
+    last = tmp_path / "run" / round_dir(1)
+    (last / DONE).unlink()  # killed after its kept data were written, before it was done
+    again = _run(rehab_agent, rehab_demos, tmp_path / "run", rollouts=counting)
+    assert len(explored) == 2 and again.resumed_rounds == 1  # no new rollout: retraining only
+    (last / DONE).unlink()
+    (last / KEPT).unlink()  # killed during its rollouts
+    third = _run(rehab_agent, rehab_demos, tmp_path / "run", rollouts=counting)
+    assert len(explored) == 3 and third.resumed_rounds == 1
+    assert _same(before, _weights(last / POLICY))
+    assert _no_seconds(first.rounds, third.rounds) and third.agent == first.agent
+    with pytest.raises(ValueError, match="another self-imitation run"):
+        _run(rehab_agent, rehab_demos, tmp_path / "run", rounds=3)
+
+
+def test_a_round_failing_the_keep_rule_is_discarded(rehab_agent, rehab_demos, tmp_path):
+    """With a bound no 4 validation episodes can pass, no round is accepted: the run ends
+    with the start's weights."""
+    run = _run(rehab_agent, rehab_demos, tmp_path / "strict", beyond_limit=0.05)
+    assert run.accepted_rounds == 0 and run.agent == "start"
+    assert all(r["validation_beyond_upper"] >= 0.05 and r["agent"] == "start" for r in run.rounds)
+    model, _ = rehab_agent
+    start = {k: v.numpy() for k, v in model.state_dict().items()}
+    assert _same(start, _weights(run.policy))
+
+
+def test_the_stage_runs_end_to_end_with_ray_actors(ray_session, rehab_agent, rehab_demos, tmp_path):
+    """The registered runner on 2 Ray actors gives the in-process run's agent."""
+    from safe_bc.stages import STAGES
+    from safe_bc.tasks import task_defaults
+
+    model, cfg = rehab_agent
+    config = SelfImproveConfig(**{**TINY, "rounds": 1, "workers": 2})
+    env_id = task_defaults("rehab").env.env_id
+    source, report = STAGES["selfimprove"].load()(
+        config, model, cfg, str(rehab_demos), env_id, tmp_path / "stage"
+    )
+    assert set(report) == set(STAGES["selfimprove"].metrics)
+    assert report["selfimprove_kept_steps"] > 0
+    local = _run(rehab_agent, rehab_demos, tmp_path / "local", rounds=1)
+    assert _same({k: v.numpy() for k, v in source.state.items()}, _weights(local.policy))
+
+
+def test_the_improve_verb_runs_selfimitation_from_a_checkpoint(
+    rehab_start, rehab_demos, tmp_path
+) -> None:
+    from safe_bc.cli import main
+
+    argv = ["improve", "--method", "selfimitation", "--start", str(rehab_start), "--out",
+            str(tmp_path / "si"), "--selfimitation.rounds", "1", "--selfimitation.tracks-per-round",
+            "2", "--selfimitation.validation-episodes", "2", "--selfimitation.batches", "10",
+            "--quiet"]  # fmt: skip
+    assert main(argv) == 0
+    assert (tmp_path / "si" / round_dir(0) / DONE).is_file()
+
+
+def test_study_keys_set_the_stage_config_and_the_verb_parses_pushes() -> None:
+    from safe_bc.cli import parse
+    from safe_bc.study import Float, StudySpec
+
+    spec = StudySpec(
+        "s", {"selfimprove.margin": Float(0.0, 2.0)}, selfimprove=SelfImproveConfig(rounds=3)
+    )
+    assert [name for name, _ in spec.stages()] == ["selfimprove"]
+    cfg = spec.stage_config("selfimprove", {"selfimprove.margin": 1.0}, seed=4)
+    assert (cfg.margin, cfg.seed, cfg.rounds) == (1.0, 4, 3)
+    job = parse(["improve", "--start", "a", "--out", "b", "--method", "selfimitation",
+                 "--selfimitation.pushes", "1+0.03", "2*0.9"])[1]  # fmt: skip
+    assert job.method == "selfimitation" and job.selfimitation.pushes == ("1+0.03", "2*0.9")
+    assert parse(["improve", "--start", "a", "--out", "b"])[1].method == "ppo_lagrangian"
+
+
+def test_the_stage_runs_on_carracing_with_60_step_episodes(tiny_demos, tmp_path) -> None:
+    """CarRacing, 60-step episodes, 1 track, the default pushes (gas, brake), 10 batches."""
+    from safe_bc.bc.config import BCConfig, TrainConfig
+    from safe_bc.data.store import load_demonstrations
+    from safe_bc.experiment import train_run
+    from safe_bc.run_config import RunConfig
+    from safe_bc.selection import SelectionConfig
+    from safe_bc.selfimprove.config import DEFAULT_PUSHES
+    from safe_bc.selfimprove.data import load_round
+    from safe_bc.stages import STAGES
+
+    cfg = RunConfig(SelectionConfig(alpha=0.5), BCConfig(train=TrainConfig(batches=10)))
+    result, _ = train_run(load_demonstrations(tiny_demos), cfg)
+    config = SelfImproveConfig(
+        rounds=1, tracks_per_round=1, validation_episodes=1, batches=10, max_steps=60
+    )
+    folder = tmp_path / "stage"
+    source, report = STAGES["selfimprove"].load()(
+        config, result.model, cfg, str(tiny_demos), "CarRacing-v3", folder
+    )
+    (track,) = load_round(folder / round_dir(0) / KEPT)
+    assert len(track.push_rewards) == len(DEFAULT_PUSHES["carracing"])
+    assert report["selfimprove_kept_steps"] == sum(track.push_kept)
+    assert source.build() is not None
