@@ -2,12 +2,13 @@
 
 A :class:`Comparison` (a frozen spec in a file under ``tune_jobs/compare/``, as study files
 hold a ``StudySpec``) names its methods: behaviour-cloning agents (a selection rule and,
-optionally, their own network and budget), the expert, and constrained-improvement runs
-from another method's agents. Every trained method gets one agent per training seed (the
-seeds shared by every method); every agent and the expert are evaluated on the same tracks
-(``eval_seed``, ``episodes``) through the one evaluation path. The table has one row per
-method: means and 95% crossed bootstrap CIs over training seeds x tracks, and, against the
-``reference`` method, paired differences on the same (seed, track) cells.
+optionally, their own network and budget), the expert, and improvement runs from another
+method's agents (PPO-Lagrangian or filtered self-imitation). Every trained method gets one
+agent per training seed (the seeds shared by every method); every agent and the expert are
+evaluated on the same tracks (``eval_seed``, ``episodes``) through the one evaluation path.
+The table has one row per method: means and 95% crossed bootstrap CIs over training seeds x
+tracks, and, against the ``reference`` method, paired differences on the same (seed, track)
+cells; for improvement rows, env steps and wall time per run.
 
 This module is pure: the spec, its validation, the table and the Markdown. The runner
 (training, evaluation, per-(method, seed) resume, files) is
@@ -37,10 +38,13 @@ from safe_bc.improve.config import ImproveConfig
 from safe_bc.metrics import METRICS, paired_crossed, summarize_crossed
 from safe_bc.report import fmt_ci
 from safe_bc.selection import SelectionConfig
+from safe_bc.selfimprove.config import SelfImproveConfig
 from safe_bc.tasks import TASKS, Task, task_defaults
 
 EXPERT = "expert"
 """``mode`` (and default name) of the expert's row."""
+IMPROVED = ("improve", "selfimprove")
+"""The kinds of row that improve a start row's agents, one run per training seed."""
 
 FIGURES = ("alpha_sweep", "traces", "learning_curves")
 """Figures a comparison can ask for: reward and safety against alpha
@@ -66,8 +70,8 @@ class Method:
     name: str
     """Row label (unique in the comparison), e.g. ``alpha=0.5 (rest=all)``."""
     selection: SelectionConfig | None = None
-    """A BC row: ``T_eps`` and the training rule of its agents. ``None`` with ``expert`` or
-    ``improve``."""
+    """A BC row: ``T_eps`` and the training rule of its agents. ``None`` for the other
+    kinds."""
     bc: BCConfig | None = None
     """A BC row's network, preprocessing and budget; ``None``: the comparison's ``bc``."""
     expert: bool = False
@@ -79,8 +83,13 @@ class Method:
     improve: ImproveConfig | None = None
     """An improvement row: each seed's agent of ``start`` improved with this config (its
     ``seed`` set to the training seed)."""
+    selfimprove: SelfImproveConfig | None = None
+    """A self-imitation row: each seed's agent of ``start`` improved by filtered
+    self-imitation (:mod:`safe_bc.selfimprove`) with this config (its ``seed`` set to the
+    training seed); its retrainings use the start's selection and BC settings."""
     start: str = ""
-    """An improvement row's start: the name of a BC row of the same comparison."""
+    """An improvement or self-imitation row's start: the name of a BC row of the same
+    comparison (an alpha-mix row for self-imitation)."""
     fallback_of: str = ""
     """A diagnostic row: the agents of the row named here (a BC or improvement row of the
     same comparison; no training, no improvement of its own) with the scripted expert acting
@@ -115,16 +124,31 @@ class Method:
 
     def __post_init__(self) -> None:
         kinds = [self.selection is not None, self.expert, self.improve is not None,
-                 bool(self.fallback_of), bool(self.masked_of), bool(self.agents_of)]  # fmt: skip
+                 self.selfimprove is not None, bool(self.fallback_of), bool(self.masked_of),
+                 bool(self.agents_of)]  # fmt: skip
         if sum(kinds) != 1:
             raise ValueError(
                 f"method {self.name!r}: give exactly one of selection, expert=True, improve, "
-                "fallback_of, masked_of, agents_of"
+                "selfimprove, fallback_of, masked_of, agents_of"
             )
         if not self.name:
             raise ValueError("a method needs a name")
-        if (self.improve is not None) != bool(self.start):
-            raise ValueError(f"method {self.name!r}: start= goes with improve= (and only with it)")
+        improves = self.improve is not None or self.selfimprove is not None
+        if improves != bool(self.start):
+            raise ValueError(
+                f"method {self.name!r}: start= goes with improve= or selfimprove= (and only "
+                "with them)"
+            )
+        if self.selfimprove is not None and not isinstance(self.selfimprove, SelfImproveConfig):
+            raise ValueError(
+                f"method {self.name!r}: selfimprove must be a SelfImproveConfig, got "
+                f"{type(self.selfimprove).__name__}"
+            )
+        if self.improve is not None and not isinstance(self.improve, ImproveConfig):
+            raise ValueError(
+                f"method {self.name!r}: improve must be an ImproveConfig, got "
+                f"{type(self.improve).__name__}"
+            )
         if self.bc is not None and self.selection is None:
             raise ValueError(f"method {self.name!r}: bc= is for BC rows (with selection=)")
         if self.renderer is not None and self.renderer not in get_args(Renderer):
@@ -144,13 +168,16 @@ class Method:
 
     @property
     def kind(self) -> str:
-        """``bc``, ``expert``, ``improve``, ``fallback``, ``masked`` or ``view``."""
+        """``bc``, ``expert``, ``improve``, ``selfimprove``, ``fallback``, ``masked`` or
+        ``view``."""
         if self.fallback_of:
             return "fallback"
         if self.masked_of:
             return "masked"
         if self.agents_of:
             return "view"
+        if self.selfimprove is not None:
+            return "selfimprove"
         return "expert" if self.expert else "improve" if self.improve is not None else "bc"
 
     @property
@@ -243,12 +270,20 @@ class Comparison:
         if dup:
             raise ValueError(f"comparison {self.name!r}: method names repeat: {dup}")
         bc_rows = {m.name for m in self.methods if m.kind == "bc"}
-        agents = bc_rows | {m.name for m in self.methods if m.kind == "improve"}
+        agents = bc_rows | {m.name for m in self.methods if m.kind in IMPROVED}
         for m in self.methods:
-            if m.kind == "improve" and m.start not in bc_rows:
+            if m.kind in IMPROVED and m.start not in bc_rows:
                 raise ValueError(
                     f"method {m.name!r}: start {m.start!r} is not a BC row of {sorted(bc_rows)}"
                 )
+            if m.kind == "selfimprove":
+                start = self.method(m.start).selection
+                if start is None or start.mode != "mix":
+                    mode = None if start is None else start.mode
+                    raise ValueError(
+                        f"method {m.name!r}: self-imitation retrains the alpha mix; start "
+                        f"{m.start!r} has mode {mode!r}"
+                    )
             if not set(m.seeds) <= set(self.train_seeds):
                 raise ValueError(
                     f"method {m.name!r}: seeds {m.seeds} are not among train_seeds "
@@ -266,8 +301,8 @@ class Comparison:
                 )
             if m.kind == "fallback" and m.fallback_of not in agents:
                 raise ValueError(
-                    f"method {m.name!r}: fallback_of {m.fallback_of!r} is not a BC or "
-                    f"improvement row of {sorted(agents)}"
+                    f"method {m.name!r}: fallback_of {m.fallback_of!r} is not a BC, "
+                    f"improvement or self-imitation row of {sorted(agents)}"
                 )
         default_experts = [m.name for m in self.methods if m.expert and m.expert_config is None]
         if len(default_experts) > 1:
@@ -426,10 +461,27 @@ def _paired_episodes(comparison: Comparison, episodes: pd.DataFrame) -> pd.DataF
 
 
 def minutes_per_run(history: pd.DataFrame) -> pd.Series:
-    """Per improvement row: the wall time of one run (its iterations' ``seconds`` summed),
-    in minutes, mean over training seeds."""
+    """Per improvement row: the wall time of one run (its iterations' or rounds' ``seconds``
+    summed), in minutes, mean over training seeds."""
     per_run = history.groupby(["method", "train_seed"])["seconds"].sum()
     return per_run.groupby("method").mean() / 60
+
+
+def env_steps_per_run(history: pd.DataFrame) -> pd.DataFrame:
+    """Per improvement row, mean over training seeds of one run's env steps: ``env_steps``,
+    the training rollouts (the history's cumulative ``env_steps`` at its end: PPO's
+    stochastic episodes, self-imitation's unperturbed and pushed runs), and
+    ``val_env_steps``, the validation episodes that pick or accept the kept agent (summed;
+    NaN for histories written before they were counted)."""
+    runs = history.groupby(["method", "train_seed"], sort=False)
+    per_run = pd.DataFrame({"env_steps": runs["env_steps"].max()})
+    if "val_env_steps" in history:
+        per_run["val_env_steps"] = runs["val_env_steps"].sum(min_count=1)
+        complete = runs["val_env_steps"].apply(lambda x: x.notna().all())
+        per_run.loc[~complete, "val_env_steps"] = np.nan
+    else:
+        per_run["val_env_steps"] = np.nan
+    return per_run.groupby("method").mean().astype(float)
 
 
 def per_seed_table(episodes: pd.DataFrame) -> pd.DataFrame:
@@ -471,7 +523,8 @@ def build_table(
     expert, trained once, is not paired, except as the reference: then its episodes stand in
     for every training seed). With ``train_df``, the training means (loss, throughput,
     critical share) per method; with the improvement ``history``, ``minutes`` per run
-    (:func:`minutes_per_run`).
+    (:func:`minutes_per_run`) and ``env_steps``, ``val_env_steps`` per run
+    (:func:`env_steps_per_run`).
     """
     episodes = with_mode(episodes)
     metrics = summary_metrics(episodes)
@@ -503,6 +556,10 @@ def build_table(
         )
     if history is not None and len(history):
         table["minutes"] = table["method"].map(minutes_per_run(history)).astype(float)
+        if "env_steps" in history:
+            steps = env_steps_per_run(history)
+            for col in steps:
+                table[col] = table["method"].map(steps[col]).astype(float)
     return table
 
 
@@ -582,6 +639,10 @@ def display_table(
         cols["minutes / run"] = [
             "" if pd.isna(r["minutes"]) else f"{r['minutes']:.1f}" for r in rows
         ]
+    for column, name in (("env_steps", "env steps / run"),
+                         ("val_env_steps", "validation env steps / run")):  # fmt: skip
+        if column in table and table[column].notna().any():
+            cols[name] = ["" if pd.isna(r[column]) else f"{r[column]:,.0f}" for r in rows]
     return pd.DataFrame(cols)
 
 

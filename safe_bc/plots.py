@@ -118,8 +118,9 @@ def plot_learning_curves(
     env steps: colour = method, line style = training seed; dashed lines: ``refs`` (e.g. the
     expert's and the starts' mean held-out reward) on the validation-reward panel.
 
-    ``history`` holds :data:`safe_bc.improve.HISTORY` rows with ``method`` and ``train_seed``;
-    ``labels`` names methods in the legend."""
+    ``history`` holds :data:`safe_bc.improve.HISTORY` rows (or self-imitation rounds,
+    :meth:`safe_bc.selfimprove.run.SelfImproveResult.history`: no multiplier) with ``method``
+    and ``train_seed``; ``labels`` names methods in the legend."""
     from matplotlib.lines import Line2D
 
     methods = list(dict.fromkeys(history["method"]))
@@ -127,6 +128,9 @@ def plot_learning_curves(
     seeds = sorted(history["train_seed"].unique())
     fig, axes = plt.subplots(2, 2, figsize=(11, 7))
     for ax, (col, title) in zip(axes.flat, LEARNING_PANELS, strict=True):
+        if col not in history:  # e.g. the multiplier of self-imitation runs only
+            ax.set_title(f"{title}: not recorded by these runs", fontsize=9)
+            continue
         for (method, seed), df in history.groupby(["method", "train_seed"], sort=False):
             df = df.dropna(subset=[col])
             style = SEED_STYLES[seeds.index(seed) % len(SEED_STYLES)]

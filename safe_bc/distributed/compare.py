@@ -5,6 +5,8 @@ Per (method, training seed) one folder ``OUT/<name>_runs/<method>/seed<k>/``:
 * ``agent/``: a BC row's agent, written like ``safe-bc train`` writes a checkpoint (weights,
   config with the run, ``selection.parquet``), so it can start an improvement run;
 * ``improve/``: an improvement row's run (:func:`safe_bc.improve.improve`, itself resumable);
+* ``selfimprove/``: a self-imitation row's run
+  (:func:`safe_bc.selfimprove.run.run_selfimprove`, resumable per round);
 * ``episodes.parquet`` (and ``steps.parquet`` for the ``traces`` rows): its evaluation,
   stamped with the run and the evaluation settings.
 
@@ -133,6 +135,9 @@ def _stamp(comparison: Comparison, method: Method, seed: int, thresholds: Any) -
         assert method.improve is not None
         start = run_config(comparison, comparison.method(method.start), seed).to_dict()
         run = {"start": start, "improve": dataclasses.replace(method.improve, seed=seed).to_dict()}
+    elif method.kind == "selfimprove":
+        start = run_config(comparison, comparison.method(method.start), seed).to_dict()
+        run = {"start": start, "selfimprove": selfimprove_identity(comparison, method, seed)}
     elif method.kind == "fallback":
         of = _stamp(comparison, comparison.method(method.fallback_of), seed, thresholds)["run"]
         run = {"fallback_of": of, "fallback": "expert", "eps": selection_eps(comparison)}
@@ -176,9 +181,52 @@ def _agent_ok(folder: Path, run: RunConfig, demos: Path) -> bool:
     return extra.get("run") == _json(run.to_dict()) and extra.get("demos") == str(demos)
 
 
-def _fallback_source(comparison: Comparison, method: Method, seed: int, thresholds: Any) -> Any:
+def selfimprove_config(comparison: Comparison, method: Method, seed: int) -> Any:
+    """A self-imitation row's run config for training seed ``seed`` (its ``seed``)."""
+    assert method.selfimprove is not None
+    return dataclasses.replace(method.selfimprove, seed=seed)
+
+
+def selfimprove_identity(comparison: Comparison, method: Method, seed: int) -> dict[str, Any]:
+    """What makes a self-imitation row's run: its config (``workers`` aside) with the pushes
+    resolved (a task's default pushes may change)."""
+    from safe_bc.selfimprove.config import pushes_for
+
+    config = selfimprove_config(comparison, method, seed)
+    return {**config.identity(), "pushes": list(pushes_for(config, comparison.task))}
+
+
+def _selfimprove(comparison: Comparison, method: Method, seed: int, demos: Any) -> Any:
+    """Run (or resume) a self-imitation row's run for ``seed`` from the start row's agent of
+    that seed, in the start's env, on ``demos`` (the start's demonstration set, loaded)."""
+    from safe_bc.bc import load_checkpoint
+    from safe_bc.selfimprove.config import pushes_for
+    from safe_bc.selfimprove.run import run_selfimprove
+
+    c = comparison
+    start = c.method(method.start)
+    config = selfimprove_config(c, method, seed)
+    model, _ = load_checkpoint(_folder(c, start, seed) / "agent")
+    kwargs: dict[str, Any] = {}
+    if config.workers > 0:
+        from safe_bc.distributed.selfimprove import RayRollouts
+
+        kwargs["rollouts"] = RayRollouts(config.workers)
+    path = demos_of(c, method)
+    env = task_defaults(c.task, start.renderer or "fast").env
+    return run_selfimprove(
+        model, run_config(c, start, seed), demos, path, env,
+        _folder(c, method, seed) / "selfimprove", config, pushes=pushes_for(config, c.task),
+        action_bounds=dataset_action_bounds(path), **kwargs,
+    )  # fmt: skip
+
+
+def _fallback_source(
+    comparison: Comparison, method: Method, seed: int, thresholds: Any, selfimproved: dict
+) -> Any:
     """A fallback row's policy: the agent of ``fallback_of`` (an improved net without its own
-    shield) with the scripted expert in the critical states (:attr:`Method.fallback_of`)."""
+    shield, or a self-imitation run's final net from ``selfimproved``) with the scripted
+    expert in the critical states (:attr:`Method.fallback_of`)."""
     from safe_bc.bc import load_checkpoint
     from safe_bc.collection import stored_expert_config
     from safe_bc.improve import ImprovedSource
@@ -190,6 +238,8 @@ def _fallback_source(comparison: Comparison, method: Method, seed: int, threshol
     folder = _folder(c, of, seed)
     if of.kind == "bc":
         net = NetSource.from_model(*load_checkpoint(folder / "agent"))
+    elif of.kind == "selfimprove":
+        net = NetSource.from_model(*load_checkpoint(selfimproved[of.name, seed].policy))
     else:
         net = ImprovedSource.from_run(folder / "improve").improved
     zone = CriticalZone(tuple(float(x) for x in thresholds), selection_eps(c), "any")
@@ -277,9 +327,21 @@ def run_comparison(
             result.save(unit, extra=agent_meta)
             save_selection(unit, demos, selection, agent_meta)
 
-    # 2. improvement runs (each resumes itself), one after the other in the driver
+    # 2. improvement and self-imitation runs (each resumes itself), one after the other in
+    # the driver
     histories, run_metas = [], []
+    selfimproved: dict[tuple[str, int], Any] = {}
     for m, s in cells:
+        if m.kind == "selfimprove":
+            done_si = _selfimprove(c, m, s, sets[demos_of(c, m)])
+            selfimproved[m.name, s] = done_si
+            history_si = pd.DataFrame(done_si.history())
+            histories.append(history_si.assign(method=m.name, train_seed=s))
+            where = done_si.folder / "run.json"  # the machine that last ran rounds of it
+            if done_si.resumed_rounds < len(done_si.rounds) or not where.is_file():
+                write_text_atomic(where, json.dumps(_json(run_metadata())))
+            run_metas.append(json.loads(where.read_text()))
+            continue
         if m.kind != "improve":
             continue
         from safe_bc.improve import improve
@@ -318,6 +380,8 @@ def run_comparison(
             from safe_bc.improve import ImprovedSource
 
             sources[key] = ImprovedSource.from_run(_folder(c, m, s) / "improve")
+        elif m.kind == "selfimprove":
+            sources[key] = NetSource.from_model(*load_checkpoint(selfimproved[m.name, s].policy))
         elif m.kind == "masked":
             agent = _folder(c, c.method(m.masked_of), s) / "agent"
             sources[key] = MaskedSource(NetSource.from_model(*load_checkpoint(agent)))
@@ -325,7 +389,7 @@ def run_comparison(
             agent = _folder(c, c.method(m.agents_of), s) / "agent"
             sources[key] = NetSource.from_model(*load_checkpoint(agent))
         else:
-            sources[key] = _fallback_source(c, m, s, limits[demos_of(c, m)])
+            sources[key] = _fallback_source(c, m, s, limits[demos_of(c, m)], selfimproved)
     if progress:
         print(f"compare {c.name}: evaluating {len(sources)} of {len(stamps)} policies")
     groups: dict[tuple[str, Path], list[str]] = {}  # one call per (env, thresholds)

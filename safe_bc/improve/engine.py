@@ -396,7 +396,7 @@ class Improver:
                ("value_loss", "pg_loss", "anchor_loss", "entropy", "approx_kl")},
         }  # fmt: skip
         row.update(val_reward=float("nan"), val_violation_steps=float("nan"),
-                   val_any_violation=float("nan"))  # fmt: skip
+                   val_any_violation=float("nan"), val_env_steps=0)  # fmt: skip
         last = self.iteration == cfg.iterations
         if cfg.eval_every and (self.iteration % cfg.eval_every == 0 or last):
             val = self._retrying(self.rollout, validation_seeds(cfg.eval_episodes),
@@ -405,6 +405,7 @@ class Improver:
                 val_reward=float(val.episode_return.mean()),
                 val_violation_steps=float(val.episode_violations.mean()),
                 val_any_violation=float((val.episode_violations > 0).mean()),
+                val_env_steps=len(val),
             )
             feasible = not val.episode_violations.any()
             if feasible and (self.best is None or row["val_reward"] > self.best[1]):

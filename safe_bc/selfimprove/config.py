@@ -11,7 +11,8 @@ from typing import Any, Literal, get_args
 KeepUnit = Literal["episode", "segment"]
 KeptIn = Literal["rest", "zone", "critical"]
 
-FORMAT = "safe_bc.selfimprove/1"
+FORMAT = "safe_bc.selfimprove/2"
+"""Run-folder format (2: rounds and the start's validation record their env steps)."""
 IDENTITY = "identity.json"
 KEPT = "kept.npz"
 POLICY = "policy"

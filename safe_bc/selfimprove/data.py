@@ -26,6 +26,8 @@ def save_round(path: Path, tracks: Sequence[TrackResult]) -> None:
         "push_rewards": np.asarray([t.push_rewards for t in tracks], np.float64),
         "push_beyond": np.asarray([t.push_beyond for t in tracks], np.int64),
         "push_kept": np.asarray([t.push_kept for t in tracks], np.int64),
+        "reference_steps": np.asarray([t.reference_steps for t in tracks], np.int64),
+        "push_steps": np.asarray([t.push_steps for t in tracks], np.int64),
         "piece_track": np.asarray([i for i, t in enumerate(tracks) for _ in t.pieces], np.int64),
         "piece_push": np.asarray([p.push for p in pieces], np.int64),
         "piece_rows": np.asarray([len(p.steps) for p in pieces], np.int64),
@@ -64,6 +66,8 @@ def load_round(path: Path) -> list[TrackResult]:
             push_rewards=tuple(float(x) for x in a["push_rewards"][i]),
             push_beyond=tuple(int(x) for x in a["push_beyond"][i]),
             push_kept=tuple(int(x) for x in a["push_kept"][i]),
+            reference_steps=int(a["reference_steps"][i]),
+            push_steps=tuple(int(x) for x in a["push_steps"][i]),
             pieces=tuple(pieces[i]),
         )
         for i in range(len(a["seed"]))

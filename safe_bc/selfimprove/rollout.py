@@ -96,6 +96,10 @@ class TrackResult:
     """Scored steps beyond ``d_s`` of each pushed run."""
     push_kept: tuple[int, ...]
     """Kept (trained) steps of each pushed run."""
+    reference_steps: int
+    """Env steps of the unperturbed run."""
+    push_steps: tuple[int, ...]
+    """Env steps of each pushed run."""
     pieces: tuple[KeptPiece, ...]
     """The pushed runs with kept steps, in push order."""
 
@@ -151,7 +155,7 @@ def explore_track(env: gym.Env, agent: Policy, job: ExploreJob, seed: int) -> Tr
         return np.random.default_rng([job.rng_seed, int(seed), k])
 
     ref = run_episode(env, agent, seed, rng(0), keep_observations=False, max_steps=job.max_steps)
-    rewards, beyond, kept, pieces = [], [], [], []
+    rewards, beyond, kept, lengths, pieces = [], [], [], [], []
     for i, spec in enumerate(job.pushes):
         push = Push(spec, low, high)
         watch = ZoneWatch(agent, push, job.limits, job.backoff_eps)
@@ -165,6 +169,7 @@ def explore_track(env: gym.Env, agent: Policy, job: ExploreJob, seed: int) -> Tr
         rewards.append(ep.total_reward)
         beyond.append(int((np.any(ep.costs > limits, axis=1) & scored).sum()))
         kept.append(len(trained))
+        lengths.append(len(ep.rewards))
         if len(trained):
             rows = context_rows(trained, job.frame_stack)
             pieces.append(
@@ -185,6 +190,8 @@ def explore_track(env: gym.Env, agent: Policy, job: ExploreJob, seed: int) -> Tr
         push_rewards=tuple(rewards),
         push_beyond=tuple(beyond),
         push_kept=tuple(kept),
+        reference_steps=len(ref.rewards),
+        push_steps=tuple(lengths),
         pieces=tuple(pieces),
     )
 

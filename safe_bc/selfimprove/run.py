@@ -73,6 +73,9 @@ class SelfImproveResult:
     agent: str
     """Folder (in :attr:`folder`) of the agent the run ends with: ``"start"`` or the last
     accepted round's."""
+    start_validation: dict[str, Any]
+    """The start's validation (``start_validation.json``): reward, episodes beyond ``d_s``,
+    env steps, seconds."""
 
     @property
     def policy(self) -> Path:
@@ -86,6 +89,67 @@ class SelfImproveResult:
     @property
     def kept_steps(self) -> int:
         return int(sum(r["kept_steps"] for r in self.rounds))
+
+    @property
+    def env_steps(self) -> int:
+        """Env steps of the training rollouts (unperturbed and pushed runs of every round;
+        validation not included, as in the PPO-Lagrangian's ``env_steps``)."""
+        return int(sum(r["env_steps"] for r in self.rounds))
+
+    @property
+    def validation_env_steps(self) -> int:
+        """Env steps of the keep rule's validation episodes (the start's and every round's)."""
+        start = int(self.start_validation["validation_env_steps"])
+        return start + int(sum(r["validation_env_steps"] for r in self.rounds))
+
+    @property
+    def seconds(self) -> float:
+        """Wall time of the run: the start's validation and every round."""
+        start = float(self.start_validation["seconds"])
+        return start + float(sum(r["seconds"] for r in self.rounds))
+
+    def history(self) -> list[dict[str, Any]]:
+        """The learning curve, one row per round after a row for the start (``iteration``
+        0), in the PPO-Lagrangian history's column names where they mean the same:
+        ``env_steps`` (training rollouts so far), ``val_env_steps`` (this row's validation
+        steps), ``train_reward`` and ``train_violation_steps`` (means over the round's pushed
+        runs), ``val_reward`` and ``val_any_violation`` (the row's agent on the validation
+        tracks, accepted or not), ``seconds`` (this row's wall time); and ``accepted``,
+        ``kept_steps``."""
+        start = self.start_validation
+        n_val = int(start["validation_episodes"])
+        rows = [
+            {
+                "iteration": 0,
+                "env_steps": 0,
+                "val_env_steps": int(start["validation_env_steps"]),
+                "train_reward": float("nan"),
+                "train_violation_steps": float("nan"),
+                "val_reward": float(start["validation_reward"]),
+                "val_any_violation": start["validation_beyond"] / n_val,
+                "accepted": True,
+                "kept_steps": 0,
+                "seconds": float(start["seconds"]),
+            }
+        ]
+        steps = 0
+        for r in self.rounds:
+            steps += int(r["env_steps"])
+            rows.append(
+                {
+                    "iteration": int(r["round"]) + 1,
+                    "env_steps": steps,
+                    "val_env_steps": int(r["validation_env_steps"]),
+                    "train_reward": float(r["pushed_reward_mean"]),
+                    "train_violation_steps": float(r["pushed_violation_steps_mean"]),
+                    "val_reward": float(r["validation_reward"]),
+                    "val_any_violation": r["validation_beyond"] / n_val,
+                    "accepted": bool(r["accepted"]),
+                    "kept_steps": int(r["kept_steps"]),
+                    "seconds": float(r["seconds"]),
+                }
+            )
+        return rows
 
 
 def validation_seeds(n: int) -> list[int]:
@@ -149,11 +213,15 @@ def run_selfimprove(
         return {
             "validation_beyond": int(sum(m["any_violation"] > 0 for m in rows)),
             "validation_reward": float(np.mean([m["reward"] for m in rows])),
+            "validation_env_steps": int(sum(m["steps"] for m in rows)),
         }
 
     start_val = _read_json(folder / START_VALIDATION)
     if start_val is None:
+        t0 = time.perf_counter()
         start_val = validate(start_src)
+        start_val["validation_episodes"] = len(seeds_val)
+        start_val["seconds"] = time.perf_counter() - t0
         write_json_atomic(folder / START_VALIDATION, start_val)
     backoff = None
     if config.backoff:
@@ -208,6 +276,7 @@ def run_selfimprove(
             reward_now, config.beyond_limit,
         )  # fmt: skip
         pushed = np.asarray([t.push_beyond for t in tracks])
+        steps = sum(t.reference_steps + sum(t.push_steps) for t in tracks)
         summary = {
             "round": r,
             "tracks": len(tracks),
@@ -216,6 +285,8 @@ def run_selfimprove(
             "reference_episodes_beyond": int(sum(t.reference_beyond > 0 for t in tracks)),
             "reference_reward_mean": float(np.mean([t.reference_reward for t in tracks])),
             "pushed_reward_mean": float(np.mean([t.push_rewards for t in tracks])),
+            "pushed_violation_steps_mean": float(pushed.mean()),
+            "env_steps": int(steps),
             "kept_pieces": len(mine),
             "kept_steps": int(sum(int(p.trained.sum()) for p in mine)),
             "train_rows": int(selection.n_valid),
@@ -235,7 +306,7 @@ def run_selfimprove(
         rounds.append(summary)
         if on_round is not None:
             on_round(summary)
-    return SelfImproveResult(folder, rounds, resumed, agent_name)
+    return SelfImproveResult(folder, rounds, resumed, agent_name, start_val)
 
 
 def weights_digest(source: NetSource) -> str:
