@@ -214,11 +214,24 @@ def _selfimprove(comparison: Comparison, method: Method, seed: int, demos: Any) 
         kwargs["rollouts"] = RayRollouts(config.workers)
     path = demos_of(c, method)
     env = task_defaults(c.task, start.renderer or "fast").env
-    return run_selfimprove(
-        model, run_config(c, start, seed), demos, path, env,
-        _folder(c, method, seed) / "selfimprove", config, pushes=pushes_for(config, c.task),
-        action_bounds=dataset_action_bounds(path), **kwargs,
-    )  # fmt: skip
+    folder = _folder(c, method, seed) / "selfimprove"
+
+    def run() -> Any:
+        return run_selfimprove(
+            model, run_config(c, start, seed), demos, path, env, folder, config,
+            pushes=pushes_for(config, c.task), action_bounds=dataset_action_bounds(path),
+            **kwargs,
+        )  # fmt: skip
+
+    try:
+        return run()
+    except ValueError as e:  # a changed setting (or start) redoes the cell
+        if "belongs to another self-imitation run" not in str(e):
+            raise
+        import shutil
+
+        shutil.rmtree(folder)
+        return run()
 
 
 def _fallback_source(

@@ -1,0 +1,104 @@
+"""Issue 31, item 3 on CarRacing: self-imitation against the PPO-Lagrangian stage, the start and
+the expert at equal env-step budgets, on fresh tracks (not yet run).
+
+Rows: the expert; the safety-imitation start (BC with alpha 0.1 on T_eps, as in
+``improve_carracing.py``; the paired columns' reference here, the expert in
+``selfimprove_carracing_vs_expert.py``, which shares these runs and evaluations); the
+PPO-Lagrangian stage (shield + Lagrangian, :data:`safe_bc.improve.config.ImproveConfig`
+defaults as the study's improve stage runs them, with ``improve_carracing.py``'s sizing for
+pixels: 4 episodes per iteration, cost margin 1 px) and self-imitation with the package's
+defaults, each from every seed's start.
+
+Equal env-step budgets: CarRacing episodes last at most :data:`EPISODE_STEPS` steps (fewer when
+the car leaves the playfield), so a budget is set in episodes. Self-imitation rolls out
+``rounds x tracks_per_round x (1 + pushes)`` training episodes (:func:`rollout_episodes`; 288 with
+the defaults: at most 288,000 env steps); the PPO-Lagrangian row runs as many in
+``iterations x episodes_per_iter`` (72 x 4), so both are capped by the same env steps. The
+validation that picks or accepts the final agent is matched too: self-imitation validates the
+start and every round on 32 tracks (96 episodes), PPO every ``iterations / 3`` iterations on 32
+(96). The table records each run's actual env steps (``env steps / run``: training rollouts,
+counted the same way for both; ``validation env steps / run``) and wall time (``minutes /
+run``; both run in the driver process, one after the other, rollouts in-process:
+``workers=0``), and ``compare_history.parquet`` the learning curves (PPO per iteration,
+self-imitation per round).
+
+3 training seeds x 50 fresh tracks of held-out seed block 14, which no other table uses (the
+selection tracks that chose the defaults are block 13, ``selfimprove_selection_carracing.py``).
+
+Run: ``safe-bc compare tune_jobs/compare/selfimprove_carracing.py``, then
+``safe-bc compare tune_jobs/compare/selfimprove_carracing_vs_expert.py`` (evaluations reused).
+Writes ``results/selfimprove/carracing/compare*``.
+"""
+
+from dataclasses import replace
+from pathlib import Path
+
+from safe_bc.compare import Comparison, Method, sibling
+from safe_bc.improve.config import ImproveConfig
+from safe_bc.selection import SelectionConfig
+from safe_bc.selfimprove.config import SelfImproveConfig, pushes_for
+
+EPISODE_STEPS = 1000
+"""CarRacing's time limit (steps per episode at most)."""
+EPISODES_PER_ITER = 4
+"""PPO episodes per iteration (``improve_carracing.py``'s sizing for pixels)."""
+VALIDATIONS = 3
+"""PPO validations per run: the same count as self-imitation's (the start and 2 rounds)."""
+SELF = SelfImproveConfig()
+"""The self-imitation row: the package's defaults."""
+
+
+def rollout_episodes(config: SelfImproveConfig, task: str) -> int:
+    """Training episodes of a self-imitation run: each round runs every track unperturbed and
+    once per push."""
+    return config.rounds * config.tracks_per_round * (1 + len(pushes_for(config, task)))
+
+
+def ppo_at_budget(
+    base: ImproveConfig, episodes: int, per_iter: int, validation_episodes: int
+) -> ImproveConfig:
+    """``base`` resized to ``episodes`` training episodes in ``per_iter``-episode iterations,
+    validated :data:`VALIDATIONS` times (evenly) on ``validation_episodes`` tracks."""
+    if episodes % (per_iter * VALIDATIONS):
+        raise ValueError(f"{episodes} episodes do not split into {VALIDATIONS} validations")
+    iterations = episodes // per_iter
+    return replace(
+        base, iterations=iterations, episodes_per_iter=per_iter, n_envs=per_iter,
+        eval_every=iterations // VALIDATIONS, eval_episodes=validation_episodes,
+    )  # fmt: skip
+
+
+EPISODES = rollout_episodes(SELF, "carracing")
+"""The shared training budget in episodes (288 with the defaults)."""
+PPO = ppo_at_budget(
+    replace(sibling(__file__, "improve_carracing").BASE, shield=True, lagrangian=True),
+    EPISODES,
+    EPISODES_PER_ITER,
+    SELF.validation_episodes,
+)
+START = SelectionConfig(eps=2.0, alpha=0.1)
+
+COMPARISON = Comparison(
+    name="compare",
+    methods=(
+        Method("expert", expert=True, label="expert (scripted, privileged)"),
+        Method("imitation", selection=START, label="safety-imitation start (alpha 0.1)"),
+        Method("ppo_lagrangian", improve=PPO, start="imitation", label="PPO-Lagrangian + shield"),
+        Method("selfimitation", selfimprove=SELF, start="imitation", label="self-imitation"),
+    ),
+    task="carracing",
+    out=Path("results/selfimprove/carracing"),
+    train_seeds=(0, 1, 2),
+    episodes=50,
+    eval_seed=14,
+    reference="imitation",
+    paired_metrics=("reward", "violation_steps"),
+    totals=("any_violation",),
+    per_seed=True,
+    figures=(("learning_curves", "compare_learning_curves.png"),),
+    title="Self-imitation vs PPO-Lagrangian on CarRacing, equal env-step budgets",
+    note=f"Both improvements from the same starts with at most {EPISODES * EPISODE_STEPS:,} "
+    "training env steps per run. Paired rows: each agent against its own seed's start on the "
+    "same fresh tracks. env steps / run: training rollouts; validation env steps / run: the "
+    "episodes that pick (PPO) or accept (self-imitation) the final agent.",
+)

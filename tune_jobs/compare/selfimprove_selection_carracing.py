@@ -1,0 +1,101 @@
+"""Issue 31, item 2: which safety choices of self-imitation to keep, measured on CarRacing's
+*selection* tracks (not yet run).
+
+Rows: the expert; the safety-imitation start (BC with alpha 0.1 on T_eps, as in
+``improve_carracing.py``; the paired columns' reference); the self-imitation run with the
+package's defaults (:class:`~safe_bc.selfimprove.config.SelfImproveConfig`: episode keeps,
+margin 0, kept rows in the rest pool, back-off on, 2 rounds) from each seed's start; and one
+row per safety choice, each changing one field of the defaults:
+
+* ``margin1px``: kept data stay 1 px inside d_s (``margin=1.0``) against 0;
+* ``segment``: kept 50-step segments (``keep_unit="segment"``) against whole episodes;
+* ``critical``: kept rows join T_eps (``kept_in="critical"``) against the rest pool only;
+* ``no_backoff``: pushes also in the critical zone (``backoff=False``);
+* ``rounds4``: 4 rounds against 2, same pushes;
+* ``rounds4_small``: 4 rounds with pushes of half the size (more rounds with smaller steps).
+
+Not covered here: the alpha of the start's T_eps mix (a row per start alpha would need its own
+starts) and the keep rule's bound (``beyond_limit``), which every row applies (0.1 on 32
+validation tracks).
+
+3 training seeds x 50 tracks of held-out seed block 13, which no other table uses (Table 1 0,
+the study 1 and 2, the expert jobs 3, rehab 5, improvement 7 and 10, observation 10,
+renderer 11, deferral 11 and 12, the item-3 comparisons 14 and 15): these tracks choose the
+defaults, so the item-3 tables (``selfimprove_carracing.py``) report fresh ones. The
+self-imitation runs roll out on :data:`WORKERS` Ray actors (results do not depend on it; wall
+time here is not compared).
+
+Run: ``safe-bc compare tune_jobs/compare/selfimprove_selection_carracing.py`` (resumes per
+method, seed and round). Expected env steps per 2-round run: 2 x 24 tracks x (1 + 5 pushes)
+episodes of at most 1000 steps (288,000) in rollouts and 3 x 32 validation episodes (96,000);
+4-round rows twice the rollouts. Writes ``results/selfimprove/carracing/selection*``.
+"""
+
+from dataclasses import replace
+from pathlib import Path
+
+from safe_bc.compare import Comparison, Method
+from safe_bc.selection import SelectionConfig
+from safe_bc.selfimprove.config import DEFAULT_PUSHES, SelfImproveConfig, parse_push
+
+WORKERS = 8
+"""Rollout actors of each self-imitation run."""
+START_ALPHA = 0.1
+"""Safety focus of the starts (as in ``improve_carracing.py``)."""
+DEFAULT = SelfImproveConfig(workers=WORKERS)
+
+
+def half(spec: str) -> str:
+    """A push of half the size: offsets halved, scales halfway to 1.
+
+    >>> [half(s) for s in ("1+0.03", "2*0.8", "0-0.1")]
+    ['1+0.015', '2*0.9', '0-0.05']
+    """
+    terms = []
+    for dim, op, value in parse_push(spec):
+        terms.append(f"{dim}*{1 - (1 - value) / 2:g}" if op == "*" else f"{dim}{value / 2:+g}")
+    return ",".join(terms)
+
+
+CHOICES = {  # name: (label, config)
+    "defaults": ("self-imitation, defaults", DEFAULT),
+    "margin1px": ("margin 1 px inside d_s", replace(DEFAULT, margin=1.0)),
+    "segment": ("kept segments (50 steps)", replace(DEFAULT, keep_unit="segment")),
+    "critical": ("kept rows in T_eps", replace(DEFAULT, kept_in="critical")),
+    "no_backoff": ("no back-off in the critical zone", replace(DEFAULT, backoff=False)),
+    "rounds4": ("4 rounds", replace(DEFAULT, rounds=4)),
+    "rounds4_small": (
+        "4 rounds, half-size pushes",
+        replace(DEFAULT, rounds=4, pushes=tuple(half(s) for s in DEFAULT_PUSHES["carracing"])),
+    ),
+}
+
+COMPARISON = Comparison(
+    name="selection",
+    methods=(
+        Method("expert", expert=True, label="expert (scripted, privileged)"),
+        Method(
+            "imitation",
+            selection=SelectionConfig(eps=2.0, alpha=START_ALPHA),
+            label=f"safety-imitation start (alpha {START_ALPHA})",
+        ),
+        *(
+            Method(name, selfimprove=config, start="imitation", label=label)
+            for name, (label, config) in CHOICES.items()
+        ),
+    ),
+    task="carracing",
+    out=Path("results/selfimprove/carracing"),
+    train_seeds=(0, 1, 2),
+    episodes=50,
+    eval_seed=13,
+    reference="imitation",
+    paired_metrics=("reward", "violation_steps"),
+    per_seed=True,
+    figures=(("learning_curves", "selection_learning_curves.png"),),
+    title="Self-imitation on CarRacing: the safety choices on selection tracks",
+    note="Selection tracks (block 13): these choose the defaults; the fresh-track comparison "
+    "is selfimprove_carracing.py. Paired rows: each agent against its own seed's start on the "
+    "same tracks. env steps / run: training rollouts (unperturbed and pushed runs); "
+    "validation env steps: the keep rule's episodes.",
+)
