@@ -1,0 +1,211 @@
+"""Self-imitation rows in the comparison runner: the spec checks them, a tiny rehab comparison
+evaluates the run's own agent, resumes without work and records env steps counted like the
+PPO-Lagrangian's; the issue-31 comparison files load, use seed blocks no other comparison
+uses, and give both improvements the same env-step budget."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from safe_bc.compare import Comparison, Method, load_comparison
+from safe_bc.improve import ImproveConfig
+from safe_bc.selection import SelectionConfig
+from safe_bc.selfimprove.config import SelfImproveConfig
+
+ROOT = Path(__file__).resolve().parents[1]
+COMPARE = ROOT / "tune_jobs/compare"
+START = Method("start", selection=SelectionConfig(eps=0.05, alpha=0.5))
+
+
+SI = SelfImproveConfig()
+CASES = {
+    "start= goes with": lambda: (START, Method("s", selfimprove=SI)),
+    "not a BC row": lambda: (START, Method("s", selfimprove=SI, start="nope")),
+    "exactly one of": lambda: (
+        START,
+        Method("s", selfimprove=SI, improve=ImproveConfig(), start="start"),
+    ),
+    "must be a SelfImproveConfig": lambda: (
+        START,
+        Method("s", selfimprove=ImproveConfig(), start="start"),
+    ),
+    "must be an ImproveConfig": lambda: (START, Method("s", improve=SI, start="start")),
+    "alpha mix": lambda: (
+        Method("plain", selection=SelectionConfig(mode="bc_safe")),
+        Method("s", selfimprove=SI, start="plain"),
+    ),
+}
+
+
+@pytest.mark.parametrize("match", CASES)
+def test_a_selfimitation_row_is_checked(match) -> None:
+    with pytest.raises(ValueError, match=match):
+        Comparison("t", methods=CASES[match](), task="rehab")
+
+
+def test_a_selfimitation_row_is_its_own_kind() -> None:
+    row = Method("s", selfimprove=SelfImproveConfig(), start="start")
+    comp = Comparison("t", methods=(START, row), train_seeds=(0, 1), task="rehab")
+    assert row.kind == "selfimprove" and row.labels["mode"] == "selfimprove"
+    assert comp.seeds_of(row) == (0, 1)
+
+
+TINY_SELF = SelfImproveConfig(
+    rounds=2, tracks_per_round=2, pushes=("0+0.15", "1+0.15"), validation_episodes=3,
+    batches=10, beyond_limit=1.0, max_steps=6,
+)  # fmt: skip
+"""Episodes capped at 6 steps: the env steps are known in advance."""
+
+
+def test_tiny_rehab_comparison_with_a_selfimitation_row(rehab_demos, tmp_path, monkeypatch):
+    from safe_bc.bc import BCConfig, NetworkConfig, TrainConfig, load_checkpoint
+    from safe_bc.data.store import read_table
+    from safe_bc.distributed.compare import eval_config, run_comparison, track_seeds
+    from safe_bc.distributed.evaluate import evaluate_policies
+    from safe_bc.evaluation import NetSource
+    from safe_bc.selfimprove.config import DONE, POLICY, round_dir
+    from tests.test_compare import TINY
+
+    comp = Comparison(
+        "tiny",
+        methods=(
+            START,
+            Method("ppo", improve=TINY, start="start"),
+            Method("selfimit", selfimprove=TINY_SELF, start="start"),
+        ),
+        task="rehab",
+        demos=rehab_demos,
+        out=tmp_path,
+        train_seeds=(0,),
+        episodes=3,
+        workers=0,
+        reference="start",
+        figures=(("learning_curves", "curves.png"),),
+        bc=BCConfig(network=NetworkConfig(hidden=16), train=TrainConfig(batches=5, batch_size=8)),
+    )
+    table = run_comparison(comp, progress=False).set_index("method")
+    folder = tmp_path / "tiny_runs/selfimit/seed0/selfimprove"
+    assert (folder / "round_001/done.json").is_file()
+
+    # the row's episodes are the run's final agent's, through the one evaluation path
+    last = json.loads((folder / round_dir(1) / DONE).read_text())
+    final = folder / "start" if last["agent"] == "start" else folder / last["agent"] / POLICY
+    episodes, _ = read_table(tmp_path / "tiny_episodes.parquet")
+    mine = episodes[episodes["method"] == "selfimit"].set_index("env_seed")
+    stamp = read_table(tmp_path / "tiny_runs/selfimit/seed0/episodes.parquet")[1]["stamp"]
+    again, _ = evaluate_policies(
+        {"x": NetSource.from_model(*load_checkpoint(final))}, eval_config(comp),
+        thresholds=np.asarray(stamp["thresholds"]), progress=False, seeds=track_seeds(comp),
+    )  # fmt: skip
+    again = again.set_index("env_seed").loc[mine.index]
+    np.testing.assert_array_equal(mine["reward"].to_numpy(), again["reward"].to_numpy())
+    start_eps = episodes[episodes["method"] == "start"].set_index("env_seed").loc[mine.index]
+    if last["agent"] != "start":  # a kept round: not the start's episodes
+        assert not np.array_equal(mine["reward"].to_numpy(), start_eps["reward"].to_numpy())
+
+    # env steps: 2 rounds x 2 tracks x (1 + 2 pushes) runs of 6 steps; validation of the start
+    # and of 2 rounds on 3 tracks of 6 steps; PPO's from its own history, counted the same way
+    assert table.loc["selfimit", "env_steps"] == 2 * 2 * 3 * 6
+    assert table.loc["selfimit", "val_env_steps"] == 3 * 3 * 6
+    history, _ = read_table(tmp_path / "tiny_history.parquet")
+    ppo = history[history["method"] == "ppo"]
+    assert table.loc["ppo", "env_steps"] == ppo["env_steps"].iloc[-1] > 0
+    assert table.loc["ppo", "val_env_steps"] == ppo["val_env_steps"].sum() > 0
+    si = history[history["method"] == "selfimit"]
+    assert si["iteration"].tolist() == [0, 1, 2] and si["env_steps"].tolist() == [0, 36, 72]
+    assert table.loc["selfimit", "minutes"] > 0
+    assert "| env steps / run" in (tmp_path / "tiny.md").read_text()
+    assert (tmp_path / "curves.png").stat().st_size > 10_000
+
+    # a rerun does no work: no training, rollout or evaluation, no file touched
+    def stamps() -> list[tuple[str, int]]:
+        runs = tmp_path / "tiny_runs"
+        return sorted((str(p), p.stat().st_mtime_ns) for p in runs.rglob("*") if p.is_file())
+
+    before = stamps()
+    import safe_bc.bc.train
+    import safe_bc.distributed.evaluate
+    from safe_bc.selfimprove.rollout import ExploreJob, ValidateJob
+
+    def no_work(*a, **k):
+        raise AssertionError("a rerun did work")
+
+    monkeypatch.setattr(ExploreJob, "run", no_work)
+    monkeypatch.setattr(ValidateJob, "run", no_work)
+    monkeypatch.setattr(safe_bc.bc.train, "train_bc", no_work)
+    monkeypatch.setattr(safe_bc.distributed.evaluate, "evaluate_policies", no_work)
+    rerun = run_comparison(comp, progress=False).set_index("method")
+    assert stamps() == before
+    pd.testing.assert_series_equal(rerun["reward"], table["reward"])
+
+
+FILES = (
+    "selfimprove_selection_carracing.py",
+    "selfimprove_carracing.py",
+    "selfimprove_carracing_vs_expert.py",
+    "selfimprove_rehab.py",
+    "selfimprove_rehab_vs_expert.py",
+)
+
+
+def test_the_issue_31_files_load_on_blocks_no_other_comparison_uses() -> None:
+    """The selection tracks and each testbed's fresh tracks are seed blocks of their own (the
+    vs-expert files share their base file's runs and tracks)."""
+    from safe_bc.distributed.compare import selfimprove_identity
+
+    loaded = {f: load_comparison(COMPARE / f) for f in FILES}
+    blocks = {f: (c.task, c.eval_seed) for f, c in loaded.items()}
+    assert blocks["selfimprove_selection_carracing.py"] == ("carracing", 13)
+    assert blocks["selfimprove_carracing.py"] == blocks["selfimprove_carracing_vs_expert.py"]
+    assert blocks["selfimprove_rehab.py"] == blocks["selfimprove_rehab_vs_expert.py"]
+    others = {
+        (c.tracks, c.eval_seed)
+        for p in COMPARE.glob("*.py")
+        if p.name not in FILES
+        for c in [load_comparison(p)]
+    }
+    for f in ("selfimprove_selection_carracing.py", "selfimprove_carracing.py",
+              "selfimprove_rehab.py"):  # fmt: skip
+        assert ("heldout", loaded[f].eval_seed) not in others, f
+        assert loaded[f].tracks == "heldout"
+    assert len({loaded[f].eval_seed for f in FILES}) == 3
+    for f in ("selfimprove_carracing_vs_expert.py", "selfimprove_rehab_vs_expert.py"):
+        assert loaded[f].runs == "compare" and loaded[f].reference == "expert"
+    sel = loaded["selfimprove_selection_carracing.py"]
+    rows = {m.name: selfimprove_identity(sel, m, 0) for m in sel.methods if m.selfimprove}
+    changed = {
+        name: sorted(k for k in row if row[k] != rows["defaults"][k]) for name, row in rows.items()
+    }
+    assert changed == {
+        "defaults": [], "margin1px": ["margin"], "segment": ["keep_unit"],
+        "critical": ["kept_in"], "no_backoff": ["backoff"], "rounds4": ["rounds"],
+        "rounds4_small": ["pushes", "rounds"],
+    }  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("file", "steps"), [("selfimprove_carracing.py", 1000), ("selfimprove_rehab.py", 30)]
+)
+def test_both_improvements_get_the_same_env_step_budget(file: str, steps: int) -> None:
+    """PPO's training episodes (iterations x episodes per iteration) and validation episodes
+    equal self-imitation's (rounds x tracks x (1 + pushes); the start and every round on the
+    validation tracks), episodes of the same length (CarRacing's time limit, rehab's 30
+    sessions)."""
+    from safe_bc.selfimprove.config import pushes_for
+
+    comp = load_comparison(COMPARE / file)
+    ppo = comp.method("ppo_lagrangian").improve
+    si = comp.method("selfimitation").selfimprove
+    assert si == SelfImproveConfig()  # the package's defaults
+    assert ppo.shield and ppo.lagrangian
+    episodes = si.rounds * si.tracks_per_round * (1 + len(pushes_for(si, comp.task)))
+    assert ppo.iterations * ppo.episodes_per_iter == episodes
+    validations = ppo.iterations // ppo.eval_every
+    assert validations * ppo.eval_episodes == (si.rounds + 1) * si.validation_episodes
+    assert ppo.iterations % ppo.eval_every == 0
+    assert f"{episodes * steps:,}" in comp.note
