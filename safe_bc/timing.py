@@ -125,7 +125,7 @@ def timing_table(records: Sequence[Mapping[str, Any]], trials: pd.DataFrame) -> 
     parts["idle_and_overhead"] = max(capacity - busy, 0.0)
     whole = max(capacity, busy)
     what = {name: text for name, (_, text) in TRIAL_PARTS.items()}
-    what["trial_other"] = "trials: the rest (demonstrations, selection, set-up)"
+    what["trial_other"] = "trials: the rest (data, selection, set-up, reports)"
     what["idle_and_overhead"] = "empty slots and Ray's overhead: wall x slots - busy"
     for name, s in parts.items():
         count = None if name == "idle_and_overhead" else n

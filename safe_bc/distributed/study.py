@@ -17,6 +17,7 @@ import os
 import shutil
 import signal
 import time
+import uuid
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -365,7 +366,7 @@ class StudyClock:
 
     def __init__(self, path: Path) -> None:
         self.path = path
-        self.run = f"{time.strftime('%Y%m%dT%H%M%S')}-{os.getpid()}"
+        self.run = f"{time.strftime('%Y%m%dT%H%M%S')}-{uuid.uuid4().hex[:8]}"
         self.started = time.perf_counter()
         self.mark = self.started
         self.pending: list[dict[str, Any]] = []
@@ -694,18 +695,23 @@ def _run_study(
     slots = tuner._local_tuner._tune_config.max_concurrent_trials or spec.max_concurrent
     take_copy_seconds()  # only this run's copies
     clock.skip()
+
+    def timed_tuning() -> None:
+        clock.lap("tuning", slots=int(slots))
+        for seconds in take_copy_seconds():
+            clock.add(COPY, seconds)
+
     try:
         grid = tuner.fit()
     except Exception as e:  # Tune wraps an OSError of a callback (a full disk) in a TuneError
         _fit_stopped()
+        with contextlib.suppress(OSError):  # the time log must not hide the error
+            timed_tuning()
         os_error = _os_error_in(e)
         if os_error is None:
             raise
         raise os_error from None
-    finally:
-        clock.lap("tuning", slots=int(slots))
-        for seconds in take_copy_seconds():
-            clock.add(COPY, seconds)
+    timed_tuning()
     stopped = _fit_stopped()
 
     trials = trial_table(_records(grid, spec.params), spec.params)
