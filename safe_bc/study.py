@@ -657,6 +657,8 @@ TRIAL_METRICS = (
     "train_seconds",
     *STAGE_METRICS,
     "eval_seconds",
+    "round_eval_seconds",
+    "store_seconds",
     "duration_s",
     "train_seed",
     "eval_seed",

@@ -21,6 +21,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -79,6 +80,9 @@ class FinalOutcome:
     its share of episodes beyond ``d_s`` (at the study's ``violation_bound``, else 95%)."""
     paired: pd.DataFrame = dataclasses.field(default_factory=pd.DataFrame)
     """Paired differences on the same tracks (:func:`final_paired`)."""
+    seconds: dict[str, float] = dataclasses.field(default_factory=dict)
+    """Wall-clock of this run's parts: ``train`` (storing the agents included), ``stages``,
+    ``evaluation`` (storing the episodes included); empty when read back from the tables."""
 
 
 def final_workers(spec: StudySpec) -> int:
@@ -180,12 +184,17 @@ def final_phase(
         stop_point()  # Ctrl-C / SIGTERM: stop now that this agent is kept
 
     runs = [r for *_, r in todo]
+    clock = time.perf_counter()
     with deferred_stop():
         trained = _train(demos, runs, workers, bounds_for(job.demos), progress, keep)
     for (method, s, run), model in zip(todo, trained, strict=True):
         nets[(method, s)] = NetSource.from_model(model, run.bc)
         models[(method, s)] = (model, run)
+    seconds = {"train": time.perf_counter() - clock}
+    clock = time.perf_counter()
     nets.update(_run_stages(spec, job, candidates, models, progress))
+    seconds["stages"] = time.perf_counter() - clock
+    clock = time.perf_counter()
 
     per = spec.final_tracks_per_seed()
     expert = ExpertSource(stored_expert_config(Path(job.demos)))
@@ -243,6 +252,7 @@ def final_phase(
             parts.append(ep)
     finally:
         torch.set_num_threads(previous)
+    seconds["evaluation"] = time.perf_counter() - clock
     episodes = pd.concat(parts, ignore_index=True)
     table, paired = final_summaries(episodes, cfgs, spec.final_seed)
     order = {m: i for i, m in enumerate([*cfgs, EXPERT])}
@@ -265,7 +275,9 @@ def final_phase(
             int(row["episodes_with_violation"]), int(row["n_episodes"]), confidence
         )
     configs = {m: c.to_dict() for m, c in cfgs.items()}
-    return FinalOutcome(table, episodes, winner, feasible, message, configs, certified, paired)
+    return FinalOutcome(
+        table, episodes, winner, feasible, message, configs, certified, paired, seconds
+    )
 
 
 def _agent_identity(

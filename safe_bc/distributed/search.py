@@ -23,6 +23,7 @@ from __future__ import annotations
 import contextlib
 import copy
 import math
+import time
 import warnings
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -53,6 +54,18 @@ NUMBER = "trial_number"
 
 PRIVATE_API = ("_ot_trials", "_completed_trials", "_ot_study")
 """``OptunaSearch`` attributes this module relies on (Ray 2.60)."""
+
+_COPY_SECONDS: list[float] = []
+"""Wall-clock of each copy of the Optuna study made in this process since the last
+:func:`take_copy_seconds` (the searcher runs in the driver)."""
+
+
+def take_copy_seconds() -> list[float]:
+    """The seconds of every Optuna copy (:meth:`ConstrainedOptunaSearch.export`) made in this
+    process since the last call, in order, and forget them."""
+    out = list(_COPY_SECONDS)
+    _COPY_SECONDS.clear()
+    return out
 
 
 class SpaceSampler:
@@ -158,6 +171,7 @@ class ConstrainedOptunaSearch(OptunaSearch):
         and Tune trial id) to the ``export_to`` storage, replacing an earlier copy."""
         url = self.__dict__.get("_export_to")
         if url and self._ot_study is not None:
+            start = time.perf_counter()
             attrs = {"objective": self._metric, "constraints": dict(self._constraint_keys),
                      "batch_size": self.__dict__.get("_batch_size")}  # fmt: skip
             try:
@@ -165,6 +179,7 @@ class ConstrainedOptunaSearch(OptunaSearch):
                              constraint_names=list(self._constraint_keys))  # fmt: skip
             except Exception as e:  # a copy for other tools must never stop the study
                 warnings.warn(f"could not copy the Optuna study to {url}: {e}", stacklevel=2)
+            _COPY_SECONDS.append(time.perf_counter() - start)
 
     def batch_pending(self) -> list[str]:
         """Trial ids of the current batch whose results are not in yet."""

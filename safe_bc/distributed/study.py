@@ -17,6 +17,7 @@ import os
 import shutil
 import signal
 import time
+import uuid
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -29,7 +30,7 @@ from ray.tune.logger import CSVLoggerCallback, JsonLoggerCallback
 from ray.tune.schedulers import FIFOScheduler, TrialScheduler
 from ray.tune.utils import flatten_dict
 
-from safe_bc.atomic import write_json_atomic
+from safe_bc.atomic import write_json_atomic, write_text_atomic
 from safe_bc.bc import load_checkpoint
 from safe_bc.bc.net import BCNet
 from safe_bc.data.store import (
@@ -51,6 +52,7 @@ from safe_bc.distributed.search import (
     load_searcher,
     make_scheduler,
     make_searcher,
+    take_copy_seconds,
 )
 from safe_bc.distributed.stop import (
     _fit_stopped,
@@ -73,6 +75,7 @@ from safe_bc.study import (
     trial_table,
 )
 from safe_bc.tasks import task_defaults, task_of
+from safe_bc.timing import COPY, TOTAL, timing_lines, timing_markdown, timing_table
 
 __all__ = [
     "ConstrainedOptunaSearch",
@@ -117,6 +120,9 @@ class StudyOutcome:
     stopped_by: int = 0
     """The signal that stopped Tune's run of the trials (0: none; SIGINT is seen as an
     incomplete study, SIGTERM is recorded here)."""
+    timing: pd.DataFrame | None = None
+    """Where the study's time went (``timing.parquet``, :func:`safe_bc.timing.timing_table`);
+    ``None`` when not recorded (a study finished before timings were)."""
 
     @property
     def exit_code(self) -> int:
@@ -264,6 +270,27 @@ def _remove_orphan_trial_dirs(exp_path: str, known: set[str]) -> list[str]:
     return sorted(orphans)
 
 
+def append_lines(path: str | Path, rows: Sequence[dict[str, Any]]) -> None:
+    """Append ``rows`` to the JSON-lines file ``path``, whole lines or nothing: a write that
+    fails (a full disk) is cut back to the file's size before it, so no line is left
+    half-written."""
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    data = "".join(json.dumps(row, default=str) + "\n" for row in rows).encode()
+    fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+    try:
+        size = os.fstat(fd).st_size
+        try:
+            view = memoryview(data)
+            while view:
+                view = view[os.write(fd, view) :]
+        except OSError:
+            with contextlib.suppress(OSError):
+                os.ftruncate(fd, size)
+            raise
+    finally:
+        os.close(fd)
+
+
 class HistoryRecorder(tune.Callback):
     """Appends every reported result to a JSON-lines file as it arrives (in the driver), and a
     line ``{"trial_id", "event": "complete" | "error", "timestamp"}`` when a trial has ended
@@ -280,23 +307,7 @@ class HistoryRecorder(tune.Callback):
         self._ended: list[tuple[str, str]] = []
 
     def _append(self, rows: list[dict[str, Any]]) -> None:
-        """Append whole lines or nothing: a write that fails (a full disk) is cut back to the
-        file's size before it, so no line is left half-written."""
-        Path(self.path).parent.mkdir(parents=True, exist_ok=True)
-        data = "".join(json.dumps(row, default=str) + "\n" for row in rows).encode()
-        fd = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
-        try:
-            size = os.fstat(fd).st_size
-            try:
-                view = memoryview(data)
-                while view:
-                    view = view[os.write(fd, view) :]
-            except OSError:
-                with contextlib.suppress(OSError):
-                    os.ftruncate(fd, size)
-                raise
-        finally:
-            os.close(fd)
+        append_lines(self.path, rows)
 
     def on_trial_result(self, iteration: int, trials: list, trial: Any, result: dict, **info):
         row = {k: v for k, v in flatten_dict(result).items() if not k.startswith("config/")}
@@ -338,6 +349,99 @@ def read_history(path: Path) -> pd.DataFrame:
         if hist[c].dtype == object:
             hist[c] = hist[c].map(lambda v: "" if is_missing(v) else str(v))
     return hist
+
+
+# --- where the time goes ------------------------------------------------------------------------
+
+TIMING_LOG = "timing.jsonl"
+"""The driver's timed pieces, every run of the study (``timing.parquet`` is made from it)."""
+TIMING = "timing.parquet"
+"""Where the study's time went (:func:`safe_bc.timing.timing_table`); ``timing.md`` beside it."""
+
+
+class StudyClock:
+    """The driver's timings of one run: each piece appended to :data:`TIMING_LOG` as it ends
+    (kept in memory until :meth:`open`, which says whether the log belongs to an older,
+    replaced experiment)."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.run = f"{time.strftime('%Y%m%dT%H%M%S')}-{uuid.uuid4().hex[:8]}"
+        self.started = time.perf_counter()
+        self.mark = self.started
+        self.pending: list[dict[str, Any]] = []
+        self.live = False
+
+    def add(self, phase: str, seconds: float, **extra: Any) -> None:
+        """Record ``seconds`` of ``phase``."""
+        self.pending.append({"run": self.run, "phase": phase, "seconds": seconds, **extra})
+        if self.live:
+            append_lines(self.path, self.pending)
+            self.pending.clear()
+
+    def lap(self, phase: str, **extra: Any) -> float:
+        """Record the time since the last lap (or the start) as ``phase``; its seconds."""
+        now = time.perf_counter()
+        seconds, self.mark = now - self.mark, now
+        self.add(phase, seconds, **extra)
+        return seconds
+
+    def skip(self) -> None:
+        """Start the next lap now (what ran since the last one counts as ``other``)."""
+        self.mark = time.perf_counter()
+
+    def open(self, new_experiment: bool) -> None:
+        """Start writing the log (a new experiment first deletes an older one's)."""
+        if new_experiment:
+            self.path.unlink(missing_ok=True)
+        self.live = True
+        if self.pending:
+            append_lines(self.path, self.pending)
+            self.pending.clear()
+
+    def close(self) -> None:
+        """Record this run's whole wall-clock."""
+        self.add(TOTAL, time.perf_counter() - self.started)
+
+
+def read_timing_log(path: Path) -> list[dict[str, Any]]:
+    """The records of :data:`TIMING_LOG` (a line cut short by a killed driver is skipped)."""
+    if not path.exists():
+        return []
+    rows = []
+    for line in path.read_text().splitlines():
+        try:
+            row = json.loads(line)
+        except json.JSONDecodeError:
+            continue
+        if isinstance(row, dict) and "phase" in row and "seconds" in row:
+            rows.append(row)
+    return rows
+
+
+def write_timing(out: Path, trials: pd.DataFrame, meta: dict[str, Any]) -> pd.DataFrame:
+    """Write ``timing.parquet`` and ``timing.md`` from :data:`TIMING_LOG` and the trial table
+    (``meta``: the command and the provenance) and return the table."""
+    records = read_timing_log(out / TIMING_LOG)
+    table = timing_table(records, trials)
+    runs = sorted({str(r.get("run", "")) for r in records})
+    tmeta = {
+        "command": meta.get("command", ""),
+        "study": meta.get("study", {}),
+        "driver_runs": runs,
+        "source": f"{TIMING_LOG} (the driver's pieces) and trials.parquet (the trials' seconds)",
+        "provenance": meta.get("provenance") or provenance(),
+    }
+    write_table_atomic(out / TIMING, table, tmeta)
+    prov = tmeta["provenance"]
+    note = (
+        f"Made by `{tmeta['command'] or 'safe-bc tune'}` over {len(runs)} driver run(s); "
+        f"revision {str(prov.get('git_revision', ''))[:12]}, {prov.get('cpu_model', '')} "
+        f"({prov.get('cpus', '?')} CPUs), {prov.get('created_utc', '')}. "
+        f"Made from `{TIMING_LOG}` and `trials.parquet`."
+    )
+    write_text_atomic(out / "timing.md", timing_markdown(table, note))
+    return table
 
 
 # --- persisting the experiment state after every trial -----------------------------------------
@@ -497,6 +601,7 @@ def _run_study(
             )
             return done
 
+    clock = StudyClock(spec.results / spec.name / TIMING_LOG)
     os.environ.setdefault("TUNE_DISABLE_AUTO_CALLBACK_LOGGERS", "1")
     os.environ.setdefault("RAY_AIR_NEW_OUTPUT", "0")  # the terse status table of CLIReporter
     # SaveOnTrialEnd forces saves; Tune would call two within 5 s "excessive" and blame
@@ -511,10 +616,13 @@ def _run_study(
         for name in ("trials", "history", "final", "final_episodes", "final_paired"):
             (out / f"{name}.parquet").unlink(missing_ok=True)
         (out / FINISHED).unlink(missing_ok=True)  # first: a kill below leaves no claim
-        for name in ("best.json", "pareto.png", "study.json", "optuna.db", HISTORY):
+        for name in ("best.json", "pareto.png", "study.json", "optuna.db", HISTORY, TIMING,
+                     TIMING_LOG, "timing.md"):  # fmt: skip
             (out / name).unlink(missing_ok=True)
         shutil.rmtree(out / STORE, ignore_errors=True)
+    clock.skip()
     ensure_ray()
+    clock.lap("ray_start")
     _reinstall_signals()  # ray.init replaced the SIGTERM handler
     demos_path = spec.demos.resolve()
     if not (demos_path / "dataset.json").exists():
@@ -523,6 +631,7 @@ def _run_study(
         ensure_demos(demos_path, task.collect_config(), progress=progress)
     _check_env(spec, demos_path)
     demos = cached_demos(str(demos_path))
+    clock.lap("demos")
     expert_safety = demos.safety_mean
     threshold = expert_safety if spec.threshold is None else float(spec.threshold)
     limits = ConstraintBars(
@@ -539,6 +648,7 @@ def _run_study(
     if not restoring:  # a new experiment: rows of an older one do not belong to it
         (out / HISTORY).unlink(missing_ok=True)
         (out / FINISHED).unlink(missing_ok=True)
+    clock.open(new_experiment=not restoring)
     identity = {
         "trials": spec.trials,
         "threshold": threshold,
@@ -582,14 +692,26 @@ def _run_study(
                 verbose=1 if progress else 0,
             ),
         )
+    slots = tuner._local_tuner._tune_config.max_concurrent_trials or spec.max_concurrent
+    take_copy_seconds()  # only this run's copies
+    clock.skip()
+
+    def timed_tuning() -> None:
+        clock.lap("tuning", slots=int(slots))
+        for seconds in take_copy_seconds():
+            clock.add(COPY, seconds)
+
     try:
         grid = tuner.fit()
     except Exception as e:  # Tune wraps an OSError of a callback (a full disk) in a TuneError
         _fit_stopped()
+        with contextlib.suppress(OSError):  # the time log must not hide the error
+            timed_tuning()
         os_error = _os_error_in(e)
         if os_error is None:
             raise
         raise os_error from None
+    timed_tuning()
     stopped = _fit_stopped()
 
     trials = trial_table(_records(grid, spec.params), spec.params)
@@ -637,15 +759,25 @@ def _run_study(
     winner = choose_winner(trials, spec.objective)
     title = f"{spec.name}: {finished}/{spec.trials} trials"
     plot_pareto(trials, threshold, out / "pareto.png", title=title)  # no verdict yet
+    clock.lap("trial_tables")
     outcome = StudyOutcome(complete, trials, None, None, threshold, out, exp_path, errors)
     if not complete or winner is None or stopped:
-        return replace(outcome, stopped_by=stopped)
+        clock.close()
+        timing = write_timing(out, trials, meta)
+        return replace(outcome, stopped_by=stopped, timing=timing)
 
     candidates = choose_candidates(trials, spec.final_candidates, spec.objective)
     checkpoints = _checkpoints(grid, list(candidates["trial_id"]))
+    clock.lap("final_checkpoints")
     t0 = time.perf_counter()
     store = FinalStore(out / STORE)
     final = final_phase(spec, job, candidates, checkpoints, demos, progress=progress, store=store)
+    final_s = time.perf_counter() - t0
+    parts = {f"final_{k}": v for k, v in final.seconds.items()}
+    for phase, seconds in parts.items():
+        clock.add(phase, seconds)
+    clock.add("final_summary", max(final_s - sum(parts.values()), 0.0))
+    clock.skip()
     meta = {**meta, "final_phase_seconds": round(time.perf_counter() - t0, 1)}
     _write_final(spec, final, candidates, meta)
     plot_pareto(
@@ -657,8 +789,11 @@ def _run_study(
         title=f"{title}; final phase: "
         + (f"winner {final.winner}" if final.feasible else "no candidate feasible"),
     )
+    clock.lap("final_tables")
+    clock.close()
+    timing = write_timing(out, trials, meta)
     write_json_atomic(out / FINISHED, _finished_record(spec), default=str)
-    return replace(outcome, winner=winner, final=final)
+    return replace(outcome, winner=winner, final=final, timing=timing)
 
 
 FINISHED = "finished.json"
@@ -702,6 +837,10 @@ def finished_outcome(spec: StudySpec) -> StudyOutcome | None:
             "trials and the final phase's finished work are kept and not redone)"
         ) from None
     check_optuna_copy(spec, str(meta.get("experiment_path", "")))
+    try:  # absent for a study finished before timings were recorded
+        timing = read_table(out / TIMING)[0] if (out / TIMING).exists() else None
+    except DatasetError:
+        timing = None
     final = FinalOutcome(
         table, episodes, best.get("trial_id"), bool(best.get("feasible")),
         str(best.get("message", "")), dict(fmeta.get("configs", {})),
@@ -716,6 +855,7 @@ def finished_outcome(spec: StudySpec) -> StudyOutcome | None:
         out,
         str(meta.get("experiment_path", "")),
         int((trials["status"] == "error").sum()),
+        timing=timing,
     )
 
 
@@ -900,5 +1040,8 @@ def format_outcome(outcome: StudyOutcome, params: Sequence[str]) -> str:
                     f"winner - {r['vs']} (paired, same tracks): reward {r['d_reward']:+.1f} "
                     f"[{r['d_reward_lo']:+.1f}, {r['d_reward_hi']:+.1f}]"
                 )
+    if outcome.timing is not None and len(outcome.timing):
+        lines += timing_lines(outcome.timing)
+        lines.append(f"where the time went: {outcome.out / 'timing.md'}")
     lines.append(f"outputs in {outcome.out}/")
     return "\n".join(lines)

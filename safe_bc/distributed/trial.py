@@ -316,6 +316,7 @@ def run_trial(config: dict[str, Any], job: TrialJob) -> None:
         models, extra = resumed
         metrics.update(extra["train"], resumed=True)
         earlier = float(extra["trained_s"])
+        store_s = 0.0  # the earlier run's checkpoint time is not known
     else:
         results = []
         for s in seeds:
@@ -354,11 +355,15 @@ def run_trial(config: dict[str, Any], job: TrialJob) -> None:
         extra = {"train": train_info, "trained_s": trained_s, "run_config": run_cfg.to_dict()}
         if len(seeds) > 1:
             extra["seeds"] = seeds
+        t0 = time.perf_counter()
         with tempfile.TemporaryDirectory() as d:
             results[0].save(d, extra=extra)
             for s, result in zip(seeds[1:], results[1:], strict=True):
                 result.save(Path(d) / f"seed_{s}", extra={"seed": s})
+            metrics.update(store_seconds=time.perf_counter() - t0)
             tune.report(metrics, checkpoint=tune.Checkpoint.from_directory(d))
+        # the checkpoint's copy to the storage happens in the report: counted from the next one
+        store_s = time.perf_counter() - t0
 
     sources: list[Any] = [NetSource.from_model(m, run_cfg.bc) for m in models]
     agents: list[Any] = list(models)
@@ -392,7 +397,9 @@ def run_trial(config: dict[str, Any], job: TrialJob) -> None:
                 ignore_index=True,
             )
             seconds = time.perf_counter() - t0
+            t0 = time.perf_counter()
             write_table_atomic(path, episodes, {"eval_seconds": seconds})
+            store_s += time.perf_counter() - t0
         else:
             episodes, seconds = stored
         parts.append(episodes)
@@ -402,6 +409,8 @@ def run_trial(config: dict[str, Any], job: TrialJob) -> None:
             values,
             phase="evaluated" if i == len(rounds) else "screened",
             eval_seconds=eval_s,
+            round_eval_seconds=seconds,
+            store_seconds=store_s,
             duration_s=earlier + time.perf_counter() - start,
             feasible=bool(values["constraint"] <= 0),
         )

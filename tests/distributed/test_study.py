@@ -25,12 +25,14 @@ from safe_bc.distributed.study import (
     SpaceSampler,
     TrialJob,
     load_searcher,
+    read_timing_log,
     run_study,
     run_trial,
 )
 from safe_bc.metrics import combined
 from safe_bc.seeds import heldout_seeds
 from safe_bc.study import TRIAL_INFO, TRIAL_METRICS, Choice, Float, load_study
+from safe_bc.timing import PHASES
 
 REPO = Path(__file__).resolve().parents[2]
 SMOKE = REPO / "tune_jobs" / "smoke.py"
@@ -169,6 +171,32 @@ def test_cli_study_end_to_end(tiny_demos: Path, tmp_path: Path, capsys) -> None:
     assert (paired["n_pairs"] == len(episodes[episodes["method"] == "expert"])).all()
     assert (out / "pareto.png").stat().st_size > 0
 
+    # where the time went: every driver phase timed, the trials' own seconds beside them
+    logged = {r["phase"] for r in read_timing_log(out / "timing.jsonl")}
+    assert set(PHASES) - {"other"} <= logged and {"total", "optuna_copy"} <= logged
+    timing, tmeta = read_table(out / "timing.parquet")
+    t = timing.set_index("phase")
+    assert tmeta["provenance"]["git_revision"] and tmeta["command"] == meta["command"]
+    assert set(PHASES) <= set(t.index) and (t["seconds"] >= 0).all()
+    for part in ("study", "tuning slots"):
+        assert t.loc[t["part_of"] == part, "share"].sum() == pytest.approx(1.0)
+    for phase in ("tuning", "final_train", "final_evaluation", "trial_train", "trial_evaluation",
+                  "trial_storage"):  # fmt: skip
+        assert t.loc[phase, "seconds"] > 0, phase
+    assert t.loc["trial_train", "seconds"] == pytest.approx(trials["train_seconds"].sum())
+    assert t.loc["optuna_copy", "count"] >= 1
+    assert "| phase" in (out / "timing.md").read_text() and "\ntime: " in printed
+    assert (trials["store_seconds"] > 0).all()  # the checkpoint and the stored rounds
+    for _, rows in history[history["phase"] != "trained"].groupby("trial_id"):
+        assert rows["round_eval_seconds"].sum() == pytest.approx(rows["eval_seconds"].iloc[-1])
+
+    # a finished study's rerun only reprints (the time lines too): no table is rewritten
+    before = {p.name: p.stat().st_mtime_ns for p in out.iterdir() if p.is_file()}
+    rc = main(["tune", str(study_file), "--trials", "3", "--storage", storage])
+    again = capsys.readouterr().out
+    assert rc == 0 and "finished before" in again and "\ntime: " in again
+    assert {p.name: p.stat().st_mtime_ns for p in out.iterdir() if p.is_file()} == before
+
 
 class InterruptOnce(tune.Callback):
     """Ctrl-C (SIGINT) after the first finished trial, once (the callback is restored too)."""
@@ -218,6 +246,8 @@ def test_interrupted_study_resumes_and_failed_trial_is_not_retrained(
     done_first = set(first.trials.loc[first.trials["status"] == "done", "trial_id"])
     assert 1 <= len(done_first) < 3
     assert not (first.out / "best.json").exists()
+    assert first.timing is not None  # an interrupted run writes its time table too
+    first_tuning = first.timing.set_index("phase").loc["tuning", "seconds"]
 
     with pytest.raises(ValueError, match="other settings"):
         run_study(replace(spec, trials=4), progress=False, trial_fn=trial_fn)
@@ -235,6 +265,10 @@ def test_interrupted_study_resumes_and_failed_trial_is_not_retrained(
     assert t["resumed"].sum() == 1
     retried = t[t["resumed"]].iloc[0]
     assert retried["trial_id"] in done_first and retried["train_seconds"] > 0
+    # the time table adds up every driver run: interrupted, refused (other settings), resumed
+    timing, tmeta = read_table(second.out / "timing.parquet")
+    assert len(tmeta["driver_runs"]) == 3
+    assert timing.set_index("phase").loc["tuning", "seconds"] > first_tuning
 
     searcher = load_searcher(second.experiment_path)
     trials = searcher.study.get_trials(deepcopy=False)

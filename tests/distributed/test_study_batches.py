@@ -21,7 +21,8 @@ from safe_bc.study import Float, load_study
 
 REPO = Path(__file__).resolve().parents[2]
 
-TIMING = ("train_seconds", "improve_seconds", "eval_seconds", "duration_s", "trial_id")
+TIMING = ("train_seconds", "improve_seconds", "eval_seconds", "round_eval_seconds",
+          "store_seconds", "duration_s", "trial_id")  # fmt: skip
 """Columns that differ between runs by nature (wall-clock, Tune's random trial ids)."""
 
 
