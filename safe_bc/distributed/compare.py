@@ -209,9 +209,10 @@ def _selfimprove(comparison: Comparison, method: Method, seed: int, demos: Any) 
     model, _ = load_checkpoint(_folder(c, start, seed) / "agent")
     kwargs: dict[str, Any] = {}
     if config.workers > 0:
-        from safe_bc.distributed.selfimprove import RayRollouts
+        from safe_bc.distributed.rollouts import ChunkedRayRollouts
+        from safe_bc.selfimprove.rollout import local_rollouts
 
-        kwargs["rollouts"] = RayRollouts(config.workers)
+        kwargs["rollouts"] = ChunkedRayRollouts(local_rollouts, config.workers)
     path = demos_of(c, method)
     env = task_defaults(c.task, start.renderer or "fast").env
     folder = _folder(c, method, seed) / "selfimprove"

@@ -1,5 +1,5 @@
-"""Round files (``queries.npz``, written atomically) and the aggregate training data:
-demonstrations plus every queried state so far (numpy only, no torch)."""
+"""Round files (``queries.npz``, written atomically; numpy only, no torch). The training data
+(demonstrations plus every queried episode's rows) is :func:`safe_bc.rounds.aggregate_rows`'s."""
 
 from __future__ import annotations
 
@@ -9,7 +9,6 @@ from pathlib import Path
 import numpy as np
 
 from safe_bc.atomic import atomic_write
-from safe_bc.demos import Demonstrations
 from safe_bc.queries.rollout import EpisodeQueries
 
 _ROW_FIELDS = ("steps", "queried", "observations", "actions", "costs")
@@ -52,40 +51,3 @@ def load_round(path: Path) -> list[EpisodeQueries]:
             )
         )
     return out
-
-
-def aggregate(
-    demos: Demonstrations, episodes: Sequence[EpisodeQueries]
-) -> tuple[Demonstrations, np.ndarray]:
-    """Demonstrations followed by the queried episodes' rows, and ``(N,) bool`` queried.
-
-    Each queried episode gets its own episode id after the demonstrations'; its context rows
-    (frames only stacked, never trained on) are marked as warm-up, i.e. not scored. Queried
-    rows have no safety distances (``NaN``; training does not read them).
-    """
-    parts = [e for e in episodes if len(e.steps)]
-    if not parts:
-        return demos, np.zeros(len(demos), bool)
-    first_id = int(demos.episode_ids.max()) + 1 if len(demos) else 0
-    n_new = sum(len(e.steps) for e in parts)
-    s = demos.costs.shape[1]
-    agg = Demonstrations(
-        observations=np.concatenate([demos.observations, *[e.observations for e in parts]]),
-        actions=np.concatenate([demos.actions, *[e.actions for e in parts]]).astype(np.float32),
-        costs=np.concatenate([demos.costs, *[e.costs for e in parts]]).astype(np.float32),
-        safety=np.concatenate([demos.safety, np.full((n_new, s), np.nan, np.float32)]),
-        episode_ids=np.concatenate(
-            [
-                demos.episode_ids,
-                *[np.full(len(e.steps), first_id + i, np.int64) for i, e in enumerate(parts)],
-            ]
-        ),
-        steps=np.concatenate([demos.steps, *[e.steps.astype(np.int64) for e in parts]]),
-        seeds=np.concatenate(
-            [demos.seeds, *[np.full(len(e.steps), e.seed, np.int64) for e in parts]]
-        ),
-        warmup=np.concatenate([demos.warmup, *[~e.queried for e in parts]]),
-        safety_dims=demos.safety_dims,
-    )
-    queried = np.concatenate([np.zeros(len(demos), bool), *[e.queried for e in parts]])
-    return agg, queried

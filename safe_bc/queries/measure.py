@@ -64,7 +64,7 @@ def _collect_one(args: tuple[Any, int]) -> Any:
 
 
 def _train(job: Any) -> Any:
-    from safe_bc.queries.run import train_local
+    from safe_bc.rounds import train_local
 
     return train_local(job)
 
@@ -174,8 +174,9 @@ def run(a: MeasureConfig, pool: Any) -> str:
     from safe_bc.queries.config import QueryConfig
     from safe_bc.queries.defer import DeferralSource
     from safe_bc.queries.logic import smallest_safe_width
-    from safe_bc.queries.run import TrainJob, policy_source, run_queries
+    from safe_bc.queries.run import run_queries
     from safe_bc.queries.stage import expert_for
+    from safe_bc.rounds import TrainJob, net_model, policy_source
     from safe_bc.run_config import RunConfig
     from safe_bc.selection import SelectionConfig
     from safe_bc.tasks import dataset_action_bounds, task_defaults
@@ -201,7 +202,6 @@ def run(a: MeasureConfig, pool: Any) -> str:
     def train_bc(seed: int) -> Any:
         """Plain BC for one seed (its checkpoint, reused when present)."""
         from safe_bc.bc.checkpoint import checkpoint_unit, save_checkpoint
-        from safe_bc.queries.run import _model
 
         cfg = run_config(seed)
         bc_dir = out / "bc" / f"seed{seed}"
@@ -209,15 +209,13 @@ def run(a: MeasureConfig, pool: Any) -> str:
             sel = select_for(demos, cfg.selection)
             src = train(TrainJob(demos, sel, cfg, bounds))
             with checkpoint_unit(bc_dir) as unit:
-                save_checkpoint(unit, _model(src), cfg.bc)
+                save_checkpoint(unit, net_model(src), cfg.bc)
         return policy_source(bc_dir)
 
     def pipeline(seed: int) -> dict[str, Any]:
         """Critical, then full (at the critical run's queries) from one seed's plain BC."""
-        from safe_bc.queries.run import _model
-
         cfg = run_config(seed)
-        start = _model(bcs[seed])
+        start = net_model(bcs[seed])
         common = {
             "rounds": a.rounds,
             "episodes_per_round": a.episodes_per_round,

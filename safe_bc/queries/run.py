@@ -13,14 +13,14 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from safe_bc.atomic import write_json_atomic
-from safe_bc.bc.checkpoint import checkpoint_unit, load_checkpoint, save_checkpoint
+from safe_bc.bc.checkpoint import checkpoint_unit, save_checkpoint
 from safe_bc.bc.net import BCNet
 from safe_bc.demos import Demonstrations
 from safe_bc.evaluation import NetSource
@@ -34,47 +34,27 @@ from safe_bc.queries.config import (
     round_dir,
     track_seeds,
 )
-from safe_bc.queries.data import aggregate, load_round, save_round
+from safe_bc.queries.data import load_round, save_round
 from safe_bc.queries.logic import aggregate_selection
 from safe_bc.queries.rollout import EpisodeQueries, QueryJob, apply_budget, query_tracks
+from safe_bc.rounds import (
+    TrainFn,
+    TrainJob,
+    aggregate_rows,
+    check_identity,
+    net_model,
+    policy_source,
+    read_json,
+    train_local,
+    weights_digest,
+    with_batches,
+)
 from safe_bc.run_config import RunConfig
 from safe_bc.selection import CriticalZone, Selection
 
 RolloutFn = Callable[[QueryJob, Sequence[int]], list[EpisodeQueries]]
 """Rolls a job out on tracks, results in track order (:func:`query_tracks` in this process;
-``safe_bc.distributed.queries.RayRollouts``; the measurement's process pool)."""
-
-
-@dataclass(frozen=True)
-class TrainJob:
-    """One retraining: the aggregate data, its selection and the BC settings."""
-
-    demos: Demonstrations
-    selection: Selection
-    run_config: RunConfig
-    action_bounds: tuple[Any, Any] | None = None
-
-
-TrainFn = Callable[[TrainJob], NetSource]
-
-
-def train_local(job: TrainJob) -> NetSource:
-    """Train the job's BC net in this process (``train_bc``: bit-identical for the same job)."""
-    from safe_bc.bc.train import train_bc
-
-    cfg = job.run_config
-    sampler = job.selection.sampler(
-        cfg.bc.train.batch_size, np.random.default_rng(cfg.bc.train.seed)
-    )
-    result = train_bc(
-        job.demos,
-        sampler,
-        cfg.bc.network,
-        cfg.bc.preprocess,
-        cfg.bc.train,
-        action_bounds=job.action_bounds,
-    )
-    return NetSource.from_model(result.model, result.config)
+``safe_bc.distributed.rollouts.ChunkedRayRollouts``; the measurement's process pool)."""
 
 
 @dataclass(frozen=True)
@@ -133,12 +113,7 @@ def run_queries(
 
     folder = Path(folder)
     base = select_for(demos, run_config.selection)
-    retrain = run_config
-    if config.batches is not None:
-        retrain = replace(
-            run_config,
-            bc=replace(run_config.bc, train=replace(run_config.bc.train, batches=config.batches)),
-        )
+    retrain = with_batches(run_config, config.batches)
     start_src = NetSource.from_model(start, run_config.bc)
     identity = {
         "format": FORMAT,
@@ -147,9 +122,9 @@ def run_queries(
         "demos": str(demos_path),
         "env": str(env_config),
         "expert": str(expert_config),
-        "start_weights_sha256": _weights_digest(start),
+        "start_weights_sha256": weights_digest(start.state_dict()),
     }
-    _check_identity(folder, identity)
+    check_identity(folder / IDENTITY, identity, "query run", "query config")
     if not (folder / "start" / "config.json").is_file():  # for the record (and inspection)
         with checkpoint_unit(folder / "start") as unit:
             save_checkpoint(unit, start, run_config.bc)
@@ -161,7 +136,7 @@ def run_queries(
     resumed = 0
     for r in range(config.rounds):
         here = folder / round_dir(r)
-        done = _read_json(here / DONE)
+        done = read_json(here / DONE)
         if done is not None and (here / POLICY / "config.json").is_file():
             rounds.append(done)
             episodes += load_round(here / QUERIES)
@@ -187,12 +162,12 @@ def run_queries(
             save_round(here / QUERIES, mine)
         t_roll = time.perf_counter() - t0
         episodes += mine
-        data, queried = aggregate(demos, episodes)
+        data, queried = aggregate_rows(demos, episodes, [e.queried for e in episodes])
         selection = aggregate_selection(
             data.costs, data.scored, queried, retrain.selection, base.thresholds, config.mode
         )
         source = train(TrainJob(data, selection, retrain, action_bounds))
-        model = _model(source)
+        model = net_model(source)
         with checkpoint_unit(here / POLICY) as unit:
             save_checkpoint(
                 unit,
@@ -225,49 +200,3 @@ def run_queries(
         if on_round is not None:
             on_round(summary)
     return QueryResult(folder, rounds, resumed)
-
-
-def _model(source: NetSource) -> BCNet:
-    from safe_bc.bc.config import BCConfig
-    from safe_bc.bc.net import ModelSpec
-
-    cfg = BCConfig.from_dict(source.config)
-    model = BCNet(ModelSpec.from_dict(source.spec), cfg.preprocess, cfg.network)
-    model.load_state_dict(source.state)
-    return model.eval()
-
-
-def policy_source(policy: Path) -> NetSource:
-    model, cfg = load_checkpoint(policy)
-    return NetSource.from_model(model, cfg)
-
-
-def _weights_digest(model: BCNet) -> str:
-    """SHA-256 of the net's weights (state-dict order, raw bytes)."""
-    import hashlib
-
-    h = hashlib.sha256()
-    for name, tensor in model.state_dict().items():
-        h.update(name.encode())
-        h.update(tensor.detach().cpu().contiguous().numpy().tobytes())
-    return h.hexdigest()
-
-
-def _check_identity(folder: Path, identity: dict[str, Any]) -> None:
-    import json
-
-    found = _read_json(folder / IDENTITY)
-    want = json.loads(json.dumps(identity))
-    if found is None:
-        write_json_atomic(folder / IDENTITY, want)
-    elif found != want:
-        raise ValueError(
-            f"{folder} belongs to another query run (start, run config, demonstrations or "
-            "query config differ); use another folder"
-        )
-
-
-def _read_json(path: Path) -> dict[str, Any] | None:
-    import json
-
-    return json.loads(path.read_text()) if path.is_file() else None

@@ -42,9 +42,10 @@ def query_run(
     from safe_bc.tasks import dataset_action_bounds, task_defaults, task_of
 
     if config.workers > 0 and "rollouts" not in kwargs:
-        from safe_bc.distributed.queries import RayRollouts
+        from safe_bc.distributed.rollouts import ChunkedRayRollouts
+        from safe_bc.queries.rollout import query_tracks
 
-        kwargs["rollouts"] = RayRollouts(config.workers)
+        kwargs["rollouts"] = ChunkedRayRollouts(query_tracks, config.workers)
     data = load_demonstrations(Path(demos))
     env = task_defaults(task_of(env_id)).env
     return run_queries(
@@ -71,7 +72,7 @@ def run_stage(
 ) -> tuple[Any, dict[str, float]]:
     """The last round's agent of ``agent`` (a trained :class:`BCNet`) and its report values."""
     from safe_bc.evaluation import NetSource
-    from safe_bc.queries.run import policy_source
+    from safe_bc.rounds import policy_source
 
     if not isinstance(agent, BCNet):
         raise TypeError(f"the query stage starts from a trained BCNet, got {type(agent)}")

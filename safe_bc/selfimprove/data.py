@@ -1,5 +1,6 @@
-"""Round files (``kept.npz``, written atomically: the round's track outcomes and kept pieces)
-and the training data: demonstrations plus the kept rows (numpy only, no torch)."""
+"""Round files (``kept.npz``, written atomically: the round's track outcomes and kept pieces;
+numpy only, no torch). The training data (demonstrations plus the kept pieces' rows) is
+:func:`safe_bc.rounds.aggregate_rows`'s."""
 
 from __future__ import annotations
 
@@ -9,7 +10,6 @@ from pathlib import Path
 import numpy as np
 
 from safe_bc.atomic import atomic_write
-from safe_bc.demos import Demonstrations
 from safe_bc.selfimprove.rollout import KeptPiece, TrackResult
 
 _ROW_FIELDS = ("steps", "trained", "observations", "actions", "costs")
@@ -72,40 +72,3 @@ def load_round(path: Path) -> list[TrackResult]:
         )
         for i in range(len(a["seed"]))
     ]
-
-
-def aggregate(
-    demos: Demonstrations, pieces: Sequence[KeptPiece]
-) -> tuple[Demonstrations, np.ndarray]:
-    """Demonstrations followed by the kept pieces' rows, and ``(N,) bool`` kept.
-
-    Each piece gets its own episode id after the demonstrations'; its context rows (frames
-    only stacked, never trained on) are marked as warm-up (not scored). Kept rows have no
-    safety distances (``NaN``; training does not read them).
-    """
-    parts = [p for p in pieces if len(p.steps)]
-    if not parts:
-        return demos, np.zeros(len(demos), bool)
-    first_id = int(demos.episode_ids.max()) + 1 if len(demos) else 0
-    n_new = sum(len(p.steps) for p in parts)
-    s = demos.costs.shape[1]
-    agg = Demonstrations(
-        observations=np.concatenate([demos.observations, *[p.observations for p in parts]]),
-        actions=np.concatenate([demos.actions, *[p.actions for p in parts]]).astype(np.float32),
-        costs=np.concatenate([demos.costs, *[p.costs for p in parts]]).astype(np.float32),
-        safety=np.concatenate([demos.safety, np.full((n_new, s), np.nan, np.float32)]),
-        episode_ids=np.concatenate(
-            [
-                demos.episode_ids,
-                *[np.full(len(p.steps), first_id + i, np.int64) for i, p in enumerate(parts)],
-            ]
-        ),
-        steps=np.concatenate([demos.steps, *[p.steps.astype(np.int64) for p in parts]]),
-        seeds=np.concatenate(
-            [demos.seeds, *[np.full(len(p.steps), p.seed, np.int64) for p in parts]]
-        ),
-        warmup=np.concatenate([demos.warmup, *[~p.trained for p in parts]]),
-        safety_dims=demos.safety_dims,
-    )
-    kept = np.concatenate([np.zeros(len(demos), bool), *[p.trained for p in parts]])
-    return agg, kept

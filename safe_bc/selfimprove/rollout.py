@@ -232,5 +232,5 @@ class ValidateJob:
 
 def local_rollouts(job: ExploreJob | ValidateJob, seeds: Sequence[int]) -> list[Any]:
     """A job's tracks in this process (``job.run``); Ray actors give the same results
-    (``safe_bc.distributed.selfimprove.RayRollouts``)."""
+    (``safe_bc.distributed.rollouts.ChunkedRayRollouts``)."""
     return job.run(seeds)

@@ -16,11 +16,9 @@ bit-identically.
 
 from __future__ import annotations
 
-import hashlib
-import json
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -33,7 +31,18 @@ from safe_bc.demos import Demonstrations
 from safe_bc.evaluation import NetSource
 from safe_bc.improve.config import VALIDATION_SEED_BASE
 from safe_bc.queries.config import track_seeds
-from safe_bc.queries.run import TrainFn, TrainJob, policy_source, train_local
+from safe_bc.rounds import (
+    TrainFn,
+    TrainJob,
+    aggregate_rows,
+    check_identity,
+    net_model,
+    policy_source,
+    read_json,
+    train_local,
+    weights_digest,
+    with_batches,
+)
 from safe_bc.run_config import RunConfig
 from safe_bc.selfimprove.config import (
     DONE,
@@ -45,7 +54,7 @@ from safe_bc.selfimprove.config import (
     SelfImproveConfig,
     round_dir,
 )
-from safe_bc.selfimprove.data import aggregate, load_round, save_round
+from safe_bc.selfimprove.data import load_round, save_round
 from safe_bc.selfimprove.logic import accept_round, kept_selection
 from safe_bc.selfimprove.rollout import (
     ExploreJob,
@@ -57,7 +66,7 @@ from safe_bc.selfimprove.rollout import (
 
 RolloutFn = Callable[[Any, Sequence[int]], list[Any]]
 """Runs a job (:class:`ExploreJob` or :class:`ValidateJob`) on tracks, results in track order
-(:func:`local_rollouts` in this process; ``safe_bc.distributed.selfimprove.RayRollouts``)."""
+(:func:`local_rollouts` in this process; ``safe_bc.distributed.rollouts.ChunkedRayRollouts``)."""
 
 
 @dataclass(frozen=True)
@@ -184,10 +193,7 @@ def run_selfimprove(
     folder = Path(folder)
     base = select_for(demos, run_config.selection)
     limits = tuple(float(x) for x in base.thresholds)
-    retrain = run_config
-    if config.batches is not None:
-        train_cfg = replace(run_config.bc.train, batches=config.batches)
-        retrain = replace(run_config, bc=replace(run_config.bc, train=train_cfg))
+    retrain = with_batches(run_config, config.batches)
     start_src = NetSource.from_model(start, run_config.bc)
     identity = {
         "format": FORMAT,
@@ -195,9 +201,9 @@ def run_selfimprove(
         "run_config": run_config.to_dict(),
         "demos": str(demos_path),
         "env": str(env_config),
-        "start_weights_sha256": weights_digest(start_src),
+        "start_weights_sha256": weights_digest(start_src.state),
     }
-    _check_identity(folder, identity)
+    check_identity(folder / IDENTITY, identity, "self-imitation run", "config")
     if not (folder / "start" / "config.json").is_file():  # the final agent when none is kept
         with checkpoint_unit(folder / "start") as unit:
             save_checkpoint(
@@ -216,7 +222,7 @@ def run_selfimprove(
             "validation_env_steps": int(sum(m["steps"] for m in rows)),
         }
 
-    start_val = _read_json(folder / START_VALIDATION)
+    start_val = read_json(folder / START_VALIDATION)
     if start_val is None:
         t0 = time.perf_counter()
         start_val = validate(start_src)
@@ -232,7 +238,7 @@ def run_selfimprove(
     resumed = 0
     for r in range(config.rounds):
         here = folder / round_dir(r)
-        done = _read_json(here / DONE)
+        done = read_json(here / DONE)
         if done is not None and (here / POLICY / "config.json").is_file():
             rounds.append(done)
             resumed += 1 if resumed == r else 0
@@ -254,7 +260,8 @@ def run_selfimprove(
             save_round(here / KEPT, tracks)
         t_roll = time.perf_counter() - t0
         mine = [p for t in tracks for p in t.pieces]
-        data, kept = aggregate(demos, kept_so_far + mine)
+        pieces = kept_so_far + mine
+        data, kept = aggregate_rows(demos, pieces, [p.trained for p in pieces])
         selection = kept_selection(
             data.costs, data.scored, kept, retrain.selection, base.thresholds, config.kept_in
         )
@@ -262,7 +269,7 @@ def run_selfimprove(
         with checkpoint_unit(here / POLICY) as unit:
             save_checkpoint(
                 unit,
-                source.build().model,  # type: ignore[attr-defined]
+                net_model(source),
                 retrain.bc,
                 extra={
                     "selfimprove": {**identity, "round": r},
@@ -307,28 +314,3 @@ def run_selfimprove(
         if on_round is not None:
             on_round(summary)
     return SelfImproveResult(folder, rounds, resumed, agent_name, start_val)
-
-
-def weights_digest(source: NetSource) -> str:
-    """SHA-256 of a net's weights (state-dict order, raw bytes)."""
-    h = hashlib.sha256()
-    for name, tensor in source.state.items():
-        h.update(name.encode())
-        h.update(tensor.detach().cpu().contiguous().numpy().tobytes())
-    return h.hexdigest()
-
-
-def _check_identity(folder: Path, identity: dict[str, Any]) -> None:
-    found = _read_json(folder / IDENTITY)
-    want = json.loads(json.dumps(identity))
-    if found is None:
-        write_json_atomic(folder / IDENTITY, want)
-    elif found != want:
-        raise ValueError(
-            f"{folder} belongs to another self-imitation run (start, run config, "
-            "demonstrations or config differ); use another folder"
-        )
-
-
-def _read_json(path: Path) -> dict[str, Any] | None:
-    return json.loads(path.read_text()) if path.is_file() else None

@@ -28,9 +28,10 @@ def selfimprove_run(
     from safe_bc.tasks import dataset_action_bounds, task_defaults, task_of
 
     if config.workers > 0 and "rollouts" not in kwargs:
-        from safe_bc.distributed.selfimprove import RayRollouts
+        from safe_bc.distributed.rollouts import ChunkedRayRollouts
+        from safe_bc.selfimprove.rollout import local_rollouts
 
-        kwargs["rollouts"] = RayRollouts(config.workers)
+        kwargs["rollouts"] = ChunkedRayRollouts(local_rollouts, config.workers)
     task = task_of(env_id)
     return run_selfimprove(
         agent,
@@ -55,7 +56,7 @@ def run_stage(
     folder: Path,
 ) -> tuple[Any, dict[str, float]]:
     """The final agent of ``agent`` (a trained :class:`BCNet`) and its report values."""
-    from safe_bc.queries.run import policy_source
+    from safe_bc.rounds import policy_source
 
     if not isinstance(agent, BCNet):
         raise TypeError(f"the self-imitation stage starts from a trained BCNet, got {type(agent)}")
