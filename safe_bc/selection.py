@@ -41,6 +41,7 @@ ThresholdMode = Literal["max", "quantile"]
 Combine = Literal["any", "all"]
 Rest = Literal["all", "noncritical"]
 Baseline = Literal["bc_safe", "cost_weighted"]
+AddedIn = Literal["rest", "zone", "critical"]
 """The peer baselines: every rule of :data:`RULES` but the paper's mix."""
 SelectionMode = Literal["mix", Baseline]
 
@@ -553,6 +554,36 @@ def select(
         weights=weights,
         segments=segments,
     )
+
+
+def select_with_added(
+    costs: np.ndarray,
+    valid: np.ndarray,
+    added: np.ndarray,
+    config: SelectionConfig,
+    limits: np.ndarray,
+    added_in: AddedIn,
+    what: str = "an added",
+) -> Selection:
+    """``T_eps`` of the alpha mix over demonstrations plus added rows (``added (N,) bool``:
+    queried states, kept self-imitation steps) under the demonstrations' limits ``d_s``
+    (``limits``: an added row never widens them): the rule's (``c_s >= d_s - eps`` on valid
+    rows) with the added rows taken out (``"rest"``: they join only the rest pool), as the
+    rule says (``"zone"``) or all in (``"critical"``). An added row must be valid (``what``
+    names it in the error)."""
+    costs = np.asarray(costs, np.float64)
+    valid, added = np.asarray(valid, bool), np.asarray(added, bool)
+    if (added & ~valid).any():
+        raise ValueError(f"{what} row must be a valid (scored) row")
+    limits = np.asarray(limits, np.float64)
+    per_dim = critical_dims(costs, limits, config.eps, valid)
+    mask = combine_dims(per_dim, config.combine)
+    if added_in == "rest":
+        mask = mask & ~added
+        per_dim = per_dim & ~added[:, None]
+    elif added_in == "critical":
+        mask = mask | added
+    return Selection(config, limits, per_dim, mask, valid.copy())
 
 
 @dataclass(frozen=True)

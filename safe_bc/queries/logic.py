@@ -9,11 +9,11 @@ import numpy as np
 
 from safe_bc.queries.config import QueryMode
 from safe_bc.selection import (
+    AddedIn,
     CriticalZone,
     Selection,
     SelectionConfig,
-    combine_dims,
-    critical_dims,
+    select_with_added,
 )
 
 
@@ -111,16 +111,8 @@ def aggregate_selection(
     """
     if config.mode != "mix":
         raise ValueError(f"queries aggregate into the alpha mix only, not mode={config.mode!r}")
-    costs = np.asarray(costs, np.float64)
-    valid, queried = np.asarray(valid, bool), np.asarray(queried, bool)
-    if (queried & ~valid).any():
-        raise ValueError("a queried row must be a valid (scored) row")
-    limits = np.asarray(limits, np.float64)
-    per_dim = critical_dims(costs, limits, config.eps, valid)
-    mask = combine_dims(per_dim, config.combine)
-    if mode == "critical":
-        mask = mask | queried
-    return Selection(config, limits, per_dim, mask, valid.copy())
+    added_in: AddedIn = "critical" if mode == "critical" else "zone"  # "full": ordinary data
+    return select_with_added(costs, valid, queried, config, limits, added_in, "a queried")
 
 
 def deferred_steps(

@@ -8,7 +8,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from safe_bc.metrics import clopper_pearson_upper
-from safe_bc.selection import Selection, SelectionConfig, combine_dims, critical_dims
+from safe_bc.selection import Selection, SelectionConfig, select_with_added
 from safe_bc.selfimprove.config import KeepUnit, KeptIn
 
 Terms = Sequence[tuple[int, str, float]]
@@ -162,19 +162,7 @@ def kept_selection(
     """
     if config.mode != "mix":
         raise ValueError(f"self-imitation trains the alpha mix only, not mode={config.mode!r}")
-    costs = np.asarray(costs, np.float64)
-    valid, kept = np.asarray(valid, bool), np.asarray(kept, bool)
-    if (kept & ~valid).any():
-        raise ValueError("a kept row must be a valid (scored) row")
-    limits = np.asarray(limits, np.float64)
-    per_dim = critical_dims(costs, limits, config.eps, valid)
-    mask = combine_dims(per_dim, config.combine)
-    if kept_in == "rest":
-        mask = mask & ~kept
-        per_dim = per_dim & ~kept[:, None]
-    elif kept_in == "critical":
-        mask = mask | kept
-    return Selection(config, limits, per_dim, mask, valid.copy())
+    return select_with_added(costs, valid, kept, config, limits, kept_in, "a kept")
 
 
 def accept_round(
