@@ -33,9 +33,7 @@ def git_revision() -> str:
     """The checkout's commit, with ``-dirty`` when there are uncommitted changes to tracked
     files outside ``results/`` (:data:`CODE_PATHSPEC`).
 
-    Outside a git checkout (an installed wheel, or a copy of the tree sent to another machine)
-    it is ``"<SAFE_BC_REVISION> (copied tree)"`` where that variable names the commit the copy
-    was made from (the copier's word, not checked by git), else ``"unknown"``.
+    Returns ``"unknown"`` outside a git checkout (e.g. an installed wheel).
     """
     try:
         rev = subprocess.run(
@@ -49,13 +47,8 @@ def git_revision() -> str:
             check=True,
         ).stdout.strip()
     except (OSError, subprocess.CalledProcessError):
-        copied = os.environ.get(COPY_REVISION, "").strip()
-        return f"{copied} (copied tree)" if copied else "unknown"
+        return "unknown"
     return f"{rev}-dirty" if dirty else rev
-
-
-COPY_REVISION = "SAFE_BC_REVISION"
-"""Environment variable naming the commit a git-less copy of the tree was made from."""
 
 
 RESULTS = _REPO / "results"

@@ -76,14 +76,3 @@ def test_without_proc_cpuinfo_the_fields_fall_back(monkeypatch) -> None:
     monkeypatch.setattr(provenance.platform, "processor", lambda: "")
     assert provenance._cpu() == {"cpu_model": "unknown", "cpu_vendor": "unknown",
                                  "cpu_simd": "unknown"}  # fmt: skip
-
-
-def test_a_copied_tree_records_the_revision_it_was_copied_from(tmp_path, monkeypatch):
-    """Outside git the revision is the copier's SAFE_BC_REVISION, marked as a copy."""
-    from safe_bc import provenance as prov
-
-    monkeypatch.setattr(prov, "_REPO", tmp_path)  # no .git here
-    monkeypatch.delenv(prov.COPY_REVISION, raising=False)
-    assert prov.git_revision() == "unknown"
-    monkeypatch.setenv(prov.COPY_REVISION, "abc123")
-    assert prov.git_revision() == "abc123 (copied tree)"
