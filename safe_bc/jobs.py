@@ -164,7 +164,8 @@ class TuneJob:
     threshold: float | None = None
     """StudySpec.threshold: the safety threshold."""
     max_concurrent: int | None = None
-    """StudySpec.max_concurrent: trials at once."""
+    """StudySpec.max_concurrent: the most trials at once (the study file's None: as many as the
+    cluster's CPUs allow, at most a batch)."""
     rollout_workers: int | None = None
     """StudySpec.rollout_workers: evaluation actors per trial."""
     cpus_per_trial: float | None = None

@@ -280,9 +280,11 @@ class StudySpec:
     """Values of everything not searched (``bc.train.seed`` is every trial's training seed)."""
     trials: int = 20
     """Number of trials (``--trials`` overrides)."""
-    max_concurrent: int = 2
-    """Trials running at once (``--concurrent``): how many run at once, never which ones (with
-    :attr:`batch_size`)."""
+    max_concurrent: int | None = None
+    """Most trials running at once (``--max-concurrent``): how many run at once, never which
+    ones (with :attr:`batch_size`). ``None``: as many as the cluster's CPUs allow, resolved
+    when the tuning loop starts (:meth:`concurrency`: the cluster's CPUs // a trial's CPUs, at
+    most :attr:`batch_size`); an integer caps that."""
     batch_size: int | None = 2
     """Trials suggested together: every suggestion of a batch is made before any of its
     results is told to the sampler, the results are told in trial order once the whole batch
@@ -420,9 +422,16 @@ class StudySpec:
         object.__setattr__(self, "demos", Path(self.demos))
         object.__setattr__(self, "results", Path(self.results))
         object.__setattr__(self, "storage", str(self.storage))
+        if self.max_concurrent is not None and (
+            isinstance(self.max_concurrent, bool)
+            or not isinstance(self.max_concurrent, int)
+            or self.max_concurrent < 1
+        ):
+            raise ValueError(
+                f"max_concurrent must be an integer >= 1 or None, got {self.max_concurrent!r}"
+            )
         for key, value in (
             ("trials", self.trials),
-            ("max_concurrent", self.max_concurrent),
             ("batches", self.batches),
             ("eval_episodes", self.eval_episodes),
             ("final_episodes", self.final_episodes),
@@ -506,6 +515,30 @@ class StudySpec:
     def screens(self) -> bool:
         """Whether trials are screened on ``screen_episodes`` tracks first."""
         return 0 < self.screen_episodes < self.eval_episodes
+
+    @property
+    def trial_cpus(self) -> float:
+        """CPUs one trial reserves: its own process and its rollout workers."""
+        return self.cpus_per_trial + self.rollout_workers * self.cpus_per_worker
+
+    def concurrency(self, cluster_cpus: float) -> int:
+        """Trials the tuning loop runs at once on a cluster of ``cluster_cpus`` CPUs: as many as
+        fit (``cluster_cpus // trial_cpus``, at least 1), at most :attr:`batch_size` (a batch is
+        the most that can run at once), :attr:`max_concurrent` and :attr:`trials`. It decides
+        how many trials run at once, never which: nothing that determines the trials reads it.
+
+        >>> spec = StudySpec("s", {}, trials=16, batch_size=8)
+        >>> spec.concurrency(2), spec.concurrency(16), spec.concurrency(0.5)
+        (2, 8, 1)
+        >>> replace(spec, max_concurrent=4).concurrency(16)
+        4
+        >>> replace(spec, cpus_per_trial=0.5).concurrency(2)  # 4 logical slots on 2 CPUs
+        4
+        """
+        fit = math.floor(cluster_cpus / self.trial_cpus + 1e-9)
+        caps = [self.trials, max(fit, 1)]
+        caps += [c for c in (self.batch_size, self.max_concurrent) if c is not None]
+        return int(min(caps))
 
     def final_tracks_per_seed(self) -> int:
         """Fresh tracks each training seed of a final candidate is evaluated on."""

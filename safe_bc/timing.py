@@ -1,8 +1,9 @@
 """Where a study's wall-clock goes: the time table of ``results/<study>/timing.parquet``.
 
 Pure: the driver (:func:`safe_bc.distributed.study.run_study`) records what it timed as plain
-records, one per timed piece, ``{"run", "phase", "seconds"}`` (``"slots"`` on the tuning
-loop's record, the trials that may run at once), appended to ``timing.jsonl`` as each piece
+records, one per timed piece, ``{"run", "phase", "seconds"}`` (on the tuning loop's record
+also ``"slots"``, the trials that may run at once, resolved from the cluster's CPUs, and
+``"running"``, the most that did), appended to ``timing.jsonl`` as each piece
 ends; every driver run of the study (a resumed study has several) adds its own. A run's
 ``"total"`` record is its wall-clock from start to end; a run killed before writing it
 counts the sum of its pieces. :func:`timing_table` adds them up with the trials' own
@@ -18,6 +19,9 @@ Two views in one table (column ``part_of``):
   capacity - busy (never negative): slots left empty (a batch waiting for its last trial,
   too few CPUs) and Ray's own cost (scheduling, actor start-up, reports). The shares sum
   to 1.
+
+The ``tuning`` row's ``count`` is the concurrency reached: the most trials seen running at
+once (over the study's driver runs; empty for runs recorded before it was counted).
 
 The ``optuna_copy`` row (``part_of`` ``tuning``) is the driver's time copying the Optuna
 study after every batch (inside the tuning loop's wall-clock; share of it).
@@ -95,6 +99,7 @@ def timing_table(records: Sequence[Mapping[str, Any]], trials: pd.DataFrame) -> 
     phase_s = dict.fromkeys(PHASES, 0.0)
     total = capacity = copy_s = 0.0
     copies = 0
+    running: int | None = None
     for recs in by_run.values():
         run_parts = 0.0
         run_total = None
@@ -110,13 +115,16 @@ def timing_table(records: Sequence[Mapping[str, Any]], trials: pd.DataFrame) -> 
                 run_parts += seconds
                 if phase == "tuning":
                     capacity += seconds * max(int(r.get("slots", 1)), 1)
+                    if r.get("running") is not None:
+                        running = max(running or 0, int(r["running"]))
         total += run_parts if run_total is None else max(run_total, run_parts)
     phase_s["other"] = max(total - sum(phase_s.values()), 0.0)
 
     rows = [
-        (p, "study", s, s / total if total > 0 else math.nan, None, PHASES[p])
+        (p, "study", s, s / total if total > 0 else math.nan,
+         running if p == "tuning" else None, PHASES[p])
         for p, s in phase_s.items()
-    ]
+    ]  # fmt: skip
     n = len(trials)
     parts = {name: _sum(trials, cols) for name, (cols, _) in TRIAL_PARTS.items()}
     duration = _sum(trials, ["duration_s"])
@@ -143,13 +151,13 @@ def timing_lines(table: pd.DataFrame) -> list[str]:
     """A few lines for the console: the total, the largest phases, the tuning loop's use of
     its slots and the Optuna copies.
 
-    >>> recs = [{"run": "a", "phase": "tuning", "seconds": 10.0, "slots": 2},
+    >>> recs = [{"run": "a", "phase": "tuning", "seconds": 10.0, "slots": 2, "running": 2},
     ...         {"run": "a", "phase": "optuna_copy", "seconds": 0.5},
     ...         {"run": "a", "phase": "total", "seconds": 12.0}]
     >>> t = timing_table(recs, pd.DataFrame({"train_seconds": [6.0], "duration_s": [8.0]}))
     >>> print("\\n".join(timing_lines(t)))
     time: 12 s in all; tuning 10 s (83%), other 2 s (17%)
-    tuning loop, wall x 2 slots = 20 s: train 6 s (30%), other 2 s (10%)
+    tuning loop, wall x 2 slots (most running: 2) = 20 s: train 6 s (30%), other 2 s (10%)
       idle slots and Ray's overhead: 12 s (60%)
     Optuna copies: 1, 0.5 s in all (0.50 s each)
     """
@@ -171,7 +179,10 @@ def timing_lines(table: pd.DataFrame) -> list[str]:
         busy = slots[(slots.index != "idle_and_overhead") & (slots["seconds"] > 0)]
         tuning = float(t.loc["tuning", "seconds"])
         n = f"{whole / tuning:.0f}" if tuning > 0 else "?"
-        lines.append(f"tuning loop, wall x {n} slots = {whole:.0f} s: {cells(busy, 'trial_')}")
+        seen = t.loc["tuning", "count"]
+        most = "" if pd.isna(seen) else f" (most running: {int(seen)})"
+        lines.append(f"tuning loop, wall x {n} slots{most} = {whole:.0f} s: "
+                     f"{cells(busy, 'trial_')}")  # fmt: skip
         idle = t.loc["idle_and_overhead"]
         lines.append(f"  idle slots and Ray's overhead: {idle.seconds:.0f} s ({idle.share:.0%})")
     copies = int(t.loc[COPY, "count"]) if COPY in t.index else 0

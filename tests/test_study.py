@@ -88,6 +88,9 @@ def test_spec_validates_space_and_budget() -> None:
         spec(eval_seed=3, final_seed=3)
     with pytest.raises(ValueError, match="trials"):
         spec(trials=0)
+    for bad in (0, 1.5, True):
+        with pytest.raises(ValueError, match="max_concurrent"):
+            spec(max_concurrent=bad)
     with pytest.raises(ValueError, match="name"):
         StudySpec("a b", {})
     with pytest.raises(ValueError, match="log"):
@@ -324,3 +327,18 @@ def test_a_space_of_the_wrong_type_for_its_field_is_one_line_before_ray(
     assert main(["tune", str(study), "--results", str(tmp_path / "r")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and problem in err[0] and not (tmp_path / "r").exists()
+
+
+def test_concurrency_follows_the_cluster_capped_by_the_batch_and_max_concurrent() -> None:
+    """How many trials run at once: the CPUs that fit a trial (its process and rollout
+    workers), at most the batch, max_concurrent and the trials; never fewer than 1."""
+    s = spec(trials=16, batch_size=8, max_concurrent=None)
+    assert [s.concurrency(c) for c in (0.5, 1, 2, 7.9, 16, 64)] == [1, 1, 2, 7, 8, 8]
+    assert replace(s, batch_size=None).concurrency(64) == 16  # the trials
+    assert replace(s, max_concurrent=3).concurrency(16) == 3
+    assert replace(s, cpus_per_trial=0.5).concurrency(2) == 4
+    workers = replace(s, rollout_workers=1, cpus_per_worker=1.0)
+    assert workers.trial_cpus == 2.0 and workers.concurrency(16) == 8
+    assert workers.concurrency(6) == 3
+    default = load_study(REPO / "tune_jobs" / "default.py")
+    assert default.concurrency(16) == 2  # the default study's file caps it (batches of 2)

@@ -101,3 +101,14 @@ def test_time_table_reads_as_text() -> None:
     assert lines[0].startswith("time: 81 s in all; tuning 50 s (62%)")
     assert any("idle slots and Ray's overhead: 12 s (15%)" in line for line in lines)
     assert lines[-1] == "Optuna copies: 3, 1.5 s in all (0.50 s each)"
+
+
+def test_the_tuning_row_counts_the_most_trials_seen_running_at_once() -> None:
+    t = timing_table(_records(), _trials()).set_index("phase")
+    assert pd.isna(t.loc["tuning", "count"])  # runs recorded before it was counted
+    records = _records()
+    records[2] = {**records[2], "slots": 4, "running": 3}
+    records[8] = {**records[8], "running": 1}
+    t = timing_table(records, _trials())
+    assert t.set_index("phase").loc["tuning", "count"] == 3
+    assert any("4 slots" not in line and "(most running: 3)" in line for line in timing_lines(t))

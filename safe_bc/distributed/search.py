@@ -315,11 +315,16 @@ def check_private_api(searcher: OptunaSearch) -> None:
         )
 
 
-def make_searcher(spec: StudySpec) -> ConstrainedOptunaSearch:
+def make_searcher(spec: StudySpec, concurrent: int | None = None) -> ConstrainedOptunaSearch:
     """The study's constrained TPE searcher (maximises ``spec.objective``), batched when the
     study says so (``spec.batch_size``). With batches, the constant liar follows the batch
-    size, never ``max_concurrent`` (which ``--concurrent`` changes)."""
-    parallel = spec.batch_size if spec.batch_size is not None else spec.max_concurrent
+    size, never the trials at once (``concurrent``, resolved from the cluster, or
+    ``max_concurrent``, which ``--max-concurrent`` changes); without batches (whose trials
+    depend on the concurrency anyway) it is on when more than one trial may run at once."""
+    if spec.batch_size is not None:
+        parallel = spec.batch_size
+    else:
+        parallel = concurrent or spec.max_concurrent or 2
     sampler = TPESampler(
         seed=spec.sampler_seed,
         n_startup_trials=spec.startup_trials,

@@ -43,7 +43,7 @@ from safe_bc.data.store import (
 )
 from safe_bc.distributed.final import FinalOutcome, final_phase
 from safe_bc.distributed.final_store import STORE, FinalStore
-from safe_bc.distributed.runtime import ensure_ray
+from safe_bc.distributed.runtime import cluster_cpus, ensure_ray
 from safe_bc.distributed.search import (
     NUMBER,
     ConstrainedOptunaSearch,
@@ -359,6 +359,31 @@ TIMING = "timing.parquet"
 """Where the study's time went (:func:`safe_bc.timing.timing_table`); ``timing.md`` beside it."""
 
 
+class RunningMeter(tune.Callback):
+    """The most trials Tune had running at once during this driver run (counted at the end of
+    every step of the tuning loop): the concurrency reached, for the time table."""
+
+    def __init__(self) -> None:
+        self.most = 0
+
+    def on_step_end(self, iteration: int, trials: list, **info: Any) -> None:
+        running = sum(1 for t in trials if t.status == "RUNNING")
+        self.most = max(self.__dict__.get("most", 0), running)
+
+
+def _running_meter(tuner: tune.Tuner) -> RunningMeter:
+    """The tuner's :class:`RunningMeter` (a restored experiment keeps its pickled callbacks:
+    the one it has, else a new one added), reset for this run."""
+    run_config = tuner._local_tuner._run_config
+    callbacks = list(run_config.callbacks or [])
+    meter = next((c for c in callbacks if isinstance(c, RunningMeter)), None)
+    if meter is None:
+        meter = RunningMeter()
+        run_config.callbacks = [*callbacks, meter]
+    meter.most = 0
+    return meter
+
+
 class StudyClock:
     """The driver's timings of one run: each piece appended to :data:`TIMING_LOG` as it ends
     (kept in memory until :meth:`open`, which says whether the log belongs to an older,
@@ -557,6 +582,7 @@ def run_study(
     progress: bool = True,
     callbacks: Sequence[Any] = (),
     trial_fn: Callable[[dict[str, Any], TrialJob], None] = run_trial,
+    final: bool = True,
 ) -> StudyOutcome:
     """Run (or resume) ``spec`` and write its outputs under ``spec.results / spec.name``.
 
@@ -566,6 +592,8 @@ def run_study(
         progress: Tune's console progress (``verbose=1``) and evaluation bars.
         callbacks: extra Tune callbacks of a new run (a restored run keeps its own).
         trial_fn: the per-trial function ``(config, job)``; tests wrap it to inject faults.
+        final: False stops after the trial tables and the time table (no final phase, the
+            study is not marked finished): for measuring the tuning loop alone.
 
     Returns:
         A :class:`StudyOutcome`; ``complete`` is False after an interruption.
@@ -576,7 +604,7 @@ def run_study(
     """
     with _stop_signals() as stop:
         try:
-            outcome = _run_study(spec, fresh, command, progress, callbacks, trial_fn)
+            outcome = _run_study(spec, fresh, command, progress, callbacks, trial_fn, final)
         except OSError as e:  # one line at the CLI, saying what a rerun does
             raise _os_error_in(e) from None
         return replace(outcome, stopped_by=stop.signum) if stop.signum else outcome
@@ -589,6 +617,7 @@ def _run_study(
     progress: bool,
     callbacks: Sequence[Any],
     trial_fn: Callable[[dict[str, Any], TrialJob], None],
+    final_phase_too: bool = True,
 ) -> StudyOutcome:
     from safe_bc.distributed.collect import ensure_demos
 
@@ -623,6 +652,8 @@ def _run_study(
     clock.skip()
     ensure_ray()
     clock.lap("ray_start")
+    cpus = cluster_cpus()
+    concurrent = spec.concurrency(cpus)  # how many at once, never which (nothing else reads it)
     _reinstall_signals()  # ray.init replaced the SIGTERM handler
     demos_path = spec.demos.resolve()
     if not (demos_path / "dataset.json").exists():
@@ -664,14 +695,17 @@ def _run_study(
         print(f"resuming study {spec.name!r} from {exp_path}")
         tuner = tune.Tuner.restore(exp_path, trainable=trainable, resume_errored=True)
         _save_every_trial(tuner)
+        # Tune restores the concurrency limit the study started with (its ConcurrencyLimiter's
+        # saved state), whatever the cluster is now
+        concurrent = tuner._local_tuner._tune_config.max_concurrent_trials or concurrent
     else:
         tuner = tune.Tuner(
             trainable,
             tune_config=tune.TuneConfig(
-                search_alg=make_searcher(spec),
+                search_alg=make_searcher(spec, concurrent),
                 scheduler=SaveOnTrialEnd(make_scheduler(spec)),
                 num_samples=spec.trials,
-                max_concurrent_trials=spec.max_concurrent,
+                max_concurrent_trials=concurrent,
                 reuse_actors=True,
                 trial_dirname_creator=trial_dirname,
             ),
@@ -686,18 +720,24 @@ def _run_study(
                     JsonLoggerCallback(),
                     CSVLoggerCallback(),
                     HistoryRecorder(str((out / HISTORY).resolve())),
+                    RunningMeter(),
                     *callbacks,
                 ],
                 progress_reporter=progress_reporter(spec),
                 verbose=1 if progress else 0,
             ),
         )
-    slots = tuner._local_tuner._tune_config.max_concurrent_trials or spec.max_concurrent
+    meter = _running_meter(tuner)
+    print(
+        f"study {spec.name!r}: up to {concurrent} trial(s) at once ({cpus:g} CPUs, "
+        f"{spec.trial_cpus:g} per trial, batches of {spec.batch_size}, "
+        f"max_concurrent {spec.max_concurrent})"
+    )
     take_copy_seconds()  # only this run's copies
     clock.skip()
 
     def timed_tuning() -> None:
-        clock.lap("tuning", slots=int(slots))
+        clock.lap("tuning", slots=int(concurrent), running=meter.most, cpus=cpus)
         for seconds in take_copy_seconds():
             clock.add(COPY, seconds)
 
@@ -761,7 +801,7 @@ def _run_study(
     plot_pareto(trials, threshold, out / "pareto.png", title=title)  # no verdict yet
     clock.lap("trial_tables")
     outcome = StudyOutcome(complete, trials, None, None, threshold, out, exp_path, errors)
-    if not complete or winner is None or stopped:
+    if not complete or winner is None or stopped or not final_phase_too:
         clock.close()
         timing = write_timing(out, trials, meta)
         return replace(outcome, stopped_by=stopped, timing=timing)

@@ -1,8 +1,9 @@
 """Same study file, same trials: a batched study gives the same trial table (configurations
-and metrics) at 1 and 2 trials at once."""
+and metrics) at 1, 2 and 4 trials at once."""
 
 from __future__ import annotations
 
+import os
 from dataclasses import replace
 from pathlib import Path
 
@@ -133,42 +134,55 @@ def _table(out: Path) -> pd.DataFrame:
     return t.drop(columns=[c for c in TIMING if c in t]).reset_index(drop=True)
 
 
+STUDY_FILE = """from dataclasses import replace
+from pathlib import Path
+
+from safe_bc.study import load_study
+
+STUDY = replace(
+    load_study({rehab!r}), demos=Path({demos!r}), trials=8, batch_size=4, batches=20,
+    eval_episodes=3, screen_episodes=1, startup_trials=2, final_episodes=1,
+    final_candidates=1, final_train_seeds=1,
+)
+"""
+
+
 @pytest.mark.slow
-def test_same_study_same_trials_at_one_and_two_trials_at_once(
+def test_same_study_same_trials_at_one_two_and_four_trials_at_once(
     ray_session, rehab_demos: Path, tmp_path: Path
 ) -> None:
+    """Two batches of 4 (TPE and the halving of the second batch read the first): 1 at a
+    time (``max_concurrent=1``), 2 at a time (``None`` resolved from the session's 2 CPUs) and
+    4 at a time (``benchmarks.cluster_scaling --cpus 4``: its own local Ray of 4 logical CPUs
+    on this machine, in a subprocess) give the same trials."""
+    import subprocess
+    import sys
+
     import optuna
 
     from safe_bc.distributed.study import run_study
 
-    base = replace(
-        load_study(REPO / "tune_jobs" / "rehab.py"),
-        demos=rehab_demos,
-        trials=4,
-        batch_size=2,
-        batches=20,
-        eval_episodes=3,
-        screen_episodes=1,
-        startup_trials=2,
-        final_episodes=1,
-        final_candidates=1,
-        final_train_seeds=1,
-    )
+    study = tmp_path / "study.py"
+    study.write_text(STUDY_FILE.format(rehab=str(REPO / "tune_jobs" / "rehab.py"),
+                                       demos=str(rehab_demos)))  # fmt: skip
+    base = load_study(study)
     tables = []
-    for concurrent in (1, 2):
+    for concurrent in (1, None):
         spec = replace(
             base,
             max_concurrent=concurrent,
             storage=str(tmp_path / f"c{concurrent}" / "ray"),
             results=tmp_path / f"c{concurrent}" / "results",
         )
-        outcome = run_study(spec, progress=False)
+        outcome = run_study(spec, progress=False, final=False)
         assert outcome.complete and outcome.errors == 0, outcome.trials[["status", "error"]]
+        timing = outcome.timing.set_index("phase")
+        assert timing.loc["tuning", "count"] == (concurrent or 2)  # most running at once
         tables.append(_table(outcome.out))
         stored = optuna.load_study(
             study_name=spec.name, storage=f"sqlite:///{outcome.out / 'optuna.db'}"
         ).get_trials()
-        assert [t.number for t in stored] == [0, 1, 2, 3]
+        assert [t.number for t in stored] == list(range(8))
         table = tables[-1]
         for t, row in zip(stored, table.itertuples(), strict=True):
             if row.status == "invalid":
@@ -177,8 +191,25 @@ def test_same_study_same_trials_at_one_and_two_trials_at_once(
             assert t.value == pytest.approx(row.reward_mean)
             assert t.constraints["safety"] == pytest.approx(row.constraint_safety)
             assert t.constraints["violations"] == pytest.approx(row.constraint_violation)
-    one, two = tables
-    assert one["trial_number"].tolist() == [0, 1, 2, 3]
+
+    out = tmp_path / "scaling.parquet"
+    cmd = [sys.executable, "-m", "benchmarks.cluster_scaling", "--cpus", "4", "--study",
+           str(study), "--batch-size", "4", "--results", str(tmp_path / "c4"), "--out",
+           str(out)]  # fmt: skip
+    env = {**os.environ, "PYTHONPATH": str(REPO), "RAY_AUTH_MODE": "disabled"}
+    env.pop("RAY_ADDRESS", None)
+    run = subprocess.run(cmd, cwd=REPO, env=env, capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
+    from safe_bc.data.store import read_table
+
+    row = read_table(out)[0].iloc[0]
+    assert (row["cpus"], row["trials"], row["finished"]) == (4, 8, 8)
+    assert row["concurrency"] == 4 and row["concurrency_reached"] == 4  # a whole batch at once
+    tables.append(_table(tmp_path / "c4" / "results" / base.name))
+
+    one, two, four = tables
+    assert one["trial_number"].tolist() == list(range(8))
     assert one["status"].isin(["done", "stopped", "invalid"]).all()
     pd.testing.assert_frame_equal(one, two)
+    pd.testing.assert_frame_equal(one, four)
     assert np.isfinite(one["reward_mean"].astype(float)).any()
