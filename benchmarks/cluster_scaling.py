@@ -191,7 +191,10 @@ def main(argv: list[str] | None = None) -> int:
         _parser().error("a run needs --cpus N (>= 1) and --out FILE.parquet")
     row = measure(args)
     table = append_row(args.out, row)
-    print(report(table))
+    try:
+        print(report(table))
+    except ImportError:  # DataFrame.to_markdown needs tabulate, which a bare machine may lack
+        print(table.to_string(index=False))
     return 0
 
 
