@@ -341,4 +341,4 @@ def test_concurrency_follows_the_cluster_capped_by_the_batch_and_max_concurrent(
     assert workers.trial_cpus == 2.0 and workers.concurrency(16) == 8
     assert workers.concurrency(6) == 3
     default = load_study(REPO / "tune_jobs" / "default.py")
-    assert default.concurrency(16) == 2  # the default study's file caps it (batches of 2)
+    assert (default.concurrency(2), default.concurrency(16)) == (2, 8)  # batches of 8

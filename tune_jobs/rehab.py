@@ -2,7 +2,8 @@
 constrained TPE for the highest functional gain with a safety mean (smallest margin to the
 heart-rate, fatigue and blood-pressure limits) at least the guideline clinician's.
 
-Budget: 24 trials, 2 at a time; 2000 training batches; each trial is screened on 5 simulated
+Budget: 24 trials in batches of 2, as many at once as the CPUs allow (up to the batch);
+2000 training batches; each trial is screened on 5 simulated
 patients (successive halving stops the weaker half) and evaluated on 20; then the top 3
 trials are retrained with 3 seeds each and re-evaluated on 102 fresh patients (34 per seed)
 beside plain BC (same seeds) and the guideline, and the winner is chosen there.
@@ -36,7 +37,6 @@ STUDY = StudySpec(
     demos=Path(REHAB.demos),
     critical_eps=REHAB.eps,
     trials=24,
-    max_concurrent=2,
     cpus_per_trial=1.0,
     batches=2000,
     eval_episodes=20,
