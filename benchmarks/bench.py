@@ -819,35 +819,43 @@ def _untrained_source(seed: int) -> Any:
     return NetSource.from_model(model, cfg)
 
 
-def _time_evaluation(source: Any, config: Any, envs: int = 1) -> tuple[float, float]:
-    """``(episodes/min, steps/s)`` of one in-process ``evaluate_policies`` call stepping
-    ``envs`` envs in lockstep."""
+def _time_evaluation(source: Any, config: Any, envs: int = 1) -> tuple[float, float, float]:
+    """``(episodes/min, steps/s, episodes per CPU-minute)`` of one in-process
+    ``evaluate_policies`` call stepping ``envs`` envs in lockstep; the last counts this
+    process's CPU time (``time.process_time``, every thread), so with one torch thread it is
+    the episodes per minute of one core, steadier than wall time on a loaded machine."""
     from safe_bc.distributed.evaluate import evaluate_policies
 
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     episodes, steps = evaluate_policies(
         {"policy": source}, config, progress=False, envs_per_worker=envs
     )
-    seconds = time.perf_counter() - t0
-    return 60.0 * len(episodes) / seconds, len(steps) / seconds
+    seconds, cpu = time.perf_counter() - t0, time.process_time() - c0
+    return 60.0 * len(episodes) / seconds, len(steps) / seconds, 60.0 * len(episodes) / cpu
 
 
 BATCHED_ENVS = 4
-"""Envs stepped in lockstep (frames per batched forward pass) in the eval case."""
+"""Envs stepped in lockstep (frames per batched forward pass) in the eval case: the
+evaluation's ``LOCKSTEP_ENVS``."""
+WIDE_BATCHED_ENVS = 8
+"""A wider lockstep for the batched forward, and the episodes of every lockstep timing (so
+that each variant runs the same tracks: one wave of 8, two of 4, or 8 one by one)."""
 
 
 def _time_step_parts(net: Any, steps: int, seed: int) -> dict[str, float]:
     """Mean ms per step of a fast env step, ``BCPolicy.act``, the expert's ``act`` and (per
-    frame) ``BCPolicy.act_batch`` and ``act_slots`` on ``BATCHED_ENVS`` copies of the frame,
-    on one expert-driven trajectory (the net acts on the same frames; its actions are
-    discarded)."""
+    frame) ``BCPolicy.act_batch`` and ``act_slots`` (both lockstep forwards) on
+    ``BATCHED_ENVS`` copies of the frame, on one expert-driven trajectory (the net acts on the
+    same frames; its actions are discarded)."""
     from safe_bc.envs import EnvConfig, make_env
     from safe_bc.seeds import heldout_seed
     from safe_bc.tasks.carracing.expert import CarRacingExpert, ExpertConfig
 
     env = make_env(EnvConfig(renderer="fast"))
     expert, policy = CarRacingExpert(ExpertConfig()), net.build()
-    totals = {"env": 0.0, "net": 0.0, "expert": 0.0, "net batch": 0.0, "net slots": 0.0}
+    totals = dict.fromkeys(
+        ("env", "net", "expert", "net batch", "net slots", "net slots batched"), 0.0
+    )
     slots = np.arange(BATCHED_ENVS)
     try:
         obs, _ = env.reset(seed=heldout_seed(seed, 0))
@@ -866,11 +874,14 @@ def _time_step_parts(net: Any, steps: int, seed: int) -> dict[str, float]:
             t4 = time.perf_counter()
             policy.act_slots(np.stack([obs] * BATCHED_ENVS), slots)
             t5 = time.perf_counter()
+            policy.act_slots(np.stack([obs] * BATCHED_ENVS), slots, "batched")
+            t6 = time.perf_counter()
             totals["net"] += t1 - t0
             totals["expert"] += t2 - t1
             totals["env"] += t3 - t2
             totals["net batch"] += (t4 - t3) / BATCHED_ENVS
             totals["net slots"] += (t5 - t4) / BATCHED_ENVS
+            totals["net slots batched"] += (t6 - t5) / BATCHED_ENVS
             if terminated or truncated:
                 break
     finally:
@@ -890,27 +901,36 @@ def bench_eval(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
     config = EvalConfig(
         episodes=sizes.eval_episodes, workers=0, seed=seed, max_steps=sizes.eval_steps
     )
-    lock_config = replace(config, episodes=BATCHED_ENVS)
+    lock_config = replace(config, episodes=WIDE_BATCHED_ENVS)
     raster_config = replace(lock_config, env=replace(lock_config.env, renderer="raster"))
     _time_step_parts(sources["BC net"], 5, seed)  # warm-up
     eps: dict[str, list[float]] = {name: [] for name in sources}
     sps: dict[str, list[float]] = {name: [] for name in sources}
-    lock: dict[tuple[str, int], list[float]] = {
-        ("fast", 1): [],
-        ("fast", BATCHED_ENVS): [],
-        ("raster", 1): [],
-        ("raster", BATCHED_ENVS): [],
-    }
+    # (renderer, envs, lockstep forward): the lockstep variants, timed interleaved
+    lock_keys = [
+        ("fast", 1, "rows"),
+        ("fast", BATCHED_ENVS, "rows"),
+        ("raster", 1, "rows"),
+        ("raster", BATCHED_ENVS, "rows"),
+        ("raster", BATCHED_ENVS, "batched"),
+        ("raster", WIDE_BATCHED_ENVS, "batched"),
+    ]
+    lock: dict[tuple[str, int, str], list[float]] = {k: [] for k in lock_keys}
+    lock_cpu: dict[tuple[str, int, str], list[float]] = {k: [] for k in lock_keys}
     parts: dict[str, list[float]] = {k: [] for k in ("env", "net", "expert", "net batch",
-                                                     "net slots")}  # fmt: skip
+                                                     "net slots", "net slots batched")}  # fmt: skip
     for rep in range(repeats):
         for name in _order(list(sources), rep):
-            e, s = _time_evaluation(sources[name], config)
+            e, s, _ = _time_evaluation(sources[name], config)
             eps[name].append(e)
             sps[name].append(s)
-        for renderer, envs in _order(list(lock), rep):
+        for key in _order(lock_keys, rep):
+            renderer, envs, forward = key
             cfg = raster_config if renderer == "raster" else lock_config
-            lock[(renderer, envs)].append(_time_evaluation(sources["BC net"], cfg, envs)[0])
+            cfg = replace(cfg, lockstep_forward=forward)
+            e, _, per_cpu = _time_evaluation(sources["BC net"], cfg, envs)
+            lock[key].append(e)
+            lock_cpu[key].append(per_cpu)
         for key, ms in _time_step_parts(sources["BC net"], sizes.act_steps, seed).items():
             parts[key].append(ms)
     share = [n / (n + e) for n, e in zip(parts["net"], parts["env"], strict=True)]
@@ -920,11 +940,22 @@ def bench_eval(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
     )
     net_note = "untrained default BCNet (random weights: same compute as a trained one)"
     step_note = f"mean over {sizes.act_steps} expert-driven steps of a fast env; same frames"
-    lock_note = (
-        f"evaluate_policies, workers=0, {BATCHED_ENVS} episodes x <= {sizes.eval_steps} steps, "
-        f"torch threads 1, {net_note}; envs_per_worker={BATCHED_ENVS}: the envs stepped in "
-        "lockstep with one act_slots call per step, the same rows as one env at a time (tested)"
+    raster_note = (
+        "renderer='raster': approximate frames (not the exact env's episodes; "
+        "results/ablation/renderer/ measures the difference)"
     )
+    lock_base = (
+        f"evaluate_policies, workers=0, {WIDE_BATCHED_ENVS} episodes x <= {sizes.eval_steps} "
+        f"steps, torch threads 1, {net_note}; envs_per_worker=N: N envs stepped in lockstep "
+        "with one act_slots call per step"
+    )
+    lock_note = f"{lock_base}, the same rows as one env at a time (tested)"
+    batched_note = (
+        f"{lock_base}, lockstep_forward='batched' (one BCNet.forward over the running envs per "
+        "step: the same episodes again on one machine type for the same envs, not the one-env "
+        "path's)"
+    )
+    per_core = "per core: episodes per minute of this process's CPU time (time.process_time)"
     return [
         _self_row("eval", "expert", eps["expert"], "episodes/min", ev_note),
         _row(
@@ -966,13 +997,23 @@ def bench_eval(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
             "every layer per frame (BCNet.forward_rows: no layer is assumed batch-invariant), "
             "bit-identical to act on every CPU by construction",
         ),
-        _self_row("eval", "BC net, 1 env", lock[("fast", 1)], "episodes/min", lock_note),
+        _row(
+            "eval",
+            f"BCPolicy.act_slots batched ({BATCHED_ENVS} frames), per frame",
+            parts["net slots batched"],
+            "ms/step",
+            ("BCPolicy.act (1 frame)", parts["net"]),
+            f"{step_note}; lockstep_forward='batched': the {BATCHED_ENVS} frames preprocessed "
+            "together and one forward pass (BCNet.forward); may round differently from act "
+            "(safe_bc.policy.LockstepForward)",
+        ),
+        _self_row("eval", "BC net, 1 env", lock[("fast", 1, "rows")], "episodes/min", lock_note),
         _row(
             "eval",
             f"BC net, {BATCHED_ENVS} envs in lockstep",
-            lock[("fast", BATCHED_ENVS)],
+            lock[("fast", BATCHED_ENVS, "rows")],
             "episodes/min",
-            ("BC net, 1 env", lock[("fast", 1)]),
+            ("BC net, 1 env", lock[("fast", 1, "rows")]),
             f"{lock_note}; {PAIRED_NOTE}",
             paired=True,
         ),
@@ -980,14 +1021,38 @@ def bench_eval(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
             _row(
                 "eval",
                 f"BC net, raster renderer, {label}",
-                lock[("raster", envs)],
+                lock[("raster", envs, forward)],
                 "episodes/min",
-                ("BC net, 1 env", lock[("fast", 1)]),
-                f"{lock_note}; renderer='raster': approximate frames (not the exact env's "
-                f"episodes; results/ablation/renderer/ measures the difference); {PAIRED_NOTE}",
+                ("BC net, 1 env", lock[("fast", 1, "rows")]),
+                f"{lock_note if forward == 'rows' else batched_note}; {raster_note}; {PAIRED_NOTE}",
                 paired=True,
             )
-            for envs, label in ((1, "1 env"), (BATCHED_ENVS, f"{BATCHED_ENVS} envs in lockstep"))
+            for envs, forward, label in (
+                (1, "rows", "1 env"),
+                (BATCHED_ENVS, "rows", f"{BATCHED_ENVS} envs in lockstep"),
+                (BATCHED_ENVS, "batched", f"{BATCHED_ENVS} envs in lockstep, one batched forward"),
+            )
+        ],
+        _self_row(
+            "eval",
+            "BC net, 1 env, per core",
+            lock_cpu[("fast", 1, "rows")],
+            "episodes/min",
+            f"{lock_note}; {per_core}",
+        ),
+        *[
+            _row(
+                "eval",
+                f"BC net, raster renderer, {envs} envs in lockstep with one batched forward, "
+                "per core",
+                lock_cpu[("raster", envs, "batched")],
+                "episodes/min",
+                ("BC net, 1 env, per core", lock_cpu[("fast", 1, "rows")]),
+                f"{batched_note}; baseline: the exact (fast renderer) one-env path; "
+                f"{raster_note}; {per_core}; {PAIRED_NOTE}",
+                paired=True,
+            )
+            for envs in (BATCHED_ENVS, WIDE_BATCHED_ENVS)
         ],
         _row(
             "eval",

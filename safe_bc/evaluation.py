@@ -17,7 +17,7 @@ from safe_bc.collection import build_expert
 from safe_bc.envs import EnvConfig
 from safe_bc.episode import Episode
 from safe_bc.metrics import combined, critical_zone, episode_metrics, violations
-from safe_bc.policy import BatchPolicy, Policy
+from safe_bc.policy import BatchPolicy, LockstepForward, Policy, check_lockstep_forward
 from safe_bc.rollout import run_episode, run_episodes_lockstep
 from safe_bc.seeds import heldout_seed
 from safe_bc.selection import DEFAULT_EPS, Combine
@@ -55,6 +55,17 @@ class EvalConfig:
     """Width of the critical zone used for ``critical_share`` (the selection's eps)."""
     combine: Combine = "any"
     """How per-dimension critical flags combine for ``critical_share`` (the selection's)."""
+    lockstep_forward: LockstepForward = field(default="rows", repr=False)
+    """How a BC net acts for the envs a worker steps in lockstep (``envs_per_worker > 1`` of
+    :func:`safe_bc.distributed.evaluate.evaluate_policies`; other policies and one env per
+    worker ignore it): ``"rows"``, one forward pass per env, gives every episode exactly as
+    one env at a time would, on any CPU; ``"batched"``, one forward pass over the running
+    envs, is faster per frame, but its episodes are only reproducible on the same machine
+    type with the same number of envs and torch threads (a batched pass rounds differently
+    from one-row ones, and differently on other CPUs: :data:`safe_bc.policy.LockstepForward`).
+    Left out of the repr, so that the keys of evaluations stored before this field existed
+    (the final phase keys the config's repr) still hold; where ``"batched"`` is used it is
+    keyed explicitly (the final phase's keys, :mod:`safe_bc.distributed.compare`'s stamps)."""
 
     def seeds(self) -> list[int]:
         """The held-out env seeds this evaluation runs, in order."""
@@ -69,6 +80,7 @@ class EvalConfig:
             raise ValueError(f"first_episode must be >= 0, got {self.first_episode}")
         if self.eps < 0:
             raise ValueError(f"eps must be >= 0, got {self.eps}")
+        check_lockstep_forward(self.lockstep_forward)
 
 
 @dataclass(frozen=True)
@@ -171,11 +183,18 @@ def evaluate_episodes(
     eps: float,
     max_steps: int | None = None,
     combine: Combine = "any",
+    lockstep_forward: LockstepForward = "rows",
 ) -> list[tuple[dict[str, float], dict[str, np.ndarray]]]:
-    """:func:`evaluate_episode` of every seed, the same results, ``len(envs)`` at a time: a
-    :class:`~safe_bc.policy.BatchPolicy` (a BC net) steps them in lockstep with one batched
-    forward pass per step (:func:`~safe_bc.rollout.run_episodes_lockstep`); any other policy
-    runs them one by one in ``envs[0]``."""
+    """:func:`evaluate_episode` of every seed, ``len(envs)`` at a time: a
+    :class:`~safe_bc.policy.BatchPolicy` (a BC net) steps them in lockstep with one
+    ``act_slots`` call per step (:func:`~safe_bc.rollout.run_episodes_lockstep`); any other
+    policy runs them one by one in ``envs[0]``.
+
+    ``lockstep_forward`` (:attr:`EvalConfig.lockstep_forward`): ``"rows"`` gives the
+    results of one env at a time on any CPU; ``"batched"`` (one forward pass over the
+    running envs) gives the same results again for the same seeds and ``len(envs)`` on the
+    same machine type, not necessarily those of one env."""
+    check_lockstep_forward(lockstep_forward)
     kw = {"thresholds": thresholds, "eps": eps, "combine": combine}
     if len(envs) == 1 or not isinstance(policy, BatchPolicy):
         return [evaluate_episode(envs[0], policy, s, max_steps=max_steps, **kw) for s in seeds]
@@ -183,7 +202,9 @@ def evaluate_episodes(
     for start in range(0, len(seeds), len(envs)):
         chunk = list(seeds[start : start + len(envs)])
         used = envs[: len(chunk)]
-        episodes = run_episodes_lockstep(used, policy, chunk, max_steps=max_steps)
+        episodes = run_episodes_lockstep(
+            used, policy, chunk, max_steps=max_steps, forward=lockstep_forward
+        )
         out += [score_episode(env, ep, **kw) for env, ep in zip(used, episodes, strict=True)]
     return out
 

@@ -9,7 +9,7 @@ import gymnasium as gym
 import numpy as np
 
 from safe_bc.episode import Episode
-from safe_bc.policy import BatchPolicy, Policy
+from safe_bc.policy import BatchPolicy, LockstepForward, Policy, check_lockstep_forward
 
 
 class ActionPerturbation(Protocol):
@@ -146,11 +146,19 @@ def run_episodes_lockstep(
     seeds: Sequence[int],
     *,
     max_steps: int | None = None,
+    forward: LockstepForward = "rows",
 ) -> list[Episode]:
     """One episode per env, ``envs[i]`` on ``seeds[i]``, stepped together: each step one
-    :meth:`BatchPolicy.act_slots` call for the episodes still running. Each episode is the
-    one :func:`run_episode` gives for its seed (observations not kept, no perturbation),
-    since the policy acts per slot as in its own episode and the envs share nothing."""
+    :meth:`BatchPolicy.act_slots` call for the episodes still running (observations not kept,
+    no perturbation).
+
+    ``forward="rows"``: each episode is the one :func:`run_episode` gives for its seed, on
+    any CPU, since the policy acts per slot as in its own episode (one-row forward passes)
+    and the envs share nothing. ``"batched"``: one forward pass over the running episodes
+    per step; the same episodes again for the same seeds and the same number of envs on the
+    same machine type, not necessarily :func:`run_episode`'s
+    (:data:`safe_bc.policy.LockstepForward`)."""
+    check_lockstep_forward(forward, "forward")
     if len(envs) != len(seeds):
         raise ValueError(f"{len(envs)} envs for {len(seeds)} seeds")
     starts = [env.reset(seed=s) for env, s in zip(envs, seeds, strict=True)]
@@ -160,7 +168,9 @@ def run_episodes_lockstep(
     running = list(range(len(envs)))
     t = 0
     while running:
-        actions = policy.act_slots(np.stack([obs[i] for i in running]), np.asarray(running))
+        actions = policy.act_slots(
+            np.stack([obs[i] for i in running]), np.asarray(running), forward
+        )
         still = []
         for i, action in zip(running, np.asarray(actions, np.float32), strict=True):
             recs[i].before_step(obs[i], infos[i], action, action)

@@ -114,6 +114,22 @@ def test_quick_study_and_final_cases_measure_ratios():
     assert math.isfinite(ray_envs["ratio"]) and ray_envs["ratio"] > 0
 
 
+def test_quick_eval_case_times_the_batched_forward_against_the_exact_one_env_path():
+    """The eval case's per-core rows: the raster renderer's lockstep with one batched forward
+    against the exact (fast renderer) one-env path, measured in the same run."""
+    rows = bench.run_case("eval", bench.QUICK, repeats=1)["rows"]
+    by = {r["variant"]: r for r in rows}
+    base = by["BC net, 1 env, per core"]
+    assert base["unit"] == "episodes/min" and base["value"] > 0
+    for envs in (bench.BATCHED_ENVS, bench.WIDE_BATCHED_ENVS):
+        row = by[
+            f"BC net, raster renderer, {envs} envs in lockstep with one batched forward, per core"
+        ]
+        assert row["baseline"] == "BC net, 1 env, per core"
+        assert math.isfinite(row["ratio"]) and row["ratio"] > 0
+    assert by["BC net, raster renderer, 4 envs in lockstep, one batched forward"]["value"] > 0
+
+
 def test_a_dirty_tree_fails_before_measuring(monkeypatch, capsys):
     """make bench writes under results/: with uncommitted code it stops at once (one line),
     not after minutes of measuring."""

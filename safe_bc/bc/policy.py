@@ -13,6 +13,7 @@ from safe_bc.bc.checkpoint import load_checkpoint
 from safe_bc.bc.config import PreprocessConfig
 from safe_bc.bc.net import BCNet
 from safe_bc.bc.preprocess import preprocess, stack
+from safe_bc.policy import LockstepForward, check_lockstep_forward
 
 if TYPE_CHECKING:
     import gymnasium as gym
@@ -48,15 +49,17 @@ class BCPolicy:
         if obs.shape != self.model.spec.obs_shape:
             raise ValueError(f"obs has shape {obs.shape}, expected {self.model.spec.obs_shape}")
         with torch.inference_mode():
-            x = self._push(self._frames, obs[None])
+            x = self._push(self._frames, preprocess(obs[None], self.pre_cfg))
             return self.model(x)[0].numpy().astype(np.float32, copy=False)
 
-    def _push(self, frames: deque[torch.Tensor], obs: np.ndarray) -> torch.Tensor:
-        """Add one ``(1, *obs_shape)`` observation to an episode's frames (the first one
+    @staticmethod
+    def _push(frames: deque[torch.Tensor], frame: torch.Tensor) -> torch.Tensor:
+        """Add one preprocessed ``(1, ...)`` frame to an episode's frames (the first one
         repeated ``frame_stack`` times) and return the net's ``(1, ...)`` input."""
-        frame = preprocess(obs, self.pre_cfg)
+        if frames.maxlen == 1:
+            return frame
         frames.extend([frame] * (frames.maxlen if not frames else 1))
-        return frame if len(frames) == 1 else torch.cat(tuple(frames), dim=1)
+        return torch.cat(tuple(frames), dim=1)
 
     def reset_slots(self, n: int) -> None:
         """Start ``n`` episodes for :meth:`act_slots` (a ``safe_bc.policy.BatchPolicy``)."""
@@ -64,18 +67,36 @@ class BCPolicy:
             deque(maxlen=self.pre_cfg.frame_stack) for _ in range(n)
         ]
 
-    def act_slots(self, obs: np.ndarray, slots: np.ndarray) -> np.ndarray:
-        """One observation per episode in ``slots`` -> ``(m, A) float32``: bit for bit what
-        :meth:`act` returns in each episode on any CPU (:meth:`BCNet.forward_rows` runs one
-        row at a time)."""
+    def act_slots(
+        self, obs: np.ndarray, slots: np.ndarray, forward: LockstepForward = "rows"
+    ) -> np.ndarray:
+        """One observation per episode in ``slots`` -> ``(m, A) float32``.
+
+        ``forward="rows"``: bit for bit what :meth:`act` returns in each episode on any CPU
+        (each row preprocessed and passed through the net on its own,
+        :meth:`BCNet.forward_rows`). ``"batched"``: the ``m`` rows preprocessed together and
+        one forward pass over them; the same actions again for the same inputs on the same
+        machine, not necessarily :meth:`act`'s (``safe_bc.policy.LockstepForward``).
+        """
         obs = np.asarray(obs)
         if obs.shape[1:] != self.model.spec.obs_shape:
             raise ValueError(
                 f"obs has shape {obs.shape}, expected (m, *{self.model.spec.obs_shape})"
             )
         with torch.inference_mode():
-            x = torch.cat([self._push(self._slots[s], obs[i : i + 1]) for i, s in enumerate(slots)])
-            return self.model.forward_rows(x).numpy().astype(np.float32, copy=False)
+            if forward == "rows":
+                x = torch.cat([
+                    self._push(self._slots[s], preprocess(obs[i : i + 1], self.pre_cfg))
+                    for i, s in enumerate(slots)
+                ])  # fmt: skip
+                return self.model.forward_rows(x).numpy().astype(np.float32, copy=False)
+            check_lockstep_forward(forward, "forward")
+            x = preprocess(obs, self.pre_cfg)
+            if self.pre_cfg.frame_stack > 1:
+                x = torch.cat(
+                    [self._push(self._slots[s], x[i : i + 1]) for i, s in enumerate(slots)]
+                )
+            return self.model(x).numpy().astype(np.float32, copy=False)
 
     def act_batch(self, obs_batch: np.ndarray) -> np.ndarray:
         """Independent states -> actions ``(B, A) float32``; stateless.

@@ -76,18 +76,20 @@ def preprocess_frames(frames: np.ndarray | torch.Tensor, cfg: PreprocessConfig) 
                 "torch.", ""
             )
         )
-    if cfg.mask_steering:
-        if x.shape[1:3] != (96, 96):
-            raise ValueError(f"mask_steering needs 96x96 CarRacing frames, got {tuple(x.shape)}")
-        x = x.clone()
-        x[:, STEERING_INDICATOR[0], STEERING_INDICATOR[1]] = 0
-    if cfg.crop_bar:
+    if cfg.mask_steering and x.shape[1:3] != (96, 96):
+        raise ValueError(f"mask_steering needs 96x96 CarRacing frames, got {tuple(x.shape)}")
+    if cfg.crop_bar:  # the steering indicator lies in the bar: nothing left to mask
         x = x[:, : x.shape[1] - BAR_ROWS]
     if cfg.grayscale:
         # (B, H, W, 3) @ (3,) as a linear layer: the fastest CPU path; (B, H, W, 1) -> (B, 1, H, W)
         x = F.linear(x.float(), _LUMA_ROW).clamp_(0.0, 1.0).permute(0, 3, 1, 2)
-    else:
-        x = x.permute(0, 3, 1, 2).float() / 255.0
+    else:  # one copy to (B, 3, H, W) float32, scaled in place
+        x = x.permute(0, 3, 1, 2).to(torch.float32, memory_format=torch.contiguous_format)
+        x.div_(255.0)
+    if cfg.mask_steering and not cfg.crop_bar:
+        # black pixels (0 in every channel) give 0.0 whichever way they are converted, so
+        # masking the converted frame equals masking the input, without copying the input
+        x[:, :, STEERING_INDICATOR[0], STEERING_INDICATOR[1]] = 0.0
     if cfg.resize is not None:
         x = F.interpolate(x, size=(cfg.resize, cfg.resize), mode="area")
     return x.contiguous()

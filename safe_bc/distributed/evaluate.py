@@ -21,7 +21,7 @@ from safe_bc.distributed.runtime import cpus_per_actor, ensure_ray
 from safe_bc.envs import EnvConfig, make_env
 from safe_bc.evaluation import EvalConfig, evaluate_episodes
 from safe_bc.metrics import summarize_policies
-from safe_bc.policy import Policy
+from safe_bc.policy import LockstepForward, Policy
 
 PolicySource = Any
 """Anything with ``build() -> Policy`` that pickles (``ExpertSource``, ``NetSource``)."""
@@ -44,6 +44,7 @@ class _Evaluator:
         eps: float,
         max_steps: int | None,
         combine: str = "any",
+        lockstep_forward: LockstepForward = "rows",
     ) -> list[tuple[dict[str, float], dict[str, np.ndarray]]]:
         if key != self.key:
             if isinstance(source, list):  # boxed ObjectRef: fetched only when needed
@@ -59,6 +60,7 @@ class _Evaluator:
             eps=eps,
             max_steps=max_steps,
             combine=combine,  # type: ignore[arg-type]
+            lockstep_forward=lockstep_forward,
         )
 
     def close(self) -> None:
@@ -91,8 +93,10 @@ def evaluate_policies(
     (at most 1 each). Inside a Tune trial pass the size of the trial's worker bundles: actors
     asking for more than the trial reserved wait forever. ``envs_per_worker`` > 1: each
     worker (or this process) steps that many episodes of a BC policy in lockstep with one
-    batched forward pass per step (:func:`safe_bc.evaluation.evaluate_episodes`): the same
-    rows as 1, faster where inference is a large part of a step.
+    ``act_slots`` call per step (:func:`safe_bc.evaluation.evaluate_episodes`): with
+    ``config.lockstep_forward="rows"`` (the default) the same rows as 1 on any CPU; with
+    ``"batched"`` one forward pass over the envs, faster, the same rows again only for the same
+    ``envs_per_worker`` on the same machine type (:attr:`EvalConfig.lockstep_forward`).
 
     Returns:
         ``(episodes, steps)``: one row per (policy, episode) with the metrics of
@@ -126,7 +130,7 @@ def evaluate_policies(
             violations=metrics["violation_steps"],
         )
 
-    args = (thresholds, config.eps, config.max_steps, config.combine)
+    args = (thresholds, config.eps, config.max_steps, config.combine, config.lockstep_forward)
     with bar:
         if config.workers == 0:
             local = _Evaluator(config.env, envs_per_worker)

@@ -218,8 +218,11 @@ def final_phase(
                 f"{m} seed={s}": _agent_identity(spec, job, m, cfgs[m], s, candidates) for m in cfgs
             }
             what[f"{EXPERT} block={i}"] = ("expert", str(job.demos))
+            # the config's repr leaves lockstep_forward out (keys made before it hold);
+            # "batched" gives other episodes than "rows", so it is keyed when used
+            forward = [] if config.lockstep_forward == "rows" else [config.lockstep_forward]
             keys = {
-                name: key_of("episodes", what[name], config, list(job.cost_limits))
+                name: key_of("episodes", what[name], config, list(job.cost_limits), *forward)
                 for name in sources
             }
             done = {n: store.episodes(k) for n, k in keys.items()} if store is not None else {}

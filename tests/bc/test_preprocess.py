@@ -47,6 +47,45 @@ def test_crop_drops_the_indicator_bar():
     assert preprocess_frames(frames, PreprocessConfig(crop_bar=False)).max() == 1.0
 
 
+def _preprocess_reference(frames: np.ndarray, cfg: PreprocessConfig) -> torch.Tensor:
+    """The straightforward order (mask a copy of the input, crop, convert, resize): what
+    ``preprocess_frames`` computed before it stopped copying the input."""
+    import torch.nn.functional as F
+
+    from safe_bc.bc.preprocess import _LUMA_ROW, BAR_ROWS, STEERING_INDICATOR
+
+    x = torch.as_tensor(frames).clone()
+    if cfg.mask_steering:
+        x[:, STEERING_INDICATOR[0], STEERING_INDICATOR[1]] = 0
+    if cfg.crop_bar:
+        x = x[:, : x.shape[1] - BAR_ROWS]
+    if cfg.grayscale:
+        x = F.linear(x.float(), _LUMA_ROW).clamp_(0.0, 1.0).permute(0, 3, 1, 2)
+    else:
+        x = x.permute(0, 3, 1, 2).float() / 255.0
+    if cfg.resize is not None:
+        x = F.interpolate(x, size=(cfg.resize, cfg.resize), mode="area")
+    return x.contiguous()
+
+
+@pytest.mark.parametrize("grayscale", [False, True])
+@pytest.mark.parametrize("crop_bar", [False, True])
+@pytest.mark.parametrize("mask_steering", [False, True])
+@pytest.mark.parametrize("resize", [None, 48])
+def test_frames_are_the_reference_order_bit_for_bit(grayscale, crop_bar, mask_steering, resize):
+    """Masking the converted frame (no copy of the input) gives the same bits as masking the
+    input; the input is left as it was."""
+    cfg = PreprocessConfig(grayscale=grayscale, crop_bar=crop_bar,
+                           mask_steering=mask_steering, resize=resize)  # fmt: skip
+    frames = np.random.default_rng(1).integers(0, 256, (3, 96, 96, 3), dtype=np.uint8)
+    kept = frames.copy()
+    for batch in (frames, frames[1:2]):
+        got, want = preprocess_frames(batch, cfg), _preprocess_reference(batch, cfg)
+        assert got.is_contiguous() and got.dtype == want.dtype
+        assert torch.equal(got.view(torch.int32), want.view(torch.int32))  # bits, signs of 0
+    np.testing.assert_array_equal(frames, kept)
+
+
 def test_vectors_pass_through():
     obs = np.arange(12, dtype=np.float32).reshape(3, 4)
     x = preprocess(obs, PreprocessConfig())
