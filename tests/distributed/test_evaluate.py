@@ -100,16 +100,31 @@ def test_bad_alpha_and_missing_dataset_are_one_line_errors(tmp_path, capsys) -> 
 
 
 def test_lockstep_envs_give_the_one_env_rows(bc_and_expert) -> None:
-    """envs_per_worker > 1 (one batched forward pass per step for the BC net, the expert one
-    by one) gives exactly the rows and traces of one env at a time, in-process and on actors."""
+    """envs_per_worker > 1 with ``lockstep_forward="rows"`` (one-row forward passes for the BC
+    net, the expert one by one) gives exactly the rows and traces of one env at a time,
+    in-process and on actors."""
     sources, thresholds, _ = bc_and_expert
     kw = {"thresholds": thresholds, "progress": False}
     one = evaluate_policies(sources, EvalConfig(episodes=3, workers=0, max_steps=60), **kw)
     for workers in (0, 2):
-        cfg = EvalConfig(episodes=3, workers=workers, max_steps=60)
+        cfg = EvalConfig(episodes=3, workers=workers, max_steps=60, lockstep_forward="rows")
         many = evaluate_policies(sources, cfg, envs_per_worker=2, **kw)
         pd.testing.assert_frame_equal(many[0], one[0])
         pd.testing.assert_frame_equal(
             many[1].sort_values(["policy", "env_seed", "step"]).reset_index(drop=True),
             one[1].sort_values(["policy", "env_seed", "step"]).reset_index(drop=True),
         )
+
+
+def test_batched_lockstep_rows_do_not_depend_on_the_number_of_workers(bc_and_expert) -> None:
+    """The default ``lockstep_forward="batched"`` deals episodes to fixed groups of
+    ``envs_per_worker`` by seed order: one actor or two (each one torch thread) give the same
+    rows, so a result does not depend on the cluster's size."""
+    sources, thresholds, _ = bc_and_expert
+    kw = {"thresholds": thresholds, "progress": False, "envs_per_worker": 2}
+    runs = [
+        evaluate_policies(sources, EvalConfig(episodes=3, workers=w, max_steps=60), **kw)[0]
+        for w in (1, 2)
+    ]
+    assert EvalConfig().lockstep_forward == "batched"
+    pd.testing.assert_frame_equal(runs[0], runs[1])
