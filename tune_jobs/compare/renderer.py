@@ -1,7 +1,8 @@
 """Agents trained on exact frames, driving on approximate ones (raster renderer).
 
 Rows: the safety-imitation start of ``improve_carracing.py`` (BC with alpha 0.1, eps 2 px, the
-default network and budget; training seeds 0-2) evaluated in the exact env (``renderer`` exact, formerly fast,
+default network and budget; training seeds 0-2) evaluated in the exact env (``renderer``
+exact, formerly fast,
 pixel-identical to gymnasium's), and the same agents (``agents_of``) evaluated in the raster
 env (:mod:`safe_bc.tasks.carracing.raster_render`, the supersample factor chosen by
 ``python -m benchmarks.render_accuracy``); both against the default demonstrations' d_s, on

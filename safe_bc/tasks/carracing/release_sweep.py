@@ -149,9 +149,7 @@ def run_sweep(sweep: ReleaseSweep, *, progress: bool = True) -> pd.DataFrame:
 
     rows = []
     for release in sweep.releases:
-        rows.append(
-            release_row(release, *collect_release(release, sweep.episodes, sweep.renderer))
-        )
+        rows.append(release_row(release, *collect_release(release, sweep.episodes, sweep.renderer)))
         if progress:
             print(rows[-1], flush=True)
     table = pd.DataFrame(rows)
