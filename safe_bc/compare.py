@@ -27,13 +27,13 @@ import sys
 import types
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal, get_args
+from typing import Any, Literal
 
 import numpy as np
 import pandas as pd
 
 from safe_bc.bc.config import BCConfig
-from safe_bc.envs.config import Renderer
+from safe_bc.envs.config import Renderer, canonical_renderer
 from safe_bc.improve.config import ImproveConfig
 from safe_bc.metrics import METRICS, paired_crossed, summarize_crossed
 from safe_bc.report import fmt_ci
@@ -110,7 +110,7 @@ class Method:
     as they are, typically with another ``renderer`` (agents trained on exact frames driving
     on approximate ones)."""
     renderer: Renderer | None = None
-    """How the row's evaluation env draws (``None``: the task's default, ``fast``); a BC row
+    """How the row's evaluation env draws (``None``: the default, ``raster``); a BC row
     with its own ``demos`` also collects them with it. Ignored by tasks without renderers."""
     demos: Path | None = None
     """A BC row's own demonstration set (``None``: the comparison's), built with the task's
@@ -151,11 +151,11 @@ class Method:
             )
         if self.bc is not None and self.selection is None:
             raise ValueError(f"method {self.name!r}: bc= is for BC rows (with selection=)")
-        if self.renderer is not None and self.renderer not in get_args(Renderer):
-            raise ValueError(
-                f"method {self.name!r}: renderer must be one of {get_args(Renderer)}, "
-                f"got {self.renderer!r}"
-            )
+        if self.renderer is not None:
+            try:
+                object.__setattr__(self, "renderer", canonical_renderer(self.renderer))
+            except ValueError as e:
+                raise ValueError(f"method {self.name!r}: {e}") from None
         if self.demos is not None and self.selection is None:
             raise ValueError(f"method {self.name!r}: demos= is for BC rows (with selection=)")
         if self.expert_config is not None and not self.expert:

@@ -16,7 +16,7 @@ from typing import Annotated, Literal
 import tyro
 
 from safe_bc.data.codec import Encoding
-from safe_bc.envs.factory import Renderer
+from safe_bc.envs.config import DEFAULT_RENDERER, Renderer
 from safe_bc.evaluation import EvalConfig
 from safe_bc.improve.config import ImproveConfig
 from safe_bc.queries.config import QueryConfig
@@ -37,9 +37,9 @@ class CollectJob:
 
     env: Task = DEFAULT_TASK
     """The testbed: a task of the registry (safe_bc.tasks.TASKS)."""
-    renderer: Renderer = "fast"
-    """CarRacing renderer (fast is pixel-identical to stock; raster is faster but approximate,
-    see results/ablation/renderer/)."""
+    renderer: Renderer = DEFAULT_RENDERER
+    """CarRacing renderer (raster, the default, is fastest with approximate frames; exact is
+    pixel-identical to stock; see results/ablation/renderer/)."""
     out: Path | None = None
     """Dataset folder; None: the task's (data/demos, rehab: data/rehab_demos)."""
     episodes: int | None = None

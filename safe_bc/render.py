@@ -31,6 +31,7 @@ import cv2
 import gymnasium as gym
 import numpy as np
 
+from safe_bc.envs.config import DEFAULT_RENDERER
 from safe_bc.episode import Episode
 from safe_bc.policy import Policy
 from safe_bc.rollout import run_episode
@@ -101,7 +102,7 @@ def record(
     *,
     label: str = "policy",
     max_steps: int | None = None,
-    renderer: str = "fast",
+    renderer: str = DEFAULT_RENDERER,
     task: Task = DEFAULT_TASK,
 ) -> Trace:
     """Roll ``policy`` out on ``task``'s track ``seed`` (``env.reset(seed=seed)``), keeping

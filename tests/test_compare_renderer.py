@@ -43,12 +43,12 @@ def test_rows_run_in_their_renderer_on_their_own_demos() -> None:
 
     comp = load_comparison(COMPARE / "renderer_pipeline.py")
     exact, raster = comp.methods
-    assert eval_config(comp, exact).env.renderer == "fast"
+    assert eval_config(comp, exact).env.renderer == "exact"
     assert eval_config(comp, raster).env.renderer == "raster"
     assert demos_of(comp, raster) == Path("data/demos_raster") != demos_of(comp, exact)
     sets = own_demos(comp)
     assert sets[Path("data/demos_raster")].env.renderer == "raster"
-    assert sets[comp.demos].env.renderer == "fast"
+    assert sets[comp.demos].env.renderer == "exact"  # the exact rows' own set
     view = load_comparison(COMPARE / "renderer.py")
     assert demos_of(view, view.method("raster")) == view.demos  # the exact agents' d_s
     assert eval_config(view, view.method("raster")).env.renderer == "raster"
@@ -93,7 +93,7 @@ def test_committed_pipeline_paired_tables_rederive_exactly(file: str, stem: str)
     pd.testing.assert_frame_equal(got, committed[PAIRED], check_dtype=False)
 
 
-def test_tiny_exact_row_raster_view_and_raster_pipeline(ray_session, tiny_demos, tmp_path):
+def test_tiny_exact_row_raster_view_and_raster_pipeline(ray_session, tmp_path):
     """The view row trains nothing and runs the exact row's agents in the raster env; the
     raster pipeline trains on its own demonstrations and counts against their d_s; a rerun
     reuses every cell."""
@@ -103,20 +103,21 @@ def test_tiny_exact_row_raster_view_and_raster_pipeline(ray_session, tiny_demos,
     from safe_bc.distributed.compare import run_comparison
     from safe_bc.envs import EnvConfig
 
-    raster_demos = tmp_path / "demos_raster"
-    collect(CollectConfig(episodes=2, workers=2, max_steps=150, env=EnvConfig(renderer="raster")),
-            raster_demos, progress=False)  # fmt: skip
+    raster_demos, exact_demos = tmp_path / "demos_raster", tmp_path / "demos_exact"
+    for renderer, path in (("raster", raster_demos), ("exact", exact_demos)):
+        collect(CollectConfig(episodes=2, workers=2, max_steps=150,
+                              env=EnvConfig(renderer=renderer)), path, progress=False)  # fmt: skip
     bc = BCConfig(network=NetworkConfig(channels=(4, 4, 4), hidden=8),
                   train=TrainConfig(batches=3, batch_size=8))  # fmt: skip
     sel = SelectionConfig(eps=2.0, alpha=0.0)
     comp = Comparison(
         "tinyrender",
         methods=(
-            Method("exact", selection=sel, bc=bc),
+            Method("exact", selection=sel, bc=bc, renderer="exact"),
             Method("raster", agents_of="exact", renderer="raster"),
             Method("raster pipeline", selection=sel, bc=bc, renderer="raster", demos=raster_demos),
         ),
-        demos=tiny_demos,
+        demos=exact_demos,
         out=tmp_path,
         episodes=2,
         eval_seed=10,
@@ -137,7 +138,7 @@ def test_tiny_exact_row_raster_view_and_raster_pipeline(ray_session, tiny_demos,
             ("raster pipeline", "raster_pipeline"),
         )
     }
-    assert stamps["exact"]["eval"]["env"]["renderer"] == "fast"
+    assert stamps["exact"]["eval"]["env"]["renderer"] == "exact"
     assert stamps["raster"]["eval"]["env"]["renderer"] == "raster"
     assert stamps["raster"]["thresholds"] == stamps["exact"]["thresholds"]
     assert stamps["raster pipeline"]["thresholds"] != stamps["exact"]["thresholds"]

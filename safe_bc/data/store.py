@@ -80,6 +80,11 @@ class DatasetMeta:
     """The perturbation's configuration."""
     provenance: dict[str, str] = field(default_factory=dict, compare=False)
     """Package version, git revision, creation time (not part of the dataset's identity)."""
+    renderer: str | None = None
+    """How the env drew the frames (CarRacing's ``EnvConfig.renderer``); ``None`` for tasks
+    without renderers and for datasets collected before it was recorded (2026-11-26; those
+    CarRacing sets were drawn by the renderer then called ``fast``, now ``exact``, unless
+    collected for the raster ablation)."""
     action_bounds: tuple[tuple[float, ...], tuple[float, ...]] | None = field(
         default=None, compare=False
     )
@@ -110,6 +115,8 @@ class DatasetMeta:
         d = asdict(self)
         d.pop("provenance")
         d.pop("action_bounds")
+        if d["renderer"] is None:  # (identities of sets collected before it was recorded)
+            d.pop("renderer")
         return json.loads(json.dumps(d))
 
 

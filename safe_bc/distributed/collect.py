@@ -31,6 +31,7 @@ from safe_bc.distributed.runtime import cpus_per_actor, ensure_ray
 from safe_bc.episode import Episode
 from safe_bc.locks import output_lock
 from safe_bc.provenance import provenance
+from safe_bc.tasks import frames_renderer
 
 
 @ray.remote
@@ -76,6 +77,7 @@ def dataset_meta(config: CollectConfig) -> DatasetMeta:
         perturbation=config_dict(config.perturbation),
         provenance=provenance(),
         action_bounds=bounds,
+        renderer=frames_renderer(config.env),
     )
 
 

@@ -38,13 +38,14 @@ from safe_bc.compare import (
     render_markdown,
     run_slug,
 )
-from safe_bc.data.store import load_demonstrations, read_table, write_table_atomic
+from safe_bc.data.store import load_demonstrations, read_meta, read_table, write_table_atomic
+from safe_bc.envs.config import DEFAULT_RENDERER
 from safe_bc.evaluation import EvalConfig, ExpertSource, MaskedSource, NetSource
 from safe_bc.experiment import RunConfig, save_selection, select_for
 from safe_bc.metrics import combined
 from safe_bc.provenance import run_metadata
 from safe_bc.selection import SelectionConfig
-from safe_bc.tasks import dataset_action_bounds, task_defaults
+from safe_bc.tasks import check_frames_renderer, dataset_action_bounds, task_defaults
 
 
 def _json(x: Any) -> Any:
@@ -64,7 +65,7 @@ def eval_config(comparison: Comparison, method: Method | None = None) -> EvalCon
     """The held-out tracks every policy runs on, in the env ``method`` is evaluated in (its
     ``renderer``; ``None``: the task's default env)."""
     heldout = comparison.tracks == "heldout"
-    renderer = method.renderer if method is not None and method.renderer else "fast"
+    renderer = method.renderer if method is not None and method.renderer else DEFAULT_RENDERER
     return EvalConfig(
         episodes=comparison.episodes,
         workers=comparison.workers,
@@ -102,13 +103,15 @@ def demos_of(comparison: Comparison, method: Method) -> Path:
 
 def own_demos(comparison: Comparison) -> dict[Path, Any]:
     """Each demonstration set the comparison needs -> its default collection (a BC row's own
-    ``demos`` drawn by the row's ``renderer``); the comparison's set first."""
+    ``demos`` drawn by the row's ``renderer``, also when it is the comparison's set); the
+    comparison's set first."""
     task = comparison.task
-    out = {comparison.demos: task_defaults(task).collect_config()}
+    out: dict[Path, Any] = {}
     for m in comparison.methods:
         if m.demos is not None and m.demos not in out:
-            out[m.demos] = task_defaults(task, m.renderer or "fast").collect_config()
-    return out
+            out[m.demos] = task_defaults(task, m.renderer or DEFAULT_RENDERER).collect_config()
+    first = out.pop(comparison.demos, None) or task_defaults(task).collect_config()
+    return {comparison.demos: first, **out}
 
 
 def _cells(comparison: Comparison) -> list[tuple[Method, int]]:
@@ -216,7 +219,7 @@ def _selfimprove(comparison: Comparison, method: Method, seed: int, demos: Any) 
 
         kwargs["rollouts"] = ChunkedRayRollouts(local_rollouts, config.workers)
     path = demos_of(c, method)
-    env = task_defaults(c.task, start.renderer or "fast").env
+    env = task_defaults(c.task, start.renderer or DEFAULT_RENDERER).env
     folder = _folder(c, method, seed) / "selfimprove"
 
     def run() -> Any:
@@ -284,6 +287,12 @@ def run_comparison(
     for path, collect in own_demos(c).items():
         ensure_demos(path, collect, progress=progress)
         sets[path] = load_demonstrations(path)
+    for m in c.methods:  # a BC row trains on frames drawn by the renderer it is evaluated on
+        if m.kind == "bc":
+            path = demos_of(c, m)
+            warning = check_frames_renderer(read_meta(path).renderer, eval_config(c, m).env, path)
+            if warning and progress:
+                print(f"warning: {warning}")
     demos = sets[c.demos]
     meta = run_metadata(
         config=_json(c.to_dict()), train_seeds=list(c.train_seeds), eval_seed=c.eval_seed
@@ -325,7 +334,7 @@ def run_comparison(
         for i, r in zip(idx, results, strict=True):
             trained[i] = r
     for (m, s, run), (result, selection) in zip(todo, trained, strict=True):
-        env_id = task_defaults(c.task, m.renderer or "fast").env.env_id
+        env_id = task_defaults(c.task, m.renderer or DEFAULT_RENDERER).env.env_id
         train_row = {
             "final_loss": result.final_loss,
             "samples_per_s": result.samples_per_s,
@@ -411,7 +420,7 @@ def run_comparison(
     groups: dict[tuple[str, Path], list[str]] = {}  # one call per (env, thresholds)
     for key in sources:
         m = stamps[key][0]
-        groups.setdefault((m.renderer or "fast", demos_of(c, m)), []).append(key)
+        groups.setdefault((m.renderer or DEFAULT_RENDERER, demos_of(c, m)), []).append(key)
     for keys in groups.values():
         m = stamps[keys[0]][0]
         episodes, steps = evaluate_policies(

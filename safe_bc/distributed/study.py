@@ -16,6 +16,7 @@ import math
 import os
 import shutil
 import signal
+import sys
 import time
 import uuid
 from collections.abc import Callable, Sequence
@@ -74,7 +75,7 @@ from safe_bc.study import (
     summary_lines,
     trial_table,
 )
-from safe_bc.tasks import task_defaults, task_of
+from safe_bc.tasks import check_frames_renderer, task_defaults, task_of
 from safe_bc.timing import COPY, TOTAL, timing_lines, timing_markdown, timing_table
 
 __all__ = [
@@ -170,12 +171,15 @@ def _delete_tree(path: str) -> None:
 
 
 def _check_env(spec: StudySpec, demos: Path) -> None:
-    env_id = read_meta(demos).env_id
-    if env_id != spec.env.env_id:
+    meta = read_meta(demos)
+    if meta.env_id != spec.env.env_id:
         raise ValueError(
-            f"{demos} holds {env_id} demonstrations but the study evaluates on "
-            f"{spec.env.env_id}; set StudySpec(env=EnvConfig({env_id!r}))"
+            f"{demos} holds {meta.env_id} demonstrations but the study evaluates on "
+            f"{spec.env.env_id}; set StudySpec(env=EnvConfig({meta.env_id!r}))"
         )
+    warning = check_frames_renderer(meta.renderer, spec.env, demos)
+    if warning:
+        print(f"warning: {warning}", file=sys.stderr)
 
 
 def _check_resume(out: Path, identity: dict[str, Any], restoring: bool) -> None:

@@ -95,7 +95,7 @@ def ensure_demos(root: Path, pool: Any) -> None:
     from safe_bc.collection import config_dict, env_facts
     from safe_bc.data.store import DatasetMeta, init_dataset, write_episode
     from safe_bc.provenance import provenance
-    from safe_bc.tasks import task_defaults
+    from safe_bc.tasks import frames_renderer, task_defaults
 
     if (root / "dataset.json").is_file():
         return
@@ -114,6 +114,7 @@ def ensure_demos(root: Path, pool: Any) -> None:
             perturbation=config_dict(cfg.perturbation),
             provenance=provenance(),
             action_bounds=bounds,
+            renderer=frames_renderer(cfg.env),
         ),
     )
     for ep in pool.map(_collect_one, [(cfg, i) for i in range(cfg.episodes)]):

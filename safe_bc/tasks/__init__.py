@@ -11,7 +11,13 @@ perturbations) is re-exported for tasks defined elsewhere.
 
 from safe_bc.tasks import carracing, rehab
 from safe_bc.tasks.carracing.perturb import PerturbationConfig
-from safe_bc.tasks.lookup import action_bounds, check_net_fits_task, dataset_action_bounds
+from safe_bc.tasks.lookup import (
+    action_bounds,
+    check_frames_renderer,
+    check_net_fits_task,
+    dataset_action_bounds,
+    frames_renderer,
+)
 from safe_bc.tasks.registry import (
     DEFAULT_TASK,
     PLUGINS_VAR,
@@ -46,8 +52,10 @@ __all__ = [
     "TaskDefaults",
     "TaskSpec",
     "action_bounds",
+    "check_frames_renderer",
     "check_net_fits_task",
     "dataset_action_bounds",
+    "frames_renderer",
     "register_envs",
     "register_task",
     "spec_of",

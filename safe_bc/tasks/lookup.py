@@ -6,7 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from safe_bc.envs.config import EnvConfig
+from safe_bc.envs.config import RENDERER_ALIASES, EnvConfig
 from safe_bc.tasks.registry import Bounds, task_defaults, task_of
 
 
@@ -51,3 +51,41 @@ def action_bounds(env_config: EnvConfig) -> Bounds:
         return tuple(float(x) for x in space.low), tuple(float(x) for x in space.high)
     finally:
         env.close()
+
+
+def frames_renderer(env: EnvConfig) -> str | None:
+    """The renderer that draws ``env``'s frames, as a dataset records it: ``None`` for a task
+    without renderers."""
+    return env.renderer if task_defaults(task_of(env.env_id)).has_renderer else None
+
+
+def check_frames_renderer(recorded: str | None, env: EnvConfig, where: Any) -> str | None:
+    """Demonstrations drawn by one renderer must not train an agent evaluated on another.
+
+    Returns a one-line warning when ``recorded`` is ``None`` on a task with renderers (a set
+    collected before the renderer was recorded: it cannot be checked), else ``None``.
+
+    Raises:
+        ValueError: one line naming ``where`` and both renderers.
+
+    >>> check_frames_renderer("raster", EnvConfig(renderer="exact"), "demos")  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    ValueError: demos holds frames drawn by the 'raster' renderer, but the env draws ...
+    """
+    wanted = frames_renderer(env)
+    if wanted is None:
+        return None
+    if recorded is None:
+        return (
+            f"{where} does not record its renderer (collected before 2026-11-26, when the "
+            f"default was 'exact'); the env draws with {wanted!r}: recollect to be sure"
+        )
+    recorded = RENDERER_ALIASES.get(recorded, recorded)
+    if recorded != wanted:
+        raise ValueError(
+            f"{where} holds frames drawn by the {recorded!r} renderer, but the env draws with "
+            f"{wanted!r}: collect demonstrations drawn by {wanted!r} (safe-bc collect "
+            f"--renderer {wanted}) or evaluate with renderer {recorded!r}"
+        )
+    return None

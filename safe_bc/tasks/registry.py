@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Any
 import gymnasium as gym
 import numpy as np
 
-from safe_bc.envs.config import EnvConfig, Renderer
+from safe_bc.envs.config import DEFAULT_RENDERER, EnvConfig, Renderer, canonical_renderer
 
 if TYPE_CHECKING:
     from safe_bc.data.codec import Encoding
@@ -213,7 +213,7 @@ def _load_plugins() -> None:
 
 
 @functools.cache
-def task_defaults(task: Task, renderer: Renderer = "fast") -> TaskSpec:
+def task_defaults(task: Task, renderer: Renderer = DEFAULT_RENDERER) -> TaskSpec:
     """The spec of ``task`` (a key of :data:`TASKS`), its env drawn by ``renderer`` where the
     task has renderers."""
     if task not in TASKS:
@@ -221,6 +221,7 @@ def task_defaults(task: Task, renderer: Renderer = "fast") -> TaskSpec:
     if task not in TASKS:
         raise ValueError(f"unknown task {task!r}: choose {' or '.join(TASKS)}")
     spec = TASKS[task]
+    renderer = canonical_renderer(renderer)
     if spec.has_renderer and spec.env.renderer != renderer:
         spec = replace(spec, env=replace(spec.env, renderer=renderer))
     return spec

@@ -1,7 +1,8 @@
 """Agents trained on exact frames, driving on approximate ones (raster renderer).
 
 Rows: the safety-imitation start of ``improve_carracing.py`` (BC with alpha 0.1, eps 2 px, the
-default network and budget; training seeds 0-2) evaluated in the exact env (``renderer`` fast,
+default network and budget; training seeds 0-2) evaluated in the exact env (``renderer``
+exact, formerly fast,
 pixel-identical to gymnasium's), and the same agents (``agents_of``) evaluated in the raster
 env (:mod:`safe_bc.tasks.carracing.raster_render`, the supersample factor chosen by
 ``python -m benchmarks.render_accuracy``); both against the default demonstrations' d_s, on
@@ -21,6 +22,10 @@ from pathlib import Path
 from safe_bc.compare import Comparison, Method
 from safe_bc.selection import SelectionConfig
 
+EXACT_DEMOS = Path("data/demos_exact")
+"""The default collection drawn by the exact renderer (the committed tables used
+``data/demos`` when ``exact``, then called ``fast``, was the default: the same episodes)."""
+
 COMPARISON = Comparison(
     name="renderer",
     methods=(
@@ -28,6 +33,8 @@ COMPARISON = Comparison(
             "exact",
             selection=SelectionConfig(eps=2.0, alpha=0.1),
             label="exact frames (trained and evaluated)",
+            renderer="exact",
+            demos=EXACT_DEMOS,
         ),
         Method(
             "raster",
@@ -37,6 +44,7 @@ COMPARISON = Comparison(
         ),
     ),
     task="carracing",
+    demos=EXACT_DEMOS,
     out=Path("results/ablation/renderer"),
     train_seeds=(0, 1, 2),
     episodes=20,

@@ -24,6 +24,10 @@ from safe_bc.selection import SelectionConfig
 
 RASTER_DEMOS = Path("data/demos_raster")
 """The raster pipeline's demonstrations (the default collection, raster frames)."""
+EXACT_DEMOS = Path("data/demos_exact")
+"""The exact pipeline's demonstrations (the default collection drawn by the exact renderer;
+the committed tables used ``data/demos`` when ``exact``, then called ``fast``, was the
+default: the same episodes)."""
 
 
 def pipelines(
@@ -38,7 +42,13 @@ def pipelines(
     return Comparison(
         name=name,
         methods=(
-            Method("exact pipeline", selection=selection, bc=bc),
+            Method(
+                "exact pipeline",
+                selection=selection,
+                bc=bc,
+                renderer="exact",
+                demos=EXACT_DEMOS,
+            ),
             Method(
                 "raster pipeline",
                 selection=selection,
@@ -48,6 +58,7 @@ def pipelines(
             ),
         ),
         task="carracing",
+        demos=EXACT_DEMOS,
         out=Path("results/ablation/renderer"),
         train_seeds=train_seeds,
         episodes=20,

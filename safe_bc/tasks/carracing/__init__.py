@@ -34,7 +34,8 @@ CARRACING_ID = "CarRacing-v3"
 FAST_CARRACING_ID = "safe_bc/CarRacingFast-v3"
 RASTER_CARRACING_ID = "safe_bc/CarRacingRaster-v3"
 CARRACING_IDS: dict[Renderer, str] = {
-    "fast": FAST_CARRACING_ID,
+    "exact": FAST_CARRACING_ID,
+    "fast": FAST_CARRACING_ID,  # the former name of "exact"
     "raster": RASTER_CARRACING_ID,
     "stock": CARRACING_ID,
 }

@@ -29,6 +29,7 @@ import gymnasium as gym
 import numpy as np
 import pandas as pd
 
+from safe_bc.envs.config import DEFAULT_RENDERER, Renderer
 from safe_bc.episode import Episode
 from safe_bc.report import markdown_table
 
@@ -49,6 +50,8 @@ class ReleaseSweep:
     """Default demonstration episodes (ids ``0..episodes-1``) per release distance."""
     out: Path = Path("results/demos")
     """Where ``release_sweep.parquet`` and ``.md`` go."""
+    renderer: Renderer = DEFAULT_RENDERER
+    """The renderer that draws the episodes (the release reads the frame's safety distance)."""
 
     def __post_init__(self) -> None:
         if not self.releases or any(not (r >= 0) for r in self.releases):
@@ -119,13 +122,16 @@ class _WheelLog(gym.Wrapper):
         return out
 
 
-def collect_release(release: float, episodes: int) -> tuple[list[Episode], list[int]]:
-    """Default demonstration episodes ``0..episodes-1`` with the drift released at
-    ``release`` px (in this process), and the wheels on the road after each of their steps."""
+def collect_release(
+    release: float, episodes: int, renderer: Renderer = DEFAULT_RENDERER
+) -> tuple[list[Episode], list[int]]:
+    """Default demonstration episodes ``0..episodes-1`` drawn by ``renderer`` with the drift
+    released at ``release`` px (in this process), and the wheels on the road after each of
+    their steps."""
     from safe_bc.collection import EpisodeMaker
     from safe_bc.tasks import task_defaults
 
-    base = task_defaults("carracing").collect_config()
+    base = task_defaults("carracing", renderer).collect_config()
     pert = dataclasses.replace(base.perturbation, release_distance=release)
     maker = EpisodeMaker(dataclasses.replace(base, perturbation=pert))
     log = _WheelLog(maker.env)
@@ -143,12 +149,15 @@ def run_sweep(sweep: ReleaseSweep, *, progress: bool = True) -> pd.DataFrame:
 
     rows = []
     for release in sweep.releases:
-        rows.append(release_row(release, *collect_release(release, sweep.episodes)))
+        rows.append(release_row(release, *collect_release(release, sweep.episodes, sweep.renderer)))
         if progress:
             print(rows[-1], flush=True)
     table = pd.DataFrame(rows)
     meta = run_metadata(
-        releases=list(sweep.releases), episodes=sweep.episodes, collection="default"
+        releases=list(sweep.releases),
+        episodes=sweep.episodes,
+        collection="default",
+        renderer=sweep.renderer,
     )
     sweep.out.mkdir(parents=True, exist_ok=True)
     write_table_atomic(sweep.out / f"{STEM}.parquet", table, meta)

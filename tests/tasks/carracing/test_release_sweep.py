@@ -91,7 +91,8 @@ def test_default_release_row_recollects_to_the_committed_digits() -> None:
     table, _ = read_table(COMMITTED.with_suffix(".parquet"))
     release = PerturbationConfig().release_distance
     committed = table[table["release_distance"] == release].reset_index(drop=True)
-    again = pd.DataFrame([release_row(release, *collect_release(release, 5))])
+    renderer = load_sweep(ROOT / DEFAULT_FILE).renderer  # the committed table's
+    again = pd.DataFrame([release_row(release, *collect_release(release, 5, renderer))])
     pd.testing.assert_frame_equal(again, committed, check_exact=True)
 
 
