@@ -1,0 +1,139 @@
+"""``make tune`` at two commits on one machine, side by side: wall-clock and the study's verdict.
+
+Each run is the default study (``safe-bc tune tune_jobs/default.py``) from a clean checkout of
+its commit, one after the other on the same machine with nothing else running; this module
+only reads what the two runs wrote (``timing.parquet``, ``final.parquet``,
+``final_paired.parquet``, ``best.json``), copies those tables under ``OUT/<label>/`` and writes
+``OUT/side_by_side.parquet`` and ``.md``: per run its revision, wall-clock (the study's
+``timing`` rows: total, tuning loop, final phase), the winner, its re-evaluated reward, its
+paired difference to the expert (95% CI) and its final-phase episodes beyond d_s; then the new
+run's wall-clock as a share of the old one's.
+
+    python -m benchmarks.tune_side_by_side --run old=DIR --run new=DIR --out OUT
+    python -m benchmarks.tune_side_by_side --out OUT   # again, from the copies in OUT
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from safe_bc.atomic import write_text_atomic
+from safe_bc.data.store import read_table, write_table_atomic
+
+TABLES = ("timing.parquet", "final.parquet", "final_paired.parquet", "best.json")
+"""What is copied from each run's study folder (and read back from the copies)."""
+FINAL_PHASES = ("final_train", "final_stages", "final_evaluation", "final_summary", "final_tables")
+
+
+def run_row(label: str, folder: Path) -> dict[str, Any]:
+    """One run's row from its study folder (or its copy)."""
+    timing, meta = read_table(folder / "timing.parquet")
+    study = timing[timing["part_of"] == "study"].set_index("phase")["seconds"]
+    final, _ = read_table(folder / "final.parquet")
+    paired, _ = read_table(folder / "final_paired.parquet")
+    best = json.loads((folder / "best.json").read_text())
+    winner = best["trial_id"]
+    row = final.set_index("method").loc[winner]
+    vs = paired[(paired["method"] == winner) & (paired["vs"] == "expert")].iloc[0]
+    prov = meta.get("provenance", meta)
+    return {
+        "run": label,
+        "revision": str(prov.get("git_revision", meta.get("git_revision", "")))[:12],
+        "cpu_model": str(prov.get("cpu_model", "")),
+        "wall_s": float(study.sum()),
+        "tuning_s": float(study.get("tuning", 0.0)),
+        "final_s": float(sum(study.get(p, 0.0) for p in FINAL_PHASES)),
+        "winner": winner,
+        "winner_reward": float(row["reward"]),
+        "d_reward_vs_expert": float(vs["d_reward"]),
+        "d_reward_lo": float(vs["d_reward_lo"]),
+        "d_reward_hi": float(vs["d_reward_hi"]),
+        "episodes_beyond_d_s": int(row["episodes_with_violation"]),
+        "episodes": int(row["n_episodes"]),
+        "feasible": bool(row["feasible"]),
+    }
+
+
+def side_by_side(rows: list[dict[str, Any]]) -> pd.DataFrame:
+    """The rows, each run's wall-clock as a share of the first run's."""
+    table = pd.DataFrame(rows)
+    base = table.iloc[0]
+    for col in ("wall_s", "tuning_s", "final_s"):
+        table[f"{col}_vs_{base['run']}"] = table[col] / base[col]
+    return table
+
+
+def markdown(table: pd.DataFrame, meta: dict[str, Any]) -> str:
+    """The table as Markdown with what it supports."""
+    base, last = table.iloc[0], table.iloc[-1]
+    b = base["run"]
+    ratio = {col: last[f"{col}_vs_{b}"] for col in ("wall_s", "tuning_s", "final_s")}
+    verdict = []
+    for _, r in table.iterrows():
+        lo, hi = r["d_reward_lo"], r["d_reward_hi"]
+        where = "above" if lo > 0 else "below" if hi < 0 else "no reliable difference from"
+        verdict.append(
+            f"{r['run']}: winner {r['winner']} {r['d_reward_vs_expert']:+.1f} "
+            f"[{lo:.1f}, {hi:.1f}] against the expert ({where} it), "
+            f"{r['episodes_beyond_d_s']} of {r['episodes']} final episodes beyond d_s"
+        )
+    shown = table.copy()
+    for col in ("wall_s", "tuning_s", "final_s"):
+        shown[col] = shown[col].map(lambda s: f"{s / 60:.1f} min")
+    return (
+        "# `make tune` side by side\n\n"
+        f"The default study run at each commit, one after the other on one machine "
+        f"({base['cpu_model']}), nothing else running; made by "
+        "`python -m benchmarks.tune_side_by_side` from the runs' own tables (copied beside "
+        "this file).\n\n"
+        + shown.to_markdown(index=False, floatfmt=".3g")
+        + f"\n\n**Wall-clock:** {last['run']} took {ratio['wall_s']:.2f}x {b}'s "
+        f"({last['wall_s'] / 60:.1f} against {base['wall_s'] / 60:.1f} min; tuning loop "
+        f"{ratio['tuning_s']:.2f}x, final phase {ratio['final_s']:.2f}x).\n\n"
+        "**The study's own measure** (final phase: each winner retrained with 3 seeds on 51 "
+        "fresh tracks, paired with the expert on the same tracks; one draw per commit, and the "
+        "two runs' experts drive different frames when the renderer differs, so the runs are "
+        "compared through their differences to their own expert, not paired with each other):"
+        "\n\n" + "\n".join(f"- {v}" for v in verdict) + "\n\n"
+        f"Commands: {meta.get('commands', '')}\n"
+    )
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--run", action="append", default=[], help="LABEL=STUDY_DIR, oldest first")
+    p.add_argument("--out", type=Path, required=True, help="where the copies and tables go")
+    p.add_argument("--commands", default="", help="how the runs were made (recorded)")
+    args = p.parse_args(argv)
+    runs = [tuple(r.split("=", 1)) for r in args.run]
+    if any(len(r) != 2 for r in runs):
+        p.error("--run takes LABEL=STUDY_DIR")
+    if runs:
+        for label, folder in runs:
+            dest = args.out / label
+            dest.mkdir(parents=True, exist_ok=True)
+            for name in TABLES:
+                shutil.copy2(Path(folder) / name, dest / name)
+        labels = [label for label, _ in runs]
+    else:
+        old, _ = read_table(args.out / "side_by_side.parquet")
+        labels = list(old["run"])
+    rows = [run_row(label, args.out / label) for label in labels]
+    table = side_by_side(rows)
+    meta = {"runs": labels, "commands": args.commands}
+    if not runs:
+        meta["commands"] = read_table(args.out / "side_by_side.parquet")[1].get("commands", "")
+    write_table_atomic(args.out / "side_by_side.parquet", table, meta)
+    write_text_atomic(args.out / "side_by_side.md", markdown(table, meta))
+    print(markdown(table, meta))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
