@@ -184,4 +184,8 @@ def costs_from_distances(distances: np.ndarray) -> np.ndarray:
     >>> costs_from_distances(np.array([45.0, 0.0, 40.0])).tolist()
     [0.0, 66.0, 5.0]
     """
-    return (MAX_RANGE - np.clip(distances, 0.0, MAX_RANGE)).astype(np.float32)
+    # np.clip(distances, 0.0, MAX_RANGE) as two ufuncs (np.clip's Python wrapper costs more
+    # than the work): the same values, NaN included; a -0.0 may keep its sign, which the
+    # subtraction ignores
+    clipped = np.minimum(np.maximum(distances, 0.0), MAX_RANGE)
+    return (MAX_RANGE - clipped).astype(np.float32)

@@ -21,16 +21,18 @@ and cost differences and what they do to agents (``results/ablation/renderer/``)
 result uses this renderer. ``rgb_array``/``human`` renders are the exact ones of
 ``FastCarRacing``.
 
-**Per-step cost.** Filling ~35 small polygons is cheap; what costs is moving their vertices and
-the panel. With numba (:mod:`.raster_kernels`, switched as :mod:`.compiled` says) one call culls
+**Per-step cost.** The ~35 ``cv2.fillPoly`` calls of a frame are a minor part of a step; numpy's
+per-call overhead on small arrays (moving the polygons' vertices) and the panel were most of
+it. With numba (:mod:`.raster_kernels`, switched as :mod:`.compiled` says) one call culls
 the track polygons and maps the kept ones to the canvas and one maps the car's, with the numpy
 expressions' float operations (the same fixed-point vertices); the fills read prebuilt views of
 the kernels' output. Indicator bars that stay inside the panel are not filled on the canvas
-(the panel's rows are replaced); the panel's black background is a ``fill`` of the rows that
-the bars and the score reach, and only those rows go through smoothscale's X pass (it works row
-by row; a black row shrinks to black). ``compiled_drawing = False`` (or no numba) runs the numpy
-transforms. The frames are the same either way, and the same as the implementation that
-``results/ablation/renderer/`` measured (``tests/tasks/carracing/test_raster_identity.py``).
+(the panel's rows are replaced); the panel's black background is painted (a black polygon,
+as stock's) only over the rows that the bars and the score reach, and only those rows go
+through smoothscale's X pass (it works row by row; a black row shrinks to black).
+``compiled_drawing = False`` (or no numba) runs the numpy transforms. The frames are the same
+either way, and the same as the implementation that ``results/ablation/renderer/`` measured
+(``tests/tasks/carracing/test_raster_identity.py``).
 """
 
 from __future__ import annotations
@@ -80,6 +82,10 @@ class RasterCarRacing(FastCarRacing):
         **kwargs: ``CarRacing``'s own arguments.
     """
 
+    compiled_drawing = True
+    """Cull and move the vertices with :mod:`.raster_kernels` where they are available (the
+    frames are the same either way; ``False``: numpy, for benchmarks and tests)."""
+
     def __init__(self, *args: Any, supersample: int = DEFAULT_SUPERSAMPLE, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
         if not isinstance(supersample, int) or not 1 <= supersample <= 16:
@@ -93,7 +99,7 @@ class RasterCarRacing(FastCarRacing):
         self._sy = STATE_H * supersample / WINDOW_H
         self._bg_canvas: np.ndarray | None = None
         self._panel_state: pygame.Surface | None = None
-        self._bg_key: tuple[int, ...] = ()
+        self._bg_key: tuple[Any, ...] = ()  # bg_color's values the plain canvas was made of
         halvings = 0
         while supersample % (2 ** (halvings + 1)) == 0:
             halvings += 1
@@ -201,10 +207,11 @@ class RasterCarRacing(FastCarRacing):
 
     def _draw_field(self, zoom: float, trans: tuple[float, float], c: float, s: float) -> None:
         """Stock's background square: a copy of a plain canvas when it covers the window."""
-        key = tuple(int(v) for v in self.bg_color)
+        bg = self.bg_color
+        key = tuple(bg.tolist() if isinstance(bg, np.ndarray) else bg)
         if self._bg_canvas is None or self._bg_key != key:
             self._bg_canvas = np.empty_like(self._canvas)
-            self._bg_canvas[:] = key
+            self._bg_canvas[:] = _bgr_free(key)
             self._bg_key = key
         if self._field_covers_window(zoom):
             np.copyto(self._canvas, self._bg_canvas)

@@ -222,3 +222,23 @@ def test_the_switch_and_a_failed_check_keep_numpy(monkeypatch: pytest.MonkeyPatc
     with pytest.warns(RuntimeWarning, match="raster_kernels disagree"):
         assert compiled.load_kernels("raster_kernels") is None
     assert compiled.load_kernels("ray_kernel") is not None
+
+
+def test_costs_from_distances_is_the_clip_formula() -> None:
+    """``costs_from_distances`` (two ufuncs) equals ``MAX_RANGE - np.clip(d, 0, MAX_RANGE)``,
+    the formula the committed costs were made with, bit for bit, edge values included."""
+    rng = np.random.default_rng(1)
+    edges = np.array([0.0, -0.0, -1.0, 45.0, 66.0, 1e9, -np.inf, np.inf, np.nan, 44.999996])
+    cases = [
+        rng.uniform(-10.0, 80.0, (200, 3)),
+        rng.uniform(-10.0, 80.0, (200, 3)).astype(np.float32),
+        rng.choice(edges, (200, 3)),
+        rng.choice(edges, (200, 3)).astype(np.float32),
+        rng.integers(-5, 80, (50, 3)),
+        np.array([3.0, -0.0, 70.0]),
+    ]
+    for d in cases:
+        want = (costs.MAX_RANGE - np.clip(d, 0.0, costs.MAX_RANGE)).astype(np.float32)
+        got = costs.costs_from_distances(d)
+        assert got.dtype == want.dtype and got.shape == want.shape
+        assert got.tobytes() == want.tobytes() or np.array_equal(got, want, equal_nan=True)
