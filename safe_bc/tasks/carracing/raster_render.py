@@ -253,15 +253,19 @@ class RasterCarRacing(FastCarRacing):
         )
         if count < 0:
             return False
-        grass = _bgr_free(self.grass_color)
         n_grass = len(_GRASS)
         road = self._road_colors
+        drawn = index[:count].tolist()  # the grass squares first: they precede the road
+        road_drawn = [road[i - n_grass] for i in drawn if i >= n_grass]
+        # the colours as _visible_polygons makes them (stock int()s the road's, live arrays:
+        # visited tiles are recoloured), in one conversion
+        colors = [_bgr_free(self.grass_color)] * (count - len(road_drawn))
+        if road_drawn:
+            colors += np.array(road_drawn, dtype=np.float64).astype(np.int64).tolist()
         canvas = self._canvas
         fill = cv2.fillPoly
-        for j, i in enumerate(index[:count].tolist()):
-            # stock int()s the road colours (live arrays: visited tiles are recoloured)
-            color = grass if i < n_grass else [int(v) for v in road[i - n_grass]]
-            fill(canvas, polys[j], color, cv2.LINE_8, _SHIFT)
+        for poly, color in zip(polys, colors, strict=False):  # polys[:count]
+            fill(canvas, poly, color, cv2.LINE_8, _SHIFT)
         return True
 
     def _draw_car_compiled(self, kernels: Any, view: np.ndarray) -> bool:
