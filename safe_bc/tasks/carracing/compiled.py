@@ -6,8 +6,9 @@ same results bit for bit: :mod:`.gfx_kernels` (the fast renderer's ``gfxdraw`` p
 safety rays of :func:`.costs.pixel_distances`). A module is imported on first use, and used,
 only if numba is installed, :data:`COMPILED_ENV` is not ``0`` and its self-check (run once per
 process) agrees with the code it replaces; otherwise that code runs, with a ``RuntimeWarning``
-if the check failed. Numba and LLVM cost memory in every process that loads them
-(``make bench``'s memory columns), which is what the switch is for.
+if the check failed (:func:`load_kernels` for the last two; ``fast_render._compiled_draw``,
+with ``gfx_kernels.matches_pygame``, for the first). Numba and LLVM cost memory in every
+process that loads them (``make bench``'s memory columns), which is what the switch is for.
 """
 
 from __future__ import annotations

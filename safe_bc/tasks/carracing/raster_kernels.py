@@ -3,9 +3,9 @@
 :class:`~safe_bc.tasks.carracing.raster_render.RasterCarRacing` moves ~40 track polygons and
 ~12 car polygons per frame from the world to the canvas; in numpy that is dozens of calls on
 arrays of 4 to 40 elements, each paying numpy's per-call overhead. These kernels do the same
-in one call each, with the same float64 operations in the same order (no fused multiply-adds,
-no reassociation: numba's defaults), so every fixed-point vertex handed to ``cv2.fillPoly`` is
-the one the numpy expressions give:
+in one call each, with the same float64 operations in the same order (numba's defaults do not
+reassociate; :func:`self_check` would catch a compiler that fused a multiply-add), so every
+fixed-point vertex handed to ``cv2.fillPoly`` is the one the numpy expressions give:
 
 * :func:`track_points`: the exact renderer's culling (a disc test around the visible area,
   then stock's vertex-in-window test and the bounding-box test against the kept rows, as
