@@ -4,10 +4,12 @@ Everything CarRacing-specific lives in this folder:
 
 * the env: ``CarRacing-v3`` drawn by one of three renderers (:mod:`.fast_render`, the
   pixel-identical one, with its compiled polygon kernels :mod:`.gfx_kernels`;
-  :mod:`.raster_render`, approximate and opt-in; or gymnasium's own), wrapped in
+  :mod:`.raster_render`, approximate and opt-in, with its compiled vertex transforms
+  :mod:`.raster_kernels`; or gymnasium's own), wrapped in
   :class:`.wrapper.CarRacingSafety` (costs, warm-up, off-road in ``info``);
 * the costs: :mod:`.costs` (pure: frame -> pixel distances to the grass -> costs; its
-  :func:`~.costs.frame_costs` are also the observed costs);
+  :func:`~.costs.frame_costs` are also the observed costs; :mod:`.ray_kernel`, its rays
+  compiled); :mod:`.compiled`, the one switch of the compiled kernels;
 * the expert: :mod:`.expert` (pure pursuit on the centre line), :mod:`.geometry` (lateral
   offsets from the track), :mod:`.perturb` (drift / DART perturbations of the executed
   action);

@@ -1,8 +1,9 @@
 """Safety distances of the car from the grass, read off a CarRacing frame.
 
-Pure numpy: no gym, no I/O. The camera of ``CarRacing-v3`` follows the car and
-rotates with it, so the car is always drawn pointing up at the same place of the
-96x96 state (hull rows 67-76, cols 46-49; wheels out to cols 45-50). From there we
+Pure numpy, no gym, no I/O (the rays also have a compiled twin, :mod:`.ray_kernel`, with
+the same float32 results, used where numba is installed). The camera of ``CarRacing-v3``
+follows the car and rotates with it, so the car is always drawn pointing up at the same place
+of the 96x96 state (hull rows 67-76, cols 46-49; wheels out to cols 45-50). From there we
 cast three rays over the road and measure, in pixels, how much road lies between
 the car's body and the grass:
 
@@ -24,6 +25,8 @@ grass, and ``c_s >= d_s - eps`` means "within eps pixels of that".
 """
 
 from __future__ import annotations
+
+from typing import Any
 
 import numpy as np
 
@@ -89,6 +92,31 @@ def pixel_distances(frame: np.ndarray) -> np.ndarray:
     """
     if frame.shape != (96, 96, 3):
         raise ValueError(f"expected a (96, 96, 3) CarRacing frame, got shape {frame.shape}")
+    if frame.dtype == np.uint8:
+        kernel = _RayKernel.module if _RayKernel.resolved else _RayKernel.resolve()
+        if kernel is not None:
+            return kernel.distances(frame)
+    return _numpy_distances(frame)
+
+
+class _RayKernel:
+    """:mod:`.ray_kernel` (the same distances, compiled) where it may be used, else None
+    (:func:`safe_bc.tasks.carracing.compiled.load_kernels`), resolved on first use."""
+
+    module: Any = None
+    resolved = False
+
+    @classmethod
+    def resolve(cls) -> Any:
+        from safe_bc.tasks.carracing.compiled import load_kernels
+
+        cls.module = load_kernels("ray_kernel")
+        cls.resolved = True
+        return cls.module
+
+
+def _numpy_distances(frame: np.ndarray) -> np.ndarray:
+    """:func:`pixel_distances` in numpy (the definition :mod:`.ray_kernel` reproduces)."""
     # greenness of the ray pixels only (the same float32 operations as ``greenness``), every
     # ray in one row of ``green``; a ray's cumulative sum runs along its own row, so each
     # distance is the one ``_ray_distance`` gives for that ray alone
@@ -156,4 +184,8 @@ def costs_from_distances(distances: np.ndarray) -> np.ndarray:
     >>> costs_from_distances(np.array([45.0, 0.0, 40.0])).tolist()
     [0.0, 66.0, 5.0]
     """
-    return (MAX_RANGE - np.clip(distances, 0.0, MAX_RANGE)).astype(np.float32)
+    # np.clip(distances, 0.0, MAX_RANGE) as two ufuncs (np.clip's Python wrapper costs more
+    # than the work): the same values, NaN included; a -0.0 may keep its sign, which the
+    # subtraction ignores
+    clipped = np.minimum(np.maximum(distances, 0.0), MAX_RANGE)
+    return (MAX_RANGE - clipped).astype(np.float32)

@@ -87,6 +87,8 @@ from gymnasium.envs.box2d.car_racing import (
 )
 from pygame import gfxdraw
 
+from safe_bc.tasks.carracing.compiled import COMPILED_ENV
+
 __all__ = ["FastCarRacing"]
 
 _TWO_PI = 2.0 * math.pi
@@ -133,10 +135,10 @@ class _Compiled:
     resolved = False
 
 
-COMPILED_DRAWING_ENV = "SAFE_BC_COMPILED_DRAWING"
+COMPILED_DRAWING_ENV = COMPILED_ENV
 """Set to ``0`` to draw with pygame's own calls and never import numba: the same frames, slower
 steps and less memory per process that renders CarRacing (numba and LLVM); ``make bench``'s
-env case measures both ways."""
+env case measures both ways (:mod:`.compiled`: the switch of every compiled kernel)."""
 
 
 def _compiled_draw() -> Any:
@@ -451,16 +453,8 @@ class FastCarRacing(CarRacing):
         and a translation, so a polygon whose world centre is further than
         ``sqrt(2) * radius + reach / zoom`` from the world point under that centre cannot pass.
         """
-        c, s = _rotation(angle)
-        tx, ty = translation
-        margin = _SKIP_MARGIN + 2.0
-        sx = WINDOW_W / 2.0 - tx
-        sy = (visible_top + WINDOW_H) / 2.0 - ty
-        # inverse rotation of the screen offset, then un-zoom: world point under the centre
-        kx = (c * sx + s * sy) / zoom
-        ky = (-s * sx + c * sy) / zoom
-        reach = math.hypot(WINDOW_W / 2.0 + margin, (WINDOW_H - visible_top) / 2.0 + margin)
-        limit = self._poly_radius * _SQRT2 + (reach + 2.0) / zoom
+        kx, ky, reach = _near_disc(zoom, translation, *_rotation(angle), visible_top)
+        limit = self._poly_radius * _SQRT2 + reach
         dx = self._poly_centre[:, 0] - kx
         dy = self._poly_centre[:, 1] - ky
         return np.flatnonzero(dx * dx + dy * dy <= limit * limit)
@@ -601,9 +595,9 @@ class FastCarRacing(CarRacing):
 
         car = self.car
         assert car is not None
-        true_speed = np.sqrt(
-            np.square(car.hull.linearVelocity[0]) + np.square(car.hull.linearVelocity[1])
-        )
+        vx, vy = car.hull.linearVelocity
+        # stock's np.sqrt(np.square(vx) + np.square(vy)): the same IEEE operations on floats
+        true_speed = math.sqrt(vx * vx + vy * vy)
         w = car.wheels
         candidates = [
             (true_speed, vertical_ind(5, 0.02 * true_speed), (255, 255, 255)),
@@ -639,11 +633,16 @@ class FastCarRacing(CarRacing):
 
     def _draw_score(self, surf: pygame.Surface) -> bool:
         """Blit the score like stock; return False (drawing nothing) if it would leave the panel."""
+        text, text_rect = self._score_placement()
+        surf.blit(text, text_rect)
+        return text_rect.top >= _PANEL_TOP
+
+    def _score_placement(self) -> tuple[pygame.Surface, pygame.Rect]:
+        """The score text and where stock blits it."""
         text = self._score_text()
         text_rect = text.get_rect()
         text_rect.center = (60, WINDOW_H - WINDOW_H * 2.5 / 40.0)
-        surf.blit(text, text_rect)
-        return text_rect.top >= _PANEL_TOP
+        return text, text_rect
 
     # ------------------------------------------------------------------ frame
     def _view(self) -> tuple[float, tuple[float, float], float]:
@@ -750,6 +749,23 @@ class FastCarRacing(CarRacing):
         smoothscale(bufs.panel_rows, (STATE_W, _PANEL_ROWS), bufs.panel_x)
         smoothscale(bufs.frame_x, (STATE_W, STATE_H), bufs.state)
         return _surface_rgb(bufs.state)
+
+
+def _near_disc(
+    zoom: float, translation: tuple[float, float], c: float, s: float, visible_top: int
+) -> tuple[float, float, float]:
+    """``FastCarRacing._near_polygons``' disc: the world point ``(kx, ky)`` under the centre of
+    the kept area and the world distance ``(reach + 2) / zoom`` that, added to a polygon's
+    ``sqrt(2) * radius``, bounds how far from it the polygon's centre may lie."""
+    tx, ty = translation
+    margin = _SKIP_MARGIN + 2.0
+    sx = WINDOW_W / 2.0 - tx
+    sy = (visible_top + WINDOW_H) / 2.0 - ty
+    # inverse rotation of the screen offset, then un-zoom: world point under the centre
+    kx = (c * sx + s * sy) / zoom
+    ky = (-s * sx + c * sy) / zoom
+    reach = math.hypot(WINDOW_W / 2.0 + margin, (WINDOW_H - visible_top) / 2.0 + margin)
+    return kx, ky, (reach + 2.0) / zoom
 
 
 def _stripe_polygon(phase: float) -> list[tuple[float, float]] | None:

@@ -20,6 +20,19 @@ frames. ``benchmarks/render_accuracy.py`` and ``tune_jobs/compare/renderer*.py``
 and cost differences and what they do to agents (``results/ablation/renderer/``); no committed
 result uses this renderer. ``rgb_array``/``human`` renders are the exact ones of
 ``FastCarRacing``.
+
+**Per-step cost.** The ~35 ``cv2.fillPoly`` calls of a frame are a minor part of a step; numpy's
+per-call overhead on small arrays (moving the polygons' vertices) and the panel were most of
+it. With numba (:mod:`.raster_kernels`, switched as :mod:`.compiled` says) one call culls
+the track polygons and maps the kept ones to the canvas and one maps the car's, with the numpy
+expressions' float operations (the same fixed-point vertices); the fills read prebuilt views of
+the kernels' output. Indicator bars that stay inside the panel are not filled on the canvas
+(the panel's rows are replaced); the panel's black background is painted (a black polygon,
+as stock's) only over the rows that the bars and the score reach, and only those rows go
+through smoothscale's X pass (it works row by row; a black row shrinks to black).
+``compiled_drawing = False`` (or no numba) runs the numpy transforms. The frames are the same
+either way, and the same as the implementation that ``results/ablation/renderer/`` measured
+(``tests/tasks/carracing/test_raster_identity.py``).
 """
 
 from __future__ import annotations
@@ -37,10 +50,14 @@ from gymnasium.envs.box2d.car_racing import (
     WINDOW_W,
 )
 
+from safe_bc.tasks.carracing.compiled import load_kernels
 from safe_bc.tasks.carracing.fast_render import (
     _FIELD,
+    _GRASS,
     _PANEL_ROWS,
+    _PANEL_TOP,
     FastCarRacing,
+    _near_disc,
     _rotation,
     _stripe_polygon,
     _surface_rgb,
@@ -65,6 +82,10 @@ class RasterCarRacing(FastCarRacing):
         **kwargs: ``CarRacing``'s own arguments.
     """
 
+    compiled_drawing = True
+    """Cull and move the vertices with :mod:`.raster_kernels` where they are available (the
+    frames are the same either way; ``False``: numpy, for benchmarks and tests)."""
+
     def __init__(self, *args: Any, supersample: int = DEFAULT_SUPERSAMPLE, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
         if not isinstance(supersample, int) or not 1 <= supersample <= 16:
@@ -78,11 +99,19 @@ class RasterCarRacing(FastCarRacing):
         self._sy = STATE_H * supersample / WINDOW_H
         self._bg_canvas: np.ndarray | None = None
         self._panel_state: pygame.Surface | None = None
-        self._bg_key: tuple[int, ...] = ()
+        self._bg_key: tuple[Any, ...] = ()  # bg_color's values the plain canvas was made of
         halvings = 0
         while supersample % (2 ** (halvings + 1)) == 0:
             halvings += 1
         self._halvings = halvings  # 2x2 INTER_AREA steps before the last resize
+        # the compiled path's buffers: (poly_xy they were made for, vertices, indices, views)
+        self._track_buf: (
+            tuple[np.ndarray, np.ndarray, np.ndarray, list[list[np.ndarray]]] | None
+        ) = None
+        self._car_buf: _CarBuffers | None = None
+        self._view_buf = np.empty(10)  # raster_kernels' camera vector
+        self._band_surfaces: dict[tuple[int, int], tuple[pygame.Surface, pygame.Surface]] = {}
+        self._band_bufs: Any = None  # the _Buffers the band subsurfaces belong to
 
     # ------------------------------------------------------------------ geometry
     def _canvas_points(self, px: np.ndarray, py: np.ndarray) -> np.ndarray:
@@ -103,8 +132,12 @@ class RasterCarRacing(FastCarRacing):
         c, s = _rotation(angle)
         indicators = self._indicator_polygons(WINDOW_W, WINDOW_H)
         self._draw_field(zoom, trans, c, s)
-        self._draw_polygons(zoom, trans, angle)
-        self._draw_car_raster(zoom, trans, c, s)
+        kernels = _raster_kernels() if self.compiled_drawing else None
+        view = None if kernels is None else self._camera(zoom, trans, c, s)
+        if view is None or not self._draw_track_compiled(kernels, view):
+            self._draw_polygons(zoom, trans, angle)
+        if view is None or not self._draw_car_compiled(kernels, view):
+            self._draw_car_raster(zoom, trans, c, s)
         self._draw_indicators(indicators)
         frame = self._canvas
         for _ in range(
@@ -128,20 +161,57 @@ class RasterCarRacing(FastCarRacing):
         """
         bufs = self._buffers()
         panel = bufs.panel
-        self._draw_panel(panel, indicators)
-        self._draw_score(panel)
+        text, text_rect = self._score_placement()
+        # the panel rows anything but black can reach: the bars' rows (pygame truncates their
+        # vertices to int and fills the rows in between, ends included) and the score's
+        top, bottom = text_rect.top, text_rect.bottom
+        ys = [y for points, _ in indicators for _, y in points]
+        if ys:  # int() is monotonic: the extreme rows are those of the extreme vertices
+            top = min(top, int(min(ys)))
+            bottom = max(bottom, int(max(ys)) + 1)
+        top = min(max(top - 1, _PANEL_TOP), WINDOW_H)
+        bottom = max(min(bottom + 1, WINDOW_H), top)
+        # stock's black polygon paints all the panel's rows: the band's are painted here the
+        # same way (a black polygon over rows top..bottom - 1; Surface.fill would be the same
+        # pixels, but SDL's streaming stores leave them out of the cache for what follows)
+        _black_rows(panel, top, bottom, WINDOW_W)
+        draw_polygon = pygame.draw.polygon
+        for points, color in indicators:
+            draw_polygon(panel, color, points)
+        panel.blit(text, text_rect)
         if self._panel_state is None or self._panel_state.get_bitsize() != panel.get_bitsize():
             self._panel_state = pygame.Surface((STATE_W, _PANEL_STATE_ROWS), 0, panel)
-        pygame.transform.smoothscale(bufs.panel_rows, (STATE_W, _PANEL_ROWS), bufs.panel_x)
+        # smoothscale's X pass shrinks each row on its own and a black row to black (0): only
+        # the band's rows are shrunk, the others are made black
+        panel_x = bufs.panel_x
+        _black_rows(panel_x, 0, top - _PANEL_TOP, STATE_W)
+        _black_rows(panel_x, bottom - _PANEL_TOP, _PANEL_ROWS, STATE_W)
+        if bottom > top:
+            band_rows, band_x = self._band(bufs, top, bottom)
+            pygame.transform.smoothscale(band_rows, (STATE_W, bottom - top), band_x)
         pygame.transform.smoothscale(bufs.panel_x, (STATE_W, _PANEL_STATE_ROWS), self._panel_state)
         return _surface_rgb(self._panel_state)
 
+    def _band(self, bufs: Any, top: int, bottom: int) -> tuple[pygame.Surface, pygame.Surface]:
+        """Rows ``top:bottom`` of the panel and the same rows of its X-shrunk copy (cached
+        subsurfaces of ``bufs``)."""
+        if self._band_bufs is not bufs:
+            self._band_surfaces = {}
+            self._band_bufs = bufs
+        pair = self._band_surfaces.get((top, bottom))
+        if pair is None:
+            rows = bufs.panel.subsurface((0, top, WINDOW_W, bottom - top))
+            shrunk = bufs.panel_x.subsurface((0, top - _PANEL_TOP, STATE_W, bottom - top))
+            pair = self._band_surfaces[(top, bottom)] = (rows, shrunk)
+        return pair
+
     def _draw_field(self, zoom: float, trans: tuple[float, float], c: float, s: float) -> None:
         """Stock's background square: a copy of a plain canvas when it covers the window."""
-        key = tuple(int(v) for v in self.bg_color)
+        bg = self.bg_color
+        key = tuple(bg.tolist() if isinstance(bg, np.ndarray) else bg)
         if self._bg_canvas is None or self._bg_key != key:
             self._bg_canvas = np.empty_like(self._canvas)
-            self._bg_canvas[:] = key
+            self._bg_canvas[:] = _bgr_free(key)
             self._bg_key = key
         if self._field_covers_window(zoom):
             np.copyto(self._canvas, self._bg_canvas)
@@ -160,12 +230,86 @@ class RasterCarRacing(FastCarRacing):
         for poly, color in zip(self._canvas_points(px, py), colors, strict=True):
             cv2.fillPoly(canvas, [poly], _bgr_free(color), cv2.LINE_8, _SHIFT)
 
-    def _draw_car_raster(self, zoom: float, trans: tuple[float, float], c: float, s: float) -> None:
-        """The hull and wheels (and the wheels' white stripes), as stock's ``Car.draw``.
+    def _camera(self, zoom: float, trans: tuple[float, float], c: float, s: float) -> np.ndarray:
+        """:mod:`.raster_kernels`' camera vector ``[c, s, zoom, tx, ty, kx, ky, reach, sx,
+        sy]`` (the disc of ``FastCarRacing._near_polygons`` for the rows above the panel)."""
+        view = self._view_buf
+        kx, ky, reach = _near_disc(zoom, trans, c, s, _PANEL_ROWS)
+        view[0], view[1], view[2], view[3], view[4] = c, s, zoom, trans[0], trans[1]
+        view[5], view[6], view[7], view[8], view[9] = kx, ky, reach, self._sx, self._sy
+        return view
 
-        Every vertex is moved to the world with its body's position and angle in one numpy
-        expression (stock lets Box2D transform them one by one).
-        """
+    def _draw_track_compiled(self, kernels: Any, view: np.ndarray) -> bool:
+        """``_draw_polygons`` with the culling and the vertices from one compiled call; False
+        (having drawn nothing) if a vertex does not fit int32."""
+        self._sync_polygons()
+        xy = self._poly_xy
+        if self._track_buf is None or self._track_buf[0] is not xy:
+            out = np.empty((len(xy), 4, 2), np.int32)
+            self._track_buf = (xy, out, np.empty(len(xy), np.int64), [[p] for p in out])
+        _, out, index, polys = self._track_buf
+        count = kernels.track_points(
+            xy, self._poly_centre, self._poly_radius, view, float(_PANEL_ROWS), out, index
+        )
+        if count < 0:
+            return False
+        n_grass = len(_GRASS)
+        road = self._road_colors
+        drawn = index[:count].tolist()  # the grass squares first: they precede the road
+        road_drawn = [road[i - n_grass] for i in drawn if i >= n_grass]
+        # the colours as _visible_polygons makes them (stock int()s the road's, live arrays:
+        # visited tiles are recoloured), in one conversion
+        colors = [_bgr_free(self.grass_color)] * (count - len(road_drawn))
+        if road_drawn:
+            colors += np.array(road_drawn, dtype=np.float64).astype(np.int64).tolist()
+        canvas = self._canvas
+        fill = cv2.fillPoly
+        for poly, color in zip(polys, colors, strict=False):  # polys[:count]
+            fill(canvas, poly, color, cv2.LINE_8, _SHIFT)
+        return True
+
+    def _draw_car_compiled(self, kernels: Any, view: np.ndarray) -> bool:
+        """``_draw_car_raster`` with the vertices from one compiled call (same polygons, same
+        order: the hull's and wheels' fixtures, then the visible stripes); False (having drawn
+        nothing) if a vertex does not fit int32."""
+        self._sync_car()
+        car = self.car
+        buf = self._car_buf
+        if buf is None or buf.car is not car:
+            buf = self._car_buf = _CarBuffers(car, self._car_local, self._car_body, self._car_split)
+        bodies = buf.bodies
+        ang = np.asarray([obj.angle for obj in bodies], np.float64)  # np.cos as numpy's path
+        pos, local = buf.pos, buf.local
+        for b, obj in enumerate(bodies):
+            p = obj.position
+            pos[b, 0] = p.x
+            pos[b, 1] = p.y
+        stripes = []
+        for row, obj, poly in buf.wheels:  # a wheel's stripe goes to its own rows
+            if "phase" not in obj.__dict__:  # wheels have a phase, the hull has not
+                continue
+            stripe = _stripe_polygon(obj.phase)
+            if stripe is None:
+                continue
+            for k in range(4):
+                local[row + k, 0] = stripe[k][0]
+                local[row + k, 1] = stripe[k][1]
+            stripes.append(poly)
+        if not kernels.car_points(
+            local, buf.body, np.cos(ang), np.sin(ang), pos, view, len(local), buf.out
+        ):
+            return False
+        canvas = self._canvas
+        fill = cv2.fillPoly
+        for poly, color in zip(buf.polys, self._car_colors, strict=True):
+            fill(canvas, poly, color, cv2.LINE_8, _SHIFT)
+        white = list(WHEEL_WHITE)
+        for poly in stripes:  # after all the fixtures, in the bodies' order
+            fill(canvas, poly, white, cv2.LINE_8, _SHIFT)
+        return True
+
+    def _sync_car(self) -> None:
+        """The car's fixture vertices (body-local), bodies and colours, cached per ``Car``."""
         car = self.car
         assert car is not None
         if self._car_src is not car:
@@ -184,6 +328,14 @@ class RasterCarRacing(FastCarRacing):
             self._car_split = np.cumsum(sizes)[:-1]
             self._car_colors = colors
             self._car_src = car
+
+    def _draw_car_raster(self, zoom: float, trans: tuple[float, float], c: float, s: float) -> None:
+        """The hull and wheels (and the wheels' white stripes), as stock's ``Car.draw``.
+
+        Every vertex is moved to the world with its body's position and angle in one numpy
+        expression (stock lets Box2D transform them one by one).
+        """
+        self._sync_car()
         bodies = [obj for obj, _ in self._car_shapes]
         pos = np.asarray([tuple(obj.position) for obj in bodies], np.float64)
         ang = np.asarray([obj.angle for obj in bodies], np.float64)
@@ -215,8 +367,15 @@ class RasterCarRacing(FastCarRacing):
     def _draw_indicators(self, indicators: list[tuple[list, tuple[int, int, int]]]) -> None:
         """The indicator bars on the canvas, for the rare frames where one reaches above the
         panel (its rows are replaced by ``_exact_panel``)."""
-        if not indicators:
+        # one whose every vertex lies in the panel (flipped rows >= 700, canvas rows >= 84 *
+        # supersample, hence frame rows >= 84 after the box averages) changes no kept pixel
+        if not indicators or min([y for points, _ in indicators for _, y in points]) >= _PANEL_TOP:
             return
+        indicators = [
+            (points, color)
+            for points, color in indicators
+            if min(y for _, y in points) < _PANEL_TOP
+        ]
         p = np.asarray([points for points, _ in indicators], np.float64)  # (K, 4, 2)
         # already flipped: _canvas_points maps (H - y) to canvas row y * sy
         pts = self._canvas_points(p[..., 0], WINDOW_H - p[..., 1])
@@ -227,3 +386,43 @@ class RasterCarRacing(FastCarRacing):
 def _bgr_free(color: Any) -> list[int]:
     """A colour as the int list cv2 wants (channels stay in RGB order: the canvas is RGB)."""
     return [int(v) for v in color]
+
+
+def _black_rows(surf: pygame.Surface, top: int, bottom: int, width: int) -> None:
+    """Paint rows ``top:bottom`` of ``surf`` black (nothing if empty), as ``pygame.draw.polygon``
+    paints: a polygon fills the rows and columns of its integer vertices, ends included."""
+    if bottom > top:
+        pygame.draw.polygon(
+            surf, (0, 0, 0), [(width - 1, bottom - 1), (width - 1, top), (0, top), (0, bottom - 1)]
+        )
+
+
+def _raster_kernels() -> Any:
+    """:mod:`.raster_kernels` where it may be used, else None (resolved once per process)."""
+    return load_kernels("raster_kernels")
+
+
+class _CarBuffers:
+    """The compiled car path's arrays for one ``Car``: the fixtures' body-local vertices followed
+    by four rows per wheel for its stripe, their bodies, the bodies' positions, the canvas
+    vertices, and one-polygon lists of views of them (fixtures; ``wheels``: each wheel's first
+    stripe row, the wheel, its stripe's list) for ``cv2.fillPoly``."""
+
+    def __init__(self, car: Any, local: np.ndarray, body: np.ndarray, split: np.ndarray) -> None:
+        self.car = car
+        self.bodies = list(car.drawlist)
+        wheels = [b for b, obj in enumerate(self.bodies) if "phase" in obj.__dict__]
+        n = len(local)
+        size = n + 4 * len(wheels)
+        self.local = np.zeros((size, 2), np.float64)
+        self.local[:n] = local
+        self.body = np.zeros(size, np.int64)
+        self.body[:n] = body
+        self.pos = np.zeros((len(self.bodies), 2), np.float64)
+        self.out = np.zeros((size, 2), np.int32)
+        self.polys = [[p] for p in np.split(self.out[:n], split)]
+        self.wheels = []
+        for k, b in enumerate(wheels):
+            row = n + 4 * k
+            self.body[row : row + 4] = b
+            self.wheels.append((row, self.bodies[b], [self.out[row : row + 4]]))
