@@ -47,9 +47,9 @@ COST_VARIANTS: dict[str, Callable[[], Any]] = {
     "fast, pygame gfxdraw + costs": lambda: _pygame_drawing(_make_env("fast")),
     "raster + costs": lambda: _make_env("raster"),
 }
-"""``make_env`` with stock gymnasium's renderer, the default ``make_env()`` (fast renderer,
-identical frames), the default with its track drawn by pygame's gfxdraw instead of the
-compiled ports (identical frames), and the opt-in approximate ``raster`` renderer: all compute
+"""``make_env`` with stock gymnasium's renderer, the exact renderer (``"fast"``, its former
+name; identical frames), the same with its track drawn by pygame's gfxdraw instead of the
+compiled ports (identical frames), and the default approximate ``raster`` renderer: all compute
 the pixel safety costs every step."""
 BASELINES = {"stock": "stock", "fast": "stock", "stock + costs": "stock + costs"}
 BASELINES["fast + costs"] = BASELINES["raster + costs"] = "stock + costs"
@@ -183,17 +183,18 @@ STEP_PARTS: dict[str, tuple[str, ...]] = {
 
 
 def step_breakdown(steps: int = 300, seed: int = 0) -> dict[str, float]:
-    """Milliseconds per ``env.step`` of the default env (``make_env()``, fast renderer and
-    safety costs) in each of :data:`STEP_PARTS` and "other Python", from cProfile's own time
-    per function over ``steps`` steps of the pursuit driver (after a 60-step warm-up past the
-    zoom-in). The profiler's per-call overhead inflates the Python parts; the C parts
-    (drawing, scaling, physics) are close to their unprofiled cost."""
+    """Milliseconds per ``env.step`` of the exact renderer's env (``make_env`` with
+    ``renderer="exact"`` and the safety costs) in each of :data:`STEP_PARTS` and "other
+    Python", from cProfile's own time per function over ``steps`` steps of the pursuit
+    driver (after a 60-step warm-up past the zoom-in). The profiler's per-call overhead
+    inflates the Python parts; the C parts (drawing, scaling, physics) are close to their
+    unprofiled cost."""
     import cProfile
     import pstats
 
-    from safe_bc.envs import make_env
+    from safe_bc.envs import EnvConfig, make_env
 
-    env = make_env()
+    env = make_env(EnvConfig(renderer="exact"))
     try:
         driver = _PursuitDriver(env.unwrapped, seed)
         env.reset(seed=seed)

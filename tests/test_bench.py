@@ -27,7 +27,7 @@ def test_quick_table_schema(quick_table):
     frame, _ = quick_table
     assert list(frame.columns) == list(bench.COLUMNS)
     assert set(frame["case"]) == {"env", "train"}
-    assert {"stock", "fast"} <= set(frame.loc[frame["case"] == "env", "variant"])
+    assert {"stock", "exact renderer"} <= set(frame.loc[frame["case"] == "env", "variant"])
     assert {"bare torch loop", "train_bc pipeline"} <= set(frame["variant"])
     assert (frame["value"] > 0).all()
     assert (frame["repeats"] >= 1).all()
@@ -50,7 +50,7 @@ def test_env_step_breakdown_adds_up(quick_table):
 
     frame, _ = quick_table
     parts = frame[frame["variant"].str.startswith("step part: ")]
-    total = frame.loc[frame["variant"] == "profiled step (make_env default)", "value"].item()
+    total = frame.loc[frame["variant"] == bench.PROFILED, "value"].item()
     assert len(parts) == len(STEP_PARTS) + 1
     assert math.isclose(parts["value"].sum(), total, rel_tol=1e-9)
     assert math.isclose(parts["ratio"].sum(), 1.0, rel_tol=1e-9)
