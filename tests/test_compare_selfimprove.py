@@ -66,7 +66,7 @@ def test_tiny_rehab_comparison_with_a_selfimitation_row(rehab_demos, tmp_path, m
     from safe_bc.bc import BCConfig, NetworkConfig, TrainConfig, load_checkpoint
     from safe_bc.data.store import read_table
     from safe_bc.distributed.compare import eval_config, run_comparison, track_seeds
-    from safe_bc.distributed.evaluate import evaluate_policies
+    from safe_bc.distributed.evaluate import LOCKSTEP_ENVS, evaluate_policies
     from safe_bc.evaluation import NetSource
     from safe_bc.selfimprove.config import DONE, POLICY, round_dir
     from tests.test_compare import TINY
@@ -107,6 +107,7 @@ def test_tiny_rehab_comparison_with_a_selfimitation_row(rehab_demos, tmp_path, m
     again, _ = evaluate_policies(
         {"x": NetSource.from_model(*load_checkpoint(final))}, eval_config(comp),
         thresholds=np.asarray(stamp["thresholds"]), progress=False, seeds=track_seeds(comp),
+        envs_per_worker=LOCKSTEP_ENVS,  # the comparison's lockstep groups (batched forward)
     )  # fmt: skip
     again = again.set_index("env_seed").loc[mine.index]
     np.testing.assert_array_equal(mine["reward"].to_numpy(), again["reward"].to_numpy())
