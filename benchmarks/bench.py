@@ -941,8 +941,14 @@ def bench_eval(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
 
     torch.set_num_threads(1)  # what a 1-CPU Ray evaluation actor gets (OMP_NUM_THREADS=1)
     sources = {"expert": ExpertSource(ExpertConfig()), "BC net": _untrained_source(seed)}
-    config = EvalConfig(
-        episodes=sizes.eval_episodes, workers=0, seed=seed, max_steps=sizes.eval_steps
+    from safe_bc.envs.config import EnvConfig
+
+    config = EvalConfig(  # the exact renderer: the one-env path every ratio is taken against
+        episodes=sizes.eval_episodes,
+        workers=0,
+        seed=seed,
+        max_steps=sizes.eval_steps,
+        env=EnvConfig(renderer="exact"),
     )
     lock_config = replace(config, episodes=WIDE_BATCHED_ENVS)
     raster_config = replace(lock_config, env=replace(lock_config.env, renderer="raster"))
@@ -1050,13 +1056,19 @@ def bench_eval(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
             "together and one forward pass (BCNet.forward); may round differently from act "
             "(safe_bc.policy.LockstepForward)",
         ),
-        _self_row("eval", "BC net, 1 env", lock[("fast", 1, "rows")], "episodes/min", lock_note),
+        _self_row(
+            "eval",
+            "BC net, exact renderer, 1 env",
+            lock[("fast", 1, "rows")],
+            "episodes/min",
+            lock_note,
+        ),
         _row(
             "eval",
-            f"BC net, {BATCHED_ENVS} envs in lockstep",
+            f"BC net, exact renderer, {BATCHED_ENVS} envs in lockstep",
             lock[("fast", BATCHED_ENVS, "rows")],
             "episodes/min",
-            ("BC net, 1 env", lock[("fast", 1, "rows")]),
+            ("BC net, exact renderer, 1 env", lock[("fast", 1, "rows")]),
             f"{lock_note}; {PAIRED_NOTE}",
             paired=True,
         ),
@@ -1066,7 +1078,7 @@ def bench_eval(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
                 f"BC net, raster renderer, {label}",
                 lock[("raster", envs, forward)],
                 "episodes/min",
-                ("BC net, 1 env", lock[("fast", 1, "rows")]),
+                ("BC net, exact renderer, 1 env", lock[("fast", 1, "rows")]),
                 f"{lock_note if forward == 'rows' else batched_note}; {raster_note}; {PAIRED_NOTE}",
                 paired=True,
             )
@@ -1078,7 +1090,7 @@ def bench_eval(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
         ],
         _self_row(
             "eval",
-            "BC net, 1 env, per core",
+            "BC net, exact renderer, 1 env, per core",
             lock_cpu[("fast", 1, "rows")],
             "episodes/min",
             f"{lock_note}; {per_core}",
@@ -1090,7 +1102,7 @@ def bench_eval(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
                 "per core",
                 lock_cpu[("raster", envs, "batched")],
                 "episodes/min",
-                ("BC net, 1 env, per core", lock_cpu[("fast", 1, "rows")]),
+                ("BC net, exact renderer, 1 env, per core", lock_cpu[("fast", 1, "rows")]),
                 f"{batched_note}; baseline: the exact (fast renderer) one-env path; "
                 f"{raster_note}; {per_core}; {PAIRED_NOTE}",
                 paired=True,

@@ -119,13 +119,13 @@ def test_quick_eval_case_times_the_batched_forward_against_the_exact_one_env_pat
     against the exact (fast renderer) one-env path, measured in the same run."""
     rows = bench.run_case("eval", bench.QUICK, repeats=1)["rows"]
     by = {r["variant"]: r for r in rows}
-    base = by["BC net, 1 env, per core"]
+    base = by["BC net, exact renderer, 1 env, per core"]
     assert base["unit"] == "episodes/min" and base["value"] > 0
     for envs in (bench.BATCHED_ENVS, bench.WIDE_BATCHED_ENVS):
         row = by[
             f"BC net, raster renderer, {envs} envs in lockstep with one batched forward, per core"
         ]
-        assert row["baseline"] == "BC net, 1 env, per core"
+        assert row["baseline"] == "BC net, exact renderer, 1 env, per core"
         assert math.isfinite(row["ratio"]) and row["ratio"] > 0
     assert by["BC net, raster renderer, 4 envs in lockstep, one batched forward"]["value"] > 0
 
