@@ -26,7 +26,10 @@ import pandas as pd
 from safe_bc.atomic import write_text_atomic
 from safe_bc.data.store import read_table, write_table_atomic
 
-TABLES = ("timing.parquet", "final.parquet", "final_paired.parquet", "best.json")
+TABLES = (
+    "timing.parquet", "timing.md", "trials.parquet", "final.parquet", "final_paired.parquet",
+    "best.json",
+)  # fmt: skip
 """What is copied from each run's study folder (and read back from the copies)."""
 FINAL_PHASES = ("final_train", "final_stages", "final_evaluation", "final_summary", "final_tables")
 
@@ -35,6 +38,7 @@ def run_row(label: str, folder: Path) -> dict[str, Any]:
     """One run's row from its study folder (or its copy)."""
     timing, meta = read_table(folder / "timing.parquet")
     study = timing[timing["part_of"] == "study"].set_index("phase")["seconds"]
+    slots = timing[timing["part_of"] == "tuning slots"].set_index("phase")["seconds"]
     final, _ = read_table(folder / "final.parquet")
     paired, _ = read_table(folder / "final_paired.parquet")
     best = json.loads((folder / "best.json").read_text())
@@ -49,6 +53,10 @@ def run_row(label: str, folder: Path) -> dict[str, Any]:
         "wall_s": float(study.sum()),
         "tuning_s": float(study.get("tuning", 0.0)),
         "final_s": float(sum(study.get(p, 0.0) for p in FINAL_PHASES)),
+        "final_train_s": float(study.get("final_train", 0.0)),
+        "final_evaluation_s": float(study.get("final_evaluation", 0.0)),
+        "trials_train_s": float(slots.get("trial_train", 0.0)),
+        "trials_evaluation_s": float(slots.get("trial_evaluation", 0.0)),
         "winner": winner,
         "winner_reward": float(row["reward"]),
         "d_reward_vs_expert": float(vs["d_reward"]),
@@ -64,7 +72,8 @@ def side_by_side(rows: list[dict[str, Any]]) -> pd.DataFrame:
     """The rows, each run's wall-clock as a share of the first run's."""
     table = pd.DataFrame(rows)
     base = table.iloc[0]
-    for col in ("wall_s", "tuning_s", "final_s"):
+    for col in ("wall_s", "tuning_s", "final_s", "trials_train_s", "trials_evaluation_s",
+                "final_train_s", "final_evaluation_s"):  # fmt: skip
         table[f"{col}_vs_{base['run']}"] = table[col] / base[col]
     return table
 
@@ -73,7 +82,7 @@ def markdown(table: pd.DataFrame, meta: dict[str, Any]) -> str:
     """The table as Markdown with what it supports."""
     base, last = table.iloc[0], table.iloc[-1]
     b = base["run"]
-    ratio = {col: last[f"{col}_vs_{b}"] for col in ("wall_s", "tuning_s", "final_s")}
+    ratio = {c[: -len(f"_vs_{b}")]: last[c] for c in table.columns if c.endswith(f"_vs_{b}")}
     verdict = []
     for _, r in table.iterrows():
         lo, hi = r["d_reward_lo"], r["d_reward_hi"]
@@ -83,9 +92,9 @@ def markdown(table: pd.DataFrame, meta: dict[str, Any]) -> str:
             f"[{lo:.1f}, {hi:.1f}] against the expert ({where} it), "
             f"{r['episodes_beyond_d_s']} of {r['episodes']} final episodes beyond d_s"
         )
-    shown = table.copy()
-    for col in ("wall_s", "tuning_s", "final_s"):
-        shown[col] = shown[col].map(lambda s: f"{s / 60:.1f} min")
+    shown = table[[c for c in table.columns if not c.endswith(f"_vs_{b}")]].copy()
+    for col in [c for c in shown.columns if c.endswith("_s")]:
+        shown[col] = shown[col].map(lambda s: f"{s:.0f} s")
     return (
         "# `make tune` side by side\n\n"
         f"The default study run at each commit, one after the other on one machine "
@@ -95,7 +104,12 @@ def markdown(table: pd.DataFrame, meta: dict[str, Any]) -> str:
         + shown.to_markdown(index=False, floatfmt=".3g")
         + f"\n\n**Wall-clock:** {last['run']} took {ratio['wall_s']:.2f}x {b}'s "
         f"({last['wall_s'] / 60:.1f} against {base['wall_s'] / 60:.1f} min; tuning loop "
-        f"{ratio['tuning_s']:.2f}x, final phase {ratio['final_s']:.2f}x).\n\n"
+        f"{ratio['tuning_s']:.2f}x, final phase {ratio['final_s']:.2f}x). The trials' own "
+        f"seconds: training {ratio['trials_train_s']:.2f}x, evaluation "
+        f"{ratio['trials_evaluation_s']:.2f}x; the final phase's training "
+        f"{ratio['final_train_s']:.2f}x, evaluation {ratio['final_evaluation_s']:.2f}x. "
+        "Training seconds follow the settings the searcher picked (batch size, width), which "
+        "differ between the runs: `trials.parquet` in each folder has them.\n\n"
         "**The study's own measure** (final phase: each winner retrained with 3 seeds on 51 "
         "fresh tracks, paired with the expert on the same tracks; one draw per commit, and the "
         "two runs' experts drive different frames when the renderer differs, so the runs are "
