@@ -93,7 +93,7 @@ def markdown(table: pd.DataFrame, meta: dict[str, Any]) -> str:
             f"{r['episodes_beyond_d_s']} of {r['episodes']} final episodes beyond d_s"
         )
     shown = table[[c for c in table.columns if not c.endswith(f"_vs_{b}")]].copy()
-    for col in [c for c in shown.columns if c.endswith("_s")]:
+    for col in [c for c in shown.columns if c.endswith("_s") and c != "episodes_beyond_d_s"]:
         shown[col] = shown[col].map(lambda s: f"{s:.0f} s")
     return (
         "# `make tune` side by side\n\n"
