@@ -5,10 +5,10 @@ Usage::
 
     python -m benchmarks.render_accuracy        # results/ablation/renderer/frames.parquet, ...
 
-The exact renderer (``renderer="fast"``) spends most of a step in pygame filling and shrinking
-a 1000x800 surface; ``renderer="raster"`` (:mod:`safe_bc.tasks.carracing.raster_render`)
-rasterises the same polygons straight onto a ``96 * supersample`` canvas. This measures, in
-one run:
+The exact renderer (``renderer="exact"``, formerly ``"fast"``) spends most of a step in pygame
+filling and shrinking a 1000x800 surface; ``renderer="raster"``
+(:mod:`safe_bc.tasks.carracing.raster_render`) rasterises the same polygons straight onto a
+``96 * supersample`` canvas. This measures, in one run:
 
 1. **Frames and costs** (per supersample factor): the scripted expert (privileged, it never
    reads pixels, so every renderer sees the same trajectory) drives ``--tracks`` fresh tracks
@@ -78,7 +78,7 @@ def frame_errors(
     from safe_bc.tasks import task_defaults
 
     expert_cfg = task_defaults("carracing").expert
-    exact = make_env(EnvConfig(max_episode_steps=steps))
+    exact = make_env(EnvConfig(renderer="exact", max_episode_steps=steps))
     rasters = {f: _raster(f, steps) for f in factors}
     rows, actions = [], {}
     for track in tracks:
