@@ -37,7 +37,6 @@ FAST_CARRACING_ID = "safe_bc/CarRacingFast-v3"
 RASTER_CARRACING_ID = "safe_bc/CarRacingRaster-v3"
 CARRACING_IDS: dict[Renderer, str] = {
     "exact": FAST_CARRACING_ID,
-    "fast": FAST_CARRACING_ID,  # the former name of "exact"
     "raster": RASTER_CARRACING_ID,
     "stock": CARRACING_ID,
 }
