@@ -298,10 +298,15 @@ def reproduce(job: ReproduceJob) -> Done:
 def compare(job: CompareJob) -> Done:
     """Run (or resume, or ``render_only`` rebuild) the comparison of ``job.comparison``."""
     from safe_bc.compare import load_comparison
-    from safe_bc.distributed.compare import rerender, run_comparison
+    from safe_bc.distributed.compare import rerender, run_cell, run_comparison
 
     comparison = load_comparison(job.comparison)
     check_output_folder(comparison.out)
+    if job.workers is not None and job.cell is None:
+        raise ValueError("--workers only applies with --cell")
+    if job.cell is not None:
+        folder = run_cell(comparison, job.cell, workers=job.workers, progress=not job.quiet)
+        return Done(f"cell {job.cell} done in {folder}", comparison)
     if job.render_only:
         rerender(comparison)
     else:

@@ -145,6 +145,14 @@ class CompareJob:
     """Comparison file, e.g. tune_jobs/compare/table1.py."""
     render_only: bool = False
     """Rebuild the table from the stored episodes."""
+    cell: str | None = None
+    """Only train or improve this cell, METHOD:SEED (e.g. selfimitation:1; a start it needs is
+    trained first): no evaluation, no table. Cells are independent, so a comparison's cells
+    can run in parallel processes or on other machines sharing the output folder; a later run
+    without --cell reuses them."""
+    workers: int | None = None
+    """With --cell: a self-imitation row's rollout actors (0: in this process); its results
+    do not depend on it."""
     quiet: bool = False
     """No progress bars."""
 

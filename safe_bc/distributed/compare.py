@@ -266,50 +266,34 @@ def _fallback_source(
     return ImprovedSource(net, ExpertSource(stored_expert_config(c.demos)), shield)
 
 
-def run_comparison(
-    comparison: Comparison, *, progress: bool = True, command: str | None = None
-) -> pd.DataFrame:
-    """Train, improve and evaluate what is missing, then write every output (module doc).
+def _load_sets(comparison: Comparison, progress: bool) -> dict[Path, Any]:
+    """Every demonstration set the rows need (collected when missing), the comparison's
+    first; warns when a BC row's frames were drawn by another renderer."""
+    sets: dict[Path, Any] = {}
+    for path, collect in own_demos(comparison).items():
+        from safe_bc.distributed.collect import ensure_demos
 
-    Returns:
-        The table (:func:`safe_bc.compare.build_table`).
-    """
-    from safe_bc.bc import load_checkpoint
-    from safe_bc.bc.checkpoint import checkpoint_unit
-    from safe_bc.collection import stored_expert_config
-    from safe_bc.distributed.collect import ensure_demos
-    from safe_bc.distributed.evaluate import LOCKSTEP_ENVS, evaluate_policies
-    from safe_bc.distributed.train import train_many
-
-    started = time.perf_counter()
-    c = comparison
-    sets: dict[Path, Any] = {}  # every demonstration set the rows need, the comparison's first
-    for path, collect in own_demos(c).items():
         ensure_demos(path, collect, progress=progress)
         sets[path] = load_demonstrations(path)
-    for m in c.methods:  # a BC row trains on frames drawn by the renderer it is evaluated on
+    for m in comparison.methods:  # a BC row trains on frames drawn by the renderer it runs on
         if m.kind == "bc":
-            path = demos_of(c, m)
-            warning = check_frames_renderer(read_meta(path).renderer, eval_config(c, m).env, path)
+            path = demos_of(comparison, m)
+            env = eval_config(comparison, m).env
+            warning = check_frames_renderer(read_meta(path).renderer, env, path)
             if warning and progress:
                 print(f"warning: {warning}")
-    demos = sets[c.demos]
-    meta = run_metadata(
-        config=_json(c.to_dict()), train_seeds=list(c.train_seeds), eval_seed=c.eval_seed
-    )
-    if command is not None:
-        meta["command"] = command
-    c.out.mkdir(parents=True, exist_ok=True)
-    eps = selection_eps(c)
-    base = select_for(demos, SelectionConfig(eps=eps, alpha=0.0))
-    save_selection(c.out / f"{c.name}_selection", demos, base, meta)
-    limits = {  # each set's d_s: the evaluation thresholds of the rows behind it
-        path: select_for(d, SelectionConfig(eps=eps, alpha=0.0)).thresholds
-        for path, d in sets.items()
-    }
+    return sets
 
-    # 1. BC agents not on disk (fail fast on an impossible rule before any training)
-    cells = _cells(c)
+
+def _train_agents(
+    c: Comparison, sets: dict[Path, Any], cells: list[tuple[Method, int]], progress: bool
+) -> None:
+    """Train and store the BC agents of ``cells`` not on disk (fail fast on an impossible
+    rule before any training)."""
+    from safe_bc.bc.checkpoint import checkpoint_unit
+    from safe_bc.distributed.train import train_many
+
+    demos = sets[c.demos]
     todo = [
         (m, s, run_config(c, m, s))
         for m, s in cells
@@ -352,35 +336,107 @@ def run_comparison(
             result.save(unit, extra=agent_meta)
             save_selection(unit, demos, selection, agent_meta)
 
-    # 2. improvement and self-imitation runs (each resumes itself), one after the other in
-    # the driver
+
+def _improve_cell(
+    c: Comparison, m: Method, s: int, sets: dict[Path, Any], command: str | None
+) -> tuple[pd.DataFrame, dict[str, Any], Any] | None:
+    """Run (or resume) the improvement or self-imitation run of cell ``(m, s)``: its learning
+    curve, the metadata of the machine that ran it and (self-imitation) its result; ``None``
+    for the other rows."""
+    if m.kind == "selfimprove":
+        done_si = _selfimprove(c, m, s, sets[demos_of(c, m)])
+        history_si = pd.DataFrame(done_si.history()).assign(method=m.name, train_seed=s)
+        where = done_si.folder / "run.json"  # the machine that last ran rounds of it
+        if done_si.resumed_rounds < len(done_si.rounds) or not where.is_file():
+            write_text_atomic(where, json.dumps(_json(run_metadata())))
+        return history_si, json.loads(where.read_text()), done_si
+    if m.kind != "improve":
+        return None
+    from safe_bc.improve import HISTORY, improve
+
+    assert m.improve is not None
+    start = _folder(c, c.method(m.start), s) / "agent"
+    done = improve(
+        start, _folder(c, m, s) / "improve", dataclasses.replace(m.improve, seed=s),
+        demos=demos_of(c, m), metadata={"command": command},
+    )  # fmt: skip
+    run_meta = read_table(_folder(c, m, s) / "improve" / HISTORY)[1]
+    return done.history.assign(method=m.name, train_seed=s), run_meta, None
+
+
+def run_cell(
+    comparison: Comparison, cell: str, *, workers: int | None = None, progress: bool = True
+) -> Path:
+    """Train (a BC row) or improve (an improvement or self-imitation row, its start trained
+    first when missing) the one cell ``"METHOD:SEED"``: no evaluation, no tables. Cells are
+    independent, so a comparison's cells can run in parallel processes or on other machines
+    sharing ``out``; a later :func:`run_comparison` reuses them (each cell's folder records
+    the machine that ran it). ``workers`` overrides a self-imitation row's rollout actors (0:
+    in this process; results do not depend on it). Returns the cell's folder."""
+    c = comparison
+    name, sep, seed_text = cell.rpartition(":")
+    if not sep or not seed_text.isdigit():
+        raise ValueError(f"a cell reads METHOD:SEED (e.g. imitation:0), got {cell!r}")
+    m, s = c.method(name), int(seed_text)
+    if s not in c.seeds_of(m):
+        raise ValueError(f"{name} has training seeds {list(c.seeds_of(m))}, not {s}")
+    if workers is not None and m.selfimprove is not None:
+        m = dataclasses.replace(m, selfimprove=dataclasses.replace(m.selfimprove, workers=workers))
+        c = dataclasses.replace(c, methods=tuple(m if x.name == name else x for x in c.methods))
+    sets = _load_sets(c, progress)
+    needs = [(m, s)] if m.kind == "bc" else []
+    if m.start is not None:
+        needs.append((c.method(m.start), s))
+    _train_agents(c, sets, needs, progress)
+    _improve_cell(c, m, s, sets, run_metadata().get("command"))
+    return _folder(c, m, s)
+
+
+def run_comparison(
+    comparison: Comparison, *, progress: bool = True, command: str | None = None
+) -> pd.DataFrame:
+    """Train, improve and evaluate what is missing, then write every output (module doc).
+
+    Returns:
+        The table (:func:`safe_bc.compare.build_table`).
+    """
+    from safe_bc.bc import load_checkpoint
+    from safe_bc.collection import stored_expert_config
+    from safe_bc.distributed.evaluate import LOCKSTEP_ENVS, evaluate_policies
+
+    started = time.perf_counter()
+    c = comparison
+    sets = _load_sets(c, progress)
+    demos = sets[c.demos]
+    meta = run_metadata(
+        config=_json(c.to_dict()), train_seeds=list(c.train_seeds), eval_seed=c.eval_seed
+    )
+    if command is not None:
+        meta["command"] = command
+    c.out.mkdir(parents=True, exist_ok=True)
+    eps = selection_eps(c)
+    base = select_for(demos, SelectionConfig(eps=eps, alpha=0.0))
+    save_selection(c.out / f"{c.name}_selection", demos, base, meta)
+    limits = {  # each set's d_s: the evaluation thresholds of the rows behind it
+        path: select_for(d, SelectionConfig(eps=eps, alpha=0.0)).thresholds
+        for path, d in sets.items()
+    }
+
+    # 1. BC agents not on disk; 2. improvement and self-imitation runs (each resumes itself),
+    # one after the other in the driver
+    cells = _cells(c)
+    _train_agents(c, sets, cells, progress)
     histories, run_metas = [], []
     selfimproved: dict[tuple[str, int], Any] = {}
     for m, s in cells:
-        if m.kind == "selfimprove":
-            done_si = _selfimprove(c, m, s, sets[demos_of(c, m)])
+        ran = _improve_cell(c, m, s, sets, meta.get("command"))
+        if ran is None:
+            continue
+        history, run_meta, done_si = ran
+        histories.append(history)
+        run_metas.append(run_meta)
+        if done_si is not None:
             selfimproved[m.name, s] = done_si
-            history_si = pd.DataFrame(done_si.history())
-            histories.append(history_si.assign(method=m.name, train_seed=s))
-            where = done_si.folder / "run.json"  # the machine that last ran rounds of it
-            if done_si.resumed_rounds < len(done_si.rounds) or not where.is_file():
-                write_text_atomic(where, json.dumps(_json(run_metadata())))
-            run_metas.append(json.loads(where.read_text()))
-            continue
-        if m.kind != "improve":
-            continue
-        from safe_bc.improve import improve
-
-        assert m.improve is not None
-        start = _folder(c, c.method(m.start), s) / "agent"
-        done = improve(
-            start, _folder(c, m, s) / "improve", dataclasses.replace(m.improve, seed=s),
-            demos=demos_of(c, m), metadata={"command": meta["command"]},
-        )  # fmt: skip
-        histories.append(done.history.assign(method=m.name, train_seed=s))
-        from safe_bc.improve import HISTORY
-
-        run_metas.append(read_table(_folder(c, m, s) / "improve" / HISTORY)[1])
 
     # 3. evaluation of the cells without a matching stored one, in one call
     sources: dict[str, Any] = {}
