@@ -216,3 +216,42 @@ def test_both_improvements_get_the_same_env_step_budget(file: str, steps: int) -
     assert validations * ppo.eval_episodes == (si.rounds + 1) * si.validation_episodes
     assert ppo.iterations % ppo.eval_every == 0
     assert f"{episodes * steps:,}" in comp.note
+
+
+def test_cells_run_alone_then_the_comparison_reuses_them(rehab_demos, tmp_path, monkeypatch):
+    """``run_cell`` trains a self-imitation row's start and runs its rounds (in this process),
+    nothing else; the comparison then reuses both, and its table equals a comparison run in
+    one go."""
+    from safe_bc.bc import BCConfig, NetworkConfig, TrainConfig
+    from safe_bc.distributed.compare import run_cell, run_comparison
+    from safe_bc.selfimprove.rollout import ExploreJob
+
+    def tiny(out: Path) -> Comparison:
+        return Comparison(
+            "tiny",
+            methods=(START, Method("selfimit", selfimprove=TINY_SELF, start="start")),
+            task="rehab", demos=rehab_demos, out=out, train_seeds=(0,), episodes=3,
+            workers=0, reference="start",
+            bc=BCConfig(
+                network=NetworkConfig(hidden=16), train=TrainConfig(batches=5, batch_size=8)
+            ),
+        )  # fmt: skip
+
+    for bad in ("selfimit", "selfimit:x", "selfimit:3", "nope:0"):
+        with pytest.raises(ValueError):
+            run_cell(tiny(tmp_path / "bad"), bad, progress=False)
+    cells = tiny(tmp_path / "cells")
+    folder = run_cell(cells, "selfimit:0", workers=0, progress=False)
+    assert folder == tmp_path / "cells/tiny_runs/selfimit/seed0"
+    assert (folder / "selfimprove/round_001/done.json").is_file()
+    assert (tmp_path / "cells/tiny_runs/start/seed0/agent/config.json").is_file()
+    assert not list((tmp_path / "cells").rglob("episodes.parquet"))
+
+    def no_work(*a, **k):
+        raise AssertionError("the comparison redid a cell's rollouts")
+
+    monkeypatch.setattr(ExploreJob, "run", no_work)
+    table = run_comparison(cells, progress=False)
+    monkeypatch.undo()
+    whole = run_comparison(tiny(tmp_path / "whole"), progress=False)
+    pd.testing.assert_series_equal(table["reward"], whole["reward"])

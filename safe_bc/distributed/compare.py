@@ -377,6 +377,9 @@ def run_cell(
     name, sep, seed_text = cell.rpartition(":")
     if not sep or not seed_text.isdigit():
         raise ValueError(f"a cell reads METHOD:SEED (e.g. imitation:0), got {cell!r}")
+    names = [x.name for x in c.methods]
+    if name not in names:
+        raise ValueError(f"{c.name} has no method {name!r}; its methods: {', '.join(names)}")
     m, s = c.method(name), int(seed_text)
     if s not in c.seeds_of(m):
         raise ValueError(f"{name} has training seeds {list(c.seeds_of(m))}, not {s}")
