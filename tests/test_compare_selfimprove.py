@@ -241,6 +241,7 @@ def test_cells_run_alone_then_the_comparison_reuses_them(rehab_demos, tmp_path, 
         with pytest.raises(ValueError):
             run_cell(tiny(tmp_path / "bad"), bad, progress=False)
     cells = tiny(tmp_path / "cells")
+    assert run_cell(cells, "start:0", progress=False) == tmp_path / "cells/tiny_runs/start/seed0"
     folder = run_cell(cells, "selfimit:0", workers=0, progress=False)
     assert folder == tmp_path / "cells/tiny_runs/selfimit/seed0"
     assert (folder / "selfimprove/round_001/done.json").is_file()

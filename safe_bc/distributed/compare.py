@@ -388,7 +388,7 @@ def run_cell(
         c = dataclasses.replace(c, methods=tuple(m if x.name == name else x for x in c.methods))
     sets = _load_sets(c, progress)
     needs = [(m, s)] if m.kind == "bc" else []
-    if m.start is not None:
+    if m.start:
         needs.append((c.method(m.start), s))
     _train_agents(c, sets, needs, progress)
     _improve_cell(c, m, s, sets, run_metadata().get("command"))
