@@ -153,6 +153,7 @@ def test_tiny_rehab_comparison_with_a_selfimitation_row(rehab_demos, tmp_path, m
 
 FILES = (
     "selfimprove_selection_carracing.py",
+    "selfimprove_selection_rehab.py",
     "selfimprove_carracing.py",
     "selfimprove_carracing_vs_expert.py",
     "selfimprove_rehab.py",
@@ -168,6 +169,7 @@ def test_the_issue_31_files_load_on_blocks_no_other_comparison_uses() -> None:
     loaded = {f: load_comparison(COMPARE / f) for f in FILES}
     blocks = {f: (c.task, c.eval_seed) for f, c in loaded.items()}
     assert blocks["selfimprove_selection_carracing.py"] == ("carracing", 13)
+    assert blocks["selfimprove_selection_rehab.py"] == ("rehab", 16)
     assert blocks["selfimprove_carracing.py"] == blocks["selfimprove_carracing_vs_expert.py"]
     assert blocks["selfimprove_rehab.py"] == blocks["selfimprove_rehab_vs_expert.py"]
     others = {
@@ -177,10 +179,10 @@ def test_the_issue_31_files_load_on_blocks_no_other_comparison_uses() -> None:
         for c in [load_comparison(p)]
     }
     for f in ("selfimprove_selection_carracing.py", "selfimprove_carracing.py",
-              "selfimprove_rehab.py"):  # fmt: skip
+              "selfimprove_selection_rehab.py", "selfimprove_rehab.py"):  # fmt: skip
         assert ("heldout", loaded[f].eval_seed) not in others, f
         assert loaded[f].tracks == "heldout"
-    assert len({loaded[f].eval_seed for f in FILES}) == 3
+    assert len({loaded[f].eval_seed for f in FILES}) == 4
     for f in ("selfimprove_carracing_vs_expert.py", "selfimprove_rehab_vs_expert.py"):
         assert loaded[f].runs == "compare" and loaded[f].reference == "expert"
     sel = loaded["selfimprove_selection_carracing.py"]
@@ -190,6 +192,16 @@ def test_the_issue_31_files_load_on_blocks_no_other_comparison_uses() -> None:
     }
     assert changed == {
         "defaults": [], "margin1px": ["margin"], "segment": ["keep_unit"],
+        "critical": ["kept_in"], "no_backoff": ["backoff"], "rounds4": ["rounds"],
+        "rounds4_small": ["pushes", "rounds"],
+    }  # fmt: skip
+    rehab = loaded["selfimprove_selection_rehab.py"]
+    rows = {m.name: selfimprove_identity(rehab, m, 0) for m in rehab.methods if m.selfimprove}
+    changed = {
+        name: sorted(k for k in row if row[k] != rows["defaults"][k]) for name, row in rows.items()
+    }
+    assert changed == {
+        "defaults": [], "margin": ["margin"], "segment": ["keep_unit", "segment_steps"],
         "critical": ["kept_in"], "no_backoff": ["backoff"], "rounds4": ["rounds"],
         "rounds4_small": ["pushes", "rounds"],
     }  # fmt: skip
