@@ -268,3 +268,48 @@ def test_cells_run_alone_then_the_comparison_reuses_them(rehab_demos, tmp_path, 
     monkeypatch.undo()
     whole = run_comparison(tiny(tmp_path / "whole"), progress=False)
     pd.testing.assert_series_equal(table["reward"], whole["reward"])
+
+
+def test_a_longer_run_starts_from_a_shorter_rows_rounds(rehab_demos, tmp_path, monkeypatch):
+    """A row that differs from another only in more rounds copies that row's done rounds and
+    runs the rest; it ends bit-identical to the same row run alone."""
+    from dataclasses import replace
+
+    from safe_bc.bc import BCConfig, NetworkConfig, TrainConfig
+    from safe_bc.distributed.compare import run_cell
+    from safe_bc.selfimprove.config import DONE, round_dir
+    from safe_bc.selfimprove.rollout import ExploreJob
+
+    longer = Method("longer", selfimprove=TINY_SELF, start="start")  # 2 rounds
+    other = Method("other", selfimprove=replace(TINY_SELF, margin=0.01), start="start")
+
+    def tiny(out: Path, *rows: Method) -> Comparison:
+        return Comparison(
+            "tiny", methods=(START, *rows), task="rehab", demos=rehab_demos, out=out,
+            train_seeds=(0,), episodes=3, workers=0, reference="start",
+            bc=BCConfig(
+                network=NetworkConfig(hidden=16), train=TrainConfig(batches=5, batch_size=8)
+            ),
+        )  # fmt: skip
+
+    short = Method("short", selfimprove=replace(TINY_SELF, rounds=1), start="start")
+    shared = tiny(tmp_path / "shared", short, longer, other)
+    run_cell(shared, "short:0", progress=False)
+    calls = []
+    real = ExploreJob.run
+    monkeypatch.setattr(ExploreJob, "run", lambda self, seeds: calls.append(1) or real(self, seeds))
+    run_cell(shared, "longer:0", progress=False)
+    assert len(calls) == 1  # round 0 came from the 1-round row, round 1 ran
+    run_cell(shared, "other:0", progress=False)  # another setting: all its rounds run
+    assert len(calls) == 3
+    monkeypatch.undo()
+    alone = tiny(tmp_path / "alone", longer)
+    run_cell(alone, "longer:0", progress=False)
+    for r in range(2):
+        a, b = (
+            json.loads((t / "tiny_runs/longer/seed0/selfimprove" / round_dir(r) / DONE).read_text())
+            for t in (tmp_path / "shared", tmp_path / "alone")
+        )
+        for key in ("seconds", "rollout_seconds"):
+            a.pop(key), b.pop(key)
+        assert a == b

@@ -201,6 +201,42 @@ def selfimprove_identity(comparison: Comparison, method: Method, seed: int) -> d
     return {**config.identity(), "pushes": list(pushes_for(config, comparison.task))}
 
 
+def _copy_shared_rounds(c: Comparison, method: Method, seed: int, folder: Path) -> None:
+    """Seed a new self-imitation run with the done rounds of another row of ``c`` whose run
+    differs only in having fewer rounds (same start, seed and every other setting): a round
+    depends on the settings, the seed and the rounds before it, never on how many follow, so
+    those rounds are this run's first ones, bit for bit. The longest such run is copied (its
+    start, start validation and done rounds; ``identity.json`` is this run's own)."""
+    import shutil
+
+    from safe_bc.selfimprove.config import DONE, round_dir
+
+    mine = selfimprove_identity(c, method, seed)
+    best: tuple[int, Path] | None = None
+    for other in c.methods:
+        if other.kind != "selfimprove" or other.name == method.name or other.start != method.start:
+            continue
+        theirs = selfimprove_identity(c, other, seed)
+        if theirs["rounds"] >= mine["rounds"] or {**theirs, "rounds": 0} != {**mine, "rounds": 0}:
+            continue
+        source = _folder(c, other, seed) / "selfimprove"
+        done = sum((source / round_dir(r) / DONE).is_file() for r in range(theirs["rounds"]))
+        if done and (best is None or done > best[0]):
+            best = (done, source)
+    if best is None:
+        return
+    done, source = best
+    tmp = folder.with_name(folder.name + ".copying")
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir(parents=True)
+    for name in ("start", "start_validation.json", *(round_dir(r) for r in range(done))):
+        if (source / name).is_dir():
+            shutil.copytree(source / name, tmp / name)
+        elif (source / name).is_file():
+            shutil.copy2(source / name, tmp / name)
+    tmp.rename(folder)
+
+
 def _selfimprove(comparison: Comparison, method: Method, seed: int, demos: Any) -> Any:
     """Run (or resume) a self-imitation row's run for ``seed`` from the start row's agent of
     that seed, in the start's env, on ``demos`` (the start's demonstration set, loaded)."""
@@ -221,6 +257,8 @@ def _selfimprove(comparison: Comparison, method: Method, seed: int, demos: Any) 
     path = demos_of(c, method)
     env = task_defaults(c.task, start.renderer or DEFAULT_RENDERER).env
     folder = _folder(c, method, seed) / "selfimprove"
+    if not folder.exists():
+        _copy_shared_rounds(c, method, seed, folder)
 
     def run() -> Any:
         return run_selfimprove(
