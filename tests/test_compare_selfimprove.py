@@ -220,7 +220,8 @@ def test_both_improvements_get_the_same_env_step_budget(file: str, steps: int) -
     comp = load_comparison(COMPARE / file)
     ppo = comp.method("ppo_lagrangian").improve
     si = comp.method("selfimitation").selfimprove
-    assert si == SelfImproveConfig()  # the package's defaults
+    chosen = {"selfimprove_carracing.py": {}, "selfimprove_rehab.py": {"kept_in": "critical"}}
+    assert si == SelfImproveConfig(**chosen[file])  # the defaults with the selection's choice
     assert ppo.shield and ppo.lagrangian
     episodes = si.rounds * si.tracks_per_round * (1 + len(pushes_for(si, comp.task)))
     assert ppo.iterations * ppo.episodes_per_iter == episodes

@@ -1,13 +1,13 @@
 """Issue 31, item 3 on the rehabilitation pathway: self-imitation against the PPO-Lagrangian
-stage, the start and the guideline clinician at equal env-step budgets, on fresh patients (not
-yet run).
+stage, the start and the guideline clinician at equal env-step budgets, on fresh patients.
 
 Rows: the guideline clinician (the expert); the safety-imitation start (BC with alpha 0.5, as
 in ``improve_rehab.py``; the paired columns' reference here, the expert in
 ``selfimprove_rehab_vs_expert.py``, which shares these runs and evaluations); the
 PPO-Lagrangian stage (shield + Lagrangian with ``improve_rehab.py``'s settings: the margin
-sweep's cost margin 0.05 and shield zone 0.1) and self-imitation with the package's defaults
-(rehab pushes: intensity and duration +-0.05), each from every seed's start.
+sweep's cost margin 0.05 and shield zone 0.1) and self-imitation with the setting the rehab
+selection table chose (:data:`SELF`; rehab pushes: intensity and duration +-0.05), each from
+every seed's start.
 
 Equal env-step budgets: every rehab episode is :data:`EPISODE_STEPS` sessions (steps), so equal
 episodes are equal env steps. Self-imitation rolls out ``rounds x tracks_per_round x (1 +
@@ -37,8 +37,10 @@ EPISODE_STEPS = 30
 """Sessions per rehab episode (``safe_bc.tasks.rehab.env.DEFAULT_N_SESSIONS``)."""
 EPISODES_PER_ITER = 16
 """PPO episodes (patients) per iteration."""
-SELF = SelfImproveConfig()
-"""The self-imitation row: the package's defaults."""
+SELF = SelfImproveConfig(kept_in="critical")
+"""The self-imitation row: the package's defaults with kept rows in T_eps, the setting the
+rehab selection table supports (``results/selfimprove/rehab/choice.md``: the reliable gain
+over the start with the fewest programmes beyond d_s, 3 seeds x 200 selection patients)."""
 _car = sibling(__file__, "selfimprove_carracing")
 EPISODES = _car.rollout_episodes(SELF, "rehab")
 """The shared training budget in episodes (240 with the defaults)."""
