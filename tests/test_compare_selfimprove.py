@@ -153,6 +153,7 @@ def test_tiny_rehab_comparison_with_a_selfimitation_row(rehab_demos, tmp_path, m
 
 FILES = (
     "selfimprove_selection_carracing.py",
+    "selfimprove_selection_carracing_rounds.py",
     "selfimprove_selection_rehab.py",
     "selfimprove_carracing.py",
     "selfimprove_carracing_vs_expert.py",
@@ -169,6 +170,8 @@ def test_the_issue_31_files_load_on_blocks_no_other_comparison_uses() -> None:
     loaded = {f: load_comparison(COMPARE / f) for f in FILES}
     blocks = {f: (c.task, c.eval_seed) for f, c in loaded.items()}
     assert blocks["selfimprove_selection_carracing.py"] == ("carracing", 13)
+    assert blocks["selfimprove_selection_carracing_rounds.py"] == ("carracing", 13)
+    assert loaded["selfimprove_selection_carracing_rounds.py"].runs == "selection"
     assert blocks["selfimprove_selection_rehab.py"] == ("rehab", 16)
     assert blocks["selfimprove_carracing.py"] == blocks["selfimprove_carracing_vs_expert.py"]
     assert blocks["selfimprove_rehab.py"] == blocks["selfimprove_rehab_vs_expert.py"]
@@ -185,8 +188,13 @@ def test_the_issue_31_files_load_on_blocks_no_other_comparison_uses() -> None:
     assert len({loaded[f].eval_seed for f in FILES}) == 4
     for f in ("selfimprove_carracing_vs_expert.py", "selfimprove_rehab_vs_expert.py"):
         assert loaded[f].runs == "compare" and loaded[f].reference == "expert"
-    sel = loaded["selfimprove_selection_carracing.py"]
-    rows = {m.name: selfimprove_identity(sel, m, 0) for m in sel.methods if m.selfimprove}
+    rows = {
+        m.name: selfimprove_identity(sel, m, 0)
+        for f in ("selfimprove_selection_carracing.py", "selfimprove_selection_carracing_rounds.py")
+        for sel in [loaded[f]]
+        for m in sel.methods
+        if m.selfimprove
+    }
     changed = {
         name: sorted(k for k in row if row[k] != rows["defaults"][k]) for name, row in rows.items()
     }

@@ -1,5 +1,5 @@
 """Issue 31, item 2: which safety choices of self-imitation to keep, measured on CarRacing's
-*selection* tracks (not yet run).
+*selection* tracks.
 
 Rows: the expert; the safety-imitation start (BC with alpha 0.1 on T_eps, as in
 ``improve_carracing.py``; the paired columns' reference); the self-imitation run with the
@@ -10,9 +10,12 @@ row per safety choice, each changing one field of the defaults:
 * ``margin1px``: kept data stay 1 px inside d_s (``margin=1.0``) against 0;
 * ``segment``: kept 50-step segments (``keep_unit="segment"``) against whole episodes;
 * ``critical``: kept rows join T_eps (``kept_in="critical"``) against the rest pool only;
-* ``no_backoff``: pushes also in the critical zone (``backoff=False``);
-* ``rounds4``: 4 rounds against 2, same pushes;
-* ``rounds4_small``: 4 rounds with pushes of half the size (more rounds with smaller steps).
+* ``no_backoff``: pushes also in the critical zone (``backoff=False``).
+
+More rounds (``rounds4``: 4 against 2, same pushes; ``rounds4_small``: 4 rounds with pushes of
+half the size) are the sibling file ``selfimprove_selection_carracing_rounds.py``, which
+shares these runs (``runs="selection"``: the defaults' first two rounds are the 4-round row's
+first two) and is run after this one.
 
 Not covered here: the alpha of the start's T_eps mix (a row per start alpha would need its own
 starts) and the keep rule's bound (``beyond_limit``), which every row applies (0.1 on 32
@@ -26,9 +29,11 @@ self-imitation runs roll out on :data:`WORKERS` Ray actors (results do not depen
 time here is not compared).
 
 Run: ``safe-bc compare tune_jobs/compare/selfimprove_selection_carracing.py`` (resumes per
-method, seed and round). Expected env steps per 2-round run: 2 x 24 tracks x (1 + 5 pushes)
-episodes of at most 1000 steps (288,000) in rollouts and 3 x 32 validation episodes (96,000);
-4-round rows twice the rollouts. Writes ``results/selfimprove/carracing/selection*``.
+method, seed and round; ``--cell METHOD:SEED --workers 0`` runs one cell in its own process,
+so the cells can run side by side). Expected env steps per 2-round run: 2 x 24 tracks x (1 +
+5 pushes) episodes of at most 1000 steps (288,000) in rollouts and 3 x 32 validation episodes
+(96,000). The rule that turns the table into defaults: ``scripts/selfimprove_choice.py``.
+Writes ``results/selfimprove/carracing/selection*``.
 """
 
 from dataclasses import replace
@@ -63,16 +68,21 @@ CHOICES = {  # name: (label, config)
     "segment": ("kept segments (50 steps)", replace(DEFAULT, keep_unit="segment")),
     "critical": ("kept rows in T_eps", replace(DEFAULT, kept_in="critical")),
     "no_backoff": ("no back-off in the critical zone", replace(DEFAULT, backoff=False)),
+}
+"""The safety filters, one field of the defaults each (this file's rows)."""
+ROUNDS = {  # name: (label, config)
     "rounds4": ("4 rounds", replace(DEFAULT, rounds=4)),
     "rounds4_small": (
         "4 rounds, half-size pushes",
         replace(DEFAULT, rounds=4, pushes=tuple(half(s) for s in DEFAULT_PUSHES["carracing"])),
     ),
 }
+"""More rounds, with and without smaller steps (``selfimprove_selection_carracing_rounds.py``)."""
 
-COMPARISON = Comparison(
-    name="selection",
-    methods=(
+
+def rows(choices: dict) -> tuple[Method, ...]:
+    """The expert, the start and one self-imitation row per choice."""
+    return (
         Method("expert", expert=True, label="expert (scripted, privileged)"),
         Method(
             "imitation",
@@ -81,9 +91,14 @@ COMPARISON = Comparison(
         ),
         *(
             Method(name, selfimprove=config, start="imitation", label=label)
-            for name, (label, config) in CHOICES.items()
+            for name, (label, config) in choices.items()
         ),
-    ),
+    )
+
+
+COMPARISON = Comparison(
+    name="selection",
+    methods=rows(CHOICES),
     task="carracing",
     out=Path("results/selfimprove/carracing"),
     train_seeds=(0, 1, 2),
