@@ -16,8 +16,8 @@ _ROW_FIELDS = ("steps", "trained", "observations", "actions", "costs")
 
 
 def save_round(path: Path, tracks: Sequence[TrackResult]) -> None:
-    """One round's track results to ``path`` (``.npz``), atomically: a killed write leaves
-    none."""
+    """One round's track results to ``path`` (``.npz``, compressed: a CarRacing round keeps
+    ~80k frames, ~2 GB raw), atomically: a killed write leaves none."""
     pieces = [p for t in tracks for p in t.pieces]
     arrays: dict[str, np.ndarray] = {
         "seed": np.asarray([t.seed for t in tracks], np.int64),
@@ -36,7 +36,7 @@ def save_round(path: Path, tracks: Sequence[TrackResult]) -> None:
         parts = [getattr(p, name) for p in pieces]
         arrays[name] = np.concatenate(parts) if parts else np.empty((0,), np.float32)
     with atomic_write(path) as f:
-        np.savez(f, **arrays)
+        np.savez_compressed(f, **arrays)
 
 
 def load_round(path: Path) -> list[TrackResult]:
