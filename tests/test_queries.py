@@ -274,8 +274,12 @@ def test_the_measurement_runs_on_a_tiny_budget_without_ray(tmp_path) -> None:
     ]
     assert main(argv) == 0
     table = pd.read_parquet(out / "summary.parquet")
-    assert set(table["method"]) == {"expert", "bc", "full", "critical", "defer"}
+    assert set(table["method"]) == {"expert", "bc", "full", "critical", "defer", "critical+defer"}
     assert (table["episodes"] == 2).all() and (out / "summary.md").is_file()
+    widths = pd.read_parquet(out / "widths.parquet")
+    assert set(widths["agent"]) == {"bc", "critical"}
+    chosen = table.set_index(["block", "method"])["width"]
+    assert chosen["fresh", "critical+defer"] in (2.0, 40.0) and chosen["fresh", "defer"] in (2, 40)
     assert main(argv) == 0  # resumes: every unit is a file
 
 

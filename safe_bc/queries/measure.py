@@ -13,8 +13,10 @@ seeds' pipelines are threads of this process that hand every training and episod
    rounds run while the rest of the pool evaluates plain BC, its deferral and the expert.
 3. Deferral of plain BC on the *selection* tracks (held-out block ``SELECTION_BLOCK``) for each
    width of ``--widths``; the chosen width is the smallest with no episode beyond ``d_s``.
-4. Every method (and deferral at the chosen width, and the expert) on the *fresh* tracks
-   (block ``FRESH_BLOCK``), 50 per seed by default.
+4. Deferral over the critical-zone queries' agent (``critical+defer``): its width chosen the
+   same way on the selection tracks.
+5. Every method (and both deferrals at their chosen widths, and the expert) on the *fresh*
+   tracks (block ``FRESH_BLOCK``), 50 per seed by default.
 
 Resumable per (method, seed): every finished unit is a file (checkpoints, round folders,
 ``episodes/<block>/<method>-<seed>.parquet``); a rerun does the rest. Outputs:
@@ -41,6 +43,8 @@ study 1 and 2, the improvement runs 7)."""
 FRESH_BLOCK = 12
 """Held-out seed block of the fresh tracks."""
 METHODS = ("bc", "full", "critical")
+CRITICAL_DEFER = "critical+defer"
+"""Deferral composed with the critical-zone queries' agent (its own width)."""
 
 _STATE: dict[str, Any] = {}
 
@@ -275,25 +279,27 @@ def run(a: MeasureConfig, pool: Any) -> str:
         write_table_atomic(path, df, run_metadata(method=name, train_seed=seed, block=block))
         return df
 
-    def defer_source(seed: int, w: float) -> Any:
-        return DeferralSource(bcs[seed], expert, tuple(limits), w, base_sel.combine)
+    def defer_source(seed: int, w: float, agent: Any = None) -> Any:
+        return DeferralSource(
+            bcs[seed] if agent is None else agent, expert, tuple(limits), w, base_sel.combine
+        )
 
-    # widths on the selection tracks, smallest first, until one reaches zero crossings
-    crossings: dict[float, int] = {}
-    for w in sorted(a.widths):
-        eps = [evaluate(SELECTION_BLOCK, f"defer-{w:g}", s, defer_source(s, w)) for s in a.seeds]
-        crossings[w] = int(sum((e["violation_steps"] > 0).sum() for e in eps))
-        if crossings[w] == 0:
-            break
-    width = smallest_safe_width(crossings)
-    width = max(a.widths) if width is None else width
-    pd.DataFrame(
-        {
-            "width": list(crossings),
-            "episodes_beyond": list(crossings.values()),
-            "episodes": len(a.seeds) * a.tracks,
-        }
-    ).to_parquet(out / "widths.parquet")
+    def choose_width(prefix: str, agent_of: Any) -> tuple[float, dict[float, int]]:
+        """Widths on the selection tracks, smallest first, until one reaches zero crossings:
+        the chosen width (the largest tried when none does) and the crossings per width."""
+        crossings: dict[float, int] = {}
+        for w in sorted(a.widths):
+            eps = [
+                evaluate(SELECTION_BLOCK, f"{prefix}-{w:g}", s, defer_source(s, w, agent_of(s)))
+                for s in a.seeds
+            ]
+            crossings[w] = int(sum((e["violation_steps"] > 0).sum() for e in eps))
+            if crossings[w] == 0:
+                break
+        chosen = smallest_safe_width(crossings)
+        return (max(a.widths) if chosen is None else chosen), crossings
+
+    width, crossings = choose_width("defer", lambda s: None)
 
     frames = []
     for block in (SELECTION_BLOCK, FRESH_BLOCK):
@@ -310,9 +316,25 @@ def run(a: MeasureConfig, pool: Any) -> str:
         for s in a.seeds:
             for name in ("full", "critical"):
                 frames.append(evaluate(block, name, s, agents[s][name][0]))
+    # deferral composed with the critical-zone queries' agent: its own width, chosen the same way
+    width_c, crossings_c = choose_width(CRITICAL_DEFER, lambda s: agents[s]["critical"][0])
+    for block in (SELECTION_BLOCK, FRESH_BLOCK):
+        for s in a.seeds:
+            reuse = block == SELECTION_BLOCK and width_c in crossings_c
+            name = f"{CRITICAL_DEFER}-{width_c:g}" if reuse else CRITICAL_DEFER
+            source = defer_source(s, width_c, agents[s]["critical"][0])
+            frames.append(evaluate(block, name, s, source).assign(method=CRITICAL_DEFER))
+    pd.DataFrame(
+        [
+            {"agent": agent, "width": w, "episodes_beyond": k, "episodes": len(a.seeds) * a.tracks}
+            for agent, tried in (("bc", crossings), ("critical", crossings_c))
+            for w, k in tried.items()
+        ]
+    ).to_parquet(out / "widths.parquet")
     episodes = pd.concat(frames, ignore_index=True)
     queries = {m: float(np.mean([agents[s][m][1] for s in a.seeds])) for m in METHODS}
-    table = summarize(episodes, queries, width)
+    queries[CRITICAL_DEFER] = queries["critical"]  # its agent's training queries
+    table = summarize(episodes, queries, {"defer": width, CRITICAL_DEFER: width_c})
     from safe_bc.data.store import write_table_atomic
     from safe_bc.provenance import run_metadata
 
@@ -325,6 +347,8 @@ def run(a: MeasureConfig, pool: Any) -> str:
         episodes_per_round=a.episodes_per_round,
         width=width,
         crossings={str(k): v for k, v in crossings.items()},
+        critical_defer_width=width_c,
+        critical_defer_crossings={str(k): v for k, v in crossings_c.items()},
         limits=[float(x) for x in limits],
         demos=str(a.demos),
     )
@@ -333,7 +357,10 @@ def run(a: MeasureConfig, pool: Any) -> str:
         f"# Critical-zone queries and deferral (issue 35)\n\nTraining seeds {a.seeds}, "
         f"{a.tracks} tracks per seed and block (selection: held-out block {SELECTION_BLOCK}; "
         f"fresh: {FRESH_BLOCK}). Deferral width w = {width:g} (smallest of {sorted(a.widths)} "
-        f"with no selection episode beyond d_s; crossings per width {crossings}).\n\n"
+        f"with no selection episode beyond d_s; crossings per width {crossings}). Deferral over "
+        f"the critical-zone queries' agent ({CRITICAL_DEFER}): w = {width_c:g}, chosen the same "
+        f"way (crossings per width {crossings_c}); its queries are its agent's training "
+        "queries.\n\n"
         + table.to_markdown(index=False, floatfmt=".3g")
         + f"\n\nProvenance: `{meta['command']}`\n"
     )
@@ -341,7 +368,7 @@ def run(a: MeasureConfig, pool: Any) -> str:
     return text
 
 
-def summarize(episodes: Any, queries: dict[str, float], width: float) -> Any:
+def summarize(episodes: Any, queries: dict[str, float], widths: dict[str, float]) -> Any:
     """Per (block, method): episodes beyond d_s, their 95% upper bound, reward and its paired
     difference to the expert (crossed bootstrap), queries / deferred steps per episode."""
     import pandas as pd
@@ -371,7 +398,7 @@ def summarize(episodes: Any, queries: dict[str, float], width: float) -> Any:
                 if deferred is not None and deferred.notna().any()
                 else float("nan")
             )
-            row["width"] = width if method.startswith("defer") else float("nan")
+            row["width"] = widths.get(method, float("nan"))
             rows.append(row)
     return pd.DataFrame(rows)
 
