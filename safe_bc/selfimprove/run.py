@@ -234,6 +234,7 @@ def run_selfimprove(
         backoff = sel.eps if config.backoff_eps is None else config.backoff_eps
     agent, agent_name, reward_now = start_src, "start", float(start_val["validation_reward"])
     kept_so_far: list[KeptPiece] = []
+    kept_files: list[Path] = []  # accepted done rounds' kept rows, read when a round must run
     rounds: list[dict[str, Any]] = []
     resumed = 0
     for r in range(config.rounds):
@@ -243,10 +244,12 @@ def run_selfimprove(
             rounds.append(done)
             resumed += 1 if resumed == r else 0
             if done["accepted"]:
-                kept_so_far += [p for t in load_round(here / KEPT) for p in t.pieces]
+                kept_files.append(here / KEPT)
                 agent, agent_name = policy_source(here / POLICY), round_dir(r)
                 reward_now = float(done["validation_reward"])
             continue
+        kept_so_far += [p for f in kept_files for t in load_round(f) for p in t.pieces]
+        kept_files = []
         t0 = time.perf_counter()
         if (here / KEPT).is_file():
             tracks: list[TrackResult] = load_round(here / KEPT)
