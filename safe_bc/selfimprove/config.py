@@ -69,8 +69,11 @@ def round_dir(r: int) -> str:
 class SelfImproveConfig:
     """One self-imitation run: push the agent's own rollouts, keep the safe better ones,
     retrain on demonstrations plus kept data, accept the round's agent by the keep rule,
-    repeat. Defaults are not yet chosen by a measurement (issue 31, item 2) unless a field
-    says so."""
+    repeat. The safety choices (keep unit, margin, back-off, where kept rows go) were measured
+    one at a time on CarRacing selection tracks and the defaults kept
+    (``results/selfimprove/carracing/choice.md``); the rehab table chose ``kept_in="critical"``
+    (``results/selfimprove/rehab/choice.md``). Rounds, pushes and the keep rule's bound are
+    not yet chosen by a measurement."""
 
     rounds: int = 2
     """Rounds of roll-out, filter, retraining and keep rule (the user's loop: 1 and 2)."""
