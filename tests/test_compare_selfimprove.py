@@ -242,7 +242,7 @@ def test_both_improvements_get_the_same_env_step_budget(file: str, steps: int) -
 def test_cells_run_alone_then_the_comparison_reuses_them(rehab_demos, tmp_path, monkeypatch):
     """``run_cell`` trains a self-imitation row's start and runs its rounds (in this process),
     nothing else; the comparison then reuses both, and its table equals a comparison run in
-    one go."""
+    one go (both in this process: it holds on any machine that runs it; shown on AMD EPYC)."""
     from safe_bc.bc import BCConfig, NetworkConfig, TrainConfig
     from safe_bc.distributed.compare import run_cell, run_comparison
     from safe_bc.selfimprove.rollout import ExploreJob
@@ -281,7 +281,8 @@ def test_cells_run_alone_then_the_comparison_reuses_them(rehab_demos, tmp_path, 
 
 def test_a_longer_run_starts_from_a_shorter_rows_rounds(rehab_demos, tmp_path, monkeypatch):
     """A row that differs from another only in more rounds copies that row's done rounds and
-    runs the rest; it ends bit-identical to the same row run alone."""
+    runs the rest; it ends bit-identical to the same row run alone. Both runs are in this
+    process, so the identity holds on whatever machine runs the test (shown on AMD EPYC)."""
     from dataclasses import replace
 
     from safe_bc.bc import BCConfig, NetworkConfig, TrainConfig

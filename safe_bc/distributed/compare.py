@@ -206,7 +206,9 @@ def _copy_shared_rounds(c: Comparison, method: Method, seed: int, folder: Path) 
     differs only in having fewer rounds (same start, seed and every other setting): a round
     depends on the settings, the seed and the rounds before it, never on how many follow, so
     those rounds are this run's first ones, bit for bit. The longest such run is copied (its
-    start, start validation and done rounds; ``identity.json`` is this run's own)."""
+    start, start validation and done rounds, as hard links: a written round file is never
+    changed, so the two runs share it on disk; ``identity.json`` is this run's own)."""
+    import os
     import shutil
 
     from safe_bc.selfimprove.config import DONE, round_dir
@@ -231,9 +233,9 @@ def _copy_shared_rounds(c: Comparison, method: Method, seed: int, folder: Path) 
     tmp.mkdir(parents=True)
     for name in ("start", "start_validation.json", *(round_dir(r) for r in range(done))):
         if (source / name).is_dir():
-            shutil.copytree(source / name, tmp / name)
+            shutil.copytree(source / name, tmp / name, copy_function=os.link)
         elif (source / name).is_file():
-            shutil.copy2(source / name, tmp / name)
+            os.link(source / name, tmp / name)
     tmp.rename(folder)
 
 
@@ -307,10 +309,10 @@ def _fallback_source(
 def _load_sets(comparison: Comparison, progress: bool) -> dict[Path, Any]:
     """Every demonstration set the rows need (collected when missing), the comparison's
     first; warns when a BC row's frames were drawn by another renderer."""
+    from safe_bc.distributed.collect import ensure_demos
+
     sets: dict[Path, Any] = {}
     for path, collect in own_demos(comparison).items():
-        from safe_bc.distributed.collect import ensure_demos
-
         ensure_demos(path, collect, progress=progress)
         sets[path] = load_demonstrations(path)
     for m in comparison.methods:  # a BC row trains on frames drawn by the renderer it runs on

@@ -24,9 +24,8 @@ seed and round). Writes ``results/selfimprove/rehab/selection*``.
 """
 
 from dataclasses import replace
-from pathlib import Path
 
-from safe_bc.compare import Comparison, Method, sibling
+from safe_bc.compare import Method, sibling
 from safe_bc.selection import SelectionConfig
 from safe_bc.selfimprove.config import DEFAULT_PUSHES, SelfImproveConfig
 
@@ -53,7 +52,8 @@ CHOICES = {  # name: (label, config)
     ),
 }
 
-COMPARISON = Comparison(
+COMPARISON = replace(
+    sibling(__file__, "selfimprove_rehab").COMPARISON,  # task, demos, seeds, patients, metrics
     name="selection",
     methods=(
         Method("expert", expert=True, label="guideline clinician (expert)"),
@@ -63,17 +63,7 @@ COMPARISON = Comparison(
             for name, (label, config) in CHOICES.items()
         ),
     ),
-    task="rehab",
-    demos=Path("data/rehab_demos"),
-    out=Path("results/selfimprove/rehab"),
-    train_seeds=(0, 1, 2),
-    episodes=200,
     eval_seed=16,
-    workers=0,
-    reference="imitation",
-    paired_metrics=("reward", "violating_sessions"),
-    totals=("any_violating_session", "last_session_violation", "violation_steps"),
-    per_seed=True,
     figures=(("learning_curves", "selection_learning_curves.png"),),
     title="Self-imitation on the rehabilitation pathway: the safety choices on selection patients",
     note="Selection patients (block 16): these choose the defaults; the fresh-patient "
