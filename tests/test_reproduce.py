@@ -26,7 +26,7 @@ def render_markdown(table: pd.DataFrame, meta: dict) -> str:
 
 def test_defaults_are_table1_with_enough_seeds() -> None:
     cfg = ReproduceConfig()
-    assert cfg.train_seeds == tuple(range(8)) and cfg.episodes == 20
+    assert cfg.train_seeds == tuple(range(11)) and cfg.episodes == 10
     assert cfg.selection_eps == 2.0  # the task's
     assert [m.name for m in cfg.methods()] == [
         "alpha=0 (rest=all)",
@@ -173,7 +173,7 @@ def test_cli_arguments_shrink_and_extend_the_table() -> None:
         "alpha=0.5 (rest=noncritical)",
     ]
     default = parse(["reproduce"])[1].config
-    assert default.train_seeds == tuple(range(8)) and default.episodes == 20
+    assert default.train_seeds == tuple(range(11)) and default.episodes == 10
     assert default.baselines == ("bc_safe", "cost_weighted") and default.readings == ("all",)
     assert default.alphas == (0.0, 0.1, 0.5, 0.8, 1.0)
 
