@@ -274,12 +274,22 @@ def test_the_measurement_runs_on_a_tiny_budget_without_ray(tmp_path) -> None:
     ]
     assert main(argv) == 0
     table = pd.read_parquet(out / "summary.parquet")
-    assert set(table["method"]) == {"expert", "bc", "full", "critical", "defer", "critical+defer"}
+    assert set(table["method"]) == {
+        "expert",
+        "bc",
+        "full",
+        "critical",
+        "defer",
+        "critical+defer",
+        "bc_safe",
+    }
     assert (table["episodes"] == 2).all() and (out / "summary.md").is_file()
     widths = pd.read_parquet(out / "widths.parquet")
     assert set(widths["agent"]) == {"bc", "critical"}
     chosen = table.set_index(["block", "method"])["width"]
     assert chosen["fresh", "critical+defer"] in (2.0, 40.0) and chosen["fresh", "defer"] in (2, 40)
+    assert (table.loc[table["method"] == "bc_safe", "queries_per_episode"] == 0).all()
+    assert (out / "bc_safe" / "seed0" / "config.json").is_file()
     assert main(argv) == 0  # resumes: every unit is a file
 
 

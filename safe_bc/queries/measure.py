@@ -15,7 +15,10 @@ seeds' pipelines are threads of this process that hand every training and episod
    width of ``--widths``; the chosen width is the smallest with no episode beyond ``d_s``.
 4. Deferral over the critical-zone queries' agent (``critical+defer``): its width chosen the
    same way on the selection tracks.
-5. Every method (and both deferrals at their chosen widths, and the expert) on the *fresh*
+5. ``bc_safe``: OSRL's BC-Safe (``SelectionConfig(mode="bc_safe")``, alpha 0), a peer baseline
+   that asks the expert nothing; added after Table 1 on raster frames drew 0 of 110 episodes
+   beyond ``d_s`` for it, so that the draw is tested on tracks that did not suggest it.
+6. Every method (and both deferrals at their chosen widths, and the expert) on the *fresh*
    tracks (block ``FRESH_BLOCK``), 50 per seed by default.
 
 Resumable per (method, seed): every finished unit is a file (checkpoints, round folders,
@@ -31,7 +34,7 @@ import math
 import os
 import time
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -45,6 +48,8 @@ FRESH_BLOCK = 12
 METHODS = ("bc", "full", "critical")
 CRITICAL_DEFER = "critical+defer"
 """Deferral composed with the critical-zone queries' agent (its own width)."""
+BC_SAFE = "bc_safe"
+"""OSRL's BC-Safe at the task's eps: no queries, no deferral."""
 
 _STATE: dict[str, Any] = {}
 
@@ -204,12 +209,14 @@ def run(a: MeasureConfig, pool: Any) -> str:
     def train(job: Any) -> Any:
         return pool.apply(_train, (job,))
 
-    def train_bc(seed: int) -> Any:
-        """Plain BC for one seed (its checkpoint, reused when present)."""
+    def train_bc(seed: int, name: str = "bc") -> Any:
+        """Plain BC (or BC-Safe) for one seed (its checkpoint, reused when present)."""
         from safe_bc.bc.checkpoint import checkpoint_unit, save_checkpoint
 
         cfg = run_config(seed)
-        bc_dir = out / "bc" / f"seed{seed}"
+        if name == BC_SAFE:
+            cfg = replace(cfg, selection=SelectionConfig(eps=task.eps, mode="bc_safe"))
+        bc_dir = out / name / f"seed{seed}"
         if not (bc_dir / "config.json").is_file():
             sel = select_for(demos, cfg.selection)
             src = train(TrainJob(demos, sel, cfg, bounds))
@@ -309,6 +316,10 @@ def run(a: MeasureConfig, pool: Any) -> str:
             reuse = block == SELECTION_BLOCK and width in crossings  # measured while choosing
             name = f"defer-{width:g}" if reuse else "defer"
             frames.append(evaluate(block, name, s, defer_source(s, width)).assign(method="defer"))
+    safe = {s: train_bc(s, BC_SAFE) for s in a.seeds}
+    for block in (SELECTION_BLOCK, FRESH_BLOCK):
+        for s in a.seeds:
+            frames.append(evaluate(block, BC_SAFE, s, safe[s]))
     for s in a.seeds:
         agents[s].update(queried[s].result())
     threads.shutdown()
@@ -334,6 +345,7 @@ def run(a: MeasureConfig, pool: Any) -> str:
     episodes = pd.concat(frames, ignore_index=True)
     queries = {m: float(np.mean([agents[s][m][1] for s in a.seeds])) for m in METHODS}
     queries[CRITICAL_DEFER] = queries["critical"]  # its agent's training queries
+    queries[BC_SAFE] = 0.0
     table = summarize(episodes, queries, {"defer": width, CRITICAL_DEFER: width_c})
     from safe_bc.data.store import write_table_atomic
     from safe_bc.provenance import run_metadata
@@ -360,7 +372,7 @@ def run(a: MeasureConfig, pool: Any) -> str:
         f"with no selection episode beyond d_s; crossings per width {crossings}). Deferral over "
         f"the critical-zone queries' agent ({CRITICAL_DEFER}): w = {width_c:g}, chosen the same "
         f"way (crossings per width {crossings_c}); its queries are its agent's training "
-        "queries.\n\n"
+        f"queries. {BC_SAFE}: OSRL's BC-Safe (alpha 0), no queries.\n\n"
         + table.to_markdown(index=False, floatfmt=".3g")
         + f"\n\nProvenance: `{meta['command']}`\n"
     )
