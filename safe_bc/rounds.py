@@ -119,14 +119,20 @@ class RowPiece(Protocol):
 
 
 def aggregate_rows(
-    demos: Demonstrations, pieces: Sequence[RowPiece], trained: Sequence[np.ndarray]
+    demos: Demonstrations,
+    pieces: Sequence[RowPiece],
+    trained: Sequence[np.ndarray],
+    observations: Any = None,
 ) -> tuple[Demonstrations, np.ndarray]:
     """Demonstrations followed by the pieces' rows, and ``(N,) bool`` the rows trained on
     (``trained[i]``: piece ``i``'s).
 
     Each piece gets its own episode id after the demonstrations'; its other rows (context:
     frames only stacked, never trained on) are marked as warm-up (not scored). New rows have
-    no safety distances (``NaN``; training does not read them).
+    no safety distances (``NaN``; training does not read them). ``observations``: the
+    aggregate's frames already laid out in that order (a :class:`~safe_bc.data.frames.FrameFile`
+    written from the demonstrations and the pieces with data, say), used instead of
+    concatenating the pieces' own (which may then be empty placeholders).
     """
     parts = [(p, m) for p, m in zip(pieces, trained, strict=True) if len(p.steps)]
     if not parts:
@@ -134,8 +140,14 @@ def aggregate_rows(
     first_id = int(demos.episode_ids.max()) + 1 if len(demos) else 0
     n_new = sum(len(p.steps) for p, _ in parts)
     s = demos.costs.shape[1]
+    if observations is None:
+        observations = np.concatenate([demos.observations, *[p.observations for p, _ in parts]])
+    elif len(observations) != len(demos) + n_new:
+        raise ValueError(
+            f"observations hold {len(observations)} rows, the aggregate {len(demos) + n_new}"
+        )
     agg = Demonstrations(
-        observations=np.concatenate([demos.observations, *[p.observations for p, _ in parts]]),
+        observations=observations,
         actions=np.concatenate([demos.actions, *[p.actions for p, _ in parts]]).astype(np.float32),
         costs=np.concatenate([demos.costs, *[p.costs for p, _ in parts]]).astype(np.float32),
         safety=np.concatenate([demos.safety, np.full((n_new, s), np.nan, np.float32)]),

@@ -308,3 +308,54 @@ def test_the_stage_runs_on_carracing_with_60_step_episodes(tiny_demos, tmp_path)
     assert len(track.push_rewards) == len(DEFAULT_PUSHES["carracing"])
     assert report["selfimprove_kept_steps"] == sum(track.push_kept)
     assert source.build() is not None
+
+
+def test_car_frames_read_from_disk_train_the_weights_of_frames_in_memory(
+    tiny_demos, tmp_path
+) -> None:
+    """Two accepted CarRacing rounds (validation rewards made to rise, so both are kept and
+    round 1 retrains on round 0's rows too): reading the training frames from one frame file
+    per round gives the weights of holding them in memory, and the file is gone after."""
+    from safe_bc.bc.config import BCConfig, TrainConfig
+    from safe_bc.data.store import load_demonstrations
+    from safe_bc.experiment import train_run
+    from safe_bc.run_config import RunConfig
+    from safe_bc.selection import SelectionConfig
+    from safe_bc.selfimprove.config import FRAMES
+    from safe_bc.selfimprove.rollout import ValidateJob, local_rollouts
+    from safe_bc.selfimprove.stage import selfimprove_run
+
+    cfg = RunConfig(SelectionConfig(alpha=0.5), BCConfig(train=TrainConfig(batches=200)))
+    result, _ = train_run(load_demonstrations(tiny_demos), cfg)
+    config = SelfImproveConfig(
+        rounds=2, tracks_per_round=3, validation_episodes=1, batches=10, max_steps=100,
+        margin=0.0, beyond_limit=1.0,
+    )  # fmt: skip
+
+    def run(folder: Path, on_disk: bool):
+        calls = []
+
+        def rising(job, seeds):
+            rows = local_rollouts(job, seeds)
+            if isinstance(job, ValidateJob):
+                calls.append(1)
+                rows = [{**m, "reward": 1000.0 * len(calls), "any_violation": 0} for m in rows]
+            return rows
+
+        return selfimprove_run(
+            config, result.model, cfg, str(tiny_demos), "CarRacing-v3", folder,
+            rollouts=rising, frames_on_disk=on_disk,
+        )  # fmt: skip
+
+    disk = run(tmp_path / "disk", True)
+    memory = run(tmp_path / "memory", False)
+    assert disk.accepted_rounds == 2 and disk.rounds[0]["kept_steps"] > 0
+    assert _no_seconds(disk.rounds, memory.rounds)
+    for r in range(2):
+        assert not (tmp_path / "disk" / round_dir(r) / FRAMES).exists()
+        assert _same(
+            _weights(tmp_path / "disk" / round_dir(r) / POLICY),
+            _weights(tmp_path / "memory" / round_dir(r) / POLICY),
+        )
+    # round 1 trained on round 0's kept rows read back from round 0's file: a dropped or
+    # misordered frame would change its weights (or the row count aggregate_rows checks)

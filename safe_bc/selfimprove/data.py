@@ -4,8 +4,9 @@ numpy only, no torch). The training data (demonstrations plus the kept pieces' r
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -39,10 +40,14 @@ def save_round(path: Path, tracks: Sequence[TrackResult]) -> None:
         np.savez_compressed(f, **arrays)
 
 
-def load_round(path: Path) -> list[TrackResult]:
-    """The track results :func:`save_round` wrote."""
+def load_round(path: Path, frames: bool = True) -> list[TrackResult]:
+    """The track results :func:`save_round` wrote; with ``frames=False`` the pieces'
+    observations are ``(R, 0)`` placeholders and the file's frames are never decompressed (a
+    CarRacing round's are ~2 GB: :func:`frame_chunks` streams them one round at a time)."""
     with np.load(path) as z:
-        a = {k: z[k] for k in z.files}
+        a = {k: z[k] for k in z.files if frames or k != "observations"}
+    if not frames:
+        a["observations"] = np.empty((int(a["piece_rows"].sum()), 0), np.uint8)
     bounds = np.r_[0, np.cumsum(a["piece_rows"])]
     pieces: list[list[KeptPiece]] = [[] for _ in a["seed"]]
     for j, track in enumerate(a["piece_track"]):
@@ -72,3 +77,18 @@ def load_round(path: Path) -> list[TrackResult]:
         )
         for i in range(len(a["seed"]))
     ]
+
+
+def frame_chunks(
+    demos_frames: Any, kept_files: Sequence[Path], pieces: Sequence[KeptPiece], block: int = 4096
+) -> Iterator[np.ndarray]:
+    """The frames of the demonstrations (``block`` rows at a time), then of the pieces with
+    rows in each of ``kept_files`` (one file decompressed at a time), then of ``pieces``: the
+    row order of :func:`safe_bc.rounds.aggregate_rows` over those pieces, for
+    :func:`safe_bc.data.frames.write_frame_file`."""
+    for i in range(0, len(demos_frames), block):
+        yield np.asarray(demos_frames[i : i + block])
+    for f in kept_files:
+        for t in load_round(f):
+            yield from (p.observations for p in t.pieces if len(p.steps))
+    yield from (p.observations for p in pieces if len(p.steps))

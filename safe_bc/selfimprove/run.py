@@ -27,6 +27,7 @@ import numpy as np
 from safe_bc.atomic import write_json_atomic
 from safe_bc.bc.checkpoint import checkpoint_unit, save_checkpoint
 from safe_bc.bc.net import BCNet
+from safe_bc.data.frames import FrameFile, write_frame_file
 from safe_bc.demos import Demonstrations
 from safe_bc.evaluation import NetSource
 from safe_bc.improve.config import VALIDATION_SEED_BASE
@@ -47,6 +48,7 @@ from safe_bc.run_config import RunConfig
 from safe_bc.selfimprove.config import (
     DONE,
     FORMAT,
+    FRAMES,
     IDENTITY,
     KEPT,
     POLICY,
@@ -54,7 +56,7 @@ from safe_bc.selfimprove.config import (
     SelfImproveConfig,
     round_dir,
 )
-from safe_bc.selfimprove.data import load_round, save_round
+from safe_bc.selfimprove.data import frame_chunks, load_round, save_round
 from safe_bc.selfimprove.logic import accept_round, kept_selection
 from safe_bc.selfimprove.rollout import (
     ExploreJob,
@@ -181,12 +183,20 @@ def run_selfimprove(
     rollouts: RolloutFn = local_rollouts,
     train: TrainFn = train_local,
     on_round: Callable[[dict[str, Any]], None] | None = None,
+    frames_on_disk: bool | None = None,
 ) -> SelfImproveResult:
     """Run (or resume) the rounds of ``config`` from the trained net ``start`` in ``folder``.
 
     ``run_config`` is the start's (selection and BC settings; ``config.batches`` overrides the
     batches of each retraining); ``pushes`` the resolved push specs. A folder of another
     start, run config, demonstrations or config raises ``ValueError``.
+
+    ``frames_on_disk`` (``None``: when the observations are ``uint8`` frames): each retraining
+    reads the frames of the demonstrations and of every kept row from one frame file
+    (``round_r/frames.npy``, written a round file at a time and deleted after the training)
+    instead of holding them in memory: a CarRacing round keeps ~80k frames (~2 GB), so four
+    accepted rounds held in memory and concatenated peaked near 19 GB. The same rows, batches
+    and weights either way.
     """
     from safe_bc.experiment import select_for
 
@@ -233,7 +243,11 @@ def run_selfimprove(
     if config.backoff:
         backoff = sel.eps if config.backoff_eps is None else config.backoff_eps
     agent, agent_name, reward_now = start_src, "start", float(start_val["validation_reward"])
-    kept_so_far: list[KeptPiece] = []
+    if frames_on_disk is None:
+        obs = demos.observations
+        frames_on_disk = obs.dtype == np.uint8 and len(obs.shape) == 4
+    kept_so_far: list[KeptPiece] = []  # frame-less placeholders when frames_on_disk
+    kept_sources: list[Path] = []  # the round files of kept_so_far, in order
     kept_files: list[Path] = []  # accepted done rounds' kept rows, read when a round must run
     rounds: list[dict[str, Any]] = []
     resumed = 0
@@ -248,7 +262,10 @@ def run_selfimprove(
                 agent, agent_name = policy_source(here / POLICY), round_dir(r)
                 reward_now = float(done["validation_reward"])
             continue
-        kept_so_far += [p for f in kept_files for t in load_round(f) for p in t.pieces]
+        kept_so_far += [
+            p for f in kept_files for t in load_round(f, not frames_on_disk) for p in t.pieces
+        ]
+        kept_sources += kept_files
         kept_files = []
         t0 = time.perf_counter()
         if (here / KEPT).is_file():
@@ -264,11 +281,22 @@ def run_selfimprove(
         t_roll = time.perf_counter() - t0
         mine = [p for t in tracks for p in t.pieces]
         pieces = kept_so_far + mine
-        data, kept = aggregate_rows(demos, pieces, [p.trained for p in pieces])
+        frames = None
+        if frames_on_disk:
+            n = len(demos) + sum(len(p.steps) for p in pieces)
+            shape = (n, *demos.observations.shape[1:])
+            chunks = frame_chunks(demos.observations, kept_sources, mine)
+            frames = FrameFile(write_frame_file(here / FRAMES, shape, chunks), shape)
+        data, kept = aggregate_rows(demos, pieces, [p.trained for p in pieces], frames)
         selection = kept_selection(
             data.costs, data.scored, kept, retrain.selection, base.thresholds, config.kept_in
         )
-        source = train(TrainJob(data, selection, retrain, action_bounds))
+        try:
+            source = train(TrainJob(data, selection, retrain, action_bounds))
+        finally:
+            if frames is not None:
+                frames.close()
+                (here / FRAMES).unlink(missing_ok=True)
         with checkpoint_unit(here / POLICY) as unit:
             save_checkpoint(
                 unit,
@@ -310,7 +338,11 @@ def run_selfimprove(
         }
         if accepted:
             agent, agent_name, reward_now = source, round_dir(r), val["validation_reward"]
-            kept_so_far += mine
+            if frames_on_disk:  # the frames stay in this round's file
+                kept_so_far += [p for t in load_round(here / KEPT, False) for p in t.pieces]
+                kept_sources.append(here / KEPT)
+            else:
+                kept_so_far += mine
         summary["agent"] = agent_name
         write_json_atomic(here / DONE, summary)
         rounds.append(summary)
