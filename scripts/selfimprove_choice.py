@@ -7,7 +7,8 @@ Usage::
     python -m scripts.selfimprove_choice results/selfimprove/rehab/selection.parquet
 
 Reads the table ``safe-bc compare tune_jobs/compare/selfimprove_selection_<task>.py`` wrote
-(one row per method, paired columns against the start) and writes ``choice.md`` beside it.
+(one row per method, paired columns against the start) and writes ``choice.md`` beside it
+(``<stem>_choice.md`` for another table of the same folder, :func:`choice_path`).
 
 The rule (:func:`choose`), written after the rehab table and before the CarRacing table
 existed:
@@ -134,6 +135,12 @@ def markdown(table: pd.DataFrame, meta: dict[str, Any], source: Path, command: s
     return "\n".join(lines)
 
 
+def choice_path(table: Path) -> Path:
+    """Where a table's choice goes: ``choice.md`` beside ``selection.parquet``,
+    ``<stem>_choice.md`` beside any other (the car's ``rounds.parquet``)."""
+    return table.with_name("choice.md" if table.stem == "selection" else f"{table.stem}_choice.md")
+
+
 def main(argv: list[str] | None = None) -> int:
     from safe_bc.atomic import write_text_atomic
     from safe_bc.data.store import read_table
@@ -144,7 +151,7 @@ def main(argv: list[str] | None = None) -> int:
     table, meta = read_table(args.table)
     command = "python -m scripts.selfimprove_choice " + shlex.join(sys.argv[1:])
     text = markdown(table, meta, args.table, command)
-    write_text_atomic(args.table.with_name("choice.md"), text)
+    write_text_atomic(choice_path(args.table), text)
     print(text)
     return 0
 

@@ -9,10 +9,12 @@ import pandas as pd
 import pytest
 
 from safe_bc.data.store import read_table
-from scripts.selfimprove_choice import choose, markdown
+from scripts.selfimprove_choice import choice_path, choose, markdown
 
 ROOT = Path(__file__).resolve().parents[2]
-TABLES = sorted((ROOT / "results/selfimprove").glob("*/selection.parquet"))
+TABLES = sorted((ROOT / "results/selfimprove").glob("*/selection.parquet")) + sorted(
+    (ROOT / "results/selfimprove").glob("*/rounds.parquet")
+)
 
 
 def test_the_rule_wants_a_reliable_gain_then_fewest_crossings_then_reward() -> None:
@@ -25,12 +27,12 @@ def test_the_rule_wants_a_reliable_gain_then_fewest_crossings_then_reward() -> N
     assert choose(t, "b", ["z"])[0] is None
 
 
-@pytest.mark.parametrize("table", TABLES, ids=lambda p: p.parent.name)
+@pytest.mark.parametrize("table", TABLES, ids=lambda p: f"{p.parent.name}-{p.stem}")
 def test_committed_choice_rederives(table: Path) -> None:
     frame, meta = read_table(table)
     command = "python -m scripts.selfimprove_choice " + str(table.relative_to(ROOT))
     assert markdown(frame, meta, table.relative_to(ROOT), command) == (
-        table.with_name("choice.md").read_text()
+        choice_path(table).read_text()
     )
 
 
