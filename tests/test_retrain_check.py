@@ -29,11 +29,9 @@ def _old_run_config(method: dict, seed: int) -> RunConfig:
 
 
 def _methods(meta: dict) -> dict[str, dict]:
-    """Each method's selection fields by name: tables written by the comparison runner record
-    a list of methods (each with its ``selection``), older ones a name -> fields mapping."""
+    """Each method's selection fields by name (the comparison runner records a list of
+    methods, each with its ``selection``)."""
     methods = meta["config"]["methods"]
-    if isinstance(methods, dict):
-        return methods
     return {m["name"]: m["selection"] for m in methods if m["selection"] is not None}
 
 

@@ -5,6 +5,7 @@ numpy only, no torch). The training data (demonstrations plus the kept pieces' r
 from __future__ import annotations
 
 from collections.abc import Iterator, Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -77,6 +78,11 @@ def load_round(path: Path, frames: bool = True) -> list[TrackResult]:
         )
         for i in range(len(a["seed"]))
     ]
+
+
+def frameless(piece: KeptPiece) -> KeptPiece:
+    """``piece`` with a ``(R, 0)`` placeholder for its frames (they stay in its round file)."""
+    return replace(piece, observations=np.empty((len(piece.steps), 0), np.uint8))
 
 
 def frame_chunks(

@@ -56,7 +56,7 @@ from safe_bc.selfimprove.config import (
     SelfImproveConfig,
     round_dir,
 )
-from safe_bc.selfimprove.data import frame_chunks, load_round, save_round
+from safe_bc.selfimprove.data import frame_chunks, frameless, load_round, save_round
 from safe_bc.selfimprove.logic import accept_round, kept_selection
 from safe_bc.selfimprove.rollout import (
     ExploreJob,
@@ -339,7 +339,7 @@ def run_selfimprove(
         if accepted:
             agent, agent_name, reward_now = source, round_dir(r), val["validation_reward"]
             if frames_on_disk:  # the frames stay in this round's file
-                kept_so_far += [p for t in load_round(here / KEPT, False) for p in t.pieces]
+                kept_so_far += [frameless(p) for p in mine]
                 kept_sources.append(here / KEPT)
             else:
                 kept_so_far += mine
