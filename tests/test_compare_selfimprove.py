@@ -228,8 +228,12 @@ def test_both_improvements_get_the_same_env_step_budget(file: str, steps: int) -
     comp = load_comparison(COMPARE / file)
     ppo = comp.method("ppo_lagrangian").improve
     si = comp.method("selfimitation").selfimprove
-    chosen = {"selfimprove_carracing.py": {}, "selfimprove_rehab.py": {"kept_in": "critical"}}
-    assert si == SelfImproveConfig(**chosen[file])  # the defaults with the selection's choice
+    half = ("1+0.015", "1+0.025", "2*0.95", "2*0.9", "2*0.75")  # the defaults' pushes, halved
+    chosen = {
+        "selfimprove_carracing.py": {"rounds": 4, "pushes": half},
+        "selfimprove_rehab.py": {"rounds": 2, "kept_in": "critical"},
+    }
+    assert si == SelfImproveConfig(**chosen[file])  # the selection tables' choices
     assert ppo.shield and ppo.lagrangian
     episodes = si.rounds * si.tracks_per_round * (1 + len(pushes_for(si, comp.task)))
     assert ppo.iterations * ppo.episodes_per_iter == episodes

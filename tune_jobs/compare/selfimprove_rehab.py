@@ -14,10 +14,10 @@ episodes are equal env steps. Self-imitation rolls out ``rounds x tracks_per_rou
 pushes)`` training episodes (240 with the defaults: 7,200 env steps); the PPO-Lagrangian row
 runs as many in :data:`EPISODES_PER_ITER`-episode iterations (15 x 16), a small fraction of
 ``improve_rehab.py``'s 384,000 steps, on purpose: the question is what each method makes of
-the same interactions. Validation is matched as on CarRacing (``selfimprove_carracing.py``):
-3 x 32 patients each. The table records each run's env steps (training rollouts and
-validation, counted the same way for both) and wall time (both in the driver process, rollouts
-in-process), ``compare_history.parquet`` the learning curves.
+the same interactions. Validation is matched in episodes as on CarRacing
+(``selfimprove_carracing.py``): 3 x 32 patients each. The table records each run's env steps
+(training rollouts and validation, counted the same way for both) and wall time (both in the
+driver process, rollouts in-process), ``compare_history.parquet`` the learning curves.
 
 3 training seeds x 200 fresh patients of held-out seed block 15, which no other table uses.
 
@@ -37,7 +37,7 @@ EPISODE_STEPS = 30
 """Sessions per rehab episode (``safe_bc.tasks.rehab.env.DEFAULT_N_SESSIONS``)."""
 EPISODES_PER_ITER = 16
 """PPO episodes (patients) per iteration."""
-SELF = SelfImproveConfig(kept_in="critical")
+SELF = SelfImproveConfig(rounds=2, kept_in="critical")
 """The self-imitation row: the package's defaults with kept rows in T_eps, the setting the
 rehab selection table supports (``results/selfimprove/rehab/choice.md``: the reliable gain
 over the start with the fewest programmes beyond d_s, 3 seeds x 200 selection patients)."""
@@ -48,7 +48,8 @@ PPO = _car.ppo_at_budget(
     replace(sibling(__file__, "improve_rehab").BASE, shield=True, lagrangian=True),
     EPISODES,
     EPISODES_PER_ITER,
-    SELF.validation_episodes,
+    _car.validation_budget(SELF),
+    3,
 )
 
 COMPARISON = Comparison(
