@@ -313,3 +313,31 @@ def test_the_query_verb_runs_from_a_checkpoint(rehab_start, rehab_demos, tmp_pat
     ]
     assert main(argv) == 0
     assert (tmp_path / "q" / round_dir(0) / DONE).is_file()
+
+
+def test_the_measurement_runs_in_the_clinic(rehab_demos, tmp_path) -> None:
+    """``--task rehab``: the guideline clinician is the expert, the task's widths grid and
+    alpha apply, a programme is beyond d_s when a session's outcome is (the last included),
+    and a rerun resumes to the same table."""
+    import pandas as pd
+
+    from safe_bc.data.store import read_table_metadata
+    from safe_bc.queries.measure import ALPHA, WIDTHS, main
+
+    out = tmp_path / "out"
+    argv = ["--task", "rehab", "--out", str(out), "--demos", str(rehab_demos), "--processes",
+            "1", "--seeds", "0", "--tracks", "3", "--batches", "20", "--rounds", "1",
+            "--episodes-per-round", "2"]  # fmt: skip
+    assert main(argv) == 0
+    table = pd.read_parquet(out / "summary.parquet")
+    meta = read_table_metadata(out / "summary.parquet")
+    assert meta["task"] == "rehab" and meta["crossing"] == "violating_sessions"
+    assert meta["alpha"] == ALPHA["rehab"]
+    widths = pd.read_parquet(out / "widths.parquet")
+    assert widths["width"].iloc[0] == min(WIDTHS["rehab"])
+    assert (table["episodes"] == 3).all()
+    episodes = pd.read_parquet(out / "episodes" / "block12" / "bc-0.parquet")
+    beyond = table.set_index(["block", "method"]).loc[("fresh", "bc"), "episodes_beyond"]
+    assert beyond == int((episodes["violating_sessions"] > 0).sum())
+    assert main(argv) == 0  # resumes: every unit is a file
+    pd.testing.assert_frame_equal(pd.read_parquet(out / "summary.parquet"), table)

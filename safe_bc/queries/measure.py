@@ -1,14 +1,16 @@
 """The comparison of issue 35, without Ray: plain BC, full DAgger at the same number of
-queries, critical-zone queries and deferral, on selection tracks then fresh tracks.
+queries, critical-zone queries and deferral, on selection tracks then fresh tracks (CarRacing)
+or selection and fresh patients (``--task rehab``: the guideline clinician is the expert).
 
-Run: ``SDL_VIDEODRIVER=dummy python -m safe_bc.queries.measure --out DIR --processes 16``.
+Run: ``SDL_VIDEODRIVER=dummy python -m safe_bc.queries.measure --out DIR --processes 16``
+(``--task rehab --out DIR`` for the clinic).
 Work runs in a ``multiprocessing`` pool (fork, one torch thread per process); the training
 seeds' pipelines are threads of this process that hand every training and episode to it.
 
-1. Demonstrations: ``--demos`` (default ``data/demos``), collected there (the task's default
-   5 episodes) when missing.
-2. Per training seed k: plain BC (``--alpha``, default 0.1: the committed
-   ``results/improve/carracing/starts``), then ``critical`` queries from it, then ``full``
+1. Demonstrations: ``--demos`` (default: the task's, ``data/demos`` or ``data/rehab_demos``),
+   collected there (the task's default collection) when missing.
+2. Per training seed k: plain BC (``--alpha``, default :data:`ALPHA`: the alpha of the task's
+   committed improvement starts), then ``critical`` queries from it, then ``full``
    (DAgger) with a per-round budget of the critical run's mean queries per round. The query
    rounds run while the rest of the pool evaluates plain BC, its deferral and the expert.
 3. Deferral of plain BC on the *selection* tracks (held-out block ``SELECTION_BLOCK``) for each
@@ -19,7 +21,13 @@ seeds' pipelines are threads of this process that hand every training and episod
    that asks the expert nothing; added after Table 1 on raster frames drew 0 of 110 episodes
    beyond ``d_s`` for it, so that the draw is tested on tracks that did not suggest it.
 6. Every method (and both deferrals at their chosen widths, and the expert) on the *fresh*
-   tracks (block ``FRESH_BLOCK``), 50 per seed by default.
+   tracks (block ``FRESH_BLOCK``), :data:`TRACKS` per seed by default (50 tracks, 200
+   patients).
+
+An episode is *beyond d_s* when a scored step is (``violation_steps``; CarRacing) or when a
+session's outcome is, the last one included (``violating_sessions``; rehab, whose
+``violation_steps`` scores the state before each session and misses the last outcome):
+:data:`CROSSING`.
 
 Resumable per (method, seed): every finished unit is a file (checkpoints, round folders,
 ``episodes/<block>/<method>-<seed>.parquet``); a rerun does the rest. Outputs:
@@ -36,7 +44,7 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
@@ -50,6 +58,17 @@ CRITICAL_DEFER = "critical+defer"
 """Deferral composed with the critical-zone queries' agent (its own width)."""
 BC_SAFE = "bc_safe"
 """OSRL's BC-Safe at the task's eps: no queries, no deferral."""
+TRACKS = {"carracing": 50, "rehab": 200}
+"""Tracks (patients) per block and training seed: the issue's design (3 seeds x 50 tracks; the
+clinic x 200 patients)."""
+ALPHA = {"carracing": 0.1, "rehab": 0.5}
+"""Plain BC's alpha: that of the task's committed improvement starts
+(``tune_jobs/compare/improve_carracing.py``, ``improve_rehab.py``)."""
+WIDTHS = {"carracing": (1.0, 2.0, 4.0, 8.0), "rehab": (0.025, 0.05, 0.1, 0.2)}
+"""Deferral widths tried on the selection tracks, in cost units: CarRacing px (half, one,
+two and four times its eps of 2 px); rehab cost units (the same multiples of its eps, 0.05)."""
+CROSSING = {"carracing": "violation_steps", "rehab": "violating_sessions"}
+"""The per-episode count whose being above 0 makes an episode *beyond d_s*."""
 
 _STATE: dict[str, Any] = {}
 
@@ -99,8 +118,8 @@ def _episode(args: tuple[Any, Any, int, np.ndarray, float, int | None]) -> dict[
     return {"env_seed": seed, **metrics}
 
 
-def ensure_demos(root: Path, pool: Any) -> None:
-    """The task's default demonstrations at ``root`` (collected in the pool when missing)."""
+def ensure_demos(root: Path, pool: Any, task: str = "carracing") -> None:
+    """``task``'s default demonstrations at ``root`` (collected in the pool when missing)."""
     from safe_bc.collection import config_dict, env_facts
     from safe_bc.data.store import DatasetMeta, init_dataset, write_episode
     from safe_bc.provenance import provenance
@@ -108,7 +127,7 @@ def ensure_demos(root: Path, pool: Any) -> None:
 
     if (root / "dataset.json").is_file():
         return
-    cfg = task_defaults("carracing").collect_config()
+    cfg = task_defaults(task).collect_config()
     shape, dims, bounds = env_facts(cfg)
     meta = init_dataset(
         root,
@@ -136,38 +155,55 @@ class MeasureConfig:
 
     out: Path
     """Output folder (resumable: a rerun does what is missing)."""
+    task: Literal["carracing", "rehab"] = "carracing"
+    """The testbed: the car (the scripted expert) or the clinic (the guideline clinician)."""
     processes: int = 16
     """Worker processes (one torch thread each)."""
-    demos: Path = Path("data/demos")
-    """Demonstrations (the task's default 5 episodes collected there when missing)."""
+    demos: Path | None = None
+    """Demonstrations (None: the task's, ``data/demos`` or ``data/rehab_demos``; its default
+    collection is made there when missing)."""
     seeds: tuple[int, ...] = (0, 1, 2)
     """Training seeds."""
-    tracks: int = 50
-    """Tracks per block (selection, fresh) and training seed."""
-    alpha: float = 0.1
-    """Plain BC's alpha (0.1: the committed improvement starts)."""
+    tracks: int | None = None
+    """Tracks (patients) per block (selection, fresh) and training seed (None:
+    :data:`TRACKS`, 50 tracks or 200 patients)."""
+    alpha: float | None = None
+    """Plain BC's alpha (None: :data:`ALPHA`, the task's committed improvement starts')."""
     batches: int = 2000
     """Training batches of every BC fit."""
     rounds: int = 2
     """Query rounds (critical and full)."""
     episodes_per_round: int = 16
     """Rollouts per query round."""
-    widths: tuple[float, ...] = (1.0, 2.0, 4.0, 8.0)
-    """Deferral widths (px) tried on the selection tracks, smallest first."""
+    widths: tuple[float, ...] | None = None
+    """Deferral widths (cost units) tried on the selection tracks, smallest first (None:
+    :data:`WIDTHS`)."""
     max_steps: int | None = None
     """Episode step cap (None: the env's time limit)."""
+
+    def resolved(self) -> MeasureConfig:
+        """This config with the task's values for every field left at None."""
+        from safe_bc.tasks import task_defaults
+
+        return replace(
+            self,
+            demos=Path(task_defaults(self.task).demos) if self.demos is None else self.demos,
+            tracks=TRACKS[self.task] if self.tracks is None else self.tracks,
+            alpha=ALPHA[self.task] if self.alpha is None else self.alpha,
+            widths=WIDTHS[self.task] if self.widths is None else self.widths,
+        )
 
 
 def main(argv: list[str] | None = None) -> int:
     import tyro
 
-    a = tyro.cli(MeasureConfig, args=argv, description=__doc__.splitlines()[0])
+    a = tyro.cli(MeasureConfig, args=argv, description=__doc__.splitlines()[0]).resolved()
     os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
     import multiprocessing
 
     t0 = time.perf_counter()
     with multiprocessing.get_context("fork").Pool(a.processes, _init_worker) as pool:
-        ensure_demos(a.demos, pool)
+        ensure_demos(a.demos, pool, a.task)
         summary = run(a, pool)
     print(summary)
     print(f"done in {time.perf_counter() - t0:.0f} s")
@@ -191,10 +227,14 @@ def run(a: MeasureConfig, pool: Any) -> str:
     from safe_bc.selection import SelectionConfig
     from safe_bc.tasks import dataset_action_bounds, task_defaults
 
+    a = a.resolved()
+    assert a.demos is not None and a.tracks is not None and a.widths is not None
+    assert a.alpha is not None
     out = a.out
     out.mkdir(parents=True, exist_ok=True)
     demos = load_demonstrations(a.demos)
-    task = task_defaults("carracing")
+    task = task_defaults(a.task)
+    crossing = CROSSING[a.task]
     env, expert = task.env, expert_for(a.demos, task.env.env_id)
     bounds = dataset_action_bounds(a.demos)
     base_sel = SelectionConfig(eps=task.eps, alpha=a.alpha)
@@ -300,7 +340,7 @@ def run(a: MeasureConfig, pool: Any) -> str:
                 evaluate(SELECTION_BLOCK, f"{prefix}-{w:g}", s, defer_source(s, w, agent_of(s)))
                 for s in a.seeds
             ]
-            crossings[w] = int(sum((e["violation_steps"] > 0).sum() for e in eps))
+            crossings[w] = int(sum((e[crossing] > 0).sum() for e in eps))
             if crossings[w] == 0:
                 break
         chosen = smallest_safe_width(crossings)
@@ -346,11 +386,13 @@ def run(a: MeasureConfig, pool: Any) -> str:
     queries = {m: float(np.mean([agents[s][m][1] for s in a.seeds])) for m in METHODS}
     queries[CRITICAL_DEFER] = queries["critical"]  # its agent's training queries
     queries[BC_SAFE] = 0.0
-    table = summarize(episodes, queries, {"defer": width, CRITICAL_DEFER: width_c})
+    table = summarize(episodes, queries, {"defer": width, CRITICAL_DEFER: width_c}, crossing)
     from safe_bc.data.store import write_table_atomic
     from safe_bc.provenance import run_metadata
 
     meta = run_metadata(
+        task=a.task,
+        crossing=crossing,
         seeds=a.seeds,
         tracks=a.tracks,
         alpha=a.alpha,
@@ -366,13 +408,15 @@ def run(a: MeasureConfig, pool: Any) -> str:
     )
     write_table_atomic(out / "summary.parquet", table, meta)
     text = (
-        f"# Critical-zone queries and deferral (issue 35)\n\nTraining seeds {a.seeds}, "
-        f"{a.tracks} tracks per seed and block (selection: held-out block {SELECTION_BLOCK}; "
+        f"# Critical-zone queries and deferral (issue 35, {a.task})\n\nTraining seeds "
+        f"{a.seeds}, {a.tracks} tracks per seed and block (selection: held-out block "
+        f"{SELECTION_BLOCK}; "
         f"fresh: {FRESH_BLOCK}). Deferral width w = {width:g} (smallest of {sorted(a.widths)} "
         f"with no selection episode beyond d_s; crossings per width {crossings}). Deferral over "
         f"the critical-zone queries' agent ({CRITICAL_DEFER}): w = {width_c:g}, chosen the same "
         f"way (crossings per width {crossings_c}); its queries are its agent's training "
-        f"queries. {BC_SAFE}: OSRL's BC-Safe (alpha 0), no queries.\n\n"
+        f"queries. {BC_SAFE}: OSRL's BC-Safe (alpha 0), no queries. An episode is beyond "
+        f"d_s when its `{crossing}` is above 0.\n\n"
         + table.to_markdown(index=False, floatfmt=".3g")
         + f"\n\nProvenance: `{meta['command']}`\n"
     )
@@ -380,9 +424,15 @@ def run(a: MeasureConfig, pool: Any) -> str:
     return text
 
 
-def summarize(episodes: Any, queries: dict[str, float], widths: dict[str, float]) -> Any:
-    """Per (block, method): episodes beyond d_s, their 95% upper bound, reward and its paired
-    difference to the expert (crossed bootstrap), queries / deferred steps per episode."""
+def summarize(
+    episodes: Any,
+    queries: dict[str, float],
+    widths: dict[str, float],
+    crossing: str = "violation_steps",
+) -> Any:
+    """Per (block, method): episodes beyond d_s (``crossing`` above 0), their 95% upper bound,
+    reward and its paired difference to the expert (crossed bootstrap), queries / deferred
+    steps per episode."""
     import pandas as pd
 
     from safe_bc.metrics import clopper_pearson_upper, paired_to_reference
@@ -391,7 +441,7 @@ def summarize(episodes: Any, queries: dict[str, float], widths: dict[str, float]
     for block, df in episodes.groupby("block", sort=True):
         paired = paired_to_reference(df, "expert", ["reward"]).set_index("method")
         for method, m in df.groupby("method", sort=False):
-            k, n = int((m["violation_steps"] > 0).sum()), len(m)
+            k, n = int((m[crossing] > 0).sum()), len(m)
             row = {
                 "block": "selection" if block == SELECTION_BLOCK else "fresh",
                 "method": method,
