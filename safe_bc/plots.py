@@ -153,3 +153,55 @@ def plot_learning_curves(
     fig.suptitle("improvement learning curves", fontsize=9)
     fig.tight_layout(rect=(0, 0.07, 1, 1))
     return save_figure(fig, path)
+
+
+def plot_queries(
+    summaries: dict[str, pd.DataFrame],
+    deferred: dict[str, dict[str, float]],
+    path: Path,
+    *,
+    block: str = "fresh",
+) -> Path:
+    """Critical-zone queries and deferral (``safe_bc.queries.measure``'s ``summary.parquet``
+    per testbed): one row of two panels per testbed, on its ``block`` episodes. Left: reward
+    minus the expert's (paired crossed 95% CI), each method labelled with its burden (training
+    queries per rollout, or ``deferred[testbed][method]``: the mean share of steps deferred);
+    right: the share of episodes beyond ``d_s`` (dot) and its one-sided 95% Clopper-Pearson
+    bound (bar end)."""
+    from matplotlib.ticker import PercentFormatter
+
+    fig, axes = plt.subplots(len(summaries), 2, figsize=(11, 2.6 * len(summaries)), squeeze=False)
+    for (left, right), (name, table) in zip(axes, summaries.items(), strict=True):
+        t = table[(table["block"] == block) & (table["method"] != "expert")].reset_index()
+        y = np.arange(len(t))[::-1]
+        d = t["d_reward_vs_expert"]
+        left.errorbar(
+            d, y, xerr=[d - t["d_reward_lo_vs_expert"], t["d_reward_hi_vs_expert"] - d],
+            fmt="o", color="C0", capsize=3,
+        )  # fmt: skip
+        left.axvline(0, color="k", lw=1, ls="--")
+        labels = []
+        for _, r in t.iterrows():
+            label = r["method"]
+            if r["method"] in deferred.get(name, {}):
+                label += f", {deferred[name][r['method']]:.1%} of steps deferred"
+            if np.isfinite(r["queries_per_episode"]) and r["queries_per_episode"] > 0:
+                label += f", {r['queries_per_episode']:.2g} queries / training rollout"
+            labels.append(label)
+        left.set_yticks(y, labels, fontsize=7)
+        left.set_xlabel("reward - expert (paired crossed 95% CI)", fontsize=8)
+        left.set_title(f"{name}: {block} episodes, reward against the expert", fontsize=9)
+        right.hlines(y, 0, t["beyond_ucb95"], color="C3", lw=3, alpha=0.35)
+        right.plot(t["episodes_beyond"] / t["episodes"], y, "o", color="C3")
+        for yi, (_, r) in zip(y, t.iterrows(), strict=True):
+            right.annotate(
+                f"{r['episodes_beyond']}/{r['episodes']}", (r["beyond_ucb95"], yi),
+                xytext=(4, -3), textcoords="offset points", fontsize=7,
+            )  # fmt: skip
+        right.set_yticks(y, [""] * len(y))
+        right.set_xlim(0, max(0.05, float(t["beyond_ucb95"].max()) * 1.3))
+        right.xaxis.set_major_formatter(PercentFormatter(1.0))
+        right.set_xlabel("episodes beyond d_s (dot) and 95% upper bound (bar end)", fontsize=8)
+        right.set_title(f"{name}: crossings", fontsize=9)
+    fig.tight_layout()
+    return save_figure(fig, path)

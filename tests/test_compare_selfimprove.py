@@ -228,12 +228,8 @@ def test_both_improvements_get_the_same_env_step_budget(file: str, steps: int) -
     comp = load_comparison(COMPARE / file)
     ppo = comp.method("ppo_lagrangian").improve
     si = comp.method("selfimitation").selfimprove
-    half = ("1+0.015", "1+0.025", "2*0.95", "2*0.9", "2*0.75")  # the defaults' pushes, halved
-    chosen = {
-        "selfimprove_carracing.py": {"rounds": 4, "pushes": half},
-        "selfimprove_rehab.py": {"rounds": 2, "kept_in": "critical"},
-    }
-    assert si == SelfImproveConfig(**chosen[file])  # the selection tables' choices
+    assert si == SelfImproveConfig()  # the package's defaults: the selection tables' choices
+    si = si.for_task(comp.task)
     assert ppo.shield and ppo.lagrangian
     episodes = si.rounds * si.tracks_per_round * (1 + len(pushes_for(si, comp.task)))
     assert ppo.iterations * ppo.episodes_per_iter == episodes
@@ -327,3 +323,39 @@ def test_a_longer_run_starts_from_a_shorter_rows_rounds(rehab_demos, tmp_path, m
         for key in ("seconds", "rollout_seconds"):
             a.pop(key), b.pop(key)
         assert a == b
+
+
+@pytest.mark.parametrize(
+    ("task", "files", "choice"),
+    [
+        ("carracing", ("selfimprove_selection_carracing.py",
+                       "selfimprove_selection_carracing_rounds.py"), "carracing/rounds_choice.md"),
+        ("rehab", ("selfimprove_selection_rehab.py",), "rehab/choice.md"),
+    ],
+)  # fmt: skip
+def test_each_tasks_defaults_are_the_row_its_selection_table_chose(task, files, choice) -> None:
+    """``SelfImproveConfig()`` run on a task equals (workers aside) the row that the task's
+    committed choice file names, so a default moves only with a measurement."""
+    import re
+
+    from safe_bc.distributed.compare import selfimprove_identity
+
+    text = (ROOT / "results/selfimprove" / choice).read_text()
+    (chosen,) = re.findall(r"\*\*Chosen: (\w+)\*\*", text)
+    rows = {
+        m.name: selfimprove_identity(c, m, 0)
+        for f in files
+        for c in [load_comparison(COMPARE / f)]
+        for m in c.methods
+        if m.selfimprove
+    }
+    default = SelfImproveConfig(seed=0).for_task(task)
+    assert {**default.identity(), "pushes": list(default.pushes)} == rows[chosen]
+
+
+def test_a_config_left_unset_needs_a_task_with_defaults() -> None:
+    with pytest.raises(ValueError, match=r"no self-imitation defaults.*rounds"):
+        SelfImproveConfig().for_task("nosuchtask")
+    full = SelfImproveConfig(rounds=1, pushes=("0+0.1",), kept_in="rest")
+    assert full.resolved and full.for_task("nosuchtask") == full
+    assert not SelfImproveConfig().resolved

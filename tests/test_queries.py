@@ -341,3 +341,22 @@ def test_the_measurement_runs_in_the_clinic(rehab_demos, tmp_path) -> None:
     assert beyond == int((episodes["violating_sessions"] > 0).sum())
     assert main(argv) == 0  # resumes: every unit is a file
     pd.testing.assert_frame_equal(pd.read_parquet(out / "summary.parquet"), table)
+
+
+def test_the_figure_reads_the_committed_carracing_measurement(tmp_path) -> None:
+    """``python -m safe_bc.queries.figure`` draws the committed summary; the deferred share it
+    labels is the mean of the committed fresh episodes' ``deferred_share``."""
+    import pandas as pd
+
+    from safe_bc.queries.figure import deferred_shares, main
+
+    folder = Path(__file__).resolve().parents[1] / "results/queries/carracing"
+    assert main([str(tmp_path / "q.png"), str(folder)]) == 0
+    assert (tmp_path / "q.png").stat().st_size > 10_000
+    shares = deferred_shares(folder, 12)
+    episodes = pd.concat(
+        pd.read_parquet(p) for p in (folder / "episodes/block12").glob("defer-*.parquet")
+    )
+    assert shares["defer"] == pytest.approx(episodes["deferred_share"].mean())
+    assert set(shares) == {"defer", "critical+defer"}
+    assert main([]) == 2

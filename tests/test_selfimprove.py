@@ -285,13 +285,13 @@ def test_study_keys_set_the_stage_config_and_the_verb_parses_pushes() -> None:
 
 
 def test_the_stage_runs_on_carracing_with_60_step_episodes(tiny_demos, tmp_path) -> None:
-    """CarRacing, 60-step episodes, 1 track, the default pushes (gas, brake), 10 batches."""
+    """CarRacing, 60-step episodes, 1 track, the task's pushes (gas, brake), 10 batches."""
     from safe_bc.bc.config import BCConfig, TrainConfig
     from safe_bc.data.store import load_demonstrations
     from safe_bc.experiment import train_run
     from safe_bc.run_config import RunConfig
     from safe_bc.selection import SelectionConfig
-    from safe_bc.selfimprove.config import DEFAULT_PUSHES
+    from safe_bc.selfimprove.config import TASK_DEFAULTS
     from safe_bc.selfimprove.data import load_round
     from safe_bc.stages import STAGES
 
@@ -305,7 +305,7 @@ def test_the_stage_runs_on_carracing_with_60_step_episodes(tiny_demos, tmp_path)
         config, result.model, cfg, str(tiny_demos), "CarRacing-v3", folder
     )
     (track,) = load_round(folder / round_dir(0) / KEPT)
-    assert len(track.push_rewards) == len(DEFAULT_PUSHES["carracing"])
+    assert len(track.push_rewards) == len(TASK_DEFAULTS["carracing"]["pushes"])
     assert report["selfimprove_kept_steps"] == sum(track.push_kept)
     assert source.build() is not None
 

@@ -187,18 +187,18 @@ def _agent_ok(folder: Path, run: RunConfig, demos: Path) -> bool:
 
 
 def selfimprove_config(comparison: Comparison, method: Method, seed: int) -> Any:
-    """A self-imitation row's run config for training seed ``seed`` (its ``seed``)."""
+    """A self-imitation row's run config for training seed ``seed`` (its ``seed``; the
+    comparison task's values for the fields it leaves at ``None``)."""
     assert method.selfimprove is not None
-    return dataclasses.replace(method.selfimprove, seed=seed)
+    return dataclasses.replace(method.selfimprove, seed=seed).for_task(comparison.task)
 
 
 def selfimprove_identity(comparison: Comparison, method: Method, seed: int) -> dict[str, Any]:
-    """What makes a self-imitation row's run: its config (``workers`` aside) with the pushes
-    resolved (a task's default pushes may change)."""
-    from safe_bc.selfimprove.config import pushes_for
-
+    """What makes a self-imitation row's run: its config (``workers`` aside) with the task's
+    values filled in (a task's defaults may change)."""
     config = selfimprove_config(comparison, method, seed)
-    return {**config.identity(), "pushes": list(pushes_for(config, comparison.task))}
+    assert config.pushes is not None
+    return {**config.identity(), "pushes": list(config.pushes)}
 
 
 def _copy_shared_rounds(c: Comparison, method: Method, seed: int, folder: Path) -> None:
@@ -243,7 +243,6 @@ def _selfimprove(comparison: Comparison, method: Method, seed: int, demos: Any) 
     """Run (or resume) a self-imitation row's run for ``seed`` from the start row's agent of
     that seed, in the start's env, on ``demos`` (the start's demonstration set, loaded)."""
     from safe_bc.bc import load_checkpoint
-    from safe_bc.selfimprove.config import pushes_for
     from safe_bc.selfimprove.run import run_selfimprove
 
     c = comparison
@@ -265,7 +264,7 @@ def _selfimprove(comparison: Comparison, method: Method, seed: int, demos: Any) 
     def run() -> Any:
         return run_selfimprove(
             model, run_config(c, start, seed), demos, path, env, folder, config,
-            pushes=pushes_for(config, c.task), action_bounds=dataset_action_bounds(path),
+            pushes=config.pushes, action_bounds=dataset_action_bounds(path),
             **kwargs,
         )  # fmt: skip
 

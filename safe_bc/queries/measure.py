@@ -67,6 +67,8 @@ ALPHA = {"carracing": 0.1, "rehab": 0.5}
 WIDTHS = {"carracing": (1.0, 2.0, 4.0, 8.0), "rehab": (0.025, 0.05, 0.1, 0.2)}
 """Deferral widths tried on the selection tracks, in cost units: CarRacing px (half, one,
 two and four times its eps of 2 px); rehab cost units (the same multiples of its eps, 0.05)."""
+UNITS = {"carracing": "tracks", "rehab": "patients"}
+"""What a held-out episode is called."""
 CROSSING = {"carracing": "violation_steps", "rehab": "violating_sessions"}
 """The per-episode count whose being above 0 makes an episode *beyond d_s*."""
 
@@ -409,7 +411,7 @@ def run(a: MeasureConfig, pool: Any) -> str:
     write_table_atomic(out / "summary.parquet", table, meta)
     text = (
         f"# Critical-zone queries and deferral (issue 35, {a.task})\n\nTraining seeds "
-        f"{a.seeds}, {a.tracks} tracks per seed and block (selection: held-out block "
+        f"{a.seeds}, {a.tracks} {UNITS[a.task]} per seed and block (selection: held-out block "
         f"{SELECTION_BLOCK}; "
         f"fresh: {FRESH_BLOCK}). Deferral width w = {width:g} (smallest of {sorted(a.widths)} "
         f"with no selection episode beyond d_s; crossings per width {crossings}). Deferral over "

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 import re
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from typing import Any, Literal, get_args
 
 KeepUnit = Literal["episode", "segment"]
@@ -21,13 +21,30 @@ POLICY = "policy"
 DONE = "done.json"
 START_VALIDATION = "start_validation.json"
 
-DEFAULT_PUSHES: dict[str, tuple[str, ...]] = {
+LOOP_PUSHES: dict[str, tuple[str, ...]] = {
     "carracing": ("1+0.03", "1+0.05", "2*0.9", "2*0.8", "2*0.5"),
     "rehab": ("0+0.05", "0-0.05", "1+0.05", "1-0.05"),
 }
-"""Each task's pushes when :attr:`SelfImproveConfig.pushes` is ``None``. CarRacing: gas
+"""The pushes the selection tables started from (their ``defaults`` rows). CarRacing: gas
 +0.03 / +0.05, brake x0.9 / x0.8 / x0.5 (the user's measured loop, issue 31); rehab:
-intensity and duration +-0.05 (not yet chosen by a measurement)."""
+intensity and duration +-0.05."""
+
+TASK_DEFAULTS: dict[str, dict[str, Any]] = {
+    "carracing": {
+        "rounds": 4,
+        "pushes": ("1+0.015", "1+0.025", "2*0.95", "2*0.9", "2*0.75"),
+        "kept_in": "rest",
+    },
+    "rehab": {"rounds": 2, "pushes": LOOP_PUSHES["rehab"], "kept_in": "critical"},
+}
+"""Each task's values for the fields a :class:`SelfImproveConfig` leaves at ``None``, each
+chosen by its selection table (3 training seeds x 50 selection tracks or 200 selection
+patients; ``scripts/selfimprove_choice.py``'s rule: among the rows with a reliable reward gain
+over the start, the fewest episodes beyond d_s). CarRacing: 4 rounds of the loop's pushes at
+half size (offsets halved, scales halfway to 1; ``results/selfimprove/carracing/
+rounds_choice.md``), kept rows in the rest pool (``choice.md``: no safety filter did better
+than the defaults). Rehab: kept rows in T_eps (``results/selfimprove/rehab/choice.md``), 2
+rounds of the loop's pushes."""
 
 _TERM = re.compile(r"^(\d+)([+*-])([0-9.eE+-]+)$")
 
@@ -54,12 +71,10 @@ def parse_push(spec: str) -> tuple[tuple[int, str, float], ...]:
 
 
 def pushes_for(config: SelfImproveConfig, task: str) -> tuple[str, ...]:
-    """The run's pushes: the config's, else the task's :data:`DEFAULT_PUSHES`."""
-    if config.pushes is not None:
-        return config.pushes
-    if task not in DEFAULT_PUSHES:
-        raise ValueError(f"task {task!r} has no default pushes; set SelfImproveConfig.pushes")
-    return DEFAULT_PUSHES[task]
+    """The run's pushes: the config's, else the task's (:data:`TASK_DEFAULTS`)."""
+    pushes = config.for_task(task).pushes
+    assert pushes is not None
+    return pushes
 
 
 def round_dir(r: int) -> str:
@@ -73,12 +88,15 @@ class SelfImproveConfig:
     retrain on demonstrations plus kept data, accept the round's agent by the keep rule,
     repeat. The safety choices (keep unit, margin, back-off, where kept rows go) were measured
     one at a time on CarRacing selection tracks and the defaults kept
-    (``results/selfimprove/carracing/choice.md``); the rehab table chose ``kept_in="critical"``
-    (``results/selfimprove/rehab/choice.md``). Rounds, pushes and the keep rule's bound are
-    not yet chosen by a measurement."""
+    (``results/selfimprove/carracing/choice.md``), then rounds and push sizes
+    (``rounds_choice.md``); the rehab table chose ``kept_in="critical"``
+    (``results/selfimprove/rehab/choice.md``). Fields left at ``None`` take the task's
+    measured values (:data:`TASK_DEFAULTS`, :meth:`for_task`). The keep rule's bound is not
+    yet chosen by a measurement."""
 
-    rounds: int = 2
-    """Rounds of roll-out, filter, retraining and keep rule (the user's loop: 1 and 2)."""
+    rounds: int | None = None
+    """Rounds of roll-out, filter, retraining and keep rule (``None``: the task's; CarRacing 4,
+    rehab 2)."""
     tracks_per_round: int = 24
     """Training tracks (patients) per round (:func:`safe_bc.queries.config.track_seeds`,
     shared with the query stage): each is run once unperturbed (the reference) and once per
@@ -87,7 +105,7 @@ class SelfImproveConfig:
     """Executed-action pushes, one rollout each (:func:`parse_push`: ``"1+0.03"`` adds 0.03
     to dimension 1, ``"2*0.9"`` scales dimension 2; the result is clipped to the action
     bounds). The agent's own action is recorded, the executed one is the label of kept rows.
-    ``None``: the task's :data:`DEFAULT_PUSHES`."""
+    ``None``: the task's (:data:`TASK_DEFAULTS`)."""
     keep_unit: KeepUnit = "episode"
     """``"episode"``: a pushed episode is kept whole when none of its scored states (nor the
     last step's outcome) is beyond ``d_s - margin`` and its reward beats the reference run's;
@@ -103,10 +121,11 @@ class SelfImproveConfig:
     action is executed there."""
     backoff_eps: float | None = None
     """Width of the back-off zone in cost units; ``None``: the selection's eps."""
-    kept_in: KeptIn = "rest"
+    kept_in: KeptIn | None = None
     """Where kept rows go in the alpha mix: ``"rest"`` (the rest pool only: ``T_eps`` stays
     the demonstrations' critical rows), ``"zone"`` (by the selection's rule, like a
-    demonstration row) or ``"critical"`` (every kept row joins ``T_eps``)."""
+    demonstration row) or ``"critical"`` (every kept row joins ``T_eps``). ``None``: the
+    task's (CarRacing ``"rest"``, rehab ``"critical"``)."""
     beyond_limit: float = 0.1
     """Keep rule: a round's agent is accepted only when the one-sided 95% Clopper-Pearson upper
     bound on its share of validation episodes beyond ``d_s`` is below this, and its mean
@@ -128,12 +147,12 @@ class SelfImproveConfig:
             raise ValueError(
                 f"keep_unit must be one of {get_args(KeepUnit)}, got {self.keep_unit!r}"
             )
-        if self.kept_in not in get_args(KeptIn):
+        if self.kept_in is not None and self.kept_in not in get_args(KeptIn):
             raise ValueError(f"kept_in must be one of {get_args(KeptIn)}, got {self.kept_in!r}")
-        for name in ("rounds", "tracks_per_round", "segment_steps", "validation_episodes"):
+        for name in ("tracks_per_round", "segment_steps", "validation_episodes"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
-        for name in ("batches", "max_steps"):
+        for name in ("rounds", "batches", "max_steps"):
             value = getattr(self, name)
             if value is not None and int(value) < 1:
                 raise ValueError(f"{name} must be >= 1 or None, got {value}")
@@ -151,6 +170,22 @@ class SelfImproveConfig:
                 parse_push(spec)
         if self.workers < 0 or self.seed < 0:
             raise ValueError(f"workers and seed must be >= 0, got {self.workers}, {self.seed}")
+
+    def for_task(self, task: str) -> SelfImproveConfig:
+        """This config with ``task``'s values (:data:`TASK_DEFAULTS`) for the fields left at
+        ``None``; what a run executes and records."""
+        unset = [k for k in ("rounds", "pushes", "kept_in") if getattr(self, k) is None]
+        if unset and task not in TASK_DEFAULTS:
+            raise ValueError(
+                f"task {task!r} has no self-imitation defaults; set SelfImproveConfig."
+                + ", .".join(unset)
+            )
+        return replace(self, **{k: TASK_DEFAULTS[task][k] for k in unset})
+
+    @property
+    def resolved(self) -> bool:
+        """Whether every task-dependent field is set (:meth:`for_task`)."""
+        return None not in (self.rounds, self.pushes, self.kept_in)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able field dict."""

@@ -200,6 +200,9 @@ def run_selfimprove(
     """
     from safe_bc.experiment import select_for
 
+    if not config.resolved:
+        raise ValueError("run_selfimprove needs a resolved config: config.for_task(task)")
+    assert config.rounds is not None and config.kept_in is not None
     folder = Path(folder)
     base = select_for(demos, run_config.selection)
     limits = tuple(float(x) for x in base.thresholds)

@@ -9,7 +9,7 @@ from typing import Any
 
 from safe_bc.bc.net import BCNet
 from safe_bc.run_config import RunConfig
-from safe_bc.selfimprove.config import SelfImproveConfig, pushes_for
+from safe_bc.selfimprove.config import SelfImproveConfig
 from safe_bc.selfimprove.run import SelfImproveResult, run_selfimprove
 
 
@@ -22,8 +22,9 @@ def selfimprove_run(
     folder: str | Path,
     **kwargs: Any,
 ) -> SelfImproveResult:
-    """:func:`run_selfimprove` with the task's env, pushes and the demonstrations' action
-    bounds, rolled out on ``config.workers`` Ray actors (0: in this process)."""
+    """:func:`run_selfimprove` with the task's env, the task's values for the fields
+    ``config`` leaves at ``None`` (:meth:`SelfImproveConfig.for_task`) and the demonstrations'
+    action bounds, rolled out on ``config.workers`` Ray actors (0: in this process)."""
     from safe_bc.data.store import load_demonstrations
     from safe_bc.tasks import dataset_action_bounds, task_defaults, task_of
 
@@ -33,6 +34,8 @@ def selfimprove_run(
 
         kwargs["rollouts"] = ChunkedRayRollouts(local_rollouts, config.workers)
     task = task_of(env_id)
+    config = config.for_task(task)
+    assert config.pushes is not None
     return run_selfimprove(
         agent,
         run_config,
@@ -41,7 +44,7 @@ def selfimprove_run(
         task_defaults(task).env,
         folder,
         config,
-        pushes=pushes_for(config, task),
+        pushes=config.pushes,
         action_bounds=dataset_action_bounds(demos),
         **kwargs,
     )

@@ -48,23 +48,25 @@ EPISODES_PER_ITER = 4
 PPO_VALIDATIONS = 4
 """PPO validations per run (every ``iterations / 4`` iterations; 144 iterations do not split
 into self-imitation's 5), each on ``validation_budget(SELF) / 4`` tracks."""
-SELF = replace(
-    sibling(__file__, "selfimprove_selection_carracing").ROUNDS["rounds4_small"][1], workers=0
-)
-"""The self-imitation row: the rounds table's choice (4 rounds, pushes of half the size;
-``results/selfimprove/carracing/rounds_choice.md``, 3 seeds x 50 selection tracks of block 13),
-rolled out in the driver process like the PPO row."""
+SELF = SelfImproveConfig()
+"""The self-imitation row: the package's CarRacing defaults, the rounds table's choice (4
+rounds, pushes of half the size; ``results/selfimprove/carracing/rounds_choice.md``, 3 seeds x
+50 selection tracks of block 13), rolled out in the driver process like the PPO row."""
 
 
 def rollout_episodes(config: SelfImproveConfig, task: str) -> int:
     """Training episodes of a self-imitation run: each round runs every track unperturbed and
     once per push."""
-    return config.rounds * config.tracks_per_round * (1 + len(pushes_for(config, task)))
+    c = config.for_task(task)
+    assert c.rounds is not None
+    return c.rounds * c.tracks_per_round * (1 + len(pushes_for(c, task)))
 
 
-def validation_budget(config: SelfImproveConfig) -> int:
+def validation_budget(config: SelfImproveConfig, task: str) -> int:
     """Validation episodes of a self-imitation run: the start and every round."""
-    return (config.rounds + 1) * config.validation_episodes
+    rounds = config.for_task(task).rounds
+    assert rounds is not None
+    return (rounds + 1) * config.validation_episodes
 
 
 def ppo_at_budget(
@@ -90,7 +92,7 @@ PPO = ppo_at_budget(
     replace(sibling(__file__, "improve_carracing").BASE, shield=True, lagrangian=True),
     EPISODES,
     EPISODES_PER_ITER,
-    validation_budget(SELF),
+    validation_budget(SELF, "carracing"),
     PPO_VALIDATIONS,
 )
 START = SelectionConfig(eps=2.0, alpha=0.1)

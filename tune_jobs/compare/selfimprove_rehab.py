@@ -37,10 +37,11 @@ EPISODE_STEPS = 30
 """Sessions per rehab episode (``safe_bc.tasks.rehab.env.DEFAULT_N_SESSIONS``)."""
 EPISODES_PER_ITER = 16
 """PPO episodes (patients) per iteration."""
-SELF = SelfImproveConfig(rounds=2, kept_in="critical")
-"""The self-imitation row: the package's defaults with kept rows in T_eps, the setting the
-rehab selection table supports (``results/selfimprove/rehab/choice.md``: the reliable gain
-over the start with the fewest programmes beyond d_s, 3 seeds x 200 selection patients)."""
+SELF = SelfImproveConfig()
+"""The self-imitation row: the package's rehab defaults (2 rounds, kept rows in T_eps), the
+setting the rehab selection table supports (``results/selfimprove/rehab/choice.md``: the
+reliable gain over the start with the fewest programmes beyond d_s, 3 seeds x 200 selection
+patients)."""
 _car = sibling(__file__, "selfimprove_carracing")
 EPISODES = _car.rollout_episodes(SELF, "rehab")
 """The shared training budget in episodes (240 with the defaults)."""
@@ -48,7 +49,7 @@ PPO = _car.ppo_at_budget(
     replace(sibling(__file__, "improve_rehab").BASE, shield=True, lagrangian=True),
     EPISODES,
     EPISODES_PER_ITER,
-    _car.validation_budget(SELF),
+    _car.validation_budget(SELF, "rehab"),
     3,
 )
 

@@ -41,13 +41,17 @@ from pathlib import Path
 
 from safe_bc.compare import Comparison, Method
 from safe_bc.selection import SelectionConfig
-from safe_bc.selfimprove.config import DEFAULT_PUSHES, SelfImproveConfig, parse_push
+from safe_bc.selfimprove.config import LOOP_PUSHES, SelfImproveConfig, parse_push
 
 WORKERS = 8
 """Rollout actors of each self-imitation run."""
 START_ALPHA = 0.1
 """Safety focus of the starts (as in ``improve_carracing.py``)."""
-DEFAULT = SelfImproveConfig(workers=WORKERS)
+DEFAULT = SelfImproveConfig(
+    rounds=2, pushes=LOOP_PUSHES["carracing"], kept_in="rest", workers=WORKERS
+)
+"""The package's defaults when this table was made (before the rounds table chose 4 rounds of
+half-size pushes): 2 rounds of the user's loop's pushes, kept rows in the rest pool."""
 
 
 def half(spec: str) -> str:
@@ -74,7 +78,7 @@ ROUNDS = {  # name: (label, config)
     "rounds4": ("4 rounds", replace(DEFAULT, rounds=4)),
     "rounds4_small": (
         "4 rounds, half-size pushes",
-        replace(DEFAULT, rounds=4, pushes=tuple(half(s) for s in DEFAULT_PUSHES["carracing"])),
+        replace(DEFAULT, rounds=4, pushes=tuple(half(s) for s in LOOP_PUSHES["carracing"])),
     ),
 }
 """More rounds, with and without smaller steps (``selfimprove_selection_carracing_rounds.py``)."""

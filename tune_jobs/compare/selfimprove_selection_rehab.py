@@ -27,13 +27,14 @@ from dataclasses import replace
 
 from safe_bc.compare import Method, sibling
 from safe_bc.selection import SelectionConfig
-from safe_bc.selfimprove.config import DEFAULT_PUSHES, SelfImproveConfig
+from safe_bc.selfimprove.config import LOOP_PUSHES, SelfImproveConfig
 
 START = SelectionConfig(eps=0.05, alpha=0.5)
 """The starts' selection (``improve_rehab.py``)."""
 MARGIN = START.eps / 2
 """The margin row's distance inside d_s (cost units)."""
-DEFAULT = SelfImproveConfig()
+DEFAULT = SelfImproveConfig(rounds=2, pushes=LOOP_PUSHES["rehab"], kept_in="rest")
+"""The package's defaults when this table was made (before it chose ``kept_in="critical"``)."""
 _half = sibling(__file__, "selfimprove_selection_carracing").half
 
 CHOICES = {  # name: (label, config)
@@ -48,7 +49,7 @@ CHOICES = {  # name: (label, config)
     "rounds4": ("4 rounds", replace(DEFAULT, rounds=4)),
     "rounds4_small": (
         "4 rounds, half-size pushes",
-        replace(DEFAULT, rounds=4, pushes=tuple(_half(s) for s in DEFAULT_PUSHES["rehab"])),
+        replace(DEFAULT, rounds=4, pushes=tuple(_half(s) for s in LOOP_PUSHES["rehab"])),
     ),
 }
 
