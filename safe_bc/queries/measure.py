@@ -409,14 +409,20 @@ def run(a: MeasureConfig, pool: Any) -> str:
         demos=str(a.demos),
     )
     write_table_atomic(out / "summary.parquet", table, meta)
+
+    def how(w: float, tried: dict[float, int]) -> str:
+        if tried.get(w) == 0:
+            return f"the smallest of {sorted(a.widths)} with no selection episode beyond d_s"
+        return f"none of {sorted(a.widths)} reached zero selection crossings: the largest"
+
     text = (
         f"# Critical-zone queries and deferral (issue 35, {a.task})\n\nTraining seeds "
         f"{a.seeds}, {a.tracks} {UNITS[a.task]} per seed and block (selection: held-out block "
         f"{SELECTION_BLOCK}; "
-        f"fresh: {FRESH_BLOCK}). Deferral width w = {width:g} (smallest of {sorted(a.widths)} "
-        f"with no selection episode beyond d_s; crossings per width {crossings}). Deferral over "
-        f"the critical-zone queries' agent ({CRITICAL_DEFER}): w = {width_c:g}, chosen the same "
-        f"way (crossings per width {crossings_c}); its queries are its agent's training "
+        f"fresh: {FRESH_BLOCK}). Deferral width w = {width:g} ({how(width, crossings)}; "
+        f"crossings per width {crossings}). Deferral over the critical-zone queries' agent "
+        f"({CRITICAL_DEFER}): w = {width_c:g}, chosen the same way ({how(width_c, crossings_c)}; "
+        f"crossings per width {crossings_c}); its queries are its agent's training "
         f"queries. {BC_SAFE}: OSRL's BC-Safe (alpha 0), no queries. An episode is beyond "
         f"d_s when its `{crossing}` is above 0.\n\n"
         + table.to_markdown(index=False, floatfmt=".3g")
