@@ -5,6 +5,7 @@ exits with its code)."""
 from __future__ import annotations
 
 import json
+import math
 import sys
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -194,15 +195,23 @@ def evaluate(job: EvaluateJob) -> Done:
         eps=float(sel_cfg.get("eps", task.eps)),
         combine=sel_cfg.get("combine", "any"),
     )
-    result = run_evaluate(
-        {"agent": NetSource.from_model(model, bc_cfg)},
-        cfg,
-        np.asarray(sel_meta["thresholds"]),
-        progress=not job.quiet,
-    )
+    thresholds = np.asarray(sel_meta["thresholds"])
+    agent: Any = NetSource.from_model(model, bc_cfg)
+    if job.defer_width is not None:
+        from safe_bc.queries.defer import DeferralSource
+        from safe_bc.queries.stage import expert_for
+
+        if not (math.isfinite(job.defer_width) and job.defer_width >= 0):
+            raise ValueError(f"--defer-width must be a finite number >= 0, got {job.defer_width}")
+        expert_cfg = expert_for(extra.get("demos", ""), extra["env_id"])
+        agent = DeferralSource(
+            agent, expert_cfg, tuple(float(x) for x in thresholds), job.defer_width, cfg.combine
+        )
+    result = run_evaluate({"agent": agent}, cfg, thresholds, progress=not job.quiet)
     episodes, steps, table = result.episodes, result.steps, result.summary
     meta = run_metadata(
         checkpoint=str(job.checkpoint),
+        defer_width=job.defer_width,
         trained_with=extra.get("run"),
         eval_seed=job.eval_seed,
         env_seeds=episodes["env_seed"].tolist(),
@@ -217,6 +226,11 @@ def evaluate(job: EvaluateJob) -> Done:
         for m in METRICS
         if m in table
     ]
+    if job.defer_width is not None:
+        share = float(episodes["deferred_share"].mean())
+        lines.append(
+            f"deferred to the expert within {job.defer_width:g} of d_s: {share:.1%} of steps"
+        )
     lines.append(f"wrote {job.out}/episodes.parquet, steps.parquet, summary.parquet")
     return Done("\n".join(lines), result)
 

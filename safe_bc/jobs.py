@@ -100,6 +100,11 @@ class EvaluateJob:
     """Block of held-out seeds the episodes are drawn from (EvalConfig.seed)."""
     max_steps: int | None = None
     """Step cap per episode (EvalConfig.max_steps); None: the env's."""
+    defer_width: float | None = None
+    """Deferral at use time: the expert acts wherever the measured cost is within this width
+    of d_s (c_s >= d_s - w, cost units; "ask the clinician"), the agent elsewhere; the tables
+    add deferred_steps and deferred_share. None: the agent acts everywhere. The measured
+    widths: docs/queries.md."""
     quiet: bool = False
     """No progress bar."""
 

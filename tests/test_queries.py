@@ -360,3 +360,41 @@ def test_the_figure_reads_the_committed_carracing_measurement(tmp_path) -> None:
     assert shares["defer"] == pytest.approx(episodes["deferred_share"].mean())
     assert set(shares) == {"defer", "critical+defer"}
     assert main([]) == 2
+
+
+def test_evaluate_defers_to_the_expert_near_the_limit(rehab_start, tmp_path, capsys) -> None:
+    """``safe-bc evaluate --defer-width W``: a width wider than any cost hands every scored
+    session to the guideline (the episodes are then the guideline's own on those patients),
+    width 0 defers only at or beyond d_s; a negative width is one clear line."""
+    import pandas as pd
+
+    from safe_bc.cli import main
+    from safe_bc.data.store import read_table
+    from safe_bc.distributed.evaluate import evaluate as run_evaluate
+    from safe_bc.evaluation import EvalConfig, ExpertSource
+    from safe_bc.tasks import task_defaults
+
+    def run(name: str, *extra: str) -> pd.DataFrame:
+        argv = ["evaluate", "--checkpoint", str(rehab_start), "--out", str(tmp_path / name),
+                "--episodes", "4", "--workers", "0", "--quiet", *extra]  # fmt: skip
+        assert main(argv) == 0
+        return pd.read_parquet(tmp_path / name / "episodes.parquet")
+
+    plain = run("plain")
+    assert "deferred_share" not in plain
+    everywhere = run("all", "--defer-width", "1e9")
+    assert (everywhere["deferred_share"] == 1.0).all()
+    assert "of steps" in capsys.readouterr().out
+    at_limit = run("zero", "--defer-width", "0")
+    assert (at_limit["deferred_share"] < 1.0).all()
+    assert not everywhere["reward"].equals(plain["reward"])
+    guideline = run_evaluate(
+        {"expert": ExpertSource(task_defaults("rehab").expert)},
+        EvalConfig(episodes=4, workers=0, env=task_defaults("rehab").env),
+        np.asarray(read_table(rehab_start / "selection.parquet")[1]["thresholds"]),
+    ).episodes
+    np.testing.assert_array_equal(guideline["reward"], everywhere["reward"])
+    code = main(["evaluate", "--checkpoint", str(rehab_start), "--out", str(tmp_path / "bad"),
+                 "--defer-width", "-1", "--quiet"])  # fmt: skip
+    assert code != 0
+    assert "--defer-width must be a finite number >= 0" in capsys.readouterr().err
