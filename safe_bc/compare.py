@@ -95,6 +95,12 @@ class Method:
     same comparison; no training, no improvement of its own) with the scripted expert acting
     in their critical states (the comparison's zone: costs within ``eps`` of d_s). The expert
     is privileged (it reads the track): this bounds what a safe fallback would give."""
+    defer_width: float | None = None
+    """A fallback row as deferral at use time (:class:`safe_bc.queries.defer.DeferralSource`,
+    issue 35): the expert acts where the env's measured cost is within this width of d_s
+    (``c_s >= d_s - w``, warm-up excluded), and the episodes record the share of steps
+    deferred (``deferred_share``). ``None``: the shield's zone (the comparison's eps, costs
+    read off the observation)."""
     seeds: tuple[int, ...] = ()
     """The training seeds of a trained row, a subset of the comparison's (``()``: all of
     them), e.g. a screened row with one seed."""
@@ -158,6 +164,13 @@ class Method:
                 raise ValueError(f"method {self.name!r}: {e}") from None
         if self.demos is not None and self.selection is None:
             raise ValueError(f"method {self.name!r}: demos= is for BC rows (with selection=)")
+        if self.defer_width is not None and not (
+            self.fallback_of and math.isfinite(self.defer_width) and self.defer_width >= 0
+        ):
+            raise ValueError(
+                f"method {self.name!r}: defer_width= is a finite width >= 0 for fallback rows "
+                f"(with fallback_of=), got {self.defer_width}"
+            )
         if self.expert_config is not None and not self.expert:
             raise ValueError(f"method {self.name!r}: expert_config= is for expert rows")
         if self.expert_config is not None and not dataclasses.is_dataclass(self.expert_config):
@@ -537,6 +550,9 @@ def build_table(
     for m in comparison.totals:
         if m in metrics:
             table[f"total_{m}"] = table["method"].map(episodes.groupby("method")[m].sum())
+    if "deferred_share" in episodes and episodes["deferred_share"].notna().any():
+        shares = episodes.groupby("method")["deferred_share"].mean()
+        table["deferred_share"] = table["method"].map(shares)
     ref = comparison.reference
     if ref is not None and ref in set(episodes["method"]):
         agents = _paired_episodes(comparison, episodes)
@@ -621,6 +637,10 @@ def display_table(
                 "" if pd.isna(r[c]) else f"{int(r[c])}" for r in rows
             ]
     col("critical share", "critical_share", 2)
+    if "deferred_share" in table:
+        cols["steps deferred"] = [
+            "" if pd.isna(r["deferred_share"]) else f"{r['deferred_share']:.1%}" for r in rows
+        ]
     cols["seeds x tracks"] = [f"{int(r['n_train_seeds'])}x{int(r['n_tracks'])}" for r in rows]
     if "d_reward" in table:
         col(f"reward - {ref}", "d_reward", rd)

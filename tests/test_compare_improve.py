@@ -263,6 +263,32 @@ def test_tiny_fallback_rows_share_the_runs_of_another_comparison(rehab_demos, tm
     assert "start, expert fallback" in (tmp_path / "diag.md").read_text()
     with pytest.raises(ValueError, match="fallback_of"):
         Comparison("t", methods=(Method("f", fallback_of="nothing"),))
+    # deferral rows (issue 35): the expert acts within the width of d_s; a width beyond every
+    # cost hands every step to the expert, whose own episodes they then are
+    defer = replace(
+        diag,
+        name="defer",
+        methods=(
+            *base.methods,
+            Method("start+defer0", fallback_of="start", defer_width=0.0),
+            Method("improved+deferall", fallback_of="improved", defer_width=1e9),
+        ),
+        reference="expert",
+    )
+    table = run_comparison(defer, progress=False).set_index("method")
+    episodes, _ = read_table(tmp_path / "defer_episodes.parquet")
+    by = episodes.set_index(["method", "env_seed"])
+    assert (by.loc["improved+deferall", "deferred_share"] == 1.0).all()
+    pd.testing.assert_series_equal(
+        by.loc["improved+deferall", "reward"], by.loc["expert", "reward"], check_names=False
+    )
+    assert table.loc["improved+deferall", "deferred_share"] == 1.0
+    assert np.isnan(table.loc["start", "deferred_share"])
+    assert "steps deferred" in (tmp_path / "defer.md").read_text()
+    with pytest.raises(ValueError, match="defer_width= is a finite width"):
+        Method("d", selection=SelectionConfig(), defer_width=1.0)
+    with pytest.raises(ValueError, match="defer_width= is a finite width"):
+        Method("d", fallback_of="start", defer_width=-1.0)
 
 
 def test_tiny_masked_row_evaluates_the_same_agent_with_the_indicator_black(

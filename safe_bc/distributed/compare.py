@@ -146,6 +146,8 @@ def _stamp(comparison: Comparison, method: Method, seed: int, thresholds: Any) -
     elif method.kind == "fallback":
         of = _stamp(comparison, comparison.method(method.fallback_of), seed, thresholds)["run"]
         run = {"fallback_of": of, "fallback": "expert", "eps": selection_eps(comparison)}
+        if method.defer_width is not None:
+            run = {"fallback_of": of, "deferral": "expert", "width": method.defer_width}
     elif method.kind == "masked":
         of = _stamp(comparison, comparison.method(method.masked_of), seed, thresholds)["run"]
         run = {"masked_of": of, "view": "steering indicator masked"}
@@ -300,6 +302,12 @@ def _fallback_source(
         net = NetSource.from_model(*load_checkpoint(selfimproved[of.name, seed].policy))
     else:
         net = ImprovedSource.from_run(folder / "improve").improved
+    if method.defer_width is not None:
+        from safe_bc.queries.defer import DeferralSource
+
+        limits = tuple(float(x) for x in thresholds)
+        expert = stored_expert_config(c.demos)
+        return DeferralSource(net, expert, limits, method.defer_width, "any")
     zone = CriticalZone(tuple(float(x) for x in thresholds), selection_eps(c), "any")
     shield = Shield(zone, task_defaults(c.task).env.env_id)
     return ImprovedSource(net, ExpertSource(stored_expert_config(c.demos)), shield)
