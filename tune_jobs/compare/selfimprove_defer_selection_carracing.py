@@ -12,15 +12,13 @@ the fresh tracks of the comparison, paired with the expert there.
 
 3 training seeds x 50 tracks of held-out seed block 17, which no other table uses.
 
-Run after ``selfimprove_carracing.py``, reusing its trained cells (otherwise they are trained
-again, the same bits on one machine type)::
-
-    mkdir -p results/selfimprove/carracing/defer_selection_runs
-    cp -a results/selfimprove/carracing/compare_runs/{imitation,ppo_lagrangian,selfimitation} \\
-        results/selfimprove/carracing/defer_selection_runs/
-    safe-bc compare tune_jobs/compare/selfimprove_defer_selection_carracing.py
-
-Writes ``results/selfimprove/carracing/defer_selection*``.
+Run after ``selfimprove_carracing.py``: ``safe-bc compare
+tune_jobs/compare/selfimprove_defer_selection_carracing.py``. It shares that comparison's runs
+folder (``runs="compare"``: nothing is trained again; an improvement run's folder names its
+start's path, so a copy elsewhere would retrain), so its evaluations on these tracks replace
+the stored ones of the shared rows, and the next run on the fresh tracks evaluates those rows
+again (the same episodes on one machine type; a few minutes). Writes
+``results/selfimprove/carracing/defer_selection*``.
 """
 
 from dataclasses import replace
@@ -45,6 +43,7 @@ def defer_row(agent: str, width: float) -> Method:
 COMPARISON = replace(
     _compare,
     name="defer_selection",
+    runs="compare",
     methods=(
         *_compare.methods,
         *(defer_row(agent, w) for agent in AGENTS for w in WIDTHS),
