@@ -159,6 +159,7 @@ FILES = (
     "selfimprove_carracing_vs_expert.py",
     "selfimprove_rehab.py",
     "selfimprove_rehab_vs_expert.py",
+    "selfimprove_defer_carracing.py",
 )
 
 
@@ -186,8 +187,10 @@ def test_the_issue_31_files_load_on_blocks_no_other_comparison_uses() -> None:
         assert ("heldout", loaded[f].eval_seed) not in others, f
         assert loaded[f].tracks == "heldout"
     assert len({loaded[f].eval_seed for f in FILES}) == 4
-    for f in ("selfimprove_carracing_vs_expert.py", "selfimprove_rehab_vs_expert.py"):
+    for f in ("selfimprove_carracing_vs_expert.py", "selfimprove_rehab_vs_expert.py",
+              "selfimprove_defer_carracing.py"):  # fmt: skip
         assert loaded[f].runs == "compare" and loaded[f].reference == "expert"
+    assert blocks["selfimprove_defer_carracing.py"] == blocks["selfimprove_carracing.py"]
     rows = {
         m.name: selfimprove_identity(sel, m, 0)
         for f in ("selfimprove_selection_carracing.py", "selfimprove_selection_carracing_rounds.py")
@@ -359,3 +362,20 @@ def test_a_config_left_unset_needs_a_task_with_defaults() -> None:
     full = SelfImproveConfig(rounds=1, pushes=("0+0.1",), kept_in="rest")
     assert full.resolved and full.for_task("nosuchtask") == full
     assert not SelfImproveConfig().resolved
+
+
+def test_the_deferral_widths_follow_the_committed_selection_table() -> None:
+    """``selfimprove_defer_carracing.py`` takes each improved agent's width from the committed
+    selection table by its rule: the smallest width with no selection episode beyond d_s."""
+    import pandas as pd
+
+    fresh = load_comparison(COMPARE / "selfimprove_defer_carracing.py")
+    sel = load_comparison(COMPARE / "selfimprove_defer_selection_carracing.py")
+    table = pd.read_parquet(ROOT / "results/selfimprove/carracing/defer_selection.parquet")
+    beyond = table.set_index("method")["episodes_with_violation"]
+    for agent in ("ppo_lagrangian", "selfimitation"):
+        (row,) = [m for m in fresh.methods if m.fallback_of == agent]
+        widths = sorted(m.defer_width for m in sel.methods if m.fallback_of == agent)
+        safe = [w for w in widths if beyond[f"{agent}+defer{w:g}"] == 0]
+        assert row.defer_width == (safe[0] if safe else widths[-1])
+        assert row.name in {m.name for m in sel.methods}
