@@ -266,7 +266,7 @@ def _selfimprove(comparison: Comparison, method: Method, seed: int, demos: Any) 
     def run() -> Any:
         return run_selfimprove(
             model, run_config(c, start, seed), demos, path, env, folder, config,
-            pushes=config.pushes, action_bounds=dataset_action_bounds(path),
+            action_bounds=dataset_action_bounds(path),
             **kwargs,
         )  # fmt: skip
 

@@ -178,7 +178,6 @@ def run_selfimprove(
     folder: str | Path,
     config: SelfImproveConfig,
     *,
-    pushes: tuple[str, ...],
     action_bounds: tuple[Any, Any],
     rollouts: RolloutFn = local_rollouts,
     train: TrainFn = train_local,
@@ -188,7 +187,8 @@ def run_selfimprove(
     """Run (or resume) the rounds of ``config`` from the trained net ``start`` in ``folder``.
 
     ``run_config`` is the start's (selection and BC settings; ``config.batches`` overrides the
-    batches of each retraining); ``pushes`` the resolved push specs. A folder of another
+    batches of each retraining); ``config`` is resolved (:meth:`SelfImproveConfig.for_task`:
+    its pushes, rounds and where kept rows go are set). A folder of another
     start, run config, demonstrations or config raises ``ValueError``.
 
     ``frames_on_disk`` (``None``: when the observations are ``uint8`` frames): each retraining
@@ -203,6 +203,8 @@ def run_selfimprove(
     if not config.resolved:
         raise ValueError("run_selfimprove needs a resolved config: config.for_task(task)")
     assert config.rounds is not None and config.kept_in is not None
+    pushes = config.pushes
+    assert pushes is not None
     folder = Path(folder)
     base = select_for(demos, run_config.selection)
     limits = tuple(float(x) for x in base.thresholds)

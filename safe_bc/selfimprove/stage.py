@@ -34,8 +34,6 @@ def selfimprove_run(
 
         kwargs["rollouts"] = ChunkedRayRollouts(local_rollouts, config.workers)
     task = task_of(env_id)
-    config = config.for_task(task)
-    assert config.pushes is not None
     return run_selfimprove(
         agent,
         run_config,
@@ -43,8 +41,7 @@ def selfimprove_run(
         demos,
         task_defaults(task).env,
         folder,
-        config,
-        pushes=config.pushes,
+        config.for_task(task),
         action_bounds=dataset_action_bounds(demos),
         **kwargs,
     )
