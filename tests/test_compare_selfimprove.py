@@ -226,15 +226,13 @@ def test_both_improvements_get_the_same_env_step_budget(file: str, steps: int) -
     equal self-imitation's (rounds x tracks x (1 + pushes); the start and every round on the
     validation tracks), episodes of the same length (CarRacing's time limit, rehab's 30
     sessions)."""
-    from safe_bc.selfimprove.config import pushes_for
-
     comp = load_comparison(COMPARE / file)
     ppo = comp.method("ppo_lagrangian").improve
     si = comp.method("selfimitation").selfimprove
     assert si == SelfImproveConfig()  # the package's defaults: the selection tables' choices
     si = si.for_task(comp.task)
     assert ppo.shield and ppo.lagrangian
-    episodes = si.rounds * si.tracks_per_round * (1 + len(pushes_for(si, comp.task)))
+    episodes = si.rounds * si.tracks_per_round * (1 + len(si.pushes))
     assert ppo.iterations * ppo.episodes_per_iter == episodes
     validations = ppo.iterations // ppo.eval_every
     assert validations * ppo.eval_episodes == (si.rounds + 1) * si.validation_episodes

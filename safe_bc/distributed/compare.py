@@ -145,8 +145,9 @@ def _stamp(comparison: Comparison, method: Method, seed: int, thresholds: Any) -
         run = {"start": start, "selfimprove": selfimprove_identity(comparison, method, seed)}
     elif method.kind == "fallback":
         of = _stamp(comparison, comparison.method(method.fallback_of), seed, thresholds)["run"]
-        run = {"fallback_of": of, "fallback": "expert", "eps": selection_eps(comparison)}
-        if method.defer_width is not None:
+        if method.defer_width is None:
+            run = {"fallback_of": of, "fallback": "expert", "eps": selection_eps(comparison)}
+        else:
             run = {"fallback_of": of, "deferral": "expert", "width": method.defer_width}
     elif method.kind == "masked":
         of = _stamp(comparison, comparison.method(method.masked_of), seed, thresholds)["run"]
@@ -302,15 +303,13 @@ def _fallback_source(
         net = NetSource.from_model(*load_checkpoint(selfimproved[of.name, seed].policy))
     else:
         net = ImprovedSource.from_run(folder / "improve").improved
+    limits, expert = tuple(float(x) for x in thresholds), stored_expert_config(c.demos)
     if method.defer_width is not None:
         from safe_bc.queries.defer import DeferralSource
 
-        limits = tuple(float(x) for x in thresholds)
-        expert = stored_expert_config(c.demos)
         return DeferralSource(net, expert, limits, method.defer_width, "any")
-    zone = CriticalZone(tuple(float(x) for x in thresholds), selection_eps(c), "any")
-    shield = Shield(zone, task_defaults(c.task).env.env_id)
-    return ImprovedSource(net, ExpertSource(stored_expert_config(c.demos)), shield)
+    shield = Shield(CriticalZone(limits, selection_eps(c), "any"), task_defaults(c.task).env.env_id)
+    return ImprovedSource(net, ExpertSource(expert), shield)
 
 
 def _load_sets(comparison: Comparison, progress: bool) -> dict[Path, Any]:

@@ -70,13 +70,6 @@ def parse_push(spec: str) -> tuple[tuple[int, str, float], ...]:
     return tuple(terms)
 
 
-def pushes_for(config: SelfImproveConfig, task: str) -> tuple[str, ...]:
-    """The run's pushes: the config's, else the task's (:data:`TASK_DEFAULTS`)."""
-    pushes = config.for_task(task).pushes
-    assert pushes is not None
-    return pushes
-
-
 def round_dir(r: int) -> str:
     """Folder name of round ``r`` (``round_000``)."""
     return f"round_{r:03d}"

@@ -39,7 +39,7 @@ from pathlib import Path
 from safe_bc.compare import Comparison, Method, sibling
 from safe_bc.improve.config import ImproveConfig
 from safe_bc.selection import SelectionConfig
-from safe_bc.selfimprove.config import SelfImproveConfig, pushes_for
+from safe_bc.selfimprove.config import SelfImproveConfig
 
 EPISODE_STEPS = 1000
 """CarRacing's time limit (steps per episode at most)."""
@@ -58,8 +58,8 @@ def rollout_episodes(config: SelfImproveConfig, task: str) -> int:
     """Training episodes of a self-imitation run: each round runs every track unperturbed and
     once per push."""
     c = config.for_task(task)
-    assert c.rounds is not None
-    return c.rounds * c.tracks_per_round * (1 + len(pushes_for(c, task)))
+    assert c.rounds is not None and c.pushes is not None
+    return c.rounds * c.tracks_per_round * (1 + len(c.pushes))
 
 
 def validation_budget(config: SelfImproveConfig, task: str) -> int:
