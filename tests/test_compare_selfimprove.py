@@ -199,11 +199,13 @@ def test_the_issue_31_files_load_on_blocks_no_other_comparison_uses() -> None:
         if m.selfimprove
     }
     changed = {
-        name: sorted(k for k in row if row[k] != rows["defaults"][k]) for name, row in rows.items()
+        name: sorted(k for k in row if row[k] != rows["defaults"].get(k))
+        for name, row in rows.items()
     }
     assert changed == {
         "defaults": [], "margin1px": ["margin"], "segment": ["keep_unit"],
-        "critical": ["kept_in"], "no_backoff": ["backoff"], "rounds4": ["rounds"],
+        "critical": ["kept_in"], "no_backoff": ["backoff"], "alpha05": ["alpha"],
+        "bound05": ["beyond_limit", "validation_episodes"], "rounds4": ["rounds"],
         "rounds4_small": ["pushes", "rounds"],
     }  # fmt: skip
     rehab = loaded["selfimprove_selection_rehab.py"]

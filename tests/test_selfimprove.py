@@ -146,13 +146,15 @@ TINY = {
 }
 
 
-def _run(rehab_agent, rehab_demos, folder, rollouts=None, **kw):
+def _run(rehab_agent, rehab_demos, folder, rollouts=None, train=None, **kw):
     from safe_bc.selfimprove.stage import selfimprove_run
     from safe_bc.tasks import task_defaults
 
     model, cfg = rehab_agent
     config = SelfImproveConfig(**{**TINY, **kw})
     extra = {} if rollouts is None else {"rollouts": rollouts}
+    if train is not None:
+        extra["train"] = train
     env_id = task_defaults("rehab").env.env_id
     return selfimprove_run(config, model, cfg, rehab_demos, env_id, folder, **extra)
 
@@ -225,6 +227,28 @@ def test_a_killed_round_reruns_only_what_did_not_finish(rehab_agent, rehab_demos
     assert _no_seconds(first.rounds, third.rounds) and third.agent == first.agent
     with pytest.raises(ValueError, match="another self-imitation run"):
         _run(rehab_agent, rehab_demos, tmp_path / "run", rounds=3)
+
+
+def test_alpha_sets_the_retrainings_mix_and_leaves_older_identities_alone(
+    rehab_agent, rehab_demos, tmp_path
+) -> None:
+    """``alpha`` replaces the start's alpha in every retraining (the start's ``T_eps``
+    stays); left at ``None`` the identity is the one runs had before the field existed."""
+    from safe_bc.rounds import train_local
+
+    seen: list[float] = []
+
+    def recording(job):
+        seen.append(job.run_config.selection.alpha)
+        return train_local(job)
+
+    assert "alpha" not in SelfImproveConfig().identity()
+    assert SelfImproveConfig(alpha=0.9).identity()["alpha"] == 0.9
+    with pytest.raises(ValueError, match="alpha"):
+        SelfImproveConfig(alpha=1.5)
+    _run(rehab_agent, rehab_demos, tmp_path / "mix", train=recording, alpha=0.9, rounds=1)
+    _run(rehab_agent, rehab_demos, tmp_path / "start", train=recording, rounds=1)
+    assert seen == [0.9, rehab_agent[1].selection.alpha]
 
 
 def test_a_round_failing_the_keep_rule_is_discarded(rehab_agent, rehab_demos, tmp_path):

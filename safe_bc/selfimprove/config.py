@@ -119,6 +119,10 @@ class SelfImproveConfig:
     the demonstrations' critical rows), ``"zone"`` (by the selection's rule, like a
     demonstration row) or ``"critical"`` (every kept row joins ``T_eps``). ``None``: the
     task's (CarRacing ``"rest"``, rehab ``"critical"``)."""
+    alpha: float | None = None
+    """Fraction of every retraining batch drawn from ``T_eps`` (the paper's alpha mix, which
+    carries the expert's behaviour near the limit into each retraining); ``None``: the start's
+    run config's alpha. Only the retraining changes: the start and its ``T_eps`` stay."""
     beyond_limit: float = 0.1
     """Keep rule: a round's agent is accepted only when the one-sided 95% Clopper-Pearson upper
     bound on its share of validation episodes beyond ``d_s`` is below this, and its mean
@@ -153,6 +157,8 @@ class SelfImproveConfig:
             value = getattr(self, name)
             if value is not None and not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"{name} must be a finite number >= 0, got {value}")
+        if self.alpha is not None and not 0 <= self.alpha <= 1:
+            raise ValueError(f"alpha must be in [0, 1] or None, got {self.alpha}")
         if not 0 < self.beyond_limit <= 1:
             raise ValueError(f"beyond_limit must be in (0, 1], got {self.beyond_limit}")
         if self.pushes is not None:
@@ -191,4 +197,6 @@ class SelfImproveConfig:
         """The fields that change the run's data or weights (``workers`` does not)."""
         out = self.to_dict()
         out.pop("workers")
+        if out["alpha"] is None:  # runs made before the field existed keep their identity
+            out.pop("alpha")
         return out

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -209,6 +209,8 @@ def run_selfimprove(
     base = select_for(demos, run_config.selection)
     limits = tuple(float(x) for x in base.thresholds)
     retrain = with_batches(run_config, config.batches)
+    if config.alpha is not None:
+        retrain = replace(retrain, selection=replace(retrain.selection, alpha=config.alpha))
     start_src = NetSource.from_model(start, run_config.bc)
     identity = {
         "format": FORMAT,

@@ -10,16 +10,23 @@ row per safety choice, each changing one field of the defaults:
 * ``margin1px``: kept data stay 1 px inside d_s (``margin=1.0``) against 0;
 * ``segment``: kept 50-step segments (``keep_unit="segment"``) against whole episodes;
 * ``critical``: kept rows join T_eps (``kept_in="critical"``) against the rest pool only;
-* ``no_backoff``: pushes also in the critical zone (``backoff=False``).
+* ``no_backoff``: pushes also in the critical zone (``backoff=False``);
+* ``alpha05``: half of every retraining batch from the demonstrations' ``T_eps``
+  (``alpha=0.5``: the paper's mechanism, to carry the expert's behaviour near the limit)
+  against the start's 0.1 (the start itself is unchanged: one set of starts serves every row);
+* ``bound05``: the keep rule accepts a round only when the one-sided 95% Clopper-Pearson bound
+  on its validation episodes beyond d_s is below 5% (``beyond_limit=0.05``) against 10%; it
+  needs 64 validation tracks (``validation_episodes=64``: 0 of 64 bounds the share at 4.6%,
+  0 of 32 only at 8.9%), so this row changes both fields.
 
 More rounds (``rounds4``: 4 against 2, same pushes; ``rounds4_small``: 4 rounds with pushes of
 half the size) are the sibling file ``selfimprove_selection_carracing_rounds.py``, which
 shares these runs (``runs="selection"``: the defaults' first two rounds are the 4-round row's
 first two) and is run after this one.
 
-Not covered here: the alpha of the start's T_eps mix (a row per start alpha would need its own
-starts) and the keep rule's bound (``beyond_limit``), which every row applies (0.1 on 32
-validation tracks).
+The last two rows were added after the table's first five (same starts, tracks and rule;
+``scripts/selfimprove_choice.py`` then reads all seven). Not covered: the alpha of the
+start's own training (a row per start alpha would need its own starts).
 
 3 training seeds x 50 tracks of held-out seed block 13, which no other table uses (Table 1 0,
 the study 1 and 2, the expert jobs 3, rehab 5, improvement 7 and 10, observation 10,
@@ -72,6 +79,11 @@ CHOICES = {  # name: (label, config)
     "segment": ("kept segments (50 steps)", replace(DEFAULT, keep_unit="segment")),
     "critical": ("kept rows in T_eps", replace(DEFAULT, kept_in="critical")),
     "no_backoff": ("no back-off in the critical zone", replace(DEFAULT, backoff=False)),
+    "alpha05": ("T_eps half of each retraining batch", replace(DEFAULT, alpha=0.5)),
+    "bound05": (
+        "keep rule bound 5% (64 validation tracks)",
+        replace(DEFAULT, beyond_limit=0.05, validation_episodes=64),
+    ),
 }
 """The safety filters, one field of the defaults each (this file's rows)."""
 ROUNDS = {  # name: (label, config)
