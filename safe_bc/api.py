@@ -197,21 +197,27 @@ def evaluate(job: EvaluateJob) -> Done:
     )
     thresholds = np.asarray(sel_meta["thresholds"])
     agent: Any = NetSource.from_model(model, bc_cfg)
+    if job.defer_hold and job.defer_width is None:
+        raise ValueError("--defer-hold needs --defer-width (the zone the expert takes over in)")
     if job.defer_width is not None:
         from safe_bc.queries.defer import DeferralSource
         from safe_bc.queries.stage import expert_for
 
         if not (math.isfinite(job.defer_width) and job.defer_width >= 0):
             raise ValueError(f"--defer-width must be a finite number >= 0, got {job.defer_width}")
+        if job.defer_hold < 0:
+            raise ValueError(f"--defer-hold must be a number of steps >= 0, got {job.defer_hold}")
         expert_cfg = expert_for(extra.get("demos", ""), extra["env_id"])
         agent = DeferralSource(
-            agent, expert_cfg, tuple(float(x) for x in thresholds), job.defer_width, cfg.combine
-        )
+            agent, expert_cfg, tuple(float(x) for x in thresholds), job.defer_width, cfg.combine,
+            job.defer_hold,
+        )  # fmt: skip
     result = run_evaluate({"agent": agent}, cfg, thresholds, progress=not job.quiet)
     episodes, steps, table = result.episodes, result.steps, result.summary
     meta = run_metadata(
         checkpoint=str(job.checkpoint),
         defer_width=job.defer_width,
+        defer_hold=job.defer_hold,
         trained_with=extra.get("run"),
         eval_seed=job.eval_seed,
         env_seeds=episodes["env_seed"].tolist(),
@@ -229,7 +235,9 @@ def evaluate(job: EvaluateJob) -> Done:
     if job.defer_width is not None:
         share = float(episodes["deferred_share"].mean())
         lines.append(
-            f"deferred to the expert within {job.defer_width:g} of d_s: {share:.1%} of steps"
+            f"deferred to the expert within {job.defer_width:g} of d_s"
+            + (f" (held {job.defer_hold} steps)" if job.defer_hold else "")
+            + f": {share:.1%} of steps"
         )
     lines.append(f"wrote {job.out}/episodes.parquet, steps.parquet, summary.parquet")
     return Done("\n".join(lines), result)

@@ -101,6 +101,9 @@ class Method:
     (``c_s >= d_s - w``, warm-up excluded), and the episodes record the share of steps
     deferred (``deferred_share``). ``None``: the shield's zone (the comparison's eps, costs
     read off the observation)."""
+    defer_hold: int = 0
+    """With ``defer_width``: the expert also acts on the next this many steps after the last
+    step in the zone (a handover that lasts; :class:`safe_bc.queries.defer.DeferringPolicy`)."""
     seeds: tuple[int, ...] = ()
     """The training seeds of a trained row, a subset of the comparison's (``()``: all of
     them), e.g. a screened row with one seed."""
@@ -170,6 +173,11 @@ class Method:
             raise ValueError(
                 f"method {self.name!r}: defer_width= is a finite width >= 0 for fallback rows "
                 f"(with fallback_of=), got {self.defer_width}"
+            )
+        if self.defer_hold and (self.defer_width is None or self.defer_hold < 0):
+            raise ValueError(
+                f"method {self.name!r}: defer_hold= is a number of steps >= 0 for deferral "
+                f"rows (with defer_width=), got {self.defer_hold}"
             )
         if self.expert_config is not None and not self.expert:
             raise ValueError(f"method {self.name!r}: expert_config= is for expert rows")

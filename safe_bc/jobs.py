@@ -105,6 +105,9 @@ class EvaluateJob:
     of d_s (c_s >= d_s - w, cost units; "ask the clinician"), the agent elsewhere; the tables
     add deferred_steps and deferred_share. None: the agent acts everywhere. The measured
     widths: docs/queries.md."""
+    defer_hold: int = 0
+    """With defer_width: the expert also acts on the next this many steps after the last step
+    in the zone (a handover that lasts)."""
     quiet: bool = False
     """No progress bar."""
 

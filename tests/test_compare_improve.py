@@ -272,6 +272,7 @@ def test_tiny_fallback_rows_share_the_runs_of_another_comparison(rehab_demos, tm
             *base.methods,
             Method("start+defer0", fallback_of="start", defer_width=0.0),
             Method("improved+deferall", fallback_of="improved", defer_width=1e9),
+            Method("start+defer0held", fallback_of="start", defer_width=0.0, defer_hold=5),
         ),
         reference="expert",
     )
@@ -285,6 +286,14 @@ def test_tiny_fallback_rows_share_the_runs_of_another_comparison(rehab_demos, tm
     assert table.loc["improved+deferall", "deferred_share"] == 1.0
     assert np.isnan(table.loc["start", "deferred_share"])
     assert "steps deferred" in (tmp_path / "defer.md").read_text()
+    stamps = {  # a held row's stamp names its hold; rows without one keep their old stamps
+        name: read_table(next(tmp_path.glob(f"tiny_runs/{name}/seed0/episodes.parquet")))[1]
+        for name in ("start?defer0", "start?defer0held")
+    }
+    assert stamps["start?defer0held"]["stamp"]["run"]["hold"] == 5
+    assert "hold" not in stamps["start?defer0"]["stamp"]["run"]
+    with pytest.raises(ValueError, match="defer_hold= is a number of steps"):
+        Method("d", fallback_of="start", defer_hold=3)
     with pytest.raises(ValueError, match="defer_width= is a finite width"):
         Method("d", selection=SelectionConfig(), defer_width=1.0)
     with pytest.raises(ValueError, match="defer_width= is a finite width"):

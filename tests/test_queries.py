@@ -74,6 +74,24 @@ def test_deferral_defers_exactly_where_cost_is_within_w_of_the_limit() -> None:
         assert trace["deferred"].tolist() == want.tolist()
 
 
+def test_a_held_handover_keeps_the_expert_for_hold_steps_after_the_zone() -> None:
+    """With ``hold`` h the expert acts in the zone and on the h steps after each zone step;
+    a new zone step starts the count again; hold 0 is the zone alone."""
+    zone = CriticalZone(ZONE.limits, 2.0)
+    want = deferred_steps(COSTS, WARMUP, np.array(ZONE.limits), 2.0)
+    assert want.any() and not want.all()
+    for hold in (0, 1, 3):
+        policy = DeferringPolicy(_Counting(0.0), expert := _Counting(1.0), zone, hold=hold)
+        actions = np.stack(_drive(policy))[:, 0]
+        by_hand = np.array(  # a zone step within the last hold steps, or this one
+            [bool(want[i]) or bool(want[max(0, i - hold) : i].any()) for i in range(len(want))]
+        )
+        assert (actions == 1.0).tolist() == by_hand.tolist() == policy.flags
+        assert expert.calls == by_hand.sum() and (by_hand.sum() > want.sum()) == (hold > 0)
+    with pytest.raises(ValueError, match="hold"):
+        DeferringPolicy(_Counting(0.0), _Counting(1.0), zone, hold=-1)
+
+
 # --- on the rehab pathway (fast, no Ray) -------------------------------------------------------
 
 

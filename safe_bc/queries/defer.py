@@ -19,19 +19,26 @@ class DeferringPolicy:
     """A :class:`~safe_bc.policy.Policy` that defers to the expert in the zone
     ``c_s >= d_s - w`` (the state's ``info["cost"]``, the quantity ``d_s`` limits; never in
     warm-up). The agent is called at every step (its frame stack stays in step); the expert
-    only where it acts. After an episode, :meth:`episode_report` gives ``deferred_steps``,
+    only where it acts. With ``hold`` > 0 a handover lasts: after a step in the zone the expert
+    also acts on the next ``hold`` steps (each step in the zone starts the count again), so
+    the agent does not take the car back in the middle of the expert's correction. After an
+    episode, :meth:`episode_report` gives ``deferred_steps``,
     ``deferred_share`` (of the episode's steps) and the per-step ``deferred`` flag, which the
     evaluation adds to its rows (:class:`safe_bc.evaluation.ReportsSteps`)."""
 
-    def __init__(self, agent: Policy, expert: Policy, zone: CriticalZone) -> None:
-        self.agent, self.expert, self.zone = agent, expert, zone
+    def __init__(self, agent: Policy, expert: Policy, zone: CriticalZone, hold: int = 0) -> None:
+        if hold < 0:
+            raise ValueError(f"hold must be >= 0 steps, got {hold}")
+        self.agent, self.expert, self.zone, self.hold = agent, expert, zone, int(hold)
         self.flags: list[bool] = []
+        self._left = 0
         self._info: dict[str, Any] = {}
 
     def reset(self, env: gym.Env, rng: np.random.Generator) -> None:
         self.agent.reset(env, rng)
         self.expert.reset(env, rng)
         self.flags = []
+        self._left = 0
 
     def see(self, info: dict[str, Any]) -> None:
         self._info = info
@@ -40,6 +47,10 @@ class DeferringPolicy:
         own = self.agent.act(obs, env)
         info = self._info
         defer = ask_expert(np.asarray(info["cost"]), bool(info["warmup"]), self.zone, "critical")
+        if defer:
+            self._left = self.hold
+        elif self._left > 0:
+            defer, self._left = True, self._left - 1
         self.flags.append(defer)
         return np.asarray(self.expert.act(obs, env), np.float32) if defer else own
 
@@ -66,7 +77,9 @@ class DeferralSource:
     """``w``: defer where ``c_s >= d_s - w``."""
     combine: str = "any"
     """How per-dimension flags combine (the selection's)."""
+    hold: int = 0
+    """Steps the expert keeps acting after the last step in the zone (0: only in the zone)."""
 
     def build(self) -> DeferringPolicy:
         zone = CriticalZone(self.limits, self.width, self.combine)  # type: ignore[arg-type]
-        return DeferringPolicy(self.agent.build(), build_expert(self.expert), zone)
+        return DeferringPolicy(self.agent.build(), build_expert(self.expert), zone, self.hold)
