@@ -104,6 +104,9 @@ class Method:
     defer_hold: int = 0
     """With ``defer_width``: the expert also acts on the next this many steps after the last
     step in the zone (a handover that lasts; :class:`safe_bc.queries.defer.DeferringPolicy`)."""
+    defer_lookahead: int = 0
+    """With ``defer_width``: the zone test reads the cost extrapolated this many steps from
+    its last change (a fast-rising cost hands over earlier)."""
     seeds: tuple[int, ...] = ()
     """The training seeds of a trained row, a subset of the comparison's (``()``: all of
     them), e.g. a screened row with one seed."""
@@ -174,11 +177,13 @@ class Method:
                 f"method {self.name!r}: defer_width= is a finite width >= 0 for fallback rows "
                 f"(with fallback_of=), got {self.defer_width}"
             )
-        if self.defer_hold and (self.defer_width is None or self.defer_hold < 0):
-            raise ValueError(
-                f"method {self.name!r}: defer_hold= is a number of steps >= 0 for deferral "
-                f"rows (with defer_width=), got {self.defer_hold}"
-            )
+        for name in ("defer_hold", "defer_lookahead"):
+            steps = getattr(self, name)
+            if steps and (self.defer_width is None or steps < 0):
+                raise ValueError(
+                    f"method {self.name!r}: {name}= is a number of steps >= 0 for deferral "
+                    f"rows (with defer_width=), got {steps}"
+                )
         if self.expert_config is not None and not self.expert:
             raise ValueError(f"method {self.name!r}: expert_config= is for expert rows")
         if self.expert_config is not None and not dataclasses.is_dataclass(self.expert_config):

@@ -294,6 +294,8 @@ def test_tiny_fallback_rows_share_the_runs_of_another_comparison(rehab_demos, tm
     assert "hold" not in stamps["start?defer0"]["stamp"]["run"]
     with pytest.raises(ValueError, match="defer_hold= is a number of steps"):
         Method("d", fallback_of="start", defer_hold=3)
+    with pytest.raises(ValueError, match="defer_lookahead= is a number of steps"):
+        Method("d", fallback_of="start", defer_width=1.0, defer_lookahead=-1)
     with pytest.raises(ValueError, match="defer_width= is a finite width"):
         Method("d", selection=SelectionConfig(), defer_width=1.0)
     with pytest.raises(ValueError, match="defer_width= is a finite width"):

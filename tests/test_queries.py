@@ -92,6 +92,21 @@ def test_a_held_handover_keeps_the_expert_for_hold_steps_after_the_zone() -> Non
         DeferringPolicy(_Counting(0.0), _Counting(1.0), zone, hold=-1)
 
 
+def test_lookahead_reads_the_cost_extrapolated_from_its_last_change() -> None:
+    """With ``lookahead`` k the zone test reads ``c + k (c - c_prev)``: a rising cost hands
+    over before the cost itself is in the zone, a falling one later; k = 0 is the zone."""
+    limits, width = np.array(ZONE.limits), 2.0
+    zone = CriticalZone(ZONE.limits, width)
+    for k in (0, 1, 2):
+        policy = DeferringPolicy(_Counting(0.0), _Counting(1.0), zone, lookahead=k)
+        _drive(policy)
+        seen = COSTS + k * np.diff(COSTS, axis=0, prepend=COSTS[:1])
+        by_hand = (seen >= limits - width).any(axis=1) & ~WARMUP
+        assert policy.flags == by_hand.tolist()
+    plain = deferred_steps(COSTS, WARMUP, limits, width).tolist()
+    assert policy.flags != plain and by_hand[1] and not plain[1]  # 7.9 rising from 0: early
+
+
 # --- on the rehab pathway (fast, no Ray) -------------------------------------------------------
 
 

@@ -151,6 +151,8 @@ def _stamp(comparison: Comparison, method: Method, seed: int, thresholds: Any) -
             run = {"fallback_of": of, "deferral": "expert", "width": method.defer_width}
             if method.defer_hold:  # (rows without a hold keep their stamps)
                 run["hold"] = method.defer_hold
+            if method.defer_lookahead:
+                run["lookahead"] = method.defer_lookahead
     elif method.kind == "masked":
         of = _stamp(comparison, comparison.method(method.masked_of), seed, thresholds)["run"]
         run = {"masked_of": of, "view": "steering indicator masked"}
@@ -309,7 +311,10 @@ def _fallback_source(
     if method.defer_width is not None:
         from safe_bc.queries.defer import DeferralSource
 
-        return DeferralSource(net, expert, limits, method.defer_width, "any", method.defer_hold)
+        return DeferralSource(
+            net, expert, limits, method.defer_width, "any", method.defer_hold,
+            method.defer_lookahead,
+        )  # fmt: skip
     shield = Shield(CriticalZone(limits, selection_eps(c), "any"), task_defaults(c.task).env.env_id)
     return ImprovedSource(net, ExpertSource(expert), shield)
 

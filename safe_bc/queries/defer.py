@@ -21,17 +21,24 @@ class DeferringPolicy:
     warm-up). The agent is called at every step (its frame stack stays in step); the expert
     only where it acts. With ``hold`` > 0 a handover lasts: after a step in the zone the expert
     also acts on the next ``hold`` steps (each step in the zone starts the count again), so
-    the agent does not take the car back in the middle of the expert's correction. After an
-    episode, :meth:`episode_report` gives ``deferred_steps``,
-    ``deferred_share`` (of the episode's steps) and the per-step ``deferred`` flag, which the
-    evaluation adds to its rows (:class:`safe_bc.evaluation.ReportsSteps`)."""
+    the agent does not take the car back in the middle of the expert's correction. With
+    ``lookahead`` k > 0 the zone test reads the cost extrapolated k steps at its last change
+    (``c + k (c - c_prev)``, per dimension): a cost rising fast (the front distance falling
+    towards a corner) hands over before it reaches the zone. After an episode,
+    :meth:`episode_report` gives ``deferred_steps``, ``deferred_share`` (of the episode's
+    steps) and the per-step ``deferred`` flag, which the evaluation adds to its rows
+    (:class:`safe_bc.evaluation.ReportsSteps`)."""
 
-    def __init__(self, agent: Policy, expert: Policy, zone: CriticalZone, hold: int = 0) -> None:
-        if hold < 0:
-            raise ValueError(f"hold must be >= 0 steps, got {hold}")
-        self.agent, self.expert, self.zone, self.hold = agent, expert, zone, int(hold)
+    def __init__(
+        self, agent: Policy, expert: Policy, zone: CriticalZone, hold: int = 0, lookahead: int = 0
+    ) -> None:
+        if hold < 0 or lookahead < 0:
+            raise ValueError(f"hold and lookahead must be >= 0 steps, got {hold}, {lookahead}")
+        self.agent, self.expert, self.zone = agent, expert, zone
+        self.hold, self.lookahead = int(hold), int(lookahead)
         self.flags: list[bool] = []
         self._left = 0
+        self._prev: np.ndarray | None = None
         self._info: dict[str, Any] = {}
 
     def reset(self, env: gym.Env, rng: np.random.Generator) -> None:
@@ -39,6 +46,7 @@ class DeferringPolicy:
         self.expert.reset(env, rng)
         self.flags = []
         self._left = 0
+        self._prev = None
 
     def see(self, info: dict[str, Any]) -> None:
         self._info = info
@@ -46,7 +54,12 @@ class DeferringPolicy:
     def act(self, obs: np.ndarray, env: gym.Env) -> np.ndarray:
         own = self.agent.act(obs, env)
         info = self._info
-        defer = ask_expert(np.asarray(info["cost"]), bool(info["warmup"]), self.zone, "critical")
+        cost = np.asarray(info["cost"], float)
+        seen = cost
+        if self.lookahead and self._prev is not None:
+            seen = cost + self.lookahead * (cost - self._prev)
+        self._prev = cost
+        defer = ask_expert(seen, bool(info["warmup"]), self.zone, "critical")
         if defer:
             self._left = self.hold
         elif self._left > 0:
@@ -79,7 +92,10 @@ class DeferralSource:
     """How per-dimension flags combine (the selection's)."""
     hold: int = 0
     """Steps the expert keeps acting after the last step in the zone (0: only in the zone)."""
+    lookahead: int = 0
+    """Steps the cost is extrapolated for the zone test (0: the cost itself)."""
 
     def build(self) -> DeferringPolicy:
         zone = CriticalZone(self.limits, self.width, self.combine)  # type: ignore[arg-type]
-        return DeferringPolicy(self.agent.build(), build_expert(self.expert), zone, self.hold)
+        expert = build_expert(self.expert)
+        return DeferringPolicy(self.agent.build(), expert, zone, self.hold, self.lookahead)
