@@ -197,20 +197,22 @@ def evaluate(job: EvaluateJob) -> Done:
     )
     thresholds = np.asarray(sel_meta["thresholds"])
     agent: Any = NetSource.from_model(model, bc_cfg)
-    if job.defer_hold and job.defer_width is None:
-        raise ValueError("--defer-hold needs --defer-width (the zone the expert takes over in)")
+    for flag, steps in (("hold", job.defer_hold), ("lookahead", job.defer_lookahead)):
+        if steps and job.defer_width is None:
+            raise ValueError(f"--defer-{flag} needs --defer-width (the zone the expert acts in)")
     if job.defer_width is not None:
         from safe_bc.queries.defer import DeferralSource
         from safe_bc.queries.stage import expert_for
 
         if not (math.isfinite(job.defer_width) and job.defer_width >= 0):
             raise ValueError(f"--defer-width must be a finite number >= 0, got {job.defer_width}")
-        if job.defer_hold < 0:
-            raise ValueError(f"--defer-hold must be a number of steps >= 0, got {job.defer_hold}")
+        for flag, steps in (("hold", job.defer_hold), ("lookahead", job.defer_lookahead)):
+            if steps < 0:
+                raise ValueError(f"--defer-{flag} must be a number of steps >= 0, got {steps}")
         expert_cfg = expert_for(extra.get("demos", ""), extra["env_id"])
         agent = DeferralSource(
             agent, expert_cfg, tuple(float(x) for x in thresholds), job.defer_width, cfg.combine,
-            job.defer_hold,
+            job.defer_hold, job.defer_lookahead,
         )  # fmt: skip
     result = run_evaluate({"agent": agent}, cfg, thresholds, progress=not job.quiet)
     episodes, steps, table = result.episodes, result.steps, result.summary
@@ -218,6 +220,7 @@ def evaluate(job: EvaluateJob) -> Done:
         checkpoint=str(job.checkpoint),
         defer_width=job.defer_width,
         defer_hold=job.defer_hold,
+        defer_lookahead=job.defer_lookahead,
         trained_with=extra.get("run"),
         eval_seed=job.eval_seed,
         env_seeds=episodes["env_seed"].tolist(),
@@ -237,6 +240,7 @@ def evaluate(job: EvaluateJob) -> Done:
         lines.append(
             f"deferred to the expert within {job.defer_width:g} of d_s"
             + (f" (held {job.defer_hold} steps)" if job.defer_hold else "")
+            + (f" ({job.defer_lookahead} steps ahead)" if job.defer_lookahead else "")
             + f": {share:.1%} of steps"
         )
     lines.append(f"wrote {job.out}/episodes.parquet, steps.parquet, summary.parquet")

@@ -108,6 +108,9 @@ class EvaluateJob:
     defer_hold: int = 0
     """With defer_width: the expert also acts on the next this many steps after the last step
     in the zone (a handover that lasts)."""
+    defer_lookahead: int = 0
+    """With defer_width: the zone test reads the cost extrapolated this many steps from its
+    last change (a fast-rising cost hands over earlier)."""
     quiet: bool = False
     """No progress bar."""
 
