@@ -379,3 +379,24 @@ def test_the_deferral_widths_follow_the_committed_selection_table() -> None:
         safe = [w for w in widths if beyond[f"{agent}+defer{w:g}"] == 0]
         assert row.defer_width == (safe[0] if safe else widths[-1])
         assert row.name in {m.name for m in sel.methods}
+
+
+@pytest.mark.parametrize(
+    ("fresh", "selection", "burden"),
+    [("lookahead", "defer_lookahead_selection", 1.0), ("trend", "defer_trend_selection", 0.05)],
+)
+def test_the_trend_rows_follow_the_committed_selection_tables(fresh, selection, burden) -> None:
+    """Each fresh-track deferral file evaluates the row its selection table gives by the rule
+    fixed before that table: zero episodes beyond d_s, a deferred share below the burden, then
+    the smallest share (the lookahead file: the rule without its burden, none met it)."""
+    import pandas as pd
+
+    table = pd.read_parquet(ROOT / f"results/selfimprove/carracing/{selection}.parquet")
+    rows = table[table["method"].str.contains("ahead")].set_index("method")
+    ok = rows[(rows["episodes_with_violation"] == 0) & (rows["deferred_share"] < burden)]
+    comp = load_comparison(COMPARE / f"selfimprove_defer_{fresh}_carracing.py")
+    (row,) = [m.name for m in comp.methods if m.defer_width is not None]
+    assert row == ok["deferred_share"].idxmin()
+    if fresh == "lookahead":  # the burden left no row: the file says so in its note
+        assert not ((rows["episodes_with_violation"] == 0) & (rows["deferred_share"] < 0.05)).any()
+        assert "without its 5% burden bound" in comp.note

@@ -433,9 +433,8 @@ def test_evaluate_defers_to_the_expert_near_the_limit(rehab_start, tmp_path, cap
     assert "--defer-width must be a finite number >= 0" in capsys.readouterr().err
     held = run("held", "--defer-width", "0", "--defer-hold", "3", "--defer-lookahead", "2")
     assert "held 3 steps" in (out := capsys.readouterr().out) and "2 steps ahead" in out
-    assert read_table(tmp_path / "held" / "episodes.parquet")[1]["defer_hold"] == 3 and len(held)
+    meta = read_table(tmp_path / "held" / "episodes.parquet")[1]
+    assert meta["defer_hold"] == 3 and meta["defer_lookahead"] == 2 and len(held) == 4
     code = main(["evaluate", "--checkpoint", str(rehab_start), "--out", str(tmp_path / "bad"),
                  "--defer-hold", "3", "--quiet"])  # fmt: skip
     assert code != 0 and "--defer-hold needs --defer-width" in capsys.readouterr().err
-    meta = read_table(tmp_path / "held" / "episodes.parquet")[1]
-    assert meta["defer_lookahead"] == 2

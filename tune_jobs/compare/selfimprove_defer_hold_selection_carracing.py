@@ -10,7 +10,7 @@ Rows: the expert, the start, the self-imitation agent (as in the wide selection 
 self-imitation with deferral at each (width, hold) of :data:`GRID`. The rule, fixed before
 this table was run: among the rows with no selection episode beyond d_s and a mean deferred
 share below 5% (issue 35's burden), the smallest deferred share; without one, no fresh-track
-row (``selfimprove_defer_hold_carracing.py`` then has none to read and says so).
+row. No row met it, so no fresh-track file was run for this grid (docs/queries.md).
 
 Shares ``selfimprove_carracing.py``'s runs (``runs="compare"``; nothing is trained). Run:
 ``safe-bc compare tune_jobs/compare/selfimprove_defer_hold_selection_carracing.py``. Writes

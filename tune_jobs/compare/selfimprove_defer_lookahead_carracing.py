@@ -5,7 +5,7 @@ the start, paired with the expert.
 The row comes from the committed
 ``results/selfimprove/carracing/defer_lookahead_selection.parquet``
 (``selfimprove_defer_lookahead_selection_carracing.py``, 3 seeds x 150 selection tracks of
-block 18) by the rule fixed there before it was run (:func:`chosen`: among the rows with no
+block 18) by the rule fixed there before it was run (``chosen`` of that file: among the rows with no
 episode beyond d_s and a mean deferred share below 5%, the smallest share). No row met it
 (zero crossings came only with 17% of steps deferred or more), so this file evaluates,
 labelled as such, the row a relaxed rule picks, written after the selection table: the same
@@ -29,29 +29,11 @@ _selection = sibling(__file__, "selfimprove_defer_lookahead_selection_carracing"
 SELECTION_TABLE = Path(__file__).resolve().parents[2] / (
     "results/selfimprove/carracing/defer_lookahead_selection.parquet"
 )
-BURDEN = 0.05
-"""Issue 35's bound on the mean share of deferred steps."""
-
-
-def chosen(table: pd.DataFrame, grid: tuple, burden: float = BURDEN) -> tuple | None:
-    """Among ``grid``'s rows with no episode beyond d_s and a mean deferred share below
-    ``burden``, the one with the smallest share (ties: grid order); ``None`` without one."""
-    t = table.set_index("method")
-    ok = [
-        (float(t.loc[name, "deferred_share"]), i, g)
-        for i, g in enumerate(grid)
-        for name in [_selection.lookahead_row(*g).name]
-        if int(t.loc[name, "episodes_with_violation"]) == 0
-        and float(t.loc[name, "deferred_share"]) < burden
-    ]
-    return min(ok)[2] if ok else None
-
-
 _table = pd.read_parquet(SELECTION_TABLE)
-CHOSEN = chosen(_table, _selection.GRID)
+CHOSEN = _selection.chosen(_table, _selection.GRID)
 """The (width px, hold steps, lookahead steps) the rule chose on the selection tracks, or
 ``None`` (it is ``None``: no row deferred under 5% of steps with zero crossings)."""
-RELAXED = chosen(_table, _selection.GRID, burden=1.0)
+RELAXED = _selection.chosen(_table, _selection.GRID, burden=1.0)
 """The row the rule picks without its burden bound (written after the selection table)."""
 ROW = CHOSEN if CHOSEN is not None else RELAXED
 

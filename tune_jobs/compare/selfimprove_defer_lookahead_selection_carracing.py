@@ -21,6 +21,8 @@ tune_jobs/compare/selfimprove_defer_lookahead_selection_carracing.py``. Writes
 
 from dataclasses import replace
 
+import pandas as pd
+
 from safe_bc.compare import Method, sibling
 
 GRID = ((2.0, 25, 3), (2.0, 25, 6), (2.0, 10, 6), (2.0, 25, 10))
@@ -43,6 +45,24 @@ def lookahead_row(width: float, hold: int, lookahead: int) -> Method:
         label=f"{_agent.shown}, expert within {width:g} px of d_s {lookahead} steps ahead, "
         f"held {hold} steps",
     )
+
+
+BURDEN = 0.05
+"""Issue 35's bound on the mean share of deferred steps."""
+
+
+def chosen(table: pd.DataFrame, grid: tuple, burden: float = BURDEN) -> tuple | None:
+    """Among ``grid``'s rows with no episode beyond d_s and a mean deferred share below
+    ``burden``, the one with the smallest share (ties: grid order); ``None`` without one."""
+    t = table.set_index("method")
+    ok = [
+        (float(t.loc[name, "deferred_share"]), i, g)
+        for i, g in enumerate(grid)
+        for name in [lookahead_row(*g).name]
+        if int(t.loc[name, "episodes_with_violation"]) == 0
+        and float(t.loc[name, "deferred_share"]) < burden
+    ]
+    return min(ok)[2] if ok else None
 
 
 COMPARISON = replace(

@@ -5,9 +5,9 @@ and the start, paired with the expert.
 The row comes from the committed
 ``results/selfimprove/carracing/defer_trend_selection.parquet``
 (``selfimprove_defer_trend_selection_carracing.py``, 3 seeds x 150 selection tracks of block
-18) by the rule fixed there before it was run (``selfimprove_defer_lookahead_carracing.chosen``:
-among the rows with no episode beyond d_s and a mean deferred share below 5%, the smallest
-share; none: no row).
+18) by the rule fixed there before it was run (``chosen`` of
+``selfimprove_defer_lookahead_selection_carracing.py``: among the rows with no episode beyond
+d_s and a mean deferred share below 5%, the smallest share; none: no row).
 
 3 training seeds x 50 fresh tracks of held-out seed block 21, which no other table uses.
 Shares the comparison's runs (``runs="compare"``). Run after the selection table is
@@ -27,9 +27,7 @@ _ahead = sibling(__file__, "selfimprove_defer_lookahead_selection_carracing")
 SELECTION_TABLE = Path(__file__).resolve().parents[2] / (
     "results/selfimprove/carracing/defer_trend_selection.parquet"
 )
-CHOSEN = sibling(__file__, "selfimprove_defer_lookahead_carracing").chosen(
-    pd.read_parquet(SELECTION_TABLE), _selection.GRID
-)
+CHOSEN = _ahead.chosen(pd.read_parquet(SELECTION_TABLE), _selection.GRID)
 """The (width px, hold steps, lookahead steps) the rule chose on the selection tracks."""
 
 COMPARISON = replace(

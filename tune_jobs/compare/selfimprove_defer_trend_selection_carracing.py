@@ -6,11 +6,12 @@ zero crossings in 450 selection episodes (6 steps ahead, held 10) and kept them 
 The hold made most of that burden (held 25 instead of 10 doubled it), so this grid shortens
 the hold and narrows the zone at the same lookahead, and tries a shorter lookahead.
 
-Rows: the expert, the start and the self-imitation agent (their evaluations on these tracks
-reused) and self-imitation with deferral at each (width, hold, lookahead) of :data:`GRID`. The
-rule, fixed before this table was run (the hold and lookahead files'): among the rows with no
-selection episode beyond d_s and a mean deferred share below 5%, the smallest share; without
-one, no fresh-track row.
+Rows: the expert, the start and the self-imitation agent (evaluated again here: the fresh-track
+run of block 20 had replaced their stored evaluations in the shared runs folder; the same
+episodes on one machine type) and self-imitation with deferral at each (width, hold, lookahead)
+of :data:`GRID`. The rule, fixed before this table was run (the hold and lookahead files'):
+among the rows with no selection episode beyond d_s and a mean deferred share below 5%, the
+smallest share; without one, no fresh-track row.
 
 Shares ``selfimprove_carracing.py``'s runs (``runs="compare"``). Run: ``safe-bc compare
 tune_jobs/compare/selfimprove_defer_trend_selection_carracing.py``. Writes
