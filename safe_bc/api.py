@@ -200,8 +200,10 @@ def evaluate(job: EvaluateJob) -> Done:
     for flag, steps in (("hold", job.defer_hold), ("lookahead", job.defer_lookahead)):
         if steps and job.defer_width is None:
             raise ValueError(f"--defer-{flag} needs --defer-width (the zone the expert acts in)")
+    if job.defer_hold_on and not job.defer_hold:
+        raise ValueError("--defer-hold-on needs --defer-hold (the steps the handover lasts)")
     if job.defer_width is not None:
-        from safe_bc.queries.defer import DeferralSource
+        from safe_bc.queries.defer import DeferralSource, dimension_indices
         from safe_bc.queries.stage import expert_for
 
         if not (math.isfinite(job.defer_width) and job.defer_width >= 0):
@@ -209,10 +211,11 @@ def evaluate(job: EvaluateJob) -> Done:
         for flag, steps in (("hold", job.defer_hold), ("lookahead", job.defer_lookahead)):
             if steps < 0:
                 raise ValueError(f"--defer-{flag} must be a number of steps >= 0, got {steps}")
+        hold_on = dimension_indices(job.defer_hold_on, task.safety_dims)
         expert_cfg = expert_for(extra.get("demos", ""), extra["env_id"])
         agent = DeferralSource(
             agent, expert_cfg, tuple(float(x) for x in thresholds), job.defer_width, cfg.combine,
-            job.defer_hold, job.defer_lookahead,
+            job.defer_hold, job.defer_lookahead, hold_on,
         )  # fmt: skip
     result = run_evaluate({"agent": agent}, cfg, thresholds, progress=not job.quiet)
     episodes, steps, table = result.episodes, result.steps, result.summary
@@ -221,6 +224,7 @@ def evaluate(job: EvaluateJob) -> Done:
         defer_width=job.defer_width,
         defer_hold=job.defer_hold,
         defer_lookahead=job.defer_lookahead,
+        defer_hold_on=list(job.defer_hold_on),
         trained_with=extra.get("run"),
         eval_seed=job.eval_seed,
         env_seeds=episodes["env_seed"].tolist(),
@@ -240,6 +244,7 @@ def evaluate(job: EvaluateJob) -> Done:
         lines.append(
             f"deferred to the expert within {job.defer_width:g} of d_s"
             + (f" (held {job.defer_hold} steps)" if job.defer_hold else "")
+            + (f" after {', '.join(job.defer_hold_on)}" if job.defer_hold_on else "")
             + (f" ({job.defer_lookahead} steps ahead)" if job.defer_lookahead else "")
             + f": {share:.1%} of steps"
         )

@@ -107,6 +107,10 @@ class Method:
     defer_lookahead: int = 0
     """With ``defer_width``: the zone test reads the cost extrapolated this many steps from
     its last change (a fast-rising cost hands over earlier)."""
+    defer_hold_on: tuple[str, ...] = ()
+    """With ``defer_hold``: the safety dimensions (the task's names, e.g. ``("front",)``)
+    whose zone test starts the hold; ``()``: any. A handover on the front distance lasts
+    through the corner; one on a side distance ends as the cost leaves the zone."""
     seeds: tuple[int, ...] = ()
     """The training seeds of a trained row, a subset of the comparison's (``()``: all of
     them), e.g. a screened row with one seed."""
@@ -184,6 +188,11 @@ class Method:
                     f"method {self.name!r}: {name}= is a number of steps >= 0 for deferral "
                     f"rows (with defer_width=), got {steps}"
                 )
+        if self.defer_hold_on and not self.defer_hold:
+            raise ValueError(
+                f"method {self.name!r}: defer_hold_on= names the dimensions that start a hold "
+                f"(with defer_hold=), got {self.defer_hold_on} without a hold"
+            )
         if self.expert_config is not None and not self.expert:
             raise ValueError(f"method {self.name!r}: expert_config= is for expert rows")
         if self.expert_config is not None and not dataclasses.is_dataclass(self.expert_config):

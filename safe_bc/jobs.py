@@ -111,6 +111,9 @@ class EvaluateJob:
     defer_lookahead: int = 0
     """With defer_width: the zone test reads the cost extrapolated this many steps from its
     last change (a fast-rising cost hands over earlier)."""
+    defer_hold_on: tuple[str, ...] = ()
+    """With defer_hold: the safety dimensions (the task's names, e.g. front) whose zone test
+    starts the hold; empty: any."""
     quiet: bool = False
     """No progress bar."""
 

@@ -273,6 +273,13 @@ def test_tiny_fallback_rows_share_the_runs_of_another_comparison(rehab_demos, tm
             Method("start+defer0", fallback_of="start", defer_width=0.0),
             Method("improved+deferall", fallback_of="improved", defer_width=1e9),
             Method("start+defer0held", fallback_of="start", defer_width=0.0, defer_hold=5),
+            Method(
+                "start+defer0heldon",
+                fallback_of="start",
+                defer_width=0.0,
+                defer_hold=5,
+                defer_hold_on=("fatigue",),
+            ),
         ),
         reference="expert",
     )
@@ -288,10 +295,16 @@ def test_tiny_fallback_rows_share_the_runs_of_another_comparison(rehab_demos, tm
     assert "steps deferred" in (tmp_path / "defer.md").read_text()
     stamps = {  # a held row's stamp names its hold; rows without one keep their old stamps
         name: read_table(next(tmp_path.glob(f"tiny_runs/{name}/seed0/episodes.parquet")))[1]
-        for name in ("start?defer0", "start?defer0held")
+        for name in ("start?defer0", "start?defer0held", "start?defer0heldon")
     }
     assert stamps["start?defer0held"]["stamp"]["run"]["hold"] == 5
     assert "hold" not in stamps["start?defer0"]["stamp"]["run"]
+    assert "hold_on" not in stamps["start?defer0held"]["stamp"]["run"]
+    assert stamps["start?defer0heldon"]["stamp"]["run"]["hold_on"] == ["fatigue"]
+    held = by.loc["start+defer0held", "deferred_share"]  # a hold on one dimension holds less
+    assert (by.loc["start+defer0heldon", "deferred_share"] <= held).all()
+    with pytest.raises(ValueError, match="defer_hold_on= names the dimensions"):
+        Method("d", fallback_of="start", defer_width=1.0, defer_hold_on=("fatigue",))
     with pytest.raises(ValueError, match="defer_hold= is a number of steps"):
         Method("d", fallback_of="start", defer_hold=3)
     with pytest.raises(ValueError, match="defer_lookahead= is a number of steps"):

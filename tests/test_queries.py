@@ -107,6 +107,37 @@ def test_lookahead_reads_the_cost_extrapolated_from_its_last_change() -> None:
     assert policy.flags != plain and by_hand[1] and not plain[1]  # 7.9 rising from 0: early
 
 
+def test_a_hold_started_only_by_the_named_dimensions() -> None:
+    """With ``hold_on`` only a zone step of those dimensions starts the hold; a zone step of
+    another dimension defers that step alone (and pauses a running count); ``None`` is any."""
+    costs = np.array([[9.0, 0.0], [0.0, 0.0], [0.0, 0.0], [0.0, 4.0], [0.0, 0.0], [0.0, 0.0]])
+    warmup = np.zeros(len(costs), bool)
+    zone = CriticalZone(ZONE.limits, 2.0)  # in the zone: dim 0 at >= 8, dim 1 at >= 3
+    flags = {}
+    for hold_on in (None, (0,), (1,)):
+        policy = DeferringPolicy(_Counting(0.0), _Counting(1.0), zone, hold=2, hold_on=hold_on)
+        _drive(policy, costs, warmup)
+        flags[hold_on] = [int(f) for f in policy.flags]
+    assert flags[None] == [1, 1, 1, 1, 1, 1]
+    assert flags[(0,)] == [1, 1, 1, 1, 0, 0]  # dim 1's zone step at 3 holds nothing after it
+    assert flags[(1,)] == [1, 0, 0, 1, 1, 1]
+    paused = DeferringPolicy(_Counting(0.0), _Counting(1.0), zone, hold=2, hold_on=(0,))
+    _drive(paused, np.array([[9.0, 0.0], [0.0, 0.0], [0.0, 4.0], [0.0, 0.0], [0.0, 0.0]]),
+           np.zeros(5, bool))  # fmt: skip
+    assert paused.flags == [True, True, True, True, False]
+    with pytest.raises(ValueError, match="hold_on must be dimension indices"):
+        DeferringPolicy(_Counting(0.0), _Counting(1.0), zone, hold=2, hold_on=(2,))
+
+
+def test_dimension_names_map_to_indices_with_one_line_errors() -> None:
+    from safe_bc.queries.defer import dimension_indices
+
+    assert dimension_indices(("right", "front"), ("left", "front", "right")) == (2, 1)
+    assert dimension_indices((), ("left",)) is None
+    with pytest.raises(ValueError, match=r"unknown safety dimension\(s\) \['up'\]"):
+        dimension_indices(("up",), ("left", "front", "right"))
+
+
 # --- on the rehab pathway (fast, no Ray) -------------------------------------------------------
 
 
@@ -438,3 +469,9 @@ def test_evaluate_defers_to_the_expert_near_the_limit(rehab_start, tmp_path, cap
     code = main(["evaluate", "--checkpoint", str(rehab_start), "--out", str(tmp_path / "bad"),
                  "--defer-hold", "3", "--quiet"])  # fmt: skip
     assert code != 0 and "--defer-hold needs --defer-width" in capsys.readouterr().err
+    code = main(["evaluate", "--checkpoint", str(rehab_start), "--out", str(tmp_path / "bad"),
+                 "--defer-width", "0", "--defer-hold-on", "x", "--quiet"])  # fmt: skip
+    assert code != 0 and "--defer-hold-on needs --defer-hold" in capsys.readouterr().err
+    bad = ["--defer-width", "0", "--defer-hold", "2", "--defer-hold-on", "x", "--quiet"]
+    code = main(["evaluate", "--checkpoint", str(rehab_start), "--out", str(tmp_path / "b"), *bad])
+    assert code != 0 and "unknown safety dimension(s) ['x']" in capsys.readouterr().err

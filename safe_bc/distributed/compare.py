@@ -153,6 +153,8 @@ def _stamp(comparison: Comparison, method: Method, seed: int, thresholds: Any) -
                 run["hold"] = method.defer_hold
             if method.defer_lookahead:
                 run["lookahead"] = method.defer_lookahead
+            if method.defer_hold_on:
+                run["hold_on"] = list(method.defer_hold_on)
     elif method.kind == "masked":
         of = _stamp(comparison, comparison.method(method.masked_of), seed, thresholds)["run"]
         run = {"masked_of": of, "view": "steering indicator masked"}
@@ -309,11 +311,12 @@ def _fallback_source(
         net = ImprovedSource.from_run(folder / "improve").improved
     limits, expert = tuple(float(x) for x in thresholds), stored_expert_config(c.demos)
     if method.defer_width is not None:
-        from safe_bc.queries.defer import DeferralSource
+        from safe_bc.queries.defer import DeferralSource, dimension_indices
 
+        dims = task_defaults(c.task).safety_dims
         return DeferralSource(
             net, expert, limits, method.defer_width, "any", method.defer_hold,
-            method.defer_lookahead,
+            method.defer_lookahead, dimension_indices(method.defer_hold_on, dims),
         )  # fmt: skip
     shield = Shield(CriticalZone(limits, selection_eps(c), "any"), task_defaults(c.task).env.env_id)
     return ImprovedSource(net, ExpertSource(expert), shield)

@@ -19,6 +19,7 @@ tune_jobs/compare/selfimprove_defer_lookahead_selection_carracing.py``. Writes
 ``results/selfimprove/carracing/defer_lookahead_selection*``.
 """
 
+from collections.abc import Callable
 from dataclasses import replace
 
 import pandas as pd
@@ -51,14 +52,17 @@ BURDEN = 0.05
 """Issue 35's bound on the mean share of deferred steps."""
 
 
-def chosen(table: pd.DataFrame, grid: tuple, burden: float = BURDEN) -> tuple | None:
-    """Among ``grid``'s rows with no episode beyond d_s and a mean deferred share below
-    ``burden``, the one with the smallest share (ties: grid order); ``None`` without one."""
+def chosen(
+    table: pd.DataFrame, grid: tuple, burden: float = BURDEN, row: Callable = lookahead_row
+) -> tuple | None:
+    """Among ``grid``'s rows (``row(*g)``) with no episode beyond d_s and a mean deferred
+    share below ``burden``, the one with the smallest share (ties: grid order); ``None``
+    without one."""
     t = table.set_index("method")
     ok = [
         (float(t.loc[name, "deferred_share"]), i, g)
         for i, g in enumerate(grid)
-        for name in [lookahead_row(*g).name]
+        for name in [row(*g).name]
         if int(t.loc[name, "episodes_with_violation"]) == 0
         and float(t.loc[name, "deferred_share"]) < burden
     ]
