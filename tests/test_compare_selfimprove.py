@@ -383,7 +383,11 @@ def test_the_deferral_widths_follow_the_committed_selection_table() -> None:
 
 @pytest.mark.parametrize(
     ("fresh", "selection", "burden"),
-    [("lookahead", "defer_lookahead_selection", 1.0), ("trend", "defer_trend_selection", 0.05)],
+    [
+        ("lookahead", "defer_lookahead_selection", 1.0),
+        ("trend", "defer_trend_selection", 0.05),
+        ("corner", "defer_corner_selection", 0.05),
+    ],
 )
 def test_the_trend_rows_follow_the_committed_selection_tables(fresh, selection, burden) -> None:
     """Each fresh-track deferral file evaluates the row its selection table gives by the rule
