@@ -213,3 +213,22 @@ def test_evaluation_path_steering_metrics_match_the_committed_episodes() -> None
     old = raw[raw["cell"] == "expert"].set_index("env_seed").loc[new["env_seed"]]
     for c in ("reward", "steer_autocorr", "steer_change", "violation_steps"):
         np.testing.assert_allclose(new[c].to_numpy(float), old[c].to_numpy(float), rtol=1e-9)
+
+
+def test_the_batch_table_rederives_and_keeps_the_default_batch() -> None:
+    """``results/ablation/batch`` (issue 33 item 3: is batch 32 a free cheaper trial?) from
+    its committed runner episodes through the analysis; batch 32 lost reward reliably, so the
+    default stays 64."""
+    from safe_bc.bc.config import TrainConfig
+
+    out = ROOT / "results/ablation/batch"
+    raw, source = read_table(out / "batch_episodes.parquet")
+    training, _ = read_table(out / "batch_training.parquet")
+    episodes = ablation.cells_and_views(raw, training)
+    summary, paired, _ = ablation.summarise(episodes, source["config"]["reference"])
+    for name, mine in (("summary", summary), ("paired", paired)):
+        committed, _ = read_table(out / f"{name}.parquet")
+        pd.testing.assert_frame_equal(mine, committed, check_exact=True)
+    row = paired.set_index("cell").loc["bar-nosteer_rgb_k1@bs32"]
+    assert row["d_reward_hi"] < 0  # reliably below batch 64
+    assert TrainConfig().batch_size == 64
