@@ -30,7 +30,10 @@ from safe_bc.metrics import clopper_pearson_upper
 
 ROOT = Path(__file__).resolve().parents[1]
 FOLDER = ROOT / "results/selfimprove/carracing"
-TABLES = ("defer", "defer_wide", "defer_lookahead", "defer_trend", "defer_corner")
+TABLES = (
+    "defer", "defer_wide", "defer_lookahead", "defer_trend", "defer_corner",
+    "defer_corner_replication",
+)  # fmt: skip
 """The fresh-track tables, in the order they were run."""
 AGENT = "selfimitation"
 GOAL_BOUND, GOAL_BURDEN = 0.02, 0.05
