@@ -16,29 +16,16 @@ committed: ``safe-bc compare tune_jobs/compare/selfimprove_defer_corner_carracin
 Writes ``results/selfimprove/carracing/defer_corner*``.
 """
 
-from dataclasses import replace
-from pathlib import Path
-
-import pandas as pd
-
 from safe_bc.compare import sibling
 
-_selection = sibling(__file__, "selfimprove_defer_corner_selection_carracing")
 _ahead = sibling(__file__, "selfimprove_defer_lookahead_selection_carracing")
-SELECTION_TABLE = Path(__file__).resolve().parents[2] / (
-    "results/selfimprove/carracing/defer_corner_selection.parquet"
-)
-CHOSEN = _ahead.chosen(pd.read_parquet(SELECTION_TABLE), _selection.GRID, row=_selection.corner_row)
-"""The (width px, hold steps, lookahead steps) the rule chose on the selection tracks."""
+_selection = sibling(__file__, "selfimprove_defer_corner_selection_carracing")
 
-COMPARISON = replace(
-    _selection.COMPARISON,
+COMPARISON = _ahead.fresh(
+    _selection,
+    "defer_corner_selection",
+    _selection.corner_row,
     name="defer_corner",
-    methods=(
-        *(m for m in _selection.COMPARISON.methods if m.defer_width is None),
-        *([] if CHOSEN is None else [_selection.corner_row(*CHOSEN)]),
-    ),
-    episodes=50,
     eval_seed=22,
     title="Self-imitation with a handover that lasts through the corner: fresh tracks (CarRacing)",
     note="Fresh tracks (block 22); the deferral row was chosen on 3 x 150 selection tracks "

@@ -21,10 +21,12 @@ tune_jobs/compare/selfimprove_defer_lookahead_selection_carracing.py``. Writes
 
 from collections.abc import Callable
 from dataclasses import replace
+from pathlib import Path
+from typing import Any
 
 import pandas as pd
 
-from safe_bc.compare import Method, sibling
+from safe_bc.compare import Comparison, Method, sibling
 
 GRID = ((2.0, 25, 3), (2.0, 25, 6), (2.0, 10, 6), (2.0, 25, 10))
 """(width px, hold steps, lookahead steps) of the deferral rows."""
@@ -67,6 +69,25 @@ def chosen(
         and float(t.loc[name, "deferred_share"]) < burden
     ]
     return min(ok)[2] if ok else None
+
+
+def fresh(selection: Any, table: str, row: Callable = lookahead_row, **changes: Any) -> Comparison:
+    """The fresh-track comparison of a selection grid: ``selection``'s comparison (its module
+    holds ``COMPARISON`` and ``GRID``) with its rows without deferral and the deferral row
+    :func:`chosen` picks from the committed ``results/selfimprove/carracing/<table>.parquet``
+    (none: no deferral row), 3 seeds x 50 tracks, ``changes`` (``name``, ``eval_seed``,
+    ``title``, ``note``) applied."""
+    path = Path(__file__).resolve().parents[2] / f"results/selfimprove/carracing/{table}.parquet"
+    pick = chosen(pd.read_parquet(path), selection.GRID, row=row)
+    return replace(
+        selection.COMPARISON,
+        methods=(
+            *(m for m in selection.COMPARISON.methods if m.defer_width is None),
+            *([] if pick is None else [row(*pick)]),
+        ),
+        episodes=50,
+        **changes,
+    )
 
 
 COMPARISON = replace(

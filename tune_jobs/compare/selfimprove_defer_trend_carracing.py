@@ -15,29 +15,14 @@ committed: ``safe-bc compare tune_jobs/compare/selfimprove_defer_trend_carracing
 Writes ``results/selfimprove/carracing/defer_trend*``.
 """
 
-from dataclasses import replace
-from pathlib import Path
-
-import pandas as pd
-
 from safe_bc.compare import sibling
 
-_selection = sibling(__file__, "selfimprove_defer_trend_selection_carracing")
 _ahead = sibling(__file__, "selfimprove_defer_lookahead_selection_carracing")
-SELECTION_TABLE = Path(__file__).resolve().parents[2] / (
-    "results/selfimprove/carracing/defer_trend_selection.parquet"
-)
-CHOSEN = _ahead.chosen(pd.read_parquet(SELECTION_TABLE), _selection.GRID)
-"""The (width px, hold steps, lookahead steps) the rule chose on the selection tracks."""
 
-COMPARISON = replace(
-    _selection.COMPARISON,
+COMPARISON = _ahead.fresh(
+    sibling(__file__, "selfimprove_defer_trend_selection_carracing"),
+    "defer_trend_selection",
     name="defer_trend",
-    methods=(
-        *(m for m in _selection.COMPARISON.methods if m.defer_width is None),
-        *([] if CHOSEN is None else [_ahead.lookahead_row(*CHOSEN)]),
-    ),
-    episodes=50,
     eval_seed=21,
     title="Self-imitation with a cheaper deferral on the cost's trend: fresh tracks (CarRacing)",
     note="Fresh tracks (block 21); the deferral row was chosen on 3 x 150 selection tracks "
