@@ -2,10 +2,11 @@
 
 Usage::
 
-    .venv/bin/python -m scripts.batch_cost results/default
+    .venv/bin/python -m scripts.batch_cost results/default --slots 2
 
 Reads ``trials.parquet`` (``duration_s`` in suggestion order, ``trial_number``, and the study
-spec it records: ``max_concurrent``, ``batch_size``) and prints the trial phase's wall-clock
+spec it records: ``max_concurrent``, ``batch_size``; ``--slots`` for a study that ran as many
+trials at once as the CPUs allowed, ``max_concurrent=None``) and prints the trial phase's wall-clock
 replayed on that many slots in batches (:func:`safe_bc.study.schedule_seconds`) against the
 same trials started as slots free up (no batches). Nothing is written: the inputs are
 committed tables.
@@ -24,10 +25,15 @@ from safe_bc.study import schedule_seconds
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("study", type=Path, help="a study's result folder")
+    p.add_argument("--slots", type=int, help="trials at once (default: the study's max_concurrent)")
     args = p.parse_args(argv)
     trials, meta = read_table(args.study / "trials.parquet")
     spec = meta["study"]
-    slots = int(spec["max_concurrent"])
+    if (args.slots or spec.get("max_concurrent")) is None:
+        print(f"{args.study}: the study ran as many trials at once as the CPUs allowed "
+              "(max_concurrent=None): give --slots N", file=sys.stderr)  # fmt: skip
+        return 2
+    slots = int(args.slots or spec["max_concurrent"])
     batch = spec.get("batch_size", slots)
     if batch is None:
         print(f"{args.study}: the study ran without batches (batch_size=None)")

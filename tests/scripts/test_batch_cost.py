@@ -27,3 +27,13 @@ def test_reads_the_trial_table(tmp_path: Path, capsys) -> None:
                        {"study": {"max_concurrent": 2, "batch_size": 2}})  # fmt: skip
     assert main([str(tmp_path)]) == 0
     assert "18 s in batches of 2, 11 s unbatched (+64%)" in capsys.readouterr().out
+
+
+def test_a_study_without_max_concurrent_needs_slots(tmp_path: Path, capsys) -> None:
+    trials = pd.DataFrame({"trial_number": [0, 1], "duration_s": [4.0, 2.0]})
+    write_table_atomic(tmp_path / "trials.parquet", trials,
+                       {"study": {"max_concurrent": None, "batch_size": 2}})  # fmt: skip
+    assert main([str(tmp_path)]) == 2
+    assert "give --slots N" in capsys.readouterr().err
+    assert main([str(tmp_path), "--slots", "1"]) == 0
+    assert "on 1 slots: 6 s in batches of 2" in capsys.readouterr().out
