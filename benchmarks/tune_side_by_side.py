@@ -97,8 +97,12 @@ def markdown(table: pd.DataFrame, meta: dict[str, Any]) -> str:
         shown[col] = shown[col].map(lambda s: f"{s:.0f} s")
     return (
         "# `make tune` side by side\n\n"
-        f"The default study run at each commit, one after the other on one machine "
-        f"({base['cpu_model']}), nothing else running; made by "
+        + (
+            meta.get("setting")
+            or f"The default study run at each commit, one after the other on one machine "
+            f"({base['cpu_model']}), nothing else running"
+        )
+        + "; made by "
         "`python -m benchmarks.tune_side_by_side` from the runs' own tables (copied beside "
         "this file).\n\n"
         + shown.to_markdown(index=False, floatfmt=".3g")
@@ -124,6 +128,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--run", action="append", default=[], help="LABEL=STUDY_DIR, oldest first")
     p.add_argument("--out", type=Path, required=True, help="where the copies and tables go")
     p.add_argument("--commands", default="", help="how the runs were made (recorded)")
+    p.add_argument("--setting", default="", help="how the runs relate, when not one after the "
+                   "other on one machine with nothing else running (recorded)")  # fmt: skip
     args = p.parse_args(argv)
     runs = [tuple(r.split("=", 1)) for r in args.run]
     if any(len(r) != 2 for r in runs):
@@ -140,9 +146,10 @@ def main(argv: list[str] | None = None) -> int:
         labels = list(old["run"])
     rows = [run_row(label, args.out / label) for label in labels]
     table = side_by_side(rows)
-    meta = {"runs": labels, "commands": args.commands}
+    meta = {"runs": labels, "commands": args.commands, "setting": args.setting}
     if not runs:
-        meta["commands"] = read_table(args.out / "side_by_side.parquet")[1].get("commands", "")
+        before = read_table(args.out / "side_by_side.parquet")[1]
+        meta["commands"], meta["setting"] = before.get("commands", ""), before.get("setting", "")
     write_table_atomic(args.out / "side_by_side.parquet", table, meta)
     write_text_atomic(args.out / "side_by_side.md", markdown(table, meta))
     print(markdown(table, meta))
