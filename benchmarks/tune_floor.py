@@ -38,12 +38,12 @@ RUNS = ROOT / "results/checks/make_tune"
 def floor(runs: Path = RUNS) -> dict[str, Any]:
     """The floor's pieces (seconds) from the ``new`` run's tables, and its ratio to ``old``'s
     wall-clock."""
+    from benchmarks.tune_side_by_side import run_row
     from safe_bc.study import load_study
 
     spec = load_study(ROOT / "tune_jobs/default.py")
     timing, meta = read_table(runs / "new/timing.parquet")
     trials, _ = read_table(runs / "new/trials.parquet")
-    old, _ = read_table(runs / "old/timing.parquet")
     t = timing.set_index("phase")["seconds"]
     per_training = trials["train_seconds"] / trials["train_seeds"]
     per_episode = t["trial_evaluation"] / float(trials["episodes"].sum())
@@ -57,7 +57,7 @@ def floor(runs: Path = RUNS) -> dict[str, Any]:
 
     final = t["final_train"] + t["final_evaluation"]
     fixed = t["ray_start"] + t["demos"] + t["final_summary"]
-    old_wall = float(old[old["part_of"] == "study"]["seconds"].sum())
+    old_wall = run_row("old", runs / "old")["wall_s"]
     floor_s = tuning(per_training.min()) + final + fixed
     typical_s = tuning(per_training.mean()) + final + fixed
     return {

@@ -25,6 +25,7 @@ import math
 import re
 import sys
 import types
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -395,6 +396,13 @@ class Comparison:
         if of:
             return self.seeds_of(self.method(of))
         return method.seeds or self.train_seeds
+
+    def with_deferral(self, rows: Iterable[Method], **changes: Any) -> Comparison:
+        """This comparison with its deferral rows (``defer_width`` set) replaced by ``rows``
+        (every other row kept, in order, ahead of them) and ``changes`` applied: a deferral
+        grid or a fresh-track table over the same agents."""
+        kept = tuple(m for m in self.methods if m.defer_width is None)
+        return dataclasses.replace(self, methods=(*kept, *rows), **changes)
 
     def label_of(self, name: str) -> str:
         """The Markdown name of the row called ``name`` (``name`` if it is no row)."""

@@ -291,6 +291,11 @@ class CriticalZone:
         """``(N, S) -> (N,) bool``: membership of ``T_eps`` (:func:`critical_mask`)."""
         return critical_mask(costs, np.asarray(self.limits), self.eps, self.combine, valid)
 
+    def per_dim(self, costs: np.ndarray, valid: np.ndarray | None = None) -> np.ndarray:
+        """``(N, S) -> (N, S) bool``: each dimension's ``c_s >= d_s - eps``, before the
+        dimensions combine (:func:`critical_dims`)."""
+        return critical_dims(costs, np.asarray(self.limits), self.eps, valid)
+
     def beyond(self, costs: np.ndarray) -> np.ndarray:
         """``(N, S) -> (N,) bool``: a cost beyond its limit in some dimension."""
         return np.any(np.asarray(costs, np.float64) > np.asarray(self.limits), axis=1)

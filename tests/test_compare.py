@@ -206,3 +206,23 @@ COMPARISON = Comparison(
     # a changed setting redoes only what it changes: more tracks re-evaluate every cell
     more = run_comparison(replace(comp, episodes=4), progress=False)
     assert weights.stat().st_mtime_ns == before[0] and (more["n_tracks"] == 4).all()
+
+
+def test_with_deferral_replaces_the_deferral_rows_and_keeps_the_others_in_order() -> None:
+    base = Comparison(
+        "c",
+        methods=(
+            Method("expert", expert=True),
+            Method("start", selection=SelectionConfig()),
+            Method("start+d1", fallback_of="start", defer_width=1.0),
+            Method("late", selection=SelectionConfig(alpha=0.5)),
+        ),
+    )
+    grid = base.with_deferral(
+        (Method(f"start+d{w}", fallback_of="start", defer_width=w) for w in (2.0, 3.0)),
+        name="grid",
+        episodes=7,
+    )
+    assert [m.name for m in grid.methods] == ["expert", "start", "late", "start+d2.0", "start+d3.0"]
+    assert (grid.name, grid.episodes) == ("grid", 7) and base.name == "c"
+    assert [m.name for m in base.with_deferral(()).methods] == ["expert", "start", "late"]

@@ -12,7 +12,7 @@ import numpy as np
 from safe_bc.collection import build_expert
 from safe_bc.policy import Policy
 from safe_bc.queries.logic import ask_expert
-from safe_bc.selection import CriticalZone, critical_dims
+from safe_bc.selection import CriticalZone
 
 
 class DeferringPolicy:
@@ -73,15 +73,12 @@ class DeferringPolicy:
             seen = cost + self.lookahead * (cost - self._prev)
         self._prev = cost
         defer = ask_expert(seen, bool(info["warmup"]), self.zone, "critical")
-        if defer and (self.hold_on is None or self._in_zone(seen)[list(self.hold_on)].any()):
+        if defer and (self.hold_on is None or self.zone.per_dim(seen[None])[0, self.hold_on].any()):
             self._left = self.hold
         elif not defer and self._left > 0:  # (zone steps of other dimensions pause the count)
             defer, self._left = True, self._left - 1
         self.flags.append(defer)
         return np.asarray(self.expert.act(obs, env), np.float32) if defer else own
-
-    def _in_zone(self, cost: np.ndarray) -> np.ndarray:
-        return critical_dims(cost[None], np.asarray(self.zone.limits), self.zone.eps)[0]
 
     def episode_report(self) -> tuple[dict[str, float], dict[str, np.ndarray]]:
         flags = np.asarray(self.flags, bool)

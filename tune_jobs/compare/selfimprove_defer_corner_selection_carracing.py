@@ -53,13 +53,9 @@ def corner_row(width: float, hold: int, lookahead: int) -> Method:
     )
 
 
-COMPARISON = replace(
-    _trend.COMPARISON,
+COMPARISON = _trend.COMPARISON.with_deferral(
+    (corner_row(*g) for g in GRID),
     name="defer_corner_selection",
-    methods=(
-        *(m for m in _trend.COMPARISON.methods if m.defer_width is None),
-        *(corner_row(*g) for g in GRID),
-    ),
     title="Self-imitation with a handover that lasts through the corner: 3 x 150 selection "
     "tracks (CarRacing)",
     note="Selection tracks (block 18), the wide selection's. Paired rows: each agent against "

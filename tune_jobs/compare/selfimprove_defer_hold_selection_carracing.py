@@ -17,8 +17,6 @@ Shares ``selfimprove_carracing.py``'s runs (``runs="compare"``; nothing is train
 ``results/selfimprove/carracing/defer_hold_selection*``.
 """
 
-from dataclasses import replace
-
 from safe_bc.compare import Method, sibling
 
 GRID = ((2.0, 10), (2.0, 25), (2.0, 50), (2.5, 25))
@@ -40,13 +38,9 @@ def held_row(width: float, hold: int) -> Method:
     )
 
 
-COMPARISON = replace(
-    _wide.COMPARISON,
+COMPARISON = _wide.COMPARISON.with_deferral(
+    (held_row(w, h) for w, h in GRID),
     name="defer_hold_selection",
-    methods=(
-        *(m for m in _wide.COMPARISON.methods if m.defer_width is None),
-        *(held_row(w, h) for w, h in GRID),
-    ),
     title="Self-imitation with a held deferral to the expert: 3 x 150 selection tracks (CarRacing)",
     note="Selection tracks (block 18), the wide selection's. Paired rows: each agent against "
     "the expert on the same tracks. steps deferred: the mean share of an episode's steps on "

@@ -18,7 +18,6 @@ committed: ``safe-bc compare tune_jobs/compare/selfimprove_defer_lookahead_carra
 Writes ``results/selfimprove/carracing/defer_lookahead*``.
 """
 
-from dataclasses import replace
 from pathlib import Path
 
 import pandas as pd
@@ -37,13 +36,9 @@ RELAXED = _selection.chosen(_table, _selection.GRID, burden=1.0)
 """The row the rule picks without its burden bound (written after the selection table)."""
 ROW = CHOSEN if CHOSEN is not None else RELAXED
 
-COMPARISON = replace(
-    _selection.COMPARISON,
+COMPARISON = _selection.COMPARISON.with_deferral(
+    ([] if ROW is None else [_selection.lookahead_row(*ROW)]),
     name="defer_lookahead",
-    methods=(
-        *(m for m in _selection.COMPARISON.methods if m.defer_width is None),
-        *([] if ROW is None else [_selection.lookahead_row(*ROW)]),
-    ),
     episodes=50,
     eval_seed=20,
     title="Self-imitation with deferral on the cost's trend: fresh tracks (CarRacing)",

@@ -20,7 +20,6 @@ tune_jobs/compare/selfimprove_defer_lookahead_selection_carracing.py``. Writes
 """
 
 from collections.abc import Callable
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -79,24 +78,16 @@ def fresh(selection: Any, table: str, row: Callable = lookahead_row, **changes: 
     ``title``, ``note``) applied."""
     path = Path(__file__).resolve().parents[2] / f"results/selfimprove/carracing/{table}.parquet"
     pick = chosen(pd.read_parquet(path), selection.GRID, row=row)
-    return replace(
-        selection.COMPARISON,
-        methods=(
-            *(m for m in selection.COMPARISON.methods if m.defer_width is None),
-            *([] if pick is None else [row(*pick)]),
-        ),
+    return selection.COMPARISON.with_deferral(
+        ([] if pick is None else [row(*pick)]),
         episodes=50,
         **changes,
     )
 
 
-COMPARISON = replace(
-    _hold.COMPARISON,
+COMPARISON = _hold.COMPARISON.with_deferral(
+    (lookahead_row(*g) for g in GRID),
     name="defer_lookahead_selection",
-    methods=(
-        *(m for m in _hold.COMPARISON.methods if m.defer_width is None),
-        *(lookahead_row(*g) for g in GRID),
-    ),
     title="Self-imitation with deferral on the cost's trend: 3 x 150 selection tracks (CarRacing)",
     note="Selection tracks (block 18), the wide selection's. Paired rows: each agent against "
     "the expert on the same tracks. steps deferred: the mean share of an episode's steps on "

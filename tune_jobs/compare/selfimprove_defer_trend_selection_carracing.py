@@ -18,8 +18,6 @@ tune_jobs/compare/selfimprove_defer_trend_selection_carracing.py``. Writes
 ``results/selfimprove/carracing/defer_trend_selection*``.
 """
 
-from dataclasses import replace
-
 from safe_bc.compare import sibling
 
 GRID = ((2.0, 0, 6), (2.0, 5, 6), (1.0, 10, 6), (2.0, 10, 4))
@@ -27,13 +25,9 @@ GRID = ((2.0, 0, 6), (2.0, 5, 6), (1.0, 10, 6), (2.0, 10, 4))
 
 _ahead = sibling(__file__, "selfimprove_defer_lookahead_selection_carracing")
 
-COMPARISON = replace(
-    _ahead.COMPARISON,
+COMPARISON = _ahead.COMPARISON.with_deferral(
+    (_ahead.lookahead_row(*g) for g in GRID),
     name="defer_trend_selection",
-    methods=(
-        *(m for m in _ahead.COMPARISON.methods if m.defer_width is None),
-        *(_ahead.lookahead_row(*g) for g in GRID),
-    ),
     title="Self-imitation with a cheaper deferral on the cost's trend: 3 x 150 selection "
     "tracks (CarRacing)",
 )

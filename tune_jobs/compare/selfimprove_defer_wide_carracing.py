@@ -15,7 +15,6 @@ comparison's runs (``runs="compare"``). Run after the selection table is committ
 ``results/selfimprove/carracing/defer_wide*``.
 """
 
-from dataclasses import replace
 from pathlib import Path
 
 import pandas as pd
@@ -32,13 +31,9 @@ WIDTH = sibling(__file__, "selfimprove_defer_carracing").chosen_width(
 )
 """The self-imitation agent's deferral width (px), chosen on the 450 selection episodes."""
 
-COMPARISON = replace(
-    _selection.COMPARISON,
+COMPARISON = _selection.COMPARISON.with_deferral(
+    [_first.defer_row(_selection.AGENT, WIDTH)],
     name="defer_wide",
-    methods=(
-        *(m for m in _selection.COMPARISON.methods if m.defer_width is None),
-        _first.defer_row(_selection.AGENT, WIDTH),
-    ),
     episodes=50,
     eval_seed=19,
     title="Self-imitation with deferral to the expert near d_s: fresh tracks (CarRacing)",
