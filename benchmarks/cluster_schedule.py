@@ -193,7 +193,7 @@ def markdown(table: pd.DataFrame, mean: pd.DataFrame, note: str) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--runs", type=Path, default=Path("results/default"))
+    p.add_argument("--runs", type=Path, default=Path("results/default_two_seeds"))
     p.add_argument("--out", type=Path, default=Path("results/checks/batch_schedule.parquet"))
     args = p.parse_args(argv)
     folders = sources(args.runs)

@@ -374,6 +374,14 @@ class StudySpec:
     """Evaluation environment (must be the demonstrations' task)."""
     rollout_workers: int = 0
     """Evaluation actors per trial (0: evaluate in the trial's own process)."""
+    trial_envs: int = 1
+    """Episodes a trial's evaluation steps in lockstep per process (``envs_per_worker`` of
+    :func:`safe_bc.distributed.evaluate.evaluate_policies`): its tracks are dealt to fixed
+    groups of this many in seed order, each group stepped with one batched forward pass
+    (:attr:`safe_bc.evaluation.EvalConfig.lockstep_forward`), so a trial's episodes depend on
+    this number and the machine type, never on how many trials or workers run. 1 (default):
+    one env at a time, the same episodes on any CPU. ``make bench``'s eval case measures the
+    gain (raster, 4 envs in lockstep with one batched forward against 1 env)."""
     cpus_per_trial: float = 1.0
     """CPUs reserved for a trial's own process (fractional allowed). Training does not follow
     it: every trial trains with ``base.bc.train.num_threads`` torch threads (1 when unset),
@@ -476,6 +484,12 @@ class StudySpec:
             raise ValueError(f"train_seeds must be an integer >= 1, got {self.train_seeds!r}")
         if not (math.isfinite(self.critical_eps) and self.critical_eps >= 0):
             raise ValueError(f"critical_eps must be >= 0, got {self.critical_eps!r}")
+        if (
+            isinstance(self.trial_envs, bool)
+            or not isinstance(self.trial_envs, int)
+            or (self.trial_envs < 1)
+        ):
+            raise ValueError(f"trial_envs must be an integer >= 1, got {self.trial_envs!r}")
         for key in ("rollout_workers", "max_failures", "startup_trials"):
             if getattr(self, key) < 0:
                 raise ValueError(f"{key} must be >= 0, got {getattr(self, key)}")

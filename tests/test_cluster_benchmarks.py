@@ -26,7 +26,7 @@ def test_halving_replay_and_tpe_counts() -> None:
 
 
 def test_the_replay_of_the_committed_default_study_gives_its_stops() -> None:
-    table = cluster_schedule.replay(REPO / "results" / "default", "default")
+    table = cluster_schedule.replay(REPO / "results" / "default_two_seeds", "default")
     assert table["batch_size"].tolist() == list(cluster_schedule.BATCHES)
     first = table.iloc[0]
     assert first["cost_2_slots_vs_batch_2"] == 0 and first["speedup_16_vs_2"] == 1

@@ -211,3 +211,27 @@ def test_a_new_metric_is_one_entry(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setitem(metrics.REGISTRY, "max_cost", entry)
     ep = _episode()
     assert metrics.episode_metrics(ep)["max_cost"] == pytest.approx(ep.costs[3:].max())
+
+
+def _bootstrap_loop(values: np.ndarray, groups: np.ndarray, rng: np.random.Generator) -> tuple:
+    """The two-level loop ``bootstrap_ci`` ran for every case before its i.i.d. fast path."""
+    labels = np.unique(groups)
+    members = [values[groups == g] for g in labels]
+    boots = np.empty(2000)
+    for b in range(2000):
+        picked = rng.integers(0, len(members), len(members))
+        parts = [members[i][rng.integers(0, len(members[i]), len(members[i]))] for i in picked]
+        boots[b] = np.concatenate(parts).mean()
+    lo, hi = np.quantile(boots, [0.025, 0.975])
+    return float(values.mean()), float(lo), float(hi)
+
+
+@pytest.mark.parametrize("n", [2, 3, 7, 17, 51])
+def test_iid_fast_path_gives_the_two_level_loops_interval_bit_for_bit(n: int) -> None:
+    values = np.random.default_rng(n).normal(900, 30, n)
+    labels = np.random.default_rng(n + 1).permutation(n) * 3  # one value per group, any labels
+    for groups in (None, labels):
+        fast = bootstrap_ci(values, groups, rng=np.random.default_rng(7))
+        slow = _bootstrap_loop(values, np.arange(n) if groups is None else labels,
+                               np.random.default_rng(7))  # fmt: skip
+        assert fast == slow

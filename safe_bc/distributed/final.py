@@ -34,7 +34,7 @@ import torch
 from safe_bc.bc.net import BCNet
 from safe_bc.collection import stored_expert_config
 from safe_bc.demos import Demonstrations
-from safe_bc.distributed.evaluate import LOCKSTEP_ENVS, evaluate
+from safe_bc.distributed.evaluate import LOCKSTEP_ENVS, evaluate_policies
 from safe_bc.distributed.final_store import FinalStore, agent_key, key_of
 from safe_bc.distributed.runtime import cluster_cpus, ensure_ray
 from safe_bc.distributed.stop import deferred_stop, stop_point
@@ -235,10 +235,11 @@ def final_phase(
             found = []
             if left:
                 with deferred_stop():  # stops after the evaluation, once it is stored
-                    eps = evaluate(left, config, np.asarray(job.cost_limits), progress=progress,
-                                   envs_per_worker=LOCKSTEP_ENVS)  # fmt: skip
+                    eps, _ = evaluate_policies(  # its rows only: the summaries come below
+                        left, config, thresholds=np.asarray(job.cost_limits), progress=progress,
+                        envs_per_worker=LOCKSTEP_ENVS)  # fmt: skip
                     for name in left:
-                        mine = eps.episodes[eps.episodes["policy"] == name]
+                        mine = eps[eps["policy"] == name]
                         mine = mine.reset_index(drop=True)
                         if store is not None:
                             store.save_episodes(keys[name], mine)

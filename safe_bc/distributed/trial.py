@@ -41,7 +41,7 @@ from safe_bc.data.store import (
     write_table_atomic,
 )
 from safe_bc.demos import Demonstrations
-from safe_bc.distributed.evaluate import evaluate
+from safe_bc.distributed.evaluate import evaluate_policies
 from safe_bc.distributed.search import ROUND, SCORE, SCREENED, screen_score
 from safe_bc.evaluation import EvalConfig, NetSource
 from safe_bc.experiment import RunConfig, train_run
@@ -163,14 +163,15 @@ def evaluate_source(
         eps=spec.critical_eps,
         combine=run_cfg.selection.combine,
     )
-    result = evaluate(
+    episodes, _ = evaluate_policies(  # no summary: the trial's metrics are made from its rows
         {"trial": source},
         config,
-        np.asarray(job.cost_limits),
+        thresholds=np.asarray(job.cost_limits),
         progress=False,
         actor_cpus=spec.cpus_per_worker if spec.rollout_workers else None,
+        envs_per_worker=spec.trial_envs,
     )
-    return result.episodes
+    return episodes
 
 
 def trial_values(

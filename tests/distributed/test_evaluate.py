@@ -128,3 +128,39 @@ def test_batched_lockstep_rows_do_not_depend_on_the_number_of_workers(bc_and_exp
     ]
     assert EvalConfig().lockstep_forward == "batched"
     pd.testing.assert_frame_equal(runs[0], runs[1])
+
+
+def test_a_trial_evaluates_its_tracks_in_lockstep_groups_of_trial_envs(
+    bc_and_expert, monkeypatch
+) -> None:
+    """``StudySpec.trial_envs``: a trial's round is ``evaluate_policies`` over its tracks with
+    ``envs_per_worker = trial_envs`` (batched forward), in-process or on its rollout workers;
+    1 gives the one-env rows. Checked against the call itself, on the trial's own tracks."""
+    from dataclasses import replace
+
+    import safe_bc.distributed.trial as trial_mod
+    from safe_bc.distributed.trial import TrialJob, evaluate_source
+    from safe_bc.experiment import RunConfig
+    from safe_bc.study import ConstraintBars, StudySpec
+
+    sources, thresholds, _ = bc_and_expert
+    limits = ConstraintBars(7.0, (7.0, 7.0, 7.0), 0.0)
+    spec = StudySpec("s", {}, max_steps=60, eval_seed=3, final_seed=4)
+    with pytest.raises(ValueError, match="trial_envs must be an integer >= 1"):
+        replace(spec, trial_envs=0)
+    asked: list[int] = []
+
+    def spy(*args, **kw):
+        asked.append(kw["envs_per_worker"])
+        return evaluate_policies(*args, **kw)
+
+    monkeypatch.setattr(trial_mod, "evaluate_policies", spy)
+    for envs, workers in ((1, 0), (2, 0), (2, 2)):
+        job = TrialJob(replace(spec, trial_envs=envs, rollout_workers=workers), "unused", limits,
+                       tuple(float(x) for x in thresholds))  # fmt: skip
+        got = evaluate_source(sources["bc"], RunConfig(), job, 1, 3)
+        cfg = EvalConfig(episodes=3, first_episode=1, workers=0, seed=3, max_steps=60)
+        want, _ = evaluate_policies({"trial": sources["bc"]}, cfg, thresholds=thresholds,
+                                    progress=False, envs_per_worker=envs)  # fmt: skip
+        pd.testing.assert_frame_equal(got, want)
+    assert asked == [1, 2, 2]

@@ -324,14 +324,14 @@ def test_final_phase_resumes_per_agent_and_evaluation_and_a_finished_study_only_
     import safe_bc.distributed.final as final_mod
     from safe_bc.distributed.stop import StudyStopped
 
-    evaluate = final_mod.evaluate
+    evaluate_policies = final_mod.evaluate_policies
 
     def ctrl_c(*args, **kw):  # Ctrl-C once the final phase's agents are trained
         signal.raise_signal(signal.SIGINT)
-        return evaluate(*args, **kw)
+        return evaluate_policies(*args, **kw)
 
     with monkeypatch.context() as m:
-        m.setattr(final_mod, "evaluate", ctrl_c)
+        m.setattr(final_mod, "evaluate_policies", ctrl_c)
         with pytest.raises(StudyStopped) as stopped:
             run_study(spec, progress=False)
     assert stopped.value.exit_code == 130 and "rerun the same command" in str(stopped.value)
@@ -349,10 +349,10 @@ def test_final_phase_resumes_per_agent_and_evaluation_and_a_finished_study_only_
 
     def counted_evaluate(sources, *args, **kw):
         calls["evaluate"].append(sorted(sources))
-        return evaluate(sources, *args, **kw)
+        return evaluate_policies(sources, *args, **kw)
 
     monkeypatch.setattr(final_mod, "train_run", counted_train)
-    monkeypatch.setattr(final_mod, "evaluate", counted_evaluate)
+    monkeypatch.setattr(final_mod, "evaluate_policies", counted_evaluate)
     first = run_study(spec, progress=False)
     assert first.complete and first.final is not None and first.exit_code in (0, 1)
     # no agent retrained; the evaluation under way at the Ctrl-C finished and was kept

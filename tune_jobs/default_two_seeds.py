@@ -1,0 +1,22 @@
+"""The default study until issue 33's half-time change, kept to compare against: two training
+seeds per trial on the same 10 tracks (crossed bootstrap), one env at a time; everything else
+is ``tune_jobs/default.py``'s. Its committed runs (the single study rebuilt at clean 3dd304c
+and the 3 replicates at clean 6a098da, raster frames, made under the name ``default``) are in
+``results/default_two_seeds/``; the two designs' replicates side by side:
+``results/checks/make_tune/half/replicates.md``.
+
+Run: ``safe-bc tune tune_jobs/default_two_seeds.py`` (results in ``results/default_two_seeds/``).
+"""
+
+from dataclasses import replace
+from pathlib import Path
+
+from safe_bc.study import load_study
+
+STUDY = replace(
+    load_study(Path(__file__).with_name("default.py")),
+    name="default_two_seeds",
+    train_seeds=2,
+    eval_episodes=10,
+    trial_envs=1,
+)
