@@ -354,7 +354,7 @@ class StudySpec:
     """Largest allowed upper bound on the share of episodes beyond ``d_s`` (with
     :attr:`violation_bound`). Zero violations in ``n`` episodes bound the share at about
     ``3 / n`` (95%), so a trial needs ``n >~ 3 / limit`` episodes to be feasible at all (15
-    at 0.2: e.g. 2 seeds x 10 tracks)."""
+    at 0.2: e.g. one seed x 15 tracks, or 2 seeds x 10)."""
     train_seeds: int = 1
     """Training seeds per trial: ``base.bc.train.seed`` and the next ones, each trained and
     evaluated on the trial's same tracks (a crossed seeds x tracks design); the trial's
