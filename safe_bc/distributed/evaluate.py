@@ -70,10 +70,11 @@ class _Evaluator:
 
 LOCKSTEP_ENVS = 4
 """``envs_per_worker`` where each worker gets many episodes of one policy (Table 1, the
-study's final phase, the improvement stage's test tracks): the same rows as one env
-(tests/distributed/test_evaluate.py). The gain is small, inference being about a quarter of
-a step: ``make bench``'s eval case measures it ("BC net, 4 envs in lockstep"). Trials keep 1:
-their few tracks would leave workers idle."""
+study's final phase, the improvement stage's test tracks): in the ``rows`` forward the same
+rows as one env, in the default ``batched`` one the same rows for any number of workers
+(tests/distributed/test_evaluate.py). Inference is about a quarter of a step: ``make bench``'s
+eval case measures the gain ("BC net, 4 envs in lockstep"). A study's trials use their own
+``StudySpec.trial_envs``."""
 
 
 def evaluate_policies(
@@ -94,8 +95,8 @@ def evaluate_policies(
     asking for more than the trial reserved wait forever. ``envs_per_worker`` > 1: each
     worker (or this process) steps that many episodes of a BC policy in lockstep with one
     ``act_slots`` call per step (:func:`safe_bc.evaluation.evaluate_episodes`): with
-    ``config.lockstep_forward="rows"`` (the default) the same rows as 1 on any CPU; with
-    ``"batched"`` one forward pass over the envs, faster, the same rows again only for the same
+    ``config.lockstep_forward="rows"`` the same rows as 1 on any CPU; with ``"batched"`` (the
+    default) one forward pass over the envs, faster, the same rows again only for the same
     ``envs_per_worker`` on the same machine type (:attr:`EvalConfig.lockstep_forward`).
 
     Returns:
@@ -190,9 +191,10 @@ def evaluate(
     one metric list. ``limits`` are the demonstrations' ``d_s`` (worst expert cost per
     dimension) that define violations and the critical zone.
 
-    The expert (``safe-bc expert``), a trained agent (``safe-bc evaluate``), Table 1, every
-    study trial and the study's final phase all call this (Table 1 then regroups the same
-    per-episode rows by method with its crossed bootstrap).
+    The expert (``safe-bc expert``), a trained agent (``safe-bc evaluate``) and Table 1 call
+    this (Table 1 then regroups the same per-episode rows by method with its crossed
+    bootstrap); a study's trials and final phase make their own metrics from the rows and call
+    :func:`evaluate_policies`, skipping the summary's bootstrap.
     """
     episodes, steps = evaluate_policies(
         sources,
