@@ -16,7 +16,8 @@ seed) cells, then the tracks within a cell), its episodes beyond d_s with the on
 Clopper-Pearson bound on their share, and the replicates whose own interval
 (``replicates.parquet``) lies above zero, below it or spans it. Then the second design minus
 the first on both (independent bootstraps; the share of episodes beyond d_s by a bootstrap of
-the same cells). Writes ``OUT.parquet`` and ``OUT.md``; nothing is evaluated again.
+the same cells), and the replicates whose winners share a configuration in both designs
+(the same final phase). Writes ``OUT.parquet`` and ``OUT.md``; nothing is evaluated again.
 """
 
 from __future__ import annotations
@@ -76,6 +77,17 @@ def cell_draws(frame: pd.DataFrame, column: str, rng: np.random.Generator) -> np
     return out
 
 
+def same_winner(a: pd.DataFrame, b: pd.DataFrame) -> list[int]:
+    """Replicates (by index) whose winners have the same searched configuration in both
+    replicate tables: the same final phase, so the same episodes on one machine type."""
+    keys = [c for c in a.columns if c.startswith(("selection.", "bc.", "improve.", "queries."))]
+    if not keys or set(keys) - set(b.columns):
+        return []
+    left, right = a.set_index("replicate")[keys], b.set_index("replicate")[keys]
+    both = left.index.intersection(right.index)
+    return [int(k) for k in both if left.loc[k].astype(str).equals(right.loc[k].astype(str))]
+
+
 def verdict(lo: float, hi: float) -> str:
     """What an interval supports."""
     return {"above": "reliably above", "below": "reliably below"}.get(
@@ -113,6 +125,7 @@ def compare(designs: dict[str, pd.DataFrame], tables: dict[str, pd.DataFrame]) -
     a, b = rows[0], rows[-1]
     rows.append({
         "design": f"{last} - {first}", "d_reward": b["d_reward"] - a["d_reward"],
+        "same_winner": ",".join(f"r{k}" for k in same_winner(tables[first], tables[last])),
         "d_reward_lo": float(np.quantile(dd, 0.025)), "d_reward_hi": float(np.quantile(dd, 0.975)),
         "share": b["share"] - a["share"], "share_lo": float(np.quantile(dv, 0.025)),
         "share_hi": float(np.quantile(dv, 0.975)),
@@ -148,6 +161,14 @@ def markdown(table: pd.DataFrame, meta: dict) -> str:
         f"d_s {diff['share']:+.3f} [{diff['share_lo']:+.3f}, {diff['share_hi']:+.3f}] "
         f"({verdict(diff['share_lo'], diff['share_hi'])})."
     )
+    same = diff.get("same_winner") or ""
+    if same:
+        words += (
+            f" Replicates {same.replace(',', ', ')} chose the same winning configuration in "
+            "both designs, so their final episodes are the same ones: the difference rests "
+            "on the other replicates, and the bootstrap, which treats the designs as "
+            "independent, is wider than a paired one would be."
+        )
     return "\n".join([
         "# The study's designs, replicate against replicate", "",
         "Each design's replicate studies (the same study, seeds shifted); every replicate's "

@@ -15,7 +15,7 @@ from scripts.design_replicates import main
 REPO = Path(__file__).resolve().parents[2]
 
 
-def _design(root: Path, shift: float, crossings: int) -> Path:
+def _design(root: Path, shift: float, crossings: int, alphas: tuple[float, float]) -> Path:
     """Two replicates, 2 training seeds x 3 tracks each; the winner ``shift`` above the
     expert on every track, ``crossings`` of its first replicate's episodes beyond d_s."""
     verdicts = []
@@ -34,14 +34,15 @@ def _design(root: Path, shift: float, crossings: int) -> Path:
                 rows.append({"method": "w", "train_seed": s, "env_seed": track,
                              "reward": reward, "any_violation": hit})  # fmt: skip
         write_table_atomic(rdir / "final_episodes.parquet", pd.DataFrame(rows), {})
-        verdicts.append({"winner": "w", "winner_feasible": True, "vs_expert": "above"})
+        verdicts.append({"replicate": k, "winner": "w", "winner_feasible": True,
+                         "vs_expert": "above", "selection.alpha": alphas[k]})  # fmt: skip
     write_table_atomic(root / "replicates.parquet", pd.DataFrame(verdicts), {})
     return root
 
 
 def test_pools_the_replicates_and_compares_the_designs(tmp_path: Path, capsys) -> None:
-    old = _design(tmp_path / "old", 0.0, 0)
-    new = _design(tmp_path / "new", 2.0, 3)
+    old = _design(tmp_path / "old", 0.0, 0, (0.5, 0.1))
+    new = _design(tmp_path / "new", 2.0, 3, (0.5, 0.2))  # replicate 0's winner is old's
     out = tmp_path / "cmp"
     assert main(["--design", f"old={old}", "--design", f"new={new}", "--out", str(out)]) == 0
     table, meta = read_table(out.with_suffix(".parquet"))
@@ -55,6 +56,7 @@ def test_pools_the_replicates_and_compares_the_designs(tmp_path: Path, capsys) -
     assert lo <= 2.0 <= hi and rows.loc["new", "replicates_above"] == 2
     md = out.with_suffix(".md").read_text()
     assert "**new minus old:** winner minus expert +2.0" in md and "3/12" in md
+    assert rows.loc["new - old", "same_winner"] == "r0" and "Replicates r0 chose" in md
     assert meta["designs"] == {"old": str(old), "new": str(new)}
     capsys.readouterr()
     assert main(["--design", f"old={old}", "--design", f"x={tmp_path / 'none'}",
