@@ -176,7 +176,7 @@ def markdown(table: pd.DataFrame, meta: dict) -> str:
         "replicates (95% two-level bootstrap: (replicate, training seed) cells, then tracks; "
         f"{BOOT} resamples, seed {SEED}). Made by `{meta['command']}`; nothing evaluated again.",
         "", pd.DataFrame(shown).to_markdown(index=False), "", words, "",
-        "Sources: " + ", ".join(f"`{k}`: `{v}`" for k, v in meta["designs"].items()) + ".", "",
+        "Sources: " + ", ".join(f"`{k}`: `{v}`" for k, v in meta["designs"]) + ".", "",
     ])  # fmt: skip
 
 
@@ -202,7 +202,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     meta = run_metadata(
         command="python -m scripts.design_replicates " + " ".join(
             f"--design {a}={b}" for a, b in pairs) + f" --out {args.out}",
-        designs=dict(pairs), bootstrap_seed=SEED, resamples=BOOT,
+        designs=[list(x) for x in pairs], bootstrap_seed=SEED, resamples=BOOT,  # in order
     )  # fmt: skip
     args.out.parent.mkdir(parents=True, exist_ok=True)
     write_table_atomic(args.out.with_suffix(".parquet"), table, meta)
