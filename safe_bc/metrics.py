@@ -318,13 +318,11 @@ def bootstrap_ci(
         flat = np.concatenate(members)  # (a one-value group's inner draw consumes no bits)
         for b in range(n_boot):
             boots[b] = flat[rng.integers(0, len(flat), len(flat))].mean()
-        tail = (1 - confidence) / 2
-        lo, hi = np.quantile(boots, [tail, 1 - tail])
-        return mean, float(lo), float(hi)
-    for b in range(n_boot):
-        picked = rng.integers(0, len(members), len(members))
-        parts = [members[i][rng.integers(0, len(members[i]), len(members[i]))] for i in picked]
-        boots[b] = np.concatenate(parts).mean()
+    else:
+        for b in range(n_boot):
+            picked = rng.integers(0, len(members), len(members))
+            parts = [members[i][rng.integers(0, len(members[i]), len(members[i]))] for i in picked]
+            boots[b] = np.concatenate(parts).mean()
     tail = (1 - confidence) / 2
     lo, hi = np.quantile(boots, [tail, 1 - tail])
     return mean, float(lo), float(hi)

@@ -380,8 +380,9 @@ class StudySpec:
     groups of this many in seed order, each group stepped with one batched forward pass
     (:attr:`safe_bc.evaluation.EvalConfig.lockstep_forward`), so a trial's episodes depend on
     this number and the machine type, never on how many trials or workers run. 1 (default):
-    one env at a time, the same episodes on any CPU. ``make bench``'s eval case measures the
-    gain (raster, 4 envs in lockstep with one batched forward against 1 env)."""
+    one env at a time, the one-env path (for given weights, the same episodes on any CPU).
+    ``make bench``'s eval case measures the gain (raster, 4 envs in lockstep with one batched
+    forward against 1 env)."""
     cpus_per_trial: float = 1.0
     """CPUs reserved for a trial's own process (fractional allowed). Training does not follow
     it: every trial trains with ``base.bc.train.num_threads`` torch threads (1 when unset),
