@@ -309,6 +309,20 @@ def bootstrap_ci(
     mean = float(values.mean())
     if len(values) == 1:
         return mean, mean, mean
+    boots = bootstrap_means(values, groups, n_boot=n_boot, rng=rng)
+    tail = (1 - confidence) / 2
+    lo, hi = np.quantile(boots, [tail, 1 - tail])
+    return mean, float(lo), float(hi)
+
+
+def bootstrap_means(
+    values: np.ndarray, groups: np.ndarray | None = None, *, n_boot: int, rng: np.random.Generator
+) -> np.ndarray:
+    """``(n_boot,)`` bootstrap means of ``values (N,)``, two-level when ``groups`` is given:
+    each replicate resamples the groups (in label order) with replacement, then the values
+    within each chosen group (:func:`bootstrap_ci`'s draws; for a difference of two
+    bootstraps, subtract their draws)."""
+    values = np.asarray(values, dtype=np.float64)
     if groups is None:
         groups = np.arange(len(values))
     labels = np.unique(groups)
@@ -323,9 +337,7 @@ def bootstrap_ci(
             picked = rng.integers(0, len(members), len(members))
             parts = [members[i][rng.integers(0, len(members[i]), len(members[i]))] for i in picked]
             boots[b] = np.concatenate(parts).mean()
-    tail = (1 - confidence) / 2
-    lo, hi = np.quantile(boots, [tail, 1 - tail])
-    return mean, float(lo), float(hi)
+    return boots
 
 
 def summarize(

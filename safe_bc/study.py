@@ -444,6 +444,7 @@ class StudySpec:
             ("batches", self.batches),
             ("eval_episodes", self.eval_episodes),
             ("final_episodes", self.final_episodes),
+            ("trial_envs", self.trial_envs),
         ):
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"{key} must be an integer >= 1, got {value!r}")
@@ -485,12 +486,6 @@ class StudySpec:
             raise ValueError(f"train_seeds must be an integer >= 1, got {self.train_seeds!r}")
         if not (math.isfinite(self.critical_eps) and self.critical_eps >= 0):
             raise ValueError(f"critical_eps must be >= 0, got {self.critical_eps!r}")
-        if (
-            isinstance(self.trial_envs, bool)
-            or not isinstance(self.trial_envs, int)
-            or (self.trial_envs < 1)
-        ):
-            raise ValueError(f"trial_envs must be an integer >= 1, got {self.trial_envs!r}")
         for key in ("rollout_workers", "max_failures", "startup_trials"):
             if getattr(self, key) < 0:
                 raise ValueError(f"{key} must be >= 0, got {getattr(self, key)}")

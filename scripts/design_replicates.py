@@ -33,7 +33,7 @@ import pandas as pd
 
 from safe_bc.atomic import write_text_atomic
 from safe_bc.data.store import read_table, write_table_atomic
-from safe_bc.metrics import clopper_pearson_upper
+from safe_bc.metrics import bootstrap_means, clopper_pearson_upper
 from safe_bc.provenance import run_metadata
 from safe_bc.replicates import direction
 
@@ -68,13 +68,8 @@ def paired_episodes(folder: Path) -> pd.DataFrame:
 
 def cell_draws(frame: pd.DataFrame, column: str, rng: np.random.Generator) -> np.ndarray:
     """``BOOT`` two-level bootstrap means of ``column``: (replicate, seed) cells, then rows."""
-    cells = [g[column].to_numpy(float) for _, g in frame.groupby(["replicate", "train_seed"])]
-    out = np.empty(BOOT)
-    for b in range(BOOT):
-        picked = rng.integers(0, len(cells), len(cells))
-        out[b] = np.concatenate([cells[i][rng.integers(0, len(cells[i]), len(cells[i]))]
-                                 for i in picked]).mean()  # fmt: skip
-    return out
+    cells = frame.groupby(["replicate", "train_seed"]).ngroup().to_numpy()
+    return bootstrap_means(frame[column].to_numpy(float), cells, n_boot=BOOT, rng=rng)
 
 
 def same_winner(a: pd.DataFrame, b: pd.DataFrame) -> list[int]:
