@@ -25,4 +25,14 @@ __version__ = "0.1.0"
 
 register_envs()
 
-__all__ = ["ENV_IDS", "__version__", "register_envs"]
+__all__ = ["ENV_IDS", "__version__", "load_recommender", "register_envs"]
+
+
+def __getattr__(name: str):
+    """``safe_bc.load_recommender`` (:func:`safe_bc.recommender.load_recommender`), imported on
+    first use."""
+    if name == "load_recommender":
+        from safe_bc.recommender import load_recommender
+
+        return load_recommender
+    raise AttributeError(f"module 'safe_bc' has no attribute {name!r}")

@@ -35,6 +35,7 @@ import numpy as np
 import pandas as pd
 
 from safe_bc.envs import EnvConfig
+from safe_bc.handover import HandoverConfig
 from safe_bc.improve.config import ImproveConfig
 from safe_bc.queries.config import QueryConfig
 from safe_bc.run_config import RunConfig
@@ -417,6 +418,29 @@ class StudySpec:
     every trained agent is rolled out, the expert labels the visited states in the critical
     zone, and the agent is retrained on demonstrations plus labels, for ``rounds`` rounds.
     Searchable as ``queries.<field>`` keys. ``None``: no queries."""
+    handover: HandoverConfig | None = None
+    """The critical-zone handover every agent of the study is evaluated with (trials, final
+    candidates, the certification): the agent acts, the expert where the cost is near ``d_s``
+    (:class:`safe_bc.handover.HandoverConfig`). The study then searches for the best
+    *recommender* (agent plus handover), its deferred share is a constraint
+    (:attr:`deferred_share_limit`), and the final phase also reports the winner's agent alone.
+    ``None``: agents act alone (plain BC is always evaluated alone)."""
+    deferred_share_limit: float = 1.0
+    """Largest allowed mean share of an episode's steps on which the expert acted (a
+    constraint with :attr:`handover`; 1: none)."""
+    certify_episodes: int = 0
+    """Fresh episodes of the winner's certification after the final phase: the winner (with
+    its handover, and alone) and the expert on their own block :attr:`certify_seed`, split
+    evenly over the final training seeds; the certificate (crossings and their one-sided
+    bound, reward against the expert, deferred share) is made from these episodes only, which
+    did not choose the winner. 0: no certification (the final phase's episodes certify)."""
+    certify_seed: int = 3
+    """Held-out seed block of the certification (must differ from the trials' and the final
+    phase's)."""
+    collect: Any = None
+    """The demonstration collection the study expects at :attr:`demos` (a
+    :class:`safe_bc.collection.CollectConfig`); ``None``: the task's default collection. It is
+    built when absent and a set made with other settings is refused before any work."""
     selfimprove: SelfImproveConfig | None = None
     """Optional self-imitation stage (:mod:`safe_bc.selfimprove`, expert iteration inside
     ``d_s``): every trained agent's own rollouts, pushed to explore, are kept where they stay
@@ -493,6 +517,18 @@ class StudySpec:
             raise ValueError(f"max_steps must be >= 1 or None, got {self.max_steps}")
         if self.eval_seed == self.final_seed:
             raise ValueError(f"final_seed must differ from eval_seed (both {self.eval_seed})")
+        if self.certify_episodes and self.certify_seed in (self.eval_seed, self.final_seed):
+            raise ValueError(
+                f"certify_seed {self.certify_seed} must differ from eval_seed and final_seed"
+            )
+        if isinstance(self.certify_episodes, bool) or self.certify_episodes < 0:
+            raise ValueError(f"certify_episodes must be >= 0, got {self.certify_episodes!r}")
+        if not (math.isfinite(self.deferred_share_limit) and 0 <= self.deferred_share_limit <= 1):
+            raise ValueError(
+                f"deferred_share_limit must be in [0, 1], got {self.deferred_share_limit!r}"
+            )
+        if self.handover is not None and not isinstance(self.handover, HandoverConfig):
+            raise ValueError(f"handover must be a HandoverConfig or None, got {self.handover!r}")
         if not (self.cpus_per_trial > 0 and self.cpus_per_worker > 0):
             raise ValueError("cpus_per_trial and cpus_per_worker must be > 0")
         if self.baseline not in ("same_network", "default"):
@@ -605,10 +641,20 @@ class StudySpec:
         out["env"] = {f.name: getattr(self.env, f.name) for f in fields(self.env)}
         out["demos"], out["results"] = str(self.demos), str(self.results)
         out["space"] = space
+        out["handover"] = None if self.handover is None else self.handover.to_dict()
+        out["collect"] = None if self.collect is None else _config_json(self.collect)
         for stage in STAGES.values():
             config = getattr(self, stage.field)
             out[stage.field] = None if config is None else config.to_dict()
         return out
+
+
+def _config_json(config: Any) -> Any:
+    """A (nested) config dataclass as JSON-able values."""
+    import json
+    from dataclasses import asdict
+
+    return json.loads(json.dumps(asdict(config), default=str))
 
 
 def _param_dict(p: Param) -> dict[str, Any]:
@@ -669,7 +715,11 @@ def load_study(path: str | Path) -> StudySpec:
 
 CONSTRAINT = "constraint"
 """Column / result key of the larger of the constraints (<= 0 feasible)."""
-CONSTRAINTS = {"safety": "constraint_safety", "violations": "constraint_violation"}
+CONSTRAINTS = {
+    "safety": "constraint_safety",
+    "violations": "constraint_violation",
+    "deferral": "constraint_deferral",
+}
 """Optuna constraint name -> result key; each is handed to Optuna (``<= 0`` feasible)."""
 OBJECTIVE = "reward_mean"
 """The maximised metric."""
@@ -694,8 +744,10 @@ TRIAL_METRICS = (
     "threshold",
     "constraint_safety",
     "constraint_violation",
+    "constraint_deferral",
     "constraint",
     "feasible",
+    "deferred_share",
     "train_loss",
     "train_seconds",
     *STAGE_METRICS,
@@ -738,6 +790,9 @@ class ConstraintBars:
     share of episodes beyond ``d_s`` minus ``violation_share_limit`` (``StudySpec``)."""
     violation_share_limit: float = 0.2
     """Largest allowed upper bound on that share."""
+    deferred_share_limit: float = 1.0
+    """Largest allowed mean share of steps on which the expert acted (``deferred_share``; a
+    policy without a handover defers on none)."""
 
 
 def constraints(metrics: Mapping[str, float], limits: ConstraintBars) -> dict[str, float]:
@@ -748,8 +803,9 @@ def constraints(metrics: Mapping[str, float], limits: ConstraintBars) -> dict[st
     missing.
 
     >>> lim = ConstraintBars(6.0, {"left": 7.0}, 0.0, "per_dim")
-    >>> constraints({"safety_mean": 6.5, "safety_left_mean": 6.8, "violation_rate": 0.0}, lim)
-    {'constraint_safety': 0.2..., 'constraint_violation': 0.0, 'constraint': 0.2...}
+    >>> c = constraints({"safety_mean": 6.5, "safety_left_mean": 6.8, "violation_rate": 0.0}, lim)
+    >>> c["constraint_safety"], c["constraint_violation"], c["constraint_deferral"], c["constraint"]
+    (0.2..., 0.0, -1.0, 0.2...)
     >>> bound = ConstraintBars(6.0, {}, 0.0, violation_bound=0.95, violation_share_limit=0.2)
     >>> m = {"safety_mean": 7.0, "any_violation": 0.0, "episodes": 20}
     >>> round(constraints(m, bound)["constraint_violation"], 4)  # 13.9% - 20%
@@ -765,8 +821,19 @@ def constraints(metrics: Mapping[str, float], limits: ConstraintBars) -> dict[st
     else:
         violation = episode_share_bound(metrics, limits.violation_bound)
         violation -= limits.violation_share_limit
+    deferred = metrics.get("deferred_share", 0.0)
+    deferral = (0.0 if deferred is None or math.isnan(deferred) else float(deferred)) - (
+        limits.deferred_share_limit
+    )
     both = math.nan if math.isnan(safety) or math.isnan(violation) else max(safety, violation)
-    return {"constraint_safety": safety, "constraint_violation": violation, "constraint": both}
+    if not math.isnan(both):
+        both = max(both, deferral)
+    return {
+        "constraint_safety": safety,
+        "constraint_violation": violation,
+        "constraint_deferral": deferral,
+        "constraint": both,
+    }
 
 
 def episode_share_bound(metrics: Mapping[str, float], confidence: float) -> float:

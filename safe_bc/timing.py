@@ -48,6 +48,7 @@ PHASES: dict[str, str] = {
     "final_evaluation": "final phase: evaluating on the fresh tracks",
     "final_summary": "final phase: the summaries and the winner",
     "final_tables": "writing final*.parquet, best.json, pareto.png",
+    "certification": "the winner on its own fresh tracks, and writing recommender/",
     "other": "the rest of the driver (checks, the Tuner's set-up and restore)",
 }
 """The driver's phases, in order, and what each covers."""

@@ -501,6 +501,89 @@ def content_key(root: Path, ids: Sequence[int]) -> str:
     return h.hexdigest()
 
 
+def data_digest(root: Path) -> str:
+    """The content digest of the dataset at ``root``: SHA-256 over its collector settings
+    (:meth:`DatasetMeta.identity`) and, episode by episode in id order, every column's values
+    (the Arrow IPC bytes of the file's table with its schema metadata dropped).
+
+    It names the data, not the files: the provenance embedded in ``dataset.json`` and in every
+    episode file (creation time, revision) is left out, so the same collection made again on
+    another clone (same seeds, settings and package versions) has the same digest, and any
+    changed value, episode added or removed, or other setting changes it. Every file is read
+    whole (a few MB for the default CarRacing set)."""
+    root = Path(root)
+    meta = read_meta(root)
+    h = hashlib.sha256(json.dumps(meta.identity(), sort_keys=True).encode())
+    for i in completed_episodes(root, meta):
+        path = episode_path(root, i)
+        try:
+            table = pq.read_table(path).replace_schema_metadata(None).combine_chunks()
+        except (pa.ArrowException, OSError) as e:
+            raise DatasetError(f"{path}: not a readable Parquet file ({_first_line(e)})") from None
+        sink = pa.BufferOutputStream()
+        with pa.ipc.new_stream(sink, table.schema) as writer:
+            writer.write_table(table)
+        h.update(f"\0{i}\0".encode())
+        h.update(sink.getvalue().to_pybytes())
+    return "sha256:" + h.hexdigest()
+
+
+def dataset_record(root: Path) -> dict[str, Any]:
+    """What a result table records of a dataset it read: its path, content digest
+    (:func:`data_digest`), episode count and collector settings (:meth:`DatasetMeta.identity`)."""
+    root = Path(root)
+    meta = read_meta(root)
+    return {
+        "path": str(root),
+        "digest": data_digest(root),
+        "episodes": len(completed_episodes(root, meta)),
+        "collector": meta.identity(),
+    }
+
+
+def collection_mismatch(
+    root: Path, expected: DatasetMeta, episodes: int | None = None
+) -> str | None:
+    """How the dataset at ``root`` differs from a collection with metadata ``expected`` and
+    ``episodes`` episodes (one line naming each field, stored -> expected), ``None`` when it
+    does not (fewer episodes than ``episodes`` is not a difference: an interrupted collection
+    resumes). No dataset at ``root`` is ``None`` too."""
+    root = Path(root)
+    if not (root / META_FILE).exists():
+        return None
+    stored_meta = read_meta(root)
+    stored, wanted = _flat(stored_meta.identity()), _flat(expected.identity())
+    keys = list(dict.fromkeys([*wanted, *stored]))
+    diff = [f"{k} {_short(stored.get(k))} -> {_short(wanted.get(k))}" for k in keys
+            if stored.get(k) != wanted.get(k)]  # fmt: skip
+    if episodes is not None:
+        n = len(completed_episodes(root, stored_meta))
+        if n > episodes:
+            diff.append(f"episodes {n} -> {episodes}")
+    return "; ".join(diff) or None
+
+
+def _flat(record: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    """Nested settings as dotted keys (``expert.max_speed``), so a message names the field.
+
+    >>> _flat({"a": 1, "b": {"c": 2}})
+    {'a': 1, 'b.c': 2}
+    """
+    out: dict[str, Any] = {}
+    for k, v in record.items():
+        if isinstance(v, dict):
+            out.update(_flat(v, f"{prefix}{k}."))
+        else:
+            out[f"{prefix}{k}"] = v
+    return out
+
+
+def _short(value: Any) -> str:
+    """A setting's value for a one-line message (JSON, cut at 60 characters)."""
+    text = json.dumps(value, sort_keys=True, default=str)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
 def frame_cache(
     root: Path, meta: DatasetMeta, ids: Sequence[int], lengths: Sequence[int]
 ) -> FrameFile:

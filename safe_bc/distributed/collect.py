@@ -9,7 +9,6 @@ duplicated episode.
 
 from __future__ import annotations
 
-import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,7 +19,9 @@ from tqdm.auto import tqdm
 from safe_bc.collection import CollectConfig, EpisodeMaker, config_dict, env_facts
 from safe_bc.data.store import (
     META_FILE,
+    DatasetError,
     DatasetMeta,
+    collection_mismatch,
     completed_episodes,
     init_dataset,
     read_meta,
@@ -158,27 +159,31 @@ def _collect(
 
 def ensure_demos(
     out: Path, config: CollectConfig | None = None, *, progress: bool = True
-) -> CollectReport | None:
-    """Make sure ``out`` holds a demonstration set; build the default one if there is none.
+) -> CollectReport:
+    """Make sure ``out`` holds the demonstration set ``config`` makes (default
+    ``CollectConfig()``, comparable to the paper's ~4,700 pairs from 5 episodes): built when
+    absent, resumed when interrupted, used as it is when complete (then nothing is written, so
+    a read-only folder works).
 
-    The default, ``CollectConfig()``, is comparable to the paper's (~4,700 pairs from
-    5 episodes). A default dataset that was interrupted resumes; a dataset made
-    with other settings (e.g. by ``safe-bc collect``) is used as it is.
-
-    Returns:
-        The collection report, or ``None`` when an existing custom dataset is used.
+    Raises:
+        DatasetError: one line, before any work, when ``out`` holds a set made with other
+            collector settings (renderer, expert, drift, seed, step cap, encoding) or more
+            episodes than ``config`` makes: a run never trains on demonstrations other than
+            those it expects.
     """
     out = Path(out)
     config = config or CollectConfig()
     if (out / META_FILE).exists():
-        stored, wanted = read_meta(out).identity(), dataset_meta(config).identity()
-        if stored != wanted:
-            diff = ", ".join(k for k in wanted if stored.get(k) != wanted.get(k))
-            print(
-                f"{out}: using the dataset there as it is; it differs from the default "
-                f"collection in: {diff}",
-                file=sys.stderr,
+        problem = collection_mismatch(out, dataset_meta(config), config.episodes)
+        if problem:
+            raise DatasetError(
+                f"{out}: these demonstrations were collected with other settings than this run "
+                f"expects ({problem}); point the run at another folder, or move this one away "
+                "and rerun to collect the expected set"
             )
-            return None
+        meta = read_meta(out)
+        done = completed_episodes(out, meta)
+        if len(done) >= config.episodes:
+            return CollectReport(out, [], sorted(done), 0, 0.0, 0)
     out.parent.mkdir(parents=True, exist_ok=True)
     return collect(config, out, progress=progress)

@@ -38,7 +38,13 @@ from safe_bc.compare import (
     render_markdown,
     run_slug,
 )
-from safe_bc.data.store import load_demonstrations, read_meta, read_table, write_table_atomic
+from safe_bc.data.store import (
+    dataset_record,
+    load_demonstrations,
+    read_meta,
+    read_table,
+    write_table_atomic,
+)
 from safe_bc.envs.config import DEFAULT_RENDERER
 from safe_bc.evaluation import EvalConfig, ExpertSource, MaskedSource, NetSource
 from safe_bc.experiment import RunConfig, save_selection, select_for
@@ -468,7 +474,10 @@ def run_comparison(
     sets = _load_sets(c, progress)
     demos = sets[c.demos]
     meta = run_metadata(
-        config=_json(c.to_dict()), train_seeds=list(c.train_seeds), eval_seed=c.eval_seed
+        config=_json(c.to_dict()),
+        train_seeds=list(c.train_seeds),
+        eval_seed=c.eval_seed,
+        inputs={"demos": [dataset_record(path) for path in sets]},
     )
     if command is not None:
         meta["command"] = command

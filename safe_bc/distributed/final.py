@@ -39,7 +39,13 @@ from safe_bc.distributed.final_store import FinalStore, agent_key, key_of
 from safe_bc.distributed.runtime import cluster_cpus, ensure_ray
 from safe_bc.distributed.stop import deferred_stop, stop_point
 from safe_bc.distributed.train import train_many
-from safe_bc.distributed.trial import TrialJob, bounds_for, trial_threads, with_seed
+from safe_bc.distributed.trial import (
+    TrialJob,
+    bounds_for,
+    trial_threads,
+    with_handover,
+    with_seed,
+)
 from safe_bc.evaluation import EvalConfig, ExpertSource, NetSource
 from safe_bc.experiment import RunConfig, train_run
 from safe_bc.metrics import (
@@ -83,6 +89,12 @@ class FinalOutcome:
     seconds: dict[str, float] = dataclasses.field(default_factory=dict)
     """Wall-clock of this run's parts: ``train`` (storing the agents included), ``stages``,
     ``evaluation`` (storing the episodes included); empty when read back from the tables."""
+    agents: dict[tuple[str, int], Any] = dataclasses.field(default_factory=dict)
+    """``(method, training seed)`` -> the evaluated agent's policy source (before its
+    handover), for the certification and the recommender; empty when read back."""
+    models: dict[tuple[str, int], tuple[Any, RunConfig]] = dataclasses.field(default_factory=dict)
+    """``(method, training seed)`` -> the trained net and its run configuration; empty when
+    read back."""
 
 
 def final_workers(spec: StudySpec) -> int:
@@ -196,6 +208,12 @@ def final_phase(
     seconds["stages"] = time.perf_counter() - clock
     clock = time.perf_counter()
 
+    def _evaluated(method: str, seed: int) -> Any:
+        """A candidate with the study's handover (the recommender); plain BC alone."""
+        if spec.handover is None or method == PLAIN_BC:
+            return nets[(method, seed)]
+        return with_handover(nets[(method, seed)], job)
+
     per = spec.final_tracks_per_seed()
     expert = ExpertSource(stored_expert_config(Path(job.demos)))
     parts = []
@@ -203,7 +221,7 @@ def final_phase(
     torch.set_num_threads(threads)  # in-process evaluation: more threads ran slower here
     try:
         for i, s in enumerate(seeds):
-            sources: dict[str, Any] = {f"{m} seed={s}": nets[(m, s)] for m in cfgs}
+            sources: dict[str, Any] = {f"{m} seed={s}": _evaluated(m, s) for m in cfgs}
             sources[f"{EXPERT} block={i}"] = expert
             config = EvalConfig(
                 episodes=per,
@@ -261,6 +279,10 @@ def final_phase(
     table, paired = final_summaries(episodes, cfgs, spec.final_seed)
     order = {m: i for i, m in enumerate([*cfgs, EXPERT])}
     table = table.sort_values("method", key=lambda c: c.map(order)).reset_index(drop=True)
+    if "deferred_share" in episodes:
+        table["deferred_share"] = table["method"].map(
+            episodes.groupby("method")["deferred_share"].mean()
+        )
     cons = pd.DataFrame([constraints(r, job.limits) for r in table.to_dict("records")])
     table = pd.concat([table, cons], axis=1)
     table["feasible"] = table["constraint"] <= 0
@@ -280,8 +302,9 @@ def final_phase(
         )
     configs = {m: c.to_dict() for m, c in cfgs.items()}
     return FinalOutcome(
-        table, episodes, winner, feasible, message, configs, certified, paired, seconds
-    )
+        table, episodes, winner, feasible, message, configs, certified, paired, seconds,
+        agents=dict(nets), models=dict(models),
+    )  # fmt: skip
 
 
 def _agent_identity(
@@ -302,7 +325,10 @@ def _agent_identity(
             (name, dataclasses.asdict(spec.stage_config(name, params, seed=seed)))
             for name, _ in spec.stages()
         ]
-    return ("agent", with_seed(cfg, seed).to_dict(), str(job.demos), stages)
+    what: tuple[Any, ...] = ("agent", with_seed(cfg, seed).to_dict(), str(job.demos), stages)
+    if spec.handover is not None and method != PLAIN_BC:
+        what += (("handover", spec.handover.to_dict()),)
+    return what
 
 
 def bootstrap_labels(cfgs: Mapping[str, RunConfig | Mapping[str, Any]]) -> dict[str, str]:

@@ -11,6 +11,7 @@ the expert and to plain BC on the same tracks) and ``best.json``.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import json
 import math
 import os
@@ -36,6 +37,7 @@ from safe_bc.bc import load_checkpoint
 from safe_bc.bc.net import BCNet
 from safe_bc.data.store import (
     DatasetError,
+    dataset_record,
     delete_storage_tree,
     read_meta,
     read_table,
@@ -124,6 +126,9 @@ class StudyOutcome:
     timing: pd.DataFrame | None = None
     """Where the study's time went (``timing.parquet``, :func:`safe_bc.timing.timing_table`);
     ``None`` when not recorded (a study finished before timings were)."""
+    certificate: dict[str, Any] | None = None
+    """The recommender's certificate (:func:`safe_bc.distributed.certify.certify`), ``None``
+    without a certification."""
 
     @property
     def exit_code(self) -> int:
@@ -660,12 +665,13 @@ def _run_study(
     concurrent = spec.concurrency(cpus)  # how many at once, never which (nothing else reads it)
     _reinstall_signals()  # ray.init replaced the SIGTERM handler
     demos_path = spec.demos.resolve()
+    expected = spec.collect or task_defaults(task_of(spec.env.env_id)).collect_config()
     if not (demos_path / "dataset.json").exists():
-        print(f"{spec.demos}: no demonstrations yet; collecting the default set")
-        task = task_defaults(task_of(spec.env.env_id))
-        ensure_demos(demos_path, task.collect_config(), progress=progress)
+        print(f"{spec.demos}: no demonstrations yet; collecting the set the study expects")
+    ensure_demos(demos_path, expected, progress=progress)  # refuses another collection's set
     _check_env(spec, demos_path)
     demos = cached_demos(str(demos_path))
+    inputs = {"demos": dataset_record(demos_path)}
     clock.lap("demos")
     expert_safety = demos.safety_mean
     threshold = expert_safety if spec.threshold is None else float(spec.threshold)
@@ -676,6 +682,7 @@ def _run_study(
         spec.safety_constraint,
         spec.violation_bound,
         spec.violation_share_limit,
+        spec.deferred_share_limit if spec.handover is not None else 1.0,
     )
     job = TrialJob(spec, str(demos_path), limits, tuple(float(x) for x in demos.limits))
 
@@ -689,6 +696,7 @@ def _run_study(
         "threshold": threshold,
         "limits": list(job.cost_limits),
         "batch_size": spec.batch_size,
+        "demos_digest": inputs["demos"]["digest"],
     }
     _check_resume(out, identity, restoring)
     resources = tune.PlacementGroupFactory(
@@ -784,6 +792,9 @@ def _run_study(
         "safety_constraint": spec.safety_constraint,
         "expert_demo_safety_mean": expert_safety,
         "cost_limits": list(job.cost_limits),
+        "inputs": inputs,
+        "handover": None if spec.handover is None else spec.handover.to_dict(),
+        "deferred_share_limit": spec.deferred_share_limit if spec.handover is not None else None,
         "seeds": {
             "train_seed": spec.base.bc.train.seed,
             "eval_seed": spec.eval_seed,
@@ -791,6 +802,7 @@ def _run_study(
             if len(trials) and trials["eval_seeds"].iloc[0]
             else [],
             "final_seed": spec.final_seed,
+            "certify_seed": spec.certify_seed if spec.certify_episodes else None,
             "sampler_seed": spec.sampler_seed,
         },
         "experiment_path": exp_path,
@@ -834,10 +846,82 @@ def _run_study(
         + (f"winner {final.winner}" if final.feasible else "no candidate feasible"),
     )
     clock.lap("final_tables")
+    certificate = deliver(spec, job, final, meta, store, progress=progress)
+    clock.lap("certification")
     clock.close()
     timing = write_timing(out, trials, meta)
     write_json_atomic(out / FINISHED, _finished_record(spec), default=str)
-    return replace(outcome, winner=winner, final=final, timing=timing)
+    return replace(outcome, winner=winner, final=final, timing=timing, certificate=certificate)
+
+
+RECOMMENDER_DIR = "recommender"
+"""The study's deliverable in ``results/<study>/`` (:mod:`safe_bc.recommender`)."""
+
+
+def deliver(
+    spec: StudySpec,
+    job: TrialJob,
+    final: FinalOutcome,
+    meta: dict[str, Any],
+    store: FinalStore,
+    *,
+    progress: bool = True,
+) -> dict[str, Any] | None:
+    """Certify the final phase's winner on fresh tracks (with ``spec.certify_episodes``;
+    ``certify*.parquet``) and write it as the study's recommender (``recommender/``: its
+    weights per training seed, handover, ``d_s``, the demonstrations' identity, the
+    certificate). Returns the certificate (``None`` without a certification)."""
+    from safe_bc.distributed.certify import certify
+    from safe_bc.distributed.final import final_workers
+    from safe_bc.recommender import RecommenderCard, write_recommender
+
+    out = spec.results / spec.name
+    winner = final.winner
+    if winner is None:
+        return None
+    seeds = sorted(s for (m, s) in final.models if m == winner)
+    certificate: dict[str, Any] = {}
+    if spec.certify_episodes:
+        agents = {s: final.agents[(winner, s)] for s in seeds}
+        cert = certify(
+            spec, job, agents, workers=final_workers(spec), store=store,
+            identity=final.configs.get(winner), progress=progress,
+        )  # fmt: skip
+        cert_meta = {**meta, "certificate": cert.certificate, "winner": winner}
+        write_table_atomic(out / "certify.parquet", cert.table, cert_meta)
+        write_table_atomic(out / "certify_episodes.parquet", cert.episodes, cert_meta)
+        certificate = cert.certificate
+    models = {s: final.models[(winner, s)] for s in seeds}
+    if not all(isinstance(m, BCNet) for m, _ in models.values()):
+        print(f"the winner's agents are not BC nets (a stage changed them): no {RECOMMENDER_DIR}/")
+        return certificate or None
+    demos = meta["inputs"]["demos"]
+    card = RecommenderCard(
+        task=task_of(spec.env.env_id),
+        env=json.loads(json.dumps(dataclasses.asdict(spec.env), default=str)),
+        limits=dict(zip(job_dims(job), (float(x) for x in job.cost_limits), strict=True)),
+        handover=None if spec.handover is None else spec.handover.to_dict(),
+        expert=read_meta(Path(job.demos)).expert,
+        demos={k: demos[k] for k in ("digest", "episodes", "collector", "path")},
+        seeds=seeds,
+        run_config=final.configs.get(winner, {}),
+        source={
+            "study": spec.name,
+            "winner": winner,
+            "command": meta.get("command", ""),
+            "provenance": meta.get("provenance", {}),
+        },
+        certificate=certificate,
+    )
+    write_recommender(
+        out / RECOMMENDER_DIR, card, {s: (m, run.bc) for s, (m, run) in models.items()}
+    )
+    return certificate or None
+
+
+def job_dims(job: TrialJob) -> tuple[str, ...]:
+    """The safety dimensions of the study's task, in the order of its costs."""
+    return task_defaults(task_of(job.spec.env.env_id)).safety_dims
 
 
 FINISHED = "finished.json"
@@ -890,6 +974,16 @@ def finished_outcome(spec: StudySpec) -> StudyOutcome | None:
         str(best.get("message", "")), dict(fmeta.get("configs", {})),
         str(best.get("certified", "")), paired,
     )  # fmt: skip
+    certificate = None
+    if (out / RECOMMENDER_DIR).exists():
+        from safe_bc.recommender import RecommenderError, read_card
+
+        try:
+            certificate = read_card(out / RECOMMENDER_DIR).certificate or None
+        except RecommenderError as e:
+            raise ValueError(
+                f"{e}; delete {out / FINISHED} and rerun the same command to write it again"
+            ) from None
     return StudyOutcome(
         True,
         trials,
@@ -900,6 +994,7 @@ def finished_outcome(spec: StudySpec) -> StudyOutcome | None:
         str(meta.get("experiment_path", "")),
         int((trials["status"] == "error").sum()),
         timing=timing,
+        certificate=certificate,
     )
 
 
@@ -1084,6 +1179,11 @@ def format_outcome(outcome: StudyOutcome, params: Sequence[str]) -> str:
                     f"winner - {r['vs']} (paired, same tracks): reward {r['d_reward']:+.1f} "
                     f"[{r['d_reward_lo']:+.1f}, {r['d_reward_hi']:+.1f}]"
                 )
+    if outcome.certificate:
+        from safe_bc.distributed.certify import certificate_line
+
+        lines.append("the recommender, " + certificate_line(outcome.certificate))
+        lines.append(f"recommender: {outcome.out / RECOMMENDER_DIR}/ (safe_bc.load_recommender)")
     if outcome.timing is not None and len(outcome.timing):
         lines += timing_lines(outcome.timing)
         lines.append(f"where the time went: {outcome.out / 'timing.md'}")

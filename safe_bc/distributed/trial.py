@@ -198,6 +198,9 @@ def trial_values(
     values["reward_lcb"] = lower_bound_crossed(cells, reward_conf)
     values["violation_share_ucb"] = episode_share_bound(values, share_conf)
     values["train_seeds"] = int(tracks["train_seed"].nunique())
+    values["deferred_share"] = (
+        float(episodes["deferred_share"].mean()) if "deferred_share" in episodes else 0.0
+    )
     values.update(constraints(values, limits))
     return values
 
@@ -279,6 +282,8 @@ def round_file(run_cfg: RunConfig, spec: StudySpec, seeds: list[int], first: int
         "eps": spec.critical_eps,
         "stages": [name for name, _ in spec.stages()],
     }
+    if spec.handover is not None:
+        key["handover"] = spec.handover.to_dict()
     text = json.dumps(key, sort_keys=True, default=str)
     return f"{ROUNDS}/{first}_{n}_{hashlib.sha256(text.encode()).hexdigest()[:16]}.parquet"
 
@@ -292,6 +297,18 @@ def stored_round(path: Path) -> tuple[pd.DataFrame, float] | None:
     except DatasetError:
         return None
     return episodes, float(meta.get("eval_seconds", 0.0))
+
+
+def with_handover(source: Any, job: TrialJob) -> Any:
+    """``source`` (an agent) with the study's handover to the demonstrations' expert at their
+    ``d_s``: the recommender the study evaluates."""
+    from safe_bc.collection import stored_expert_config
+    from safe_bc.queries.defer import handover_source
+    from safe_bc.tasks import task_defaults, task_of
+
+    dims = task_defaults(task_of(job.spec.env.env_id)).safety_dims
+    expert = stored_expert_config(Path(job.demos))
+    return handover_source(source, job.spec.handover, expert, job.cost_limits, dims)
 
 
 def with_seed(cfg: RunConfig, seed: int) -> RunConfig:
@@ -381,6 +398,8 @@ def run_trial(config: dict[str, Any], job: TrialJob) -> None:
             per_seed.append(values)
         metrics.update(stage.reduce(per_seed))
 
+    if spec.handover is not None:  # the trial's recommender: the agent with its handover
+        sources = [with_handover(source, job) for source in sources]
     rounds = eval_rounds(spec)
     parts: list[pd.DataFrame] = []
     eval_s = 0.0

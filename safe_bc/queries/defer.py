@@ -130,3 +130,14 @@ class DeferralSource:
         return DeferringPolicy(
             self.agent.build(), expert, zone, self.hold, self.lookahead, self.hold_on
         )
+
+
+def handover_source(
+    agent: Any, handover: Any, expert: Any, limits: Any, dims: tuple[str, ...]
+) -> DeferralSource:
+    """``agent`` (a policy source) with ``handover`` (a :class:`safe_bc.handover.HandoverConfig`)
+    to ``expert`` (its config) at the limits ``d_s`` of a task with safety dimensions ``dims``."""
+    return DeferralSource(
+        agent, expert, tuple(float(x) for x in limits), float(handover.width), "any",
+        int(handover.hold), int(handover.lookahead), dimension_indices(handover.hold_on, dims),
+    )  # fmt: skip

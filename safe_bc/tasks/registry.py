@@ -140,6 +140,10 @@ class TaskSpec:
     """Whether the paper reports a Table 1 for this task (``reproduce`` compares with it)."""
     drawing: Drawing | None = None
     """How ``safe-bc render`` draws its episodes; ``None``: it cannot be rendered."""
+    handover: Any = None
+    """The critical-zone handover a recommender of this task uses by default (a
+    :class:`safe_bc.handover.HandoverConfig`, in the cost's units, chosen by a committed
+    measurement on the task's selection tracks); ``None``: none measured yet."""
 
     def __post_init__(self) -> None:
         if not self.name or not self.env.env_id:

@@ -23,6 +23,7 @@ from __future__ import annotations
 import gymnasium as gym
 
 from safe_bc.envs.config import EnvConfig, Renderer
+from safe_bc.handover import HandoverConfig
 from safe_bc.selection import DEFAULT_EPS
 from safe_bc.tasks.carracing.costs import SAFETY_DIMS, frame_costs
 from safe_bc.tasks.carracing.draw import DRAWING
@@ -79,5 +80,9 @@ SPEC = TaskSpec(
     has_renderer=True,
     paper_table1=True,
     drawing=DRAWING,
+    # results/selfimprove/carracing/defer_corner_selection.md: the choice on 3 x 150 selection
+    # tracks by the rule fixed before the run (zero crossings, fewest steps deferred), then
+    # 0 of 300 fresh episodes beyond d_s on two blocks (defer_corner*.md)
+    handover=HandoverConfig(2.0, lookahead=6, hold=6, hold_on=("front",)),
 )
 """The CarRacing entry of :data:`safe_bc.tasks.TASKS`."""

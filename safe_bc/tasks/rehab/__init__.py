@@ -11,6 +11,7 @@ and no action perturbation (``PerturbationConfig(mode="none")``).
 from __future__ import annotations
 
 from safe_bc.envs.config import EnvConfig
+from safe_bc.handover import HandoverConfig
 from safe_bc.tasks.carracing.perturb import PerturbationConfig
 from safe_bc.tasks.registry import GymEnv, TaskSpec
 from safe_bc.tasks.rehab.env import DEFAULT_N_SESSIONS, REHAB_SAFETY_DIMS, observed_costs
@@ -34,5 +35,8 @@ SPEC = TaskSpec(
     action_bounds=((-1.0, -1.0), (1.0, 1.0)),
     safety_dims=REHAB_SAFETY_DIMS,
     observed_costs=observed_costs,
+    # results/queries/rehab/summary.md: the smallest width of {0.025, 0.05, 0.1, 0.2} with no
+    # selection programme beyond d_s, else the largest (none reached zero: 0.2, 1 of 600)
+    handover=HandoverConfig(0.2),
 )
 """The rehabilitation entry of :data:`safe_bc.tasks.TASKS`."""
