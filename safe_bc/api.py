@@ -174,6 +174,7 @@ def evaluate(job: EvaluateJob) -> Done:
     from safe_bc.evaluation import EvalConfig, NetSource
     from safe_bc.metrics import METRICS
     from safe_bc.provenance import run_metadata
+    from safe_bc.report import estimate_lines
     from safe_bc.tasks import check_net_fits_task, task_defaults, task_of
 
     check_output_folder(job.out)
@@ -233,12 +234,7 @@ def evaluate(job: EvaluateJob) -> Done:
     write_table_atomic(job.out / "episodes.parquet", episodes, meta)
     write_table_atomic(job.out / "steps.parquet", steps, meta)
     write_table_atomic(job.out / "summary.parquet", table, meta)
-    r = table.iloc[0]
-    lines = [
-        f"{m:>15}: {r[m]:9.3f}  95% CI [{r[m + '_lo']:.3f}, {r[m + '_hi']:.3f}]"
-        for m in METRICS
-        if m in table
-    ]
+    lines = estimate_lines(table.iloc[0], [m for m in METRICS if m in table], len(episodes))
     if job.defer_width is not None:
         share = float(episodes["deferred_share"].mean())
         lines.append(
@@ -261,7 +257,7 @@ def expert(job: ExpertJob) -> Done:
     from safe_bc.evaluation import EvalConfig, ExpertSource
     from safe_bc.metrics import METRICS
     from safe_bc.provenance import run_metadata
-    from safe_bc.report import markdown_table
+    from safe_bc.report import MIN_EPISODES_FOR_INTERVAL, markdown_table
     from safe_bc.tasks import task_defaults
 
     check_output_folder(job.out)
@@ -295,8 +291,12 @@ def expert(job: ExpertJob) -> Done:
     write_table_atomic(job.out / "expert.parquet", table, meta)
     r = table.iloc[0]
     dims = ", ".join(f"{d} {x:.2f}" for d, x in zip(demos.safety_dims, limits, strict=True))
-    cells = [[m, f"{r[m]:.2f}", f"[{r[m + '_lo']:.2f}, {r[m + '_hi']:.2f}]"] for m in metrics]
-    lines = [markdown_table(cells, ["metric", "mean", "95% CI"])]
+    if len(episodes) < MIN_EPISODES_FOR_INTERVAL:
+        cells = [[m, f"{r[m]:.2f}"] for m in metrics]
+        lines = [markdown_table(cells, ["metric", "mean"]), "", "too few episodes for an interval"]
+    else:
+        cells = [[m, f"{r[m]:.2f}", f"[{r[m + '_lo']:.2f}, {r[m + '_hi']:.2f}]"] for m in metrics]
+        lines = [markdown_table(cells, ["metric", "mean", "95% CI"])]
     lines += [
         "",
         f"{len(episodes)} held-out episodes (seeds {episodes['env_seed'].min()}..."

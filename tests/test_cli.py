@@ -344,4 +344,6 @@ def test_collect_train_evaluate_through_the_cli(ray_session, tmp_path: Path, cap
             "--out", str(out), "--quiet"]  # fmt: skip
     assert main(argv) == 0
     assert len(pd.read_parquet(out / "episodes.parquet")) == 2
-    assert "safety_mean" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "safety_mean" in printed and "too few episodes for an interval" in printed
+    assert "95% CI" not in printed  # two episodes: the means alone
