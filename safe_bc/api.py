@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import sys
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -153,13 +154,16 @@ def _train(job: TrainJob, task_eps: bool) -> Done:
     meta = run_metadata(
         demos=str(job.demos), env_id=env_id, run=run.to_dict(), train=result.summary()
     )
+    before = set(os.listdir(job.out)) if job.out.is_dir() else set()
     with checkpoint_unit(job.out) as unit:  # weights, config and selection: old or new, whole
         result.save(unit, extra=json.loads(json.dumps(meta, default=str)))
         save_selection(unit, demos, selection, meta)
+    dropped = sorted(before - set(os.listdir(job.out)))  # evaluations of the replaced weights
+    note = f"; removed {', '.join(dropped)}, evaluated other weights" if dropped else ""
     return Done(
         f"{job.out}: trained {run.bc.train.batches} batches, final loss "
         f"{result.final_loss:.4f}, {result.samples_per_s:.0f} samples/s; "
-        f"|T_eps| = {selection.n_critical} of {selection.n_valid} scored pairs",
+        f"|T_eps| = {selection.n_critical} of {selection.n_valid} scored pairs{note}",
         (result, selection),
     )
 
@@ -169,6 +173,7 @@ def evaluate(job: EvaluateJob) -> Done:
     import numpy as np
 
     from safe_bc.bc import load_checkpoint, read_checkpoint_meta
+    from safe_bc.bc.checkpoint import EVALUATED_WEIGHTS
     from safe_bc.data.store import read_table, write_table_atomic
     from safe_bc.distributed.evaluate import evaluate as run_evaluate
     from safe_bc.evaluation import EvalConfig, NetSource
@@ -179,7 +184,8 @@ def evaluate(job: EvaluateJob) -> Done:
 
     check_output_folder(job.out)
     model, bc_cfg = load_checkpoint(job.checkpoint)
-    extra = read_checkpoint_meta(job.checkpoint).get("extra", {})
+    checkpoint_meta = read_checkpoint_meta(job.checkpoint)
+    extra = checkpoint_meta.get("extra", {})
     _, sel_meta = read_table(job.checkpoint / "selection.parquet")
     if "env_id" not in extra:
         raise ValueError(f"{job.checkpoint}: no env_id in the checkpoint; train with safe-bc train")
@@ -229,6 +235,7 @@ def evaluate(job: EvaluateJob) -> Done:
         trained_with=extra.get("run"),
         eval_seed=job.eval_seed,
         env_seeds=episodes["env_seed"].tolist(),
+        **{EVALUATED_WEIGHTS: checkpoint_meta.get("weights_sha256")},
     )
     job.out.mkdir(parents=True, exist_ok=True)
     write_table_atomic(job.out / "episodes.parquet", episodes, meta)
