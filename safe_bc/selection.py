@@ -545,11 +545,15 @@ def improper_subset_message(selection: Selection) -> str | None:
         return None
     names = selection.safety_dims or tuple(f"c{j}" for j in range(len(selection.thresholds)))
     limits = ", ".join(f"{n}={d:.4g}" for n, d in zip(names, selection.thresholds, strict=True))
-    what = "no scored row" if fraction == 0.0 else "every scored row"
+    what, effect = (
+        ("no scored row", "cannot be drawn")
+        if fraction == 0.0
+        else ("every scored row", "has no effect")
+    )
     return (
         f"T_eps holds {what} ({selection.n_critical} of {selection.n_valid}, critical "
         f"fraction {fraction:g}) at eps={config.eps:g} (combine={config.combine!r}), so "
-        f"alpha={config.alpha:g} has no effect; the cost scale: d_s {limits}; choose an eps "
+        f"alpha={config.alpha:g} {effect}; the cost scale: d_s {limits}; choose an eps "
         f"that leaves some scored rows on each side"
     )
 

@@ -504,7 +504,7 @@ def test_every_row_critical_warns_with_eps_fraction_and_limits():
     message = str(caught[0].message)
     assert "\n" not in message
     assert "every scored row (10 of 10, critical fraction 1)" in message
-    assert "eps=20" in message and "alpha=0.3" in message
+    assert "eps=20" in message and "alpha=0.3 has no effect" in message
     assert "d_s left=9, right=9" in message  # the warm-up rows' 100 set no limit
 
 
@@ -515,6 +515,7 @@ def test_empty_t_eps_warns_with_alpha_and_names_it():
     assert sel.n_critical == 0
     message = improper_subset_message(sel)
     assert message is not None and "no scored row (0 of 10, critical fraction 0)" in message
+    assert "alpha=1 cannot be drawn" in message
     assert "combine='all'" in message and "d_s c0=9, c1=9" in message
 
 
