@@ -5,6 +5,10 @@ BIN := $(VENV)/bin
 STUDY ?= default
 TRIALS ?=
 ARGS ?=
+# where `make demos` writes the description of data/demos: an untracked folder, so a local
+# collection does not rewrite the committed results/demos (`make demos DESCRIBE=results/demos`
+# refreshes those on purpose)
+DESCRIBE ?= runs/demos_describe
 STAMP := $(VENV)/.installed
 
 .PHONY: install test test-slow lint format bench tune reproduce demos expert ablation renderer clean
@@ -38,7 +42,7 @@ bench: $(STAMP)
 demos: $(STAMP)
 	mkdir -p data
 	$(BIN)/safe-bc collect --out data/demos
-	$(BIN)/safe-bc describe --demos data/demos --out results/demos
+	$(BIN)/safe-bc describe --demos data/demos --out $(DESCRIBE)
 
 expert: $(STAMP)
 	$(BIN)/safe-bc expert --episodes 50 --out results/expert

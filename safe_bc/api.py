@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import sys
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -153,13 +154,16 @@ def _train(job: TrainJob, task_eps: bool) -> Done:
     meta = run_metadata(
         demos=str(job.demos), env_id=env_id, run=run.to_dict(), train=result.summary()
     )
+    before = set(os.listdir(job.out)) if job.out.is_dir() else set()
     with checkpoint_unit(job.out) as unit:  # weights, config and selection: old or new, whole
         result.save(unit, extra=json.loads(json.dumps(meta, default=str)))
         save_selection(unit, demos, selection, meta)
+    dropped = sorted(before - set(os.listdir(job.out)))  # evaluations of the replaced weights
+    note = f"; removed {', '.join(dropped)}, evaluated other weights" if dropped else ""
     return Done(
         f"{job.out}: trained {run.bc.train.batches} batches, final loss "
         f"{result.final_loss:.4f}, {result.samples_per_s:.0f} samples/s; "
-        f"|T_eps| = {selection.n_critical} of {selection.n_valid} scored pairs",
+        f"|T_eps| = {selection.n_critical} of {selection.n_valid} scored pairs{note}",
         (result, selection),
     )
 
@@ -169,16 +173,19 @@ def evaluate(job: EvaluateJob) -> Done:
     import numpy as np
 
     from safe_bc.bc import load_checkpoint, read_checkpoint_meta
+    from safe_bc.bc.checkpoint import EVALUATED_WEIGHTS
     from safe_bc.data.store import read_table, write_table_atomic
     from safe_bc.distributed.evaluate import evaluate as run_evaluate
     from safe_bc.evaluation import EvalConfig, NetSource
     from safe_bc.metrics import METRICS
     from safe_bc.provenance import run_metadata
+    from safe_bc.report import estimate_lines
     from safe_bc.tasks import check_net_fits_task, task_defaults, task_of
 
     check_output_folder(job.out)
     model, bc_cfg = load_checkpoint(job.checkpoint)
-    extra = read_checkpoint_meta(job.checkpoint).get("extra", {})
+    checkpoint_meta = read_checkpoint_meta(job.checkpoint)
+    extra = checkpoint_meta.get("extra", {})
     _, sel_meta = read_table(job.checkpoint / "selection.parquet")
     if "env_id" not in extra:
         raise ValueError(f"{job.checkpoint}: no env_id in the checkpoint; train with safe-bc train")
@@ -228,17 +235,13 @@ def evaluate(job: EvaluateJob) -> Done:
         trained_with=extra.get("run"),
         eval_seed=job.eval_seed,
         env_seeds=episodes["env_seed"].tolist(),
+        **{EVALUATED_WEIGHTS: checkpoint_meta.get("weights_sha256")},
     )
     job.out.mkdir(parents=True, exist_ok=True)
     write_table_atomic(job.out / "episodes.parquet", episodes, meta)
     write_table_atomic(job.out / "steps.parquet", steps, meta)
     write_table_atomic(job.out / "summary.parquet", table, meta)
-    r = table.iloc[0]
-    lines = [
-        f"{m:>15}: {r[m]:9.3f}  95% CI [{r[m + '_lo']:.3f}, {r[m + '_hi']:.3f}]"
-        for m in METRICS
-        if m in table
-    ]
+    lines = estimate_lines(table.iloc[0], [m for m in METRICS if m in table], len(episodes))
     if job.defer_width is not None:
         share = float(episodes["deferred_share"].mean())
         lines.append(
@@ -261,7 +264,7 @@ def expert(job: ExpertJob) -> Done:
     from safe_bc.evaluation import EvalConfig, ExpertSource
     from safe_bc.metrics import METRICS
     from safe_bc.provenance import run_metadata
-    from safe_bc.report import markdown_table
+    from safe_bc.report import MIN_EPISODES_FOR_INTERVAL, markdown_table
     from safe_bc.tasks import task_defaults
 
     check_output_folder(job.out)
@@ -295,8 +298,12 @@ def expert(job: ExpertJob) -> Done:
     write_table_atomic(job.out / "expert.parquet", table, meta)
     r = table.iloc[0]
     dims = ", ".join(f"{d} {x:.2f}" for d, x in zip(demos.safety_dims, limits, strict=True))
-    cells = [[m, f"{r[m]:.2f}", f"[{r[m + '_lo']:.2f}, {r[m + '_hi']:.2f}]"] for m in metrics]
-    lines = [markdown_table(cells, ["metric", "mean", "95% CI"])]
+    if len(episodes) < MIN_EPISODES_FOR_INTERVAL:
+        cells = [[m, f"{r[m]:.2f}"] for m in metrics]
+        lines = [markdown_table(cells, ["metric", "mean"]), "", "too few episodes for an interval"]
+    else:
+        cells = [[m, f"{r[m]:.2f}", f"[{r[m + '_lo']:.2f}, {r[m + '_hi']:.2f}]"] for m in metrics]
+        lines = [markdown_table(cells, ["metric", "mean", "95% CI"])]
     lines += [
         "",
         f"{len(episodes)} held-out episodes (seeds {episodes['env_seed'].min()}..."

@@ -19,7 +19,7 @@ import json
 import os
 import shutil
 import tempfile
-from collections.abc import Collection, Iterator
+from collections.abc import Callable, Collection, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import IO, Any
@@ -124,11 +124,20 @@ def _fsync_dir(path: Path) -> None:
         os.close(fd)
 
 
-def _carry(old: Path, new: Path, unit: Collection[str]) -> None:
-    """Move the entries of ``old`` that are not part of the unit and that ``new`` lacks (e.g.
-    an evaluation folder kept inside a checkpoint folder) into ``new``."""
+Keep = Callable[[Path, Path, Path], bool]
+"""``keep(entry, old, new)``: whether ``entry``, an entry of the replaced folder ``old`` that is
+not part of the unit, moves into the new folder ``new``; one it refuses is removed with
+``old``."""
+
+
+def _carry(old: Path, new: Path, unit: Collection[str], keep: Keep | None = None) -> None:
+    """Move the entries of ``old`` that are not part of the unit, that ``new`` lacks and that
+    ``keep`` (when given) accepts (e.g. an evaluation folder kept inside a checkpoint folder)
+    into ``new``."""
     for entry in sorted(old.iterdir()):
-        if entry.name not in unit and not os.path.lexists(new / entry.name):
+        if entry.name in unit or os.path.lexists(new / entry.name):
+            continue
+        if keep is None or keep(entry, old, new):
             os.rename(entry, new / entry.name)
 
 
@@ -141,22 +150,25 @@ def _leftovers(path: Path) -> list[Path]:
     )
 
 
-def recover_dir(path: str | Path, unit: Collection[str] = ()) -> None:
+def recover_dir(path: str | Path, unit: Collection[str] = (), keep: Keep | None = None) -> None:
     """Finish what an interrupted :func:`atomic_dir` of ``path`` left: a folder moved aside
-    and not replaced is moved back, entries that were being carried over are carried, and the
-    temporary folders are removed. Call it holding ``path``'s lock (:mod:`safe_bc.locks`)."""
+    and not replaced is moved back, entries that were being carried over are carried (those
+    ``keep`` accepts), and the temporary folders are removed. Call it holding ``path``'s lock
+    (:mod:`safe_bc.locks`)."""
     path = Path(path)
     for stale in _leftovers(path):
         if stale.name.startswith(f".{path.name}.old-") and not os.path.lexists(path):
             os.rename(stale, path)  # the old unit, moved aside before a crash
             continue
         if os.path.isdir(path):
-            _carry(stale, path, unit)
+            _carry(stale, path, unit, keep)
         shutil.rmtree(stale)
 
 
 @contextmanager
-def atomic_dir(path: str | Path, unit: Collection[str] = ()) -> Iterator[Path]:
+def atomic_dir(
+    path: str | Path, unit: Collection[str] = (), keep: Keep | None = None
+) -> Iterator[Path]:
     """Yield an empty temporary folder beside ``path``; on a clean exit it replaces ``path``.
 
     Readers see the old folder or the new one whole: the swap is one
@@ -164,7 +176,8 @@ def atomic_dir(path: str | Path, unit: Collection[str] = ()) -> Iterator[Path]:
     renames (a crash between them leaves ``path`` missing until the next write to it, which
     moves the old folder back: :func:`recover_dir`). Entries of the old folder whose names
     are not in ``unit`` and that the new one lacks (an ``eval/`` folder inside a checkpoint
-    folder) are moved into the new one; on any error the temporary folder is removed and
+    folder) are moved into the new one, unless ``keep`` (``keep(entry, old, new)``) refuses
+    them: those go with the old folder. On any error the temporary folder is removed and
     ``path`` is left as it was. Meant for a writer that holds ``path``'s lock.
 
     >>> import tempfile
@@ -186,7 +199,7 @@ def atomic_dir(path: str | Path, unit: Collection[str] = ()) -> Iterator[Path]:
     if path.resolve() in (Path.cwd(), *Path.cwd().parents):
         raise ValueError(f"{path} is the working folder or one above it; name an output folder")
     path.parent.mkdir(parents=True, exist_ok=True)
-    recover_dir(path, unit)
+    recover_dir(path, unit, keep)
     staging = Path(tempfile.mkdtemp(prefix=f".{path.name}.new-", dir=path.parent))
     try:
         yield staging
@@ -212,5 +225,5 @@ def atomic_dir(path: str | Path, unit: Collection[str] = ()) -> Iterator[Path]:
         os.rename(staging, path)
     _fsync_dir(path.parent)
     # from here an error leaves the old folder beside ``path`` for recover_dir to finish
-    _carry(old, path, unit)
+    _carry(old, path, unit, keep)
     shutil.rmtree(old)

@@ -31,6 +31,7 @@ sampled by :class:`WeightedBatchSampler` instead of the alpha mix:
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any, Literal, Protocol, get_args
@@ -54,6 +55,11 @@ The one place this number is written."""
 
 class SelectionError(ValueError):
     """The data cannot support the requested selection (no valid rows, empty pool, ...)."""
+
+
+class CriticalSubsetWarning(UserWarning):
+    """The alpha mix cannot focus: ``T_eps`` holds none or all of the scored rows, so eps does
+    not fit the demonstrations' cost scale (:func:`warn_if_improper_subset`)."""
 
 
 def _check_choice(name: str, value: object, options: tuple[str, ...]) -> None:
@@ -521,6 +527,42 @@ class Selection:
             out["n_segments"] = len(np.unique(self.segments[inside]))
             out["n_safe_segments"] = len(np.unique(self.segments[self.weights > 0]))
         return out
+
+
+def improper_subset_message(selection: Selection) -> str | None:
+    """One line saying why the mix has no effect, or ``None`` when it can have one.
+
+    The alpha mix (``mode="mix"``) changes a batch only when ``T_eps`` is a proper subset of
+    the scored rows: with none critical, ``alpha > 0`` cannot be drawn (the sampler refuses
+    it); with all critical, every batch is plain BC whatever ``alpha`` is. ``alpha = 0`` and
+    the baselines (which ignore ``alpha``) are never flagged.
+    """
+    config = selection.config
+    if config.mode != "mix" or config.alpha == 0.0 or selection.n_valid == 0:
+        return None
+    fraction = selection.n_critical / selection.n_valid
+    if 0.0 < fraction < 1.0:
+        return None
+    names = selection.safety_dims or tuple(f"c{j}" for j in range(len(selection.thresholds)))
+    limits = ", ".join(f"{n}={d:.4g}" for n, d in zip(names, selection.thresholds, strict=True))
+    what, effect = (
+        ("no scored row", "cannot be drawn")
+        if fraction == 0.0
+        else ("every scored row", "has no effect")
+    )
+    return (
+        f"T_eps holds {what} ({selection.n_critical} of {selection.n_valid}, critical "
+        f"fraction {fraction:g}) at eps={config.eps:g} (combine={config.combine!r}), so "
+        f"alpha={config.alpha:g} {effect}; the cost scale: d_s {limits}; choose an eps "
+        f"that leaves some scored rows on each side"
+    )
+
+
+def warn_if_improper_subset(selection: Selection) -> None:
+    """Emit one :class:`CriticalSubsetWarning` when :func:`improper_subset_message` has one."""
+    message = improper_subset_message(selection)
+    if message is not None:
+        warnings.warn(message, CriticalSubsetWarning, stacklevel=2)
 
 
 def select(

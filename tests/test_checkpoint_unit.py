@@ -16,7 +16,12 @@ import torch
 from safe_bc import atomic
 from safe_bc.atomic import recover_dir
 from safe_bc.bc import BCConfig, BCNet, CheckpointError, ModelSpec, load_checkpoint, save_checkpoint
-from safe_bc.bc.checkpoint import UNIT, check_checkpoint_files, checkpoint_unit
+from safe_bc.bc.checkpoint import (
+    EVALUATED_WEIGHTS,
+    UNIT,
+    check_checkpoint_files,
+    checkpoint_unit,
+)
 from safe_bc.cli import main
 from safe_bc.data.store import read_table, write_table_atomic
 
@@ -110,7 +115,7 @@ def test_a_crash_after_the_swap_carries_the_rest_on_the_next_write(
     _write(ckpt, 1)
     (ckpt / "eval").mkdir()
 
-    def killed(old, new, unit):
+    def killed(old, new, unit, keep):
         raise KeyboardInterrupt
 
     monkeypatch.setattr(atomic, "_carry", killed)
@@ -219,3 +224,90 @@ def test_an_edited_config_json_is_caught_by_its_own_checksum(tmp_path: Path) -> 
     (tmp_path / "config.json").write_text(json.dumps(meta))
     with pytest.raises(CheckpointError, match=r"config\.json does not match the sha256"):
         load_checkpoint(tmp_path)
+
+
+# --- evaluations kept in a checkpoint folder ---------------------------------------------
+
+
+def _evaluation(folder: Path, **meta: object) -> Path:
+    """A ``safe-bc evaluate`` folder whose tables carry ``meta``."""
+    for name in ("episodes.parquet", "summary.parquet"):
+        write_table_atomic(folder / name, pd.DataFrame({"reward": [1.0]}), dict(meta))
+    return folder
+
+
+def test_an_evaluation_of_the_replaced_weights_goes_with_them(tmp_path: Path) -> None:
+    ckpt = tmp_path / "ckpt"
+    old = _write(ckpt, 1)
+    _evaluation(ckpt / "eval", **{EVALUATED_WEIGHTS: old})
+    _evaluation(ckpt / "other", **{EVALUATED_WEIGHTS: "f" * 64})  # of weights never here
+    (ckpt / "notes").mkdir()
+    new = _write(ckpt, 2)
+    assert new != old and _seed_of(ckpt) == 2
+    assert _names(ckpt) == ["config.json", "notes", "other", "selection.parquet", "weights.pt"]
+    assert _names(tmp_path) == ["ckpt"]
+
+
+def test_an_evaluation_stays_when_the_same_weights_are_written_again(tmp_path: Path) -> None:
+    ckpt = tmp_path / "ckpt"
+    old = _write(ckpt, 1)
+    _evaluation(ckpt / "eval", **{EVALUATED_WEIGHTS: old})
+    assert _write(ckpt, 1) == old
+    assert (ckpt / "eval" / "summary.parquet").is_file()
+
+
+def test_an_older_evaluation_is_told_by_the_checkpoint_folder_it_names(tmp_path: Path) -> None:
+    """Evaluations written before the weights were recorded name the checkpoint folder: one of
+    this folder goes with its weights, one of another folder (or none named) stays."""
+    ckpt = tmp_path / "ckpt"
+    _write(ckpt, 1)
+    _evaluation(ckpt / "eval", checkpoint=str(ckpt))
+    _evaluation(ckpt / "elsewhere", checkpoint=str(tmp_path / "another"))
+    _evaluation(ckpt / "unnamed")
+    _write(ckpt, 2)
+    assert _names(ckpt) == [
+        "config.json",
+        "elsewhere",
+        "selection.parquet",
+        "unnamed",
+        "weights.pt",
+    ]
+
+
+def test_a_crash_after_the_swap_does_not_bring_a_stale_evaluation_back(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    ckpt = tmp_path / "ckpt"
+    old = _write(ckpt, 1)
+    _evaluation(ckpt / "eval", **{EVALUATED_WEIGHTS: old})
+
+    def killed(old, new, unit, keep):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(atomic, "_carry", killed)
+    with pytest.raises(KeyboardInterrupt):
+        _write(ckpt, 2)
+    monkeypatch.undo()
+    assert _seed_of(ckpt) == 2 and len(_names(tmp_path)) == 2  # the old unit left beside it
+    _write(ckpt, 2)  # the next write finishes the last one first
+    assert "eval" not in _names(ckpt) and _names(tmp_path) == ["ckpt"]
+
+
+def test_cli_retraining_removes_the_evaluation_of_the_old_weights(
+    rehab_demos: Path, tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    ckpt = tmp_path / "ckpt"
+    argv = ["train", "--demos", str(rehab_demos), "--out", str(ckpt), "--bc.train.batches", "3",
+            "--bc.network.hidden", "8", "--quiet"]  # fmt: skip
+    assert main(argv) == 0
+    evaluate = ["evaluate", "--checkpoint", str(ckpt), "--out", str(ckpt / "eval"),
+                "--episodes", "1", "--workers", "0", "--quiet"]  # fmt: skip
+    assert main(evaluate) == 0
+    _, meta = read_table(ckpt / "eval" / "summary.parquet")
+    assert meta[EVALUATED_WEIGHTS] == check_checkpoint_files(ckpt)["weights_sha256"]
+    capsys.readouterr()
+    assert main(argv) == 0  # the same weights again: the evaluation still holds
+    assert (ckpt / "eval").is_dir() and "removed" not in capsys.readouterr().out
+    assert main([*argv, "--seed", "1"]) == 0
+    assert "removed eval, evaluated other weights" in capsys.readouterr().out
+    assert _names(ckpt) == ["config.json", "selection.parquet", "weights.pt"]

@@ -344,4 +344,18 @@ def test_collect_train_evaluate_through_the_cli(ray_session, tmp_path: Path, cap
             "--out", str(out), "--quiet"]  # fmt: skip
     assert main(argv) == 0
     assert len(pd.read_parquet(out / "episodes.parquet")) == 2
-    assert "safety_mean" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "safety_mean" in printed and "too few episodes for an interval" in printed
+    assert "95% CI" not in printed  # two episodes: the means alone
+
+
+def test_expert_from_few_episodes_reports_means_without_an_interval(
+    rehab_demos: Path, tmp_path: Path, capsys
+) -> None:
+    out = tmp_path / "expert"
+    argv = ["expert", "--env", "rehab", "--demos", str(rehab_demos), "--episodes", "2",
+            "--workers", "0", "--out", str(out), "--quiet"]  # fmt: skip
+    assert main(argv) == 0
+    printed = capsys.readouterr().out
+    assert "too few episodes for an interval" in printed and "95% CI" not in printed
+    assert (out / "expert.md").read_text().strip() == printed.strip()

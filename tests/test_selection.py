@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import warnings
 
 import numpy as np
 import pytest
@@ -11,6 +12,7 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
 from safe_bc.selection import (
+    CriticalSubsetWarning,
     MixedBatchSampler,
     SelectionConfig,
     SelectionError,
@@ -18,12 +20,14 @@ from safe_bc.selection import (
     cost_weights,
     critical_dims,
     critical_mask,
+    improper_subset_message,
     limit_margins,
     n_critical_per_batch,
     safe_segment_rows,
     segment_ids,
     select,
     thresholds,
+    warn_if_improper_subset,
 )
 
 FAST = settings(max_examples=60, deadline=None)
@@ -478,3 +482,55 @@ def test_every_selection_mode_has_a_complete_rule():
             assert sel.weights is None
         else:
             assert sel.weights.shape == (200,) and (sel.weights >= 0).all()
+
+
+# --- T_eps that is no proper subset -----------------------------------------------------
+
+
+def _two_dim_costs() -> tuple[np.ndarray, np.ndarray]:
+    """10 scored rows (left 0..9, right 9..0) behind 2 warm-up rows of cost 100."""
+    left = np.arange(10, dtype=np.float64)
+    costs = np.concatenate([np.full((2, 2), 100.0), np.stack([left, 9 - left], 1)])
+    return costs, np.arange(12) >= 2
+
+
+def test_every_row_critical_warns_with_eps_fraction_and_limits():
+    costs, valid = _two_dim_costs()
+    sel = select(costs, SelectionConfig(eps=20.0, alpha=0.3), valid, ("left", "right"))
+    assert sel.n_critical == sel.n_valid == 10
+    with pytest.warns(CriticalSubsetWarning) as caught:
+        warn_if_improper_subset(sel)
+    assert len(caught) == 1
+    message = str(caught[0].message)
+    assert "\n" not in message
+    assert "every scored row (10 of 10, critical fraction 1)" in message
+    assert "eps=20" in message and "alpha=0.3 has no effect" in message
+    assert "d_s left=9, right=9" in message  # the warm-up rows' 100 set no limit
+
+
+def test_empty_t_eps_warns_with_alpha_and_names_it():
+    costs, valid = _two_dim_costs()
+    # combine="all": no scored row is near both limits (left + right = 9)
+    sel = select(costs, SelectionConfig(eps=1.0, alpha=1.0, combine="all"), valid)
+    assert sel.n_critical == 0
+    message = improper_subset_message(sel)
+    assert message is not None and "no scored row (0 of 10, critical fraction 0)" in message
+    assert "alpha=1 cannot be drawn" in message
+    assert "combine='all'" in message and "d_s c0=9, c1=9" in message
+
+
+@pytest.mark.parametrize(
+    "config",
+    [
+        SelectionConfig(eps=1.0, alpha=0.5),  # a proper subset
+        SelectionConfig(eps=20.0, alpha=0.0),  # everything critical, but plain BC anyway
+        SelectionConfig(eps=20.0, mode="cost_weighted"),  # the baselines ignore alpha
+    ],
+)
+def test_no_warning_when_the_mix_can_focus_or_alpha_is_unused(config):
+    costs, valid = _two_dim_costs()
+    sel = select(costs, config, valid)
+    assert improper_subset_message(sel) is None
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", CriticalSubsetWarning)
+        warn_if_improper_subset(sel)

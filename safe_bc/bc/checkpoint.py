@@ -33,7 +33,13 @@ CONFIG = "config.json"
 SELECTION = "selection.parquet"
 UNIT = (WEIGHTS, CONFIG, SELECTION)
 """The files of a checkpoint unit; anything else in the folder (an ``eval/`` folder) is kept
-when the unit is rewritten."""
+when the unit is rewritten, except an evaluation of the replaced weights when the new
+weights differ (:func:`keeps_entry`)."""
+EVALUATED_WEIGHTS = "checkpoint_weights_sha256"
+"""Key in an evaluation table's metadata (``safe-bc evaluate``) of the SHA-256 of the weights
+it evaluated: what ties an evaluation folder to one checkpoint's weights."""
+EVALUATION_TABLES = ("summary.parquet", "episodes.parquet")
+"""The tables of a ``safe-bc evaluate`` folder whose metadata names the evaluated weights."""
 FORMAT = "safe_bc.bc/1"
 
 
@@ -117,9 +123,59 @@ def checkpoint_unit(directory: str | Path) -> Iterator[Path]:
     (``files_sha256`` in ``config.json``) and replaces ``directory``'s unit at once. An error
     (a crash) leaves the old unit as it was and no temporary files (the next write to
     ``directory`` removes those of a hard kill). Hold ``directory``'s lock while writing."""
-    with atomic_dir(directory, unit=UNIT) as staging:
+    with atomic_dir(directory, unit=UNIT, keep=keeps_entry) as staging:
         yield staging
         _seal(staging)
+
+
+def _weights_sha256(directory: Path) -> str | None:
+    """The ``weights_sha256`` that ``directory``'s ``config.json`` records, or ``None``."""
+    try:
+        value = json.loads((directory / CONFIG).read_text()).get("weights_sha256")
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, AttributeError):
+        return None
+    return value if isinstance(value, str) else None
+
+
+def evaluated_weights(entry: Path, checkpoint: Path, weights: str | None) -> str | None:
+    """The SHA-256 of the weights the ``safe-bc evaluate`` folder ``entry`` evaluated, or
+    ``None`` when ``entry`` is not such a folder (or a link, or unreadable).
+
+    Its tables record it (:data:`EVALUATED_WEIGHTS`); tables written before that record
+    name only the evaluated checkpoint folder: when that is ``checkpoint`` (resolved), the
+    evaluation was of the weights that folder held, given as ``weights``.
+    """
+    from safe_bc.data.store import DatasetError, read_table_metadata
+
+    if entry.is_symlink() or not entry.is_dir():
+        return None
+    for name in EVALUATION_TABLES:
+        if not (entry / name).is_file():
+            continue
+        try:
+            meta = read_table_metadata(entry / name)
+        except (DatasetError, ValueError):
+            return None
+        recorded = meta.get(EVALUATED_WEIGHTS)
+        if isinstance(recorded, str):
+            return recorded
+        named = meta.get("checkpoint")
+        if isinstance(named, str) and Path(named).resolve() == checkpoint.resolve():
+            return weights
+        return None
+    return None
+
+
+def keeps_entry(entry: Path, old: Path, new: Path) -> bool:
+    """Whether ``entry`` of the replaced checkpoint folder ``old`` moves into the new unit
+    ``new`` (:func:`safe_bc.atomic.atomic_dir`'s ``keep``): everything but an evaluation of
+    the replaced weights (:func:`evaluated_weights`) when the new weights differ from them.
+    What cannot be told apart (no recorded weights, an unreadable table, not an evaluation)
+    is kept."""
+    old_weights, new_weights = _weights_sha256(old), _weights_sha256(new)
+    if old_weights is None or old_weights == new_weights:
+        return True
+    return evaluated_weights(entry, new, old_weights) != old_weights
 
 
 def _seal(directory: Path) -> None:

@@ -26,7 +26,7 @@ from safe_bc.bc.preprocess import (
     standardization_stats,
 )
 from safe_bc.demos import Demonstrations
-from safe_bc.selection import BatchSampler, Selection
+from safe_bc.selection import BatchSampler, Selection, warn_if_improper_subset
 
 LogFn = Callable[[int, dict[str, float]], None]
 """``log_fn(batch, metrics)``: called every ``log_every`` batches with ``loss`` (mean since
@@ -244,7 +244,10 @@ def torch_settings(num_threads: int | None) -> Iterator[None]:
 def sampler_for(selection: Selection, train_cfg: TrainConfig) -> BatchSampler:
     """The selection's sampler with the config's batch size and seed: the alpha mix
     (``MixedBatchSampler``) or, for the BC-Safe and cost-weighted baselines
-    (``SelectionConfig.mode``), a ``WeightedBatchSampler``."""
+    (``SelectionConfig.mode``), a ``WeightedBatchSampler``. Warns
+    (``CriticalSubsetWarning``) when the mix's ``T_eps`` holds none or all of the scored
+    rows while ``alpha > 0``: then the mix has no effect."""
+    warn_if_improper_subset(selection)
     return selection.sampler(train_cfg.batch_size, np.random.default_rng(train_cfg.seed))
 
 

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from safe_bc.bc import PreprocessConfig, TrainConfig, predict, sampler_for, train_bc
-from safe_bc.selection import MixedBatchSampler, SelectionConfig, select
+from safe_bc.selection import CriticalSubsetWarning, MixedBatchSampler, SelectionConfig, select
 
 from .synth import SMALL_FRAMES, TINY_CNN, TINY_MLP, frame_demos, small_train, vector_demos
 
@@ -194,3 +194,16 @@ def test_frame_cache_leaves_the_weights_unchanged(case, monkeypatch):
     a, b = _state(cached), _state(plain)
     assert all(torch.equal(a[k], b[k]) for k in a)
     assert np.array_equal(cached.losses, plain.losses)
+
+
+def test_training_warns_when_every_scored_row_is_critical():
+    """The run still trains (alpha has no effect then), but says so once, with eps."""
+    from safe_bc.bc import BCConfig
+    from safe_bc.experiment import RunConfig, train_run
+
+    demos = vector_demos(n=60)  # costs in [0, 40)
+    bc = BCConfig(PreprocessConfig(), TINY_MLP, small_train(batches=2))
+    run = RunConfig(SelectionConfig(eps=50.0, alpha=0.5), bc)
+    with pytest.warns(CriticalSubsetWarning, match=r"critical fraction 1\) at eps=50 "):
+        result, selection = train_run(demos, run)
+    assert selection.n_critical == selection.n_valid and len(result.losses) == 1
