@@ -183,6 +183,10 @@ def evaluate(job: EvaluateJob) -> Done:
     from safe_bc.tasks import check_net_fits_task, task_defaults, task_of
 
     check_output_folder(job.out)
+    if job.recommender is not None:
+        return evaluate_recommender(job)
+    if job.checkpoint is None:
+        raise ValueError("evaluate needs --checkpoint DIR (an agent) or --recommender DIR")
     model, bc_cfg = load_checkpoint(job.checkpoint)
     checkpoint_meta = read_checkpoint_meta(job.checkpoint)
     extra = checkpoint_meta.get("extra", {})
@@ -252,6 +256,63 @@ def evaluate(job: EvaluateJob) -> Done:
             + f": {share:.1%} of steps"
         )
     lines.append(f"wrote {job.out}/episodes.parquet, steps.parquet, summary.parquet")
+    return Done("\n".join(lines), result)
+
+
+def evaluate_recommender(job: EvaluateJob) -> Done:
+    """``safe-bc evaluate --recommender DIR``: every training seed's agent of a study's
+    recommender with its handover, on the same held-out tracks (a crossed seeds x tracks
+    design), at the recommender's own ``d_s``."""
+    import numpy as np
+
+    from safe_bc.data.store import write_table_atomic
+    from safe_bc.distributed.evaluate import evaluate as run_evaluate
+    from safe_bc.evaluation import EvalConfig
+    from safe_bc.provenance import run_metadata
+    from safe_bc.recommender import load_recommender
+    from safe_bc.tasks import task_defaults
+
+    if job.defer_width is not None or job.defer_hold or job.defer_lookahead or job.defer_hold_on:
+        raise ValueError("--defer-* flags do not apply to --recommender (it has its handover)")
+    if job.checkpoint is not None:
+        raise ValueError("give --checkpoint or --recommender, not both")
+    assert job.recommender is not None
+    rec = load_recommender(job.recommender)
+    seeds = rec.card.seeds if job.recommender_seed is None else [job.recommender_seed]
+    task = task_defaults(rec.card.task)
+    handover = rec.card.handover_config
+    cfg = EvalConfig(
+        episodes=job.episodes, workers=job.workers, seed=job.eval_seed, env=task.env,
+        max_steps=job.max_steps, eps=task.eps if handover is None else handover.width,
+    )  # fmt: skip
+    sources = {f"recommender seed={s}": rec.source(s) for s in seeds}
+    result = run_evaluate(sources, cfg, np.asarray(rec.limits), progress=not job.quiet)
+    episodes, steps, table = result.episodes, result.steps, result.summary
+    meta = run_metadata(
+        recommender=str(job.recommender),
+        recommender_card={k: rec.card.to_dict()[k] for k in ("task", "limits", "handover",
+                                                             "demos", "seeds", "source")},
+        eval_seed=job.eval_seed,
+        env_seeds=sorted(set(episodes["env_seed"].tolist())),
+    )  # fmt: skip
+    job.out.mkdir(parents=True, exist_ok=True)
+    write_table_atomic(job.out / "episodes.parquet", episodes, meta)
+    write_table_atomic(job.out / "steps.parquet", steps, meta)
+    write_table_atomic(job.out / "summary.parquet", table, meta)
+    beyond = int((episodes["any_violation"] > 0).sum())
+    n = len(episodes)
+    from safe_bc.metrics import clopper_pearson_upper
+
+    lines = [
+        f"recommender {job.recommender} ({len(seeds)} training seed(s) x {job.episodes} tracks "
+        f"of block {job.eval_seed}): reward {episodes['reward'].mean():.1f}, safety mean "
+        f"{episodes['safety_mean'].mean():.2f}, {beyond} of {n} episodes beyond d_s (at most "
+        f"{100 * clopper_pearson_upper(beyond, n, 0.95):.1f}%, 95% one-sided bound), "
+        f"{100 * episodes['deferred_share'].mean():.1f}% of steps deferred to the expert"
+        if "deferred_share" in episodes
+        else f"recommender {job.recommender}: {beyond} of {n} episodes beyond d_s",
+        f"wrote {job.out}/episodes.parquet, steps.parquet, summary.parquet",
+    ]
     return Done("\n".join(lines), result)
 
 
@@ -373,7 +434,7 @@ def tune(job: TuneJob, *, command: str = "") -> Done:
     if "://" not in storage:
         outputs.append((Path(experiment), "--storage"))
     with output_locks(outputs):
-        outcome = run_study(spec, fresh=job.fresh, command=command)
+        outcome = run_study(spec, fresh=job.fresh, command=command, verbose=job.verbose)
     return Done(format_outcome(outcome, spec.params), outcome, outcome.exit_code)
 
 
@@ -466,6 +527,22 @@ def render(job: RenderJob) -> Done:
     from safe_bc.render import render_command
 
     given = {k: getattr(job, k) for k in ("scale", "fps") if getattr(job, k) is not None}
+    if job.recommender is not None:
+        from safe_bc.render import render_recommender
+
+        if job.checkpoint is not None or job.expert or job.paths:
+            raise ValueError("--recommender renders the recommender alone: drop --checkpoint, "
+                             "--expert and --paths")  # fmt: skip
+        return Done(
+            render_recommender(
+                job.out,
+                job.seed,
+                job.recommender,
+                agent_seed=job.recommender_seed,
+                max_steps=job.max_steps,
+                **given,
+            )
+        )
     return Done(
         render_command(
             job.out,

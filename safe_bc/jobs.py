@@ -88,10 +88,15 @@ class TrainJob:
 class EvaluateJob:
     """Evaluate a checkpoint on held-out tracks (or patients)."""
 
-    checkpoint: Path
-    """A safe-bc train checkpoint."""
     out: Path
     """Where the episode tables go."""
+    checkpoint: Path | None = None
+    """A safe-bc train checkpoint (or --recommender)."""
+    recommender: Path | None = None
+    """A study's recommender folder (results/<study>/recommender): every training seed's agent
+    with its handover, on the same tracks (the --defer-* flags do not apply)."""
+    recommender_seed: int | None = None
+    """With --recommender: evaluate only this training seed's agent."""
     episodes: int = EvalConfig.episodes
     """Held-out episodes, one each (EvalConfig.episodes)."""
     workers: int = EvalConfig.workers
@@ -198,6 +203,8 @@ class TuneJob:
     """StudySpec.results: outputs go to RESULTS/<study>/."""
     fresh: bool = False
     """Discard a previous run of the study."""
+    verbose: bool = False
+    """Ray Tune's status table every 30 s instead of one line per finished trial."""
     replicates: int | None = None
     """Run N replicates (the study with its seeds shifted) into RESULTS/<study>/replicates/r<k>/
     and write the winners' table RESULTS/<study>/replicates.parquet, .md."""
@@ -281,6 +288,11 @@ class RenderJob:
     """.mp4, .gif, or .png with --paths."""
     checkpoint: Path | None = None
     """The agent (safe-bc train)."""
+    recommender: Path | None = None
+    """A study's recommender folder (results/<study>/recommender): its agent with its
+    handover; the expert's steps are marked in the video."""
+    recommender_seed: int | None = None
+    """With --recommender: the training seed of the agent shown; None: its first."""
     expert: bool = False
     """Render the expert instead."""
     paths: bool = False

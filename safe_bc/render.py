@@ -50,6 +50,8 @@ RED = (235, 30, 30)
 GREY = (150, 150, 150)
 CYAN = (0, 220, 230)
 WHITE = (255, 255, 255)
+MAGENTA = (230, 40, 230)
+"""The inner border of a frame on which the expert acted (a recommender's handover)."""
 STATE_COLOURS = {"safe": GREEN, "critical": ORANGE, "violation": RED, "warmup": GREY, "": CYAN}
 
 
@@ -90,6 +92,12 @@ class _Recorder:
     def reset(self, env: gym.Env, rng: np.random.Generator) -> None:
         self.positions.clear()
         self.policy.reset(env, rng)
+
+    def see(self, info: dict) -> None:
+        """Pass each state's ``info`` on to a policy that reads it (a handover)."""
+        see = getattr(self.policy, "see", None)
+        if see is not None:
+            see(info)
 
     def act(self, obs: np.ndarray, env: gym.Env) -> np.ndarray:
         self.positions.append(self.drawing.position(env))
@@ -176,9 +184,14 @@ def overlay(
 
 
 def annotated_frames(
-    trace: Trace, zone: CriticalZone | None = None, scale: int = 4
+    trace: Trace,
+    zone: CriticalZone | None = None,
+    scale: int = 4,
+    deferred: np.ndarray | None = None,
 ) -> list[np.ndarray]:
-    """Every frame of ``trace`` with its safety readings, border and header drawn in."""
+    """Every frame of ``trace`` with its safety readings, border and header drawn in;
+    ``deferred`` (``(T,) bool``, a recommender's handover) marks the frames on which the
+    expert acted: "EXPERT" in the header and a magenta inner border."""
     drawing = drawing_of(task_defaults(trace.task))
     ep = trace.episode
     states = dim_states(ep, zone)
@@ -186,12 +199,17 @@ def annotated_frames(
     frames = []
     for t in range(len(ep)):
         state = frame_state(states[t], combine)
+        expert_acted = deferred is not None and bool(deferred[t])
         text = f"{trace.label}  t={t}  {drawing.caption(ep.safety[t])}"
+        if expert_acted:
+            text += "  EXPERT"
         if state and state != "safe":
             text += f"  {state.upper()}"
-        frames.append(
-            overlay(ep.observations[t], ep.safety[t], states[t], state, text, scale, drawing)
-        )
+        frame = overlay(ep.observations[t], ep.safety[t], states[t], state, text, scale, drawing)
+        if expert_acted:
+            h, w = frame.shape[:2]
+            cv2.rectangle(frame, (8, HEADER + 8), (w - 9, h - 9), MAGENTA, 3)
+        frames.append(frame)
     return frames
 
 
@@ -225,10 +243,50 @@ def render_episode(
     task: Task = DEFAULT_TASK,
 ) -> Trace:
     """Roll ``policy`` out on ``task``'s track ``seed`` and write the annotated episode to
-    ``out`` (one frame per step: the observation each action was chosen in)."""
+    ``out`` (one frame per step: the observation each action was chosen in); a policy that
+    reports its handover (``flags``, :class:`safe_bc.queries.defer.DeferringPolicy`) has the
+    expert's steps marked."""
     trace = record(policy, seed, label=label, max_steps=max_steps, task=task)
-    write_video(annotated_frames(trace, zone, scale), out, fps)
+    flags = getattr(policy, "flags", None)
+    deferred = None if flags is None else np.asarray(flags, bool)
+    write_video(annotated_frames(trace, zone, scale, deferred), out, fps)
     return trace
+
+
+def render_recommender(
+    out: str | Path,
+    seed: int,
+    recommender: str | Path,
+    *,
+    agent_seed: int | None = None,
+    max_steps: int | None = None,
+    scale: int = 4,
+    fps: float = FPS,
+) -> str:
+    """What ``safe-bc render --recommender DIR`` does: one episode of the recommender (its
+    agent of ``agent_seed``, default the first, with its handover) on track ``seed``, the
+    critical zone drawn at ``d_s`` and the handover's width, the expert's steps marked;
+    returns the line it prints."""
+    from safe_bc.recommender import load_recommender
+
+    rec = load_recommender(recommender)
+    spec = task_defaults(rec.card.task)
+    drawing_of(spec)
+    handover = rec.card.handover_config
+    width = spec.eps if handover is None else handover.width
+    zone = CriticalZone(tuple(float(x) for x in rec.limits), width, "any")
+    policy = rec.source(agent_seed).build()
+    trace = render_episode(
+        policy, seed, out, label="recommender", zone=zone, max_steps=max_steps,
+        scale=scale, fps=fps, task=spec.name,
+    )  # fmt: skip
+    ep = trace.episode
+    scored = ~ep.warmup
+    flags = np.asarray(getattr(policy, "flags", np.zeros(len(ep), bool)), bool)
+    line = f"{out}: {len(ep)} frames of the recommender on track seed {seed}"
+    line += f", the expert acted on {int(flags.sum())} ({flags[scored].mean():.1%} of scored steps)"
+    bad = zone.beyond(ep.costs) & scored
+    return line + f", {int(bad.sum())} step(s) beyond d_s"
 
 
 def draw_paths(
@@ -453,6 +511,7 @@ __all__ = [
     "render_command",
     "render_episode",
     "render_paths",
+    "render_recommender",
     "write_video",
     "zone_from_checkpoint",
     "zone_from_demos",

@@ -9,6 +9,12 @@ trials are retrained with 3 seeds each and re-evaluated on 102 fresh patients (3
 beside plain BC (same seeds) and the guideline, and the winner is chosen there.
 Demonstrations: 150 guideline programmes (~4,500 sessions) in ``data/rehab_demos``.
 
+The study delivers a recommender (``results/rehab/recommender/``): every agent is evaluated
+with the task's handover (``TaskSpec.handover``: the guideline acts where a cost is within 0.2
+of d_s, the width ``results/queries/rehab/summary.md`` chose), its mean share of deferred
+sessions is a constraint at the goal of at most 10%, and the winner is certified on 600 fresh
+patients (3 seeds x 200 of block 30) beside its agent alone and the guideline.
+
 Run: ``make tune STUDY=rehab`` (or ``safe-bc tune tune_jobs/rehab.py``); rerun to resume.
 """
 
@@ -46,4 +52,8 @@ STUDY = StudySpec(
     final_seed=2,
     final_workers=0,
     startup_trials=8,
+    handover=REHAB.handover,
+    deferred_share_limit=0.10,
+    certify_episodes=600,
+    certify_seed=30,
 )

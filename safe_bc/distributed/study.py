@@ -44,6 +44,7 @@ from safe_bc.data.store import (
     storage_folders,
     write_table_atomic,
 )
+from safe_bc.distributed.console import TrialLines, progress_reporter, quiet_logs
 from safe_bc.distributed.final import FinalOutcome, final_phase
 from safe_bc.distributed.final_store import STORE, FinalStore
 from safe_bc.distributed.runtime import cluster_cpus, ensure_ray
@@ -65,7 +66,6 @@ from safe_bc.distributed.stop import (
 from safe_bc.distributed.trial import TrialJob, cached_demos, run_trial, stored_checkpoint
 from safe_bc.provenance import check_result_write, provenance
 from safe_bc.study import (
-    OBJECTIVE,
     TRIAL_METRICS,
     ConstraintBars,
     StudySpec,
@@ -144,21 +144,6 @@ class StudyOutcome:
 def trial_dirname(trial: Any) -> str:
     """Short trial folders (Tune's default spells out every parameter)."""
     return f"trial_{trial.trial_id}"
-
-
-def progress_reporter(spec: StudySpec) -> tune.CLIReporter:
-    """Status table every 30 s: the objective, safety, feasibility and the parameters."""
-    return tune.CLIReporter(
-        metric_columns={
-            OBJECTIVE: "reward",
-            "safety_mean": "safety",
-            "feasible": "feasible",
-            "duration_s": "s",
-        },
-        parameter_columns={p: p.rsplit(".", 1)[-1] for p in spec.params},
-        max_report_frequency=30,
-        sort_by_metric=False,
-    )
 
 
 def _is_uri(path: str) -> bool:
@@ -592,13 +577,15 @@ def run_study(
     callbacks: Sequence[Any] = (),
     trial_fn: Callable[[dict[str, Any], TrialJob], None] = run_trial,
     final: bool = True,
+    verbose: bool = False,
 ) -> StudyOutcome:
     """Run (or resume) ``spec`` and write its outputs under ``spec.results / spec.name``.
 
     Args:
         fresh: delete a previous run of this study (Tune experiment and outputs) first.
         command: the command line, recorded in every table's metadata.
-        progress: Tune's console progress (``verbose=1``) and evaluation bars.
+        progress: a line per finished trial and the final phase's progress.
+        verbose: Tune's own status table every 30 s instead of the trial lines.
         callbacks: extra Tune callbacks of a new run (a restored run keeps its own).
         trial_fn: the per-trial function ``(config, job)``; tests wrap it to inject faults.
         final: False stops after the trial tables and the time table (no final phase, the
@@ -613,7 +600,9 @@ def run_study(
     """
     with _stop_signals() as stop:
         try:
-            outcome = _run_study(spec, fresh, command, progress, callbacks, trial_fn, final)
+            outcome = _run_study(
+                spec, fresh, command, progress, callbacks, trial_fn, final, verbose
+            )
         except OSError as e:  # one line at the CLI, saying what a rerun does
             raise _os_error_in(e) from None
         return replace(outcome, stopped_by=stop.signum) if stop.signum else outcome
@@ -627,6 +616,7 @@ def _run_study(
     callbacks: Sequence[Any],
     trial_fn: Callable[[dict[str, Any], TrialJob], None],
     final_phase_too: bool = True,
+    verbose: bool = False,
 ) -> StudyOutcome:
     from safe_bc.distributed.collect import ensure_demos
 
@@ -646,6 +636,8 @@ def _run_study(
     # CheckpointConfig(num_to_keep)
     os.environ.setdefault("TUNE_WARN_EXCESSIVE_EXPERIMENT_CHECKPOINT_SYNC_THRESHOLD_S", "0")
     check_persistence_api()
+    if not verbose:
+        quiet_logs()
     out = spec.results / spec.name
     check_result_write(out / "trials.parquet")  # a dirty tree fails now, not after the trials
     storage, exp_path = experiment_location(spec)
@@ -707,6 +699,9 @@ def _run_study(
         print(f"resuming study {spec.name!r} from {exp_path}")
         tuner = tune.Tuner.restore(exp_path, trainable=trainable, resume_errored=True)
         _save_every_trial(tuner)
+        restored = tuner._local_tuner._run_config  # this run's console, not the first run's
+        restored.verbose = 1 if progress and verbose else 0
+        restored.progress_reporter = progress_reporter(spec) if verbose else None
         # Tune restores the concurrency limit the study started with (its ConcurrencyLimiter's
         # saved state), whatever the cluster is now
         concurrent = tuner._local_tuner._tune_config.max_concurrent_trials or concurrent
@@ -733,10 +728,11 @@ def _run_study(
                     CSVLoggerCallback(),
                     HistoryRecorder(str((out / HISTORY).resolve())),
                     RunningMeter(),
+                    *([TrialLines(spec.trials)] if progress and not verbose else []),
                     *callbacks,
                 ],
-                progress_reporter=progress_reporter(spec),
-                verbose=1 if progress else 0,
+                progress_reporter=progress_reporter(spec) if verbose else None,
+                verbose=1 if progress and verbose else 0,
             ),
         )
     meter = _running_meter(tuner)
@@ -1160,7 +1156,7 @@ def format_outcome(outcome: StudyOutcome, params: Sequence[str]) -> str:
             lines.append(f"  {len(errors)} trial(s): {errors[0]}{other}")
     if outcome.final is not None and len(outcome.final.table):
         cols = ["method", "n_train_seeds", "n_episodes", "reward", "reward_lo", "reward_hi",
-                "safety_mean", "violation_steps", "episodes_with_violation", "offroad_steps",
+                "safety_mean", "violation_steps", "episodes_with_violation", "deferred_share",
                 "feasible"]  # fmt: skip
         tab = outcome.final.table
         lines.append("final phase on fresh held-out tracks (95% bootstrap CIs over seeds, tracks):")

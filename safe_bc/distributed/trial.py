@@ -41,6 +41,7 @@ from safe_bc.data.store import (
     write_table_atomic,
 )
 from safe_bc.demos import Demonstrations
+from safe_bc.distributed.console import quiet_logs
 from safe_bc.distributed.evaluate import evaluate_policies
 from safe_bc.distributed.search import ROUND, SCORE, SCREENED, screen_score
 from safe_bc.evaluation import EvalConfig, NetSource
@@ -324,6 +325,7 @@ def run_trial(config: dict[str, Any], job: TrialJob) -> None:
     spec = job.spec
     seeds = spec.trial_seeds()
     reset_trial_state(seeds[0])
+    quiet_logs()
     threads = trial_threads(spec)
     torch.set_num_threads(threads)
     run_cfg = spec.run_config({k: config[k] for k in spec.params}, num_threads=threads)

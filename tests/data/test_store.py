@@ -135,3 +135,45 @@ def test_result_table_keeps_its_metadata(tmp_path: Path) -> None:
     back, meta = read_table(tmp_path / "t.parquet")
     pd.testing.assert_frame_equal(back, df)
     assert meta == {"seed": 3, "git_revision": "abc"}
+
+
+def test_data_digest_names_the_data_not_the_files(tmp_path: Path) -> None:
+    from dataclasses import replace
+
+    from safe_bc.data.store import data_digest, dataset_record
+
+    a, b = tmp_path / "a", tmp_path / "b"
+    for root, when in ((a, "first"), (b, "second")):  # same data, other provenance
+        meta = init_dataset(root, replace(make_meta(), provenance={"created": when}))
+        for i in range(2):
+            write_episode(root, make_episode(i), meta)
+    assert data_digest(a) == data_digest(b)
+    assert (a / "dataset.json").read_bytes() != (b / "dataset.json").read_bytes()
+    record = dataset_record(a)
+    assert record["digest"] == data_digest(a) and record["episodes"] == 2
+    assert record["collector"] == make_meta().identity()
+    # one changed value, or one episode more, is another dataset
+    changed = make_episode(1)
+    changed.rewards[3] += 1.0
+    write_episode(b, changed, init_dataset(b, make_meta()))
+    assert data_digest(b) != data_digest(a)
+    write_episode(a, make_episode(2), init_dataset(a, make_meta()))
+    assert data_digest(a) != record["digest"]
+
+
+def test_collection_mismatch_names_each_differing_setting(tmp_path: Path) -> None:
+    from dataclasses import replace
+
+    from safe_bc.data.store import collection_mismatch
+
+    meta = init_dataset(tmp_path, make_meta())
+    for i in range(3):
+        write_episode(tmp_path, make_episode(i), meta)
+    assert collection_mismatch(tmp_path, make_meta(), 3) is None
+    assert collection_mismatch(tmp_path, make_meta(), 5) is None  # interrupted: resumes
+    assert collection_mismatch(tmp_path, make_meta(), 2) == "episodes 3 -> 2"
+    other = replace(make_meta(seed=4), renderer="raster", expert={"type": "ExpertConfig", "x": 1})
+    line = collection_mismatch(tmp_path, other, 3)
+    assert line is not None and "\n" not in line
+    assert "seed 0 -> 4" in line and 'renderer null -> "raster"' in line and "expert.x" in line
+    assert collection_mismatch(tmp_path / "absent", make_meta(), 3) is None

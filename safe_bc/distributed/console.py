@@ -1,0 +1,90 @@
+"""What a study prints while Tune runs its trials: one line per finished trial by default,
+Tune's status table every 30 s with ``--verbose``."""
+
+from __future__ import annotations
+
+import math
+import sys
+from typing import Any
+
+from ray import tune
+
+from safe_bc.study import OBJECTIVE, StudySpec
+
+
+def progress_reporter(spec: StudySpec) -> tune.CLIReporter:
+    """Tune's status table every 30 s: the objective, safety, feasibility and the parameters."""
+    return tune.CLIReporter(
+        metric_columns={
+            OBJECTIVE: "reward",
+            "safety_mean": "safety",
+            "feasible": "feasible",
+            "duration_s": "s",
+        },
+        parameter_columns={p: p.rsplit(".", 1)[-1] for p in spec.params},
+        max_report_frequency=30,
+        sort_by_metric=False,
+    )
+
+
+def quiet_logs() -> None:
+    """Tune's, Train's and Optuna's INFO lines (experiment state written, checkpoint created,
+    study created) off: the trial lines and the summary say what a user needs."""
+    import logging
+
+    import optuna
+
+    for name in ("ray.tune", "ray.train"):
+        logging.getLogger(name).setLevel(logging.WARNING)
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+
+
+def trial_line(result: dict[str, Any], done: int, total: int) -> str:
+    """One finished trial in one line.
+
+    >>> r = {"trial_id": "ab12", "phase": "evaluated", "reward_mean": 905.12, "safety_mean": 7.3,
+    ...      "any_violation": 0.0, "episodes": 15, "deferred_share": 0.041, "feasible": True,
+    ...      "duration_s": 37.2}
+    >>> for part in trial_line(r, 3, 16).split(", "):
+    ...     print(part)
+    trial 3/16 ab12: reward 905.1
+    safety mean 7.30
+    0/15 episodes beyond d_s
+    4.1% deferred
+    feasible (37 s)
+    """
+    tid = result.get("trial_id", "?")
+    phase = result.get("phase", "")
+    if phase == "invalid":
+        return f"trial {done}/{total} {tid}: invalid ({result.get('error', '')})"
+    n = int(result.get("episodes") or 0)
+    share = float(result.get("any_violation", math.nan))
+    beyond = "?" if math.isnan(share) else str(round(share * n))
+    parts = [
+        f"reward {float(result.get('reward_mean', math.nan)):.1f}",
+        f"safety mean {float(result.get('safety_mean', math.nan)):.2f}",
+        f"{beyond}/{n} episodes beyond d_s",
+    ]
+    deferred = result.get("deferred_share")
+    if deferred is not None and not math.isnan(float(deferred)) and float(deferred) > 0:
+        parts.append(f"{float(deferred):.1%} deferred")
+    parts.append("feasible" if result.get("feasible") else "infeasible")
+    stopped = " stopped by the screening:" if phase == "screened" else ":"
+    seconds = float(result.get("duration_s", math.nan))
+    return f"trial {done}/{total} {tid}{stopped} {', '.join(parts)} ({seconds:.0f} s)"
+
+
+class TrialLines(tune.Callback):
+    """Prints :func:`trial_line` as each trial finishes (the study's default console output);
+    the count is of this driver run's finished trials."""
+
+    def __init__(self, total: int) -> None:
+        self.total = total
+        self.done = 0
+
+    def on_trial_complete(self, iteration: int, trials: list, trial: Any, **info: Any) -> None:
+        self.done += 1
+        print(trial_line(trial.last_result or {}, self.done, self.total), file=sys.stderr)
+
+    def on_trial_error(self, iteration: int, trials: list, trial: Any, **info: Any) -> None:
+        print(f"trial {trial.trial_id} failed; Tune retries it", file=sys.stderr)

@@ -1,0 +1,118 @@
+"""The recommender folder: written whole, loaded with its checks, stepping on real CarRacing."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from safe_bc.bc import BCConfig, NetworkConfig, TrainConfig
+from safe_bc.data.store import data_digest, dataset_record, load_demonstrations, read_meta
+from safe_bc.envs import make_env
+from safe_bc.experiment import RunConfig, train_run
+from safe_bc.handover import HandoverConfig
+from safe_bc.recommender import (
+    CARD,
+    RecommenderCard,
+    RecommenderError,
+    load_recommender,
+    write_recommender,
+)
+from safe_bc.tasks import task_defaults
+
+
+@pytest.fixture(scope="module")
+def agents(tiny_demos: Path):
+    demos = load_demonstrations(tiny_demos)
+    run = RunConfig(
+        bc=BCConfig(
+            network=NetworkConfig(channels=(4, 8, 8), hidden=16), train=TrainConfig(batches=20)
+        )
+    )
+    out = {}
+    for seed in (0, 1):
+        cfg = replace(run, bc=replace(run.bc, train=replace(run.bc.train, seed=seed)))
+        out[seed] = (train_run(demos, cfg)[0].model, cfg.bc)
+    return out, demos
+
+
+def card_for(tiny_demos: Path, demos, handover: HandoverConfig | None) -> RecommenderCard:
+    task = task_defaults("carracing")
+    record = dataset_record(tiny_demos)
+    return RecommenderCard(
+        task="carracing",
+        env={"env_id": task.env.env_id, "renderer": task.env.renderer},
+        limits=dict(zip(task.safety_dims, map(float, demos.limits), strict=True)),
+        handover=None if handover is None else handover.to_dict(),
+        expert=read_meta(tiny_demos).expert,
+        demos={k: record[k] for k in ("digest", "episodes", "collector", "path")},
+        seeds=[0, 1],
+        run_config={},
+    )
+
+
+def test_written_loaded_and_refused_for_another_task_data_or_damage(
+    agents, tiny_demos: Path, tmp_path: Path
+) -> None:
+    nets, demos = agents
+    out = tmp_path / "rec"
+    write_recommender(out, card_for(tiny_demos, demos, HandoverConfig(2.0)), nets)
+    write_recommender(out, card_for(tiny_demos, demos, HandoverConfig(3.0)), nets)  # replaced
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["rec"]  # no staging left behind
+    rec = load_recommender(out, task="carracing", demos=tiny_demos)
+    assert rec.card.handover_config == HandoverConfig(3.0)
+    assert rec.card.demos["digest"] == data_digest(tiny_demos)
+    with pytest.raises(RecommenderError, match="for 'carracing', not for 'rehab'"):
+        load_recommender(out, task="rehab")
+    other = json.loads((out / CARD).read_text())
+    other["demos"]["digest"] = "sha256:0"
+    (out / CARD).write_text(json.dumps(other))
+    with pytest.raises(RecommenderError, match="made from other demonstrations"):
+        load_recommender(out, demos=tiny_demos)
+    weights = out / "seed_1" / "weights.pt"
+    weights.write_bytes(weights.read_bytes()[:-7] + b"damaged")
+    with pytest.raises(RecommenderError, match="agent of seed 1"):
+        load_recommender(out)
+    with pytest.raises(RecommenderError, match="no recommender here"):
+        load_recommender(tmp_path / "nothing")
+    (out / CARD).write_text('{"format": "other"}')
+    with pytest.raises(RecommenderError, match="not a safe_bc recommender card"):
+        load_recommender(out)
+
+
+@pytest.mark.parametrize("width", [None, 0.0, 100.0])
+def test_step_gives_the_action_who_acted_and_the_margin(
+    agents, tiny_demos: Path, tmp_path: Path, width: float | None
+) -> None:
+    nets, demos = agents
+    handover = None if width is None else HandoverConfig(width)
+    write_recommender(tmp_path / "r", card_for(tiny_demos, demos, handover), nets)
+    rec = load_recommender(tmp_path / "r")
+    env = make_env(task_defaults("carracing").env)
+    obs, info = env.reset(seed=11)
+    rec.reset(env, seed=1)
+    actors = []
+    for _ in range(70):
+        step = rec.step(obs, info, env)
+        assert step.action.shape == (3,) and step.action.dtype == np.float32
+        assert step.margin == pytest.approx(
+            {
+                d: float(x)
+                for d, x in zip(rec.dims, demos.limits - np.asarray(info["cost"]), strict=True)
+            }
+        )
+        actors.append((step.actor, bool(info["warmup"])))
+        obs, _, terminated, truncated, info = env.step(step.action)
+        assert not (terminated or truncated)
+    env.close()
+    scored = [a for a, warm in actors if not warm]
+    assert scored and all(a == "agent" for a, warm in actors if warm)  # never in warm-up
+    if width == 100.0:  # every scored state is within 100 px of d_s: the expert acts
+        assert set(scored) == {"expert"}
+    else:
+        assert "agent" in scored
+    if width is None:
+        assert set(scored) == {"agent"}
