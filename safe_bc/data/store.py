@@ -6,6 +6,7 @@ Layout of a dataset directory ``DIR``::
     DIR/episodes/episode-00000.parquet  one file per episode, one row per step
     DIR/frame-cache/frames-<key>.npy    the decoded frames, written by the first streamed
                                         load (:func:`frame_cache`); derived, safe to delete
+    DIR/frame-cache/frames-<key>.sha256 their SHA-256, checked when the cache is opened
 
 Columns (the contract later work and outside readers rely on): ``episode_id``,
 ``step``, ``seed``, ``observation`` (binary PNG or raw bytes of a ``96x96x3 uint8``
@@ -38,6 +39,7 @@ from __future__ import annotations
 import hashlib
 import json
 import re
+import sys
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -49,7 +51,7 @@ import pyarrow.parquet as pq
 
 from safe_bc.atomic import atomic_write, write_text_atomic
 from safe_bc.data.codec import Encoding, decode_frames, encode_frames
-from safe_bc.data.frames import FrameFile, FrameFileError, write_frame_file
+from safe_bc.data.frames import FrameFile, FrameFileError, checksum_path, write_frame_file
 from safe_bc.demos import Demonstrations
 from safe_bc.episode import Episode
 
@@ -649,15 +651,22 @@ def frame_cache(
     another key, so its file is written anew and the folder's older ones are deleted. A file
     of the right name whose size or header is wrong (truncated) is written again. Two
     processes writing at once each write a whole file; the last rename wins (same bytes).
+    Opening checks the file against the SHA-256 written beside it (:meth:`FrameFile.verify`,
+    one read of the file): a file whose frames were altered is written again, saying so on
+    stderr, as is one without a checksum (written before it was recorded, or the writer
+    stopped between the two files).
     """
     root = Path(root)
     shape = (int(sum(lengths)), *meta.obs_shape)
     path = root / FRAME_CACHE_DIR / f"frames-{content_key(root, ids)}.npy"
     if path.exists():
         try:
-            return FrameFile(path, shape)
-        except FrameFileError:
-            pass  # truncated or damaged: written again below
+            cached = FrameFile(path, shape)
+            cached.verify()
+            return cached
+        except FrameFileError as e:  # truncated, damaged or unverifiable: written again below
+            if checksum_path(path).exists():
+                print(f"{e}; writing the decoded-frame cache again", file=sys.stderr)
 
     def decoded() -> Iterator[np.ndarray]:
         for i, n in zip(ids, lengths, strict=True):
@@ -673,8 +682,8 @@ def frame_cache(
             f"{path}: cannot write the decoded-frame cache ({_first_line(e)}); make the "
             "dataset folder writable or load it with frames='memory'"
         ) from None
-    for old in path.parent.glob("frames-*.npy"):
-        if old != path:
+    for old in [*path.parent.glob("frames-*.npy"), *path.parent.glob("frames-*.sha256")]:
+        if old not in (path, checksum_path(path)):
             old.unlink(missing_ok=True)
     return FrameFile(path, shape)
 
