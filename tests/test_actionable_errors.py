@@ -111,11 +111,19 @@ def test_cli_stray_parquet_exits_2(tmp_path: Path, capsys: pytest.CaptureFixture
 
 # ------------------------------------------- a dataset is what its metadata says
 def _rewrite(path: Path, change) -> None:
-    """Rewrite an episode file through ``change(table) -> table``, keeping its metadata."""
+    """Rewrite an episode file through ``change(table) -> table``, keeping its metadata and
+    sealing the new columns with their checksums (as a writer with that fault would)."""
+    import json
+
     import pyarrow.parquet as pq
 
+    from safe_bc.data.store import DIGEST_KEY, _column_digests
+
     table = pq.read_table(path)
-    pq.write_table(change(table).replace_schema_metadata(table.schema.metadata), path)
+    changed = change(table)
+    digests = json.dumps(_column_digests(changed), sort_keys=True).encode()
+    metadata = {**table.schema.metadata, DIGEST_KEY: digests}
+    pq.write_table(changed.replace_schema_metadata(metadata), path)
 
 
 def _dataset(root: Path, episodes: int = 2) -> Path:

@@ -311,3 +311,41 @@ def test_cli_retraining_removes_the_evaluation_of_the_old_weights(
     assert main([*argv, "--seed", "1"]) == 0
     assert "removed eval, evaluated other weights" in capsys.readouterr().out
     assert _names(ckpt) == ["config.json", "selection.parquet", "weights.pt"]
+
+
+def test_an_edited_config_json_without_its_checksum_is_refused(tmp_path: Path) -> None:
+    import json
+
+    from safe_bc.bc.checkpoint import FORMAT, META_SHA256
+
+    cfg = BCConfig(network=TINY_MLP)
+    save_checkpoint(tmp_path, BCNet(ModelSpec.for_data((5,), 2), cfg.preprocess, cfg.network), cfg)
+    meta = json.loads((tmp_path / "config.json").read_text())
+    assert meta["format"] == FORMAT
+    meta["extra"]["env_id"] = "CarRacing-v3"
+    del meta[META_SHA256]
+    (tmp_path / "config.json").write_text(json.dumps(meta))
+    with pytest.raises(CheckpointError) as info:
+        load_checkpoint(tmp_path)
+    message = str(info.value)
+    assert "\n" not in message and str(tmp_path / "config.json") in message
+    assert f"no {META_SHA256}" in message
+
+
+def test_format_1_checkpoints_written_before_meta_sha256_still_load(tmp_path: Path) -> None:
+    """The committed checkpoints of format ``safe_bc.bc/1`` without ``meta_sha256``."""
+    import json
+
+    from safe_bc.bc.checkpoint import META_SHA256
+
+    cfg = BCConfig(network=TINY_MLP)
+    save_checkpoint(tmp_path, BCNet(ModelSpec.for_data((5,), 2), cfg.preprocess, cfg.network), cfg)
+    meta = json.loads((tmp_path / "config.json").read_text())
+    meta["format"] = "safe_bc.bc/1"
+    del meta[META_SHA256]
+    (tmp_path / "config.json").write_text(json.dumps(meta))
+    load_checkpoint(tmp_path)
+    committed = Path(__file__).parent.parent / "results/improve/carracing/starts/seed0"
+    if (committed / "config.json").is_file():
+        assert META_SHA256 not in json.loads((committed / "config.json").read_text())
+        load_checkpoint(committed)

@@ -341,6 +341,7 @@ def test_car_frames_read_from_disk_train_the_weights_of_frames_in_memory(
     round 1 retrains on round 0's rows too): reading the training frames from one frame file
     per round gives the weights of holding them in memory, and the file is gone after."""
     from safe_bc.bc.config import BCConfig, TrainConfig
+    from safe_bc.data.frames import checksum_path
     from safe_bc.data.store import load_demonstrations
     from safe_bc.experiment import train_run
     from safe_bc.run_config import RunConfig
@@ -377,6 +378,7 @@ def test_car_frames_read_from_disk_train_the_weights_of_frames_in_memory(
     assert _no_seconds(disk.rounds, memory.rounds)
     for r in range(2):
         assert not (tmp_path / "disk" / round_dir(r) / FRAMES).exists()
+        assert not checksum_path(tmp_path / "disk" / round_dir(r) / FRAMES).exists()
         assert _same(
             _weights(tmp_path / "disk" / round_dir(r) / POLICY),
             _weights(tmp_path / "memory" / round_dir(r) / POLICY),

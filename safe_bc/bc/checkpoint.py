@@ -9,6 +9,10 @@ A checkpoint folder is one unit: :func:`checkpoint_unit` writes it (weights, con
 SHA-256 of every other file of the unit (``files_sha256``), which :func:`load_checkpoint`
 and :func:`check_checkpoint_files` verify. Checkpoints written before ``files_sha256``
 existed have only ``weights_sha256``; they load as before.
+
+``config.json`` also records its own SHA-256 (``meta_sha256``). It is required from format
+``safe_bc.bc/2`` on (a ``config.json`` edited and its ``meta_sha256`` removed is refused);
+``safe_bc.bc/1`` checkpoints, some written before ``meta_sha256`` existed, load without it.
 """
 
 from __future__ import annotations
@@ -40,7 +44,11 @@ EVALUATED_WEIGHTS = "checkpoint_weights_sha256"
 it evaluated: what ties an evaluation folder to one checkpoint's weights."""
 EVALUATION_TABLES = ("summary.parquet", "episodes.parquet")
 """The tables of a ``safe-bc evaluate`` folder whose metadata names the evaluated weights."""
-FORMAT = "safe_bc.bc/1"
+FORMAT = "safe_bc.bc/2"
+"""The format :func:`save_checkpoint` writes: ``meta_sha256`` is required."""
+FORMATS = ("safe_bc.bc/1", FORMAT)
+"""The formats :func:`read_checkpoint_meta` accepts; ``safe_bc.bc/1`` (the same layout, written
+before ``meta_sha256`` was required) loads with or without it."""
 
 
 class CheckpointError(RuntimeError):
@@ -191,9 +199,8 @@ def _seal(directory: Path) -> None:
 
 def check_checkpoint_files(directory: str | Path) -> dict[str, Any]:
     """Check that ``directory`` is a whole unit: ``config.json`` parses and matches its own
-    ``meta_sha256`` (when recorded), ``weights.pt`` and every file in ``files_sha256`` exist
-    and match their recorded SHA-256. Returns the
-    metadata.
+    ``meta_sha256`` (required in format :data:`FORMAT`), ``weights.pt`` and every file in
+    ``files_sha256`` exist and match their recorded SHA-256. Returns the metadata.
 
     Raises:
         CheckpointNotFoundError: the folder or one of its files is missing.
@@ -201,6 +208,11 @@ def check_checkpoint_files(directory: str | Path) -> dict[str, Any]:
     """
     directory = Path(directory)
     meta = read_checkpoint_meta(directory)
+    if META_SHA256 not in meta and meta.get("format") == FORMAT:
+        raise CheckpointError(
+            f"{directory / CONFIG} has no {META_SHA256} (required for a {FORMAT} checkpoint: "
+            "edited or damaged after the save); save the checkpoint again"
+        )
     if META_SHA256 in meta and meta[META_SHA256] != meta_digest(meta):
         raise CheckpointError(
             f"{directory / CONFIG} does not match the sha256 recorded in it (edited or damaged "
@@ -232,7 +244,7 @@ def read_checkpoint_meta(directory: str | Path) -> dict[str, Any]:
         meta = json.loads(path.read_text())
     except (UnicodeDecodeError, json.JSONDecodeError) as e:
         raise CheckpointError(f"malformed {path}: {e}") from e
-    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+    if not isinstance(meta, dict) or meta.get("format") not in FORMATS:
         got = meta.get("format") if isinstance(meta, dict) else type(meta).__name__
         raise CheckpointError(f"{path} is not a {FORMAT} checkpoint (format={got!r})")
     return meta

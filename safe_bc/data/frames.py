@@ -9,12 +9,17 @@ rows. The data goes through the OS page cache, which every process reading the f
 (the trials of a study), and never counts towards a process's resident memory: a memory map
 would (its touched pages are part of RSS until the kernel reclaims them).
 
+Beside the file, :func:`write_frame_file` writes its SHA-256 (``<name>.sha256``, as
+``sha256sum`` writes it), which :meth:`FrameFile.verify` checks: zeroed or altered frames in
+the file are found before training uses them.
+
 No pyarrow here: :mod:`safe_bc.data.store` decodes the episodes and keys the file by the
 dataset's content.
 """
 
 from __future__ import annotations
 
+import hashlib
 import os
 from collections.abc import Iterable
 from pathlib import Path
@@ -22,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from safe_bc.atomic import atomic_write
+from safe_bc.atomic import atomic_write, write_text_atomic
 
 
 class FrameFileError(ValueError):
@@ -40,14 +45,24 @@ def _header_bytes(shape: tuple[int, ...]) -> bytes:
     return buf.getvalue()
 
 
+def checksum_path(path: Path) -> Path:
+    """Where the SHA-256 of the frame file ``path`` is kept: ``<name without .npy>.sha256``."""
+    return Path(path).with_suffix(".sha256")
+
+
 def write_frame_file(path: Path, shape: tuple[int, ...], chunks: Iterable[np.ndarray]) -> Path:
     """Write the ``uint8`` frames of ``chunks`` (each ``(T_i, *shape[1:])``, in order, summing
     to ``shape[0]`` rows) to ``path`` as one ``.npy`` array, atomically: a reader sees no file
-    or the whole one. Holds one chunk at a time."""
+    or the whole one. Holds one chunk at a time. Then writes the file's SHA-256 to
+    :func:`checksum_path` (atomically too: a file without it is not verified, see
+    :meth:`FrameFile.verify`)."""
     path = Path(path)
     rows = 0
+    digest = hashlib.sha256()
     with atomic_write(path) as f:
-        f.write(_header_bytes(shape))
+        header = _header_bytes(shape)
+        f.write(header)
+        digest.update(header)
         for chunk in chunks:
             chunk = np.ascontiguousarray(chunk)
             if chunk.dtype != np.uint8 or chunk.shape[1:] != tuple(shape[1:]):
@@ -56,9 +71,11 @@ def write_frame_file(path: Path, shape: tuple[int, ...], chunks: Iterable[np.nda
                     f"got {chunk.shape} {chunk.dtype}"
                 )
             f.write(chunk.data)
+            digest.update(chunk.data)
             rows += len(chunk)
         if rows != shape[0]:
             raise ValueError(f"{rows} frames written, the header says {shape[0]}")
+    write_text_atomic(checksum_path(path), f"{digest.hexdigest()}  {path.name}\n")
     return path
 
 
@@ -103,6 +120,29 @@ class FrameFile:
                 f"{self.path}: {size} bytes, expected {expected} (truncated or overwritten)"
             )
         return offset
+
+    def verify(self) -> None:
+        """Check the file against the SHA-256 :func:`write_frame_file` wrote beside it (reads
+        the whole file once): a :class:`FrameFileError` when it differs (frames zeroed or
+        altered) or when there is no checksum to check against."""
+        sidecar = checksum_path(self.path)
+        try:
+            recorded = sidecar.read_text().split()[0]
+        except (OSError, IndexError, UnicodeDecodeError):
+            raise FrameFileError(
+                f"{self.path}: no checksum to verify it by ({sidecar.name})"
+            ) from None
+        digest = hashlib.sha256()
+        try:
+            with open(self.path, "rb") as f:
+                while piece := f.read(2**20):
+                    digest.update(piece)
+        except OSError as e:
+            raise FrameFileError(f"{self.path}: cannot read the frame file ({e})") from None
+        if digest.hexdigest() != recorded:
+            raise FrameFileError(
+                f"{self.path}: its frames do not match the checksum written with it (damaged)"
+            )
 
     @property
     def ndim(self) -> int:

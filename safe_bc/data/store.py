@@ -6,6 +6,7 @@ Layout of a dataset directory ``DIR``::
     DIR/episodes/episode-00000.parquet  one file per episode, one row per step
     DIR/frame-cache/frames-<key>.npy    the decoded frames, written by the first streamed
                                         load (:func:`frame_cache`); derived, safe to delete
+    DIR/frame-cache/frames-<key>.sha256 their SHA-256, checked when the cache is opened
 
 Columns (the contract later work and outside readers rely on): ``episode_id``,
 ``step``, ``seed``, ``observation`` (binary PNG or raw bytes of a ``96x96x3 uint8``
@@ -27,6 +28,10 @@ name (a copy under a second name), whose ``step`` column is not ``0..n-1`` (dupl
 missing rows), two files holding the episode of the same env seed, and non-finite actions or
 (vector) observations. A file without embedded metadata (written by another tool) is
 accepted on its schema alone, as before.
+
+Every episode file also embeds a SHA-256 of each of its columns (:data:`DIGEST_KEY`), and
+reading a column checks it: a flipped bit that still decodes (a changed action, reward or
+cost) is refused naming the file. Files written before it are accepted without the check.
 """
 
 from __future__ import annotations
@@ -34,6 +39,7 @@ from __future__ import annotations
 import hashlib
 import json
 import re
+import sys
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -45,13 +51,17 @@ import pyarrow.parquet as pq
 
 from safe_bc.atomic import atomic_write, write_text_atomic
 from safe_bc.data.codec import Encoding, decode_frames, encode_frames
-from safe_bc.data.frames import FrameFile, FrameFileError, write_frame_file
+from safe_bc.data.frames import FrameFile, FrameFileError, checksum_path, write_frame_file
 from safe_bc.demos import Demonstrations
 from safe_bc.episode import Episode
 
 META_FILE = "dataset.json"
 EPISODE_DIR = "episodes"
 META_KEY = b"safe_bc"
+DIGEST_KEY = b"safe_bc_digest"
+"""Schema-metadata key of an episode file's checksums: JSON ``{column: SHA-256}`` of each
+column's values (:func:`_column_digests`), written by :func:`write_episode` and checked by
+every read of the columns (a file without it, written before or by another tool, is not)."""
 
 
 class DatasetError(Exception):
@@ -255,6 +265,8 @@ def write_episode(root: Path, episode: Episode, meta: DatasetMeta) -> Path:
     cols["warmup"] = episode.warmup
     cols["offroad"] = episode.offroad
     table = pa.table(cols, schema=_schema(meta))
+    digests = json.dumps(_column_digests(table), sort_keys=True).encode()
+    table = table.replace_schema_metadata({**table.schema.metadata, DIGEST_KEY: digests})
     path = episode_path(root, episode.episode_id)
     with atomic_write(path) as f:
         pq.write_table(table, f, compression="zstd")
@@ -263,6 +275,52 @@ def write_episode(root: Path, episode: Episode, meta: DatasetMeta) -> Path:
 
 def _first_line(e: BaseException) -> str:
     return (str(e).strip().splitlines() or [type(e).__name__])[0]
+
+
+def _column_digests(table: pa.Table) -> dict[str, str]:
+    """``{column: SHA-256}`` of each column of ``table``: the Arrow IPC message of its values
+    as one record batch (lengths, null counts, buffers; not the schema, whose list item names
+    a Parquet round trip changes), the same for the same values however read or chunked."""
+    out = {}
+    for name in table.column_names:
+        batches = table.select([name]).combine_chunks().to_batches()
+        h = hashlib.sha256()
+        for batch in batches:  # one, or none for no rows
+            h.update(batch.serialize())
+        out[name] = h.hexdigest()
+    return out
+
+
+def _check_digests(path: Path, table: pa.Table) -> None:
+    """The columns of ``table`` (read from ``path``) must match the checksums
+    :func:`write_episode` embedded in it; a file without them is accepted."""
+    raw = (table.schema.metadata or {}).get(DIGEST_KEY)
+    if raw is None:
+        return
+    try:
+        recorded = json.loads(raw)
+        if not isinstance(recorded, dict):
+            raise ValueError("not a mapping")
+    except ValueError as e:
+        raise DatasetError(f"{path}: malformed column checksums ({_first_line(e)})") from None
+    got = _column_digests(table)
+    bad = [name for name in table.column_names if recorded.get(name) != got[name]]
+    if bad:
+        raise DatasetError(
+            f"{path}: its data do not match the checksum written with it (damaged); column(s) "
+            f"{', '.join(bad)} changed: restore the file or collect the dataset again"
+        )
+
+
+def _read_episode_table(path: Path, columns: Sequence[str] | None = None) -> pa.Table:
+    """Columns ``columns`` (all: ``None``) of the episode file ``path``, their checksums
+    checked."""
+    try:
+        table = pq.read_table(path, columns=None if columns is None else list(columns))
+    except (pa.ArrowException, OSError) as e:
+        raise DatasetError(f"{path}: not a readable Parquet file ({_first_line(e)})") from None
+    _check_digests(path, table)
+    return table
 
 
 def _check_schema(path: Path, schema: pa.Schema, meta: DatasetMeta) -> None:
@@ -349,7 +407,7 @@ def read_columns(root: Path, columns: Sequence[str]) -> dict[str, np.ndarray]:
     ids = completed_episodes(root, meta)
     if not ids:
         raise DatasetError(f"{root}: dataset has no episodes")
-    tables = [pq.read_table(episode_path(root, i), columns=list(columns)) for i in ids]
+    tables = [_read_episode_table(episode_path(root, i), columns) for i in ids]
     return {c: np.concatenate([t.column(c).to_numpy() for t in tables]) for c in columns}
 
 
@@ -358,16 +416,13 @@ def read_episode(path: Path, meta: DatasetMeta, observations: bool = True) -> Ep
     unread (no decoding): the episode's observations are then ``(T, 0) uint8``, as a rollout
     that does not keep them records."""
     try:
-        if observations:
-            table = pq.read_table(path)
-            schema = table.schema
-        else:
-            schema = pq.read_schema(path)
-            table = pq.read_table(path, columns=[c for c in schema.names if c != "observation"])
+        schema = pq.read_schema(path)
     except (pa.ArrowException, OSError) as e:
         raise DatasetError(f"{path}: not a readable Parquet file ({_first_line(e)})") from None
     _check_schema(path, schema, meta)
     _check_identity(path, schema, meta)
+    wanted = None if observations else [c for c in schema.names if c != "observation"]
+    table = _read_episode_table(path, wanted)
     n = table.num_rows
     if n == 0:
         raise DatasetError(f"{path}: episode has no steps")
@@ -596,15 +651,22 @@ def frame_cache(
     another key, so its file is written anew and the folder's older ones are deleted. A file
     of the right name whose size or header is wrong (truncated) is written again. Two
     processes writing at once each write a whole file; the last rename wins (same bytes).
+    Opening checks the file against the SHA-256 written beside it (:meth:`FrameFile.verify`,
+    one read of the file): a file whose frames were altered is written again, saying so on
+    stderr, as is one without a checksum (written before it was recorded, or the writer
+    stopped between the two files).
     """
     root = Path(root)
     shape = (int(sum(lengths)), *meta.obs_shape)
     path = root / FRAME_CACHE_DIR / f"frames-{content_key(root, ids)}.npy"
     if path.exists():
         try:
-            return FrameFile(path, shape)
-        except FrameFileError:
-            pass  # truncated or damaged: written again below
+            cached = FrameFile(path, shape)
+            cached.verify()
+            return cached
+        except FrameFileError as e:  # truncated, damaged or unverifiable: written again below
+            if checksum_path(path).exists():
+                print(f"{e}; writing the decoded-frame cache again", file=sys.stderr)
 
     def decoded() -> Iterator[np.ndarray]:
         for i, n in zip(ids, lengths, strict=True):
@@ -620,8 +682,8 @@ def frame_cache(
             f"{path}: cannot write the decoded-frame cache ({_first_line(e)}); make the "
             "dataset folder writable or load it with frames='memory'"
         ) from None
-    for old in path.parent.glob("frames-*.npy"):
-        if old != path:
+    for old in [*path.parent.glob("frames-*.npy"), *path.parent.glob("frames-*.sha256")]:
+        if old not in (path, checksum_path(path)):
             old.unlink(missing_ok=True)
     return FrameFile(path, shape)
 

@@ -27,7 +27,7 @@ import numpy as np
 from safe_bc.atomic import write_json_atomic
 from safe_bc.bc.checkpoint import checkpoint_unit, save_checkpoint
 from safe_bc.bc.net import BCNet
-from safe_bc.data.frames import FrameFile, write_frame_file
+from safe_bc.data.frames import FrameFile, checksum_path, write_frame_file
 from safe_bc.demos import Demonstrations
 from safe_bc.evaluation import NetSource
 from safe_bc.improve.config import VALIDATION_SEED_BASE
@@ -304,6 +304,7 @@ def run_selfimprove(
             if frames is not None:
                 frames.close()
                 (here / FRAMES).unlink(missing_ok=True)
+                checksum_path(here / FRAMES).unlink(missing_ok=True)
         with checkpoint_unit(here / POLICY) as unit:
             save_checkpoint(
                 unit,

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from safe_bc.data.frames import FrameFile, FrameFileError, write_frame_file
+from safe_bc.data.frames import FrameFile, FrameFileError, checksum_path, write_frame_file
 from safe_bc.data.store import (
     FRAME_CACHE_DIR,
     DatasetError,
@@ -72,6 +72,20 @@ def test_truncated_or_wrong_file_is_detected(tmp_path: Path) -> None:
         FrameFile(tmp_path / "g.npy", frames.shape)
 
 
+def test_altered_frames_fail_the_checksum(tmp_path: Path) -> None:
+    frames = _frames()
+    f = _file(tmp_path, frames)
+    f.verify()
+    with open(f.path, "r+b") as fh:  # one frame zeroed: same size, same header
+        fh.seek(f._offset + 3 * int(np.prod(SHAPE)))
+        fh.write(bytes(int(np.prod(SHAPE))))
+    with pytest.raises(FrameFileError, match=r"f\.npy: its frames do not match the checksum"):
+        FrameFile(f.path, frames.shape).verify()
+    checksum_path(f.path).unlink()
+    with pytest.raises(FrameFileError, match=r"f\.npy: no checksum"):
+        FrameFile(f.path, frames.shape).verify()
+
+
 def test_write_is_atomic(tmp_path: Path) -> None:
     frames = _frames()
     f = _file(tmp_path, frames)
@@ -84,7 +98,8 @@ def test_write_is_atomic(tmp_path: Path) -> None:
         write_frame_file(f.path, frames.shape, failing())
     with pytest.raises(ValueError, match="4 frames written"):  # too few rows: refused too
         write_frame_file(f.path, frames.shape, iter([frames[:4]]))
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["f.npy"]  # the old file, whole
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["f.npy", "f.sha256"]  # the old, whole
+    f.verify()
     np.testing.assert_array_equal(FrameFile(f.path, frames.shape)[np.arange(11)], frames)
 
 
@@ -120,13 +135,18 @@ def test_frame_cache_is_written_once_and_rebuilt_when_the_dataset_changes(
     first = load_demonstrations(tmp_path, "stream").observations.path
     stamp = first.stat().st_mtime_ns
     assert load_demonstrations(tmp_path, "stream").observations.path == first
-    assert first.stat().st_mtime_ns == stamp and _cache_files(tmp_path) == [first]
+    assert first.stat().st_mtime_ns == stamp
+    assert _cache_files(tmp_path) == [first, checksum_path(first)]
     # an episode rewritten with other frames: a new file with the new frames, the old one gone
     changed = make_episode(1, n=7, seed=0)
     changed.observations[:] = 255 - eps[1].observations
     write_episode(tmp_path, changed, make_meta("png"))
     demos = load_demonstrations(tmp_path, "stream")
-    assert demos.observations.path != first and _cache_files(tmp_path) == [demos.observations.path]
+    assert demos.observations.path != first
+    assert _cache_files(tmp_path) == [
+        demos.observations.path,
+        checksum_path(demos.observations.path),
+    ]
     np.testing.assert_array_equal(demos.observations[np.arange(5, 12)], changed.observations)
     # an episode added
     write_episode(tmp_path, make_episode(2, n=3), make_meta("png"))
@@ -151,3 +171,35 @@ def test_unwritable_dataset_folder_is_named(tmp_path: Path, monkeypatch) -> None
     monkeypatch.setattr("safe_bc.data.store.write_frame_file", refuse)
     with pytest.raises(DatasetError, match="frames='memory'"):
         load_demonstrations(tmp_path, "stream")
+
+
+def test_zeroed_frames_in_the_cache_are_rebuilt_saying_so(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    eps = _dataset(tmp_path)
+    path = load_demonstrations(tmp_path, "stream").observations.path
+    whole = path.read_bytes()
+    capsys.readouterr()
+    path.write_bytes(whole[: len(whole) - 500] + bytes(500))  # the last frame's tail zeroed
+    demos = load_demonstrations(tmp_path, "stream")
+    assert demos.observations.path == path and path.read_bytes() == whole
+    np.testing.assert_array_equal(demos.observations[np.arange(5, 12)], eps[1].observations)
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and err[0].startswith(f"{path}: its frames do not match the checksum")
+    load_demonstrations(tmp_path, "stream")  # whole again: nothing said
+    assert capsys.readouterr().err == ""
+    # a cache without its checksum (written before it was recorded) is written again quietly
+    checksum_path(path).unlink()
+    path.write_bytes(whole[: len(whole) - 500] + bytes(500))
+    load_demonstrations(tmp_path, "stream")
+    assert path.read_bytes() == whole and checksum_path(path).is_file()
+    # damaged, and it cannot be written again: one line naming the file
+    path.write_bytes(whole[: len(whole) - 500] + bytes(500))
+
+    def refuse(*args, **kwargs):
+        raise PermissionError("read-only file system")
+
+    monkeypatch.setattr("safe_bc.data.store.write_frame_file", refuse)
+    with pytest.raises(DatasetError) as info:
+        load_demonstrations(tmp_path, "stream")
+    assert "\n" not in str(info.value) and str(info.value).startswith(f"{path}: ")

@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import pyarrow as pa
 import pytest
 
 from safe_bc.data.store import (
@@ -15,6 +18,8 @@ from safe_bc.data.store import (
     episode_path,
     init_dataset,
     load_demonstrations,
+    read_columns,
+    read_episode,
     read_episodes,
     read_table,
     write_episode,
@@ -177,3 +182,65 @@ def test_collection_mismatch_names_each_differing_setting(tmp_path: Path) -> Non
     assert line is not None and "\n" not in line
     assert "seed 0 -> 4" in line and 'renderer null -> "raster"' in line and "expert.x" in line
     assert collection_mismatch(tmp_path / "absent", make_meta(), 3) is None
+
+
+def _flip_each_byte(path: Path, columns: tuple[str, ...]) -> Iterator[None]:
+    """Rewrite ``path`` with one byte of the named columns' chunks flipped, each in turn."""
+    import pyarrow.parquet as pq
+
+    good = path.read_bytes()
+    group = pq.ParquetFile(path).metadata.row_group(0)
+    for j in range(group.num_columns):
+        chunk = group.column(j)
+        if chunk.path_in_schema.split(".")[0] not in columns:
+            continue
+        start = chunk.dictionary_page_offset or chunk.data_page_offset
+        for at in range(start, start + chunk.total_compressed_size):
+            bad = bytearray(good)
+            bad[at] ^= 0x04
+            path.write_bytes(bytes(bad))
+            yield
+    path.write_bytes(good)
+
+
+def test_flipped_bits_in_scalar_columns_are_refused_naming_the_file(tmp_path: Path) -> None:
+    """A bit flipped in an action, reward or cost column chunk that still decodes is refused
+    by its checksum, by every reader of the columns; the damage is never read silently."""
+    meta = init_dataset(tmp_path, make_meta())
+    path = write_episode(tmp_path, make_episode(0), meta)
+    clean = read_episodes(tmp_path, observations=False)[0]
+    caught = 0
+    for _ in _flip_each_byte(path, ("action", "reward", "cost_left")):
+        for read in (
+            lambda: read_episode(path, meta, observations=False),
+            lambda: read_columns(tmp_path, ["reward", "cost_left"]),
+        ):
+            try:
+                read()
+            except DatasetError as e:
+                message = str(e)
+                assert "\n" not in message and message.startswith(f"{path}: ")
+                caught += "do not match the checksum written with it (damaged)" in message
+        with contextlib.suppress(DatasetError):  # read back: only unchanged values
+            ep = read_episode(path, meta, observations=False)
+            for name in ("actions", "rewards", "costs"):
+                np.testing.assert_array_equal(getattr(ep, name), getattr(clean, name))
+    assert caught > 0
+    assert read_episodes(tmp_path)[0].rewards.tolist() == clean.rewards.tolist()
+
+
+def test_files_without_column_checksums_are_read_as_before(tmp_path: Path) -> None:
+    import pyarrow.parquet as pq
+
+    from safe_bc.data.store import DIGEST_KEY
+
+    meta = init_dataset(tmp_path, make_meta())
+    path = write_episode(tmp_path, make_episode(0), meta)
+    table = pq.read_table(path)
+    kept = {k: v for k, v in table.schema.metadata.items() if k != DIGEST_KEY}
+    table = table.set_column(
+        table.column_names.index("reward"), "reward", pa.array(np.ones(12, np.float32))
+    )
+    pq.write_table(table.replace_schema_metadata(kept), path)
+    assert read_episodes(tmp_path)[0].rewards.tolist() == [1.0] * 12
+    assert read_columns(tmp_path, ["reward"])["reward"].tolist() == [1.0] * 12
