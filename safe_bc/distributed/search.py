@@ -332,13 +332,18 @@ def mark_final_winner(url: str, study_name: str, winner: str | None, feasible: b
     import optuna
 
     try:
-        study = optuna.load_study(study_name=study_name, storage=url)
+        stored = optuna.load_study(study_name=study_name, storage=url)
+        # held in memory: an RDB copy is deleted before it is written again
+        study = optuna.create_study(study_name=study_name, directions=stored.directions)
+        study.add_trials(stored.trials)
+        for key, value in stored.user_attrs.items():
+            study.set_user_attr(key, value)
         ids = {t.user_attrs.get("tune_trial_id"): t.number for t in study.trials}
         if winner is not None and winner not in ids:
             raise ValueError(f"it has no trial with Tune trial id {winner!r}")
         attrs = {WINNER: winner, "final_winner_number": ids.get(winner),
                  "final_winner_feasible": bool(feasible)}  # fmt: skip
-        metric = study.metric_names[0] if study.metric_names else None
+        metric = stored.metric_names[0] if stored.metric_names else None
         export_study(study, url, attrs, metric=metric, winner=winner)
     except Exception as e:  # a copy for other tools must never stop the study
         warnings.warn(f"could not mark the final winner in {url}: {e}", stacklevel=2)

@@ -219,7 +219,7 @@ def test_same_study_same_trials_at_one_two_and_four_trials_at_once(
 def test_copy_stores_screened_trials_pruned_and_marks_the_final_winner(tmp_path) -> None:
     import optuna
 
-    from safe_bc.distributed.search import WINNER, mark_final_winner
+    from safe_bc.distributed.search import WINNER, export_study, mark_final_winner
 
     url = f"sqlite:///{tmp_path / 'optuna.db'}"
     s = _searcher(batch_size=None)
@@ -259,3 +259,10 @@ def test_copy_stores_screened_trials_pruned_and_marks_the_final_winner(tmp_path)
         mark_final_winner(url, "optuna", "nope", True)
     assert optuna.load_study(study_name="optuna", storage=url).user_attrs[WINNER] == "t2"
     assert not list(tmp_path.glob(".*.tmp"))
+
+    rdb = f"sqlite+pysqlite:///{tmp_path / 'rdb.db'}"  # the in-place path of other RDB URLs
+    export_study(s.study, rdb, metric="reward_mean")
+    mark_final_winner(rdb, "optuna", "t0", True)
+    loaded = optuna.load_study(study_name="optuna", storage=rdb)
+    assert [t.user_attrs.get(WINNER) for t in loaded.trials] == [True, None, None]
+    assert [t.state.name for t in loaded.trials] == ["COMPLETE", "PRUNED", "COMPLETE"]
