@@ -21,6 +21,9 @@ episode, in episode-id order):
   - ``safety`` ``(T+1, S) float32`` distances, higher is safer (CarRacing: pixels to the
     grass left/front/right; rehab: margins to the limits);
   - ``cost`` ``(T+1, S) float32``, higher is less safe;
+  - ``costs`` ``(T+1,)`` 0.0 or 1.0 (read back as float64), the scalar cost in DSRL's form
+    (:func:`safe_bc.data.export_limits.step_costs`): 1.0 where ``observations[i]`` is a
+    scored step beyond the limit ``d_s`` in some dimension (``c_s > d_s``), else 0.0;
   - ``warmup``, ``offroad`` ``(T+1,) bool``;
   - ``executed_action`` ``(T+1, A) float32``: entry ``t`` is the action sent to the env
     from ``observations[t]`` (aligned with ``actions[t]``; zeros at the final entry);
@@ -28,8 +31,10 @@ episode, in episode-id order):
     observation, safety, cost, warmup and offroad repeat entry ``T - 1``.
 
 Each episode's Minari metadata has the reset ``seed`` and ``safe_bc_episode_id``; the
-dataset's metadata has ``safe_bc`` (the source ``dataset.json``) and
-``safe_bc_safety_dims``. The env spec is the one :func:`safe_bc.envs.make_env` builds
+dataset's metadata has ``safe_bc`` (the source ``dataset.json``), ``safe_bc_safety_dims``
+and the limits ``costs`` was computed by (:func:`safe_bc.data.export_limits.limits_metadata`):
+``safe_bc_cost_limits`` (``d_s`` per dimension), ``safe_bc_eps`` and
+``safe_bc_critical_zone`` (the rules). The env spec is the one :func:`safe_bc.envs.make_env` builds
 (for CarRacing with the safety wrapper), so ``dataset.recover_environment()`` gives an
 env whose ``info`` has the same ``safety``/``cost`` keys.
 
@@ -49,6 +54,7 @@ from typing import Any
 
 import numpy as np
 
+from safe_bc.data.export_limits import COSTS, dataset_zone, limits_metadata, step_costs
 from safe_bc.data.store import (
     DatasetError,
     DatasetMeta,
@@ -62,6 +68,7 @@ from safe_bc.episode import Episode
 INFO_KEYS: tuple[str, ...] = (
     "safety",
     "cost",
+    COSTS,
     "warmup",
     "offroad",
     "executed_action",
@@ -90,8 +97,10 @@ def import_minari() -> Any:
     return minari
 
 
-def episode_buffer_fields(episode: Episode) -> dict[str, Any]:
-    """The Minari ``EpisodeBuffer`` fields of one safe_bc episode (see the module doc).
+def episode_buffer_fields(episode: Episode, limits: Any = None) -> dict[str, Any]:
+    """The Minari ``EpisodeBuffer`` fields of one safe_bc episode (see the module doc);
+    ``limits`` (``d_s`` per dimension) gives the scalar ``costs`` (``None``: infinite limits,
+    all 0.0).
 
     >>> from safe_bc.episode import Episode
     >>> n = 2
@@ -99,11 +108,13 @@ def episode_buffer_fields(episode: Episode) -> dict[str, Any]:
     ...              np.ones((n, 2), np.float32), np.zeros(n, np.float32), np.array([0, 1], bool),
     ...              np.zeros(n, bool), np.ones((n, 3), np.float32), np.zeros((n, 3), np.float32),
     ...              np.zeros(n, bool), np.zeros(n, bool))
-    >>> f = episode_buffer_fields(ep)
+    >>> f = episode_buffer_fields(ep, limits=(1.0, 1.0, 1.0))
     >>> f["observations"].shape, f["actions"].shape, f["infos"]["safety"].shape
     ((3, 4), (2, 2), (3, 3))
     >>> f["infos"]["repeated_observation"]
     [False, False, True]
+    >>> f["infos"]["costs"]
+    [0.0, 0.0, 0.0]
     """
     n = len(episode)
 
@@ -111,9 +122,12 @@ def episode_buffer_fields(episode: Episode) -> dict[str, Any]:
         return np.concatenate([a, a[-1:]], axis=0)
 
     executed = episode.executed_actions.astype(np.float32)
+    if limits is None:
+        limits = np.full(episode.costs.shape[1], np.inf)
     infos = {
         "safety": pad_repeat(episode.safety.astype(np.float32)),
         "cost": pad_repeat(episode.costs.astype(np.float32)),
+        COSTS: pad_repeat(step_costs(episode.costs, episode.warmup, limits)),
         "warmup": pad_repeat(episode.warmup.astype(bool)),
         "offroad": pad_repeat(episode.offroad.astype(bool)),
         "executed_action": np.concatenate([executed, np.zeros_like(executed[:1])], axis=0),
@@ -150,7 +164,9 @@ def _description(meta: DatasetMeta, root: Path) -> str:
         f"safe_bc expert demonstrations of {meta.env_id} exported from {root}: actions are "
         "the expert's recorded actions; infos hold per-step safety distances ('safety', "
         f"dims {list(meta.safety_dims)}, higher is safer), costs ('cost'), 'warmup', "
-        "'offroad' and 'executed_action'. safe_bc does not store the observation after the "
+        "'offroad', 'executed_action' and DSRL's scalar 'costs' (1.0 at a scored step "
+        "beyond the limit d_s in some dimension; d_s and eps are in the dataset metadata, "
+        "safe_bc_cost_limits and safe_bc_eps). safe_bc does not store the observation after the "
         "last step: each episode's final observation repeats the last stored one "
         "(infos['repeated_observation'] is True there)."
     )
@@ -179,6 +195,7 @@ def export_minari(
     *,
     author: str | None = None,
     description: str | None = None,
+    eps: float | None = None,
 ) -> Any:
     """Write the safe_bc dataset at ``demos`` as the Minari dataset ``dataset_id``.
 
@@ -191,6 +208,7 @@ def export_minari(
         dataset_id: e.g. ``safe_bc/carracing-drift-v0`` (``namespace/name-vN``).
         author: optional author recorded in the Minari metadata.
         description: defaults to a summary of the layout (see the module doc).
+        eps: the critical zone's width recorded in the metadata; ``None``: the task's.
 
     Returns:
         The ``minari.MinariDataset``.
@@ -216,6 +234,7 @@ def export_minari(
             f"Minari dataset {dataset_id} already exists at {target}; delete it "
             f"(minari delete {dataset_id}) or choose another --dataset-id"
         )
+    zone = dataset_zone(root, meta, eps)
     env = _env_for(meta)
     try:
         shape = tuple(int(x) for x in env.observation_space.shape)
@@ -229,7 +248,7 @@ def export_minari(
         ids: list[int] = []
         try:
             for episode in episodes:
-                buffer = EpisodeBuffer(**episode_buffer_fields(episode))
+                buffer = EpisodeBuffer(**episode_buffer_fields(episode, zone.limits))
                 if dataset is None:
                     with warnings.catch_warnings():  # optional provenance fields
                         warnings.filterwarnings(
@@ -257,6 +276,7 @@ def export_minari(
                 {
                     "safe_bc": json.loads(meta.to_json()),
                     "safe_bc_safety_dims": list(meta.safety_dims),
+                    **limits_metadata(zone, meta.safety_dims),
                 }
             )
         except BaseException:

@@ -48,6 +48,14 @@ trials always rank above infeasible ones, and infeasible ones by reward)."""
 SCREENED = "screen_score_r1"
 """Result key keeping a trial's screening score in its later reports (:class:`BatchHalving`
 reads it from every earlier trial's last result)."""
+STOPPED = "stopped_by_screening"
+"""Trial user attribute the searcher sets on a trial stopped by the screening (its last
+result is of the ``screened`` phase): the Optuna copy stores such a trial PRUNED."""
+WINNER = "final_winner"
+"""Study and trial user attribute of the Optuna copy naming the final phase's winner
+(:func:`mark_final_winner`): the study's holds the Tune trial id (``None``: no winner), the
+winning trial's is ``True``."""
+
 NUMBER = "trial_number"
 """Config key of a trial's number: its suggestion order (0, 1, ...), the Optuna trial number
 (set by a batched :class:`ConstrainedOptunaSearch`)."""
@@ -197,6 +205,8 @@ class ConstrainedOptunaSearch(OptunaSearch):
                 # No constraint (e.g. an invalid configuration): not a usable point.
                 error = True
                 result = {k: v for k, v in result.items() if k != self.metric}
+            if not error and result.get("phase") == "screened":
+                ot_trial.set_user_attr(STOPPED, True)  # read by the copy only, not by TPE
         super().on_trial_complete(trial_id, result, error)
 
     @property
@@ -224,6 +234,7 @@ def export_study(
     *,
     metric: str | None = None,
     constraint_names: Sequence[str] = (),
+    winner: str | None = None,
 ) -> None:
     """Write ``study`` (any Optuna study, e.g. the searcher's in-memory one) to the Optuna
     storage at ``url`` under the same name, replacing a study of that name there; ``attrs``
@@ -231,7 +242,9 @@ def export_study(
 
     The copy is made for other tools: ``metric`` names its objective
     (``Study.set_metric_names``), and every trial's named constraints are also written as the
-    list optuna-dashboard reads (:func:`with_constraint_list`).
+    list optuna-dashboard reads (:func:`with_constraint_list`). A trial the screening stopped
+    is stored PRUNED (:func:`as_pruned`), and the trial whose Tune trial id is ``winner`` is
+    marked (:func:`with_winner_mark`).
 
     A SQLite file is written to a temporary file and renamed over the old one (a reader or a
     killed driver never sees half a study); other RDB URLs (PostgreSQL, MySQL) are updated
@@ -249,7 +262,7 @@ def export_study(
         tmp.unlink(missing_ok=True)
         try:
             storage = optuna.storages.RDBStorage(f"{prefix}{tmp}")
-            _copy_into(study, storage, attrs, metric, constraint_names)
+            _copy_into(study, storage, attrs, metric, constraint_names, winner)
             storage.remove_session()
             storage.engine.dispose()
             os.replace(tmp, path)
@@ -259,7 +272,7 @@ def export_study(
     storage = optuna.storages.RDBStorage(url)
     with contextlib.suppress(KeyError):  # no earlier copy
         optuna.delete_study(study_name=study.study_name, storage=storage)
-    _copy_into(study, storage, attrs, metric, constraint_names)
+    _copy_into(study, storage, attrs, metric, constraint_names, winner)
 
 
 def with_constraint_list(trial: Any, names: Sequence[str] = ()) -> Any:
@@ -280,12 +293,69 @@ def with_constraint_list(trial: Any, names: Sequence[str] = ()) -> Any:
     return out
 
 
+def as_pruned(trial: Any) -> Any:
+    """``trial`` (a ``FrozenTrial``) stored PRUNED when the screening stopped it (user
+    attribute :data:`STOPPED`) and it was told COMPLETE (the searcher tells every stopped
+    trial COMPLETE with its last value, as Ray's ``OptunaSearch`` does). Its value stays: the
+    objective of its last report, which is its last intermediate value, the value Optuna's
+    own ``tell(state=PRUNED)`` keeps. Any other trial is returned as it is."""
+    from optuna.trial import TrialState
+
+    if not trial.user_attrs.get(STOPPED) or trial.state != TrialState.COMPLETE:
+        return trial
+    out = copy.copy(trial)
+    out.state = TrialState.PRUNED
+    return out
+
+
+def with_winner_mark(trial: Any, winner: str | None) -> Any:
+    """``trial`` with the user attribute :data:`WINNER` ``True`` when its Tune trial id is
+    ``winner``, and without it otherwise (an earlier mark is taken off); a trial that needs no
+    change is returned as it is."""
+    mark = winner is not None and trial.user_attrs.get("tune_trial_id") == winner
+    if mark == bool(trial.user_attrs.get(WINNER)):
+        return trial
+    out = copy.copy(trial)
+    out.user_attrs = {k: v for k, v in trial.user_attrs.items() if k != WINNER}
+    if mark:
+        out.user_attrs[WINNER] = True
+    return out
+
+
+def mark_final_winner(url: str, study_name: str, winner: str | None, feasible: bool) -> None:
+    """Mark the final phase's winner (Tune trial id ``winner``, ``best.json``'s ``trial_id``)
+    in the study's Optuna copy at ``url``: study user attributes :data:`WINNER` (the trial id),
+    ``final_winner_number`` (its Optuna trial number) and ``final_winner_feasible``, and the
+    winning trial's user attribute :data:`WINNER` ``True``. The copy is rewritten as
+    :func:`export_study` writes it. A copy that cannot be read or written is left as it is
+    with a warning (it is for other tools; the study's own result is ``best.json``)."""
+    import optuna
+
+    try:
+        stored = optuna.load_study(study_name=study_name, storage=url)
+        # held in memory: an RDB copy is deleted before it is written again
+        study = optuna.create_study(study_name=study_name, directions=stored.directions)
+        study.add_trials(stored.trials)
+        for key, value in stored.user_attrs.items():
+            study.set_user_attr(key, value)
+        ids = {t.user_attrs.get("tune_trial_id"): t.number for t in study.trials}
+        if winner is not None and winner not in ids:
+            raise ValueError(f"it has no trial with Tune trial id {winner!r}")
+        attrs = {WINNER: winner, "final_winner_number": ids.get(winner),
+                 "final_winner_feasible": bool(feasible)}  # fmt: skip
+        metric = stored.metric_names[0] if stored.metric_names else None
+        export_study(study, url, attrs, metric=metric, winner=winner)
+    except Exception as e:  # a copy for other tools must never stop the study
+        warnings.warn(f"could not mark the final winner in {url}: {e}", stacklevel=2)
+
+
 def _copy_into(
     study: Any,
     storage: Any,
     attrs: Mapping[str, Any] | None,
     metric: str | None = None,
     constraint_names: Sequence[str] = (),
+    winner: str | None = None,
 ) -> None:
     import optuna
 
@@ -299,7 +369,8 @@ def _copy_into(
     for key, value in {**study.user_attrs, **(attrs or {})}.items():
         target.set_user_attr(key, value)
     trials = study.get_trials(deepcopy=False)
-    target.add_trials([with_constraint_list(t, constraint_names) for t in trials])
+    copied = [as_pruned(with_constraint_list(t, constraint_names)) for t in trials]
+    target.add_trials([with_winner_mark(t, winner) for t in copied])
 
 
 def check_private_api(searcher: OptunaSearch) -> None:

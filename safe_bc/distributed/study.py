@@ -56,6 +56,7 @@ from safe_bc.distributed.search import (
     load_searcher,
     make_scheduler,
     make_searcher,
+    mark_final_winner,
     take_copy_seconds,
 )
 from safe_bc.distributed.stop import (
@@ -832,6 +833,7 @@ def _run_study(
     clock.skip()
     meta = {**meta, "final_phase_seconds": round(time.perf_counter() - t0, 1)}
     _write_final(spec, final, candidates, meta)
+    mark_final_winner(default_optuna_storage(spec), spec.name, final.winner, final.feasible)
     plot_pareto(
         trials,
         threshold,
@@ -997,7 +999,7 @@ def finished_outcome(spec: StudySpec) -> StudyOutcome | None:
 def check_optuna_copy(spec: StudySpec, experiment_path: str) -> None:
     """A finished study's Optuna copy (``optuna.db`` by default) must be whole and its own:
     the study of this name with every trial. A missing local copy is written again from the
-    Tune experiment's searcher.
+    Tune experiment's searcher, with the final winner of ``best.json`` marked.
 
     Raises:
         ValueError: one line naming the file and the problem (corrupt, cut short, another
@@ -1013,6 +1015,8 @@ def check_optuna_copy(spec: StudySpec, experiment_path: str) -> None:
             searcher = load_searcher(experiment_path)
             searcher._export_to = url
             searcher.export()
+            best = json.loads((spec.results / spec.name / "best.json").read_text())
+            mark_final_winner(url, spec.name, best.get("trial_id"), bool(best.get("feasible")))
         return
     problem = optuna_copy_problem(path, spec.name, spec.trials)
     if problem:

@@ -152,3 +152,37 @@ def test_a_bad_dataset_id_is_one_line_before_anything_is_created(
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "is not a Minari dataset id" in err[0], err
     assert not root.exists()
+
+
+def test_rehab_export_carries_the_limits_and_dsrls_scalar_cost(
+    rehab_demos, tmp_path, monkeypatch
+) -> None:
+    """Read back as a DSRL/OSRL loader would: flat transitions with one ``costs`` value each
+    (the cost of the state the action led to) and the limits from the dataset metadata."""
+    from safe_bc.tasks import task_defaults
+
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path / "minari"))
+    export_minari(rehab_demos, "safe_bc/rehab-limits-v0", eps=0.25)
+    dataset = minari.load_dataset("safe_bc/rehab-limits-v0")
+    meta = dataset.storage.metadata
+    dims = meta["safe_bc_safety_dims"]
+    limits = np.array([meta["safe_bc_cost_limits"][d] for d in dims])
+    assert meta["safe_bc_eps"] == 0.25 and meta["safe_bc_critical_zone"]["combine"] == "any"
+    stored = read_episodes(rehab_demos)
+    scored = np.concatenate([e.costs[~e.warmup] for e in stored])
+    np.testing.assert_allclose(limits, scored.max(axis=0), rtol=1e-6)  # d_s: the worst cost
+    flat = {"costs": [], "cost": [], "warmup": []}
+    for ep in dataset.iterate_episodes():
+        costs = np.asarray(ep.infos["costs"])
+        assert costs.shape == (len(ep.actions) + 1,)
+        for key in flat:  # DSRL: one entry per transition, the next state's
+            flat[key].append(np.asarray(ep.infos[key])[1:])
+    costs, cost, warmup = (np.concatenate(flat[k]) for k in ("costs", "cost", "warmup"))
+    assert len(costs) == dataset.total_steps
+    expected = (np.any(cost > limits.astype(np.float32), axis=1) & ~warmup).astype(np.float32)
+    np.testing.assert_array_equal(costs, expected)
+    # the expert set defines d_s, so none of its scored steps is beyond it; some step is at it
+    assert costs.sum() == 0 and np.any(np.isclose(cost, limits).any(axis=1))
+    export_minari(rehab_demos, "safe_bc/rehab-default-eps-v0")
+    default = minari.load_dataset("safe_bc/rehab-default-eps-v0").storage.metadata
+    assert default["safe_bc_eps"] == task_defaults("rehab").eps

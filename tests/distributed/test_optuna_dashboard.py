@@ -42,7 +42,8 @@ def _study(url: str) -> None:
     for n, (value, safety, violation) in enumerate(results):
         s.suggest(f"t{n}")
         s.on_trial_complete(f"t{n}", {"reward_lcb": value, "constraint_safety": safety,
-                                      "constraint_violation": violation})  # fmt: skip
+                                      "constraint_violation": violation,
+                                      "constraint_deferral": -1.0})  # fmt: skip
 
 
 def _text(dom: str) -> str:

@@ -20,6 +20,7 @@ from ray import tune
 
 from safe_bc.cli import main
 from safe_bc.data.store import load_demonstrations, read_table
+from safe_bc.distributed.search import WINNER
 from safe_bc.distributed.study import (
     ConstrainedOptunaSearch,
     SpaceSampler,
@@ -161,6 +162,17 @@ def test_cli_study_end_to_end(tiny_demos: Path, tmp_path: Path, capsys) -> None:
     assert {"reward_lo", "reward_hi", "violation_steps", "episodes_with_violation"} <= set(final)
     assert best["trial_id"] in cands and best["trial_id"] == fmeta["winner"]
     assert best["feasible"] == bool(final.set_index("method").loc[best["trial_id"], "feasible"])
+    # the Optuna copy: trials stopped by the screening PRUNED, best.json's winner marked
+    import optuna
+
+    copy = optuna.load_study(study_name=spec.name, storage=f"sqlite:///{out / 'optuna.db'}")
+    states = {x.user_attrs["tune_trial_id"]: x.state.name for x in copy.trials}
+    assert states == {
+        r.trial_id: "PRUNED" if r.status == "stopped" else "COMPLETE" for r in trials.itertuples()
+    }
+    assert copy.user_attrs["final_winner"] == best["trial_id"]
+    marked = [x.user_attrs["tune_trial_id"] for x in copy.trials if x.user_attrs.get(WINNER)]
+    assert marked == [best["trial_id"]]
     assert set(fmeta["final_design"]["env_seeds"]).isdisjoint(seeds)
     assert fmeta["configs"]["plain_bc"]["selection"]["alpha"] == 0.0
     episodes, _ = read_table(out / "final_episodes.parquet")

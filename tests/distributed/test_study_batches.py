@@ -42,7 +42,7 @@ def _searcher(batch_size: int | None, max_trials: int | None = None) -> Constrai
 
 def _result(a: float) -> dict:
     return {"reward_mean": -((a - 0.3) ** 2), "constraint_safety": -1.0,
-            "constraint_violation": 0.0}  # fmt: skip
+            "constraint_violation": 0.0, "constraint_deferral": 0.0}  # fmt: skip
 
 
 def test_batched_searcher_tells_in_trial_order_and_waits_for_the_batch() -> None:
@@ -85,10 +85,11 @@ def test_searcher_copies_its_study_to_an_optuna_storage_that_optuna_loads(tmp_pa
     trials = loaded.get_trials()
     assert [t.state.name for t in trials] == ["COMPLETE", "COMPLETE"]  # copied at the tell
     # named (Optuna 5) and as the list optuna-dashboard reads, in the searcher's order
-    assert trials[0].constraints == {"safety": 0.5, "violations": 0.0, "0": 0.5, "1": 0.0}
-    assert trials[1].system_attrs["constraints"] == [-1.0, 0.0]
+    assert trials[0].constraints == {"safety": 0.5, "violations": 0.0, "deferral": 0.0,
+                                     "0": 0.5, "1": 0.0, "2": 0.0}  # fmt: skip
+    assert trials[1].system_attrs["constraints"] == [-1.0, 0.0, 0.0]
     assert loaded.metric_names == ["reward_mean"]
-    assert s.study.trials[0].constraints == {"safety": 0.5, "violations": 0.0}  # sampler's: as set
+    assert s.study.trials[0].constraints == {"safety": 0.5, "violations": 0.0, "deferral": 0.0}
     assert [t.params["a"] for t in trials[:2]] == [cfgs["t0"]["a"], cfgs["t1"]["a"]]
     assert [t.user_attrs["tune_trial_id"] for t in trials] == ["t0", "t1"]
     assert loaded.user_attrs["objective"] == "reward_mean" and loaded.user_attrs["batch_size"] == 2
@@ -213,3 +214,55 @@ def test_same_study_same_trials_at_one_two_and_four_trials_at_once(
     pd.testing.assert_frame_equal(one, two)
     pd.testing.assert_frame_equal(one, four)
     assert np.isfinite(one["reward_mean"].astype(float)).any()
+
+
+def test_copy_stores_screened_trials_pruned_and_marks_the_final_winner(tmp_path) -> None:
+    import optuna
+
+    from safe_bc.distributed.search import WINNER, export_study, mark_final_winner
+
+    url = f"sqlite:///{tmp_path / 'optuna.db'}"
+    s = _searcher(batch_size=None)
+    s._export_to = url
+    # t1 is stopped by the screening with the highest value; t2 is the best evaluated trial;
+    # the final phase's re-evaluation picks t0
+    runs = {"t0": (1.0, "evaluated"), "t1": (5.0, "screened"), "t2": (2.0, "evaluated")}
+    for tid, (value, phase) in runs.items():
+        s.suggest(tid)
+        result = {**_result(0.3), "reward_mean": value, "phase": phase, "training_iteration": 1}
+        s.on_trial_result(tid, result)
+        s.on_trial_complete(tid, result)
+    assert [t.state.name for t in s.study.trials] == ["COMPLETE"] * 3  # the sampler's: as told
+    loaded = optuna.load_study(study_name="optuna", storage=url)
+    assert [t.state.name for t in loaded.trials] == ["COMPLETE", "PRUNED", "COMPLETE"]
+    pruned = loaded.trials[1]
+    assert pruned.value == 5.0 and pruned.intermediate_values == {1: 5.0}
+    assert pruned.constraints["safety"] == -1.0  # constraints kept
+    assert loaded.best_trial.number == 2  # a pruned trial is never Optuna's best
+    assert WINNER not in loaded.user_attrs
+
+    mark_final_winner(url, "optuna", "t0", True)
+    loaded = optuna.load_study(study_name="optuna", storage=url)
+    assert loaded.user_attrs[WINNER] == "t0" and loaded.user_attrs["final_winner_number"] == 0
+    assert loaded.user_attrs["final_winner_feasible"] is True
+    assert [t.user_attrs.get(WINNER) for t in loaded.trials] == [True, None, None]
+    assert loaded.best_trial.number == 2  # the trial phase's best, not the final winner
+    assert [t.state.name for t in loaded.trials] == ["COMPLETE", "PRUNED", "COMPLETE"]
+    assert loaded.metric_names == ["reward_mean"] and loaded.user_attrs["objective"]
+    assert loaded.trials[0].system_attrs["constraints"] == [-1.0, 0.0, 0.0]
+
+    mark_final_winner(url, "optuna", "t2", False)  # marked again: the old mark is taken off
+    loaded = optuna.load_study(study_name="optuna", storage=url)
+    assert [t.user_attrs.get(WINNER) for t in loaded.trials] == [None, None, True]
+    assert loaded.user_attrs["final_winner_feasible"] is False
+    with pytest.warns(UserWarning, match="no trial with Tune trial id 'nope'"):
+        mark_final_winner(url, "optuna", "nope", True)
+    assert optuna.load_study(study_name="optuna", storage=url).user_attrs[WINNER] == "t2"
+    assert not list(tmp_path.glob(".*.tmp"))
+
+    rdb = f"sqlite+pysqlite:///{tmp_path / 'rdb.db'}"  # the in-place path of other RDB URLs
+    export_study(s.study, rdb, metric="reward_mean")
+    mark_final_winner(rdb, "optuna", "t0", True)
+    loaded = optuna.load_study(study_name="optuna", storage=rdb)
+    assert [t.user_attrs.get(WINNER) for t in loaded.trials] == [True, None, None]
+    assert [t.state.name for t in loaded.trials] == ["COMPLETE", "PRUNED", "COMPLETE"]
