@@ -331,7 +331,8 @@ def expert(job: ExpertJob) -> Done:
     check_output_folder(job.out)
     task = task_defaults(job.env)
     demos_path = job.demos or Path(task.demos)
-    ensure_demos(demos_path, task.collect_config(), progress=not job.quiet)
+    if job.demos is None:  # the task's own set, built if absent; a given set is used as it is
+        ensure_demos(demos_path, task.collect_config(), progress=not job.quiet)
     demos = load_demonstrations(demos_path)
     limits = demos.limits
     cfg = EvalConfig(

@@ -245,6 +245,10 @@ class Comparison:
     """The testbed (its env, expert, default collection and ``eps``)."""
     demos: Path = Path("data/demos")
     """Demonstration dataset (built with the task's default collection if absent)."""
+    collect: Any = None
+    """The collection the comparison expects at :attr:`demos` (a
+    :class:`safe_bc.collection.CollectConfig`); ``None``: the task's default. A set made with
+    other settings is refused before any work."""
     out: Path = Path("results")
     """Where tables, figures and runs go."""
     runs: str = ""

@@ -24,9 +24,10 @@ import dataclasses
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import get_args
+from typing import Annotated, Any, get_args
 
 import pandas as pd
+import tyro
 
 from safe_bc.bc import BCConfig
 from safe_bc.compare import EXPERT, PAPER_TABLE1, Comparison, Method, build_table
@@ -51,6 +52,8 @@ class ReproduceConfig:
 
     demos: Path = Path("data/demos")
     """Demonstration dataset (built with the default collection if absent)."""
+    collect: Annotated[Any, tyro.conf.Suppress] = None
+    """The collection expected at ``demos`` (``None``: the task's default; not a flag)."""
     out: Path = Path("results")
     """Where tables and figures go."""
     alphas: tuple[float, ...] = (0.0, 0.1, 0.5, 0.8, 1.0)
@@ -166,6 +169,7 @@ class ReproduceConfig:
             methods=(*rows, Method(EXPERT, expert=True)),
             task=self.task,
             demos=self.demos,
+            collect=self.collect,
             out=self.out,
             train_seeds=self.train_seeds,
             episodes=self.episodes,

@@ -26,15 +26,33 @@ def ray_session():
     ray.shutdown()
 
 
+TINY_COLLECT = "CollectConfig(episodes=2, workers=2, max_steps=150)"
+"""The collection of :func:`tiny_demos`, as a study file or a test writes it (a study that
+reads the set must expect it: ``StudySpec(collect=...)``)."""
+
+
+def tiny_collect():
+    """:data:`TINY_COLLECT` as a config."""
+    from safe_bc.collection import CollectConfig
+
+    return eval(TINY_COLLECT, {"CollectConfig": CollectConfig})
+
+
 @pytest.fixture(scope="session")
 def tiny_demos(ray_session, tmp_path_factory):
     """Two short real CarRacing demonstration episodes (150 steps, ~100 scored)."""
-    from safe_bc.collection import CollectConfig
     from safe_bc.distributed.collect import collect
 
     out = tmp_path_factory.mktemp("tiny") / "demos"
-    collect(CollectConfig(episodes=2, workers=2, max_steps=150), out, progress=False)
+    collect(tiny_collect(), out, progress=False)
     return out
+
+
+def rehab_collect():
+    """The collection of :func:`rehab_demos` (a study or comparison reading it expects it)."""
+    from safe_bc.tasks import task_defaults
+
+    return task_defaults("rehab").collect_config(episodes=8, workers=1)
 
 
 @pytest.fixture(scope="session")
@@ -44,10 +62,9 @@ def rehab_demos(tmp_path_factory):
     from safe_bc.collection import EpisodeMaker
     from safe_bc.data.store import init_dataset, write_episode
     from safe_bc.distributed.collect import dataset_meta
-    from safe_bc.tasks import task_defaults
 
     root = tmp_path_factory.mktemp("rehab") / "demos"
-    cfg = task_defaults("rehab").collect_config(episodes=8, workers=1)
+    cfg = rehab_collect()
     meta = init_dataset(root, dataset_meta(cfg))
     maker = EpisodeMaker(cfg)
     for i in range(cfg.episodes):

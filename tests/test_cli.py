@@ -162,7 +162,7 @@ def test_bad_train_flags_are_one_line_exit_2(
             ["tune", "tune_jobs/smoke.py", "--trials", "many"],
             "--trials: no type matching {None}|INT could be instantiated from ['many']",
         ),
-        (["evaluate", "--out", "x"], "Missing from safe-bc evaluate: --checkpoint PATH"),
+        (["evaluate", "--out", "x"], "evaluate needs --checkpoint DIR (an agent) or --recommender"),
     ],
 )
 def test_bad_input_of_other_commands_is_one_line_exit_2(

@@ -15,6 +15,7 @@ from safe_bc.data.store import read_table
 from safe_bc.selection import SelectionConfig
 from safe_bc.tasks.carracing.expert import ExpertConfig
 from safe_bc.tasks.rehab.expert import GuidelineConfig
+from tests.conftest import rehab_collect
 
 ROOT = Path(__file__).resolve().parents[1]
 EXPERT = Method("expert", expert=True)
@@ -60,6 +61,7 @@ def test_expert_settings_compared_on_the_same_patients(rehab_demos, tmp_path: Pa
         methods=(EXPERT, Method("bold", expert=True, expert_config=BOLD)),
         task="rehab",
         demos=rehab_demos,
+        collect=rehab_collect(),
         out=tmp_path,
         episodes=3,
         workers=1,

@@ -26,6 +26,7 @@ from safe_bc.compare import (
 from safe_bc.data.store import read_table
 from safe_bc.improve import ImproveConfig
 from safe_bc.selection import SelectionConfig
+from tests.conftest import rehab_collect, tiny_collect
 
 ROOT = Path(__file__).resolve().parents[1]
 COMPARE = ROOT / "tune_jobs/compare"
@@ -233,6 +234,7 @@ def test_tiny_fallback_rows_share_the_runs_of_another_comparison(rehab_demos, tm
         ),
         task="rehab",
         demos=rehab_demos,
+        collect=rehab_collect(),
         out=tmp_path,
         train_seeds=(0,),
         episodes=3,
@@ -335,6 +337,7 @@ def test_tiny_masked_row_evaluates_the_same_agent_with_the_indicator_black(
             Method("bar_rgb_k1/steer_masked", masked_of="bar_rgb_k1"),
         ),
         demos=tiny_demos,
+        collect=tiny_collect(),
         out=tmp_path,
         episodes=2,
         eval_seed=10,

@@ -118,6 +118,7 @@ def test_tiny_exact_row_raster_view_and_raster_pipeline(ray_session, tmp_path):
             Method("raster pipeline", selection=sel, bc=bc, renderer="raster", demos=raster_demos),
         ),
         demos=exact_demos,
+        collect=CollectConfig(episodes=2, max_steps=150, env=EnvConfig(renderer="exact")),
         out=tmp_path,
         episodes=2,
         eval_seed=10,

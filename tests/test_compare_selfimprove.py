@@ -16,6 +16,7 @@ from safe_bc.compare import Comparison, Method, load_comparison
 from safe_bc.improve import ImproveConfig
 from safe_bc.selection import SelectionConfig
 from safe_bc.selfimprove.config import SelfImproveConfig
+from tests.conftest import rehab_collect
 
 ROOT = Path(__file__).resolve().parents[1]
 COMPARE = ROOT / "tune_jobs/compare"
@@ -80,6 +81,7 @@ def test_tiny_rehab_comparison_with_a_selfimitation_row(rehab_demos, tmp_path, m
         ),
         task="rehab",
         demos=rehab_demos,
+        collect=rehab_collect(),
         out=tmp_path,
         train_seeds=(0,),
         episodes=3,
@@ -254,8 +256,8 @@ def test_cells_run_alone_then_the_comparison_reuses_them(rehab_demos, tmp_path, 
         return Comparison(
             "tiny",
             methods=(START, Method("selfimit", selfimprove=TINY_SELF, start="start")),
-            task="rehab", demos=rehab_demos, out=out, train_seeds=(0,), episodes=3,
-            workers=0, reference="start",
+            task="rehab", demos=rehab_demos, collect=rehab_collect(), out=out,
+            train_seeds=(0,), episodes=3, workers=0, reference="start",
             bc=BCConfig(
                 network=NetworkConfig(hidden=16), train=TrainConfig(batches=5, batch_size=8)
             ),
@@ -298,8 +300,9 @@ def test_a_longer_run_starts_from_a_shorter_rows_rounds(rehab_demos, tmp_path, m
 
     def tiny(out: Path, *rows: Method) -> Comparison:
         return Comparison(
-            "tiny", methods=(START, *rows), task="rehab", demos=rehab_demos, out=out,
-            train_seeds=(0,), episodes=3, workers=0, reference="start",
+            "tiny", methods=(START, *rows), task="rehab", demos=rehab_demos,
+            collect=rehab_collect(), out=out, train_seeds=(0,), episodes=3, workers=0,
+            reference="start",
             bc=BCConfig(
                 network=NetworkConfig(hidden=16), train=TrainConfig(batches=5, batch_size=8)
             ),

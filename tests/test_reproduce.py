@@ -14,6 +14,7 @@ from safe_bc.bc import BCConfig, NetworkConfig, TrainConfig
 from safe_bc.compare import render_markdown as _render
 from safe_bc.data.store import read_table
 from safe_bc.reproduce import PLAIN_BC, ReproduceConfig, run_reproduce, table1
+from tests.conftest import tiny_collect
 
 META = {"git_revision": "abc", "command": "safe-bc reproduce"}
 
@@ -181,6 +182,7 @@ def test_cli_arguments_shrink_and_extend_the_table() -> None:
 def test_tiny_rerun_writes_table_figures_and_provenance(tiny_demos, tmp_path: Path) -> None:
     cfg = ReproduceConfig(
         demos=tiny_demos,
+        collect=tiny_collect(),
         out=tmp_path,
         alphas=(0.0, 1.0),
         readings=("all", "noncritical"),

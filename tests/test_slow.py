@@ -11,6 +11,7 @@ from safe_bc.cli import main
 from safe_bc.collection import CollectConfig
 from safe_bc.data.store import read_episodes, read_table
 from safe_bc.distributed.collect import collect
+from tests.conftest import TINY_COLLECT
 
 pytestmark = pytest.mark.slow
 REPO = Path(__file__).resolve().parents[1]
@@ -30,10 +31,18 @@ def test_full_length_collection_is_deterministic_and_safe(ray_session, tmp_path:
 
 def test_smoke_study_through_the_cli(ray_session, tiny_demos, tmp_path: Path) -> None:
     """`safe-bc tune tune_jobs/smoke.py` end to end: tables, winner, figure."""
+    study = tmp_path / "smoke.py"  # the smoke study, expecting the tiny set's collection
+    study.write_text(
+        "from dataclasses import replace\n"
+        "from safe_bc.collection import CollectConfig\n"
+        "from safe_bc.study import load_study\n"
+        f"STUDY = replace(load_study({str(REPO / 'tune_jobs' / 'smoke.py')!r}), "
+        f"collect={TINY_COLLECT})\n"
+    )
     code = main(
         [
             "tune",
-            str(REPO / "tune_jobs" / "smoke.py"),
+            str(study),
             "--storage",
             str(tmp_path / "ray"),
             "--demos",

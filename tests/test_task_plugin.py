@@ -220,6 +220,7 @@ def test_tiny_study_on_the_toy_task(ray_session, tmp_path: Path):
         base=RunConfig(bc=BCConfig(network=NetworkConfig(hidden=16))),
         env=TOY.env,
         demos=demos,
+        collect=TOY.collect_config(episodes=6, workers=2),
         critical_eps=TOY.eps,
         trials=2,
         max_concurrent=2,

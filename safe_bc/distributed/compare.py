@@ -108,15 +108,22 @@ def demos_of(comparison: Comparison, method: Method) -> Path:
 
 
 def own_demos(comparison: Comparison) -> dict[Path, Any]:
-    """Each demonstration set the comparison needs -> its default collection (a BC row's own
-    ``demos`` drawn by the row's ``renderer``, also when it is the comparison's set); the
-    comparison's set first."""
+    """Each demonstration set the comparison needs -> the collection it expects (the
+    comparison's :attr:`~safe_bc.compare.Comparison.collect`, else the task's default; a BC
+    row's own ``demos`` drawn by the row's ``renderer``, also when it is the comparison's set);
+    the comparison's set first."""
     task = comparison.task
     out: dict[Path, Any] = {}
     for m in comparison.methods:
         if m.demos is not None and m.demos not in out:
-            out[m.demos] = task_defaults(task, m.renderer or DEFAULT_RENDERER).collect_config()
-    first = out.pop(comparison.demos, None) or task_defaults(task).collect_config()
+            renderer = m.renderer or DEFAULT_RENDERER
+            if comparison.collect is None:
+                out[m.demos] = task_defaults(task, renderer).collect_config()
+            else:  # the comparison's collection, drawn by the row's renderer
+                env = dataclasses.replace(comparison.collect.env, renderer=renderer)
+                out[m.demos] = dataclasses.replace(comparison.collect, env=env)
+    own = out.pop(comparison.demos, None)
+    first = comparison.collect or own or task_defaults(task).collect_config()
     return {comparison.demos: first, **out}
 
 

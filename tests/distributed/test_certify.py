@@ -1,4 +1,4 @@
-"""The certificate made from the certification's episodes (pure pieces of distributed/certify.py)."""
+"""The certificate made from the certification's episodes (the pure parts of certify.py)."""
 
 from __future__ import annotations
 

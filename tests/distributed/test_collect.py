@@ -113,11 +113,13 @@ def test_cli_reports_corrupt_file_in_one_line(
 
 
 def test_ensure_demos_refuses_another_collection_and_reads_a_complete_one(
-    two_episodes: Path, tmp_path: Path
+    ray_session, tmp_path: Path
 ) -> None:
     from safe_bc.data.store import DatasetError
     from safe_bc.distributed.collect import ensure_demos
 
+    two_episodes = tmp_path / "d"
+    assert ensure_demos(two_episodes, config(2), progress=False).collected == [0, 1]
     report = ensure_demos(two_episodes, config(2), progress=False)
     assert report.collected == [] and report.reused == [0, 1]
     before = {p: p.stat().st_mtime_ns for p in two_episodes.rglob("*") if p.is_file()}
@@ -127,8 +129,12 @@ def test_ensure_demos_refuses_another_collection_and_reads_a_complete_one(
     finally:
         two_episodes.chmod(0o755)
     assert {p: p.stat().st_mtime_ns for p in two_episodes.rglob("*") if p.is_file()} == before
-    for other, named in ((config(2, seed=3), "seed 0 -> 3"), (config(1), "episodes 2 -> 1"),
-                         (config(2, max_steps=STEPS + 1), f"max_steps {STEPS} -> {STEPS + 1}")):  # fmt: skip
+    others = [
+        (config(2, seed=3), "seed 0 -> 3"),
+        (config(1), "episodes 2 -> 1"),
+        (config(2, max_steps=STEPS + 1), f"max_steps {STEPS} -> {STEPS + 1}"),
+    ]
+    for other, named in others:
         with pytest.raises(DatasetError, match="collected with other settings") as e:
             ensure_demos(two_episodes, other, progress=False)
         assert named in str(e.value) and "\n" not in str(e.value)

@@ -11,6 +11,7 @@ from safe_bc.cli import main
 from safe_bc.data.store import read_table
 from safe_bc.replicates import ROW_COLUMNS
 from safe_bc.study import load_study
+from tests.conftest import TINY_COLLECT
 
 REPO = Path(__file__).resolve().parents[2]
 SMOKE = REPO / "tune_jobs" / "smoke.py"
@@ -25,7 +26,9 @@ def test_replicates_end_to_end_and_rerun_skips_them(tiny_demos: Path, tmp_path: 
         "from dataclasses import replace\n"
         "from pathlib import Path\n"
         "from safe_bc.study import load_study\n"
+        "from safe_bc.collection import CollectConfig\n"
         f"STUDY = replace(load_study({str(SMOKE)!r}), demos=Path({str(tiny_demos)!r}),\n"
+        f"    collect={TINY_COLLECT},\n"
         f"    results=Path({str(tmp_path / 'results')!r}), trials=2, batches=30, max_steps=60,\n"
         "    eval_episodes=1, screen_episodes=0, final_episodes=1, final_candidates=1,\n"
         "    final_train_seeds=1, final_workers=0, startup_trials=2)\n"

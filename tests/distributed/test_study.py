@@ -34,6 +34,7 @@ from safe_bc.metrics import combined
 from safe_bc.seeds import heldout_seeds
 from safe_bc.study import TRIAL_INFO, TRIAL_METRICS, Choice, Float, load_study
 from safe_bc.timing import PHASES
+from tests.conftest import TINY_COLLECT, tiny_collect
 
 REPO = Path(__file__).resolve().parents[2]
 SMOKE = REPO / "tune_jobs" / "smoke.py"
@@ -46,6 +47,7 @@ def small(tmp_path: Path, demos: Path, **kw):
     """The smoke study, shrunk further, writing under ``tmp_path``."""
     defaults = dict(
         demos=demos,
+        collect=tiny_collect(),
         storage=str(tmp_path / "ray"),
         results=tmp_path / "results",
         batches=30,
@@ -67,23 +69,25 @@ def test_searcher_hands_constraints_to_optuna_and_keeps_them_in_its_checkpoint(t
     s.suggest("t2")
     s.suggest("t3")
     s.on_trial_result("t1", {"reward_mean": math.nan, "training_iteration": 1})  # not forwarded
-    both = {"constraint_safety": 0.5, "constraint_violation": 0.0}
+    both = {"constraint_safety": 0.5, "constraint_violation": 0.0, "constraint_deferral": -1.0}
     s.on_trial_complete("t1", {"reward_mean": 10.0, **both})
     s.on_trial_complete(
-        "t2", {"reward_mean": 5.0, "constraint_safety": -1.0, "constraint_violation": 0.1}
-    )
+        "t2",
+        {"reward_mean": 5.0, "constraint_safety": -1.0, "constraint_violation": 0.1,
+         "constraint_deferral": 0.02},
+    )  # fmt: skip
     s.on_trial_complete("t3", {"reward_mean": 7.0, "constraint_safety": -1.0})  # one missing
     trials = s.study.get_trials(deepcopy=False)
     assert [t.state for t in trials] == [TrialState.COMPLETE, TrialState.COMPLETE, TrialState.FAIL]
     assert trials[0].intermediate_values == {}
-    assert trials[0].constraints == {"safety": 0.5, "violations": 0.0}
-    assert trials[1].constraints == {"safety": -1.0, "violations": 0.1}
+    assert trials[0].constraints == {"safety": 0.5, "violations": 0.0, "deferral": -1.0}
+    assert trials[1].constraints == {"safety": -1.0, "violations": 0.1, "deferral": 0.02}
     s.save(str(tmp_path / "searcher.pkl"))
     restored = ConstrainedOptunaSearch()
     restored.restore(str(tmp_path / "searcher.pkl"))
     assert restored.constraints_by_trial() == {
-        "t1": {"safety": 0.5, "violations": 0.0},
-        "t2": {"safety": -1.0, "violations": 0.1},
+        "t1": {"safety": 0.5, "violations": 0.0, "deferral": -1.0},
+        "t2": {"safety": -1.0, "violations": 0.1, "deferral": 0.02},
         "t3": {},
     }
     pickle.dumps(SpaceSampler({"a": Float(0.0, 1.0)}))  # the define-by-run space pickles
@@ -95,7 +99,9 @@ def test_cli_study_end_to_end(tiny_demos: Path, tmp_path: Path, capsys) -> None:
         "from dataclasses import replace\n"
         "from pathlib import Path\n"
         "from safe_bc.study import load_study\n"
+        "from safe_bc.collection import CollectConfig\n"
         f"STUDY = replace(load_study({str(SMOKE)!r}), demos=Path({str(tiny_demos)!r}),\n"
+        f"    collect={TINY_COLLECT},\n"
         f"    results=Path({str(tmp_path / 'results')!r}), batches=30, max_steps=80,\n"
         "    final_episodes=1, final_workers=0, max_concurrent=2,\n"
         "    rollout_workers=1, cpus_per_trial=0.5, cpus_per_worker=0.5)\n"
@@ -323,3 +329,44 @@ def test_configuration_the_data_cannot_support_is_recorded_not_retried(
     assert (outcome.out / "trials.parquet").exists() and not (outcome.out / "best.json").exists()
     states = [t.state for t in load_searcher(outcome.experiment_path).study.get_trials()]
     assert states == [TrialState.FAIL]
+
+
+def test_a_study_with_a_handover_delivers_a_certified_recommender(
+    tiny_demos: Path, tmp_path: Path
+) -> None:
+    from safe_bc.data.store import data_digest
+    from safe_bc.distributed.certify import summarize_certification
+    from safe_bc.handover import HandoverConfig
+    from safe_bc.recommender import load_recommender
+
+    handover = HandoverConfig(2.0, lookahead=6, hold=6, hold_on=("front",))
+    spec = small(
+        tmp_path, tiny_demos, trials=2, final_episodes=2, handover=handover,
+        deferred_share_limit=0.5, certify_episodes=4, certify_seed=30,
+    )  # fmt: skip
+    outcome = run_study(spec, progress=False)
+    out = tmp_path / "results" / "smoke"
+    trials, meta = read_table(out / "trials.parquet")
+    assert meta["inputs"]["demos"]["digest"] == data_digest(tiny_demos)
+    assert meta["handover"] == handover.to_dict()
+    assert trials["deferred_share"].notna().all() and (trials["deferred_share"] > 0).any()
+    np.testing.assert_allclose(trials["constraint_deferral"], trials["deferred_share"] - 0.5)
+    final, _ = read_table(out / "final.parquet")
+    cands = final[final["role"] == "candidate"]
+    assert (cands["deferred_share"] > 0).all() and final.set_index("method").loc[
+        "plain_bc", "deferred_share"
+    ] != final.set_index("method").loc["plain_bc", "deferred_share"]  # NaN: plain BC alone
+    episodes, cmeta = read_table(out / "certify_episodes.parquet")
+    assert set(episodes["method"]) == {"recommender", "agent_alone", "expert"}
+    assert set(episodes["env_seed"]).isdisjoint(
+        read_table(out / "final_episodes.parquet")[0]["env_seed"]
+    )
+    _, _, again = summarize_certification(episodes, spec)
+    assert again == cmeta["certificate"] == outcome.certificate  # re-derived from its episodes
+    rec = load_recommender(out / "recommender", task="carracing", demos=tiny_demos)
+    assert rec.card.source["winner"] == outcome.final.winner
+    assert rec.card.seeds == [0, 1] and rec.card.handover == handover.to_dict()
+    assert rec.card.certificate == outcome.certificate
+    assert list(rec.card.limits.values()) == pytest.approx(meta["cost_limits"])
+    # a finished study reprints its certificate from the recommender
+    assert run_study(spec, progress=False).certificate == outcome.certificate

@@ -26,6 +26,7 @@ from safe_bc.distributed.search import (
     check_private_api,
 )
 from safe_bc.study import Float
+from tests.conftest import TINY_COLLECT, tiny_collect
 
 REPO = Path(__file__).resolve().parents[2]
 SMOKE = REPO / "tune_jobs" / "smoke.py"
@@ -180,7 +181,9 @@ def test_sigkilled_driver_loses_at_most_the_trials_in_flight(
         "from dataclasses import replace\n"
         "from pathlib import Path\n"
         "from safe_bc.study import load_study\n"
+        "from safe_bc.collection import CollectConfig\n"
         f"STUDY = replace(load_study({str(SMOKE)!r}), demos=Path({str(tiny_demos)!r}),\n"
+        f"    collect={TINY_COLLECT},\n"
         f"    results=Path({str(tmp_path / 'results')!r}), storage={str(tmp_path / 'ray')!r},\n"
         "    trials=6, max_concurrent=2, cpus_per_trial=1.0, batches=30, max_steps=80,\n"
         "    final_episodes=1, final_workers=0)\n"
@@ -288,7 +291,7 @@ def test_a_trial_run_again_after_its_evaluation_reports_it_without_evaluating_ag
     from safe_bc.study import load_study
 
     spec = replace(
-        load_study(SMOKE), demos=tiny_demos, storage=str(tmp_path / "ray"),
+        load_study(SMOKE), demos=tiny_demos, collect=tiny_collect(), storage=str(tmp_path / "ray"),
         results=tmp_path / "results", batches=30, max_steps=80, final_episodes=1,
         final_workers=0, trials=1, max_concurrent=1, max_failures=1,
     )  # fmt: skip
@@ -317,7 +320,7 @@ def test_final_phase_resumes_per_agent_and_evaluation_and_a_finished_study_only_
     from safe_bc.study import load_study
 
     spec = replace(
-        load_study(SMOKE), demos=tiny_demos, storage=str(tmp_path / "ray"),
+        load_study(SMOKE), demos=tiny_demos, collect=tiny_collect(), storage=str(tmp_path / "ray"),
         results=tmp_path / "results", batches=30, max_steps=60, trials=2, final_candidates=1,
         final_episodes=2, final_train_seeds=2, final_workers=0, screen_episodes=0,
     )  # fmt: skip
@@ -520,7 +523,7 @@ def test_an_os_error_inside_tune_is_one_line_saying_what_a_rerun_does(
     from safe_bc.study import load_study
 
     spec = replace(
-        load_study(SMOKE), demos=tiny_demos, storage=str(tmp_path / "ray"),
+        load_study(SMOKE), demos=tiny_demos, collect=tiny_collect(), storage=str(tmp_path / "ray"),
         results=tmp_path / "results", batches=10, max_steps=40, trials=1, max_concurrent=1,
     )  # fmt: skip
     with pytest.raises(OSError) as e:
@@ -580,7 +583,9 @@ def test_sigterm_and_ctrl_c_in_the_final_phase_stop_in_one_line_and_the_rerun_re
         "from dataclasses import replace\n"
         "from pathlib import Path\n"
         "from safe_bc.study import load_study\n"
+        "from safe_bc.collection import CollectConfig\n"
         f"STUDY = replace(load_study({str(SMOKE)!r}), demos=Path({str(tiny_demos)!r}),\n"
+        f"    collect={TINY_COLLECT},\n"
         f"    results=Path({str(tmp_path / 'results')!r}), storage={str(tmp_path / 'ray')!r},\n"
         "    trials=2, max_concurrent=1, batches=30, max_steps=60, screen_episodes=0,\n"
         "    final_candidates=1, final_train_seeds=3, final_episodes=3, final_workers=0)\n"

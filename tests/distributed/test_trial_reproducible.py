@@ -21,6 +21,7 @@ from safe_bc.data.store import load_demonstrations
 from safe_bc.distributed.trial import TrialJob, run_trial
 from safe_bc.experiment import train_run
 from safe_bc.study import ConstraintBars, load_study
+from tests.conftest import tiny_collect
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -60,6 +61,7 @@ def test_trial_in_reused_actor_trains_bit_identical_to_in_process_train_run(
     spec = replace(
         load_study(REPO / "tune_jobs" / "smoke.py"),
         demos=tiny_demos,
+        collect=tiny_collect(),
         storage=str(tmp_path / "ray"),
         results=tmp_path / "results",
         batches=30,
