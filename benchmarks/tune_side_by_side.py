@@ -55,6 +55,7 @@ def run_row(label: str, folder: Path) -> dict[str, Any]:
         "final_s": float(sum(study.get(p, 0.0) for p in FINAL_PHASES)),
         "final_train_s": float(study.get("final_train", 0.0)),
         "final_evaluation_s": float(study.get("final_evaluation", 0.0)),
+        "certification_s": float(study.get("certification", 0.0)),
         "trials_train_s": float(slots.get("trial_train", 0.0)),
         "trials_evaluation_s": float(slots.get("trial_evaluation", 0.0)),
         "winner": winner,

@@ -75,7 +75,7 @@ def test_registry_entries_are_complete():
     assert tuple(TASKS)[:2] == ("carracing", "rehab")  # the built-ins, in order
     for task in TASKS:
         entry = task_defaults(task)
-        optional = {"drawing"}  # None: the task cannot be rendered (rehab)
+        optional = {"drawing", "handover"}  # None: cannot be rendered / no handover measured
         missing = [
             f.name
             for f in dataclasses.fields(entry)
