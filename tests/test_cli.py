@@ -232,6 +232,7 @@ def test_short_flags_and_task_defaults() -> None:
     assert job.config.demos == Path("data/rehab_demos") and job.config.out == Path("o")
     _, job = parse(["tune", "s.py", "--trials", "3", "--max-concurrent", "1", "--fresh"])
     assert job.overrides() == {"trials": 3, "max_concurrent": 1} and job.fresh
+    assert not job.verbose and parse(["tune", "s.py", "--verbose"])[1].verbose  # Tune's table
 
 
 def test_train_records_quantile_and_combine(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
