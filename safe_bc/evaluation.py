@@ -210,7 +210,14 @@ def evaluate_episodes(
         episodes = run_episodes_lockstep(
             used, policy, chunk, max_steps=max_steps, forward=lockstep_forward
         )
-        out += [score_episode(env, ep, **kw) for env, ep in zip(used, episodes, strict=True)]
+        report = getattr(policy, "slot_report", None)  # a handover's per-slot flags
+        for slot, (env, ep) in enumerate(zip(used, episodes, strict=True)):
+            metrics, trace = score_episode(env, ep, **kw)
+            if report is not None:
+                extra_metrics, extra_trace = report(slot)
+                metrics.update(extra_metrics)
+                trace.update(extra_trace)
+            out.append((metrics, trace))
     return out
 
 

@@ -150,7 +150,9 @@ def run_episodes_lockstep(
 ) -> list[Episode]:
     """One episode per env, ``envs[i]`` on ``seeds[i]``, stepped together: each step one
     :meth:`BatchPolicy.act_slots` call for the episodes still running (observations not kept,
-    no perturbation).
+    no perturbation). A policy with ``start_slots(envs, seeds)`` and ``see_slots(infos,
+    slots)`` (a handover to a privileged expert) is given the envs after their reset and each
+    running slot's ``info`` before it acts.
 
     ``forward="rows"``: each episode is the one :func:`run_episode` gives for its seed, on
     any CPU, since the policy acts per slot as in its own episode (one-row forward passes)
@@ -164,10 +166,16 @@ def run_episodes_lockstep(
     starts = [env.reset(seed=s) for env, s in zip(envs, seeds, strict=True)]
     obs, infos = [o for o, _ in starts], [info for _, info in starts]
     policy.reset_slots(len(envs))
+    start = getattr(policy, "start_slots", None)  # a handover: its experts read the envs
+    if start is not None:
+        start(envs, seeds)
+    see = getattr(policy, "see_slots", None)  # ... and each state's info
     recs = [_Recorder(keep_observations=False) for _ in envs]
     running = list(range(len(envs)))
     t = 0
     while running:
+        if see is not None:
+            see([infos[i] for i in running], np.asarray(running))
         actions = policy.act_slots(
             np.stack([obs[i] for i in running]), np.asarray(running), forward
         )

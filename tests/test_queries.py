@@ -282,6 +282,52 @@ def test_evaluation_reports_the_deferred_share(rehab_agent, rehab_demos) -> None
     assert "deferred_steps" not in plain  # other tables keep their columns
 
 
+@pytest.mark.parametrize("task", ["rehab", "carracing"])
+def test_a_handover_in_lockstep_gives_the_one_env_episodes(
+    task, rehab_agent, tiny_demos, tmp_path
+) -> None:
+    """Envs stepped in lockstep with the agent's forward per row give, per episode, the one-env
+    path's rows, flags and counts (held, extrapolated, on real CarRacing and the clinic)."""
+    from safe_bc.bc.config import BCConfig, NetworkConfig, TrainConfig
+    from safe_bc.collection import stored_expert_config
+    from safe_bc.data.store import load_demonstrations
+    from safe_bc.envs import make_env
+    from safe_bc.evaluation import NetSource, evaluate_episodes
+    from safe_bc.experiment import train_run
+    from safe_bc.queries.defer import DeferralSource, LockstepDeferringPolicy
+    from safe_bc.run_config import RunConfig
+    from safe_bc.tasks import task_defaults
+
+    if task == "rehab":
+        model, cfg, demos = rehab_agent
+        expert, width, hold_on, max_steps = task_defaults("rehab").expert, 0.3, None, None
+    else:
+        demos = load_demonstrations(tiny_demos)
+        cfg = RunConfig(bc=BCConfig(network=NetworkConfig(channels=(4, 8, 8), hidden=16),
+                                    train=TrainConfig(batches=20)))  # fmt: skip
+        model = train_run(demos, cfg)[0].model
+        expert, width, hold_on, max_steps = stored_expert_config(tiny_demos), 12.0, (1,), 110
+    limits = tuple(float(x) for x in demos.limits)
+    source = DeferralSource(
+        NetSource.from_model(model, cfg.bc), expert, limits, width, "any", 3, 2, hold_on
+    )
+    assert isinstance(source.build(), LockstepDeferringPolicy)
+    seeds = [11, 12, 13]
+    kw = {"thresholds": np.asarray(limits), "eps": 2.0, "max_steps": max_steps}
+    env_config = task_defaults(task).env
+    envs = [make_env(env_config) for _ in seeds]
+    alone = evaluate_episodes(envs[:1], source.build(), seeds, **kw)
+    together = evaluate_episodes(envs, source.build(), seeds, lockstep_forward="rows", **kw)
+    for env in envs:
+        env.close()
+    assert sum(m["deferred_steps"] for m, _ in alone) > 0  # the handover acted
+    for (m1, t1), (m2, t2) in zip(alone, together, strict=True):
+        np.testing.assert_equal(m1, m2)  # NaN where a metric does not apply
+        assert t1.keys() == t2.keys()
+        for key in t1:
+            np.testing.assert_array_equal(t1[key], t2[key])
+
+
 def test_the_stage_runs_end_to_end_with_ray_actors(ray_session, tiny_demos, tmp_path) -> None:
     """CarRacing, 150-step episodes, 10 batches: the registered runner on 2 Ray actors."""
     from safe_bc.bc.config import BCConfig, TrainConfig

@@ -111,7 +111,7 @@ def certify(
             )
             handover = None if spec.handover is None else spec.handover.to_dict()
             what = {
-                f"{RECOMMENDER} seed={s}": ("recommender", identity, s, handover),
+                f"{RECOMMENDER} seed={s}": ("recommender", identity, s, handover, "lockstep"),
                 f"{AGENT_ALONE} seed={s}": ("agent", identity, s),
                 f"{EXPERT} seed={s}": ("expert", str(job.demos)),
             }
@@ -224,7 +224,7 @@ def certificate_line(certificate: Mapping[str, Any]) -> str:
     )
     return (
         f"certified on {certificate['episodes']} fresh episodes ({len(certificate['train_seeds'])}"
-        f" training seeds x {certificate['tracks_per_seed']} tracks of block "
+        f" training seeds x {certificate['tracks_per_seed']} held-out episodes of block "
         f"{certificate['block']}): {certificate['episodes_beyond']} beyond d_s (at most "
         f"{100 * certificate['beyond_ucb95']:.1f}% of episodes, 95% one-sided bound); reward "
         f"{d:+.1f} [{lo:+.1f}, {hi:+.1f}] against the expert ({verdict}); "

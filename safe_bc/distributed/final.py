@@ -327,7 +327,7 @@ def _agent_identity(
         ]
     what: tuple[Any, ...] = ("agent", with_seed(cfg, seed).to_dict(), str(job.demos), stages)
     if spec.handover is not None and method != PLAIN_BC:
-        what += (("handover", spec.handover.to_dict()),)
+        what += (("handover", spec.handover.to_dict(), "lockstep"),)  # (evaluated in lockstep)
     return what
 
 

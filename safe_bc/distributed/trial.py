@@ -284,7 +284,7 @@ def round_file(run_cfg: RunConfig, spec: StudySpec, seeds: list[int], first: int
         "stages": [name for name, _ in spec.stages()],
     }
     if spec.handover is not None:
-        key["handover"] = spec.handover.to_dict()
+        key["handover"] = {**spec.handover.to_dict(), "evaluation": "lockstep"}
     text = json.dumps(key, sort_keys=True, default=str)
     return f"{ROUNDS}/{first}_{n}_{hashlib.sha256(text.encode()).hexdigest()[:16]}.parquet"
 

@@ -3,16 +3,61 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 
 from safe_bc.collection import build_expert
-from safe_bc.policy import Policy
+from safe_bc.policy import BatchPolicy, Policy
 from safe_bc.queries.logic import ask_expert
 from safe_bc.selection import CriticalZone
+
+
+@dataclass
+class HandoverState:
+    """One episode's handover: the previous cost, the hold steps left, the per-step flags."""
+
+    prev: np.ndarray | None = None
+    left: int = 0
+    flags: list[bool] = field(default_factory=list)
+
+
+def handover_decision(
+    state: HandoverState,
+    info: dict[str, Any],
+    zone: CriticalZone,
+    hold: int,
+    lookahead: int,
+    hold_on: tuple[int, ...] | None,
+) -> bool:
+    """Whether the expert acts in the state whose ``info`` this is (updating ``state``): the
+    zone test on the cost (extrapolated ``lookahead`` steps at its last change), the hold
+    started by a zone step of the ``hold_on`` dimensions, never in warm-up."""
+    cost = np.asarray(info["cost"], float)
+    seen = cost
+    if lookahead and state.prev is not None:
+        seen = cost + lookahead * (cost - state.prev)
+    state.prev = cost
+    defer = ask_expert(seen, bool(info["warmup"]), zone, "critical")
+    if defer and (hold_on is None or zone.per_dim(seen[None])[0, hold_on].any()):
+        state.left = hold
+    elif not defer and state.left > 0:  # (zone steps of other dimensions pause the count)
+        defer, state.left = True, state.left - 1
+    state.flags.append(defer)
+    return defer
+
+
+def handover_report(state: HandoverState) -> tuple[dict[str, float], dict[str, np.ndarray]]:
+    """An episode's ``deferred_steps``, ``deferred_share`` and per-step ``deferred`` flags."""
+    flags = np.asarray(state.flags, bool)
+    n = int(flags.sum())
+    return (
+        {"deferred_steps": float(n), "deferred_share": n / max(len(flags), 1)},
+        {"deferred": flags},
+    )
 
 
 class DeferringPolicy:
@@ -49,44 +94,86 @@ class DeferringPolicy:
         self.agent, self.expert, self.zone = agent, expert, zone
         self.hold, self.lookahead = int(hold), int(lookahead)
         self.hold_on = None if hold_on is None else tuple(int(i) for i in hold_on)
-        self.flags: list[bool] = []
-        self._left = 0
-        self._prev: np.ndarray | None = None
+        self.state = HandoverState()
         self._info: dict[str, Any] = {}
+
+    @property
+    def flags(self) -> list[bool]:
+        """This episode's per-step flags so far (True: the expert acted)."""
+        return self.state.flags
 
     def reset(self, env: gym.Env, rng: np.random.Generator) -> None:
         self.agent.reset(env, rng)
         self.expert.reset(env, rng)
-        self.flags = []
-        self._left = 0
-        self._prev = None
+        self.state = HandoverState()
 
     def see(self, info: dict[str, Any]) -> None:
         self._info = info
 
     def act(self, obs: np.ndarray, env: gym.Env) -> np.ndarray:
         own = self.agent.act(obs, env)
-        info = self._info
-        cost = np.asarray(info["cost"], float)
-        seen = cost
-        if self.lookahead and self._prev is not None:
-            seen = cost + self.lookahead * (cost - self._prev)
-        self._prev = cost
-        defer = ask_expert(seen, bool(info["warmup"]), self.zone, "critical")
-        if defer and (self.hold_on is None or self.zone.per_dim(seen[None])[0, self.hold_on].any()):
-            self._left = self.hold
-        elif not defer and self._left > 0:  # (zone steps of other dimensions pause the count)
-            defer, self._left = True, self._left - 1
-        self.flags.append(defer)
+        defer = self._decide(self.state, self._info)
         return np.asarray(self.expert.act(obs, env), np.float32) if defer else own
 
+    def _decide(self, state: HandoverState, info: dict[str, Any]) -> bool:
+        return handover_decision(state, info, self.zone, self.hold, self.lookahead, self.hold_on)
+
     def episode_report(self) -> tuple[dict[str, float], dict[str, np.ndarray]]:
-        flags = np.asarray(self.flags, bool)
-        n = int(flags.sum())
-        return (
-            {"deferred_steps": float(n), "deferred_share": n / max(len(flags), 1)},
-            {"deferred": flags},
-        )
+        return handover_report(self.state)
+
+
+class LockstepDeferringPolicy(DeferringPolicy):
+    """:class:`DeferringPolicy` over envs stepped in lockstep (a
+    :class:`~safe_bc.policy.BatchPolicy`): the agent acts for every running env with one
+    ``act_slots`` call, the zone test, hold and expert run per env. With ``forward="rows"``
+    every episode is, bit for bit, the one-env path's (the same per-env computations); with
+    ``"batched"`` the agent's actions may round differently
+    (:data:`safe_bc.policy.LockstepForward`). Each env's expert is its own (``make_expert``),
+    reset with the episode's seed as the one-env evaluation does."""
+
+    def __init__(
+        self,
+        agent: Any,
+        make_expert: Callable[[], Policy],
+        zone: CriticalZone,
+        hold: int = 0,
+        lookahead: int = 0,
+        hold_on: tuple[int, ...] | None = None,
+    ) -> None:
+        super().__init__(agent, make_expert(), zone, hold, lookahead, hold_on)
+        self.make_expert = make_expert
+        self._envs: list[gym.Env] = []
+        self._experts: list[Policy] = []
+        self._states: list[HandoverState] = []
+        self._infos: dict[int, dict[str, Any]] = {}
+
+    def reset_slots(self, n: int) -> None:
+        self.agent.reset_slots(n)
+        self._states = [HandoverState() for _ in range(n)]
+        self._experts = [self.make_expert() for _ in range(n)]
+        self._infos = {}
+
+    def start_slots(self, envs: Sequence[gym.Env], seeds: Sequence[int]) -> None:
+        """The envs of the slots (after their reset) and their seeds: each slot's expert is
+        reset with ``np.random.default_rng(seed)``, as :func:`evaluate_episode` resets a policy."""
+        self._envs = list(envs)
+        for expert, env, seed in zip(self._experts, envs, seeds, strict=True):
+            expert.reset(env, np.random.default_rng(seed))
+
+    def see_slots(self, infos: Sequence[dict[str, Any]], slots: np.ndarray) -> None:
+        """The ``info`` of each running slot's current state."""
+        self._infos = {int(s): info for s, info in zip(slots, infos, strict=True)}
+
+    def act_slots(self, obs: np.ndarray, slots: np.ndarray, forward: Any = "rows") -> np.ndarray:
+        actions = np.array(self.agent.act_slots(obs, slots, forward), np.float32)
+        for i, s in enumerate(int(x) for x in slots):
+            if self._decide(self._states[s], self._infos[s]):
+                actions[i] = np.asarray(self._experts[s].act(obs[i], self._envs[s]), np.float32)
+        return actions
+
+    def slot_report(self, slot: int) -> tuple[dict[str, float], dict[str, np.ndarray]]:
+        """Slot ``slot``'s :meth:`episode_report`."""
+        return handover_report(self._states[slot])
 
 
 def dimension_indices(names: tuple[str, ...], dims: tuple[str, ...]) -> tuple[int, ...] | None:
@@ -125,11 +212,14 @@ class DeferralSource:
     """Dimensions (indices) whose zone test starts the hold (``None``: any)."""
 
     def build(self) -> DeferringPolicy:
+        """The deferring policy; a :class:`LockstepDeferringPolicy` when the agent acts for
+        envs in lockstep (a BC net), so the evaluation steps several envs at once."""
         zone = CriticalZone(self.limits, self.width, self.combine)  # type: ignore[arg-type]
-        expert = build_expert(self.expert)
-        return DeferringPolicy(
-            self.agent.build(), expert, zone, self.hold, self.lookahead, self.hold_on
-        )
+        agent = self.agent.build()
+        args = (zone, self.hold, self.lookahead, self.hold_on)
+        if isinstance(agent, BatchPolicy):
+            return LockstepDeferringPolicy(agent, lambda: build_expert(self.expert), *args)
+        return DeferringPolicy(agent, build_expert(self.expert), *args)
 
 
 def handover_source(

@@ -67,3 +67,21 @@ def test_one_crossing_or_a_reward_below_the_expert_misses_its_goal() -> None:
 def test_an_outcome_beyond_d_s_counts_as_a_crossing() -> None:
     frame = pd.DataFrame({"any_violation": [0.0, 0.0, 1.0], "any_violating_session": [1.0, 0, 0]})
     assert crossed(frame).tolist() == [True, False, True]
+
+
+@pytest.mark.parametrize("study", ["default", "rehab"])
+def test_the_committed_certificates_re_derive_from_their_episodes(study: str) -> None:
+    import json
+    from pathlib import Path
+
+    from safe_bc.data.store import read_table
+    from safe_bc.study import load_study
+
+    root = Path(__file__).resolve().parents[2]
+    spec = load_study(root / "tune_jobs" / f"{study}.py")
+    episodes, meta = read_table(root / "results" / study / "certify_episodes.parquet")
+    table, _, certificate = summarize_certification(episodes, spec)
+    card = json.loads((root / "results" / study / "recommender" / "recommender.json").read_text())
+    assert certificate == meta["certificate"] == card["certificate"]
+    committed, _ = read_table(root / "results" / study / "certify.parquet")
+    pd.testing.assert_frame_equal(table, committed, check_exact=True)
