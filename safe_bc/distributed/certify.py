@@ -20,9 +20,8 @@ import pandas as pd
 import torch
 
 from safe_bc.collection import stored_expert_config
-from safe_bc.distributed.evaluate import LOCKSTEP_ENVS, evaluate_policies
+from safe_bc.distributed.final import evaluate_block, final_paired, stored_evaluations
 from safe_bc.distributed.final_store import FinalStore, key_of
-from safe_bc.distributed.stop import deferred_stop
 from safe_bc.distributed.trial import TrialJob, trial_threads, with_handover
 from safe_bc.evaluation import EvalConfig, ExpertSource
 from safe_bc.metrics import clopper_pearson_upper, summarize_policies
@@ -119,36 +118,14 @@ def certify(
                 n: key_of("certify", what[n], config, list(job.cost_limits), "batched")
                 for n in sources
             }
-            done = {n: store.episodes(k) for n, k in keys.items()} if store is not None else {}
-            done = {n: ep for n, ep in done.items() if ep is not None}
+            done = stored_evaluations(store, keys)
             if progress:
                 print(
                     f"certification: seed {s}, tracks {i * per}..{(i + 1) * per - 1} of block "
                     f"{spec.certify_seed}"
                     + (f"; {len(done)} of {len(sources)} finished before" if done else "")
                 )
-            left = {n: src for n, src in sources.items() if n not in done}
-            found = []
-            if left:
-                with deferred_stop():  # stops after the evaluation, once it is stored
-                    eps, _ = evaluate_policies(
-                        left, config, thresholds=np.asarray(job.cost_limits),
-                        progress=progress, envs_per_worker=LOCKSTEP_ENVS,
-                    )  # fmt: skip
-                    for name in left:
-                        mine = eps[eps["policy"] == name].reset_index(drop=True)
-                        if store is not None:
-                            store.save_episodes(keys[name], mine)
-                        found.append(mine)
-            ep = pd.concat(
-                [*(done[n].assign(policy=n) for n in sources if n in done), *found],
-                ignore_index=True,
-            )
-            order = {n: j for j, n in enumerate(sources)}
-            ep = ep.sort_values("policy", key=lambda c: c.map(order), kind="stable")
-            ep = ep.reset_index(drop=True)
-            ep.insert(0, "train_seed", s)
-            ep.insert(0, "method", ep["policy"].str.split(" ").str[0])
+            ep = evaluate_block(sources, keys, done, config, job.cost_limits, store, progress, s)
             parts.append(ep)
     finally:
         torch.set_num_threads(previous)
@@ -163,8 +140,6 @@ def summarize_certification(
 ) -> tuple[pd.DataFrame, pd.DataFrame, dict[str, Any]]:
     """The certification's table, per-seed rewards and certificate from its episodes (pure:
     rerun on the committed episodes, it gives the committed numbers)."""
-    from safe_bc.distributed.final import final_paired
-
     seed = spec.certify_seed
     table = summarize_policies(episodes, ["method"], group="train_seed", seed=seed)
     order = {m: i for i, m in enumerate([RECOMMENDER, AGENT_ALONE, EXPERT])}

@@ -243,34 +243,12 @@ def final_phase(
                 name: key_of("episodes", what[name], config, list(job.cost_limits), *forward)
                 for name in sources
             }
-            done = {n: store.episodes(k) for n, k in keys.items()} if store is not None else {}
-            done = {n: ep for n, ep in done.items() if ep is not None}
+            done = stored_evaluations(store, keys)
             if progress:
                 print(f"final phase: seed {s}, tracks {i * per}..{(i + 1) * per - 1} of block "
                       f"{spec.final_seed}" + (f"; {len(done)} of {len(sources)} evaluations "
                       "finished before" if done else ""))  # fmt: skip
-            left = {n: src for n, src in sources.items() if n not in done}
-            found = []
-            if left:
-                with deferred_stop():  # stops after the evaluation, once it is stored
-                    eps, _ = evaluate_policies(  # its rows only: the summaries come below
-                        left, config, thresholds=np.asarray(job.cost_limits), progress=progress,
-                        envs_per_worker=LOCKSTEP_ENVS)  # fmt: skip
-                    for name in left:
-                        mine = eps[eps["policy"] == name]
-                        mine = mine.reset_index(drop=True)
-                        if store is not None:
-                            store.save_episodes(keys[name], mine)
-                        found.append(mine)
-            ep = pd.concat(
-                [*(done[n].assign(policy=n) for n in sources if n in done), *found],
-                ignore_index=True,
-            )
-            order = {n: j for j, n in enumerate(sources)}
-            ep = ep.sort_values("policy", key=lambda c: c.map(order), kind="stable")
-            ep = ep.reset_index(drop=True)
-            ep.insert(0, "train_seed", s)
-            ep.insert(0, "method", ep["policy"].str.split(" ").str[0])
+            ep = evaluate_block(sources, keys, done, config, job.cost_limits, store, progress, s)
             parts.append(ep)
     finally:
         torch.set_num_threads(previous)
@@ -305,6 +283,49 @@ def final_phase(
         table, episodes, winner, feasible, message, configs, certified, paired, seconds,
         agents=dict(nets), models=dict(models),
     )  # fmt: skip
+
+
+def stored_evaluations(store: FinalStore | None, keys: Mapping[str, str]) -> dict[str, Any]:
+    """Name -> its episodes, for the evaluations of ``keys`` already in ``store``."""
+    done = {n: store.episodes(k) for n, k in keys.items()} if store is not None else {}
+    return {n: ep for n, ep in done.items() if ep is not None}
+
+
+def evaluate_block(
+    sources: Mapping[str, Any],
+    keys: Mapping[str, str],
+    done: Mapping[str, pd.DataFrame],
+    config: EvalConfig,
+    limits: Any,
+    store: FinalStore | None,
+    progress: bool,
+    train_seed: int,
+) -> pd.DataFrame:
+    """Every source's episodes on one block of fresh tracks (``config``): those in ``done``
+    (:func:`stored_evaluations`) as they are, the rest evaluated in lockstep and kept in
+    ``store`` under their ``keys`` (a Ctrl-C or SIGTERM stops once they are kept). Rows in
+    source order, with ``method`` (the name's first word) and ``train_seed``."""
+    left = {n: src for n, src in sources.items() if n not in done}
+    found = []
+    if left:
+        with deferred_stop():  # stops after the evaluation, once it is stored
+            eps, _ = evaluate_policies(  # its rows only: the summaries come later
+                left, config, thresholds=np.asarray(limits), progress=progress,
+                envs_per_worker=LOCKSTEP_ENVS)  # fmt: skip
+            for name in left:
+                mine = eps[eps["policy"] == name].reset_index(drop=True)
+                if store is not None:
+                    store.save_episodes(keys[name], mine)
+                found.append(mine)
+    ep = pd.concat(
+        [*(done[n].assign(policy=n) for n in sources if n in done), *found], ignore_index=True
+    )
+    order = {n: j for j, n in enumerate(sources)}
+    ep = ep.sort_values("policy", key=lambda c: c.map(order), kind="stable")
+    ep = ep.reset_index(drop=True)
+    ep.insert(0, "train_seed", train_seed)
+    ep.insert(0, "method", ep["policy"].str.split(" ").str[0])
+    return ep
 
 
 def _agent_identity(
