@@ -144,6 +144,22 @@ def test_tiny_exact_row_raster_view_and_raster_pipeline(ray_session, tmp_path):
     assert stamps["raster"]["thresholds"] == stamps["exact"]["thresholds"]
     assert stamps["raster pipeline"]["thresholds"] != stamps["exact"]["thresholds"]
     assert stamps["raster pipeline"]["run"]["demos"] == str(raster_demos)
+    # the table records the demonstrations and the run folders it read, by content
+    from safe_bc.data.store import data_digest
+
+    inputs = read_table(tmp_path / "tinyrender.parquet")[1]["inputs"]
+    assert [d["digest"] for d in inputs["demos"]] == [
+        data_digest(exact_demos),
+        data_digest(raster_demos),
+    ]
+    assert inputs["demos"][1]["collector"]["renderer"] == "raster"
+    assert set(inputs["runs"]) == {
+        "tinyrender_runs/exact/seed0/agent", "tinyrender_runs/exact/seed0/episodes.parquet",
+        "tinyrender_runs/raster/seed0/episodes.parquet",
+        "tinyrender_runs/raster_pipeline/seed0/agent",
+        "tinyrender_runs/raster_pipeline/seed0/episodes.parquet",
+    }  # fmt: skip
     before = (runs / "raster_pipeline/seed0/episodes.parquet").stat().st_mtime_ns
     run_comparison(comp, progress=False)
+    assert read_table(tmp_path / "tinyrender.parquet")[1]["inputs"] == inputs  # nothing redone
     assert (runs / "raster_pipeline/seed0/episodes.parquet").stat().st_mtime_ns == before

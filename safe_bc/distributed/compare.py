@@ -127,6 +127,27 @@ def own_demos(comparison: Comparison) -> dict[Path, Any]:
     return {comparison.demos: first, **out}
 
 
+def run_digests(comparison: Comparison, cells: list[tuple[Method, int]]) -> dict[str, str]:
+    """What the tables read from each cell's run folder, by content: the folder's BC agent
+    (its weights' SHA-256, ``agent/``) and its stored episodes (SHA-256 of
+    ``episodes.parquet``), keyed by path relative to the comparison's output folder."""
+    import hashlib
+
+    from safe_bc.bc import read_checkpoint_meta
+
+    out: dict[str, str] = {}
+    for m, s in cells:
+        folder = _folder(comparison, m, s)
+        if (folder / "agent" / "config.json").is_file():
+            weights = read_checkpoint_meta(folder / "agent").get("weights_sha256", "")
+            out[str((folder / "agent").relative_to(comparison.out))] = f"sha256:{weights}"
+        episodes = folder / "episodes.parquet"
+        if episodes.is_file():
+            digest = hashlib.sha256(episodes.read_bytes()).hexdigest()
+            out[str(episodes.relative_to(comparison.out))] = f"sha256:{digest}"
+    return out
+
+
 def _cells(comparison: Comparison) -> list[tuple[Method, int]]:
     return [(m, s) for m in comparison.methods for s in comparison.seeds_of(m)]
 
@@ -590,6 +611,7 @@ def run_comparison(
     steps = pd.concat(traces, ignore_index=True) if traces else pd.DataFrame()
     train_df = pd.DataFrame(train_rows)
     meta["seconds"] = round(time.perf_counter() - started, 1)
+    meta["inputs"] = {**meta["inputs"], "runs": run_digests(c, cells)}
     meta["demo_safety_mean"] = float(combined(demos.safety[demos.scored]).mean())
     meta["run_machines"] = machines(run_metas)
     meta["eval_machines"] = machines(eval_metas)
