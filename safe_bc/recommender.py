@@ -31,8 +31,14 @@ import numpy as np
 from safe_bc.atomic import write_json_atomic
 from safe_bc.handover import HandoverConfig
 
-FORMAT = "safe_bc.recommender/1"
-"""The card's format tag."""
+FORMAT = "safe_bc.recommender/2"
+"""The format :func:`write_recommender` writes: the card carries :data:`CARD_SHA256`."""
+FORMATS = ("safe_bc.recommender/1", FORMAT)
+"""The formats :func:`read_card` accepts; ``/1`` (the same card, written before it was sealed)
+loads without the seal."""
+CARD_SHA256 = "card_sha256"
+"""Key in the card of the SHA-256 of the rest of it (sorted, compact JSON): an edited d_s,
+handover or digest is refused."""
 CARD = "recommender.json"
 """The card's file name."""
 Actor = Literal["agent", "expert"]
@@ -91,8 +97,13 @@ class RecommenderCard:
     @classmethod
     def from_dict(cls, data: Mapping[str, Any], where: Any = CARD) -> RecommenderCard:
         """Inverse of :meth:`to_dict`; one-line error for a foreign or damaged card."""
-        if data.get("format") != FORMAT:
+        if data.get("format") not in FORMATS:
             raise RecommenderError(f"{where}: not a safe_bc recommender card ({FORMAT})")
+        if data.get("format") == FORMAT and data.get(CARD_SHA256) != card_digest(data):
+            raise RecommenderError(
+                f"{where}: the card does not match its {CARD_SHA256} (edited or damaged); "
+                "write the recommender again from its study"
+            )
         try:
             return cls(**{k: data[k] for k in cls.__dataclass_fields__ if k in data})
         except TypeError as e:
@@ -120,7 +131,8 @@ def write_recommender(
     try:
         for seed, (model, config) in agents.items():
             save_checkpoint(staging / f"seed_{seed}", model, config, extra={"seed": int(seed)})
-        write_json_atomic(staging / CARD, card.to_dict(), default=str, allow_nan=True)
+        data = json.loads(json.dumps(card.to_dict(), default=str))
+        write_json_atomic(staging / CARD, {**data, CARD_SHA256: card_digest(data)}, allow_nan=True)
         old = out.parent / f".{out.name}-old"
         if out.exists():
             shutil.rmtree(old, ignore_errors=True)
@@ -130,6 +142,15 @@ def write_recommender(
     finally:
         shutil.rmtree(staging, ignore_errors=True)
     return out
+
+
+def card_digest(data: Mapping[str, Any]) -> str:
+    """SHA-256 of a card's JSON without its :data:`CARD_SHA256` (sorted keys, compact)."""
+    import hashlib
+
+    rest = {k: v for k, v in data.items() if k != CARD_SHA256}
+    text = json.dumps(rest, sort_keys=True, separators=(",", ":"), allow_nan=True)
+    return hashlib.sha256(text.encode()).hexdigest()
 
 
 def read_card(path: Path) -> RecommenderCard:

@@ -18,6 +18,7 @@ from safe_bc.recommender import (
     CARD,
     RecommenderCard,
     RecommenderError,
+    card_digest,
     load_recommender,
     write_recommender,
 )
@@ -67,11 +68,19 @@ def test_written_loaded_and_refused_for_another_task_data_or_damage(
     assert rec.card.demos["digest"] == data_digest(tiny_demos)
     with pytest.raises(RecommenderError, match="for 'carracing', not for 'rehab'"):
         load_recommender(out, task="rehab")
-    other = json.loads((out / CARD).read_text())
-    other["demos"]["digest"] = "sha256:0"
+    sealed = json.loads((out / CARD).read_text())
+    edited = {**sealed, "limits": {**sealed["limits"], "left": 99.0}}  # a d_s edited by hand
+    (out / CARD).write_text(json.dumps(edited))
+    with pytest.raises(RecommenderError, match="does not match its card_sha256"):
+        load_recommender(out)
+    other = {**sealed, "demos": {**sealed["demos"], "digest": "sha256:0"}}
+    other["card_sha256"] = card_digest(other)  # resealed: the digest check still refuses it
     (out / CARD).write_text(json.dumps(other))
     with pytest.raises(RecommenderError, match="made from other demonstrations"):
         load_recommender(out, demos=tiny_demos)
+    unsealed = {k: v for k, v in sealed.items() if k != "card_sha256"}
+    (out / CARD).write_text(json.dumps({**unsealed, "format": "safe_bc.recommender/1"}))
+    assert load_recommender(out).card.seeds == [0, 1]  # a card written before the seal
     weights = out / "seed_1" / "weights.pt"
     weights.write_bytes(weights.read_bytes()[:-7] + b"damaged")
     with pytest.raises(RecommenderError, match="agent of seed 1"):
