@@ -1155,13 +1155,19 @@ class _TrialClock:
         self.done += 1
 
 
-def _bench_demos(root: Path, seed: int) -> Path:
-    """Two short real CarRacing demonstration episodes for the study cases."""
+def _bench_collect(seed: int) -> Any:
+    """The study cases' collection: two short real CarRacing episodes."""
     from safe_bc.collection import CollectConfig
+
+    return CollectConfig(episodes=2, workers=2, max_steps=150, seed=seed)
+
+
+def _bench_demos(root: Path, seed: int) -> Path:
+    """:func:`_bench_collect`'s demonstrations under ``root``."""
     from safe_bc.distributed.collect import collect
 
     out = root / "demos"
-    collect(CollectConfig(episodes=2, workers=2, max_steps=150, seed=seed), out, progress=False)
+    collect(_bench_collect(seed), out, progress=False)
     return out
 
 
@@ -1176,6 +1182,7 @@ def _tiny_study(root: Path, demos: Path, sizes: Sizes, concurrent: int, seed: in
         smoke,
         name=f"bench_c{concurrent}",
         demos=demos,
+        collect=_bench_collect(seed),
         storage=str(root / "ray"),
         results=root / "results",
         trials=sizes.study_trials,
