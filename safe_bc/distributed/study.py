@@ -449,6 +449,7 @@ def write_timing(out: Path, trials: pd.DataFrame, meta: dict[str, Any]) -> pd.Da
         "command": meta.get("command", ""),
         "study": meta.get("study", {}),
         "driver_runs": runs,
+        "inputs": meta.get("inputs", {}),
         "source": f"{TIMING_LOG} (the driver's pieces) and trials.parquet (the trials' seconds)",
         "provenance": meta.get("provenance") or provenance(),
     }
