@@ -9,7 +9,7 @@ only reads what the two runs wrote (``timing.parquet``, ``final.parquet``,
 paired difference to the expert (95% CI) and its final-phase episodes beyond d_s; then the new
 run's wall-clock as a share of the old one's.
 
-    python -m benchmarks.tune_side_by_side --run old=DIR --run new=DIR --out OUT
+    python -m benchmarks.tune_side_by_side --run old=DIR --run new=DIR --out OUT [--demos old=DEMOS]
     python -m benchmarks.tune_side_by_side --out OUT   # again, from the copies in OUT
 """
 
@@ -24,7 +24,7 @@ from typing import Any
 import pandas as pd
 
 from safe_bc.atomic import write_text_atomic
-from safe_bc.data.store import read_table, write_table_atomic
+from safe_bc.data.store import dataset_record, read_table, write_table_atomic
 
 TABLES = (
     "timing.parquet", "timing.md", "trials.parquet", "final.parquet", "final_paired.parquet",
@@ -67,6 +67,23 @@ def run_row(label: str, folder: Path) -> dict[str, Any]:
         "episodes": int(row["n_episodes"]),
         "feasible": bool(row["feasible"]),
     }
+
+
+def record_inputs(folder: Path, demos: Path) -> None:
+    """Add the demonstrations a run read (:func:`safe_bc.data.store.dataset_record` of
+    ``demos``) to the metadata of each copied table of ``folder`` that records none (a run
+    made before tables recorded them); the rows are left as they are."""
+    record = {"demos": dataset_record(demos), "recorded_by": "benchmarks.tune_side_by_side"}
+    for path in sorted(folder.glob("*.parquet")):
+        table, meta = read_table(path)
+        if "inputs" not in meta:
+            write_table_atomic(path, table, {**meta, "inputs": record})
+
+
+def inputs_of(folder: Path) -> str:
+    """The digest of the demonstrations a run's trial table records (``""``: none)."""
+    meta = read_table(folder / "trials.parquet")[1]
+    return str(meta.get("inputs", {}).get("demos", {}).get("digest", ""))
 
 
 def side_by_side(rows: list[dict[str, Any]]) -> pd.DataFrame:
@@ -131,7 +148,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--commands", default="", help="how the runs were made (recorded)")
     p.add_argument("--setting", default="", help="how the runs relate, when not one after the "
                    "other on one machine with nothing else running (recorded)")  # fmt: skip
+    p.add_argument(
+        "--demos",
+        action="append",
+        default=[],
+        help="LABEL=DIR: the demonstrations of a run whose tables name none",
+    )
     args = p.parse_args(argv)
+    demos = dict(tuple(d.split("=", 1)) for d in args.demos)
     runs = [tuple(r.split("=", 1)) for r in args.run]
     if any(len(r) != 2 for r in runs):
         p.error("--run takes LABEL=STUDY_DIR")
@@ -141,13 +165,16 @@ def main(argv: list[str] | None = None) -> int:
             dest.mkdir(parents=True, exist_ok=True)
             for name in TABLES:
                 shutil.copy2(Path(folder) / name, dest / name)
+            if label in demos:
+                record_inputs(dest, Path(demos[label]))
         labels = [label for label, _ in runs]
     else:
         old, _ = read_table(args.out / "side_by_side.parquet")
         labels = list(old["run"])
     rows = [run_row(label, args.out / label) for label in labels]
     table = side_by_side(rows)
-    meta = {"runs": labels, "commands": args.commands, "setting": args.setting}
+    meta = {"runs": labels, "commands": args.commands, "setting": args.setting,
+            "inputs": {label: inputs_of(args.out / label) for label in labels}}  # fmt: skip
     if not runs:
         before = read_table(args.out / "side_by_side.parquet")[1]
         meta["commands"], meta["setting"] = before.get("commands", ""), before.get("setting", "")

@@ -18,3 +18,12 @@ def test_the_setting_replaces_the_default_sentence() -> None:
     told = markdown(table, {**meta, "setting": "Two sessions"})
     assert told.startswith("# `make tune` side by side\n\nTwo sessions; made by")
     assert "one after the other" not in told.split("\n")[2]
+
+
+def test_every_run_of_the_recommender_comparison_names_its_demonstrations() -> None:
+    folder = ROOT / "results/checks/make_tune/recommender"
+    _, meta = read_table(folder / "side_by_side.parquet")
+    assert set(meta["inputs"]) == {"old", "oneenv", "new"}
+    assert len(set(meta["inputs"].values())) == 1 and all(meta["inputs"].values())
+    for path in folder.glob("*/*.parquet"):  # each copy names them too
+        assert read_table(path)[1]["inputs"]["demos"]["digest"] == meta["inputs"]["old"], path
