@@ -319,7 +319,7 @@ def evaluate_recommender(job: EvaluateJob) -> Done:
 def expert(job: ExpertJob) -> Done:
     """Measure the task's expert on held-out episodes (``expert.md``, the message)."""
     from safe_bc.atomic import write_text_atomic
-    from safe_bc.data.store import load_demonstrations, write_table_atomic
+    from safe_bc.data.store import dataset_record, load_demonstrations, write_table_atomic
     from safe_bc.distributed.collect import ensure_demos
     from safe_bc.distributed.evaluate import evaluate as run_evaluate
     from safe_bc.evaluation import EvalConfig, ExpertSource
@@ -352,6 +352,7 @@ def expert(job: ExpertJob) -> Done:
         eval_seed=job.eval_seed,
         env_seeds=episodes["env_seed"].tolist(),
         demos=str(demos_path),
+        inputs={"demos": dataset_record(demos_path)},
         limits=[float(x) for x in limits],
         eps=task.eps,
     )

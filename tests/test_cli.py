@@ -360,3 +360,8 @@ def test_expert_from_few_episodes_reports_means_without_an_interval(
     printed = capsys.readouterr().out
     assert "too few episodes for an interval" in printed and "95% CI" not in printed
     assert (out / "expert.md").read_text().strip() == printed.strip()
+    from safe_bc.data.store import data_digest  # the table names the demonstrations it read
+
+    assert read_table(out / "expert.parquet")[1]["inputs"]["demos"]["digest"] == data_digest(
+        rehab_demos
+    )
