@@ -268,6 +268,7 @@ def evaluate_recommender(job: EvaluateJob) -> Done:
     from safe_bc.data.store import write_table_atomic
     from safe_bc.distributed.evaluate import evaluate as run_evaluate
     from safe_bc.evaluation import EvalConfig
+    from safe_bc.metrics import certified_share, episodes_beyond
     from safe_bc.provenance import run_metadata
     from safe_bc.recommender import load_recommender
     from safe_bc.tasks import task_defaults
@@ -299,18 +300,17 @@ def evaluate_recommender(job: EvaluateJob) -> Done:
     write_table_atomic(job.out / "episodes.parquet", episodes, meta)
     write_table_atomic(job.out / "steps.parquet", steps, meta)
     write_table_atomic(job.out / "summary.parquet", table, meta)
-    beyond = int((episodes["any_violation"] > 0).sum())
-    n = len(episodes)
-    from safe_bc.metrics import clopper_pearson_upper
-
+    beyond = int(episodes_beyond(episodes).sum())
+    deferred = (
+        f", {100 * episodes['deferred_share'].mean():.1f}% of steps deferred to the expert"
+        if "deferred_share" in episodes
+        else ""
+    )
     lines = [
         f"recommender {job.recommender} ({len(seeds)} training seed(s) x {job.episodes} tracks "
         f"of block {job.eval_seed}): reward {episodes['reward'].mean():.1f}, safety mean "
-        f"{episodes['safety_mean'].mean():.2f}, {beyond} of {n} episodes beyond d_s (at most "
-        f"{100 * clopper_pearson_upper(beyond, n, 0.95):.1f}%, 95% one-sided bound), "
-        f"{100 * episodes['deferred_share'].mean():.1f}% of steps deferred to the expert"
-        if "deferred_share" in episodes
-        else f"recommender {job.recommender}: {beyond} of {n} episodes beyond d_s",
+        f"{episodes['safety_mean'].mean():.2f}; {certified_share(beyond, len(episodes))}"
+        + deferred,
         f"wrote {job.out}/episodes.parquet, steps.parquet, summary.parquet",
     ]
     return Done("\n".join(lines), result)

@@ -736,6 +736,22 @@ def lower_bound_crossed(
     return mean if confidence == 0.5 else lo
 
 
+def episodes_beyond(episodes: pd.DataFrame) -> np.ndarray:
+    """``(N,) bool``: evaluated episodes with a step beyond ``d_s`` (``any_violation``) or,
+    where the task scores outcomes (rehab's sessions, the last one included), an outcome
+    beyond it.
+
+    >>> frame = pd.DataFrame({"any_violation": [0.0, 0.0, 1.0],
+    ...                       "any_violating_session": [1.0, 0.0, 0.0]})
+    >>> episodes_beyond(frame).tolist()
+    [True, False, True]
+    """
+    out = episodes["any_violation"].fillna(0).to_numpy(float) > 0
+    if "any_violating_session" in episodes:
+        out |= episodes["any_violating_session"].fillna(0).to_numpy(float) > 0
+    return out
+
+
 def certified_share(k: int, n: int, confidence: float = 0.95, what: str = "episodes") -> str:
     """The claim ``k`` of ``n`` supports, in words.
 

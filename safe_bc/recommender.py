@@ -212,7 +212,7 @@ class Recommender:
             raise RuntimeError("call reset(env) before step()")
         see = getattr(self._policy, "see", None)
         if see is not None:
-            see(dict(info))
+            see(info)
         action = np.asarray(self._policy.act(obs, env), np.float32)
         flags = getattr(self._policy, "flags", None)
         actor: Actor = "expert" if flags and flags[-1] else "agent"

@@ -566,10 +566,13 @@ def data_digest(root: Path) -> str:
     another clone (same seeds, settings and package versions) has the same digest, and any
     changed value, episode added or removed, or other setting changes it. Every file is read
     whole (a few MB for the default CarRacing set)."""
-    root = Path(root)
     meta = read_meta(root)
+    return _digest(Path(root), meta, completed_episodes(root, meta))
+
+
+def _digest(root: Path, meta: DatasetMeta, ids: Sequence[int]) -> str:
     h = hashlib.sha256(json.dumps(meta.identity(), sort_keys=True).encode())
-    for i in completed_episodes(root, meta):
+    for i in ids:
         path = episode_path(root, i)
         try:
             table = pq.read_table(path).replace_schema_metadata(None).combine_chunks()
@@ -588,10 +591,11 @@ def dataset_record(root: Path) -> dict[str, Any]:
     (:func:`data_digest`), episode count and collector settings (:meth:`DatasetMeta.identity`)."""
     root = Path(root)
     meta = read_meta(root)
+    ids = completed_episodes(root, meta)
     return {
         "path": str(root),
-        "digest": data_digest(root),
-        "episodes": len(completed_episodes(root, meta)),
+        "digest": _digest(root, meta, ids),
+        "episodes": len(ids),
         "collector": meta.identity(),
     }
 
@@ -600,21 +604,28 @@ def collection_mismatch(
     root: Path, expected: DatasetMeta, episodes: int | None = None
 ) -> str | None:
     """How the dataset at ``root`` differs from a collection with metadata ``expected`` and
-    ``episodes`` episodes (one line naming each field, stored -> expected), ``None`` when it
-    does not (fewer episodes than ``episodes`` is not a difference: an interrupted collection
-    resumes). No dataset at ``root`` is ``None`` too."""
+    ``episodes`` episodes (:func:`settings_mismatch`); ``None`` when it does not, or when
+    there is no dataset at ``root``."""
     root = Path(root)
     if not (root / META_FILE).exists():
         return None
-    stored_meta = read_meta(root)
-    stored, wanted = _flat(stored_meta.identity()), _flat(expected.identity())
-    keys = list(dict.fromkeys([*wanted, *stored]))
-    diff = [f"{k} {_short(stored.get(k))} -> {_short(wanted.get(k))}" for k in keys
-            if stored.get(k) != wanted.get(k)]  # fmt: skip
-    if episodes is not None:
-        n = len(completed_episodes(root, stored_meta))
-        if n > episodes:
-            diff.append(f"episodes {n} -> {episodes}")
+    stored = read_meta(root)
+    return settings_mismatch(stored, len(completed_episodes(root, stored)), expected, episodes)
+
+
+def settings_mismatch(
+    stored: DatasetMeta, stored_episodes: int, expected: DatasetMeta, episodes: int | None
+) -> str | None:
+    """How a dataset of ``stored_episodes`` episodes collected with ``stored`` differs from a
+    collection with ``expected`` and ``episodes`` episodes: one line naming each field, stored
+    -> expected, or ``None``. Fewer episodes than ``episodes`` is not a difference (an
+    interrupted collection resumes)."""
+    have, wanted = _flat(stored.identity()), _flat(expected.identity())
+    keys = list(dict.fromkeys([*wanted, *have]))
+    diff = [f"{k} {_short(have.get(k))} -> {_short(wanted.get(k))}" for k in keys
+            if have.get(k) != wanted.get(k)]  # fmt: skip
+    if episodes is not None and stored_episodes > episodes:
+        diff.append(f"episodes {stored_episodes} -> {episodes}")
     return "; ".join(diff) or None
 
 

@@ -20,11 +20,16 @@ import pandas as pd
 import torch
 
 from safe_bc.collection import stored_expert_config
-from safe_bc.distributed.final import evaluate_block, final_paired, stored_evaluations
+from safe_bc.distributed.final import (
+    block_config,
+    evaluate_block,
+    final_paired,
+    stored_evaluations,
+)
 from safe_bc.distributed.final_store import FinalStore, key_of
 from safe_bc.distributed.trial import TrialJob, trial_threads, with_handover
-from safe_bc.evaluation import EvalConfig, ExpertSource
-from safe_bc.metrics import clopper_pearson_upper, summarize_policies
+from safe_bc.evaluation import ExpertSource
+from safe_bc.metrics import clopper_pearson_upper, episodes_beyond, summarize_policies
 from safe_bc.study import StudySpec
 
 RECOMMENDER = "recommender"
@@ -60,13 +65,8 @@ class Certification:
     """Mean reward per method and training seed."""
 
 
-def crossed(episodes: pd.DataFrame) -> np.ndarray:
-    """``(N,) bool``: episodes with a step beyond ``d_s`` (``any_violation``) or, where the
-    task scores outcomes (rehab's sessions, the last one included), an outcome beyond it."""
-    out = episodes["any_violation"].fillna(0).to_numpy(float) > 0
-    if "any_violating_session" in episodes:
-        out |= episodes["any_violating_session"].fillna(0).to_numpy(float) > 0
-    return out
+crossed = episodes_beyond
+"""The certificate's crossings: :func:`safe_bc.metrics.episodes_beyond`."""
 
 
 def certify(
@@ -99,15 +99,7 @@ def certify(
                 sources[f"{RECOMMENDER} seed={s}"] = with_handover(agents[s], job)
             sources[f"{AGENT_ALONE} seed={s}"] = agents[s]
             sources[f"{EXPERT} seed={s}"] = expert
-            config = EvalConfig(
-                episodes=per,
-                first_episode=i * per,
-                workers=workers,
-                seed=spec.certify_seed,
-                env=spec.env,
-                max_steps=spec.max_steps,
-                eps=spec.critical_eps,
-            )
+            config = block_config(spec, spec.certify_seed, i * per, per, workers)
             handover = None if spec.handover is None else spec.handover.to_dict()
             what = {
                 f"{RECOMMENDER} seed={s}": ("recommender", identity, s, handover, "lockstep"),

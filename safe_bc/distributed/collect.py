@@ -21,10 +21,10 @@ from safe_bc.data.store import (
     META_FILE,
     DatasetError,
     DatasetMeta,
-    collection_mismatch,
     completed_episodes,
     init_dataset,
     read_meta,
+    settings_mismatch,
     write_episode,
 )
 from safe_bc.distributed.pool import run_on_actors
@@ -174,15 +174,15 @@ def ensure_demos(
     out = Path(out)
     config = config or CollectConfig()
     if (out / META_FILE).exists():
-        problem = collection_mismatch(out, dataset_meta(config), config.episodes)
+        meta = read_meta(out)
+        done = completed_episodes(out, meta)
+        problem = settings_mismatch(meta, len(done), dataset_meta(config), config.episodes)
         if problem:
             raise DatasetError(
                 f"{out}: these demonstrations were collected with other settings than this run "
                 f"expects ({problem}); point the run at another folder, or move this one away "
                 "and rerun to collect the expected set"
             )
-        meta = read_meta(out)
-        done = completed_episodes(out, meta)
         if len(done) >= config.episodes:
             return CollectReport(out, [], sorted(done), 0, 0.0, 0)
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -223,15 +223,7 @@ def final_phase(
         for i, s in enumerate(seeds):
             sources: dict[str, Any] = {f"{m} seed={s}": _evaluated(m, s) for m in cfgs}
             sources[f"{EXPERT} block={i}"] = expert
-            config = EvalConfig(
-                episodes=per,
-                first_episode=i * per,
-                workers=workers,
-                seed=spec.final_seed,
-                env=spec.env,
-                max_steps=spec.max_steps,
-                eps=spec.critical_eps,
-            )
+            config = block_config(spec, spec.final_seed, i * per, per, workers)
             what = {
                 f"{m} seed={s}": _agent_identity(spec, job, m, cfgs[m], s, candidates) for m in cfgs
             }
@@ -283,6 +275,19 @@ def final_phase(
         table, episodes, winner, feasible, message, configs, certified, paired, seconds,
         agents=dict(nets), models=dict(models),
     )  # fmt: skip
+
+
+def block_config(spec: StudySpec, block: int, first: int, n: int, workers: int) -> EvalConfig:
+    """Episodes ``first .. first + n - 1`` of held-out block ``block`` in the study's env."""
+    return EvalConfig(
+        episodes=n,
+        first_episode=first,
+        workers=workers,
+        seed=block,
+        env=spec.env,
+        max_steps=spec.max_steps,
+        eps=spec.critical_eps,
+    )
 
 
 def stored_evaluations(store: FinalStore | None, keys: Mapping[str, str]) -> dict[str, Any]:
