@@ -3,11 +3,12 @@ for value? Trial ids (random per Tune run) are set aside, and so are wall-clock 
 other column of the trial table, the final phase's and the certification's tables and episodes
 must be equal exactly.
 
-    python -m scripts.study_rerun --rerun DIR   # copies DIR's tables beside the report
+    python -m scripts.study_rerun --rerun DIR --setting "..."   # copies DIR's tables beside
     python -m scripts.study_rerun               # again, from the copies
 
-Writes ``results/checks/make_tune/recommender/rerun/`` (the rerun's tables) and ``rerun.md``
-beside it; a test re-derives the report from the committed copies.
+Writes ``results/checks/make_tune/recommender/rerun/`` (the rerun's tables), ``rerun.parquet``
+(one row per table; the setting and both runs' demonstration digests in its metadata) and
+``rerun.md``; a test re-derives the report from the committed copies.
 """
 
 from __future__ import annotations
@@ -17,6 +18,8 @@ import shutil
 from pathlib import Path
 
 import pandas as pd
+
+from safe_bc.data.store import read_table, write_table_atomic
 
 ROOT = Path(__file__).resolve().parents[1]
 STUDY = ROOT / "results" / "default"
@@ -52,24 +55,28 @@ def difference(a: pd.DataFrame, b: pd.DataFrame) -> str:
     return ""
 
 
-def report(study: Path = STUDY, rerun: Path = OUT / "rerun") -> str:
-    """The Markdown report: one row per table."""
-    rows = []
+def rows(study: Path = STUDY, rerun: Path = OUT / "rerun") -> pd.DataFrame:
+    """One row per table: its size and whether the rerun's equals the study's."""
+    out = []
     for name in TABLES:
         a = comparable(pd.read_parquet(study / name), name)
         b = comparable(pd.read_parquet(rerun / name), name)
         diff = difference(a, b)
-        rows.append({"table": name, "rows": len(a), "columns": a.shape[1],
-                     "equal": "yes" if not diff else "no", "first difference": diff})  # fmt: skip
-    table = pd.DataFrame(rows).to_markdown(index=False)
+        out.append({"table": name, "rows": len(a), "columns": a.shape[1],
+                    "equal": "yes" if not diff else "no", "first difference": diff})  # fmt: skip
+    return pd.DataFrame(out)
+
+
+def report(study: Path = STUDY, rerun: Path = OUT / "rerun") -> str:
+    """The Markdown report, with the setting and inputs ``rerun.parquet`` records."""
+    _, meta = read_table(OUT / "rerun.parquet")
+    digests = ", ".join(f"{k} {v}" for k, v in meta["inputs"].items())
     return (
         "# The default study rerun from a fresh clone\n\n"
-        "`results/default/` (made at clean ce3b344) against `make tune` in a fresh clone of "
-        "8395b95 (the same code for the study), on the same machine type (2-core AMD EPYC; "
-        "the rerun shared the CPUs with the test suite, so its seconds are not comparable and "
-        "are set aside), trial ids set aside: every value equal means the rerun gave the same "
-        "trials, final phase and certificate. Made by `python -m scripts.study_rerun`.\n\n"
-        + table
+        f"{meta['setting']} Trial ids (random per Tune run) and seconds set aside: every value "
+        "equal means the rerun gave the same trials, final phase and certificate. "
+        f"Demonstrations read: {digests}. Made by `python -m scripts.study_rerun`.\n\n"
+        + rows(study, rerun).to_markdown(index=False)
         + "\n"
     )
 
@@ -77,11 +84,18 @@ def report(study: Path = STUDY, rerun: Path = OUT / "rerun") -> str:
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--rerun", type=Path, help="the rerun's study folder (copied beside)")
+    p.add_argument("--setting", default="", help="how the rerun was made (recorded)")
     args = p.parse_args(argv)
     if args.rerun is not None:
         (OUT / "rerun").mkdir(parents=True, exist_ok=True)
         for name in TABLES:
             shutil.copy2(args.rerun / name, OUT / "rerun" / name)
+        inputs = {
+            label: read_table(folder / "trials.parquet")[1]["inputs"]["demos"]["digest"]
+            for label, folder in (("study", STUDY), ("rerun", OUT / "rerun"))
+        }
+        meta = {"setting": args.setting, "inputs": inputs}
+        write_table_atomic(OUT / "rerun.parquet", rows(), meta)
     text = report()
     (OUT / "rerun.md").write_text(text)
     print(text)
