@@ -72,21 +72,27 @@ def replicate_spec(spec: StudySpec, k: int) -> StudySpec:
             f"{spec.name}: {used} training seeds per trial do not fit a replicate's block of "
             f"{REPLICATE_STRIDE}"
         )
-    if (spec.final_seed - spec.eval_seed) % REPLICATE_STRIDE == 0:
-        raise ValueError(
-            f"{spec.name}: eval_seed {spec.eval_seed} and final_seed {spec.final_seed} are a "
-            f"multiple of {REPLICATE_STRIDE} apart: one replicate's final tracks would be "
-            "another's trial tracks"
-        )
+    blocks = {"eval_seed": spec.eval_seed, "final_seed": spec.final_seed}
+    if spec.certify_episodes:
+        blocks["certify_seed"] = spec.certify_seed
+    names = list(blocks)
+    for i, a in enumerate(names):
+        for b in names[i + 1 :]:
+            if (blocks[b] - blocks[a]) % REPLICATE_STRIDE == 0:
+                raise ValueError(
+                    f"{spec.name}: {a} {blocks[a]} and {b} {blocks[b]} are a multiple of "
+                    f"{REPLICATE_STRIDE} apart: one replicate's tracks would be another's"
+                )
     shift = k * REPLICATE_STRIDE
-    eval_seed, final_seed = spec.eval_seed + shift, spec.final_seed + shift
+    shifted = {name: block + shift for name, block in blocks.items()}
     try:
-        for block in (eval_seed, final_seed):
+        for block in shifted.values():
             heldout_seed(block, 0)
     except ValueError:
         raise ValueError(
-            f"{spec.name}: replicate {k}'s held-out seed blocks ({eval_seed}, {final_seed}) are "
-            "beyond the seed range; use fewer replicates"
+            f"{spec.name}: replicate {k}'s held-out seed blocks "
+            f"({', '.join(str(b) for b in shifted.values())}) are beyond the seed range; use "
+            "fewer replicates"
         ) from None
     train = replace(spec.base.bc.train, seed=spec.base.bc.train.seed + shift)
     base = replace(spec.base, bc=replace(spec.base.bc, train=train))
@@ -95,8 +101,7 @@ def replicate_spec(spec: StudySpec, k: int) -> StudySpec:
         name=f"r{k}",
         base=base,
         sampler_seed=spec.sampler_seed + shift,
-        eval_seed=eval_seed,
-        final_seed=final_seed,
+        **shifted,
         results=replicates_folder(spec),
         storage=f"{spec.storage.rstrip('/')}/{spec.name}_{REPLICATES}",
         optuna_storage=None,
@@ -109,13 +114,17 @@ def replicates_folder(spec: StudySpec) -> Path:
 
 
 def replicate_seeds(spec: StudySpec) -> dict[str, int]:
-    """The seeds that tell a replicate from another (the table's seed columns)."""
-    return {
+    """The seeds that tell a replicate from another (the table's seed columns; the
+    certification's block only where the study certifies)."""
+    seeds = {
         "sampler_seed": spec.sampler_seed,
         "train_seed": spec.base.bc.train.seed,
         "eval_seed": spec.eval_seed,
         "final_seed": spec.final_seed,
     }
+    if spec.certify_episodes:
+        seeds["certify_seed"] = spec.certify_seed
+    return seeds
 
 
 def direction(lo: float, hi: float) -> str:
@@ -155,6 +164,10 @@ class ReplicateResult:
     paired: pd.DataFrame
     """``final_paired.parquet``: ``method``, ``vs``, ``d_reward``, ``d_reward_lo``,
     ``d_reward_hi``, ``n_pairs``."""
+    certificate: Mapping[str, Any] | None = None
+    """The winner's certificate on the replicate's own certification block
+    (``certify.parquet``'s metadata; :func:`safe_bc.distributed.certify.certify`), ``None``
+    where the study does not certify."""
 
 
 ROW_COLUMNS = (
@@ -163,7 +176,18 @@ ROW_COLUMNS = (
     "d_expert", "d_expert_lo", "d_expert_hi", "vs_expert", "d_plain_bc", "d_plain_bc_lo",
     "d_plain_bc_hi", "vs_plain_bc", "n_pairs", "crossings", "n_episodes", "crossings_ucb",
 )  # fmt: skip
-"""The replicate table's columns, in order; the winner's parameters follow (dotted names)."""
+"""The replicate table's columns, in order; the certification's (:data:`CERT_COLUMNS`, where
+the study certifies) and the winner's parameters (dotted names) follow."""
+
+CERT_COLUMNS = (
+    "certify_seed", "cert_method", "cert_beyond", "cert_episodes", "cert_beyond_ucb",
+    "cert_deferred", "cert_reward", "cert_d_expert", "cert_d_expert_lo", "cert_d_expert_hi",
+    "cert_vs_expert",
+)  # fmt: skip
+"""The certificate's columns: its block, what was certified (``recommender``: the agent with
+its handover), its episodes beyond ``d_s`` of ``cert_episodes`` and their one-sided 95% bound,
+the mean share of deferred steps, the reward and its paired difference to the expert on the
+same tracks."""
 
 
 def _value(frame: pd.DataFrame, where: Mapping[str, str], column: str) -> float:
@@ -198,6 +222,20 @@ def replicate_row(result: ReplicateResult, params: Sequence[str]) -> dict[str, A
     row["crossings"] = _value(result.final, me, "episodes_with_violation")
     row["n_episodes"] = _value(result.final, me, "n_episodes")
     row["crossings_ucb"] = _value(result.final, me, "violation_share_ucb")
+    cert = result.certificate or {}
+    row["certify_seed"] = result.seeds.get("certify_seed", math.nan)
+    row["cert_method"] = str(cert.get("method", ""))
+    for col, key in (
+        ("cert_beyond", "episodes_beyond"),
+        ("cert_episodes", "episodes"),
+        ("cert_beyond_ucb", "beyond_ucb95"),
+        ("cert_deferred", "deferred_share"),
+        ("cert_reward", "reward"),
+    ):
+        row[col] = float(cert.get(key, math.nan))
+    d = list(cert.get("d_reward_vs_expert") or [math.nan] * 3)
+    row["cert_d_expert"], row["cert_d_expert_lo"], row["cert_d_expert_hi"] = map(float, d)
+    row["cert_vs_expert"] = direction(row["cert_d_expert_lo"], row["cert_d_expert_hi"])
     row.update({p: result.params.get(p) if w else None for p in params})
     return row
 
@@ -207,7 +245,10 @@ def replicate_table(results: Sequence[ReplicateResult], params: Sequence[str]) -
     replicate order. Parameter values become text (a choice may be a number in one replicate
     and a label in another; Parquet needs one type per column)."""
     rows = [replicate_row(r, params) for r in sorted(results, key=lambda r: r.replicate)]
-    table = pd.DataFrame(rows, columns=[*ROW_COLUMNS, *params])
+    certified = any(r.certificate for r in results)
+    table = pd.DataFrame(
+        rows, columns=[*ROW_COLUMNS, *(CERT_COLUMNS if certified else ()), *params]
+    )
     for p in params:
         table[p] = table[p].map(lambda v: "" if v is None else str(v))
     for c in ("crossings", "n_episodes", "n_pairs"):
@@ -220,7 +261,7 @@ def replicates_summary(table: pd.DataFrame) -> dict[str, Any]:
     many replicates' intervals lie above / below zero or span it (vs the expert and vs plain
     BC), the total episodes beyond ``d_s``, how many distinct configurations won (trial ids
     are per study and say nothing across replicates) and the :func:`replicates_verdict`."""
-    params = [c for c in table.columns if c not in ROW_COLUMNS]
+    params = [c for c in table.columns if c not in ROW_COLUMNS and c not in CERT_COLUMNS]
     d = table["d_expert"].astype(float)
     finite = d[np.isfinite(d)]
     out: dict[str, Any] = {
@@ -240,6 +281,18 @@ def replicates_summary(table: pd.DataFrame) -> dict[str, Any]:
             out[f"{vs}_{label.replace(' ', '_')}"] = int(counts.get(label, 0))
     out["crossings_total"] = int(np.nansum(table["crossings"].astype(float)))
     out["episodes_total"] = int(np.nansum(table["n_episodes"].astype(float)))
+    if "cert_method" in table:
+        certified = table[table["cert_method"] != ""]
+        dd = certified["cert_d_expert"].astype(float)
+        counts = certified["cert_vs_expert"].value_counts()
+        out["certified"] = len(certified)
+        out["cert_beyond_total"] = int(np.nansum(certified["cert_beyond"].astype(float)))
+        out["cert_episodes_total"] = int(np.nansum(certified["cert_episodes"].astype(float)))
+        out["cert_deferred_max"] = float(certified["cert_deferred"].max()) if len(dd) else math.nan
+        out["cert_d_expert_min"] = float(dd.min()) if len(dd) else math.nan
+        out["cert_d_expert_max"] = float(dd.max()) if len(dd) else math.nan
+        for label in ("above", "below", "spans zero"):
+            out[f"cert_expert_{label.replace(' ', '_')}"] = int(counts.get(label, 0))
     out["verdict"] = replicates_verdict(out)
     return out
 
@@ -297,6 +350,16 @@ def replicates_verdict(summary: Mapping[str, Any]) -> str:
         f"beyond d_s; {summary['winner_feasible']} of {summary['replicates']} winners feasible "
         "on the fresh tracks"
     )
+    if summary.get("certified"):
+        s = summary
+        text += (
+            f"; certified: {s['cert_beyond_total']} of {s['cert_episodes_total']} certification "
+            f"episodes beyond d_s over {s['certified']} replicates (at most "
+            f"{100 * s['cert_deferred_max']:.1f}% of steps deferred), against the expert reliably "
+            f"above in {s['cert_expert_above']}, below in {s['cert_expert_below']}, no reliable "
+            f"effect (interval spans zero) in {s['cert_expert_spans_zero']} (difference "
+            f"{s['cert_d_expert_min']:+.1f} to {s['cert_d_expert_max']:+.1f})"
+        )
     return text
 
 
@@ -371,11 +434,47 @@ def replicates_markdown(
         f"distinct winning configurations; {s['crossings_total']} of {s['episodes_total']} "
         "final-phase episodes beyond d_s.",
         "",
+        *_certification_lines(table),
         f"**Verdict:** {s['verdict']}.",
     ]
     if note:
         lines += ["", note]
     return "\n".join(lines) + "\n"
+
+
+def _certification_lines(table: pd.DataFrame) -> list[str]:
+    """The certification's per-replicate table (none where the study does not certify)."""
+    if "cert_method" not in table or not (table["cert_method"] != "").any():
+        return []
+    view = pd.DataFrame(
+        {
+            "replicate": table["replicate"],
+            "block": table["certify_seed"].map(lambda v: f"{v:.0f}" if math.isfinite(v) else ""),
+            "certified": table["cert_method"],
+            "beyond d_s": [
+                f"{int(c)}/{int(n)}" if math.isfinite(c) and math.isfinite(n) else ""
+                for c, n in zip(table["cert_beyond"], table["cert_episodes"], strict=True)
+            ],
+            "share bound (CP)": table["cert_beyond_ucb"].map(
+                lambda v: f"{v:.3f}" if math.isfinite(v) else ""
+            ),
+            "deferred": table["cert_deferred"].map(
+                lambda v: f"{100 * v:.1f}%" if math.isfinite(v) else ""
+            ),
+            "reward": table["cert_reward"].map(lambda v: f"{v:.1f}" if math.isfinite(v) else ""),
+            "vs expert (95% CI)": [
+                _interval(*v)
+                for v in table[["cert_d_expert", "cert_d_expert_lo", "cert_d_expert_hi"]].values
+            ],
+        }
+    )
+    return [
+        "Each replicate's winner certified on its own block (the recommender: the agent with "
+        "its handover; the expert on the same tracks):",
+        "",
+        view.to_markdown(index=False),
+        "",
+    ]
 
 
 def _fmt(v: Any) -> str:

@@ -24,8 +24,8 @@ from safe_bc.study import load_study
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT = load_study(REPO / "tune_jobs" / "default.py")
-SEED_KEYS = {"name", "sampler_seed", "eval_seed", "final_seed", "results", "storage",
-             "optuna_storage", "base"}  # fmt: skip
+SEED_KEYS = {"name", "sampler_seed", "eval_seed", "final_seed", "certify_seed", "results",
+             "storage", "optuna_storage", "base"}  # fmt: skip
 
 
 def _training_seeds(spec) -> set[int]:
@@ -41,6 +41,7 @@ def test_replicates_use_disjoint_seed_blocks_and_are_otherwise_the_same_study() 
     tracks = [
         set(heldout_seeds(r.eval_seed, r.eval_episodes))
         | set(heldout_seeds(r.final_seed, r.final_episodes + r.final_train_seeds))
+        | set(heldout_seeds(r.certify_seed, r.certify_episodes))
         for r in reps
     ]
     for i in range(4):
@@ -63,6 +64,8 @@ def test_replicates_use_disjoint_seed_blocks_and_are_otherwise_the_same_study() 
 def test_replicate_spec_refuses_overlapping_or_out_of_range_seeds() -> None:
     with pytest.raises(ValueError, match="multiple of 100"):
         replicate_spec(replace(DEFAULT, eval_seed=1, final_seed=101), 1)
+    with pytest.raises(ValueError, match="eval_seed 1 and certify_seed 201 are a multiple of 100"):
+        replicate_spec(replace(DEFAULT, certify_seed=201), 1)
     with pytest.raises(ValueError, match="training seeds"):
         replicate_spec(replace(DEFAULT, final_train_seeds=101), 0)
     with pytest.raises(ValueError, match="beyond the seed range"):
@@ -193,3 +196,39 @@ def test_below_and_spanning_replicates_say_not_above() -> None:
         "the winner is not above the expert: reliably below in 1, no reliable effect (interval "
         "spans zero) in 1 of 2 replicates (reward difference mean -1.3, range -2.3 to -0.3)"
     )
+
+
+def _certified(k: int, beyond: int, d: Interval) -> ReplicateResult:
+    cert = {"method": "recommender", "episodes": 150, "episodes_beyond": beyond,
+            "beyond_ucb95": 0.02 + beyond / 100, "deferred_share": 0.04 + k / 100,
+            "reward": 905.0, "d_reward_vs_expert": list(d)}  # fmt: skip
+    result = _result(k, (-1.0, -3.0, 1.0), (0.0, -1.0, 1.0), 1)
+    seeds = {**result.seeds, "certify_seed": 30 + 100 * k}
+    return replace(result, seeds=seeds, certificate=cert)
+
+
+def test_certified_replicates_add_their_certificate_to_row_summary_verdict_and_report() -> None:
+    table = replicate_table(
+        [_certified(0, 0, (0.2, -0.8, 1.4)), _certified(1, 2, (-3.0, -5.0, -1.0))], PARAMS
+    )
+    first = table.iloc[0]
+    assert first["certify_seed"] == 30 and first["cert_method"] == "recommender"
+    assert (first["cert_beyond"], first["cert_episodes"]) == (0, 150)
+    assert first["cert_vs_expert"] == "spans zero" and table.iloc[1]["cert_vs_expert"] == "below"
+    s = replicates_summary(table)
+    assert (s["certified"], s["cert_beyond_total"], s["cert_episodes_total"]) == (2, 2, 300)
+    assert s["cert_deferred_max"] == pytest.approx(0.05)
+    assert (s["cert_expert_below"], s["cert_expert_spans_zero"]) == (1, 1)
+    assert "certified: 2 of 300 certification episodes beyond d_s over 2 replicates" in s["verdict"]
+    assert "at most 5.0% of steps deferred" in s["verdict"]
+    text = replicates_markdown(table, s, PARAMS)
+    assert "certified on its own block" in text and "0/150" in text and "4.0%" in text
+    assert "+0.2 [-0.8, +1.4]" in text
+
+
+def test_uncertified_replicates_keep_the_table_without_certificate_columns() -> None:
+    table = replicate_table([_result(0, (0.5, -1.0, 2.0), (0.0, -1.0, 1.0), 0)], PARAMS)
+    assert "cert_method" not in table and "certify_seed" not in table
+    s = replicates_summary(table)
+    assert "certified" not in s and "certified" not in s["verdict"]
+    assert "certified on its own block" not in replicates_markdown(table, s, PARAMS)

@@ -89,6 +89,8 @@ def read_replicate(spec: StudySpec, k: int) -> ReplicateResult:
     paired = read_table(paired_path)[0] if paired_path.is_file() else pd.DataFrame()
     best_path = folder / "best.json"
     best = json.loads(best_path.read_text()) if best_path.is_file() else {}
+    cert_path = folder / "certify.parquet"
+    certificate = read_table_metadata(cert_path).get("certificate") if cert_path.is_file() else None
     return ReplicateResult(
         k,
         seeds,
@@ -97,6 +99,7 @@ def read_replicate(spec: StudySpec, k: int) -> ReplicateResult:
         dict(best.get("params") or {}),
         final,
         paired,
+        certificate,
     )
 
 

@@ -9,7 +9,7 @@ import pytest
 
 from safe_bc.cli import main
 from safe_bc.data.store import read_table
-from safe_bc.replicates import ROW_COLUMNS
+from safe_bc.replicates import CERT_COLUMNS, ROW_COLUMNS
 from safe_bc.study import load_study
 from tests.conftest import TINY_COLLECT
 
@@ -31,7 +31,8 @@ def test_replicates_end_to_end_and_rerun_skips_them(tiny_demos: Path, tmp_path: 
         f"    collect={TINY_COLLECT},\n"
         f"    results=Path({str(tmp_path / 'results')!r}), trials=2, batches=30, max_steps=60,\n"
         "    eval_episodes=1, screen_episodes=0, final_episodes=1, final_candidates=1,\n"
-        "    final_train_seeds=1, final_workers=0, startup_trials=2)\n"
+        "    final_train_seeds=1, final_workers=0, startup_trials=2, certify_episodes=1,\n"
+        "    certify_seed=30)\n"
     )
     argv = ["tune", str(study_file), "--storage", str(tmp_path / "ray"), "--replicates", "2"]
     assert main(argv) == 0, capsys.readouterr().out
@@ -50,14 +51,18 @@ def test_replicates_end_to_end_and_rerun_skips_them(tiny_demos: Path, tmp_path: 
     assert not (out / "trials.parquet").exists()  # the study itself was not run
 
     table, meta = read_table(out / "replicates.parquet")
-    assert list(table.columns) == [*ROW_COLUMNS, *spec.params]
+    assert list(table.columns) == [*ROW_COLUMNS, *CERT_COLUMNS, *spec.params]
     assert table["replicate"].tolist() == [0, 1] and table["final_seed"].tolist() == [2, 102]
+    assert table["certify_seed"].tolist() == [30, 130]  # each replicate certifies on its block
     for k, row in table.iterrows():
         final, fmeta = read_table(out / "replicates" / f"r{k}" / "final.parquet")
         winner = final[final["method"] == fmeta["winner"]].iloc[0]
         assert row["winner"] == fmeta["winner"] and row["reward"] == winner["reward"]
         assert row["crossings"] == winner["episodes_with_violation"]
         assert row["n_episodes"] == winner["n_episodes"] == 1
+        _, cmeta = read_table(out / "replicates" / f"r{k}" / "certify.parquet")
+        assert row["cert_beyond"] == cmeta["certificate"]["episodes_beyond"]
+        assert row["cert_episodes"] == cmeta["certificate"]["episodes"] == 1
     assert meta["summary"]["replicates"] == 2 and meta["summary"]["verdict"]
     assert meta["provenance"]["cpu_model"] and meta["provenance"]["torch_cpu_capability"]
     assert set(meta["sources"]) == {"r0", "r1"}
