@@ -385,3 +385,93 @@ def test_car_frames_read_from_disk_train_the_weights_of_frames_in_memory(
         )
     # round 1 trained on round 0's kept rows read back from round 0's file: a dropped or
     # misordered frame would change its weights (or the row count aggregate_rows checks)
+
+
+# --- keeping only what beats the expert, exploring under the handover ----------------------
+
+
+def test_new_options_enter_the_identity_only_when_set_and_are_checked() -> None:
+    from safe_bc.handover import HandoverConfig
+
+    plain = SelfImproveConfig().identity()
+    assert not {"keep_against", "keep_best", "handover"} & set(plain)
+    set_ = SelfImproveConfig(
+        keep_against="expert", keep_best=2, handover=HandoverConfig(2.0, 6, 6, ("front",))
+    ).identity()
+    assert set_["keep_against"] == "expert" and set_["keep_best"] == 2
+    assert set_["handover"] == {"width": 2.0, "lookahead": 6, "hold": 6, "hold_on": ["front"]}
+    with pytest.raises(ValueError, match="keep_against"):
+        SelfImproveConfig(keep_against="teacher")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="keep_best"):
+        SelfImproveConfig(keep_best=0)
+    with pytest.raises(ValueError, match="HandoverConfig"):
+        SelfImproveConfig(handover={"width": 2.0})  # type: ignore[arg-type]
+
+
+def test_under_the_handover_the_expert_acts_unpushed_and_the_agent_is_pushed() -> None:
+    """On rehab: where the handover defers, the expert's action is executed and recorded;
+    elsewhere the agent's pushed action is executed."""
+    from safe_bc.envs import make_env
+    from safe_bc.handover import HandoverConfig
+    from safe_bc.rollout import run_episode
+    from safe_bc.selfimprove.rollout import ExploreJob, Push
+    from safe_bc.tasks import task_defaults
+
+    class _Fixed:
+        def __init__(self, action) -> None:
+            self.action = np.asarray(action, np.float32)
+
+        def reset(self, env, rng) -> None:
+            pass
+
+        def act(self, obs, env):
+            return self.action.copy()
+
+    env = make_env(task_defaults("rehab").env)
+    low, high = np.array([-1.0, -1.0]), np.array([1.0, 1.0])
+    agent, expert = _Fixed([0.5, 0.2]), _Fixed([-0.4, -0.3])
+    probe = run_episode(env, agent, 3, np.random.default_rng(0))
+    limits = tuple(float(x) for x in np.median(probe.costs, axis=0))
+    job = ExploreJob(
+        None, None, ("0+0.3",), (low, high), limits, handover=HandoverConfig(0.0),
+        dims=task_defaults("rehab").safety_dims,
+    )  # fmt: skip
+    push = Push("0+0.3", low, high)
+    driver = job.driver(agent, expert, push)
+    ep = run_episode(env, driver, 3, np.random.default_rng(0), perturbation=push)
+    deferred = np.asarray(driver.deferring.flags, bool)
+    assert deferred.any() and (~deferred).any() and driver.deferred_steps == deferred.sum()
+    assert np.allclose(ep.executed_actions[deferred], [-0.4, -0.3])
+    assert np.allclose(ep.actions[deferred], [-0.4, -0.3])
+    assert np.allclose(ep.executed_actions[~deferred], [0.8, 0.2])
+    with pytest.raises(ValueError, match="expert"):
+        job.driver(agent, None, push)
+    env.close()
+
+
+def test_a_run_against_the_expert_keeps_only_runs_that_beat_it(
+    rehab_agent, rehab_demos, tmp_path
+) -> None:
+    """The bar is the expert's run on the same track, at most one pushed run per track is
+    kept, the runs drive under the task's handover, and the round records all of it."""
+    from safe_bc.selfimprove.data import load_round
+    from safe_bc.tasks import task_defaults
+
+    handover = task_defaults("rehab").handover
+    run = _run(
+        rehab_agent, rehab_demos, tmp_path / "x", rounds=1, keep_against="expert", keep_best=1,
+        handover=handover, pushes=("0+0.15", "1+0.15", "0-0.15", "1-0.15"), tracks_per_round=6,
+    )  # fmt: skip
+    (summary,) = run.rounds
+    assert np.isfinite(summary["expert_reward_mean"])
+    assert 0 <= summary["pushed_deferred_share"] <= 1
+    tracks = load_round(tmp_path / "x" / round_dir(0) / KEPT)
+    assert all(np.isfinite(t.expert_reward) and t.expert_steps > 0 for t in tracks)
+    assert all(len(t.push_deferred) == 4 for t in tracks)
+    assert any(t.pieces for t in tracks)  # the rule kept something to check
+    for t in tracks:
+        assert len(t.pieces) <= 1
+        for p in t.pieces:
+            assert t.push_rewards[p.push] > t.expert_reward
+    env_steps = sum(t.reference_steps + sum(t.push_steps) + t.expert_steps for t in tracks)
+    assert summary["env_steps"] == env_steps

@@ -8,8 +8,11 @@ import re
 from dataclasses import asdict, dataclass, replace
 from typing import Any, Literal, get_args
 
+from safe_bc.handover import HandoverConfig
+
 KeepUnit = Literal["episode", "segment"]
 KeptIn = Literal["rest", "zone", "critical"]
+KeepAgainst = Literal["agent", "expert"]
 
 FORMAT = "safe_bc.selfimprove/2"
 """Run-folder format (2: rounds and the start's validation record their env steps)."""
@@ -135,6 +138,18 @@ class SelfImproveConfig:
     """BC batches of each retraining (``None``: the run config's ``bc.train.batches``)."""
     max_steps: int | None = None
     """Step cap per episode, rollouts and validation (``None``: the env's time limit)."""
+    keep_against: KeepAgainst = "agent"
+    """Whose run on the same track a pushed run must beat to be kept: ``"agent"`` (the
+    agent's own unperturbed run) or ``"expert"`` (the demonstrations' expert's run: only
+    driving better than the teacher is kept)."""
+    keep_best: int | None = None
+    """Keep at most this many pushed runs per track, those with the highest rewards among
+    the ones the keep unit keeps (``None``: every one)."""
+    handover: HandoverConfig | None = None
+    """A :class:`safe_bc.handover.HandoverConfig`: the pushed and reference runs drive under
+    this critical-zone handover (the expert acts, unpushed, where the handover defers; its
+    actions label those rows), so a push is tried only where the agent drives. ``None``: the
+    agent alone."""
     workers: int = 0
     """Rollout actors (Ray); 0 rolls out in this process. Results do not depend on it."""
     seed: int = 0
@@ -168,6 +183,14 @@ class SelfImproveConfig:
                 raise ValueError("pushes must name at least one push (or be None)")
             for spec in self.pushes:
                 parse_push(spec)
+        if self.keep_against not in get_args(KeepAgainst):
+            raise ValueError(
+                f"keep_against must be one of {get_args(KeepAgainst)}, got {self.keep_against!r}"
+            )
+        if self.keep_best is not None and int(self.keep_best) < 1:
+            raise ValueError(f"keep_best must be >= 1 or None, got {self.keep_best}")
+        if self.handover is not None and not isinstance(self.handover, HandoverConfig):
+            raise ValueError(f"handover must be a HandoverConfig or None, got {self.handover!r}")
         if self.workers < 0 or self.seed < 0:
             raise ValueError(f"workers and seed must be >= 0, got {self.workers}, {self.seed}")
 
@@ -192,12 +215,27 @@ class SelfImproveConfig:
         out = asdict(self)
         if self.pushes is not None:
             out["pushes"] = list(self.pushes)
+        if self.handover is not None:
+            out["handover"] = self.handover.to_dict()
         return out
 
     def identity(self) -> dict[str, Any]:
-        """The fields that change the run's data or weights (``workers`` does not)."""
+        """The fields that change the run's data or weights (``workers`` does not); a field
+        of :data:`UNSET_OMITTED` is left out while it has its neutral value, so a run's
+        identity names only the options it uses."""
         out = self.to_dict()
         out.pop("workers")
-        if out["alpha"] is None:  # runs made before the field existed keep their identity
-            out.pop("alpha")
+        for name, neutral in UNSET_OMITTED.items():
+            if out[name] == neutral:
+                out.pop(name)
         return out
+
+
+UNSET_OMITTED: dict[str, Any] = {
+    "alpha": None,
+    "keep_against": "agent",
+    "keep_best": None,
+    "handover": None,
+}
+"""The options a run's identity names only when set (their neutral values: the start's alpha,
+the agent's own run as the bar, every kept run, no handover)."""

@@ -30,6 +30,11 @@ def save_round(path: Path, tracks: Sequence[TrackResult]) -> None:
         "push_kept": np.asarray([t.push_kept for t in tracks], np.int64),
         "reference_steps": np.asarray([t.reference_steps for t in tracks], np.int64),
         "push_steps": np.asarray([t.push_steps for t in tracks], np.int64),
+        "expert_reward": np.asarray([t.expert_reward for t in tracks], np.float64),
+        "expert_steps": np.asarray([t.expert_steps for t in tracks], np.int64),
+        "push_deferred": np.asarray(
+            [t.push_deferred for t in tracks] if tracks else np.empty((0, 0)), np.int64
+        ),
         "piece_track": np.asarray([i for i, t in enumerate(tracks) for _ in t.pieces], np.int64),
         "piece_push": np.asarray([p.push for p in pieces], np.int64),
         "piece_rows": np.asarray([len(p.steps) for p in pieces], np.int64),
@@ -75,6 +80,11 @@ def load_round(path: Path, frames: bool = True) -> list[TrackResult]:
             reference_steps=int(a["reference_steps"][i]),
             push_steps=tuple(int(x) for x in a["push_steps"][i]),
             pieces=tuple(pieces[i]),
+            expert_reward=float(a["expert_reward"][i]) if "expert_reward" in a else float("nan"),
+            push_deferred=tuple(int(x) for x in a["push_deferred"][i])
+            if "push_deferred" in a
+            else (),
+            expert_steps=int(a["expert_steps"][i]) if "expert_steps" in a else 0,
         )
         for i in range(len(a["seed"]))
     ]

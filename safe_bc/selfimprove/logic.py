@@ -126,6 +126,25 @@ def kept_steps(
     return np.repeat(better & whole, segment_steps)[:n]
 
 
+def best_runs(kept: Sequence[bool], rewards: Sequence[float], k: int | None) -> np.ndarray:
+    """``(P,) bool``: which pushed runs of a track stay kept when at most ``k`` may
+    (``None``: all): among the runs with kept steps (``kept``), the ``k`` highest
+    ``rewards`` (ties: the earlier push).
+
+    >>> best_runs([True, False, True, True], [5.0, 9.0, 7.0, 7.0], 2).tolist()
+    [False, False, True, True]
+    >>> best_runs([True, True], [1.0, 2.0], None).tolist()
+    [True, True]
+    """
+    kept = np.asarray(kept, bool)
+    if k is None:
+        return kept.copy()
+    order = sorted(np.flatnonzero(kept), key=lambda i: (-float(rewards[i]), int(i)))
+    out = np.zeros(len(kept), bool)
+    out[order[: int(k)]] = True
+    return out
+
+
 def push_allowed(cost: np.ndarray, limits: np.ndarray, eps: float | None) -> bool:
     """Whether a push may act in a state of costs ``cost``: never in the back-off zone
     ``c_s >= d_s - eps`` (any dimension); ``eps=None``: always.

@@ -16,7 +16,7 @@ from safe_bc.policy import Policy
 from safe_bc.queries.logic import context_rows
 from safe_bc.rollout import run_episode
 from safe_bc.selfimprove.config import KeepUnit, parse_push
-from safe_bc.selfimprove.logic import kept_steps, push_action, push_allowed
+from safe_bc.selfimprove.logic import best_runs, kept_steps, push_action, push_allowed
 
 
 class Push:
@@ -38,6 +38,37 @@ class Push:
         if not self.allowed:
             return action
         return push_action(action, self.terms, self.low, self.high)
+
+
+class HandoverWatch:
+    """The agent under the critical-zone handover, pushed only where the agent acts: before
+    each action the push is allowed when the state is outside the back-off zone (as
+    :class:`ZoneWatch`) and the handover leaves the step to the agent. The expert's steps are
+    executed as the expert chose them (their labels are the expert's actions)."""
+
+    def __init__(
+        self, deferring: Any, push: Push | None, limits: Sequence[float], eps: float | None
+    ) -> None:
+        self.deferring, self.push, self.limits, self.eps = deferring, push, np.asarray(limits), eps
+        self._allowed = True
+
+    def reset(self, env: gym.Env, rng: np.random.Generator) -> None:
+        self.deferring.reset(env, rng)
+
+    def see(self, info: dict[str, Any]) -> None:
+        self.deferring.see(info)
+        self._allowed = push_allowed(np.asarray(info["cost"]), self.limits, self.eps)
+
+    def act(self, obs: np.ndarray, env: gym.Env) -> np.ndarray:
+        action = self.deferring.act(obs, env)
+        if self.push is not None:
+            self.push.allowed = self._allowed and not self.deferring.flags[-1]
+        return action
+
+    @property
+    def deferred_steps(self) -> int:
+        """Steps of this episode the expert acted."""
+        return int(sum(self.deferring.flags))
 
 
 class ZoneWatch:
@@ -102,6 +133,12 @@ class TrackResult:
     """Env steps of each pushed run."""
     pieces: tuple[KeptPiece, ...]
     """The pushed runs with kept steps, in push order."""
+    expert_reward: float = float("nan")
+    """Reward of the expert's run on the track (NaN: not run, the bar was the agent's)."""
+    push_deferred: tuple[int, ...] = ()
+    """Steps of each pushed run the expert acted under the handover (empty: no handover)."""
+    expert_steps: int = 0
+    """Env steps of the expert's run (0: not run)."""
 
 
 @dataclass(frozen=True)
@@ -132,44 +169,99 @@ class ExploreJob:
     """Step cap per episode."""
     rng_seed: int = 0
     """With the track and push, seeds each episode's generator."""
+    keep_against: str = "agent"
+    """Whose run a pushed run must beat: the agent's unperturbed run or the expert's."""
+    keep_best: int | None = None
+    """Keep at most this many pushed runs per track, the best by reward (``None``: all)."""
+    expert: Any = None
+    """The demonstrations' expert config (needed by ``keep_against="expert"`` and
+    :attr:`handover`)."""
+    handover: Any = None
+    """A :class:`safe_bc.handover.HandoverConfig` the runs drive under (``None``: none)."""
+    dims: tuple[str, ...] = ()
+    """The task's safety dimensions (the handover's ``hold_on`` names them)."""
 
     def run(self, seeds: Sequence[int]) -> list[TrackResult]:
         """:func:`explore_track` of every track in this process (one env, one agent)."""
+        from safe_bc.collection import build_expert
         from safe_bc.envs import make_env
 
         env = make_env(self.env)
         try:
             agent = self.agent.build()
-            return [explore_track(env, agent, self, s) for s in seeds]
+            expert = None if self.expert is None else build_expert(self.expert)
+            return [explore_track(env, agent, self, s, expert) for s in seeds]
         finally:
             env.close()
 
+    def driver(self, agent: Policy, expert: Policy | None, push: Push | None) -> Any:
+        """The policy a run executes: the agent with the push behind its back-off zone, or,
+        under :attr:`handover`, the agent deferring to ``expert`` (:class:`HandoverWatch`)."""
+        if self.handover is None:
+            if push is None:
+                return agent
+            return ZoneWatch(agent, push, self.limits, self.backoff_eps)
+        from safe_bc.queries.defer import DeferringPolicy, dimension_indices
+        from safe_bc.selection import CriticalZone
 
-def explore_track(env: gym.Env, agent: Policy, job: ExploreJob, seed: int) -> TrackResult:
-    """Roll ``agent`` out on track ``seed`` unperturbed, then once per push; cut out the
-    kept steps of each pushed run (labels: the executed actions)."""
+        if expert is None:
+            raise ValueError("a self-imitation run under the handover needs the expert's config")
+        h = self.handover
+        deferring = DeferringPolicy(
+            agent, expert, CriticalZone(self.limits, float(h.width), "any"), int(h.hold),
+            int(h.lookahead), dimension_indices(tuple(h.hold_on), self.dims),
+        )  # fmt: skip
+        return HandoverWatch(deferring, push, self.limits, self.backoff_eps)
+
+
+def explore_track(
+    env: gym.Env, agent: Policy, job: ExploreJob, seed: int, expert: Policy | None = None
+) -> TrackResult:
+    """Roll ``agent`` out on track ``seed`` unperturbed, then once per push (under the job's
+    handover to ``expert`` where it has one), and ``expert`` alone when the job's bar is the
+    expert's run; cut out the kept steps of each pushed run (labels: the executed actions),
+    at most ``keep_best`` runs of them."""
     limits = np.asarray(job.limits, np.float64)
     low, high = (np.asarray(b, np.float32) for b in job.action_bounds)
 
     def rng(k: int) -> np.random.Generator:
         return np.random.default_rng([job.rng_seed, int(seed), k])
 
-    ref = run_episode(env, agent, seed, rng(0), keep_observations=False, max_steps=job.max_steps)
-    rewards, beyond, kept, lengths, pieces = [], [], [], [], []
+    ref = run_episode(
+        env, job.driver(agent, expert, None), seed, rng(0), keep_observations=False,
+        max_steps=job.max_steps,
+    )  # fmt: skip
+    bar, expert_reward, expert_steps = ref.rewards, float("nan"), 0
+    if job.keep_against == "expert":
+        if expert is None:
+            raise ValueError("keep_against='expert' needs the expert's config")
+        ex = run_episode(
+            env, expert, seed, rng(len(job.pushes) + 1), keep_observations=False,
+            max_steps=job.max_steps,
+        )  # fmt: skip
+        bar, expert_reward, expert_steps = ex.rewards, ex.total_reward, len(ex.rewards)
+    rewards, beyond, lengths, deferred, runs = [], [], [], [], []
     for i, spec in enumerate(job.pushes):
         push = Push(spec, low, high)
-        watch = ZoneWatch(agent, push, job.limits, job.backoff_eps)
-        ep = run_episode(env, watch, seed, rng(i + 1), perturbation=push, max_steps=job.max_steps)
+        driver = job.driver(agent, expert, push)
+        ep = run_episode(env, driver, seed, rng(i + 1), perturbation=push, max_steps=job.max_steps)
         scored = ~ep.warmup
         keep = kept_steps(
-            job.unit, ep.costs, scored, ep.final_cost, ep.rewards, ref.rewards, limits,
+            job.unit, ep.costs, scored, ep.final_cost, ep.rewards, bar, limits,
             job.margin, job.segment_steps,
         )  # fmt: skip
-        trained = np.flatnonzero(keep & scored)
+        runs.append((ep, np.flatnonzero(keep & scored)))
         rewards.append(ep.total_reward)
         beyond.append(int((np.any(ep.costs > limits, axis=1) & scored).sum()))
-        kept.append(len(trained))
         lengths.append(len(ep.rewards))
+        if isinstance(driver, HandoverWatch):
+            deferred.append(driver.deferred_steps)
+    chosen = best_runs([len(t) > 0 for _, t in runs], rewards, job.keep_best)
+    kept, pieces = [], []
+    for i, (ep, trained) in enumerate(runs):
+        if not chosen[i]:
+            trained = trained[:0]
+        kept.append(len(trained))
         if len(trained):
             rows = context_rows(trained, job.frame_stack)
             pieces.append(
@@ -193,6 +285,9 @@ def explore_track(env: gym.Env, agent: Policy, job: ExploreJob, seed: int) -> Tr
         reference_steps=len(ref.rewards),
         push_steps=tuple(lengths),
         pieces=tuple(pieces),
+        expert_reward=expert_reward,
+        push_deferred=tuple(deferred),
+        expert_steps=expert_steps,
     )
 
 

@@ -163,6 +163,20 @@ class SelfImproveResult:
         return rows
 
 
+def _expert_side(
+    config: SelfImproveConfig, demos_path: str | Path, env_config: Any
+) -> tuple[Any, Any, tuple[str, ...]]:
+    """The explore job's expert config, handover and safety dimensions: the demonstrations'
+    expert where the keep rule's bar or the handover needs it, else nothing."""
+    if config.keep_against != "expert" and config.handover is None:
+        return None, None, ()
+    from safe_bc.collection import stored_expert_config
+    from safe_bc.tasks import task_defaults, task_of
+
+    dims = tuple(task_defaults(task_of(env_config.env_id)).safety_dims)
+    return stored_expert_config(Path(demos_path)), config.handover, dims
+
+
 def validation_seeds(n: int) -> list[int]:
     """The keep rule's validation tracks: the improvement stage's (``VALIDATION_SEED_BASE - k``),
     disjoint from training and held-out evaluation tracks."""
@@ -246,6 +260,7 @@ def run_selfimprove(
         start_val["validation_episodes"] = len(seeds_val)
         start_val["seconds"] = time.perf_counter() - t0
         write_json_atomic(folder / START_VALIDATION, start_val)
+    expert_side = _expert_side(config, demos_path, env_config)
     backoff = None
     if config.backoff:
         backoff = sel.eps if config.backoff_eps is None else config.backoff_eps
@@ -282,6 +297,7 @@ def run_selfimprove(
                 env_config, agent, tuple(pushes), action_bounds, limits, config.keep_unit,
                 config.segment_steps, config.margin, backoff,
                 run_config.bc.preprocess.frame_stack, config.max_steps, config.seed,
+                config.keep_against, config.keep_best, *expert_side,
             )  # fmt: skip
             tracks = rollouts(job, track_seeds(config.seed, r, config.tracks_per_round))
             save_round(here / KEPT, tracks)
@@ -322,7 +338,7 @@ def run_selfimprove(
             reward_now, config.beyond_limit,
         )  # fmt: skip
         pushed = np.asarray([t.push_beyond for t in tracks])
-        steps = sum(t.reference_steps + sum(t.push_steps) for t in tracks)
+        steps = sum(t.reference_steps + sum(t.push_steps) + t.expert_steps for t in tracks)
         summary = {
             "round": r,
             "tracks": len(tracks),
@@ -344,6 +360,13 @@ def run_selfimprove(
             "rollout_seconds": t_roll,
             "seconds": time.perf_counter() - t0,
         }
+        if config.keep_against == "expert":
+            summary["expert_reward_mean"] = float(np.mean([t.expert_reward for t in tracks]))
+        if config.handover is not None:
+            summary["pushed_deferred_share"] = float(
+                sum(sum(t.push_deferred) for t in tracks)
+                / max(sum(sum(t.push_steps) for t in tracks), 1)
+            )
         if accepted:
             agent, agent_name, reward_now = source, round_dir(r), val["validation_reward"]
             if frames_on_disk:  # the frames stay in this round's file
