@@ -64,7 +64,7 @@ def collect(job: CollectJob) -> Done:
 def describe(job: DescribeJob) -> Done:
     """Cost histograms and ``summary.json`` of a demonstration set (the value)."""
     from safe_bc.atomic import write_json_atomic
-    from safe_bc.data.store import load_demonstrations, read_episodes, read_meta
+    from safe_bc.data.store import data_digest, load_demonstrations, read_episodes, read_meta
     from safe_bc.experiment import select_for
     from safe_bc.metrics import combined
     from safe_bc.plots import plot_cost_histograms
@@ -93,6 +93,7 @@ def describe(job: DescribeJob) -> Done:
     }
     summary = {
         "demos": str(job.demos),
+        "digest": data_digest(job.demos),
         "pairs": len(demos),
         "scored_pairs": int(scored.sum()),
         "episodes": len(set(demos.episode_ids.tolist())),

@@ -1,8 +1,9 @@
 """Which demonstration set every committed result table was made from, read off the limits
-``d_s`` its metadata records (tables made before digests were recorded name no set): the
-committed default sets (``results/demos/summary.json`` for CarRacing; the rehab task's default
-collection) or another one. Writes ``results/checks/input_sets.md`` (``python -m
-scripts.input_sets``); a test checks that the committed file is current."""
+``d_s`` its metadata records (tables made before digests were recorded name no set): a
+described CarRacing set (``results/demos/**/summary.json``: the committed default one, and
+the exact renderer's that older tables used), the rehab task's default collection, or another
+one. Writes ``results/checks/input_sets.md`` (``python -m scripts.input_sets``); a test checks
+that the committed file is current."""
 
 from __future__ import annotations
 
@@ -34,19 +35,29 @@ def recorded_limits(path: Path) -> tuple[float, ...] | None:
     return None
 
 
-def set_names() -> dict[tuple[float, ...], str]:
-    """Known limits -> the name of their demonstration set."""
-    summary = json.loads((ROOT / "results" / "demos" / "summary.json").read_text())
-    car = tuple(round(float(v["d_s"]), 2) for v in summary["limits"].values())
-    return {
-        car: "the committed default CarRacing set (results/demos/summary.json)",
-        REHAB_LIMITS: "the rehab task's default set",
-    }
+def set_names(root: Path = ROOT) -> dict[tuple[float, ...], str]:
+    """Known limits -> the name of their demonstration set: each described set
+    (``results/demos/**/summary.json``, named by its renderer, the command that collects it
+    and its content digest) and the rehab task's default set."""
+    names = {REHAB_LIMITS: "the rehab task's default set"}
+    for path in sorted((root / "results" / "demos").rglob("summary.json")):
+        summary = json.loads(path.read_text())
+        limits = tuple(round(float(v["d_s"]), 2) for v in summary["limits"].values())
+        renderer = summary["dataset"].get("renderer", "")
+        where = path.relative_to(root).as_posix()
+        default = path.parent == root / "results" / "demos"
+        name = (
+            "the committed default CarRacing set" if default else f"the {renderer} renderer's set"
+        )
+        command = "`make demos`" if default else f"`safe-bc collect --renderer {renderer}`"
+        digest = summary.get("digest", "")
+        names[limits] = f"{name} ({where}: {command}" + (f", {digest[:15]}...)" if digest else ")")
+    return names
 
 
 def input_sets(root: Path = ROOT) -> str:
     """The Markdown report: one row per (folder two levels under ``results/``, limits)."""
-    names = set_names()
+    names = set_names(root)
     groups: dict[tuple[str, tuple[float, ...]], int] = defaultdict(int)
     for path in sorted((root / "results").rglob("*.parquet")):
         limits = recorded_limits(path)
@@ -63,9 +74,10 @@ def input_sets(root: Path = ROOT) -> str:
     return (
         "# Which demonstrations each committed table was made from\n\n"
         "Read off the limits d_s each table's metadata records (tables that record none are "
-        "not listed). Tables made from another set than the committed default one cannot be "
-        "reproduced from a fresh clone, which collects the default set; their figures stand "
-        "for the set they name only. Made by `python -m scripts.input_sets`.\n\n" + table + "\n"
+        "not listed). A fresh clone collects the committed default set; a table made from "
+        "another described set is re-derived after collecting that set with the command named "
+        "(the same digest: its content is the same); its figures stand for that set only. "
+        "Made by `python -m scripts.input_sets`.\n\n" + table + "\n"
     )
 
 

@@ -365,3 +365,14 @@ def test_expert_from_few_episodes_reports_means_without_an_interval(
     assert read_table(out / "expert.parquet")[1]["inputs"]["demos"]["digest"] == data_digest(
         rehab_demos
     )
+
+
+def test_describe_names_the_set_by_its_content_digest(tiny_demos, tmp_path) -> None:
+    import json
+
+    from safe_bc.cli import main
+    from safe_bc.data.store import data_digest
+
+    assert main(["describe", "--demos", str(tiny_demos), "--out", str(tmp_path / "d")]) == 0
+    summary = json.loads((tmp_path / "d" / "summary.json").read_text())
+    assert summary["digest"] == data_digest(tiny_demos) and summary["digest"].startswith("sha256:")
