@@ -39,7 +39,7 @@ from safe_bc.handover import HandoverConfig
 from safe_bc.improve.config import ImproveConfig
 from safe_bc.queries.config import QueryConfig
 from safe_bc.run_config import RunConfig
-from safe_bc.selection import DEFAULT_EPS
+from safe_bc.selection import SelectionConfig
 from safe_bc.selfimprove.config import SelfImproveConfig
 from safe_bc.stages import STAGE_METRICS, STAGES, Stage, stage_of
 
@@ -277,8 +277,11 @@ class StudySpec:
     """Search space keyed by dotted ``RunConfig`` paths: ``selection.eps``, ``selection.alpha``,
     ``selection.rest``, ``bc.network.channels``, ``bc.network.hidden``, ``bc.train.lr``,
     ``bc.train.batch_size``, ``bc.preprocess.frame_stack``, ``bc.preprocess.grayscale``, ..."""
-    base: RunConfig = field(default_factory=RunConfig)
-    """Values of everything not searched (``bc.train.seed`` is every trial's training seed)."""
+    base: RunConfig | None = None
+    """Values of everything not searched (``bc.train.seed`` is every trial's training seed).
+    ``None``: ``RunConfig`` with the task's ``eps`` (``TaskSpec.eps``, in its cost's units) as
+    ``selection.eps``, resolved when the spec is made (a spec made by ``replace`` keeps the
+    resolved value: pass ``base=None`` with another ``env``)."""
     trials: int = 20
     """Number of trials (``--trials`` overrides)."""
     max_concurrent: int | None = None
@@ -330,8 +333,9 @@ class StudySpec:
     threshold: float | None = None
     """Safety threshold; ``None``: the expert's safety mean on the demonstrations,
     ``combined(demos.safety[demos.scored]).mean()``."""
-    critical_eps: float = DEFAULT_EPS
-    """Width of the critical zone behind ``critical_share`` (fixed, so trials compare)."""
+    critical_eps: float | None = None
+    """Width of the critical zone behind ``critical_share`` (fixed, so trials compare);
+    ``None``: the task's ``eps`` (``TaskSpec.eps``), resolved when the spec is made."""
     safety_constraint: SafetyConstraint = "combined"
     """``"combined"``: safety mean (smallest distance) >= the expert's; ``"per_dim"``: that and
     every dimension's mean >= the expert's mean in that dimension (stricter). The default is
@@ -451,6 +455,12 @@ class StudySpec:
     def __post_init__(self) -> None:
         if not self.name or not self.name.replace("_", "").replace("-", "").isalnum():
             raise ValueError(f"study name must be letters, digits, - or _, got {self.name!r}")
+        if self.base is None or self.critical_eps is None:
+            eps = _task_eps(self.env)
+            if self.base is None:
+                object.__setattr__(self, "base", RunConfig(selection=SelectionConfig(eps=eps)))
+            if self.critical_eps is None:
+                object.__setattr__(self, "critical_eps", eps)
         object.__setattr__(self, "space", dict(self.space))
         object.__setattr__(self, "demos", Path(self.demos))
         object.__setattr__(self, "results", Path(self.results))
@@ -647,6 +657,41 @@ class StudySpec:
             config = getattr(self, stage.field)
             out[stage.field] = None if config is None else config.to_dict()
         return out
+
+
+def subset_warnings(spec: StudySpec, demos: Any) -> list[str]:
+    """One line for each eps the study can train with (the base's, or the searched range's
+    bounds and options) whose ``T_eps`` on ``demos`` holds no scored row or every one, so that
+    alpha cannot act (:func:`safe_bc.selection.improper_subset_message`); none for a study
+    whose base selection is not the alpha mix."""
+    from safe_bc.experiment import select_for
+    from safe_bc.selection import improper_subset_message
+
+    assert spec.base is not None
+    sel = spec.base.selection
+    if sel.mode != "mix":
+        return []
+    param = spec.space.get("selection.eps")
+    values = [sel.eps] if param is None else [float(v) for v in param.bounds()]
+    where = "selection.eps" if param is None else "the searched selection.eps"
+    out = []
+    for eps in dict.fromkeys(values):
+        config = replace(sel, eps=eps, alpha=sel.alpha or 0.5)
+        message = improper_subset_message(select_for(demos, config))
+        if message is not None:
+            out.append(
+                f"{spec.name}: {where} = {eps:g}: {message.split(', so alpha')[0]}; "
+                "alpha has no effect there; set an eps in the task's cost units"
+            )
+    return out
+
+
+def _task_eps(env: EnvConfig) -> float:
+    """The task's critical-zone width (``TaskSpec.eps``) of the env ``env``; one line naming
+    the env when no registered task has it."""
+    from safe_bc.tasks import task_defaults, task_of
+
+    return float(task_defaults(task_of(env.env_id)).eps)
 
 
 def _config_json(config: Any) -> Any:

@@ -12,6 +12,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from safe_bc.run_config import RunConfig
 from safe_bc.study import (
     TRIAL_INFO,
     TRIAL_METRICS,
@@ -342,3 +343,31 @@ def test_concurrency_follows_the_cluster_capped_by_the_batch_and_max_concurrent(
     assert workers.concurrency(6) == 3
     default = load_study(REPO / "tune_jobs" / "default.py")
     assert (default.concurrency(2), default.concurrency(16)) == (2, 8)  # batches of 8
+
+
+def test_a_study_takes_its_tasks_eps_unless_told_and_keeps_carracings_summary() -> None:
+    from safe_bc.tasks import task_defaults
+
+    rehab = task_defaults("rehab")
+    spec = StudySpec("mine", {"selection.alpha": Float(0.0, 1.0)}, env=rehab.env)
+    assert spec.base.selection.eps == spec.critical_eps == rehab.eps
+    told = StudySpec("mine", {}, env=rehab.env, base=RunConfig(), critical_eps=0.3)
+    assert told.base.selection.eps == RunConfig().selection.eps and told.critical_eps == 0.3
+    car = StudySpec("car", {})  # CarRacing's eps is the RunConfig default: the same summary
+    assert car.base == RunConfig() and car.critical_eps == task_defaults("carracing").eps
+
+
+def test_a_study_whose_eps_makes_t_eps_everything_says_so(rehab_demos) -> None:
+    from safe_bc.data.store import load_demonstrations
+    from safe_bc.study import subset_warnings
+    from safe_bc.tasks import task_defaults
+
+    demos = load_demonstrations(rehab_demos)
+    rehab = task_defaults("rehab")
+    assert subset_warnings(StudySpec("ok", {}, env=rehab.env), demos) == []
+    wide = StudySpec("wide", {}, env=rehab.env, base=RunConfig())  # CarRacing's eps 2.0
+    (line,) = subset_warnings(wide, demos)
+    assert line.startswith("wide: selection.eps = 2: T_eps holds every scored row")
+    searched = StudySpec("s", {"selection.eps": Float(0.01, 5.0)}, env=rehab.env)
+    (line,) = subset_warnings(searched, demos)
+    assert "the searched selection.eps = 5" in line and "alpha has no effect" in line

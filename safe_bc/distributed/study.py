@@ -75,6 +75,7 @@ from safe_bc.study import (
     choose_winner,
     is_missing,
     plot_pareto,
+    subset_warnings,
     summary_lines,
     trial_table,
 )
@@ -666,6 +667,8 @@ def _run_study(
     _check_env(spec, demos_path)
     demos = cached_demos(str(demos_path))
     inputs = {"demos": dataset_record(demos_path)}
+    for line in subset_warnings(spec, demos):
+        print(f"warning: {line}")
     clock.lap("demos")
     expert_safety = demos.safety_mean
     threshold = expert_safety if spec.threshold is None else float(spec.threshold)
