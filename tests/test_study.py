@@ -209,6 +209,28 @@ def test_pareto_mask_summary_and_figure(tmp_path: Path) -> None:
     assert "final-phase candidates (2)" in labels
     assert not any("winner" in x for x in labels)  # no verdict, no star
 
+    axes: list[str] = []
+
+    def grab_axes(fig, *args, **kwargs):  # the axes say what the search maximised, in task words
+        axes.extend([fig.axes[0].get_xlabel(), fig.axes[0].get_ylabel()])
+        return real_save(fig, *args, **kwargs)
+
+    from safe_bc.distributed.study import safety_axis_label
+    from safe_bc.tasks import task_defaults
+
+    t["reward_lcb"] = t["reward_mean"] - 10.0
+    plt.Figure.savefig = grab_axes
+    try:
+        rehab = safety_axis_label(task_defaults("rehab").env.env_id)
+        plot_pareto(t, 5.0, tmp_path / "r.png", objective="reward_lcb", safety_label=rehab)
+    finally:
+        plt.Figure.savefig = real_save
+    assert axes == [
+        "safety mean (distance to the limit, cost units, higher is safer)",
+        "reward, one-sided lower confidence bound (the objective)",
+    ]
+    assert "px to the grass" in safety_axis_label("CarRacing-v3")
+
 
 def test_load_study_files(tmp_path: Path) -> None:
     default = load_study(REPO / "tune_jobs" / "default.py")

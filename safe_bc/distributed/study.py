@@ -815,7 +815,8 @@ def _run_study(
     write_table_atomic(out / "history.parquet", history, meta)
     winner = choose_winner(trials, spec.objective)
     title = f"{spec.name}: {finished}/{spec.trials} trials"
-    plot_pareto(trials, threshold, out / "pareto.png", title=title)  # no verdict yet
+    axes = {"objective": spec.objective, "safety_label": safety_axis_label(spec.env.env_id)}
+    plot_pareto(trials, threshold, out / "pareto.png", title=title, **axes)  # no verdict yet
     clock.lap("trial_tables")
     outcome = StudyOutcome(complete, trials, None, None, threshold, out, exp_path, errors)
     if not complete or winner is None or stopped or not final_phase_too:
@@ -846,6 +847,7 @@ def _run_study(
         candidates=list(candidates["trial_id"]),
         title=f"{title}; final phase: "
         + (f"winner {final.winner}" if final.feasible else "no candidate feasible"),
+        **axes,
     )
     clock.lap("final_tables")
     certificate = deliver(spec, job, final, meta, store, progress=progress)
@@ -1053,6 +1055,14 @@ def optuna_copy_problem(path: Path, name: str, trials: int) -> str:
     if n != trials:
         return f"holds {n} trials of study {name!r}, the study has {trials}"
     return ""
+
+
+def safety_axis_label(env_id: str) -> str:
+    """The safety mean's axis label in the task's words (``px to the grass`` for the car;
+    the cost's units where a task names none)."""
+    drawing = task_defaults(task_of(env_id)).drawing
+    what = drawing.closest if drawing is not None else "distance to the limit, cost units"
+    return f"safety mean ({what}, higher is safer)"
 
 
 def _checkpoints(grid: Any, trial_ids: Sequence[str]) -> dict[str, BCNet]:
