@@ -80,6 +80,10 @@ class TrainJob:
     run: Annotated[RunConfig, Flat] = field(default_factory=RunConfig)
     """Selection and behaviour cloning; ``selection.eps`` not given on the command line is
     the task's (2 px, rehab: 0.05)."""
+    validation_episodes: int = 0
+    """Hold out the demonstrations' last N episodes (highest ids) from training and record
+    their loss at each log point (curve.parquet's val_loss); d_s and T_eps then come from
+    the other episodes. 0: train on every episode (the curve has no validation loss)."""
     quiet: bool = False
     """No progress bar."""
 
