@@ -508,7 +508,9 @@ def _selfimitate(job: ImproveJob) -> Done:
     from safe_bc.selfimprove.stage import selfimprove_checkpoint
 
     with output_lock(job.out):
-        result = selfimprove_checkpoint(job.start, job.demos, job.out, job.selfimitation)
+        result = selfimprove_checkpoint(
+            job.start, job.demos, job.out, job.selfimitation, progress=not job.quiet
+        )
     last = result.rounds[-1]
     return Done(
         f"{job.out}: selfimitation, {len(result.rounds)} rounds ({result.resumed_rounds} "
@@ -555,6 +557,7 @@ def render(job: RenderJob) -> Done:
                 job.recommender,
                 agent_seed=job.recommender_seed,
                 max_steps=job.max_steps,
+                progress=not job.quiet,
                 **given,
             )
         )
@@ -568,6 +571,7 @@ def render(job: RenderJob) -> Done:
             demos=job.demos,
             eps=job.eps,
             max_steps=job.max_steps,
+            progress=not job.quiet,
             **given,
         )
     )

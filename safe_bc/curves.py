@@ -51,8 +51,7 @@ def write_events(logdir: str | Path, table: pd.DataFrame, step: str, prefix: str
     with tempfile.TemporaryDirectory(dir=logdir, prefix=".events-") as tmp:
         writer = SummaryWriter(logdir=tmp, flush_secs=3600)
         try:
-            for row in table.itertuples(index=False):
-                values = row._asdict()
+            for values in table.to_dict(orient="records"):  # any column name, "lambda" too
                 at = int(values[step])
                 for c in columns:
                     v = float(values[c])

@@ -313,6 +313,8 @@ class RenderJob:
     """Upscaling of frames; None: render_command's (4)."""
     fps: float | None = None
     """Frames per second of the video; None: render_command's (50)."""
+    quiet: bool = False
+    """No progress bars (they show on a terminal only)."""
 
     def __post_init__(self) -> None:
         if self.seed < 0:
