@@ -457,7 +457,9 @@ def query(job: QueryJob) -> Done:
     """Critical-zone queries on a checkpoint (resumable); the value is the run's result."""
     from safe_bc.queries.stage import query_checkpoint
 
-    result = query_checkpoint(job.checkpoint, job.demos, job.out, job.config)
+    result = query_checkpoint(
+        job.checkpoint, job.demos, job.out, job.config, progress=not job.quiet
+    )
     return Done(
         f"{result.total_queries} queries in {result.total_episodes} episodes; "
         f"agent: {result.policy}",

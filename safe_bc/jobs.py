@@ -237,6 +237,8 @@ class QueryJob:
     """Run folder (resumes a run there)."""
     config: Annotated[QueryConfig, Flat] = field(default_factory=lambda: QueryConfig(workers=2))
     """The query run (the command rolls out on 2 Ray actors unless --workers says otherwise)."""
+    quiet: bool = False
+    """No progress bar (it shows on a terminal only)."""
 
 
 ImproveMethod = Literal["ppo_lagrangian", "selfimitation"]
