@@ -4,6 +4,7 @@ exits with its code)."""
 
 from __future__ import annotations
 
+import fnmatch
 import json
 import math
 import os
@@ -139,8 +140,10 @@ def train(job: TrainJob, *, task_eps: bool = False) -> Done:
 
 def _train(job: TrainJob, task_eps: bool) -> Done:
     from safe_bc.bc.checkpoint import checkpoint_unit
+    from safe_bc.curves import EVENTS_GLOB
     from safe_bc.data.store import load_demonstrations, read_meta
-    from safe_bc.experiment import save_selection, train_run
+    from safe_bc.demos import hold_out_episodes
+    from safe_bc.experiment import save_curve, save_selection, train_run
     from safe_bc.provenance import run_metadata
     from safe_bc.tasks import dataset_action_bounds, task_defaults, task_of
 
@@ -151,19 +154,29 @@ def _train(job: TrainJob, task_eps: bool) -> Done:
         eps = task_defaults(task_of(env_id)).eps
         run = replace(run, selection=replace(run.selection, eps=eps))
     bounds = dataset_action_bounds(job.demos)
-    result, selection = train_run(demos, run, progress=not job.quiet, action_bounds=bounds)
+    held = {}
+    validation = None
+    if job.validation_episodes:
+        demos, validation = hold_out_episodes(demos, job.validation_episodes)
+        held = {"validation_episodes": sorted(int(i) for i in set(validation.episode_ids))}
+    result, selection = train_run(
+        demos, run, progress=not job.quiet, action_bounds=bounds, validation=validation
+    )
     meta = run_metadata(
-        demos=str(job.demos), env_id=env_id, run=run.to_dict(), train=result.summary()
+        demos=str(job.demos), env_id=env_id, run=run.to_dict(), train=result.summary(), **held
     )
     before = set(os.listdir(job.out)) if job.out.is_dir() else set()
-    with checkpoint_unit(job.out) as unit:  # weights, config and selection: old or new, whole
+    with checkpoint_unit(job.out) as unit:  # weights, config, selection, curve: old or new
         result.save(unit, extra=json.loads(json.dumps(meta, default=str)))
         save_selection(unit, demos, selection, meta)
-    dropped = sorted(before - set(os.listdir(job.out)))  # evaluations of the replaced weights
+        save_curve(unit, result, meta)
+    after = set(os.listdir(job.out))
+    dropped = sorted(n for n in before - after if not fnmatch.fnmatch(n, EVENTS_GLOB))
     note = f"; removed {', '.join(dropped)}, evaluated other weights" if dropped else ""
+    val = "" if result.val_losses is None else f" (validation {result.val_losses[-1]:.4f})"
     return Done(
         f"{job.out}: trained {run.bc.train.batches} batches, final loss "
-        f"{result.final_loss:.4f}, {result.samples_per_s:.0f} samples/s; "
+        f"{result.final_loss:.4f}{val}, {result.samples_per_s:.0f} samples/s; "
         f"|T_eps| = {selection.n_critical} of {selection.n_valid} scored pairs{note}",
         (result, selection),
     )
@@ -445,7 +458,9 @@ def query(job: QueryJob) -> Done:
     """Critical-zone queries on a checkpoint (resumable); the value is the run's result."""
     from safe_bc.queries.stage import query_checkpoint
 
-    result = query_checkpoint(job.checkpoint, job.demos, job.out, job.config)
+    result = query_checkpoint(
+        job.checkpoint, job.demos, job.out, job.config, progress=not job.quiet
+    )
     return Done(
         f"{result.total_queries} queries in {result.total_episodes} episodes; "
         f"agent: {result.policy}",
@@ -496,7 +511,9 @@ def _selfimitate(job: ImproveJob) -> Done:
     from safe_bc.selfimprove.stage import selfimprove_checkpoint
 
     with output_lock(job.out):
-        result = selfimprove_checkpoint(job.start, job.demos, job.out, job.selfimitation)
+        result = selfimprove_checkpoint(
+            job.start, job.demos, job.out, job.selfimitation, progress=not job.quiet
+        )
     last = result.rounds[-1]
     return Done(
         f"{job.out}: selfimitation, {len(result.rounds)} rounds ({result.resumed_rounds} "
@@ -543,6 +560,7 @@ def render(job: RenderJob) -> Done:
                 job.recommender,
                 agent_seed=job.recommender_seed,
                 max_steps=job.max_steps,
+                progress=not job.quiet,
                 **given,
             )
         )
@@ -556,6 +574,7 @@ def render(job: RenderJob) -> Done:
             demos=job.demos,
             eps=job.eps,
             max_steps=job.max_steps,
+            progress=not job.quiet,
             **given,
         )
     )

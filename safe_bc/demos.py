@@ -66,6 +66,21 @@ class Demonstrations:
         s = self.safety[self.scored]
         return {d: float(s[:, j].mean()) for j, d in enumerate(self.safety_dims)}
 
+    def take(self, rows: np.ndarray) -> Demonstrations:
+        """The demonstrations of ``rows (M,)`` (indices, in order)."""
+        rows = np.asarray(rows, np.int64)
+        return Demonstrations(
+            observations=self.observations[rows],
+            actions=self.actions[rows],
+            costs=self.costs[rows],
+            safety=self.safety[rows],
+            episode_ids=self.episode_ids[rows],
+            steps=self.steps[rows],
+            seeds=self.seeds[rows],
+            warmup=self.warmup[rows],
+            safety_dims=self.safety_dims,
+        )
+
     @classmethod
     def from_episodes(cls, episodes: Sequence[Episode], observations: Any = None) -> Demonstrations:
         """Concatenate episodes (in the given order) into flat arrays.
@@ -106,3 +121,31 @@ class Demonstrations:
             warmup=np.concatenate([e.warmup for e in episodes]).astype(bool),
             safety_dims=dims,
         )
+
+
+def hold_out_episodes(
+    demos: Demonstrations, episodes: int
+) -> tuple[Demonstrations, Demonstrations]:
+    """``(training, held out)``: the ``episodes`` episodes of ``demos`` with the highest ids held
+    out (a fixed split: the same data give the same one), the others kept in their order.
+    Raises ``ValueError`` unless at least one episode stays for training.
+
+    >>> import numpy as np
+    >>> ids = np.array([0, 0, 1, 2, 2])
+    >>> d = Demonstrations(np.zeros((5, 2)), np.zeros((5, 1)), np.zeros((5, 1)),
+    ...     np.zeros((5, 1)), ids, np.zeros(5, np.int64), np.zeros(5, np.int64),
+    ...     np.zeros(5, bool), ("x",))
+    >>> train, held = hold_out_episodes(d, 1)
+    >>> train.episode_ids.tolist(), held.episode_ids.tolist()
+    ([0, 0, 1], [2, 2])
+    """
+    ids = np.unique(demos.episode_ids)
+    if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
+        raise ValueError(f"episodes to hold out must be an integer >= 1, got {episodes!r}")
+    if episodes >= len(ids):
+        raise ValueError(
+            f"cannot hold out {episodes} of {len(ids)} demonstration episodes: at least one "
+            "must stay for training"
+        )
+    held = np.isin(demos.episode_ids, ids[-episodes:])
+    return demos.take(np.flatnonzero(~held)), demos.take(np.flatnonzero(held))

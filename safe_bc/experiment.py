@@ -32,8 +32,11 @@ def train_run(
     progress: bool = False,
     log_fn: LogFn | None = None,
     action_bounds: tuple[np.ndarray, np.ndarray] | None = None,
+    validation: Demonstrations | None = None,
 ) -> tuple[TrainResult, Selection]:
-    """Select the critical subset and train one BC agent on its mix (or baseline rule).
+    """Select the critical subset and train one BC agent on its mix (or baseline rule);
+    ``validation``: held-out demonstrations whose loss the curve records
+    (:func:`safe_bc.demos.hold_out_episodes`), never trained on.
 
     Raises:
         SelectionError: the mix cannot be built (e.g. alpha > 0 with an empty T_eps, or no
@@ -50,8 +53,20 @@ def train_run(
         progress=progress,
         log_fn=log_fn,
         action_bounds=action_bounds,
+        validation=validation,
     )
     return result, selection
+
+
+def save_curve(
+    directory: Path, result: TrainResult, meta: dict[str, Any], prefix: str = "bc"
+) -> Path:
+    """Write ``result``'s learning curve as ``directory/curve.parquet`` (with ``meta``) and as
+    TensorBoard scalars ``prefix/train_loss``, ``prefix/val_loss``, ... at each logged batch."""
+    from safe_bc.bc.checkpoint import CURVE
+    from safe_bc.curves import write_curve
+
+    return write_curve(Path(directory) / CURVE, result.curve(), "batch", prefix, meta)
 
 
 def selection_table(demos: Demonstrations, selection: Selection) -> pd.DataFrame:

@@ -80,6 +80,10 @@ class TrainJob:
     run: Annotated[RunConfig, Flat] = field(default_factory=RunConfig)
     """Selection and behaviour cloning; ``selection.eps`` not given on the command line is
     the task's (2 px, rehab: 0.05)."""
+    validation_episodes: int = 0
+    """Hold out the demonstrations' last N episodes (highest ids) from training and record
+    their loss at each log point (curve.parquet's val_loss); d_s and T_eps then come from
+    the other episodes. 0: train on every episode (the curve has no validation loss)."""
     quiet: bool = False
     """No progress bar."""
 
@@ -233,6 +237,8 @@ class QueryJob:
     """Run folder (resumes a run there)."""
     config: Annotated[QueryConfig, Flat] = field(default_factory=lambda: QueryConfig(workers=2))
     """The query run (the command rolls out on 2 Ray actors unless --workers says otherwise)."""
+    quiet: bool = False
+    """No progress bar (it shows on a terminal only)."""
 
 
 ImproveMethod = Literal["ppo_lagrangian", "selfimitation"]
@@ -309,6 +315,8 @@ class RenderJob:
     """Upscaling of frames; None: render_command's (4)."""
     fps: float | None = None
     """Frames per second of the video; None: render_command's (50)."""
+    quiet: bool = False
+    """No progress bars (they show on a terminal only)."""
 
     def __post_init__(self) -> None:
         if self.seed < 0:

@@ -26,6 +26,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import cv2
 import gymnasium as gym
@@ -34,6 +35,7 @@ import numpy as np
 from safe_bc.envs.config import DEFAULT_RENDERER
 from safe_bc.episode import Episode
 from safe_bc.policy import Policy
+from safe_bc.progress import progress_bar
 from safe_bc.rollout import run_episode
 from safe_bc.selection import DEFAULT_EPS, CriticalZone
 from safe_bc.tasks.registry import DEFAULT_TASK, Drawing, Task, TaskSpec, spec_of, task_defaults
@@ -84,10 +86,11 @@ def drawing_of(spec: TaskSpec) -> Drawing:
 class _Recorder:
     """A policy that remembers where the car was each time it was asked for an action."""
 
-    def __init__(self, policy: Policy, drawing: Drawing) -> None:
+    def __init__(self, policy: Policy, drawing: Drawing, bar: Any = None) -> None:
         self.policy = policy
         self.drawing = drawing
         self.positions: list[tuple[float, float]] = []
+        self.bar = bar  # a progress bar advanced once a step, or None
 
     def reset(self, env: gym.Env, rng: np.random.Generator) -> None:
         self.positions.clear()
@@ -101,6 +104,8 @@ class _Recorder:
 
     def act(self, obs: np.ndarray, env: gym.Env) -> np.ndarray:
         self.positions.append(self.drawing.position(env))
+        if self.bar is not None:
+            self.bar.update(1)
         return self.policy.act(obs, env)
 
 
@@ -112,21 +117,27 @@ def record(
     max_steps: int | None = None,
     renderer: str = DEFAULT_RENDERER,
     task: Task = DEFAULT_TASK,
+    progress: bool = False,
 ) -> Trace:
     """Roll ``policy`` out on ``task``'s track ``seed`` (``env.reset(seed=seed)``), keeping
-    frames and positions. The policy's randomness is seeded with ``seed`` as in evaluation."""
+    frames and positions. The policy's randomness is seeded with ``seed`` as in evaluation.
+    ``progress``: a bar over the steps (on a terminal)."""
     from safe_bc.envs import make_env
 
     spec = task_defaults(task, renderer)  # type: ignore[arg-type]
     drawing = drawing_of(spec)
     env = make_env(spec.env)
+    cap = getattr(env.spec, "max_episode_steps", None)
+    total = max_steps if cap is None else min(cap, max_steps or cap)
+    bar = progress_bar(show=progress, total=total, desc=f"{label}: episode", unit="step")
     try:
-        recorder = _Recorder(policy, drawing)
+        recorder = _Recorder(policy, drawing, bar)
         rng = np.random.default_rng(seed)
         episode = run_episode(env, recorder, seed, rng, max_steps=max_steps)
         ground = drawing.ground(env)
     finally:
         env.close()
+        bar.close()
     return Trace(episode, np.asarray(recorder.positions, np.float64), ground, label, spec.name)
 
 
@@ -188,16 +199,18 @@ def annotated_frames(
     zone: CriticalZone | None = None,
     scale: int = 4,
     deferred: np.ndarray | None = None,
+    progress: bool = False,
 ) -> list[np.ndarray]:
     """Every frame of ``trace`` with its safety readings, border and header drawn in;
     ``deferred`` (``(T,) bool``, a recommender's handover) marks the frames on which the
-    expert acted: "EXPERT" in the header and a magenta inner border."""
+    expert acted: "EXPERT" in the header and a magenta inner border. ``progress``: a bar."""
     drawing = drawing_of(task_defaults(trace.task))
     ep = trace.episode
     states = dim_states(ep, zone)
     combine = zone.combine if zone is not None else "any"
     frames = []
-    for t in range(len(ep)):
+    steps = progress_bar(show=progress, iterable=range(len(ep)), desc="frames", unit="frame")
+    for t in steps:
         state = frame_state(states[t], combine)
         expert_acted = deferred is not None and bool(deferred[t])
         text = f"{trace.label}  t={t}  {drawing.caption(ep.safety[t])}"
@@ -213,8 +226,11 @@ def annotated_frames(
     return frames
 
 
-def write_video(frames: list[np.ndarray], out: str | Path, fps: float = FPS) -> Path:
-    """Write ``frames`` (RGB uint8) as MP4/other ffmpeg formats, or as a GIF for ``.gif``."""
+def write_video(
+    frames: list[np.ndarray], out: str | Path, fps: float = FPS, progress: bool = False
+) -> Path:
+    """Write ``frames`` (RGB uint8) as MP4/other ffmpeg formats, or as a GIF for ``.gif``;
+    ``progress``: a bar over the encoded frames (MP4)."""
     import imageio.v2 as imageio
 
     out = Path(out)
@@ -225,7 +241,7 @@ def write_video(frames: list[np.ndarray], out: str | Path, fps: float = FPS) -> 
         imageio.mimsave(out, frames, format="GIF", duration=1000.0 / fps, loop=0)
         return out
     with imageio.get_writer(out, format="FFMPEG", mode="I", fps=fps, macro_block_size=16) as w:
-        for frame in frames:
+        for frame in progress_bar(show=progress, iterable=frames, desc="encode", unit="frame"):
             w.append_data(frame)
     return out
 
@@ -241,15 +257,17 @@ def render_episode(
     scale: int = 4,
     fps: float = FPS,
     task: Task = DEFAULT_TASK,
+    progress: bool = False,
 ) -> Trace:
     """Roll ``policy`` out on ``task``'s track ``seed`` and write the annotated episode to
     ``out`` (one frame per step: the observation each action was chosen in); a policy that
     reports its handover (``flags``, :class:`safe_bc.queries.defer.DeferringPolicy`) has the
-    expert's steps marked."""
-    trace = record(policy, seed, label=label, max_steps=max_steps, task=task)
+    expert's steps marked. ``progress``: bars over the steps, frames and encoding."""
+    trace = record(policy, seed, label=label, max_steps=max_steps, task=task, progress=progress)
     flags = getattr(policy, "flags", None)
     deferred = None if flags is None else np.asarray(flags, bool)
-    write_video(annotated_frames(trace, zone, scale, deferred), out, fps)
+    frames = annotated_frames(trace, zone, scale, deferred, progress)
+    write_video(frames, out, fps, progress)
     return trace
 
 
@@ -262,6 +280,7 @@ def render_recommender(
     max_steps: int | None = None,
     scale: int = 4,
     fps: float = FPS,
+    progress: bool = False,
 ) -> str:
     """What ``safe-bc render --recommender DIR`` does: one episode of the recommender (its
     agent of ``agent_seed``, default the first, with its handover) on track ``seed``, the
@@ -278,7 +297,7 @@ def render_recommender(
     policy = rec.source(agent_seed).build()
     trace = render_episode(
         policy, seed, out, label="recommender", zone=zone, max_steps=max_steps,
-        scale=scale, fps=fps, task=spec.name,
+        scale=scale, fps=fps, task=spec.name, progress=progress,
     )  # fmt: skip
     ep = trace.episode
     scored = ~ep.warmup
@@ -356,10 +375,12 @@ def render_paths(
     zone: CriticalZone | None = None,
     max_steps: int | None = None,
     task: Task = DEFAULT_TASK,
+    progress: bool = False,
 ) -> list[Trace]:
     """Roll each policy out on ``task``'s track ``seed`` and draw their paths side by side."""
     traces = [
-        record(p, seed, label=name, max_steps=max_steps, task=task) for name, p in policies.items()
+        record(p, seed, label=name, max_steps=max_steps, task=task, progress=progress)
+        for name, p in policies.items()
     ]
     draw_paths(traces, out, zone=zone, title=f"track seed {seed}")
     return traces
@@ -413,8 +434,9 @@ def render_command(
     max_steps: int | None = None,
     scale: int = 4,
     fps: float = FPS,
+    progress: bool = False,
 ) -> str:
-    """What ``safe-bc render`` does; returns the line it prints.
+    """What ``safe-bc render`` does; returns the line it prints (``progress``: bars).
 
     The task is the checkpoint's (else the demonstrations', else the default task); one
     without a drawing (``TaskSpec.drawing``) cannot be rendered. The agent is the
@@ -470,7 +492,9 @@ def render_command(
         policies = {"expert": expert_policy}
         if checkpoint is not None:
             policies["agent"] = agent()
-        traces = render_paths(policies, seed, out, zone=zone, max_steps=max_steps, task=spec.name)
+        traces = render_paths(
+            policies, seed, out, zone=zone, max_steps=max_steps, task=spec.name, progress=progress
+        )
         drawn = ", ".join(f"{t.label} ({len(t.episode)} steps)" for t in traces)
         return f"{out}: paths of {drawn} on track seed {seed}"
     label = "expert" if expert else "agent"
@@ -485,6 +509,7 @@ def render_command(
         scale=scale,
         fps=fps,
         task=spec.name,
+        progress=progress,
     )
     ep = trace.episode
     scored = ~ep.warmup

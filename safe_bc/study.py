@@ -371,6 +371,10 @@ class StudySpec:
     ``train_seeds >= 2``. ``None`` (default): the mean reward."""
     demos: Path = Path("data/demos")
     """Demonstration set (built with ``ensure_demos`` if absent); a shared path on a cluster."""
+    validation_demos: Path | None = None
+    """A second demonstration set of the same task (``safe-bc collect`` with other seeds), never
+    trained on: every trial's learning curve (``bc/curve.parquet`` in its folder, and
+    TensorBoard) records the loss on it at each log point. ``None``: training loss only."""
     storage: str = "results/ray"
     """Tune storage: a local folder (made absolute), a shared file system or an ``s3://`` URI."""
     results: Path = Path("results")

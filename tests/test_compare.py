@@ -202,6 +202,8 @@ COMPARISON = Comparison(
     weights = tmp_path / "tiny_runs" / "start" / "seed1" / "agent" / "config.json"
     evaluated = tmp_path / "tiny_runs" / "improved" / "seed1" / "episodes.parquet"
     before = weights.stat().st_mtime_ns, evaluated.stat().st_mtime_ns
+    curve, _ = read_table(weights.parent / "curve.parquet")  # every agent's learning curve
+    assert curve["batch"].tolist() == [5] and curve["train_loss"].notna().all()
     again = run_comparison(comp, progress=False)
     assert (weights.stat().st_mtime_ns, evaluated.stat().st_mtime_ns) == before
     pd.testing.assert_frame_equal(again, table, check_exact=True)

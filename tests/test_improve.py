@@ -10,6 +10,7 @@ import pandas as pd
 import pytest
 import torch
 
+from safe_bc.curves import read_events
 from safe_bc.improve import (
     ImproveConfig,
     ImprovedSource,
@@ -149,6 +150,9 @@ def test_interrupted_run_resumes_to_the_same_weights(start, tmp_path):
     assert _same(_weights(tmp_path / "whole"), _weights(tmp_path / "cut"))
     cols = [c for c in whole.history.columns if c != "seconds"]
     assert whole.history[cols].equals(resumed.history[cols])
+    # the curve in TensorBoard: rewritten from the history, no iteration twice after the resume
+    events = read_events(tmp_path / "cut")
+    assert events[events["tag"] == "improve/train_reward"]["step"].tolist() == [1, 2, 3, 4, 5]
     with pytest.raises(ValueError, match="another run"):
         improve(start, tmp_path / "cut", replace(cfg, anchor_coef=2.0))
 

@@ -7,11 +7,14 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from safe_bc.selfimprove.config import DONE, KEPT, POLICY, SelfImproveConfig, round_dir
+from safe_bc.curves import read_events
+from safe_bc.data.store import read_table
+from safe_bc.selfimprove.config import CURVE, DONE, KEPT, POLICY, SelfImproveConfig, round_dir
 from safe_bc.selfimprove.logic import kept_steps, push_action, window_sums
 
 # --- the keep filter (pure) ----------------------------------------------------------------
@@ -225,6 +228,14 @@ def test_a_killed_round_reruns_only_what_did_not_finish(rehab_agent, rehab_demos
     assert len(explored) == 3 and third.resumed_rounds == 1
     assert _same(before, _weights(last / POLICY))
     assert _no_seconds(first.rounds, third.rounds) and third.agent == first.agent
+    # the run's curve, rewritten after each round: the start and both rounds, once each
+    curve, _ = read_table(tmp_path / "run" / CURVE)
+    assert curve["iteration"].tolist() == [0, 1, 2]
+    assert curve.drop(columns="seconds").equals(
+        pd.DataFrame(first.history()).drop(columns="seconds")
+    )
+    events = read_events(tmp_path / "run")
+    assert events[events["tag"] == "selfimprove/val_reward"]["step"].tolist() == [0, 1, 2]
     with pytest.raises(ValueError, match="another self-imitation run"):
         _run(rehab_agent, rehab_demos, tmp_path / "run", rounds=3)
 

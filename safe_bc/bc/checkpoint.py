@@ -3,12 +3,12 @@
 ``config.json`` is written last and records the SHA-256 of ``weights.pt``, so a directory
 whose two files do not belong together (a crash between the two writes) is detected.
 
-A checkpoint folder is one unit: :func:`checkpoint_unit` writes it (weights, config and the
-``selection.parquet`` beside them) into a temporary folder that replaces the old one whole
-(:func:`safe_bc.atomic.atomic_dir`), and seals it: ``config.json`` then also records the
-SHA-256 of every other file of the unit (``files_sha256``), which :func:`load_checkpoint`
-and :func:`check_checkpoint_files` verify. Checkpoints written before ``files_sha256``
-existed have only ``weights_sha256``; they load as before.
+A checkpoint folder is one unit: :func:`checkpoint_unit` writes it (weights, config, and the
+``selection.parquet`` and ``curve.parquet`` beside them) into a temporary folder that replaces
+the old one whole (:func:`safe_bc.atomic.atomic_dir`), and seals it: ``config.json`` then
+also records the SHA-256 of every other file of the unit (``files_sha256``), which
+:func:`load_checkpoint` and :func:`check_checkpoint_files` verify. Checkpoints written
+before ``files_sha256`` existed have only ``weights_sha256``; they load as before.
 
 ``config.json`` also records its own SHA-256 (``meta_sha256``). It is required from format
 ``safe_bc.bc/2`` on (a ``config.json`` edited and its ``meta_sha256`` removed is refused);
@@ -17,6 +17,7 @@ existed have only ``weights_sha256``; they load as before.
 
 from __future__ import annotations
 
+import fnmatch
 import hashlib
 import json
 import pickle
@@ -31,11 +32,15 @@ import torch
 from safe_bc.atomic import atomic_dir, atomic_write, write_json_atomic
 from safe_bc.bc.config import BCConfig
 from safe_bc.bc.net import BCNet, ModelSpec
+from safe_bc.curves import EVENTS_GLOB
 
 WEIGHTS = "weights.pt"
 CONFIG = "config.json"
 SELECTION = "selection.parquet"
-UNIT = (WEIGHTS, CONFIG, SELECTION)
+CURVE = "curve.parquet"
+"""The learning curve of the weights (``TrainResult.curve``); its TensorBoard event files lie
+beside it and go with the unit they were written in."""
+UNIT = (WEIGHTS, CONFIG, SELECTION, CURVE)
 """The files of a checkpoint unit; anything else in the folder (an ``eval/`` folder) is kept
 when the unit is rewritten, except an evaluation of the replaced weights when the new
 weights differ (:func:`keeps_entry`)."""
@@ -177,9 +182,11 @@ def evaluated_weights(entry: Path, checkpoint: Path, weights: str | None) -> str
 def keeps_entry(entry: Path, old: Path, new: Path) -> bool:
     """Whether ``entry`` of the replaced checkpoint folder ``old`` moves into the new unit
     ``new`` (:func:`safe_bc.atomic.atomic_dir`'s ``keep``): everything but an evaluation of
-    the replaced weights (:func:`evaluated_weights`) when the new weights differ from them.
-    What cannot be told apart (no recorded weights, an unreadable table, not an evaluation)
-    is kept."""
+    the replaced weights (:func:`evaluated_weights`) when the new weights differ from them,
+    and the replaced unit's TensorBoard event files (its curve's). What cannot be told apart
+    (no recorded weights, an unreadable table, not an evaluation) is kept."""
+    if fnmatch.fnmatch(entry.name, EVENTS_GLOB):
+        return False
     old_weights, new_weights = _weights_sha256(old), _weights_sha256(new)
     if old_weights is None or old_weights == new_weights:
         return True

@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pandas as pd
 import torch
 from tqdm import tqdm
 
@@ -30,7 +31,7 @@ from safe_bc.selection import BatchSampler, Selection, warn_if_improper_subset
 
 LogFn = Callable[[int, dict[str, float]], None]
 """``log_fn(batch, metrics)``: called every ``log_every`` batches with ``loss`` (mean since
-the previous call) and ``samples_per_s``."""
+the previous call), ``samples_per_s`` and, with a validation set, ``val_loss``."""
 
 
 CACHE_LIMIT_BYTES = 2**30
@@ -168,7 +169,7 @@ class TrainResult:
         config: the preprocessing, network and training configs used.
         log_steps: ``(K,) int64`` batch number (1-based) of each log point.
         losses: ``(K,) float64`` mean training loss over the batches since the previous log.
-        seconds: wall time of the training loop.
+        seconds: wall time of the training loop (validation excluded).
         samples_per_s: ``batches * batch_size / seconds``.
         prepare_seconds: wall time spent before the loop preprocessing the frames the sampler
             can draw into the frame cache (0 when the dataset is too big to cache).
@@ -181,10 +182,32 @@ class TrainResult:
     seconds: float
     samples_per_s: float
     prepare_seconds: float = 0.0
+    val_losses: np.ndarray | None = None
+    """``(K,) float64`` loss on the validation set at each log point (``None``: trained
+    without one)."""
+    log_seconds: np.ndarray | None = None
+    """``(K,) float64`` wall time of the loop at each log point (validation excluded)."""
 
     @property
     def final_loss(self) -> float:
         return float(self.losses[-1])
+
+    def curve(self) -> pd.DataFrame:
+        """The learning curve, one row per log point: ``batch``, ``train_loss`` (mean over
+        the batches since the previous row), ``val_loss`` (NaN without a validation set),
+        ``samples`` (trained so far), ``seconds`` (the loop's wall time so far, NaN when not
+        recorded)."""
+        k = len(self.log_steps)
+        nan = np.full(k, np.nan)
+        return pd.DataFrame(
+            {
+                "batch": self.log_steps.astype(np.int64),
+                "train_loss": self.losses.astype(np.float64),
+                "val_loss": nan if self.val_losses is None else self.val_losses,
+                "samples": self.log_steps.astype(np.int64) * self.config.train.batch_size,
+                "seconds": nan if self.log_seconds is None else self.log_seconds,
+            }
+        )
 
     def policy(self) -> BCPolicy:
         """The trained net as a ``Policy``."""
@@ -201,6 +224,7 @@ class TrainResult:
             "seconds": self.seconds,
             "samples_per_s": self.samples_per_s,
             "prepare_seconds": self.prepare_seconds,
+            **({} if self.val_losses is None else {"val_losses": self.val_losses.tolist()}),
         }
 
     def save(self, directory: str | Path, extra: dict[str, Any] | None = None) -> Path:
@@ -260,6 +284,7 @@ def train_bc(
     progress: bool = False,
     log_fn: LogFn | None = None,
     action_bounds: tuple[Sequence[float], Sequence[float]] | None = None,
+    validation: Demonstrations | None = None,
 ) -> TrainResult:
     """Train a ``BCNet`` for ``train_cfg.batches`` Adam steps on MSE to the expert's actions.
 
@@ -280,6 +305,10 @@ def train_bc(
         progress: show a tqdm bar with the loss and samples/s.
         log_fn: called at each log point (see ``LogFn``).
         action_bounds: ``(low (A,), high (A,))``; default from ``ModelSpec.for_data``.
+        validation: held-out demonstrations: at each log point the loss (the training loss's
+            weighted squared error) over their scored rows, in eval mode without gradients.
+            It reads no random numbers and changes no weight: the training is the same with
+            or without it.
     """
     if len(sampler.mask) != len(demos):
         raise ValueError(f"sampler covers {len(sampler.mask)} rows, demos have {len(demos)}")
@@ -312,6 +341,22 @@ def train_bc(
     sampler = sampler.with_rng(np.random.default_rng(train_cfg.seed))
     log_steps: list[int] = []
     losses: list[float] = []
+    val_losses: list[float] = []
+    log_seconds: list[float] = []
+    val_rows = None if validation is None else np.flatnonzero(validation.scored)
+    if val_rows is not None and not len(val_rows):
+        raise ValueError("the validation set has no scored rows")
+    val_builder = (
+        None
+        if validation is None
+        else BatchBuilder(
+            validation,
+            pre_cfg,
+            cache_chunk=chunk
+            if BatchBuilder.cache_bytes(validation, pre_cfg) <= CACHE_LIMIT_BYTES
+            else None,
+        )
+    )
 
     with torch_settings(train_cfg.num_threads):
         torch.manual_seed(train_cfg.seed)
@@ -326,6 +371,7 @@ def train_bc(
         model.train()
         window = 0.0
         start = time.perf_counter()
+        paused = 0.0  # validation time, kept out of the loop's seconds
         bar = tqdm(range(1, train_cfg.batches + 1), disable=not progress, desc="bc", unit="batch")
         for step in bar:
             rows = sampler.sample()
@@ -338,14 +384,24 @@ def train_bc(
             window += loss.item()
             if step % train_cfg.log_every == 0 or step == train_cfg.batches:
                 n = step - (log_steps[-1] if log_steps else 0)
-                sps = step * train_cfg.batch_size / (time.perf_counter() - start)
+                elapsed = time.perf_counter() - start - paused
+                sps = step * train_cfg.batch_size / elapsed
                 log_steps.append(step)
+                log_seconds.append(elapsed)
                 losses.append(window / n)
                 window = 0.0
-                bar.set_postfix(loss=f"{losses[-1]:.4f}", sps=f"{sps:.0f}")
+                logged = {"loss": losses[-1], "samples_per_s": sps}
+                shown = {"loss": f"{losses[-1]:.4f}", "sps": f"{sps:.0f}"}
+                if val_builder is not None:
+                    t0 = time.perf_counter()
+                    val_losses.append(_loss_over(model, val_builder, val_rows, weights))
+                    paused += time.perf_counter() - t0
+                    logged["val_loss"] = val_losses[-1]
+                    shown["val"] = f"{val_losses[-1]:.4f}"
+                bar.set_postfix(shown)
                 if log_fn is not None:
-                    log_fn(step, {"loss": losses[-1], "samples_per_s": sps})
-        seconds = time.perf_counter() - start
+                    log_fn(step, logged)
+        seconds = time.perf_counter() - start - paused
         bar.close()
     model.eval()
     return TrainResult(
@@ -356,7 +412,30 @@ def train_bc(
         seconds=seconds,
         samples_per_s=train_cfg.batches * train_cfg.batch_size / seconds,
         prepare_seconds=prepare_seconds,
+        val_losses=None if validation is None else np.asarray(val_losses, np.float64),
+        log_seconds=np.asarray(log_seconds, np.float64),
     )
+
+
+def _loss_over(
+    model: BCNet,
+    builder: BatchBuilder,
+    rows: Any,
+    weights: torch.Tensor,
+    batch_size: int = 256,
+) -> float:
+    """The training loss over ``rows`` of ``builder``'s data: the mean over rows of the
+    weighted squared error, without gradients, in eval mode (the model's mode restored)."""
+    was_training = model.training
+    model.eval()
+    total = 0.0
+    with torch.inference_mode():
+        for i in range(0, len(rows), batch_size):
+            part = rows[i : i + batch_size]
+            err = (model(builder.inputs(part)) - builder.targets(part)).square() * weights
+            total += float(err.sum(dim=1).double().sum())
+    model.train(was_training)
+    return total / len(rows)
 
 
 def predict(

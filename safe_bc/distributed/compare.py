@@ -47,7 +47,7 @@ from safe_bc.data.store import (
 )
 from safe_bc.envs.config import DEFAULT_RENDERER
 from safe_bc.evaluation import EvalConfig, ExpertSource, MaskedSource, NetSource
-from safe_bc.experiment import RunConfig, save_selection, select_for
+from safe_bc.experiment import RunConfig, save_curve, save_selection, select_for
 from safe_bc.metrics import combined
 from safe_bc.provenance import run_metadata
 from safe_bc.selection import SelectionConfig
@@ -425,6 +425,7 @@ def _train_agents(
         with checkpoint_unit(_folder(c, m, s) / "agent") as unit:
             result.save(unit, extra=agent_meta)
             save_selection(unit, demos, selection, agent_meta)
+            save_curve(unit, result, agent_meta)
 
 
 def _improve_cell(

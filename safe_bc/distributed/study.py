@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 from ray import tune
-from ray.tune.logger import CSVLoggerCallback, JsonLoggerCallback
+from ray.tune.logger import CSVLoggerCallback, JsonLoggerCallback, TBXLoggerCallback
 from ray.tune.schedulers import FIFOScheduler, TrialScheduler
 from ray.tune.utils import flatten_dict
 
@@ -172,6 +172,20 @@ def _check_env(spec: StudySpec, demos: Path) -> None:
     warning = check_frames_renderer(meta.renderer, spec.env, demos)
     if warning:
         print(f"warning: {warning}", file=sys.stderr)
+
+
+def _check_validation_demos(validation: Path, demos: Path) -> None:
+    """The study's validation set must be another set of the same task and observations."""
+    if not (validation / "dataset.json").exists():
+        raise ValueError(f"validation_demos {validation}: no demonstration set there")
+    a, b = read_meta(validation), read_meta(demos)
+    if a.env_id != b.env_id or tuple(a.obs_shape) != tuple(b.obs_shape):
+        raise ValueError(
+            f"validation_demos {validation} holds {a.env_id} {tuple(a.obs_shape)} observations, "
+            f"the study's demonstrations {b.env_id} {tuple(b.obs_shape)}"
+        )
+    if validation == demos:
+        raise ValueError("validation_demos is the training set itself; collect another one")
 
 
 def _check_resume(out: Path, identity: dict[str, Any], restoring: bool) -> None:
@@ -681,7 +695,17 @@ def _run_study(
         spec.violation_share_limit,
         spec.deferred_share_limit if spec.handover is not None else 1.0,
     )
-    job = TrialJob(spec, str(demos_path), limits, tuple(float(x) for x in demos.limits))
+    validation = None
+    if spec.validation_demos is not None:
+        validation = spec.validation_demos.resolve()
+        _check_validation_demos(validation, demos_path)
+    job = TrialJob(
+        spec,
+        str(demos_path),
+        limits,
+        tuple(float(x) for x in demos.limits),
+        None if validation is None else str(validation),
+    )
 
     restoring = tune.Tuner.can_restore(exp_path)
     if not restoring:  # a new experiment: rows of an older one do not belong to it
@@ -731,6 +755,7 @@ def _run_study(
                 callbacks=[
                     JsonLoggerCallback(),
                     CSVLoggerCallback(),
+                    TBXLoggerCallback(),  # every report of a trial, per round, in TensorBoard
                     HistoryRecorder(str((out / HISTORY).resolve())),
                     RunningMeter(),
                     *([TrialLines(spec.trials)] if progress and not verbose else []),

@@ -31,7 +31,7 @@ from ray import tune
 
 from safe_bc.bc import CheckpointError, load_checkpoint, read_checkpoint_meta
 from safe_bc.bc.net import BCNet
-from safe_bc.bc.train import training_threads
+from safe_bc.bc.train import TrainResult, training_threads
 from safe_bc.data.store import (
     DatasetError,
     is_local_filesystem,
@@ -45,7 +45,7 @@ from safe_bc.distributed.console import quiet_logs
 from safe_bc.distributed.evaluate import evaluate_policies
 from safe_bc.distributed.search import ROUND, SCORE, SCREENED, screen_score
 from safe_bc.evaluation import EvalConfig, NetSource
-from safe_bc.experiment import RunConfig, train_run
+from safe_bc.experiment import RunConfig, save_curve, train_run
 from safe_bc.metrics import cell_table, lower_bound_crossed, mean_metrics
 from safe_bc.selection import SelectionError
 from safe_bc.study import TRIAL_METRICS, ConstraintBars, StudySpec, constraints, episode_share_bound
@@ -64,6 +64,8 @@ class TrialJob:
     """The constraints' thresholds and tolerance (from the expert's demonstrations)."""
     cost_limits: tuple[float, ...]
     """The demonstrations' ``d_s`` (max cost per dimension): violations and critical share."""
+    validation_demos: str | None = None
+    """Absolute path of ``spec.validation_demos`` (the curves' held-out set), if any."""
 
     @property
     def threshold(self) -> float:
@@ -87,6 +89,32 @@ def cached_demos(path: str) -> Demonstrations:
         _DEMOS.clear()
         _DEMOS[path] = load_demonstrations(Path(path))
     return _DEMOS[path]
+
+
+_VALIDATION: dict[str, Demonstrations] = {}
+"""Per-process cache of the study's validation set (beside :data:`_DEMOS`)."""
+
+
+def validation_demos(job: TrialJob) -> Demonstrations | None:
+    """The study's validation set (``StudySpec.validation_demos``), loaded once per process."""
+    path = job.validation_demos
+    if path is None:
+        return None
+    if path not in _VALIDATION:
+        _VALIDATION.clear()
+        _VALIDATION[path] = load_demonstrations(Path(path))
+    return _VALIDATION[path]
+
+
+CURVE_FOLDER = "bc"
+"""Folder (in :func:`trial_folder`) of the first training seed's learning curve
+(``curve.parquet`` and its TensorBoard event files); ``bc_seed_<s>`` for the other seeds."""
+
+
+def save_trial_curve(result: TrainResult, seed: int, first: bool, meta: dict[str, Any]) -> None:
+    """Write one training seed's learning curve into the trial's folder."""
+    folder = trial_folder() / (CURVE_FOLDER if first else f"{CURVE_FOLDER}_seed_{seed}")
+    save_curve(folder, result, {**meta, "train_seed": seed})
 
 
 def trial_threads(spec: StudySpec) -> int:
@@ -328,7 +356,8 @@ def run_trial(config: dict[str, Any], job: TrialJob) -> None:
     quiet_logs()
     threads = trial_threads(spec)
     torch.set_num_threads(threads)
-    run_cfg = spec.run_config({k: config[k] for k in spec.params}, num_threads=threads)
+    params = {k: config[k] for k in spec.params}
+    run_cfg = spec.run_config(params, num_threads=threads)
     metrics = blank_metrics(job)
 
     resumed = resume_point()
@@ -345,7 +374,7 @@ def run_trial(config: dict[str, Any], job: TrialJob) -> None:
             try:
                 result, selection = train_run(
                     cached_demos(job.demos), with_seed(run_cfg, s),
-                    action_bounds=bounds_for(job.demos),
+                    action_bounds=bounds_for(job.demos), validation=validation_demos(job),
                 )  # fmt: skip
             except SelectionError as e:  # a configuration the data cannot support: no retry
                 metrics.update(
@@ -362,6 +391,7 @@ def run_trial(config: dict[str, Any], job: TrialJob) -> None:
                 return
             if s == seeds[0]:
                 first_selection = selection
+            save_trial_curve(result, s, s == seeds[0], {"params": params})
             results.append(result)
         models, earlier = [r.model for r in results], 0.0
         train_info = {
@@ -387,7 +417,6 @@ def run_trial(config: dict[str, Any], job: TrialJob) -> None:
 
     sources: list[Any] = [NetSource.from_model(m, run_cfg.bc) for m in models]
     agents: list[Any] = list(models)
-    params = {k: config[k] for k in spec.params}
     for name, stage in spec.stages():  # their time counts in duration_s, not in eval_seconds
         run_stage, per_seed = stage.load(), []
         for j, s in enumerate(seeds):

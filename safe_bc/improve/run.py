@@ -79,7 +79,8 @@ def improve(
     different one raises ``ValueError``); a finished run of the same start, demonstrations
     and config in ``out`` is returned as it is, without ``state.pt``. Writes ``out/policy/``
     (the improved mean net as a BC checkpoint, evaluable with ``safe-bc evaluate``; its
-    ``extra["improve"]`` holds the shield's zone) and ``out/history.parquet``.
+    ``extra["improve"]`` holds the shield's zone) and ``out/history.parquet``, the curve one
+    row per iteration, mirrored as TensorBoard scalars ``improve/<column>`` in ``out``.
 
     Args:
         start: a ``safe-bc train`` checkpoint directory.
@@ -93,6 +94,7 @@ def improve(
             :class:`safe_bc.distributed.envs.RayEnvs` factory spreads them over Ray actors).
             The run is bit-identical either way, so a run may resume on another group.
     """
+    from safe_bc.curves import write_events
     from safe_bc.data.store import write_table_atomic
     from safe_bc.provenance import run_metadata
 
@@ -131,7 +133,9 @@ def improve(
             state["identity"] = json.dumps(identity)
             with atomic_write(state_path) as f:
                 torch.save(state, f)
-            write_table_atomic(out / HISTORY, pd.DataFrame(agent.history), meta)
+            history = pd.DataFrame(agent.history)
+            write_table_atomic(out / HISTORY, history, meta)
+            write_events(out, history, "iteration", "improve")  # the curve in TensorBoard
 
         try:
             while agent.iteration < config.iterations:

@@ -86,16 +86,28 @@ def run_stage(
 
 
 def query_checkpoint(
-    checkpoint: str | Path, demos: str | Path, out: str | Path, config: QueryConfig
+    checkpoint: str | Path,
+    demos: str | Path,
+    out: str | Path,
+    config: QueryConfig,
+    progress: bool = False,
 ) -> QueryResult:
     """``safe-bc query``: :func:`query_run` from a ``safe-bc train`` checkpoint (its selection
-    config from its ``selection.parquet`` summary, its env from its ``extra``)."""
+    config from its ``selection.parquet`` summary, its env from its ``extra``); ``progress``:
+    a bar over the rounds (on a terminal)."""
     from safe_bc.bc.checkpoint import SELECTION, load_checkpoint, read_checkpoint_meta
     from safe_bc.data.store import read_table_metadata
+    from safe_bc.progress import progress_bar
     from safe_bc.selection import SelectionConfig
 
     model, bc = load_checkpoint(checkpoint)
     extra = read_checkpoint_meta(checkpoint).get("extra", {})
     sel = read_table_metadata(Path(checkpoint) / SELECTION)["config"]
     run_config = RunConfig(SelectionConfig(**sel), bc)
-    return query_run(config, model, run_config, demos, extra["env_id"], out)
+    with progress_bar(show=progress, total=config.rounds, desc="query", unit="round") as bar:
+
+        def show(summary: dict[str, Any]) -> None:
+            bar.n = int(summary["round"]) + 1  # resumed rounds count as done
+            bar.set_postfix(queries=int(summary["queries"]))
+
+        return query_run(config, model, run_config, demos, extra["env_id"], out, on_round=show)

@@ -23,6 +23,9 @@ FRAMES = "frames.npy"
 POLICY = "policy"
 DONE = "done.json"
 START_VALIDATION = "start_validation.json"
+CURVE = "curve.parquet"
+"""A run's learning curve (``SelfImproveResult.history``, one row per round after the start's),
+rewritten after every round, with TensorBoard scalars ``selfimprove/<column>`` beside it."""
 
 LOOP_PUSHES: dict[str, tuple[str, ...]] = {
     "carracing": ("1+0.03", "1+0.05", "2*0.9", "2*0.8", "2*0.5"),

@@ -11,7 +11,8 @@ checkpoint unit), validates it and applies the keep rule
 (:func:`~safe_bc.selfimprove.logic.accept_round`) and then writes ``round_r/done.json``. A
 rejected round's agent and kept rows are dropped: the next round starts from the previous
 agent. A rerun skips the done rounds, reuses a written ``kept.npz`` and redoes the rest,
-bit-identically.
+bit-identically. The run's curve (``curve.parquet``, TensorBoard event files beside it) is
+rewritten after every round.
 """
 
 from __future__ import annotations
@@ -23,10 +24,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pandas as pd
 
 from safe_bc.atomic import write_json_atomic
 from safe_bc.bc.checkpoint import checkpoint_unit, save_checkpoint
 from safe_bc.bc.net import BCNet
+from safe_bc.curves import write_curve
 from safe_bc.data.frames import FrameFile, checksum_path, write_frame_file
 from safe_bc.demos import Demonstrations
 from safe_bc.evaluation import NetSource
@@ -46,6 +49,7 @@ from safe_bc.rounds import (
 )
 from safe_bc.run_config import RunConfig
 from safe_bc.selfimprove.config import (
+    CURVE,
     DONE,
     FORMAT,
     FRAMES,
@@ -273,6 +277,12 @@ def run_selfimprove(
     kept_files: list[Path] = []  # accepted done rounds' kept rows, read when a round must run
     rounds: list[dict[str, Any]] = []
     resumed = 0
+
+    def write_curve_so_far() -> None:
+        rows = SelfImproveResult(folder, rounds, resumed, agent_name, start_val).history()
+        write_curve(folder / CURVE, pd.DataFrame(rows), "iteration", "selfimprove", identity)
+
+    write_curve_so_far()
     for r in range(config.rounds):
         here = folder / round_dir(r)
         done = read_json(here / DONE)
@@ -377,6 +387,8 @@ def run_selfimprove(
         summary["agent"] = agent_name
         write_json_atomic(here / DONE, summary)
         rounds.append(summary)
+        write_curve_so_far()
         if on_round is not None:
             on_round(summary)
+    write_curve_so_far()  # a rerun whose rounds were all done
     return SelfImproveResult(folder, rounds, resumed, agent_name, start_val)

@@ -69,18 +69,36 @@ def run_stage(
 
 
 def selfimprove_checkpoint(
-    checkpoint: str | Path, demos: str | Path | None, out: str | Path, config: SelfImproveConfig
+    checkpoint: str | Path,
+    demos: str | Path | None,
+    out: str | Path,
+    config: SelfImproveConfig,
+    progress: bool = False,
 ) -> SelfImproveResult:
     """``safe-bc improve --method selfimitation``: :func:`selfimprove_run` from a
     ``safe-bc train`` checkpoint (its selection config from its ``selection.parquet``
-    summary, its env and, without ``demos``, its demonstrations from its ``extra``)."""
+    summary, its env and, without ``demos``, its demonstrations from its ``extra``);
+    ``progress``: a bar over the rounds (on a terminal) with each round's validation."""
     from safe_bc.bc.checkpoint import SELECTION, load_checkpoint, read_checkpoint_meta
     from safe_bc.data.store import read_table_metadata
+    from safe_bc.progress import progress_bar
     from safe_bc.selection import SelectionConfig
+    from safe_bc.tasks import task_of
 
     model, bc = load_checkpoint(checkpoint)
     extra = read_checkpoint_meta(checkpoint).get("extra", {})
     sel = read_table_metadata(Path(checkpoint) / SELECTION)["config"]
     run_config = RunConfig(SelectionConfig(**sel), bc)
     data = demos if demos is not None else extra["demos"]
-    return selfimprove_run(config, model, run_config, data, extra["env_id"], out)
+    rounds = config.for_task(task_of(extra["env_id"])).rounds
+    with progress_bar(show=progress, total=rounds, desc="selfimitation", unit="round") as bar:
+
+        def show(summary: dict[str, Any]) -> None:
+            bar.n = int(summary["round"]) + 1  # resumed rounds count as done
+            bar.set_postfix(
+                val_reward=f"{summary['validation_reward']:.2f}",
+                accepted=bool(summary["accepted"]),
+                kept=int(summary["kept_steps"]),
+            )
+
+        return selfimprove_run(config, model, run_config, data, extra["env_id"], out, on_round=show)

@@ -207,3 +207,55 @@ def test_training_warns_when_every_scored_row_is_critical():
     with pytest.warns(CriticalSubsetWarning, match=r"critical fraction 1\) at eps=50 "):
         result, selection = train_run(demos, run)
     assert selection.n_critical == selection.n_valid and len(result.losses) == 1
+
+
+def test_validation_loss_is_recorded_and_changes_no_weight():
+    """The validation pass reads no random number and touches no weight: the same weights and
+    training losses with and without it; its loss is finite at every log point."""
+    from safe_bc.demos import hold_out_episodes
+
+    train, held = hold_out_episodes(frame_demos(n=150), 1)  # episodes of 50 steps
+    assert len(train) == 100 and set(held.episode_ids.tolist()) == {2}
+    cfg = small_train(batches=25)
+    plain = train_bc(train, _sampler(train, cfg), TINY_CNN, SMALL_FRAMES, cfg)
+    calls = []
+    checked = train_bc(
+        train,
+        _sampler(train, cfg),
+        TINY_CNN,
+        SMALL_FRAMES,
+        cfg,
+        log_fn=lambda step, m: calls.append(sorted(m)),
+        validation=held,
+    )
+    a, b = _state(plain), _state(checked)
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    np.testing.assert_array_equal(plain.losses, checked.losses)
+    assert plain.val_losses is None and "val_losses" not in plain.summary()
+    assert checked.val_losses.shape == checked.log_steps.shape
+    assert np.isfinite(checked.val_losses).all() and (checked.val_losses > 0).all()
+    assert calls[-1] == ["loss", "samples_per_s", "val_loss"]
+    # the loss over the held-out rows, recomputed outside the loop
+    pred = predict(checked.model, held)
+    mse = ((pred - held.actions) ** 2).mean(axis=1).mean()
+    assert checked.val_losses[-1] == pytest.approx(mse, rel=1e-5)
+
+
+def test_curve_table_has_one_row_per_log_point():
+    demos = frame_demos(n=60)
+    cfg = small_train(batches=25)
+    curve = train_bc(demos, _sampler(demos, cfg), TINY_CNN, SMALL_FRAMES, cfg).curve()
+    assert list(curve.columns) == ["batch", "train_loss", "val_loss", "samples", "seconds"]
+    assert curve["batch"].tolist() == [10, 20, 25]
+    assert curve["samples"].tolist() == [160, 320, 400]
+    assert curve["val_loss"].isna().all() and curve["seconds"].is_monotonic_increasing
+
+
+def test_hold_out_needs_an_episode_left_for_training():
+    from safe_bc.demos import hold_out_episodes
+
+    demos = frame_demos(n=100)  # two episodes
+    with pytest.raises(ValueError, match="at least one must stay for training"):
+        hold_out_episodes(demos, 2)
+    with pytest.raises(ValueError, match="integer >= 1"):
+        hold_out_episodes(demos, 0)

@@ -7,6 +7,7 @@ import functools
 import math
 import os
 import pickle
+import shutil
 import signal
 import sys
 from dataclasses import replace
@@ -19,6 +20,7 @@ from optuna.trial import TrialState
 from ray import tune
 
 from safe_bc.cli import main
+from safe_bc.curves import read_events
 from safe_bc.data.store import load_demonstrations, read_table
 from safe_bc.distributed.search import WINNER
 from safe_bc.distributed.study import (
@@ -95,6 +97,8 @@ def test_searcher_hands_constraints_to_optuna_and_keeps_them_in_its_checkpoint(t
 
 def test_cli_study_end_to_end(tiny_demos: Path, tmp_path: Path, capsys) -> None:
     study_file = tmp_path / "tiny.py"
+    held = tmp_path / "held"  # the curves' validation set: a copy stands in for another set
+    shutil.copytree(tiny_demos, held)
     study_file.write_text(
         "from dataclasses import replace\n"
         "from pathlib import Path\n"
@@ -104,7 +108,8 @@ def test_cli_study_end_to_end(tiny_demos: Path, tmp_path: Path, capsys) -> None:
         f"    collect={TINY_COLLECT},\n"
         f"    results=Path({str(tmp_path / 'results')!r}), batches=30, max_steps=80,\n"
         "    final_episodes=1, final_workers=0, max_concurrent=2,\n"
-        "    rollout_workers=1, cpus_per_trial=0.5, cpus_per_worker=0.5)\n"
+        "    rollout_workers=1, cpus_per_trial=0.5, cpus_per_worker=0.5,\n"
+        f"    validation_demos=Path({str(held)!r}))\n"
     )
     storage = str(tmp_path / "ray")
     rc = main(["tune", str(study_file), "--trials", "3", "--storage", storage])
@@ -207,6 +212,20 @@ def test_cli_study_end_to_end(tiny_demos: Path, tmp_path: Path, capsys) -> None:
     assert (trials["store_seconds"] > 0).all()  # the checkpoint and the stored rounds
     for _, rows in history[history["phase"] != "trained"].groupby("trial_id"):
         assert rows["round_eval_seconds"].sum() == pytest.approx(rows["eval_seconds"].iloc[-1])
+
+    # every trial's curves: its BC loss per logged batch (Parquet and TensorBoard, with the
+    # validation set's loss) and Tune's TensorBoard logger's scalars per reported round
+    folders = {p.parent.name: p.parent for p in (tmp_path / "ray" / "smoke").glob("*/result.json")}
+    assert len(folders) == 3
+    for folder in folders.values():
+        curve, cmeta = read_table(folder / "bc" / "curve.parquet")
+        assert curve["batch"].is_monotonic_increasing and curve["batch"].iloc[-1] == 30
+        assert np.isfinite(curve["val_loss"]).all() and cmeta["train_seed"] == spec.trial_seeds()[0]
+        assert set(read_events(folder / "bc")["tag"]) >= {"bc/train_loss", "bc/val_loss"}
+        tune_events = read_events(folder)
+        steps = tune_events.groupby("tag")["step"].apply(list)
+        assert steps["ray/tune/train_loss"][:2] == [1, 2]  # trained, screened (, evaluated)
+        assert steps["ray/tune/reward_mean"][0] == 2  # the first round's evaluation
 
     # a finished study's rerun only reprints (the time lines too): no table is rewritten
     before = {p.name: p.stat().st_mtime_ns for p in out.iterdir() if p.is_file()}

@@ -1,0 +1,40 @@
+"""Progress bars: drawn on a terminal, quiet off one and when asked; `safe-bc render` draws its
+steps, frames and encoding."""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+
+from safe_bc.progress import progress_bar
+
+
+class Terminal(io.StringIO):
+    def isatty(self) -> bool:
+        return True
+
+
+def test_a_bar_shows_on_a_terminal_only_and_not_when_asked() -> None:
+    for file, show, drawn in [(Terminal(), True, True), (io.StringIO(), True, False),
+                              (Terminal(), False, False)]:  # fmt: skip
+        with progress_bar(show=show, total=3, desc="work", file=file) as bar:
+            bar.update(3)
+        assert ("work" in file.getvalue()) == drawn
+
+
+def test_render_draws_its_progress_on_a_terminal(tmp_path: Path, monkeypatch) -> None:
+    import sys
+
+    from safe_bc.collection import build_expert
+    from safe_bc.render import render_episode
+    from safe_bc.tasks.carracing.expert import ExpertConfig
+
+    err = Terminal()
+    monkeypatch.setattr(sys, "stderr", err)
+    out = tmp_path / "episode.mp4"
+    render_episode(build_expert(ExpertConfig()), 3, out, max_steps=20, progress=True)
+    text = err.getvalue()
+    assert "episode" in text and "20/20" in text and "frames" in text and "encode" in text
+    err.truncate(0)
+    render_episode(build_expert(ExpertConfig()), 3, out, max_steps=20, progress=False)
+    assert err.getvalue() == ""
