@@ -17,7 +17,7 @@ import tyro
 
 from safe_bc.data.codec import Encoding
 from safe_bc.envs.config import DEFAULT_RENDERER, Renderer
-from safe_bc.evaluation import EvalConfig
+from safe_bc.eval_config import EvalConfig
 from safe_bc.improve.config import ImproveConfig
 from safe_bc.queries.config import QueryConfig
 from safe_bc.reproduce import ReproduceConfig
