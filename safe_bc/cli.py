@@ -120,7 +120,7 @@ def _flag_of(message: str, cls: type) -> str:
 
     found = re.match(r"(?:([\w.]*): )?(\w+)(?:\[i\])? must", message)
     if not found:
-        return message
+        return re.sub(r"^[A-Z]\w*: ", "", message)  # the record's name tyro puts first
     group = "".join(
         f"{p}."
         for p in (found[1] or "").split(".")
