@@ -213,10 +213,11 @@ class TuneJob:
     A study that ran (finished or not) resumes, runs the new trials on its Optuna sampler and
     reruns the final phase; no --fresh needed, and a rerun of the same command resumes."""
     set: tuple[str, ...] = ()
-    """Any other StudySpec field, FIELD=VALUE, dotted for nested configs (after the flags
-    above): --set batches=500 sampler_seed=3 env=rehab env.max_episode_steps=300
-    base.bc.train.lr=1e-3 improve.iterations=20; tuples comma-separated, None where allowed,
-    env takes a task's name (its env); checked against the fields before the study loads."""
+    """Any other StudySpec field, FIELD=VALUE, nested configs dotted (base.bc.train.lr=1e-3).
+    Applied after the flags above, in order: --set batches=500 sampler_seed=3 env=rehab
+    env.max_episode_steps=300 improve.iterations=20; tuples comma-separated, None where
+    allowed, env takes a task's name (its env); checked against the fields before the study
+    loads (docs/cli.md)."""
 
     def __post_init__(self) -> None:
         if self.replicates is not None and self.replicates < 1:
