@@ -716,6 +716,9 @@ def _run_study(
         print(f"resuming study {spec.name!r} from {exp_path}{more}")
         tuner = tune.Tuner.restore(exp_path, trainable=trainable, resume_errored=True)
         tuner._local_tuner._tune_config.num_samples = spec.trials
+        for callback in tuner._local_tuner._run_config.callbacks or []:
+            if isinstance(callback, TrialLines):  # "k/N" lines count to the new total
+                callback.total = spec.trials
         _save_every_trial(tuner)
         restored = tuner._local_tuner._run_config  # this run's console, not the first run's
         restored.verbose = 1 if progress and verbose else 0
