@@ -1,7 +1,7 @@
 """docs/tasks.md's complete example, run as written: its files (``# file: NAME`` blocks) are
-written to a folder that stands in for the installed package (the module beside a
-``dist-info`` with the pyproject's entry points: what ``pip install -e .`` makes visible), and
-its commands run through the CLI in subprocesses (slow: the study with a tiny budget). The
+built into a wheel that is unpacked onto the path (the module beside its ``dist-info`` with
+the pyproject's entry points, as ``pip install`` leaves them), and its commands run through
+the CLI in subprocesses (slow: the study with a tiny budget). The
 default suite checks the registration through the entry point and a broken plug-in's one
 line, exit 2."""
 
@@ -11,7 +11,7 @@ import os
 import re
 import subprocess
 import sys
-import tomllib
+import zipfile
 from pathlib import Path
 
 import pytest
@@ -35,29 +35,24 @@ def doc_commands() -> list[str]:
 
 
 def install(root: Path, module: bool = True) -> Path:
-    """The example package under ``root/site`` as ``pip install`` would leave it importable:
-    its files and a ``dist-info`` with the pyproject's name, version and entry points
-    (``module=False``: the metadata without the module, a plug-in that cannot load)."""
-    site = root / "site"
-    site.mkdir(parents=True)
-    files = doc_files()
-    project = tomllib.loads(files["pyproject.toml"])["project"]
-    if module:
-        for name, text in files.items():
-            if name.endswith(".py"):
-                (site / name).write_text(text)
-    info = site / f"{project['name'].replace('-', '_')}-{project['version']}.dist-info"
-    info.mkdir()
-    (info / "METADATA").write_text(
-        f"Metadata-Version: 2.1\nName: {project['name']}\nVersion: {project['version']}\n"
-    )
-    groups = project["entry-points"]
-    (info / "entry_points.txt").write_text(
-        "".join(
-            f"[{group}]\n" + "".join(f"{k} = {v}\n" for k, v in entries.items())
-            for group, entries in groups.items()
-        )
-    )
+    """The example package built from the page's files (``pip wheel``, setuptools from this
+    environment, no network) and unpacked into ``root/site``: on ``sys.path`` it is what
+    ``pip install`` leaves, the module beside its ``dist-info`` with the entry points
+    (``module=False``: the module removed, a plug-in that cannot load)."""
+    source, site = root / "source", root / "site"
+    source.mkdir(parents=True)
+    for name, text in doc_files().items():
+        (source / name).write_text(text)
+    subprocess.run(
+        [sys.executable, "-m", "pip", "wheel", "--no-build-isolation", "--no-deps", "-q",
+         "-w", str(root / "wheel"), str(source)],
+        check=True, capture_output=True, timeout=300,
+    )  # fmt: skip
+    (wheel,) = (root / "wheel").glob("*.whl")
+    with zipfile.ZipFile(wheel) as z:
+        z.extractall(site)
+    if not module:
+        (site / "lane_task.py").unlink()
     return site
 
 
@@ -86,7 +81,7 @@ def test_the_example_task_registers_through_its_entry_point(
     spec = task_defaults("lane")  # a miss: loads the entry point
     assert TASKS["lane"] is spec and spec.env.env_id == "lane_task/Lane-v0"
     assert task_of("lane_task/Lane-v0") == "lane"
-    study = load_study(site / "lane_study.py")
+    study = load_study(tmp_path / "source" / "lane_study.py")
     assert study.env == spec.env and study.critical_eps == spec.eps
     assert study.collect == spec.collect_config()
 
