@@ -436,9 +436,16 @@ def tune(job: TuneJob, *, command: str = "") -> Done:
     import shlex
 
     from safe_bc.distributed.study import experiment_location, format_outcome, run_study
+    from safe_bc.overrides import apply_overrides
     from safe_bc.study import load_study
 
     spec = replace(load_study(job.study), **job.overrides())
+    for path, value in job.spec_overrides():
+        try:
+            spec = apply_overrides(spec, [(path, value)])
+        except ValueError as e:
+            raise ValueError(f"--set {path}={value}: {e}") from None
+    spec = replace(spec, trials=spec.trials + job.more_trials)
     if job.replicates is not None:  # it prints its table and verdict itself
         from safe_bc.distributed.replicates import tune_replicates
 

@@ -12,14 +12,10 @@ import inspect
 import io
 import re
 import shlex
+import shutil
 import sys
 from collections.abc import Callable, Sequence
 from typing import Any
-
-from safe_bc.bc.checkpoint import CheckpointError
-from safe_bc.data.store import DatasetError
-from safe_bc.distributed.runtime import RayUnavailableError, check_ray_address
-from safe_bc.locks import OutputLockedError
 
 COMMANDS: dict[str, tuple[str, str]] = {
     "collect": ("CollectJob", "collect"),
@@ -54,8 +50,30 @@ ALIASES = {"train": {"--seed": "--bc.train.seed"}, "reproduce": {"--env": "--tas
 """Short flags kept from the hand-written CLI, per command: alias -> the field's flag."""
 
 
+HELP_FLAGS = ("-h", "--help")
+"""The short help (:mod:`safe_bc.cli_help`: one entry per flag, the first sentence of its
+docstring); ``--help-full`` is tyro's help with the whole docstrings."""
+
+ONE_LINE_ERRORS = (
+    ("safe_bc.bc.checkpoint", "CheckpointError"),
+    ("safe_bc.data.store", "DatasetError"),
+    ("safe_bc.distributed.runtime", "RayUnavailableError"),
+    ("safe_bc.locks", "OutputLockedError"),
+)
+"""Errors (module, class) that end a command with one line and exit code 2, besides
+:class:`UsageError`, ``ValueError`` and ``FileNotFoundError``; looked up only where their
+module is loaded, so that the command line does not import torch or pyarrow to start."""
+
+
 class UsageError(Exception):
     """Bad command-line input: one line, exit code 2."""
+
+
+def _one_line_errors() -> tuple[type[BaseException], ...]:
+    """:data:`ONE_LINE_ERRORS` whose modules are loaded (an error of a module never imported
+    cannot have been raised), with the built-in ones."""
+    loaded = [getattr(sys.modules[m], n) for m, n in ONE_LINE_ERRORS if m in sys.modules]
+    return (UsageError, ValueError, FileNotFoundError, *loaded)
 
 
 def given(argv: Sequence[str]) -> set[str]:
@@ -102,7 +120,7 @@ def _flag_of(message: str, cls: type) -> str:
 
     found = re.match(r"(?:([\w.]*): )?(\w+)(?:\[i\])? must", message)
     if not found:
-        return message
+        return re.sub(r"^[A-Z]\w*: ", "", message)  # the record's name tyro puts first
     group = "".join(
         f"{p}."
         for p in (found[1] or "").split(".")
@@ -140,6 +158,13 @@ def parse(argv: Sequence[str]) -> tuple[str, Any]:
     about = inspect.cleandoc(cls.__doc__ or "") + (
         f"\n\nShort flags: {aliases}." if aliases else ""
     )
+    if any(a in HELP_FLAGS for a in rest):
+        from safe_bc.cli_help import render
+
+        width = min(max(shutil.get_terminal_size((100, 24)).columns, 80), 120)
+        print(render(cls, f"safe-bc {command}", about, width=width))
+        raise SystemExit(0)
+    rest = ["--help" if a == "--help-full" else a for a in rest]
     err = io.StringIO()
     try:
         with contextlib.redirect_stderr(err):
@@ -213,6 +238,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     job = None
     try:
         command, job = parse(argv)
+        from safe_bc.distributed.runtime import check_ray_address
+
         if command in RAY_COMMANDS and check_ray_address() is not None:
             # join the cluster before anything is written (a refused address fails in
             # milliseconds, something that is not Ray within ~40 s)
@@ -220,27 +247,22 @@ def main(argv: Sequence[str] | None = None) -> int:
 
             ensure_ray()
         return run(command, job, argv)
-    except (
-        UsageError,
-        DatasetError,
-        ValueError,
-        FileNotFoundError,
-        CheckpointError,
-        RayUnavailableError,
-        OutputLockedError,
-    ) as e:
-        print(f"{where}: error: {e}", file=sys.stderr)
-        return 2
-    except OSError as e:  # writing an output: a full disk, a read-only mount, a file in the way
+    except KeyboardInterrupt as e:  # StudyStopped says which signal and what a rerun does
+        what = str(e) or "interrupted; rerun the same command to resume"
+        print(f"{where}: {what}", file=sys.stderr)
+        return getattr(e, "exit_code", 130)
+    except Exception as e:
+        if isinstance(e, _one_line_errors()):
+            print(f"{where}: error: {e}", file=sys.stderr)
+            return 2
+        if not isinstance(e, OSError):
+            raise
+        # writing an output: a full disk, a read-only mount, a file in the way
         out = getattr(job, "out", None)
         place = f"{e.filename}: " if e.filename else f"writing {out}: " if out else ""
         detail = e.strerror or " ".join(str(e).split())
         print(f"{where}: error: {place}{detail}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt as e:  # StudyStopped says which signal and what a rerun does
-        what = str(e) or "interrupted; rerun the same command to resume"
-        print(f"{where}: {what}", file=sys.stderr)
-        return getattr(e, "exit_code", 130)
 
 
 if __name__ == "__main__":

@@ -17,7 +17,7 @@ import tyro
 
 from safe_bc.data.codec import Encoding
 from safe_bc.envs.config import DEFAULT_RENDERER, Renderer
-from safe_bc.evaluation import EvalConfig
+from safe_bc.eval_config import EvalConfig
 from safe_bc.improve.config import ImproveConfig
 from safe_bc.queries.config import QueryConfig
 from safe_bc.reproduce import ReproduceConfig
@@ -212,10 +212,40 @@ class TuneJob:
     replicates: int | None = None
     """Run N replicates (the study with its seeds shifted) into RESULTS/<study>/replicates/r<k>/
     and write the winners' table RESULTS/<study>/replicates.parquet, .md."""
+    more_trials: int = 0
+    """Trials added to --trials (or the study file's trials): the same as raising --trials.
+    A study that ran (finished or not) resumes, runs the new trials on its Optuna sampler and
+    reruns the final phase; no --fresh needed, and a rerun of the same command resumes."""
+    set: tuple[str, ...] = ()
+    """Any other StudySpec field, FIELD=VALUE, nested configs dotted (base.bc.train.lr=1e-3).
+    Applied after the flags above, in order: --set batches=500 sampler_seed=3 env=rehab
+    env.max_episode_steps=300 improve.iterations=20; tuples comma-separated, None where
+    allowed, env takes a task's name (its env); checked against the fields before the study
+    loads (docs/cli.md)."""
 
     def __post_init__(self) -> None:
         if self.replicates is not None and self.replicates < 1:
             raise ValueError(f"replicates must be >= 1, got {self.replicates}")
+        if self.more_trials < 0:
+            raise ValueError(f"more_trials must be >= 0, got {self.more_trials}")
+        self.spec_overrides()  # a field that does not exist or a value of the wrong type
+
+    def spec_overrides(self) -> list[tuple[str, object]]:
+        """``--set``'s ``(dotted StudySpec field, value)`` pairs, in order.
+
+        Raises:
+            ValueError: one line naming the override that is no field or a value of the
+                wrong type.
+        """
+        if not self.set:
+            return []
+        from safe_bc.envs.config import EnvConfig
+        from safe_bc.overrides import parse_override
+        from safe_bc.study import StudySpec
+        from safe_bc.tasks import task_defaults
+
+        whole = {EnvConfig: lambda name: task_defaults(name).env}
+        return [parse_override(StudySpec, item, whole) for item in self.set]
 
     def overrides(self) -> dict[str, object]:
         """The StudySpec fields given."""

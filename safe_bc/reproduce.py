@@ -24,20 +24,34 @@ import dataclasses
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated, Any, get_args
+from typing import TYPE_CHECKING, Annotated, Any, get_args
 
-import pandas as pd
 import tyro
 
 from safe_bc.bc import BCConfig
-from safe_bc.compare import EXPERT, PAPER_TABLE1, Comparison, Method, build_table
 from safe_bc.envs import EnvConfig
 from safe_bc.selection import RULES, Baseline, Rest, SelectionConfig
 from safe_bc.tasks import Task, task_defaults, task_of
 
+if TYPE_CHECKING:
+    import pandas as pd
+
+    from safe_bc.compare import PAPER_TABLE1, Comparison, Method
+
 __all__ = ["PAPER_TABLE1", "PLAIN_BC", "Method", "ReproduceConfig", "run_reproduce", "table1"]
 
 Reading = Rest
+
+
+def __getattr__(name: str) -> Any:
+    """``PAPER_TABLE1`` and ``Method`` of :mod:`safe_bc.compare` (which imports pandas),
+    imported on first use."""
+    if name in ("PAPER_TABLE1", "Method"):
+        from safe_bc import compare
+
+        return getattr(compare, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 PAIRED_METRICS = ("reward", "safety_mean", "violation_steps")
 """Metrics paired with plain BC on the same (seed, track) cells (those present)."""
@@ -137,6 +151,8 @@ class ReproduceConfig:
         Raises:
             ValueError: ``segment_steps`` or ``beta`` out of range.
         """
+        from safe_bc.compare import Method
+
         eps = self.selection_eps
         rows = [
             Method(method_name(a, r), selection=SelectionConfig(eps=eps, alpha=a, rest=r))
@@ -155,6 +171,8 @@ class ReproduceConfig:
         """Table 1 as a :class:`~safe_bc.compare.Comparison`: :meth:`methods`, then the
         expert; paired with plain BC; the alpha-sweep and trace figures; the paper's table
         for CarRacing."""
+        from safe_bc.compare import EXPERT, Comparison, Method
+
         rows = self.methods()
         traces = [
             m.name
@@ -219,6 +237,8 @@ def table1(
     config: ReproduceConfig, episodes: pd.DataFrame, train_df: pd.DataFrame | None = None
 ) -> pd.DataFrame:
     """Table 1 from per-episode results: :func:`safe_bc.compare.build_table`."""
+    from safe_bc.compare import build_table
+
     return build_table(config.comparison(), episodes, train_df)
 
 

@@ -414,6 +414,34 @@ def make_searcher(spec: StudySpec, concurrent: int | None = None) -> Constrained
     )
 
 
+def raise_trial_count(experiment_path: str | Path, trials: int) -> None:
+    """Let a (local) Tune experiment that ran fewer trials run up to ``trials`` when it is
+    restored: its search generator's sample count (and its "finished" flag, set when the last
+    sample was drawn) and the searcher's trial count (which closes the last batch) are
+    raised in their newest saved states, written back atomically. The sampler keeps every
+    trial it was told, so the new trials continue the same Optuna study."""
+    import ray.cloudpickle as cloudpickle
+
+    from safe_bc.atomic import write_bytes_atomic
+
+    def newest(pattern: str) -> Path:
+        found = sorted(Path(experiment_path).glob(pattern))  # Tune's names sort by time
+        if not found:
+            raise ValueError(f"{experiment_path}: no saved {pattern} to add trials to")
+        return found[-1]
+
+    gen = newest("search_gen_state-*.json")  # a cloudpickle, whatever Tune's name says
+    state = cloudpickle.loads(gen.read_bytes())
+    if trials < state["counter"]:
+        raise ValueError(f"{experiment_path} has {state['counter']} trials, more than {trials}")
+    state["total_samples"], state["finished"] = trials, False
+    write_bytes_atomic(gen, cloudpickle.dumps(state))
+    path = newest("searcher-state-*.pkl")
+    searcher = cloudpickle.loads(path.read_bytes())
+    searcher["_max_trials"] = trials
+    write_bytes_atomic(path, cloudpickle.dumps(searcher))
+
+
 def load_searcher(experiment_path: str | Path) -> ConstrainedOptunaSearch:
     """The searcher as last checkpointed in a (local) experiment folder."""
     searcher = ConstrainedOptunaSearch()

@@ -57,6 +57,7 @@ from safe_bc.distributed.search import (
     make_scheduler,
     make_searcher,
     mark_final_winner,
+    raise_trial_count,
     take_copy_seconds,
 )
 from safe_bc.distributed.stop import (
@@ -188,19 +189,32 @@ def _check_validation_demos(validation: Path, demos: Path) -> None:
         raise ValueError("validation_demos is the training set itself; collect another one")
 
 
-def _check_resume(out: Path, identity: dict[str, Any], restoring: bool) -> None:
-    """A resumed study must keep the trial count and the threshold (else ``--fresh``)."""
+def _check_resume(out: Path, identity: dict[str, Any], restoring: bool, exp_path: str) -> int:
+    """A resumed study must keep the threshold, limits, batch size and demonstrations (else
+    ``--fresh``); its trial count may grow (never shrink): the experiment's saved search state
+    is raised to it (:func:`raise_trial_count`). Returns the number of trials added."""
     path = out / "study.json"
+    added = 0
     if restoring and path.exists():
         stored = json.loads(path.read_text())
         changed = [k for k, v in identity.items() if stored.get(k) != v]
-        if changed:
+        more = isinstance(stored.get("trials"), int) and identity["trials"] > stored["trials"]
+        if changed == ["trials"] and more:
+            if _is_uri(exp_path):
+                raise ValueError(
+                    f"adding trials to a study needs a local --storage (the study's Tune "
+                    f"experiment is at {exp_path})"
+                )
+            raise_trial_count(exp_path, identity["trials"])
+            added = identity["trials"] - stored["trials"]
+        elif changed:
             what = ", ".join(f"{k} {stored.get(k)} -> {identity[k]}" for k in changed)
             raise ValueError(
                 f"the study at {out} was started with other settings ({what}); rerun with "
-                f"the same ones to resume, or pass --fresh to start over"
+                f"the same ones to resume (more trials are allowed), or pass --fresh to start over"
             )
     write_json_atomic(path, identity)
+    return added
 
 
 def _os_error_in(e: BaseException) -> OSError | None:
@@ -719,14 +733,19 @@ def _run_study(
         "batch_size": spec.batch_size,
         "demos_digest": inputs["demos"]["digest"],
     }
-    _check_resume(out, identity, restoring)
+    added = _check_resume(out, identity, restoring, exp_path)
     resources = tune.PlacementGroupFactory(
         [{"CPU": spec.cpus_per_trial}] + [{"CPU": spec.cpus_per_worker}] * spec.rollout_workers
     )
     trainable = tune.with_resources(tune.with_parameters(trial_fn, job=job), resources)
     if restoring:
-        print(f"resuming study {spec.name!r} from {exp_path}")
+        more = f" with {added} more trial(s), {spec.trials} in all" if added else ""
+        print(f"resuming study {spec.name!r} from {exp_path}{more}")
         tuner = tune.Tuner.restore(exp_path, trainable=trainable, resume_errored=True)
+        tuner._local_tuner._tune_config.num_samples = spec.trials
+        for callback in tuner._local_tuner._run_config.callbacks or []:
+            if isinstance(callback, TrialLines):  # "k/N" lines count to the new total
+                callback.total = spec.trials
         _save_every_trial(tuner)
         restored = tuner._local_tuner._run_config  # this run's console, not the first run's
         restored.verbose = 1 if progress and verbose else 0

@@ -20,6 +20,7 @@ from safe_bc.tasks.lookup import (
 )
 from safe_bc.tasks.registry import (
     DEFAULT_TASK,
+    ENTRY_POINTS,
     PLUGINS_VAR,
     TASKS,
     Bounds,
@@ -27,6 +28,7 @@ from safe_bc.tasks.registry import (
     GymEnv,
     Task,
     TaskDefaults,
+    TaskPluginError,
     TaskSpec,
     register_envs,
     register_task,
@@ -42,6 +44,7 @@ register_task(rehab.SPEC)
 
 __all__ = [
     "DEFAULT_TASK",
+    "ENTRY_POINTS",
     "PLUGINS_VAR",
     "TASKS",
     "Bounds",
@@ -50,6 +53,7 @@ __all__ = [
     "PerturbationConfig",
     "Task",
     "TaskDefaults",
+    "TaskPluginError",
     "TaskSpec",
     "action_bounds",
     "check_frames_renderer",

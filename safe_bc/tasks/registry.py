@@ -4,8 +4,11 @@ A task is one folder (``safe_bc/tasks/<name>/``: its env, expert, observed costs
 defaults) and one call, ``register_task(SPEC)``. Everything task-specific is read from here
 (or, for a dataset, from its ``dataset.json``): env ids, :func:`safe_bc.envs.make_env`, the
 experts a dataset can name, what a collection may be. A task defined outside the package is
-registered in every process (Ray workers included) by naming its module in the
-``SAFE_BC_TASKS`` environment variable (comma-separated), which lookups import on a miss.
+found in every process (Ray workers included) through an entry point of the
+``safe_bc.tasks`` group declared by the package that holds it (``lane = "lane_task:SPEC"``
+under ``[project.entry-points."safe_bc.tasks"]``), or through its module named in the
+``SAFE_BC_TASKS`` environment variable (comma-separated); lookups load them on a miss. A
+plug-in that cannot be loaded is one :class:`TaskPluginError` line naming it.
 """
 
 from __future__ import annotations
@@ -33,6 +36,14 @@ DEFAULT_TASK: Task = "carracing"
 """The task a command runs when none is named (the CarRacing testbed)."""
 PLUGINS_VAR = "SAFE_BC_TASKS"
 """Environment variable naming modules that register further tasks (comma-separated)."""
+ENTRY_POINTS = "safe_bc.tasks"
+"""Entry-point group of task plug-ins: each entry names a :class:`TaskSpec` (``module:SPEC``,
+registered when loaded) or a module that registers its tasks itself."""
+
+
+class TaskPluginError(ValueError):
+    """A task plug-in (entry point or ``SAFE_BC_TASKS`` module) that cannot be loaded."""
+
 
 Bounds = tuple[tuple[float, ...], tuple[float, ...]]
 """``(low (A,), high (A,))`` of a Box action space."""
@@ -211,9 +222,36 @@ def register_envs() -> None:
 
 
 def _load_plugins() -> None:
-    """Import the modules named in ``$SAFE_BC_TASKS`` (each registers its tasks)."""
+    """Load the task plug-ins: the :data:`ENTRY_POINTS` entries of the installed packages
+    (a :class:`TaskSpec` is registered), then the modules named in ``$SAFE_BC_TASKS`` (each
+    registers its tasks).
+
+    Raises:
+        TaskPluginError: one line naming the plug-in that cannot be loaded and its error.
+    """
+    from importlib.metadata import entry_points
+
+    for entry in entry_points(group=ENTRY_POINTS):
+        where = f"task plug-in {entry.name!r} ({entry.value}"
+        if entry.dist is not None:
+            where += f", entry point of {entry.dist.name}"
+        try:
+            loaded = entry.load()
+        except Exception as e:
+            raise TaskPluginError(f"{where}) cannot be loaded: {_one_line(e)}") from None
+        if isinstance(loaded, TaskSpec):
+            register_task(loaded)
     for module in filter(None, (m.strip() for m in os.environ.get(PLUGINS_VAR, "").split(","))):
-        importlib.import_module(module)
+        try:
+            importlib.import_module(module)
+        except Exception as e:
+            raise TaskPluginError(
+                f"task module {module!r} (${PLUGINS_VAR}) cannot be imported: {_one_line(e)}"
+            ) from None
+
+
+def _one_line(e: BaseException) -> str:
+    return f"{type(e).__name__}: {' '.join(str(e).split())}"
 
 
 @functools.cache

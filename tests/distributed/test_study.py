@@ -287,7 +287,7 @@ def test_interrupted_study_resumes_and_failed_trial_is_not_retrained(
     first_tuning = first.timing.set_index("phase").loc["tuning", "seconds"]
 
     with pytest.raises(ValueError, match="other settings"):
-        run_study(replace(spec, trials=4), progress=False, trial_fn=trial_fn)
+        run_study(replace(spec, trials=2), progress=False, trial_fn=trial_fn)  # fewer
 
     second = run_study(spec, progress=False, trial_fn=trial_fn)
     t = second.trials
