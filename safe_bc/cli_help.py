@@ -128,6 +128,12 @@ def _is_dataclass_type(kind: Any) -> bool:
     return isinstance(kind, type) and dataclasses.is_dataclass(kind)
 
 
+def _optional_dataclass(kind: Any) -> bool:
+    """``SomeConfig | None``: a nested config that may be left out."""
+    args = typing.get_args(kind)
+    return type(None) in args and any(_is_dataclass_type(a) for a in args)
+
+
 def flags(cls: type, prefix: str = "", default: Any = None) -> Iterator[Flag]:
     """The flags of record ``cls`` (its nested configs' too), in field order."""
     import tyro
@@ -142,6 +148,8 @@ def flags(cls: type, prefix: str = "", default: Any = None) -> Iterator[Flag]:
             continue
         kind, extras = _markers(hints[f.name])
         if any(any(e is m for m in suppressed) for e in extras):
+            continue
+        if _optional_dataclass(kind):  # tyro offers it as a choice of subcommands, no flag
             continue
         if default is not None:
             value = getattr(default, f.name)
