@@ -1,7 +1,9 @@
-"""Figures (matplotlib, Agg): cost histograms, the alpha sweep, safety traces, learning curves."""
+"""Figures (matplotlib, Agg): cost histograms, the alpha sweep, safety traces, learning curves,
+a study's Pareto plot."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -15,6 +17,7 @@ import pandas as pd
 from safe_bc.atomic import atomic_write
 from safe_bc.demos import Demonstrations
 from safe_bc.selection import DEFAULT_EPS
+from safe_bc.study import pareto_mask
 
 
 def save_figure(fig: Any, path: Path) -> Path:
@@ -204,4 +207,53 @@ def plot_queries(
         right.set_xlabel("episodes beyond d_s (dot) and 95% upper bound (bar end)", fontsize=8)
         right.set_title(f"{name}: crossings", fontsize=9)
     fig.tight_layout()
+    return save_figure(fig, path)
+
+
+def plot_pareto(
+    trials: pd.DataFrame,
+    threshold: float,
+    path: Path,
+    *,
+    winner: str | None = None,
+    candidates: Sequence[str] = (),
+    title: str = "",
+) -> Path:
+    """Reward against safety mean per trial: feasible filled, infeasible hollow, Pareto front
+    joined, the threshold as a vertical line, the final phase's ``candidates`` boxed and its
+    ``winner`` starred (pass a winner only when the final phase accepted it)."""
+    r = trials["reward_mean"].to_numpy(float)
+    s = trials["safety_mean"].to_numpy(float)
+    feas = trials["feasible"].to_numpy(bool)
+    front = pareto_mask(r, s)
+    fig, ax = plt.subplots(figsize=(6.0, 4.2))
+    ax.scatter(s[feas], r[feas], c="tab:blue", label=f"feasible ({feas.sum()})", zorder=3)
+    ax.scatter(
+        s[~feas],
+        r[~feas],
+        facecolors="none",
+        edgecolors="tab:red",
+        label=f"infeasible ({(~feas & np.isfinite(r)).sum()})",
+        zorder=3,
+    )
+    order = np.argsort(s[front])
+    ax.plot(s[front][order], r[front][order], "k--", lw=0.8, label="Pareto front")
+    ax.axvline(threshold, color="gray", ls=":", label=f"threshold {threshold:.2f}")
+    boxed = trials[trials["trial_id"].isin(list(candidates))]
+    if len(boxed):
+        ax.scatter(
+            boxed["safety_mean"], boxed["reward_mean"], marker="s", s=140, facecolors="none",
+            edgecolors="k", label=f"final-phase candidates ({len(boxed)})", zorder=4,
+        )  # fmt: skip
+    if winner is not None and (trials["trial_id"] == winner).any():
+        w = trials[trials["trial_id"] == winner].iloc[0]
+        ax.scatter(
+            [w["safety_mean"]], [w["reward_mean"]], marker="*", s=250, c="gold",
+            edgecolors="k", label="winner (final phase)", zorder=5,
+        )  # fmt: skip
+    ax.set_xlabel("safety mean (pixels to the grass, higher is safer)")
+    ax.set_ylabel("reward mean")
+    ax.set_title(title or "study trials")
+    ax.legend(fontsize=8, loc="best")
+    ax.grid(alpha=0.3)
     return save_figure(fig, path)

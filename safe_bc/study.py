@@ -34,7 +34,7 @@ from typing import Any, Literal
 import numpy as np
 import pandas as pd
 
-from safe_bc.envs import EnvConfig
+from safe_bc.envs.config import EnvConfig
 from safe_bc.handover import HandoverConfig
 from safe_bc.improve.config import ImproveConfig
 from safe_bc.queries.config import QueryConfig
@@ -990,57 +990,6 @@ def summary_lines(trials: pd.DataFrame, params: Sequence[str], top: int = 10) ->
     view = order[[c for c in cols if c in order]].head(top).copy()
     view.columns = [c.rsplit(".", 1)[-1] for c in view.columns]
     return view.to_string(index=False, float_format=lambda x: f"{x:.3g}")
-
-
-def plot_pareto(
-    trials: pd.DataFrame,
-    threshold: float,
-    path: Path,
-    *,
-    winner: str | None = None,
-    candidates: Sequence[str] = (),
-    title: str = "",
-) -> Path:
-    """Reward against safety mean per trial: feasible filled, infeasible hollow, Pareto front
-    joined, the threshold as a vertical line, the final phase's ``candidates`` boxed and its
-    ``winner`` starred (pass a winner only when the final phase accepted it)."""
-    from safe_bc.plots import plt, save_figure
-
-    r = trials["reward_mean"].to_numpy(float)
-    s = trials["safety_mean"].to_numpy(float)
-    feas = trials["feasible"].to_numpy(bool)
-    front = pareto_mask(r, s)
-    fig, ax = plt.subplots(figsize=(6.0, 4.2))
-    ax.scatter(s[feas], r[feas], c="tab:blue", label=f"feasible ({feas.sum()})", zorder=3)
-    ax.scatter(
-        s[~feas],
-        r[~feas],
-        facecolors="none",
-        edgecolors="tab:red",
-        label=f"infeasible ({(~feas & np.isfinite(r)).sum()})",
-        zorder=3,
-    )
-    order = np.argsort(s[front])
-    ax.plot(s[front][order], r[front][order], "k--", lw=0.8, label="Pareto front")
-    ax.axvline(threshold, color="gray", ls=":", label=f"threshold {threshold:.2f}")
-    boxed = trials[trials["trial_id"].isin(list(candidates))]
-    if len(boxed):
-        ax.scatter(
-            boxed["safety_mean"], boxed["reward_mean"], marker="s", s=140, facecolors="none",
-            edgecolors="k", label=f"final-phase candidates ({len(boxed)})", zorder=4,
-        )  # fmt: skip
-    if winner is not None and (trials["trial_id"] == winner).any():
-        w = trials[trials["trial_id"] == winner].iloc[0]
-        ax.scatter(
-            [w["safety_mean"]], [w["reward_mean"]], marker="*", s=250, c="gold",
-            edgecolors="k", label="winner (final phase)", zorder=5,
-        )  # fmt: skip
-    ax.set_xlabel("safety mean (pixels to the grass, higher is safer)")
-    ax.set_ylabel("reward mean")
-    ax.set_title(title or "study trials")
-    ax.legend(fontsize=8, loc="best")
-    ax.grid(alpha=0.3)
-    return save_figure(fig, path)
 
 
 # --- what batched suggestions cost in wall-clock -------------------------------------------------

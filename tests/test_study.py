@@ -12,6 +12,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from safe_bc.plots import plot_pareto
 from safe_bc.study import (
     TRIAL_INFO,
     TRIAL_METRICS,
@@ -25,7 +26,6 @@ from safe_bc.study import (
     is_feasible,
     load_study,
     pareto_mask,
-    plot_pareto,
     summary_lines,
     trial_table,
 )

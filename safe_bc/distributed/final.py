@@ -36,6 +36,7 @@ from safe_bc.collection import stored_expert_config
 from safe_bc.demos import Demonstrations
 from safe_bc.distributed.evaluate import LOCKSTEP_ENVS, evaluate_policies
 from safe_bc.distributed.final_store import FinalStore, agent_key, key_of
+from safe_bc.distributed.rollouts import ChunkedRayRollouts
 from safe_bc.distributed.runtime import cluster_cpus, ensure_ray
 from safe_bc.distributed.stop import deferred_stop, stop_point
 from safe_bc.distributed.train import train_many
@@ -450,6 +451,7 @@ def _run_stages(
             agents[(method, s)], _ = run_stage(
                 spec.stage_config(name, params[method], seed=s), agent, models[(method, s)][1],
                 job.demos, spec.env.env_id, root / method / f"seed{s}",
+                parallel=ChunkedRayRollouts,
             )  # fmt: skip
     return agents
 

@@ -35,6 +35,7 @@ from ray.tune.utils import flatten_dict
 from safe_bc.atomic import write_json_atomic, write_text_atomic
 from safe_bc.bc import load_checkpoint
 from safe_bc.bc.net import BCNet
+from safe_bc.collection import CollectConfig
 from safe_bc.data.store import (
     DatasetError,
     dataset_record,
@@ -65,6 +66,7 @@ from safe_bc.distributed.stop import (
     _stop_signals,
 )
 from safe_bc.distributed.trial import TrialJob, cached_demos, run_trial, stored_checkpoint
+from safe_bc.plots import plot_pareto
 from safe_bc.provenance import check_result_write, provenance
 from safe_bc.study import (
     TRIAL_METRICS,
@@ -74,7 +76,6 @@ from safe_bc.study import (
     choose_candidates,
     choose_winner,
     is_missing,
-    plot_pareto,
     summary_lines,
     trial_table,
 )
@@ -659,7 +660,7 @@ def _run_study(
     concurrent = spec.concurrency(cpus)  # how many at once, never which (nothing else reads it)
     _reinstall_signals()  # ray.init replaced the SIGTERM handler
     demos_path = spec.demos.resolve()
-    expected = spec.collect or task_defaults(task_of(spec.env.env_id)).collect_config()
+    expected = spec.collect or CollectConfig.for_task(task_defaults(task_of(spec.env.env_id)))
     if not (demos_path / "dataset.json").exists():
         print(f"{spec.demos}: no demonstrations yet; collecting the set the study expects")
     ensure_demos(demos_path, expected, progress=progress)  # refuses another collection's set

@@ -43,6 +43,7 @@ from safe_bc.data.store import (
 from safe_bc.demos import Demonstrations
 from safe_bc.distributed.console import quiet_logs
 from safe_bc.distributed.evaluate import evaluate_policies
+from safe_bc.distributed.rollouts import ChunkedRayRollouts
 from safe_bc.distributed.search import ROUND, SCORE, SCREENED, screen_score
 from safe_bc.evaluation import EvalConfig, NetSource
 from safe_bc.experiment import RunConfig, train_run
@@ -394,7 +395,7 @@ def run_trial(config: dict[str, Any], job: TrialJob) -> None:
             folder = trial_folder() / (name if j == 0 else f"{name}_seed_{s}")
             agents[j], values = run_stage(
                 spec.stage_config(name, params, seed=s), agents[j], with_seed(run_cfg, s),
-                job.demos, spec.env.env_id, folder,
+                job.demos, spec.env.env_id, folder, parallel=ChunkedRayRollouts,
             )  # fmt: skip
             sources[j] = agents[j]
             per_seed.append(values)

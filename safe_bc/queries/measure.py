@@ -122,14 +122,14 @@ def _episode(args: tuple[Any, Any, int, np.ndarray, float, int | None]) -> dict[
 
 def ensure_demos(root: Path, pool: Any, task: str = "carracing") -> None:
     """``task``'s default demonstrations at ``root`` (collected in the pool when missing)."""
-    from safe_bc.collection import config_dict, env_facts
+    from safe_bc.collection import CollectConfig, config_dict, env_facts
     from safe_bc.data.store import DatasetMeta, init_dataset, write_episode
     from safe_bc.provenance import provenance
     from safe_bc.tasks import frames_renderer, task_defaults
 
     if (root / "dataset.json").is_file():
         return
-    cfg = task_defaults(task).collect_config()
+    cfg = CollectConfig.for_task(task_defaults(task))
     shape, dims, bounds = env_facts(cfg)
     meta = init_dataset(
         root,
