@@ -455,6 +455,12 @@ class StudySpec:
         object.__setattr__(self, "demos", Path(self.demos))
         object.__setattr__(self, "results", Path(self.results))
         object.__setattr__(self, "storage", str(self.storage))
+        self._check_sizes()
+        self._check_bars_and_seeds()
+        self._check_space()
+
+    def _check_sizes(self) -> None:
+        """Counts, batch sizes and workers: integers in range."""
         if self.max_concurrent is not None and (
             isinstance(self.max_concurrent, bool)
             or not isinstance(self.max_concurrent, int)
@@ -486,6 +492,10 @@ class StudySpec:
             raise ValueError(f"final_workers must be >= 0 or None, got {self.final_workers}")
         if self.screen_episodes < 0:
             raise ValueError(f"screen_episodes must be >= 0, got {self.screen_episodes}")
+
+    def _check_bars_and_seeds(self) -> None:
+        """Constraints, confidences and shares in range; the seeds of the trials, the final
+        phase and the certificate distinct; the handover and the rest of the settings valid."""
         if self.safety_constraint not in ("combined", "per_dim"):
             raise ValueError(
                 f"safety_constraint must be 'combined' or 'per_dim', got {self.safety_constraint!r}"
@@ -535,6 +545,10 @@ class StudySpec:
             raise ValueError(f"baseline must be 'same_network' or 'default', got {self.baseline!r}")
         if self.threshold is not None and not math.isfinite(self.threshold):
             raise ValueError(f"threshold must be finite or None, got {self.threshold}")
+
+    def _check_space(self) -> None:
+        """Every search key names a field of the base config or of a stage the study runs, and
+        every bound or option of it builds a valid config."""
         for name, param in self.space.items():
             if not isinstance(param, Float | Int | Choice):
                 raise ValueError(f"space[{name!r}] must be Float, Int or Choice, got {param!r}")

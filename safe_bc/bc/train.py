@@ -251,6 +251,23 @@ def sampler_for(selection: Selection, train_cfg: TrainConfig) -> BatchSampler:
     return selection.sampler(train_cfg.batch_size, np.random.default_rng(train_cfg.seed))
 
 
+def loss_weights(train_cfg: TrainConfig, n_actions: int) -> torch.Tensor:
+    """The per-action weights of the squared error, summing to 1: ``train_cfg.loss_weights``
+    normalised, else equal.
+
+    Raises:
+        ValueError: ``loss_weights`` has not one weight per action dimension.
+    """
+    weights = torch.ones(n_actions)
+    if train_cfg.loss_weights is not None:
+        if len(train_cfg.loss_weights) != n_actions:
+            raise ValueError(
+                f"{len(train_cfg.loss_weights)} loss_weights for {n_actions} action dimensions"
+            )
+        weights = torch.tensor(train_cfg.loss_weights, dtype=torch.float32)
+    return weights / weights.sum()
+
+
 def train_bc(
     demos: Demonstrations,
     sampler: BatchSampler,
@@ -289,14 +306,7 @@ def train_bc(
             f"{train_cfg.batch_size}"
         )
     n_actions = demos.actions.shape[1]
-    weights = torch.ones(n_actions)
-    if train_cfg.loss_weights is not None:
-        if len(train_cfg.loss_weights) != n_actions:
-            raise ValueError(
-                f"{len(train_cfg.loss_weights)} loss_weights for {n_actions} action dimensions"
-            )
-        weights = torch.tensor(train_cfg.loss_weights, dtype=torch.float32)
-    weights = weights / weights.sum()
+    weights = loss_weights(train_cfg, n_actions)
 
     train_cfg = replace(train_cfg, num_threads=training_threads(train_cfg))  # recorded
     spec = ModelSpec.for_data(demos.observations.shape[1:], n_actions, action_bounds)
