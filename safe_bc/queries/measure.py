@@ -1,6 +1,7 @@
-"""The comparison of issue 35, without Ray: plain BC, full DAgger at the same number of
-queries, critical-zone queries and deferral, on selection tracks then fresh tracks (CarRacing)
-or selection and fresh patients (``--task rehab``: the guideline clinician is the expert).
+"""Critical-zone queries and deferral measured without Ray: plain BC, full DAgger at the same
+number of queries, critical-zone queries and deferral, on selection tracks then fresh tracks
+(CarRacing) or selection and fresh patients (``--task rehab``: the guideline clinician is the
+expert).
 
 Run: ``SDL_VIDEODRIVER=dummy python -m safe_bc.queries.measure --out DIR --processes 16``
 (``--task rehab --out DIR`` for the clinic).
