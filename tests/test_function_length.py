@@ -15,7 +15,6 @@ MAX_LINES = 100
 
 LONG: dict[str, int] = {
     "distributed/compare.py:run_comparison": 137,
-    "distributed/final.py:final_phase": 140,
     "distributed/trial.py:run_trial": 123,
     "queries/measure.py:run": 218,
     "queries/run.py:run_queries": 112,
