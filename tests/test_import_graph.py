@@ -37,7 +37,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "safe_bc.stages", "safe_bc.report", "safe_bc.handover", "safe_bc.seeds",
             "safe_bc.episode", "safe_bc.policy", "safe_bc.demos", "safe_bc.run_config",
             "safe_bc.timing", "safe_bc.replicates", "safe_bc.envs.config", "safe_bc.data.codec",
-            "safe_bc.*.config", "safe_bc.*.logic",
+            "safe_bc.*.config", "safe_bc.*.logic", "safe_bc.methods", "safe_bc.methods.registry",
         ),
     ),
     (
