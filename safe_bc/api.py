@@ -447,7 +447,9 @@ def query(job: QueryJob) -> Done:
     from safe_bc.distributed.rollouts import ChunkedRayRollouts
     from safe_bc.queries.stage import query_checkpoint
 
-    result = query_checkpoint(job.checkpoint, job.demos, job.out, job.config, ChunkedRayRollouts)
+    result = query_checkpoint(
+        job.checkpoint, job.demos, job.out, job.config, parallel=ChunkedRayRollouts
+    )
     return Done(
         f"{result.total_queries} queries in {result.total_episodes} episodes; "
         f"agent: {result.policy}",
@@ -500,7 +502,7 @@ def _selfimitate(job: ImproveJob) -> Done:
 
     with output_lock(job.out):
         result = selfimprove_checkpoint(
-            job.start, job.demos, job.out, job.selfimitation, ChunkedRayRollouts
+            job.start, job.demos, job.out, job.selfimitation, parallel=ChunkedRayRollouts
         )
     last = result.rounds[-1]
     return Done(

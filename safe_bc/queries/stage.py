@@ -98,6 +98,7 @@ def query_checkpoint(
     demos: str | Path,
     out: str | Path,
     config: QueryConfig,
+    *,
     parallel: Parallel | None = None,
 ) -> QueryResult:
     """``safe-bc query``: :func:`query_run` from a ``safe-bc train`` checkpoint (its selection

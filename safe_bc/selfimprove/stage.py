@@ -82,6 +82,7 @@ def selfimprove_checkpoint(
     demos: str | Path | None,
     out: str | Path,
     config: SelfImproveConfig,
+    *,
     parallel: Parallel | None = None,
 ) -> SelfImproveResult:
     """``safe-bc improve --method selfimitation``: :func:`selfimprove_run` from a
