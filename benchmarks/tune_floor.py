@@ -1,4 +1,4 @@
-"""Issue 33 item 3: the least wall-clock ``make tune`` can take on 2 cores while the default
+"""The least wall-clock ``make tune`` can take on 2 cores while the default
 study keeps its committed requirements, from the side-by-side runs' own timing tables, and
 what cheaper arithmetic would buy per training batch.
 

@@ -20,8 +20,7 @@ it in :class:`safe_bc.tasks.carracing.wrapper.CarRacingSafety`, or use
 """
 
 from safe_bc.envs.factory import ENV_IDS, register_envs
-
-__version__ = "0.1.0"
+from safe_bc.version import __version__
 
 register_envs()
 

@@ -44,14 +44,15 @@ class Done:
 
 def collect(job: CollectJob) -> Done:
     """Collect (or complete) a demonstration set; the value is the collection report."""
+    from safe_bc.collection import CollectConfig
     from safe_bc.distributed.collect import collect as run_collect
     from safe_bc.tasks import task_defaults
 
     task = task_defaults(job.env, renderer=job.renderer)
     out = job.out or Path(task.demos)
     given = {k: getattr(job, k) for k in ("episodes", "workers", "seed", "encoding")}
-    config = task.collect_config(
-        max_steps=job.max_steps, **{k: v for k, v in given.items() if v is not None}
+    config = CollectConfig.for_task(
+        task, max_steps=job.max_steps, **{k: v for k, v in given.items() if v is not None}
     )
     report = run_collect(config, out, progress=not job.quiet)
     return Done(
@@ -333,6 +334,7 @@ def evaluate_recommender(job: EvaluateJob) -> Done:
 def expert(job: ExpertJob) -> Done:
     """Measure the task's expert on held-out episodes (``expert.md``, the message)."""
     from safe_bc.atomic import write_text_atomic
+    from safe_bc.collection import CollectConfig
     from safe_bc.data.store import dataset_record, load_demonstrations, write_table_atomic
     from safe_bc.distributed.collect import ensure_demos
     from safe_bc.distributed.evaluate import evaluate as run_evaluate
@@ -346,7 +348,7 @@ def expert(job: ExpertJob) -> Done:
     task = task_defaults(job.env)
     demos_path = job.demos or Path(task.demos)
     if job.demos is None:  # the task's own set, built if absent; a given set is used as it is
-        ensure_demos(demos_path, task.collect_config(), progress=not job.quiet)
+        ensure_demos(demos_path, CollectConfig.for_task(task), progress=not job.quiet)
     demos = load_demonstrations(demos_path)
     limits = demos.limits
     cfg = EvalConfig(
@@ -463,10 +465,16 @@ def tune(job: TuneJob, *, command: str = "") -> Done:
 
 def query(job: QueryJob) -> Done:
     """Critical-zone queries on a checkpoint (resumable); the value is the run's result."""
+    from safe_bc.distributed.rollouts import ChunkedRayRollouts
     from safe_bc.queries.stage import query_checkpoint
 
     result = query_checkpoint(
-        job.checkpoint, job.demos, job.out, job.config, progress=not job.quiet
+        job.checkpoint,
+        job.demos,
+        job.out,
+        job.config,
+        progress=not job.quiet,
+        parallel=ChunkedRayRollouts,
     )
     return Done(
         f"{result.total_queries} queries in {result.total_episodes} episodes; "
@@ -515,11 +523,17 @@ def improve(job: ImproveJob) -> Done:
 
 
 def _selfimitate(job: ImproveJob) -> Done:
+    from safe_bc.distributed.rollouts import ChunkedRayRollouts
     from safe_bc.selfimprove.stage import selfimprove_checkpoint
 
     with output_lock(job.out):
         result = selfimprove_checkpoint(
-            job.start, job.demos, job.out, job.selfimitation, progress=not job.quiet
+            job.start,
+            job.demos,
+            job.out,
+            job.selfimitation,
+            progress=not job.quiet,
+            parallel=ChunkedRayRollouts,
         )
     last = result.rounds[-1]
     return Done(

@@ -10,12 +10,14 @@ import gymnasium as gym
 
 from safe_bc.data.codec import Encoding
 from safe_bc.envs.config import EnvConfig
+from safe_bc.envs.factory import make_env
 from safe_bc.episode import Episode
 from safe_bc.policy import Policy
 from safe_bc.rollout import run_episode
 from safe_bc.seeds import demo_seed, episode_rng
 from safe_bc.tasks.carracing.expert import ExpertConfig
 from safe_bc.tasks.carracing.perturb import Perturbation, PerturbationConfig
+from safe_bc.tasks.registry import DEFAULT_TASK, TaskSpec, spec_of, spec_of_expert, task_defaults
 
 
 @dataclass(frozen=True)
@@ -50,8 +52,6 @@ class CollectConfig:
             raise ValueError(f"max_steps must be >= 1, got {self.max_steps}")
         if self.encoding not in ("png", "raw", "vector"):
             raise ValueError(f"encoding must be png, raw or vector, got {self.encoding!r}")
-        from safe_bc.tasks.registry import spec_of
-
         task = spec_of(self.env.env_id)
         if (task.encoding == "vector") != (self.encoding == "vector"):
             raise ValueError(
@@ -63,6 +63,19 @@ class CollectConfig:
                 f"(steer, gas, brake); use mode='none' for {self.env.env_id}"
             )
 
+    @classmethod
+    def for_task(cls, task: TaskSpec, **overrides: Any) -> CollectConfig:
+        """The task's default demonstration collection; ``overrides`` set other fields
+        (``episodes``, ``workers``, ``seed``, ``max_steps``, ``encoding``)."""
+        fields = {
+            "episodes": task.episodes,
+            "env": task.env,
+            "expert": task.expert,
+            "perturbation": task.perturbation,
+            "encoding": task.encoding,
+        }
+        return cls(**{**fields, **overrides})
+
 
 def config_dict(cfg: Any) -> dict[str, Any]:
     """A dataclass config as a JSON-able dict with its type name."""
@@ -72,8 +85,6 @@ def config_dict(cfg: Any) -> dict[str, Any]:
 def expert_config_from_dict(data: dict[str, Any]) -> Any:
     """Inverse of :func:`config_dict` for expert configs (as stored in ``dataset.json``; a
     record without a type is the default task's, from before types were recorded)."""
-    from safe_bc.tasks.registry import DEFAULT_TASK, spec_of_expert, task_defaults
-
     data = dict(data)
     kind = data.pop("type", None) or task_defaults(DEFAULT_TASK).expert_type
     cls = spec_of_expert(kind).expert_type
@@ -89,8 +100,6 @@ def stored_expert_config(demos: Path) -> Any:
 
 def build_expert(cfg: Any) -> Policy:
     """The expert policy for an expert config (its task's ``build_expert``)."""
-    from safe_bc.tasks.registry import spec_of_expert
-
     try:
         spec = spec_of_expert(type(cfg))
     except ValueError:
@@ -106,8 +115,6 @@ class EpisodeMaker:
     """
 
     def __init__(self, config: CollectConfig) -> None:
-        from safe_bc.envs.factory import make_env
-
         self.config = config
         self.env: gym.Env = make_env(config.env)
         self.expert = build_expert(config.expert)
@@ -138,8 +145,6 @@ def env_facts(
 ) -> tuple[tuple[int, ...], tuple[str, ...], tuple[tuple[float, ...], tuple[float, ...]]]:
     """``(observation shape, safety dimension names, (action low, action high))`` of the
     collection's env (built once)."""
-    from safe_bc.envs.factory import make_env
-
     env = make_env(config.env)
     try:
         shape = tuple(int(x) for x in env.observation_space.shape)

@@ -97,8 +97,8 @@ class Method:
     in their critical states (the comparison's zone: costs within ``eps`` of d_s). The expert
     is privileged (it reads the track): this bounds what a safe fallback would give."""
     defer_width: float | None = None
-    """A fallback row as deferral at use time (:class:`safe_bc.queries.defer.DeferralSource`,
-    issue 35): the expert acts where the env's measured cost is within this width of d_s
+    """A fallback row as deferral at use time (:class:`safe_bc.queries.defer.DeferralSource`):
+    the expert acts where the env's measured cost is within this width of d_s
     (``c_s >= d_s - w``, warm-up excluded), and the episodes record the share of steps
     deferred (``deferred_share``). ``None``: the shield's zone (the comparison's eps, costs
     read off the observation)."""

@@ -1,7 +1,9 @@
-"""Figures (matplotlib, Agg): cost histograms, the alpha sweep, safety traces, learning curves."""
+"""Figures (matplotlib, Agg): cost histograms, the alpha sweep, safety traces, learning curves,
+a study's Pareto plot."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -15,6 +17,7 @@ import pandas as pd
 from safe_bc.atomic import atomic_write
 from safe_bc.demos import Demonstrations
 from safe_bc.selection import DEFAULT_EPS
+from safe_bc.study import pareto_mask
 
 
 def save_figure(fig: Any, path: Path) -> Path:
@@ -204,4 +207,61 @@ def plot_queries(
         right.set_xlabel("episodes beyond d_s (dot) and 95% upper bound (bar end)", fontsize=8)
         right.set_title(f"{name}: crossings", fontsize=9)
     fig.tight_layout()
+    return save_figure(fig, path)
+
+
+def plot_pareto(
+    trials: pd.DataFrame,
+    threshold: float,
+    path: Path,
+    *,
+    winner: str | None = None,
+    candidates: Sequence[str] = (),
+    title: str = "",
+    objective: str = "reward_mean",
+    safety_label: str = "safety mean (higher is safer)",
+) -> Path:
+    """The study's objective (the reward, or its lower confidence bound ``reward_lcb``: what
+    the search maximises) against the safety mean per trial: feasible filled, infeasible
+    hollow, the Pareto front of the two joined, the threshold as a vertical line, the final
+    phase's ``candidates`` boxed and its ``winner`` ringed (pass a winner only when the final
+    phase accepted it). Markers of the candidates and the winner are hollow, drawn under the
+    trials' points, so they hide none."""
+    r = trials[objective].to_numpy(float)
+    s = trials["safety_mean"].to_numpy(float)
+    feas = trials["feasible"].to_numpy(bool)
+    front = pareto_mask(r, s)
+    fig, ax = plt.subplots(figsize=(6.4, 4.4))
+    boxed = trials[trials["trial_id"].isin(list(candidates))]
+    if len(boxed):
+        ax.scatter(
+            boxed["safety_mean"], boxed[objective], marker="s", s=170, facecolors="none",
+            edgecolors="k", lw=1.0, label=f"final-phase candidates ({len(boxed)})", zorder=2,
+        )  # fmt: skip
+    if winner is not None and (trials["trial_id"] == winner).any():
+        w = trials[trials["trial_id"] == winner].iloc[0]
+        ax.scatter(
+            [w["safety_mean"]], [w[objective]], marker="o", s=420, facecolors="none",
+            edgecolors="goldenrod", lw=2.5, label="winner (final phase)", zorder=2,
+        )  # fmt: skip
+    ax.scatter(
+        s[feas], r[feas], c="tab:blue", s=30, alpha=0.85, label=f"feasible ({feas.sum()})",
+        zorder=3,
+    )  # fmt: skip
+    ax.scatter(
+        s[~feas], r[~feas], s=30, facecolors="none", edgecolors="tab:red",
+        label=f"infeasible ({(~feas & np.isfinite(r)).sum()})", zorder=3,
+    )  # fmt: skip
+    order = np.argsort(s[front])
+    ax.plot(s[front][order], r[front][order], "k--", lw=0.8, label="Pareto front")
+    ax.axvline(threshold, color="gray", ls=":", label=f"threshold {threshold:.2f}")
+    ax.set_xlabel(safety_label)
+    ax.set_ylabel(
+        "reward, one-sided lower confidence bound (the objective)"
+        if objective == "reward_lcb"
+        else f"{objective.replace('_', ' ')} (the objective)"
+    )
+    ax.set_title(title or "study trials")
+    ax.legend(fontsize=8, loc="best")
+    ax.grid(alpha=0.3)
     return save_figure(fig, path)

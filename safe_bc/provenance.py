@@ -18,7 +18,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-import safe_bc
+from safe_bc.version import __version__
 
 _REPO = Path(__file__).resolve().parent.parent
 
@@ -212,7 +212,7 @@ def provenance() -> dict[str, str]:
     """Version, revision, UTC creation time and machine of the current run (with
     :func:`machine_info`: CPU model, vendor, instruction set, torch's kernels)."""
     return {
-        "package_version": safe_bc.__version__,
+        "package_version": __version__,
         "git_revision": git_revision(),
         "created_utc": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
         "python": platform.python_version(),

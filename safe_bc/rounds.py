@@ -35,6 +35,27 @@ class TrainJob:
 
 TrainFn = Callable[[TrainJob], NetSource]
 
+Rollouts = Callable[[Any, Sequence[int]], list[Any]]
+"""Runs a round's job on tracks, results in track order (``rollouts(job, seeds)``)."""
+Parallel = Callable[[Rollouts, int], Rollouts]
+"""Spreads rollouts over workers: ``parallel(rollouts, workers)`` gives the same results as
+``rollouts``. The caller passes it in, so that this layer names no Ray: the study's trials,
+the final phase and the CLI pass :class:`safe_bc.distributed.rollouts.ChunkedRayRollouts`."""
+
+
+def spread(rollouts: Rollouts, workers: int, parallel: Parallel | None) -> Rollouts:
+    """``rollouts`` on ``workers`` workers by ``parallel``.
+
+    Raises:
+        ValueError: ``parallel`` is ``None`` (one line: ``workers`` 0 runs in this process).
+    """
+    if parallel is None:
+        raise ValueError(
+            f"workers={workers} needs a parallel rollout factory (the caller's parallel, "
+            "e.g. safe_bc.distributed.rollouts.ChunkedRayRollouts); workers=0 runs in this process"
+        )
+    return parallel(rollouts, workers)
+
 
 def train_local(job: TrainJob) -> NetSource:
     """Train the job's BC net in this process (``train_bc``: bit-identical for the same job)."""

@@ -8,11 +8,14 @@ entry here plus one module with its runner:
 * ``field``: the ``StudySpec`` field holding the stage's config (``None``: the stage is off).
   Its fields are searchable as ``<field>.<name>`` keys of the study's space.
 * ``runner``: ``"module:function"`` (imported only when the stage runs, so reading a study file
-  imports no torch), called as ``runner(config, agent, run_config, demos, env_id, folder)``
-  and returning ``(policy_source, report_values)``: ``config`` is the stage's config with the
+  imports no torch), called as
+  ``runner(config, agent, run_config, demos, env_id, folder, parallel=parallel)`` and
+  returning ``(policy_source, report_values)``: ``config`` is the stage's config with the
   trial's parameters and ``seed`` = the training seed, ``agent`` the trained
   :class:`~safe_bc.bc.BCNet` (for a later stage, the previous stage's agent), ``folder`` the
-  stage's own resumable folder.
+  stage's own resumable folder, ``parallel`` how the stage may spread rollouts over workers
+  (:data:`safe_bc.rounds.Parallel`; the distributed layer passes its Ray actors, so that a
+  runner names no Ray).
 * ``metrics``: the keys of ``report_values`` (trial table columns); ``summed`` of them add up
   over training seeds, the others are the first seed's.
 

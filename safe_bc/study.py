@@ -34,7 +34,7 @@ from typing import Any, Literal
 import numpy as np
 import pandas as pd
 
-from safe_bc.envs import EnvConfig
+from safe_bc.envs.config import EnvConfig
 from safe_bc.handover import HandoverConfig
 from safe_bc.improve.config import ImproveConfig
 from safe_bc.queries.config import QueryConfig
@@ -469,6 +469,12 @@ class StudySpec:
         object.__setattr__(self, "demos", Path(self.demos))
         object.__setattr__(self, "results", Path(self.results))
         object.__setattr__(self, "storage", str(self.storage))
+        self._check_sizes()
+        self._check_bars_and_seeds()
+        self._check_space()
+
+    def _check_sizes(self) -> None:
+        """Counts, batch sizes and workers: integers in range."""
         if self.max_concurrent is not None and (
             isinstance(self.max_concurrent, bool)
             or not isinstance(self.max_concurrent, int)
@@ -500,6 +506,10 @@ class StudySpec:
             raise ValueError(f"final_workers must be >= 0 or None, got {self.final_workers}")
         if self.screen_episodes < 0:
             raise ValueError(f"screen_episodes must be >= 0, got {self.screen_episodes}")
+
+    def _check_bars_and_seeds(self) -> None:
+        """Constraints, confidences and shares in range; the seeds of the trials, the final
+        phase and the certificate distinct; the handover and the rest of the settings valid."""
         if self.safety_constraint not in ("combined", "per_dim"):
             raise ValueError(
                 f"safety_constraint must be 'combined' or 'per_dim', got {self.safety_constraint!r}"
@@ -549,6 +559,10 @@ class StudySpec:
             raise ValueError(f"baseline must be 'same_network' or 'default', got {self.baseline!r}")
         if self.threshold is not None and not math.isfinite(self.threshold):
             raise ValueError(f"threshold must be finite or None, got {self.threshold}")
+
+    def _check_space(self) -> None:
+        """Every search key names a field of the base config or of a stage the study runs, and
+        every bound or option of it builds a valid config."""
         for name, param in self.space.items():
             if not isinstance(param, Float | Int | Choice):
                 raise ValueError(f"space[{name!r}] must be Float, Int or Choice, got {param!r}")
@@ -668,8 +682,7 @@ def subset_warnings(spec: StudySpec, demos: Any) -> list[str]:
     bounds and options) whose ``T_eps`` on ``demos`` holds no scored row or every one, so that
     alpha cannot act (:func:`safe_bc.selection.improper_subset_message`); none for a study
     whose base selection is not the alpha mix."""
-    from safe_bc.experiment import select_for
-    from safe_bc.selection import improper_subset_message
+    from safe_bc.selection import improper_subset_message, select
 
     assert spec.base is not None
     sel = spec.base.selection
@@ -681,7 +694,8 @@ def subset_warnings(spec: StudySpec, demos: Any) -> list[str]:
     out = []
     for eps in dict.fromkeys(values):
         config = replace(sel, eps=eps, alpha=sel.alpha or 0.5)
-        message = improper_subset_message(select_for(demos, config))
+        selection = select(demos.costs, config, demos.scored, demos.safety_dims, demos.episode_ids)
+        message = improper_subset_message(selection)
         if message is not None:
             out.append(
                 f"{spec.name}: {where} = {eps:g}: {message.split(', so alpha')[0]}; "
@@ -1039,65 +1053,6 @@ def summary_lines(trials: pd.DataFrame, params: Sequence[str], top: int = 10) ->
     view = order[[c for c in cols if c in order]].head(top).copy()
     view.columns = [c.rsplit(".", 1)[-1] for c in view.columns]
     return view.to_string(index=False, float_format=lambda x: f"{x:.3g}")
-
-
-def plot_pareto(
-    trials: pd.DataFrame,
-    threshold: float,
-    path: Path,
-    *,
-    winner: str | None = None,
-    candidates: Sequence[str] = (),
-    title: str = "",
-    objective: str = OBJECTIVE,
-    safety_label: str = "safety mean (higher is safer)",
-) -> Path:
-    """The study's objective (the reward, or its lower confidence bound ``reward_lcb``: what
-    the search maximises) against the safety mean per trial: feasible filled, infeasible
-    hollow, the Pareto front of the two joined, the threshold as a vertical line, the final
-    phase's ``candidates`` boxed and its ``winner`` ringed (pass a winner only when the final
-    phase accepted it). Markers of the candidates and the winner are hollow, drawn under the
-    trials' points, so they hide none."""
-    from safe_bc.plots import plt, save_figure
-
-    r = trials[objective].to_numpy(float)
-    s = trials["safety_mean"].to_numpy(float)
-    feas = trials["feasible"].to_numpy(bool)
-    front = pareto_mask(r, s)
-    fig, ax = plt.subplots(figsize=(6.4, 4.4))
-    boxed = trials[trials["trial_id"].isin(list(candidates))]
-    if len(boxed):
-        ax.scatter(
-            boxed["safety_mean"], boxed[objective], marker="s", s=170, facecolors="none",
-            edgecolors="k", lw=1.0, label=f"final-phase candidates ({len(boxed)})", zorder=2,
-        )  # fmt: skip
-    if winner is not None and (trials["trial_id"] == winner).any():
-        w = trials[trials["trial_id"] == winner].iloc[0]
-        ax.scatter(
-            [w["safety_mean"]], [w[objective]], marker="o", s=420, facecolors="none",
-            edgecolors="goldenrod", lw=2.5, label="winner (final phase)", zorder=2,
-        )  # fmt: skip
-    ax.scatter(
-        s[feas], r[feas], c="tab:blue", s=30, alpha=0.85, label=f"feasible ({feas.sum()})",
-        zorder=3,
-    )  # fmt: skip
-    ax.scatter(
-        s[~feas], r[~feas], s=30, facecolors="none", edgecolors="tab:red",
-        label=f"infeasible ({(~feas & np.isfinite(r)).sum()})", zorder=3,
-    )  # fmt: skip
-    order = np.argsort(s[front])
-    ax.plot(s[front][order], r[front][order], "k--", lw=0.8, label="Pareto front")
-    ax.axvline(threshold, color="gray", ls=":", label=f"threshold {threshold:.2f}")
-    ax.set_xlabel(safety_label)
-    ax.set_ylabel(
-        "reward, one-sided lower confidence bound (the objective)"
-        if objective == "reward_lcb"
-        else f"{objective.replace('_', ' ')} (the objective)"
-    )
-    ax.set_title(title or "study trials")
-    ax.legend(fontsize=8, loc="best")
-    ax.grid(alpha=0.3)
-    return save_figure(fig, path)
 
 
 # --- what batched suggestions cost in wall-clock -------------------------------------------------

@@ -1,4 +1,4 @@
-"""Issue 35: every deferral design of the car's self-imitation agent on its fresh tracks, in one
+"""Every deferral design of the car's self-imitation agent on its fresh tracks, in one
 table and one figure (an analysis of committed comparison tables).
 
 Usage::
@@ -11,7 +11,7 @@ writes ``results/selfimprove/carracing/defer_designs.md`` and ``defer_designs.pn
 deferral row of the self-imitation agent (and the agent alone on the same tracks), episodes
 beyond d_s of seeds x tracks with the one-sided 95% Clopper-Pearson upper bound, the reward
 against the expert (paired, crossed 95% interval) and the mean share of deferred steps. The
-figure puts the burden (deferred steps) against the bound, with issue 35's goal (bound <= 2%,
+figure puts the burden (deferred steps) against the bound, with the goal (bound <= 2%,
 i.e. 0 of 150, and under 5% of steps) shaded. Each design was chosen on selection tracks
 before its fresh block was run; the blocks differ, so rows of different tables are not paired
 with each other.
@@ -37,7 +37,7 @@ TABLES = (
 """The fresh-track tables, in the order they were run."""
 AGENT = "selfimitation"
 GOAL_BOUND, GOAL_BURDEN = 0.02, 0.05
-"""Issue 35's goal: the crossing share's 95% bound at most 2% (0 of 150), deferred steps < 5%."""
+"""The deferral goal: the crossing share's 95% bound at most 2% (0 of 150), deferred steps < 5%."""
 
 
 def rows(table: pd.DataFrame, meta: dict[str, Any], name: str) -> list[dict[str, Any]]:

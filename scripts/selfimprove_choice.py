@@ -1,4 +1,4 @@
-"""Issue 31, item 2: which self-imitation setting a selection table supports (an analysis of a
+"""Which self-imitation setting a selection table supports (an analysis of a
 committed comparison table).
 
 Usage::

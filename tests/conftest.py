@@ -50,9 +50,10 @@ def tiny_demos(ray_session, tmp_path_factory):
 
 def rehab_collect():
     """The collection of :func:`rehab_demos` (a study or comparison reading it expects it)."""
+    from safe_bc.collection import CollectConfig
     from safe_bc.tasks import task_defaults
 
-    return task_defaults("rehab").collect_config(episodes=8, workers=1)
+    return CollectConfig.for_task(task_defaults("rehab"), episodes=8, workers=1)
 
 
 @pytest.fixture(scope="session")

@@ -8,7 +8,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from safe_bc.collection import EpisodeMaker
+from safe_bc.collection import CollectConfig, EpisodeMaker
 from safe_bc.demos import Demonstrations
 from safe_bc.tasks import task_defaults
 from safe_bc.tasks.carracing.costs import MAX_RANGE
@@ -35,7 +35,7 @@ class WheelLog(gym.Wrapper):
 def default_episodes(ids: list[int]) -> tuple[Demonstrations, list[int]]:
     """Episodes ``ids`` of the default CarRacing collection, and the fewest wheels on the road
     seen in any of their states."""
-    maker = EpisodeMaker(task_defaults("carracing").collect_config())
+    maker = EpisodeMaker(CollectConfig.for_task(task_defaults("carracing")))
     maker.env = WheelLog(maker.env)
     try:
         episodes, fewest = [], []

@@ -157,6 +157,7 @@ def test_tiny_comparison_with_an_improvement_row_resumes(rehab_demos, tmp_path: 
         f"""from pathlib import Path
 from safe_bc.bc import BCConfig, NetworkConfig, TrainConfig
 from safe_bc.compare import Comparison, Method
+from safe_bc.collection import CollectConfig
 from safe_bc.selection import SelectionConfig
 from safe_bc.tasks import task_defaults
 from tests.test_compare import TINY
@@ -170,7 +171,7 @@ COMPARISON = Comparison(
     ),
     task="rehab",
     demos=Path({str(rehab_demos)!r}),
-    collect=task_defaults("rehab").collect_config(episodes=8, workers=1),
+    collect=CollectConfig.for_task(task_defaults("rehab"), episodes=8, workers=1),
     out=Path({str(tmp_path)!r}),
     train_seeds=(0, 1),
     episodes=3,

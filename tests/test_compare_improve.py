@@ -265,7 +265,7 @@ def test_tiny_fallback_rows_share_the_runs_of_another_comparison(rehab_demos, tm
     assert "start, expert fallback" in (tmp_path / "diag.md").read_text()
     with pytest.raises(ValueError, match="fallback_of"):
         Comparison("t", methods=(Method("f", fallback_of="nothing"),))
-    # deferral rows (issue 35): the expert acts within the width of d_s; a width beyond every
+    # deferral rows: the expert acts within the width of d_s; a width beyond every
     # cost hands every step to the expert, whose own episodes they then are
     defer = replace(
         diag,

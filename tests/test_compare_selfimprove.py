@@ -1,6 +1,6 @@
 """Self-imitation rows in the comparison runner: the spec checks them, a tiny rehab comparison
 evaluates the run's own agent, resumes without work and records env steps counted like the
-PPO-Lagrangian's; the issue-31 comparison files load, use seed blocks no other comparison
+PPO-Lagrangian's; the self-imitation comparison files load, use seed blocks no other comparison
 uses, and give both improvements the same env-step budget."""
 
 from __future__ import annotations

@@ -275,6 +275,7 @@ def test_a_round_failing_the_keep_rule_is_discarded(rehab_agent, rehab_demos, tm
 
 def test_the_stage_runs_end_to_end_with_ray_actors(ray_session, rehab_agent, rehab_demos, tmp_path):
     """The registered runner on 2 Ray actors gives the in-process run's agent."""
+    from safe_bc.distributed.rollouts import ChunkedRayRollouts
     from safe_bc.stages import STAGES
     from safe_bc.tasks import task_defaults
 
@@ -282,8 +283,9 @@ def test_the_stage_runs_end_to_end_with_ray_actors(ray_session, rehab_agent, reh
     config = SelfImproveConfig(**{**TINY, "rounds": 1, "workers": 2})
     env_id = task_defaults("rehab").env.env_id
     source, report = STAGES["selfimprove"].load()(
-        config, model, cfg, str(rehab_demos), env_id, tmp_path / "stage"
-    )
+        config, model, cfg, str(rehab_demos), env_id, tmp_path / "stage",
+        parallel=ChunkedRayRollouts,
+    )  # fmt: skip
     assert set(report) == set(STAGES["selfimprove"].metrics)
     assert report["selfimprove_kept_steps"] > 0
     local = _run(rehab_agent, rehab_demos, tmp_path / "local", rounds=1)

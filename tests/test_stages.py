@@ -21,7 +21,8 @@ def test_registry_entries_are_complete(name: str) -> None:
     assert spec_fields[stage.field].default is None, "a stage must be off unless a study sets it"
     runner = stage.load()
     params = list(inspect.signature(runner).parameters)
-    assert params == ["config", "agent", "run_config", "demos", "env_id", "folder"], params
+    assert params == ["config", "agent", "run_config", "demos", "env_id", "folder", "parallel"]
+    assert inspect.signature(runner).parameters["parallel"].kind is inspect.Parameter.KEYWORD_ONLY
     assert stage.metrics and set(stage.summed) <= set(stage.metrics)
     assert set(stage.metrics) <= set(TRIAL_METRICS)
     assert stage_of(f"{stage.prefix}anything") == name

@@ -12,6 +12,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from safe_bc.plots import plot_pareto
 from safe_bc.run_config import RunConfig
 from safe_bc.study import (
     TRIAL_INFO,
@@ -26,7 +27,6 @@ from safe_bc.study import (
     is_feasible,
     load_study,
     pareto_mask,
-    plot_pareto,
     summary_lines,
     trial_table,
 )

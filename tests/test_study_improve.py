@@ -8,6 +8,7 @@ from pathlib import Path
 
 import pytest
 
+from safe_bc.collection import CollectConfig
 from safe_bc.improve import ImproveConfig, ImprovedSource, improve_from_net
 from safe_bc.run_config import RunConfig
 from safe_bc.study import Choice, Float, StudySpec, load_study, split_params
@@ -94,7 +95,7 @@ def test_tiny_study_with_improvement_end_to_end(ray_session, rehab_demos: Path, 
     spec = replace(
         load_study(REPO / "tune_jobs" / "rehab_improve.py"),
         demos=rehab_demos,
-        collect=task_defaults("rehab").collect_config(episodes=8, workers=1),
+        collect=CollectConfig.for_task(task_defaults("rehab"), episodes=8, workers=1),
         storage=str(tmp_path / "ray"),
         results=tmp_path / "results",
         improve=TINY,

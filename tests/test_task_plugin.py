@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 from gymnasium import spaces
 
+from safe_bc.collection import CollectConfig
 from safe_bc.envs.config import EnvConfig
 from safe_bc.tasks import (
     PLUGINS_VAR,
@@ -121,7 +122,7 @@ def _collect_in_process(root: Path, episodes: int = 6) -> Path:
     from safe_bc.data.store import init_dataset, write_episode
     from safe_bc.distributed.collect import dataset_meta
 
-    cfg = TOY.collect_config(episodes=episodes, workers=1)
+    cfg = CollectConfig.for_task(TOY, episodes=episodes, workers=1)
     meta = init_dataset(root, dataset_meta(cfg))
     maker = EpisodeMaker(cfg)
     try:
@@ -209,7 +210,7 @@ def test_tiny_study_on_the_toy_task(ray_session, tmp_path: Path):
     from safe_bc.study import Choice, Float, StudySpec
 
     demos = tmp_path / "demos"
-    report = collect(TOY.collect_config(episodes=6, workers=2), demos, progress=False)
+    report = collect(CollectConfig.for_task(TOY, episodes=6, workers=2), demos, progress=False)
     assert len(report.collected) == 6
     spec = StudySpec(
         name="toy",
@@ -220,7 +221,7 @@ def test_tiny_study_on_the_toy_task(ray_session, tmp_path: Path):
         base=RunConfig(bc=BCConfig(network=NetworkConfig(hidden=16))),
         env=TOY.env,
         demos=demos,
-        collect=TOY.collect_config(episodes=6, workers=2),
+        collect=CollectConfig.for_task(TOY, episodes=6, workers=2),
         critical_eps=TOY.eps,
         trials=2,
         max_concurrent=2,

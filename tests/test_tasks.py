@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from safe_bc.bc import CAR_RACING_BOUNDS
-from safe_bc.collection import env_facts
+from safe_bc.collection import CollectConfig, env_facts
 from safe_bc.data.store import META_FILE, DatasetMeta, init_dataset, read_meta
 from safe_bc.distributed.collect import dataset_meta
 from safe_bc.tasks import TASKS, action_bounds, dataset_action_bounds, task_defaults, task_of
@@ -20,7 +20,7 @@ def test_registry_matches_the_env(task):
     entry = task_defaults(task)
     assert task_of(entry.env.env_id) == task
     assert entry.action_bounds == action_bounds(entry.env)
-    _, dims, bounds = env_facts(entry.collect_config(episodes=1))
+    _, dims, bounds = env_facts(CollectConfig.for_task(entry, episodes=1))
     assert entry.safety_dims == dims
     assert entry.action_bounds == bounds
 
@@ -38,7 +38,7 @@ def test_unknown_env_id_is_an_error():
 
 @pytest.mark.parametrize("task", TASKS)
 def test_collection_records_the_bounds(tmp_path: Path, task):
-    meta = dataset_meta(task_defaults(task).collect_config(episodes=1))
+    meta = dataset_meta(CollectConfig.for_task(task_defaults(task), episodes=1))
     assert meta.action_bounds == task_defaults(task).action_bounds
     init_dataset(tmp_path, meta)
     assert read_meta(tmp_path) == meta
@@ -56,7 +56,7 @@ def _old_dataset(root: Path, meta: DatasetMeta) -> None:
 
 @pytest.mark.parametrize("task", TASKS)
 def test_old_dataset_falls_back_to_the_registry(tmp_path: Path, task):
-    meta = dataset_meta(task_defaults(task).collect_config(episodes=1))
+    meta = dataset_meta(CollectConfig.for_task(task_defaults(task), episodes=1))
     _old_dataset(tmp_path, meta)
     assert read_meta(tmp_path).action_bounds is None
     assert dataset_action_bounds(tmp_path) == task_defaults(task).action_bounds
@@ -65,7 +65,7 @@ def test_old_dataset_falls_back_to_the_registry(tmp_path: Path, task):
 
 
 def test_bounds_are_not_part_of_the_identity():
-    meta = dataset_meta(task_defaults("rehab").collect_config(episodes=1))
+    meta = dataset_meta(CollectConfig.for_task(task_defaults("rehab"), episodes=1))
     other = dataclasses.replace(meta, action_bounds=None)
     assert meta.identity() == other.identity()
     assert "action_bounds" not in meta.identity()

@@ -13,7 +13,12 @@ import numpy as np
 import pytest
 
 import tests.test_task_plugin  # noqa: F401  (registers the toy task)
-from safe_bc.collection import build_expert, config_dict, expert_config_from_dict
+from safe_bc.collection import (
+    CollectConfig,
+    build_expert,
+    config_dict,
+    expert_config_from_dict,
+)
 from safe_bc.envs.factory import make_env
 from safe_bc.envs.info import INFO_KEYS, InfoContract, StepInfo, check_info
 from safe_bc.tasks import TASKS, task_defaults, task_of
@@ -26,7 +31,7 @@ def test_task_meets_the_contract(task):
     spec = task_defaults(task)
     assert spec.name == task and task_of(spec.env.env_id) == task
     assert all(g.id in gym.registry for g in spec.gym_envs)
-    cfg = spec.collect_config(episodes=1)  # the defaults are a valid collection
+    cfg = CollectConfig.for_task(spec, episodes=1)  # the defaults are a valid collection
     assert cfg.env == spec.env and cfg.expert == spec.expert
     assert expert_config_from_dict(config_dict(spec.expert)) == spec.expert
 

@@ -1,4 +1,4 @@
-"""The ``make tune`` floor (issue 33 item 3): its arithmetic on the committed side-by-side
+"""The ``make tune`` floor: its arithmetic on the committed side-by-side
 tables, and the precision timer's shape (no wall-clock is asserted)."""
 
 from __future__ import annotations

@@ -7,7 +7,7 @@ on the share of episodes with a step beyond the expert's limit d_s in any dimens
 18.1%; the final phase's 51 episodes, 17 fresh tracks per seed, may hold at most 5 beyond d_s).
 One seed per trial, 15 tracks per surviving trial and 4 tracks stepped in lockstep with one
 batched forward pass (``trial_envs``) replaced 2 seeds x 10 tracks one env at a time for
-``make tune`` at half the wall-clock of issue 33's starting commit on 2 cores, measured side by
+``make tune`` at half the wall-clock of the two-seed design on 2 cores, measured side by
 side in one session (``results/checks/make_tune/half/side_by_side.md``); the seed spread then
 enters in the final phase only (3 training seeds per candidate). What the change did to the
 study's outcome, replicate against replicate: ``results/checks/make_tune/half/replicates.md``

@@ -1,4 +1,4 @@
-"""A cheaper candidate for the default study (issue 33 item 3), measured at clean 9915525:
+"""A cheaper candidate for the default study, measured to halve ``make tune``'s wall-clock:
 the two-seed default of then (``tune_jobs/default_two_seeds.py``) with one training seed per
 trial instead of two, and 15 tracks per surviving trial instead of 10 (zero crossings in 15
 episodes bound the share at 18.1%, under the study's 20% limit; 10 would bound it at 25.9% and

@@ -1,7 +1,8 @@
-"""The default study until issue 33's half-time change, kept to compare against: two training
-seeds per trial on the same 10 tracks (crossed bootstrap), one env at a time; everything else
-is ``tune_jobs/default.py``'s. Its committed runs (the single study rebuilt at clean 3dd304c
-and the 3 replicates at clean 6a098da, raster frames, made under the name ``default``) are in
+"""The default study before one seed per trial halved ``make tune``'s wall-clock, kept to
+compare against: two training seeds per trial on the same 10 tracks (crossed bootstrap), one
+env at a time; everything else is ``tune_jobs/default.py``'s. Its committed runs (the single
+study and 3 replicates, raster frames, made under the name ``default``; each table's
+provenance names the revision it ran at) are in
 ``results/default_two_seeds/``; the two designs' replicates side by side:
 ``results/checks/make_tune/half/replicates.md``.
 

@@ -275,6 +275,23 @@ def sampler_for(selection: Selection, train_cfg: TrainConfig) -> BatchSampler:
     return selection.sampler(train_cfg.batch_size, np.random.default_rng(train_cfg.seed))
 
 
+def loss_weights(train_cfg: TrainConfig, n_actions: int) -> torch.Tensor:
+    """The per-action weights of the squared error, summing to 1: ``train_cfg.loss_weights``
+    normalised, else equal.
+
+    Raises:
+        ValueError: ``loss_weights`` has not one weight per action dimension.
+    """
+    weights = torch.ones(n_actions)
+    if train_cfg.loss_weights is not None:
+        if len(train_cfg.loss_weights) != n_actions:
+            raise ValueError(
+                f"{len(train_cfg.loss_weights)} loss_weights for {n_actions} action dimensions"
+            )
+        weights = torch.tensor(train_cfg.loss_weights, dtype=torch.float32)
+    return weights / weights.sum()
+
+
 def train_bc(
     demos: Demonstrations,
     sampler: BatchSampler,
@@ -310,65 +327,25 @@ def train_bc(
             It reads no random numbers and changes no weight: the training is the same with
             or without it.
     """
-    if len(sampler.mask) != len(demos):
-        raise ValueError(f"sampler covers {len(sampler.mask)} rows, demos have {len(demos)}")
-    if sampler.batch_size != train_cfg.batch_size:
-        raise ValueError(
-            f"sampler.batch_size={sampler.batch_size} != train_cfg.batch_size="
-            f"{train_cfg.batch_size}"
-        )
+    _check_sampler(sampler, len(demos), train_cfg.batch_size)
     n_actions = demos.actions.shape[1]
-    weights = torch.ones(n_actions)
-    if train_cfg.loss_weights is not None:
-        if len(train_cfg.loss_weights) != n_actions:
-            raise ValueError(
-                f"{len(train_cfg.loss_weights)} loss_weights for {n_actions} action dimensions"
-            )
-        weights = torch.tensor(train_cfg.loss_weights, dtype=torch.float32)
-    weights = weights / weights.sum()
-
+    weights = loss_weights(train_cfg, n_actions)
     train_cfg = replace(train_cfg, num_threads=training_threads(train_cfg))  # recorded
     spec = ModelSpec.for_data(demos.observations.shape[1:], n_actions, action_bounds)
     # frames preprocessed once each, in calls shaped like one batch's (same values, see
     # BatchBuilder), before the timed loop: the rows the sampler can draw (rows outside
     # ``valid`` that a batch still asks for are filled on first use)
-    cache = BatchBuilder.cache_bytes(demos, pre_cfg) <= CACHE_LIMIT_BYTES
     chunk = train_cfg.batch_size * pre_cfg.frame_stack
-    builder = BatchBuilder(demos, pre_cfg, cache_chunk=chunk if cache else None, reuse_output=True)
-    prepare_start = time.perf_counter()
-    builder.prefill(np.flatnonzero(sampler.valid))
-    prepare_seconds = time.perf_counter() - prepare_start
+    builder, prepare_seconds = _training_builder(demos, pre_cfg, chunk, sampler.valid)
     sampler = sampler.with_rng(np.random.default_rng(train_cfg.seed))
     log_steps: list[int] = []
     losses: list[float] = []
     val_losses: list[float] = []
     log_seconds: list[float] = []
-    val_rows = None if validation is None else np.flatnonzero(validation.scored)
-    if val_rows is not None and not len(val_rows):
-        raise ValueError("the validation set has no scored rows")
-    val_builder = (
-        None
-        if validation is None
-        else BatchBuilder(
-            validation,
-            pre_cfg,
-            cache_chunk=chunk
-            if BatchBuilder.cache_bytes(validation, pre_cfg) <= CACHE_LIMIT_BYTES
-            else None,
-        )
-    )
+    val_rows, val_builder = _validation_builder(validation, pre_cfg, chunk)
 
     with torch_settings(train_cfg.num_threads):
-        torch.manual_seed(train_cfg.seed)
-        model = BCNet(spec, pre_cfg, net_cfg)
-        if model.vector_input and pre_cfg.standardize:
-            mean, std = standardization_stats(demos.observations, sampler.valid)
-            k = pre_cfg.frame_stack
-            model.set_standardization(np.tile(mean, k), np.tile(std, k))
-        optimizer = torch.optim.Adam(
-            model.parameters(), lr=train_cfg.lr, weight_decay=train_cfg.weight_decay
-        )
-        model.train()
+        model, optimizer = _new_model(demos, sampler, spec, net_cfg, pre_cfg, train_cfg)
         window = 0.0
         start = time.perf_counter()
         paused = 0.0  # validation time, kept out of the loop's seconds
@@ -415,6 +392,64 @@ def train_bc(
         val_losses=None if validation is None else np.asarray(val_losses, np.float64),
         log_seconds=np.asarray(log_seconds, np.float64),
     )
+
+
+def _training_builder(
+    demos: Demonstrations, pre_cfg: PreprocessConfig, chunk: int, valid: np.ndarray
+) -> tuple[BatchBuilder, float]:
+    """The training rows' batch builder, prefilled with the rows the sampler can draw (in
+    chunks of one batch's frames when the cache fits), and the seconds it took."""
+    cache = BatchBuilder.cache_bytes(demos, pre_cfg) <= CACHE_LIMIT_BYTES
+    builder = BatchBuilder(demos, pre_cfg, cache_chunk=chunk if cache else None, reuse_output=True)
+    start = time.perf_counter()
+    builder.prefill(np.flatnonzero(valid))
+    return builder, time.perf_counter() - start
+
+
+def _check_sampler(sampler: BatchSampler, rows: int, batch_size: int) -> None:
+    """The sampler must cover the demonstrations' rows and draw the configured batch size."""
+    if len(sampler.mask) != rows:
+        raise ValueError(f"sampler covers {len(sampler.mask)} rows, demos have {rows}")
+    if sampler.batch_size != batch_size:
+        raise ValueError(
+            f"sampler.batch_size={sampler.batch_size} != train_cfg.batch_size={batch_size}"
+        )
+
+
+def _validation_builder(
+    validation: Demonstrations | None, pre_cfg: PreprocessConfig, chunk: int
+) -> tuple[Any, BatchBuilder | None]:
+    """The validation set's scored rows and its batch builder (``(None, None)`` without one)."""
+    if validation is None:
+        return None, None
+    rows = np.flatnonzero(validation.scored)
+    if not len(rows):
+        raise ValueError("the validation set has no scored rows")
+    cache = BatchBuilder.cache_bytes(validation, pre_cfg) <= CACHE_LIMIT_BYTES
+    return rows, BatchBuilder(validation, pre_cfg, cache_chunk=chunk if cache else None)
+
+
+def _new_model(
+    demos: Demonstrations,
+    sampler: BatchSampler,
+    spec: ModelSpec,
+    net_cfg: NetworkConfig,
+    pre_cfg: PreprocessConfig,
+    train_cfg: TrainConfig,
+) -> tuple[BCNet, torch.optim.Optimizer]:
+    """The seeded net (standardized on the sampler's valid rows for vector inputs) in
+    training mode and its Adam optimizer; called inside :func:`torch_settings`."""
+    torch.manual_seed(train_cfg.seed)
+    model = BCNet(spec, pre_cfg, net_cfg)
+    if model.vector_input and pre_cfg.standardize:
+        mean, std = standardization_stats(demos.observations, sampler.valid)
+        k = pre_cfg.frame_stack
+        model.set_standardization(np.tile(mean, k), np.tile(std, k))
+    optimizer = torch.optim.Adam(
+        model.parameters(), lr=train_cfg.lr, weight_decay=train_cfg.weight_decay
+    )
+    model.train()
+    return model, optimizer
 
 
 def _loss_over(

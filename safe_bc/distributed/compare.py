@@ -28,6 +28,7 @@ import numpy as np
 import pandas as pd
 
 from safe_bc.atomic import write_text_atomic
+from safe_bc.collection import CollectConfig
 from safe_bc.compare import (
     EXPERT,
     PAPER_TABLE1,
@@ -118,12 +119,12 @@ def own_demos(comparison: Comparison) -> dict[Path, Any]:
         if m.demos is not None and m.demos not in out:
             renderer = m.renderer or DEFAULT_RENDERER
             if comparison.collect is None:
-                out[m.demos] = task_defaults(task, renderer).collect_config()
+                out[m.demos] = CollectConfig.for_task(task_defaults(task, renderer))
             else:  # the comparison's collection, drawn by the row's renderer
                 env = dataclasses.replace(comparison.collect.env, renderer=renderer)
                 out[m.demos] = dataclasses.replace(comparison.collect, env=env)
     own = out.pop(comparison.demos, None)
-    first = comparison.collect or own or task_defaults(task).collect_config()
+    first = comparison.collect or own or CollectConfig.for_task(task_defaults(task))
     return {comparison.demos: first, **out}
 
 

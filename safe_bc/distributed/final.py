@@ -36,6 +36,7 @@ from safe_bc.collection import stored_expert_config
 from safe_bc.demos import Demonstrations
 from safe_bc.distributed.evaluate import LOCKSTEP_ENVS, evaluate_policies
 from safe_bc.distributed.final_store import FinalStore, agent_key, key_of
+from safe_bc.distributed.rollouts import ChunkedRayRollouts
 from safe_bc.distributed.runtime import cluster_cpus, ensure_ray
 from safe_bc.distributed.stop import deferred_stop, stop_point
 from safe_bc.distributed.train import train_many
@@ -208,6 +209,41 @@ def final_phase(
     seconds["stages"] = time.perf_counter() - clock
     clock = time.perf_counter()
 
+    parts = _evaluate_final(
+        spec, job, cfgs, seeds, candidates, nets, store, workers, threads, progress
+    )
+    seconds["evaluation"] = time.perf_counter() - clock
+    episodes = pd.concat(parts, ignore_index=True)
+    table, paired, confidence = _final_table(spec, job, episodes, cfgs)
+    winner, feasible, message = choose_final(table)
+    certified = ""
+    if winner is not None and "episodes_with_violation" in table:
+        row = table[table["method"] == winner].iloc[0]
+        certified = certified_share(
+            int(row["episodes_with_violation"]), int(row["n_episodes"]), confidence
+        )
+    configs = {m: c.to_dict() for m, c in cfgs.items()}
+    return FinalOutcome(
+        table, episodes, winner, feasible, message, configs, certified, paired, seconds,
+        agents=dict(nets), models=dict(models),
+    )  # fmt: skip
+
+
+def _evaluate_final(
+    spec: StudySpec,
+    job: TrialJob,
+    cfgs: Mapping[str, RunConfig],
+    seeds: list[int],
+    candidates: pd.DataFrame,
+    nets: Mapping[tuple[str, int], Any],
+    store: FinalStore | None,
+    workers: int,
+    threads: int,
+    progress: bool,
+) -> list[pd.DataFrame]:
+    """Every agent (a candidate with the study's handover) and the expert on fresh tracks, one
+    block of tracks per training seed; evaluations already in ``store`` are taken from it."""
+
     def _evaluated(method: str, seed: int) -> Any:
         """A candidate with the study's handover (the recommender); plain BC alone."""
         if spec.handover is None or method == PLAIN_BC:
@@ -244,8 +280,15 @@ def final_phase(
             parts.append(ep)
     finally:
         torch.set_num_threads(previous)
-    seconds["evaluation"] = time.perf_counter() - clock
-    episodes = pd.concat(parts, ignore_index=True)
+    return parts
+
+
+def _final_table(
+    spec: StudySpec, job: TrialJob, episodes: pd.DataFrame, cfgs: Mapping[str, RunConfig]
+) -> tuple[pd.DataFrame, pd.DataFrame, float]:
+    """The final table (a row per method in candidate order, then the expert, with its
+    constraints, feasibility, role and the violation share's upper bound), the paired
+    summaries and the bound's confidence."""
     table, paired = final_summaries(episodes, cfgs, spec.final_seed)
     order = {m: i for i, m in enumerate([*cfgs, EXPERT])}
     table = table.sort_values("method", key=lambda c: c.map(order)).reset_index(drop=True)
@@ -263,18 +306,7 @@ def final_phase(
             clopper_pearson_upper(int(k), int(n), confidence)
             for k, n in zip(table["episodes_with_violation"], table["n_episodes"], strict=True)
         ]
-    winner, feasible, message = choose_final(table)
-    certified = ""
-    if winner is not None and "episodes_with_violation" in table:
-        row = table[table["method"] == winner].iloc[0]
-        certified = certified_share(
-            int(row["episodes_with_violation"]), int(row["n_episodes"]), confidence
-        )
-    configs = {m: c.to_dict() for m, c in cfgs.items()}
-    return FinalOutcome(
-        table, episodes, winner, feasible, message, configs, certified, paired, seconds,
-        agents=dict(nets), models=dict(models),
-    )  # fmt: skip
+    return table, paired, confidence
 
 
 def block_config(spec: StudySpec, block: int, first: int, n: int, workers: int) -> EvalConfig:
@@ -450,6 +482,7 @@ def _run_stages(
             agents[(method, s)], _ = run_stage(
                 spec.stage_config(name, params[method], seed=s), agent, models[(method, s)][1],
                 job.demos, spec.env.env_id, root / method / f"seed{s}",
+                parallel=ChunkedRayRollouts,
             )  # fmt: skip
     return agents
 

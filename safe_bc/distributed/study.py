@@ -20,7 +20,7 @@ import signal
 import sys
 import time
 import uuid
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -35,6 +35,7 @@ from ray.tune.utils import flatten_dict
 from safe_bc.atomic import write_json_atomic, write_text_atomic
 from safe_bc.bc import load_checkpoint
 from safe_bc.bc.net import BCNet
+from safe_bc.collection import CollectConfig
 from safe_bc.data.store import (
     DatasetError,
     dataset_record,
@@ -66,6 +67,7 @@ from safe_bc.distributed.stop import (
     _stop_signals,
 )
 from safe_bc.distributed.trial import TrialJob, cached_demos, run_trial, stored_checkpoint
+from safe_bc.plots import plot_pareto
 from safe_bc.provenance import check_result_write, provenance
 from safe_bc.study import (
     TRIAL_METRICS,
@@ -75,7 +77,6 @@ from safe_bc.study import (
     choose_candidates,
     choose_winner,
     is_missing,
-    plot_pareto,
     subset_warnings,
     summary_lines,
     trial_table,
@@ -649,8 +650,8 @@ def _run_study(
     final_phase_too: bool = True,
     verbose: bool = False,
 ) -> StudyOutcome:
-    from safe_bc.distributed.collect import ensure_demos
-
+    """:func:`run_study`'s steps in order: set up, tune, write the trial tables, then (for a
+    complete tuning with a winner) the final phase, the certificate and the finished mark."""
     if not fresh:
         done = finished_outcome(spec)
         if done is not None:
@@ -661,6 +662,169 @@ def _run_study(
             return done
 
     clock = StudyClock(spec.results / spec.name / TIMING_LOG)
+    out, storage, exp_path = _prepare_outputs(spec, fresh, verbose)
+    clock.skip()
+    ensure_ray()
+    clock.lap("ray_start")
+    cpus = cluster_cpus()
+    concurrent = spec.concurrency(cpus)  # how many at once, never which (nothing else reads it)
+    _reinstall_signals()  # ray.init replaced the SIGTERM handler
+    demos_path, demos, inputs = _study_demos(spec, progress)
+    clock.lap("demos")
+    expert_safety = demos.safety_mean
+    threshold, limits = constraint_bars(spec, expert_safety, demos.dim_safety_means())
+    validation = None
+    if spec.validation_demos is not None:
+        validation = spec.validation_demos.resolve()
+        _check_validation_demos(validation, demos_path)
+    job = TrialJob(
+        spec,
+        str(demos_path),
+        limits,
+        tuple(float(x) for x in demos.limits),
+        None if validation is None else str(validation),
+    )
+
+    restoring = tune.Tuner.can_restore(exp_path)
+    if not restoring:  # a new experiment: rows of an older one do not belong to it
+        (out / HISTORY).unlink(missing_ok=True)
+        (out / FINISHED).unlink(missing_ok=True)
+    clock.open(new_experiment=not restoring)
+    identity = run_identity(spec, threshold, job.cost_limits, inputs)
+    added = _check_resume(out, identity, restoring, exp_path)
+    tuner, concurrent = _make_tuner(
+        spec, job, trial_fn, restoring, exp_path, storage, concurrent,
+        progress=progress, verbose=verbose, callbacks=callbacks, added=added,
+    )  # fmt: skip
+    meter = _running_meter(tuner)
+    print(
+        f"study {spec.name!r}: up to {concurrent} trial(s) at once ({cpus:g} CPUs, "
+        f"{spec.trial_cpus:g} per trial, batches of {spec.batch_size}, "
+        f"max_concurrent {spec.max_concurrent})"
+    )
+    take_copy_seconds()  # only this run's copies
+    clock.skip()
+    grid, stopped = _fit(tuner, clock, concurrent, meter, cpus)
+
+    trials, history, lost = _trial_rows(spec, grid, out, exp_path)
+    errors = int((trials["status"] == "error").sum())
+    finished = int(trials["status"].isin(["done", "stopped", "invalid", "error"]).sum())
+    complete = finished >= spec.trials
+    meta = trials_meta(
+        spec, trials, command=command, threshold=threshold, limits=limits,
+        expert_safety=expert_safety, cost_limits=job.cost_limits, inputs=inputs,
+        exp_path=exp_path, complete=complete, lost=lost, provenance=provenance(),
+    )  # fmt: skip
+    write_table_atomic(out / "trials.parquet", trials, meta)
+    write_table_atomic(out / "history.parquet", history, meta)
+    winner = choose_winner(trials, spec.objective)
+    title = f"{spec.name}: {finished}/{spec.trials} trials"
+    axes = pareto_axes(spec)
+    plot_pareto(trials, threshold, out / "pareto.png", title=title, **axes)  # no verdict yet
+    clock.lap("trial_tables")
+    outcome = StudyOutcome(complete, trials, None, None, threshold, out, exp_path, errors)
+    if not complete or winner is None or stopped or not final_phase_too:
+        clock.close()
+        timing = write_timing(out, trials, meta)
+        return replace(outcome, stopped_by=stopped, timing=timing)
+
+    final, certificate, meta = _final_and_certificate(
+        spec, job, trials, grid, demos, meta, clock, title, threshold, progress
+    )
+    clock.close()
+    timing = write_timing(out, trials, meta)
+    write_json_atomic(out / FINISHED, _finished_record(spec), default=str)
+    return replace(outcome, winner=winner, final=final, timing=timing, certificate=certificate)
+
+
+# --- the plan: pure -----------------------------------------------------------------------------
+
+
+def constraint_bars(
+    spec: StudySpec, expert_safety: float, dim_safety: Mapping[str, float]
+) -> tuple[float, ConstraintBars]:
+    """The study's safety threshold (the expert's demonstrated safety mean unless the spec
+    sets one) and the bars every trial is held to."""
+    threshold = expert_safety if spec.threshold is None else float(spec.threshold)
+    limits = ConstraintBars(
+        threshold,
+        dim_safety,
+        spec.violation_tolerance,
+        spec.safety_constraint,
+        spec.violation_bound,
+        spec.violation_share_limit,
+        spec.deferred_share_limit if spec.handover is not None else 1.0,
+    )
+    return threshold, limits
+
+
+def run_identity(
+    spec: StudySpec, threshold: float, cost_limits: Sequence[float], inputs: dict[str, Any]
+) -> dict[str, Any]:
+    """What a resumed study must share with the run it resumes (:func:`_check_resume`)."""
+    return {
+        "trials": spec.trials,
+        "threshold": threshold,
+        "limits": list(cost_limits),
+        "batch_size": spec.batch_size,
+        "demos_digest": inputs["demos"]["digest"],
+    }
+
+
+def trials_meta(
+    spec: StudySpec,
+    trials: pd.DataFrame,
+    *,
+    command: str,
+    threshold: float,
+    limits: ConstraintBars,
+    expert_safety: float,
+    cost_limits: Sequence[float],
+    inputs: dict[str, Any],
+    exp_path: str,
+    complete: bool,
+    lost: list[str],
+    provenance: dict[str, Any],
+) -> dict[str, Any]:
+    """The metadata of the trial and history tables (and, extended, of every later table)."""
+    return {
+        "command": command,
+        "study": spec.summary(),
+        "threshold": threshold,
+        "dim_thresholds": dict(limits.dim_thresholds),
+        "violation_tolerance": spec.violation_tolerance,
+        "violation_bound": spec.violation_bound,
+        "violation_share_limit": spec.violation_share_limit,
+        "objective": spec.objective,
+        "safety_constraint": spec.safety_constraint,
+        "expert_demo_safety_mean": expert_safety,
+        "cost_limits": list(cost_limits),
+        "inputs": inputs,
+        "handover": None if spec.handover is None else spec.handover.to_dict(),
+        "deferred_share_limit": spec.deferred_share_limit if spec.handover is not None else None,
+        "seeds": {
+            "train_seed": spec.base.bc.train.seed,
+            "eval_seed": spec.eval_seed,
+            "eval_seeds": [int(x) for x in str(trials["eval_seeds"].iloc[0]).split(",")]
+            if len(trials) and trials["eval_seeds"].iloc[0]
+            else [],
+            "final_seed": spec.final_seed,
+            "certify_seed": spec.certify_seed if spec.certify_episodes else None,
+            "sampler_seed": spec.sampler_seed,
+        },
+        "experiment_path": exp_path,
+        "complete": complete,
+        "lost_trials": lost,
+        "provenance": provenance,
+    }
+
+
+# --- the run ------------------------------------------------------------------------------------
+
+
+def _prepare_outputs(spec: StudySpec, fresh: bool, verbose: bool) -> tuple[Path, str, str]:
+    """Tune's settings for this driver, the output folder checked writable (and emptied with
+    ``fresh``); ``(out, storage, experiment path)``."""
     os.environ.setdefault("TUNE_DISABLE_AUTO_CALLBACK_LOGGERS", "1")
     os.environ.setdefault("RAY_AIR_NEW_OUTPUT", "0")  # the terse status table of CLIReporter
     # SaveOnTrialEnd forces saves; Tune would call two within 5 s "excessive" and blame
@@ -681,59 +845,43 @@ def _run_study(
                      TIMING_LOG, "timing.md"):  # fmt: skip
             (out / name).unlink(missing_ok=True)
         shutil.rmtree(out / STORE, ignore_errors=True)
-    clock.skip()
-    ensure_ray()
-    clock.lap("ray_start")
-    cpus = cluster_cpus()
-    concurrent = spec.concurrency(cpus)  # how many at once, never which (nothing else reads it)
-    _reinstall_signals()  # ray.init replaced the SIGTERM handler
+    return out, storage, exp_path
+
+
+def _study_demos(spec: StudySpec, progress: bool) -> tuple[Path, Any, dict[str, Any]]:
+    """The study's demonstrations (collected when missing; another collection's set is
+    refused), checked against the study's env: ``(path, demonstrations, inputs record)``."""
+    from safe_bc.distributed.collect import ensure_demos
+
     demos_path = spec.demos.resolve()
-    expected = spec.collect or task_defaults(task_of(spec.env.env_id)).collect_config()
+    expected = spec.collect or CollectConfig.for_task(task_defaults(task_of(spec.env.env_id)))
     if not (demos_path / "dataset.json").exists():
         print(f"{spec.demos}: no demonstrations yet; collecting the set the study expects")
     ensure_demos(demos_path, expected, progress=progress)  # refuses another collection's set
     _check_env(spec, demos_path)
     demos = cached_demos(str(demos_path))
-    inputs = {"demos": dataset_record(demos_path)}
     for line in subset_warnings(spec, demos):
         print(f"warning: {line}")
-    clock.lap("demos")
-    expert_safety = demos.safety_mean
-    threshold = expert_safety if spec.threshold is None else float(spec.threshold)
-    limits = ConstraintBars(
-        threshold,
-        demos.dim_safety_means(),
-        spec.violation_tolerance,
-        spec.safety_constraint,
-        spec.violation_bound,
-        spec.violation_share_limit,
-        spec.deferred_share_limit if spec.handover is not None else 1.0,
-    )
-    validation = None
-    if spec.validation_demos is not None:
-        validation = spec.validation_demos.resolve()
-        _check_validation_demos(validation, demos_path)
-    job = TrialJob(
-        spec,
-        str(demos_path),
-        limits,
-        tuple(float(x) for x in demos.limits),
-        None if validation is None else str(validation),
-    )
+    return demos_path, demos, {"demos": dataset_record(demos_path)}
 
-    restoring = tune.Tuner.can_restore(exp_path)
-    if not restoring:  # a new experiment: rows of an older one do not belong to it
-        (out / HISTORY).unlink(missing_ok=True)
-        (out / FINISHED).unlink(missing_ok=True)
-    clock.open(new_experiment=not restoring)
-    identity = {
-        "trials": spec.trials,
-        "threshold": threshold,
-        "limits": list(job.cost_limits),
-        "batch_size": spec.batch_size,
-        "demos_digest": inputs["demos"]["digest"],
-    }
-    added = _check_resume(out, identity, restoring, exp_path)
+
+def _make_tuner(
+    spec: StudySpec,
+    job: TrialJob,
+    trial_fn: Callable[[dict[str, Any], TrialJob], None],
+    restoring: bool,
+    exp_path: str,
+    storage: str,
+    concurrent: int,
+    *,
+    progress: bool,
+    verbose: bool,
+    callbacks: Sequence[Any],
+    added: int = 0,
+) -> tuple[tune.Tuner, int]:
+    """The Tune run, restored from ``exp_path`` (with ``added`` more trials) or new, and how
+    many trials run at once (a restored run keeps the limit it started with)."""
+    out = spec.results / spec.name
     resources = tune.PlacementGroupFactory(
         [{"CPU": spec.cpus_per_trial}] + [{"CPU": spec.cpus_per_worker}] * spec.rollout_workers
     )
@@ -753,45 +901,44 @@ def _run_study(
         # Tune restores the concurrency limit the study started with (its ConcurrencyLimiter's
         # saved state), whatever the cluster is now
         concurrent = tuner._local_tuner._tune_config.max_concurrent_trials or concurrent
-    else:
-        tuner = tune.Tuner(
-            trainable,
-            tune_config=tune.TuneConfig(
-                search_alg=make_searcher(spec, concurrent),
-                scheduler=SaveOnTrialEnd(make_scheduler(spec)),
-                num_samples=spec.trials,
-                max_concurrent_trials=concurrent,
-                reuse_actors=True,
-                trial_dirname_creator=trial_dirname,
-            ),
-            run_config=tune.RunConfig(
-                name=spec.name,
-                storage_path=storage,
-                failure_config=tune.FailureConfig(max_failures=spec.max_failures),
-                # a trial's (only) checkpoint forces a save of the experiment state too, so a
-                # trial in flight when the driver dies resumes from it
-                checkpoint_config=tune.CheckpointConfig(num_to_keep=1),
-                callbacks=[
-                    JsonLoggerCallback(),
-                    CSVLoggerCallback(),
-                    TBXLoggerCallback(),  # every report of a trial, per round, in TensorBoard
-                    HistoryRecorder(str((out / HISTORY).resolve())),
-                    RunningMeter(),
-                    *([TrialLines(spec.trials)] if progress and not verbose else []),
-                    *callbacks,
-                ],
-                progress_reporter=progress_reporter(spec) if verbose else None,
-                verbose=1 if progress and verbose else 0,
-            ),
-        )
-    meter = _running_meter(tuner)
-    print(
-        f"study {spec.name!r}: up to {concurrent} trial(s) at once ({cpus:g} CPUs, "
-        f"{spec.trial_cpus:g} per trial, batches of {spec.batch_size}, "
-        f"max_concurrent {spec.max_concurrent})"
+        return tuner, concurrent
+    tuner = tune.Tuner(
+        trainable,
+        tune_config=tune.TuneConfig(
+            search_alg=make_searcher(spec, concurrent),
+            scheduler=SaveOnTrialEnd(make_scheduler(spec)),
+            num_samples=spec.trials,
+            max_concurrent_trials=concurrent,
+            reuse_actors=True,
+            trial_dirname_creator=trial_dirname,
+        ),
+        run_config=tune.RunConfig(
+            name=spec.name,
+            storage_path=storage,
+            failure_config=tune.FailureConfig(max_failures=spec.max_failures),
+            # a trial's (only) checkpoint forces a save of the experiment state too, so a
+            # trial in flight when the driver dies resumes from it
+            checkpoint_config=tune.CheckpointConfig(num_to_keep=1),
+            callbacks=[
+                JsonLoggerCallback(),
+                CSVLoggerCallback(),
+                TBXLoggerCallback(),  # every report of a trial, per round, in TensorBoard
+                HistoryRecorder(str((out / HISTORY).resolve())),
+                RunningMeter(),
+                *([TrialLines(spec.trials)] if progress and not verbose else []),
+                *callbacks,
+            ],
+            progress_reporter=progress_reporter(spec) if verbose else None,
+            verbose=1 if progress and verbose else 0,
+        ),
     )
-    take_copy_seconds()  # only this run's copies
-    clock.skip()
+    return tuner, concurrent
+
+
+def _fit(
+    tuner: tune.Tuner, clock: StudyClock, concurrent: int, meter: RunningMeter, cpus: float
+) -> tuple[Any, Any]:
+    """Tune's run, timed (also when it fails): ``(result grid, the stop it ended on)``."""
 
     def timed_tuning() -> None:
         clock.lap("tuning", slots=int(concurrent), running=meter.most, cpus=cpus)
@@ -809,65 +956,24 @@ def _run_study(
             raise
         raise os_error from None
     timed_tuning()
-    stopped = _fit_stopped()
+    return grid, _fit_stopped()
 
-    trials = trial_table(_records(grid, spec.params), spec.params)
-    history, lost = _study_history(read_history(out / HISTORY), trials)
-    if lost:
-        print(
-            f"{len(lost)} trial(s) were lost with a killed driver (the restored experiment does "
-            f"not know them and ran others instead; their reports stay in {HISTORY} only): "
-            + ", ".join(lost)
-        )
-    orphans = _remove_orphan_trial_dirs(exp_path, set(trials["trial_id"]))
-    if orphans:
-        print(f"removed the folders of {len(orphans)} such trial(s) from {exp_path}")
-    errors = int((trials["status"] == "error").sum())
-    finished = int(trials["status"].isin(["done", "stopped", "invalid", "error"]).sum())
-    complete = finished >= spec.trials
-    meta = {
-        "command": command,
-        "study": spec.summary(),
-        "threshold": threshold,
-        "dim_thresholds": dict(limits.dim_thresholds),
-        "violation_tolerance": spec.violation_tolerance,
-        "violation_bound": spec.violation_bound,
-        "violation_share_limit": spec.violation_share_limit,
-        "objective": spec.objective,
-        "safety_constraint": spec.safety_constraint,
-        "expert_demo_safety_mean": expert_safety,
-        "cost_limits": list(job.cost_limits),
-        "inputs": inputs,
-        "handover": None if spec.handover is None else spec.handover.to_dict(),
-        "deferred_share_limit": spec.deferred_share_limit if spec.handover is not None else None,
-        "seeds": {
-            "train_seed": spec.base.bc.train.seed,
-            "eval_seed": spec.eval_seed,
-            "eval_seeds": [int(x) for x in str(trials["eval_seeds"].iloc[0]).split(",")]
-            if len(trials) and trials["eval_seeds"].iloc[0]
-            else [],
-            "final_seed": spec.final_seed,
-            "certify_seed": spec.certify_seed if spec.certify_episodes else None,
-            "sampler_seed": spec.sampler_seed,
-        },
-        "experiment_path": exp_path,
-        "complete": complete,
-        "lost_trials": lost,
-        "provenance": provenance(),
-    }
-    write_table_atomic(out / "trials.parquet", trials, meta)
-    write_table_atomic(out / "history.parquet", history, meta)
-    winner = choose_winner(trials, spec.objective)
-    title = f"{spec.name}: {finished}/{spec.trials} trials"
-    axes = {"objective": spec.objective, "safety_label": safety_axis_label(spec.env.env_id)}
-    plot_pareto(trials, threshold, out / "pareto.png", title=title, **axes)  # no verdict yet
-    clock.lap("trial_tables")
-    outcome = StudyOutcome(complete, trials, None, None, threshold, out, exp_path, errors)
-    if not complete or winner is None or stopped or not final_phase_too:
-        clock.close()
-        timing = write_timing(out, trials, meta)
-        return replace(outcome, stopped_by=stopped, timing=timing)
 
+def _final_and_certificate(
+    spec: StudySpec,
+    job: TrialJob,
+    trials: pd.DataFrame,
+    grid: Any,
+    demos: Any,
+    meta: dict[str, Any],
+    clock: StudyClock,
+    title: str,
+    threshold: float,
+    progress: bool,
+) -> tuple[FinalOutcome, Any, dict[str, Any]]:
+    """The final phase on the candidates, its tables and plot, then the winner's certificate
+    and recommender: ``(final outcome, certificate, meta with the final phase's seconds)``."""
+    out = spec.results / spec.name
     candidates = choose_candidates(trials, spec.final_candidates, spec.objective)
     checkpoints = _checkpoints(grid, list(candidates["trial_id"]))
     clock.lap("final_checkpoints")
@@ -891,15 +997,34 @@ def _run_study(
         candidates=list(candidates["trial_id"]),
         title=f"{title}; final phase: "
         + (f"winner {final.winner}" if final.feasible else "no candidate feasible"),
-        **axes,
+        **pareto_axes(spec),
     )
     clock.lap("final_tables")
     certificate = deliver(spec, job, final, meta, store, progress=progress)
     clock.lap("certification")
-    clock.close()
-    timing = write_timing(out, trials, meta)
-    write_json_atomic(out / FINISHED, _finished_record(spec), default=str)
-    return replace(outcome, winner=winner, final=final, timing=timing, certificate=certificate)
+    return final, certificate, meta
+
+
+# --- the report ---------------------------------------------------------------------------------
+
+
+def _trial_rows(
+    spec: StudySpec, grid: Any, out: Path, exp_path: str
+) -> tuple[pd.DataFrame, pd.DataFrame, list[str]]:
+    """The trial table and the report history from Tune's results, the trials a killed driver
+    lost named and their folders removed: ``(trials, history, lost trial ids)``."""
+    trials = trial_table(_records(grid, spec.params), spec.params)
+    history, lost = _study_history(read_history(out / HISTORY), trials)
+    if lost:
+        print(
+            f"{len(lost)} trial(s) were lost with a killed driver (the restored experiment does "
+            f"not know them and ran others instead; their reports stay in {HISTORY} only): "
+            + ", ".join(lost)
+        )
+    orphans = _remove_orphan_trial_dirs(exp_path, set(trials["trial_id"]))
+    if orphans:
+        print(f"removed the folders of {len(orphans)} such trial(s) from {exp_path}")
+    return trials, history, lost
 
 
 RECOMMENDER_DIR = "recommender"
@@ -1107,6 +1232,12 @@ def safety_axis_label(env_id: str) -> str:
     drawing = task_defaults(task_of(env_id)).drawing
     what = drawing.closest if drawing is not None else "distance to the limit, cost units"
     return f"safety mean ({what}, higher is safer)"
+
+
+def pareto_axes(spec: StudySpec) -> dict[str, str]:
+    """``pareto.png``'s axes: the study's objective against the safety mean in the task's
+    words."""
+    return {"objective": spec.objective, "safety_label": safety_axis_label(spec.env.env_id)}
 
 
 def _checkpoints(grid: Any, trial_ids: Sequence[str]) -> dict[str, BCNet]:

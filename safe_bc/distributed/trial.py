@@ -43,6 +43,7 @@ from safe_bc.data.store import (
 from safe_bc.demos import Demonstrations
 from safe_bc.distributed.console import quiet_logs
 from safe_bc.distributed.evaluate import evaluate_policies
+from safe_bc.distributed.rollouts import ChunkedRayRollouts
 from safe_bc.distributed.search import ROUND, SCORE, SCREENED, screen_score
 from safe_bc.evaluation import EvalConfig, NetSource
 from safe_bc.experiment import RunConfig, save_curve, train_run
@@ -346,6 +347,12 @@ def with_seed(cfg: RunConfig, seed: int) -> RunConfig:
     return dataclasses.replace(cfg, bc=dataclasses.replace(cfg.bc, train=train))
 
 
+def _report_invalid(metrics: dict[str, Any], error: str, start: float) -> None:
+    """Report a trial whose configuration cannot be trained (no retry)."""
+    metrics.update(phase="invalid", error=error, duration_s=time.perf_counter() - start)
+    tune.report(metrics)
+
+
 def run_trial(config: dict[str, Any], job: TrialJob) -> None:
     """One trial: train every training seed (or resume from its checkpoint), report, evaluate
     in rounds (every seed on the same tracks), report."""
@@ -377,17 +384,10 @@ def run_trial(config: dict[str, Any], job: TrialJob) -> None:
                     action_bounds=bounds_for(job.demos), validation=validation_demos(job),
                 )  # fmt: skip
             except SelectionError as e:  # a configuration the data cannot support: no retry
-                metrics.update(
-                    phase="invalid", error=str(e), duration_s=time.perf_counter() - start
-                )
-                tune.report(metrics)
+                _report_invalid(metrics, str(e), start)
                 return
             if not math.isfinite(result.final_loss):  # diverged: nothing to evaluate, no retry
-                metrics.update(
-                    phase="invalid", error=f"training diverged (loss {result.final_loss})"
-                )
-                metrics.update(duration_s=time.perf_counter() - start)
-                tune.report(metrics)
+                _report_invalid(metrics, f"training diverged (loss {result.final_loss})", start)
                 return
             if s == seeds[0]:
                 first_selection = selection
@@ -423,7 +423,7 @@ def run_trial(config: dict[str, Any], job: TrialJob) -> None:
             folder = trial_folder() / (name if j == 0 else f"{name}_seed_{s}")
             agents[j], values = run_stage(
                 spec.stage_config(name, params, seed=s), agents[j], with_seed(run_cfg, s),
-                job.demos, spec.env.env_id, folder,
+                job.demos, spec.env.env_id, folder, parallel=ChunkedRayRollouts,
             )  # fmt: skip
             sources[j] = agents[j]
             per_seed.append(values)

@@ -19,8 +19,11 @@ def run_stage(
     demos: str,
     env_id: str,
     folder: Path,
+    *,
+    parallel: Any = None,
 ) -> tuple[Any, dict[str, float]]:
-    """The improved agent of ``agent`` (a trained :class:`BCNet`) and its report values."""
+    """The improved agent of ``agent`` (a trained :class:`BCNet`) and its report values
+    (``parallel`` is unused: the stage's rollout envs run in this process)."""
     if not isinstance(agent, BCNet):
         raise TypeError(f"the improvement stage starts from a trained BCNet, got {type(agent)}")
     source, result = improve_from_net(

@@ -1,4 +1,5 @@
-"""The figure of issue 35's measurements: ``python -m safe_bc.queries.figure OUT DIR [DIR ...]``
+"""The figure of the query and deferral measurements (:mod:`safe_bc.queries.measure`):
+``python -m safe_bc.queries.figure OUT DIR [DIR ...]``
 draws every ``DIR`` (a ``safe_bc.queries.measure`` output folder: its ``summary.parquet`` and
 its committed episode tables) as one testbed row of :func:`safe_bc.plots.plot_queries`, on the
 fresh tracks (patients), into ``OUT`` (PNG)."""

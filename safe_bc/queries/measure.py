@@ -1,6 +1,7 @@
-"""The comparison of issue 35, without Ray: plain BC, full DAgger at the same number of
-queries, critical-zone queries and deferral, on selection tracks then fresh tracks (CarRacing)
-or selection and fresh patients (``--task rehab``: the guideline clinician is the expert).
+"""Critical-zone queries and deferral measured without Ray: plain BC, full DAgger at the same
+number of queries, critical-zone queries and deferral, on selection tracks then fresh tracks
+(CarRacing) or selection and fresh patients (``--task rehab``: the guideline clinician is the
+expert).
 
 Run: ``SDL_VIDEODRIVER=dummy python -m safe_bc.queries.measure --out DIR --processes 16``
 (``--task rehab --out DIR`` for the clinic).
@@ -122,14 +123,14 @@ def _episode(args: tuple[Any, Any, int, np.ndarray, float, int | None]) -> dict[
 
 def ensure_demos(root: Path, pool: Any, task: str = "carracing") -> None:
     """``task``'s default demonstrations at ``root`` (collected in the pool when missing)."""
-    from safe_bc.collection import config_dict, env_facts
+    from safe_bc.collection import CollectConfig, config_dict, env_facts
     from safe_bc.data.store import DatasetMeta, init_dataset, write_episode
     from safe_bc.provenance import provenance
     from safe_bc.tasks import frames_renderer, task_defaults
 
     if (root / "dataset.json").is_file():
         return
-    cfg = task_defaults(task).collect_config()
+    cfg = CollectConfig.for_task(task_defaults(task))
     shape, dims, bounds = env_facts(cfg)
     meta = init_dataset(
         root,

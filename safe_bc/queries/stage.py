@@ -5,12 +5,15 @@ from __future__ import annotations
 
 from dataclasses import fields
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from safe_bc.bc.net import BCNet
 from safe_bc.queries.config import QueryConfig
 from safe_bc.queries.run import QueryResult, run_queries
 from safe_bc.run_config import RunConfig
+
+if TYPE_CHECKING:
+    from safe_bc.rounds import Parallel
 
 
 def expert_for(demos: str | Path, env_id: str) -> Any:
@@ -34,18 +37,20 @@ def query_run(
     demos: str | Path,
     env_id: str,
     folder: str | Path,
+    *,
+    parallel: Parallel | None = None,
     **kwargs: Any,
 ) -> QueryResult:
     """:func:`run_queries` with the task's env, the demonstrations' expert and action bounds,
-    rolled out on ``config.workers`` Ray actors (0: in this process)."""
+    rolled out on ``config.workers`` workers by ``parallel`` (0: in this process)."""
     from safe_bc.data.store import load_demonstrations
     from safe_bc.tasks import dataset_action_bounds, task_defaults, task_of
 
     if config.workers > 0 and "rollouts" not in kwargs:
-        from safe_bc.distributed.rollouts import ChunkedRayRollouts
         from safe_bc.queries.rollout import query_tracks
+        from safe_bc.rounds import spread
 
-        kwargs["rollouts"] = ChunkedRayRollouts(query_tracks, config.workers)
+        kwargs["rollouts"] = spread(query_tracks, config.workers, parallel)
     data = load_demonstrations(Path(demos))
     env = task_defaults(task_of(env_id)).env
     return run_queries(
@@ -69,14 +74,17 @@ def run_stage(
     demos: str,
     env_id: str,
     folder: Path,
+    *,
+    parallel: Parallel | None = None,
 ) -> tuple[Any, dict[str, float]]:
-    """The last round's agent of ``agent`` (a trained :class:`BCNet`) and its report values."""
+    """The last round's agent of ``agent`` (a trained :class:`BCNet`) and its report values
+    (``parallel``: how ``config.workers`` > 0 workers run the rollouts)."""
     from safe_bc.evaluation import NetSource
     from safe_bc.rounds import policy_source
 
     if not isinstance(agent, BCNet):
         raise TypeError(f"the query stage starts from a trained BCNet, got {type(agent)}")
-    result = query_run(config, agent, run_config, demos, env_id, folder)
+    result = query_run(config, agent, run_config, demos, env_id, folder, parallel=parallel)
     source: NetSource = policy_source(result.policy)
     return source, {
         "queries_total": float(result.total_queries),
@@ -91,6 +99,8 @@ def query_checkpoint(
     out: str | Path,
     config: QueryConfig,
     progress: bool = False,
+    *,
+    parallel: Parallel | None = None,
 ) -> QueryResult:
     """``safe-bc query``: :func:`query_run` from a ``safe-bc train`` checkpoint (its selection
     config from its ``selection.parquet`` summary, its env from its ``extra``); ``progress``:
@@ -110,4 +120,7 @@ def query_checkpoint(
             bar.n = int(summary["round"]) + 1  # resumed rounds count as done
             bar.set_postfix(queries=int(summary["queries"]))
 
-        return query_run(config, model, run_config, demos, extra["env_id"], out, on_round=show)
+        return query_run(
+            config, model, run_config, demos, extra["env_id"], out, on_round=show,
+            parallel=parallel,
+        )  # fmt: skip

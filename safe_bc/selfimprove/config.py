@@ -32,7 +32,7 @@ LOOP_PUSHES: dict[str, tuple[str, ...]] = {
     "rehab": ("0+0.05", "0-0.05", "1+0.05", "1-0.05"),
 }
 """The pushes the selection tables started from (their ``defaults`` rows). CarRacing: gas
-+0.03 / +0.05, brake x0.9 / x0.8 / x0.5 (the user's measured loop, issue 31); rehab:
++0.03 / +0.05, brake x0.9 / x0.8 / x0.5 (the loop a user measured by hand); rehab:
 intensity and duration +-0.05."""
 
 TASK_DEFAULTS: dict[str, dict[str, Any]] = {

@@ -181,6 +181,43 @@ def _expert_side(
     return stored_expert_config(Path(demos_path)), config.handover, dims
 
 
+def round_summary(
+    r: int,
+    tracks: Sequence[TrackResult],
+    mine: Sequence[KeptPiece],
+    selection: Any,
+    config: SelfImproveConfig,
+) -> tuple[dict[str, Any], dict[str, Any]]:
+    """What round ``r``'s rollouts and training data were (its ``done.json`` before the
+    validation), and the values of the options it ran with (the expert's mean reward where
+    it was the bar, the pushed runs' deferred share under a handover)."""
+    pushed = np.asarray([t.push_beyond for t in tracks])
+    steps = sum(t.reference_steps + sum(t.push_steps) + t.expert_steps for t in tracks)
+    rollout = {
+        "round": r,
+        "tracks": len(tracks),
+        "pushed_episodes": int(pushed.size),
+        "pushed_episodes_beyond": int((pushed > 0).sum()),
+        "reference_episodes_beyond": int(sum(t.reference_beyond > 0 for t in tracks)),
+        "reference_reward_mean": float(np.mean([t.reference_reward for t in tracks])),
+        "pushed_reward_mean": float(np.mean([t.push_rewards for t in tracks])),
+        "pushed_violation_steps_mean": float(pushed.mean()),
+        "env_steps": int(steps),
+        "kept_pieces": len(mine),
+        "kept_steps": int(sum(int(p.trained.sum()) for p in mine)),
+        "train_rows": int(selection.n_valid),
+        "critical_rows": int(selection.n_critical),
+    }
+    extras: dict[str, Any] = {}
+    if config.keep_against == "expert":
+        extras["expert_reward_mean"] = float(np.mean([t.expert_reward for t in tracks]))
+    if config.handover is not None:
+        pushed_steps = sum(sum(t.push_steps) for t in tracks)
+        deferred = sum(sum(t.push_deferred) for t in tracks)
+        extras["pushed_deferred_share"] = float(deferred / max(pushed_steps, 1))
+    return rollout, extras
+
+
 def validation_seeds(n: int) -> list[int]:
     """The keep rule's validation tracks: the improvement stage's (``VALIDATION_SEED_BASE - k``),
     disjoint from training and held-out evaluation tracks."""
@@ -347,36 +384,17 @@ def run_selfimprove(
             val["validation_beyond"], config.validation_episodes, val["validation_reward"],
             reward_now, config.beyond_limit,
         )  # fmt: skip
-        pushed = np.asarray([t.push_beyond for t in tracks])
-        steps = sum(t.reference_steps + sum(t.push_steps) + t.expert_steps for t in tracks)
+        rollout, extras = round_summary(r, tracks, mine, selection, config)
         summary = {
-            "round": r,
-            "tracks": len(tracks),
-            "pushed_episodes": int(pushed.size),
-            "pushed_episodes_beyond": int((pushed > 0).sum()),
-            "reference_episodes_beyond": int(sum(t.reference_beyond > 0 for t in tracks)),
-            "reference_reward_mean": float(np.mean([t.reference_reward for t in tracks])),
-            "pushed_reward_mean": float(np.mean([t.push_rewards for t in tracks])),
-            "pushed_violation_steps_mean": float(pushed.mean()),
-            "env_steps": int(steps),
-            "kept_pieces": len(mine),
-            "kept_steps": int(sum(int(p.trained.sum()) for p in mine)),
-            "train_rows": int(selection.n_valid),
-            "critical_rows": int(selection.n_critical),
+            **rollout,
             **val,
             "previous_validation_reward": reward_now,
             "validation_beyond_upper": bound,
             "accepted": accepted,
             "rollout_seconds": t_roll,
             "seconds": time.perf_counter() - t0,
+            **extras,
         }
-        if config.keep_against == "expert":
-            summary["expert_reward_mean"] = float(np.mean([t.expert_reward for t in tracks]))
-        if config.handover is not None:
-            summary["pushed_deferred_share"] = float(
-                sum(sum(t.push_deferred) for t in tracks)
-                / max(sum(sum(t.push_steps) for t in tracks), 1)
-            )
         if accepted:
             agent, agent_name, reward_now = source, round_dir(r), val["validation_reward"]
             if frames_on_disk:  # the frames stay in this round's file

@@ -5,12 +5,15 @@ round), and ``safe-bc improve --method selfimitation`` from a checkpoint."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from safe_bc.bc.net import BCNet
 from safe_bc.run_config import RunConfig
 from safe_bc.selfimprove.config import SelfImproveConfig
 from safe_bc.selfimprove.run import SelfImproveResult, run_selfimprove
+
+if TYPE_CHECKING:
+    from safe_bc.rounds import Parallel
 
 
 def selfimprove_run(
@@ -20,19 +23,22 @@ def selfimprove_run(
     demos: str | Path,
     env_id: str,
     folder: str | Path,
+    *,
+    parallel: Parallel | None = None,
     **kwargs: Any,
 ) -> SelfImproveResult:
     """:func:`run_selfimprove` with the task's env, the task's values for the fields
     ``config`` leaves at ``None`` (:meth:`SelfImproveConfig.for_task`) and the demonstrations'
-    action bounds, rolled out on ``config.workers`` Ray actors (0: in this process)."""
+    action bounds, rolled out on ``config.workers`` workers by ``parallel`` (0: in this
+    process)."""
     from safe_bc.data.store import load_demonstrations
     from safe_bc.tasks import dataset_action_bounds, task_defaults, task_of
 
     if config.workers > 0 and "rollouts" not in kwargs:
-        from safe_bc.distributed.rollouts import ChunkedRayRollouts
+        from safe_bc.rounds import spread
         from safe_bc.selfimprove.rollout import local_rollouts
 
-        kwargs["rollouts"] = ChunkedRayRollouts(local_rollouts, config.workers)
+        kwargs["rollouts"] = spread(local_rollouts, config.workers, parallel)
     task = task_of(env_id)
     return run_selfimprove(
         agent,
@@ -54,13 +60,16 @@ def run_stage(
     demos: str,
     env_id: str,
     folder: Path,
+    *,
+    parallel: Parallel | None = None,
 ) -> tuple[Any, dict[str, float]]:
-    """The final agent of ``agent`` (a trained :class:`BCNet`) and its report values."""
+    """The final agent of ``agent`` (a trained :class:`BCNet`) and its report values
+    (``parallel``: how ``config.workers`` > 0 workers run the rollouts)."""
     from safe_bc.rounds import policy_source
 
     if not isinstance(agent, BCNet):
         raise TypeError(f"the self-imitation stage starts from a trained BCNet, got {type(agent)}")
-    result = selfimprove_run(config, agent, run_config, demos, env_id, folder)
+    result = selfimprove_run(config, agent, run_config, demos, env_id, folder, parallel=parallel)
     return policy_source(result.policy), {
         "selfimprove_accepted_rounds": float(result.accepted_rounds),
         "selfimprove_kept_steps": float(result.kept_steps),
@@ -74,6 +83,8 @@ def selfimprove_checkpoint(
     out: str | Path,
     config: SelfImproveConfig,
     progress: bool = False,
+    *,
+    parallel: Parallel | None = None,
 ) -> SelfImproveResult:
     """``safe-bc improve --method selfimitation``: :func:`selfimprove_run` from a
     ``safe-bc train`` checkpoint (its selection config from its ``selection.parquet``
@@ -101,4 +112,7 @@ def selfimprove_checkpoint(
                 kept=int(summary["kept_steps"]),
             )
 
-        return selfimprove_run(config, model, run_config, data, extra["env_id"], out, on_round=show)
+        return selfimprove_run(
+            config, model, run_config, data, extra["env_id"], out, on_round=show,
+            parallel=parallel,
+        )  # fmt: skip

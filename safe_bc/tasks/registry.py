@@ -172,20 +172,6 @@ class TaskSpec:
         """The task's expert config type."""
         return type(self.expert)
 
-    def collect_config(self, **overrides: Any) -> Any:
-        """The task's default demonstration collection; ``overrides`` set other fields
-        (``episodes``, ``workers``, ``seed``, ``max_steps``, ``encoding``)."""
-        from safe_bc.collection import CollectConfig
-
-        fields = {
-            "episodes": self.episodes,
-            "env": self.env,
-            "expert": self.expert,
-            "perturbation": self.perturbation,
-            "encoding": self.encoding,
-        }
-        return CollectConfig(**{**fields, **overrides})
-
 
 TaskDefaults = TaskSpec
 """The former name of :class:`TaskSpec`."""

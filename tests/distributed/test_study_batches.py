@@ -138,12 +138,13 @@ def _table(out: Path) -> pd.DataFrame:
 STUDY_FILE = """from dataclasses import replace
 from pathlib import Path
 
+from safe_bc.collection import CollectConfig
 from safe_bc.study import load_study
 from safe_bc.tasks import task_defaults
 
 STUDY = replace(
     load_study({rehab!r}), demos=Path({demos!r}), trials=8, batch_size=4, batches=20,
-    collect=task_defaults("rehab").collect_config(episodes=8, workers=1),
+    collect=CollectConfig.for_task(task_defaults("rehab"), episodes=8, workers=1),
     eval_episodes=3, screen_episodes=1, startup_trials=2, final_episodes=1,
     final_candidates=1, final_train_seeds=1,
 )

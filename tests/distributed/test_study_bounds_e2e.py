@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 import torch
 
+from safe_bc.collection import CollectConfig
 from safe_bc.metrics import clopper_pearson_upper
 from safe_bc.study import load_study
 from safe_bc.tasks import task_defaults
@@ -29,7 +30,7 @@ def test_bound_constraints_and_two_seed_objective_end_to_end(
     spec = replace(
         load_study(REPO / "tune_jobs" / "rehab.py"),
         demos=rehab_demos,
-        collect=task_defaults("rehab").collect_config(episodes=8, workers=1),
+        collect=CollectConfig.for_task(task_defaults("rehab"), episodes=8, workers=1),
         storage=str(tmp_path / "ray"),
         results=tmp_path / "results",
         trials=2,

@@ -200,7 +200,7 @@ def test_sigkilled_driver_loses_at_most_the_trials_in_flight(
         )  # fmt: skip
         try:
             deadline = time.monotonic() + 400
-            # as in issue 32 (item 3): the kill once two trials have logged "evaluated" (a
+            # the kill once two trials have logged "evaluated" (a
             # trial's end may not be saved yet: it runs again, from its stored rounds)
             while len(_evaluated(rows := _history_rows(out / "history.jsonl"))) < 2:
                 assert driver.poll() is None, log.read_text()[-3000:]
@@ -228,7 +228,7 @@ def test_sigkilled_driver_loses_at_most_the_trials_in_flight(
         want = ["trained", "screened"] + (["evaluated"] if status[tid] == "done" else [])
         assert phases[tid] == want, (tid, phases[tid])
     # no trial Tune knows trained twice (a trained trial resumes from its checkpoint), and none
-    # has a round twice (a restarted trial reports its stored rounds: issue 32, item 3)
+    # has a round twice (a restarted trial reports its stored rounds)
     assert all(p.count("trained") == 1 for p in phases.values()), phases
     assert all(len(p) == len(set(p)) for p in phases.values()), phases
     # trials.parquet and history.parquet agree: the same trials, each trial's last report

@@ -1,5 +1,6 @@
 """The deferral designs' summary: the committed ``defer_designs.md`` re-derives from the
-committed fresh-track tables, and the goal column follows issue 35's goal."""
+committed fresh-track tables, and the goal column follows the deferral goal
+(``scripts.defer_designs.GOAL_BOUND``, ``GOAL_BURDEN``)."""
 
 from __future__ import annotations
 

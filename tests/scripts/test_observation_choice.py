@@ -216,7 +216,7 @@ def test_evaluation_path_steering_metrics_match_the_committed_episodes() -> None
 
 
 def test_the_batch_table_rederives_and_keeps_the_default_batch() -> None:
-    """``results/ablation/batch`` (issue 33 item 3: is batch 32 a free cheaper trial?) from
+    """``results/ablation/batch`` (is batch 32 a free cheaper trial?) from
     its committed runner episodes through the analysis; batch 32 lost reward reliably, so the
     default stays 64."""
     from safe_bc.bc.config import TrainConfig

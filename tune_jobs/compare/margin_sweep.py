@@ -70,8 +70,8 @@ selection programme beyond d_s on seed 0."""
 TESTED: list[str] = ["lag_m0.02", "lag_m0.1", "both_m0.05_eps0.1"]
 """Candidates evaluated on the test patients, in order (all reported): ``lag_m0.02`` is the
 earlier default, whose test result was published before this sweep; ``lag_m0.1`` was the
-sweep's choice at its first run (db54bdb, two-level bootstrap); ``both_m0.05_eps0.1`` is the
-choice of its rerun at 5de7611 (the highest 3-seed selection gain among the candidates with no
+sweep's choice at its first run (two-level bootstrap); ``both_m0.05_eps0.1`` is the
+choice of its rerun (the highest 3-seed selection gain among the candidates with no
 selection programme beyond ``d_s``: the only one left; ``lag_m0.1`` let 1 of 1536 cross)."""
 SELECT_OFFSET = 1024
 """Selection patients start at validation index 1024 (keep patients use at most 512)."""

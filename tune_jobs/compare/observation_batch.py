@@ -2,7 +2,7 @@
 batches of 64 (the default, ``results/ablation/budget/``) and of 32, 3 training seeds, the
 observation ablation's 20 selection tracks (block 10), raster frames.
 
-Why (issue 33 item 3): a training step at batch 32 costs about 0.6x one at batch 64
+Why: a training step at batch 32 costs about 0.6x one at batch 64
 (``results/checks/make_tune/floor.md``), and the default study searches both; `make tune` can
 reach half its old wall-clock within the study's requirements only if its trials train
 cheaper. This table says what the cheaper batch costs in outcomes before the study drops the

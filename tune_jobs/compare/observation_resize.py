@@ -1,7 +1,7 @@
 """Frame size for the chosen observation (``bar-nosteer_rgb_k1``): plain BC on the full 96x96
 frame (the default), resized to 64x64 and to 48x48 (area interpolation), 3 training seeds, the
 observation ablation's 20 selection tracks (block 10). A smaller frame is the lever for
-training cost (issue 33, item 3: a single-thread training step on 64x64 frames took about half
+training cost (a single-thread training step on 64x64 frames took about half
 the time of 96x96 in an indicative measurement); this table says what it costs in outcomes.
 
 Run: ``safe-bc compare tune_jobs/compare/observation_resize.py``, then ``python -m

@@ -1,4 +1,4 @@
-"""Issue 31, item 3 on CarRacing: self-imitation against the PPO-Lagrangian stage, the start and
+"""Self-imitation on CarRacing against the PPO-Lagrangian stage, the start and
 the expert at equal env-step budgets, on fresh tracks.
 
 Rows: the expert; the safety-imitation start (BC with alpha 0.1 on T_eps, as in

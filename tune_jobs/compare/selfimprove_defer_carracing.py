@@ -1,4 +1,4 @@
-"""Issues 31 and 35 combined on CarRacing, the fresh tracks: each improved agent of
+"""The improved agents with deferral on CarRacing's fresh tracks: each improved agent of
 ``selfimprove_carracing.py`` with deferral to the expert at the width its selection table
 chose, beside the expert, the start and the agents alone, paired with the expert.
 

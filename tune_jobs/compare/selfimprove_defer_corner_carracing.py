@@ -1,4 +1,4 @@
-"""Issue 35: the handover that lasts through the corner on fresh tracks, at the (width, hold,
+"""The handover that lasts through the corner on fresh tracks, at the (width, hold,
 lookahead) the selection chose: the self-imitation agent of ``selfimprove_carracing.py``
 beside the expert and the start, paired with the expert.
 

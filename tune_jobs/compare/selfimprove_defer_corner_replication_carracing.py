@@ -1,4 +1,4 @@
-"""Issue 35: the corner handover again on a second fresh block, a replication of
+"""The corner handover again on a second fresh block, a replication of
 ``selfimprove_defer_corner_carracing.py`` (block 22, 0 of 150 beyond d_s) with nothing
 changed but the tracks: the same row (the rule's choice on the selection tracks), 3 training
 seeds x 50 fresh tracks of held-out seed block 23, which no other table uses. Decided after

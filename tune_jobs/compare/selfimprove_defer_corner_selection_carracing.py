@@ -1,4 +1,4 @@
-"""Issue 35: a handover that lasts through the corner, on the 3 x 150 selection tracks of
+"""A handover that lasts through the corner, on the 3 x 150 selection tracks of
 block 18.
 
 Why: the cheaper trend handover (2 px, 6 steps ahead, no hold) crossed d_s in 1 of 150 fresh

@@ -1,4 +1,4 @@
-"""Issue 35: deferral whose handover lasts, on the 3 x 150 selection tracks of block 18.
+"""Deferral whose handover lasts, on the 3 x 150 selection tracks of block 18.
 
 Why: on these tracks (``selfimprove_defer_selection_wide_carracing.py``) deferral within 2,
 2.5 and 3 px of d_s left 4, 2 and 3 of 450 episodes beyond d_s, on two tracks: the expert
@@ -9,8 +9,9 @@ step in the zone (``Method.defer_hold``, :class:`safe_bc.queries.defer.Deferring
 Rows: the expert, the start, the self-imitation agent (as in the wide selection file) and
 self-imitation with deferral at each (width, hold) of :data:`GRID`. The rule, fixed before
 this table was run: among the rows with no selection episode beyond d_s and a mean deferred
-share below 5% (issue 35's burden), the smallest deferred share; without one, no fresh-track
-row. No row met it, so no fresh-track file was run for this grid (docs/queries.md).
+share below 5% (the burden deferral may put on the expert), the smallest deferred share;
+without one, no fresh-track row. No row met it, so no fresh-track file was run for this grid
+(docs/queries.md).
 
 Shares ``selfimprove_carracing.py``'s runs (``runs="compare"``; nothing is trained). Run:
 ``safe-bc compare tune_jobs/compare/selfimprove_defer_hold_selection_carracing.py``. Writes

@@ -1,4 +1,4 @@
-"""Issue 35: deferral on the cost's trend on fresh tracks, at the (width, hold, lookahead) the
+"""Deferral on the cost's trend on fresh tracks, at the (width, hold, lookahead) the
 selection chose: the self-imitation agent of ``selfimprove_carracing.py`` beside the expert and
 the start, paired with the expert.
 
@@ -10,7 +10,8 @@ episode beyond d_s and a mean deferred share below 5%, the smallest share). No r
 (zero crossings came only with 17% of steps deferred or more), so this file evaluates,
 labelled as such, the row a relaxed rule picks, written after the selection table: the same
 rule without the burden bound (:data:`RELAXED`). It measures whether zero crossings carry to
-fresh tracks; it cannot meet issue 35's goal, whose burden bound it drops.
+fresh tracks; it cannot meet the deferral goal (0 of 150 beyond d_s with under 5% of
+steps deferred), whose burden bound it drops.
 
 3 training seeds x 50 fresh tracks of held-out seed block 20, which no other table uses.
 Shares the comparison's runs (``runs="compare"``). Run after the selection table is

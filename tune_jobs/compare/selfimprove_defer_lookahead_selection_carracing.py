@@ -1,4 +1,4 @@
-"""Issue 35: deferral that hands over on the cost's trend, on the 3 x 150 selection tracks of
+"""Deferral that hands over on the cost's trend, on the 3 x 150 selection tracks of
 block 18.
 
 Why: the held handover (``selfimprove_defer_hold_selection_carracing.py``) still crossed in 2
@@ -50,7 +50,8 @@ def lookahead_row(width: float, hold: int, lookahead: int) -> Method:
 
 
 BURDEN = 0.05
-"""Issue 35's bound on the mean share of deferred steps."""
+"""The bound on the mean share of deferred steps: deferral may hand the expert at most this
+share of an episode's steps."""
 
 
 def chosen(

@@ -1,10 +1,10 @@
-"""Issues 31 and 35 combined on CarRacing: the improved agents of ``selfimprove_carracing.py``
+"""Deferral over the improvements on CarRacing: the improved agents of ``selfimprove_carracing.py``
 with deferral to the expert near the limit, on *selection* tracks that choose the width.
 
 Rows: the expert, the start and both improved agents (PPO-Lagrangian + shield, self-imitation;
 the same runs: :data:`COMPARISON` has the same rows and settings) and, for each improved agent
 and each width ``w`` of :data:`WIDTHS`, the agent with the expert acting wherever the env's
-measured cost is within ``w`` of d_s (``Method.defer_width``: issue 35's deferral at use
+measured cost is within ``w`` of d_s (``Method.defer_width``: deferral at use
 time, :class:`safe_bc.queries.defer.DeferralSource`). The rule, fixed before the table: per
 agent, the smallest width with no selection episode beyond d_s (the largest when none
 reaches zero); ``selfimprove_defer_carracing.py`` then evaluates each agent at its width on

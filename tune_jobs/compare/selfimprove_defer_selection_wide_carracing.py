@@ -1,11 +1,11 @@
-"""Issue 35's width rule on a larger selection set: self-imitation with deferral to the expert
+"""The deferral width rule on a larger selection set: self-imitation with deferral to the expert
 near the limit, 3 training seeds x 150 selection tracks (450 episodes per width).
 
 Why: on ``selfimprove_defer_selection_carracing.py``'s 3 x 50 selection tracks the rule (the
 smallest width with no episode beyond d_s) chose 2 px, and the fresh tracks then had 1 of
 150 episodes beyond (``defer.md``): zero in 150 certifies a share below 2.0%, not zero in the
 next 150. Three times as many selection episodes certify 0.66%. The widths: 4 px, the first
-grid's other width, deferred 17% of the steps on the selection tracks (issue 35 allows 5%),
+grid's other width, deferred 17% of the steps on the selection tracks (the goal allows 5%),
 so this grid stays between: 2, 2.5 and 3 px.
 
 The rule, fixed before this table was run: the smallest width of :data:`WIDTHS` with no

@@ -1,8 +1,8 @@
-"""Issue 35: a cheaper handover on the cost's trend, on the 3 x 150 selection tracks of block 18.
+"""A cheaper handover on the cost's trend, on the 3 x 150 selection tracks of block 18.
 
 Why: on ``selfimprove_defer_lookahead_selection_carracing.py``'s table the trend test reached
 zero crossings in 450 selection episodes (6 steps ahead, held 10) and kept them on fresh tracks
-(``defer_lookahead.md``: 0 of 150), but deferred 17% of the steps, where issue 35 allows 5%.
+(``defer_lookahead.md``: 0 of 150), but deferred 17% of the steps, where the goal allows 5%.
 The hold made most of that burden (held 25 instead of 10 doubled it), so this grid shortens
 the hold and narrows the zone at the same lookahead, and tries a shorter lookahead.
 

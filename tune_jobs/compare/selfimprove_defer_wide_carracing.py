@@ -1,4 +1,4 @@
-"""Issue 35's deferral on fresh tracks, at the width the larger selection set chose: the
+"""Deferral on fresh tracks, at the width the larger selection set chose: the
 self-imitation agent of ``selfimprove_carracing.py`` with the expert acting within the chosen
 width of d_s, beside the expert, the start and the agent alone, paired with the expert.
 

@@ -1,4 +1,4 @@
-"""Issue 31, item 3 on the rehabilitation pathway: self-imitation against the PPO-Lagrangian
+"""Self-imitation on the rehabilitation pathway against the PPO-Lagrangian
 stage, the start and the guideline clinician at equal env-step budgets, on fresh patients.
 
 Rows: the guideline clinician (the expert); the safety-imitation start (BC with alpha 0.5, as

@@ -1,4 +1,4 @@
-"""Issue 31, item 2: which safety choices of self-imitation to keep, measured on CarRacing's
+"""Which safety choices of self-imitation to keep, measured on CarRacing's
 *selection* tracks.
 
 Rows: the expert; the safety-imitation start (BC with alpha 0.1 on T_eps, as in

@@ -1,4 +1,4 @@
-"""Issue 31, item 2 on CarRacing, the rounds: more rounds of self-imitation, and more rounds
+"""Self-imitation's rounds on CarRacing: more rounds of self-imitation, and more rounds
 with smaller steps, on the same selection tracks as ``selfimprove_selection_carracing.py``.
 
 Rows: the expert, the start and the defaults (shared with that file: same runs and stored

@@ -1,5 +1,5 @@
-"""Issue 31, item 2 on the rehabilitation pathway: the safety choices of self-imitation
-measured on *selection* patients, as ``selfimprove_selection_carracing.py`` does on tracks.
+"""The safety choices of self-imitation on the rehabilitation pathway, measured on *selection*
+patients, as ``selfimprove_selection_carracing.py`` does on tracks.
 
 Rows: the guideline clinician (the expert); the safety-imitation start (BC with alpha 0.5 on
 T_eps, eps 0.05, as in ``improve_rehab.py`` and ``selfimprove_rehab.py``; the paired columns'

@@ -128,10 +128,10 @@ def collect_release(
     """Default demonstration episodes ``0..episodes-1`` drawn by ``renderer`` with the drift
     released at ``release`` px (in this process), and the wheels on the road after each of
     their steps."""
-    from safe_bc.collection import EpisodeMaker
+    from safe_bc.collection import CollectConfig, EpisodeMaker
     from safe_bc.tasks import task_defaults
 
-    base = task_defaults("carracing", renderer).collect_config()
+    base = CollectConfig.for_task(task_defaults("carracing", renderer))
     pert = dataclasses.replace(base.perturbation, release_distance=release)
     maker = EpisodeMaker(dataclasses.replace(base, perturbation=pert))
     log = _WheelLog(maker.env)

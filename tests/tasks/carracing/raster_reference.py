@@ -1,7 +1,8 @@
-"""The raster renderer and the pixel safety distances as they were before they were optimised
-(commit 1ce2cf8): the method bodies of ``RasterCarRacing`` and ``pixel_distances`` copied
-verbatim, so that ``test_raster_identity.py`` can prove the optimised env draws the very same
-frames and computes the very same costs (``results/ablation/renderer/`` describes these).
+"""The raster renderer and the pixel safety distances as they were before they were optimised (the
+first raster renderer; docs/history.md names its revision): the method bodies of
+``RasterCarRacing`` and ``pixel_distances`` copied verbatim, so that ``test_raster_identity.py``
+can prove the optimised env draws the very same frames and computes the very same costs
+(``results/ablation/renderer/`` describes these).
 
 Do not edit the copied bodies; they are the definition the optimised code is held to.
 """
@@ -39,8 +40,8 @@ REFERENCE_RASTER_ID = "safe_bc_test/CarRacingRasterReference-v3"
 _PANEL_STATE_ROWS = STATE_H * _PANEL_ROWS // WINDOW_H  # 12: the indicator panel in the state
 _SHIFT = 4  # fractional bits of the fixed-point vertices passed to cv2.fillPoly
 _ONE = 1 << _SHIFT
-DEFAULT_SUPERSAMPLE = 2  # raster_render.DEFAULT_SUPERSAMPLE at 1ce2cf8
-# costs.py's ray geometry at 1ce2cf8
+DEFAULT_SUPERSAMPLE = 2  # raster_render.DEFAULT_SUPERSAMPLE then
+# costs.py's ray geometry then
 CAR_ROWS = slice(66, 78)
 CAR_COLS = slice(45, 51)
 LEFT_START, RIGHT_START, FRONT_START = 44, 51, 65
