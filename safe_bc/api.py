@@ -169,7 +169,13 @@ def _train(job: TrainJob, task_eps: bool) -> Done:
 
 
 def evaluate(job: EvaluateJob) -> Done:
-    """Evaluate a checkpoint on held-out episodes; the value is the evaluation result."""
+    """Evaluate a checkpoint on held-out episodes; the value is the evaluation result. One
+    process writes ``job.out`` at a time (its output lock)."""
+    with output_lock(job.out):
+        return _evaluate(job)
+
+
+def _evaluate(job: EvaluateJob) -> Done:
     import numpy as np
 
     from safe_bc.bc import load_checkpoint, read_checkpoint_meta
@@ -182,7 +188,6 @@ def evaluate(job: EvaluateJob) -> Done:
     from safe_bc.report import estimate_lines
     from safe_bc.tasks import check_net_fits_task, task_defaults, task_of
 
-    check_output_folder(job.out)
     if job.recommender is not None:
         return evaluate_recommender(job)
     if job.checkpoint is None:

@@ -33,7 +33,7 @@ from ray.tune.schedulers import FIFOScheduler, TrialScheduler
 from ray.tune.utils import flatten_dict
 
 from safe_bc.atomic import write_json_atomic, write_text_atomic
-from safe_bc.bc import load_checkpoint
+from safe_bc.bc import CheckpointError, load_checkpoint
 from safe_bc.bc.net import BCNet
 from safe_bc.data.store import (
     DatasetError,
@@ -47,6 +47,11 @@ from safe_bc.data.store import (
 from safe_bc.distributed.console import TrialLines, progress_reporter, quiet_logs
 from safe_bc.distributed.final import FinalOutcome, final_phase
 from safe_bc.distributed.final_store import STORE, FinalStore
+from safe_bc.distributed.resume import (
+    check_resume,
+    install_atomic_upload,
+    settings_of,
+)
 from safe_bc.distributed.runtime import cluster_cpus, ensure_ray
 from safe_bc.distributed.search import (
     NUMBER,
@@ -174,11 +179,13 @@ def _check_env(spec: StudySpec, demos: Path) -> None:
 
 
 def _check_resume(out: Path, identity: dict[str, Any], restoring: bool) -> None:
-    """A resumed study must keep the trial count and the threshold (else ``--fresh``)."""
+    """A resumed study must keep the trial count, the threshold, the limits and the
+    demonstrations (else ``--fresh``); ``identity`` is written as ``study.json`` (with what
+    :func:`safe_bc.distributed.resume.check_resume` compares before Tune starts)."""
     path = out / "study.json"
     if restoring and path.exists():
         stored = json.loads(path.read_text())
-        changed = [k for k, v in identity.items() if stored.get(k) != v]
+        changed = [k for k, v in identity.items() if k in stored and stored.get(k) != v]
         if changed:
             what = ", ".join(f"{k} {stored.get(k)} -> {identity[k]}" for k in changed)
             raise ValueError(
@@ -194,14 +201,18 @@ def _os_error_in(e: BaseException) -> OSError | None:
     seen = set()
     while e is not None and id(e) not in seen:
         seen.add(id(e))
+        if getattr(e, "reworded", False):
+            return e  # already says what a rerun does
         if isinstance(e, OSError):
             detail = e.strerror or " ".join(str(e).split()) or type(e).__name__
-            return OSError(
+            error = OSError(
                 e.errno,
                 f"{detail}; the study stopped with its state saved: fix this (e.g. free disk "
                 "space) and rerun the same command to resume",
                 e.filename,
             )
+            error.reworded = True  # type: ignore[attr-defined]
+            return error
         e = e.__cause__ or e.__context__
     return None
 
@@ -638,6 +649,7 @@ def _run_study(
     # CheckpointConfig(num_to_keep)
     os.environ.setdefault("TUNE_WARN_EXCESSIVE_EXPERIMENT_CHECKPOINT_SYNC_THRESHOLD_S", "0")
     check_persistence_api()
+    install_atomic_upload()  # Tune's state on a local storage: whole files or the old ones
     if not verbose:
         quiet_logs()
     out = spec.results / spec.name
@@ -652,6 +664,12 @@ def _run_study(
                      TIMING_LOG, "timing.md"):  # fmt: skip
             (out / name).unlink(missing_ok=True)
         shutil.rmtree(out / STORE, ignore_errors=True)
+    else:  # the study's own records decide what may be resumed, before Ray starts
+        restorable = tune.Tuner.can_restore(exp_path)
+        check_resume(out, settings=settings_of(spec.summary()), exp_path=exp_path,
+                     restoring=restorable, local=not _is_uri(exp_path))  # fmt: skip
+        if restorable:
+            check_optuna_copy(spec, exp_path, finished=False)
     clock.skip()
     ensure_ray()
     clock.lap("ray_start")
@@ -692,7 +710,11 @@ def _run_study(
         "batch_size": spec.batch_size,
         "demos_digest": inputs["demos"]["digest"],
     }
-    _check_resume(out, identity, restoring)
+    _check_resume(
+        out,
+        {**identity, "experiment_path": exp_path, "settings": settings_of(spec.summary())},
+        restoring,
+    )
     resources = tune.PlacementGroupFactory(
         [{"CPU": spec.cpus_per_trial}] + [{"CPU": spec.cpus_per_worker}] * spec.rollout_workers
     )
@@ -849,6 +871,7 @@ def _run_study(
     clock.lap("certification")
     clock.close()
     timing = write_timing(out, trials, meta)
+    check_optuna_copy(spec, exp_path)  # never a finished claim over a broken copy
     write_json_atomic(out / FINISHED, _finished_record(spec), default=str)
     return replace(outcome, winner=winner, final=final, timing=timing, certificate=certificate)
 
@@ -997,10 +1020,12 @@ def finished_outcome(spec: StudySpec) -> StudyOutcome | None:
     )
 
 
-def check_optuna_copy(spec: StudySpec, experiment_path: str) -> None:
+def check_optuna_copy(spec: StudySpec, experiment_path: str, *, finished: bool = True) -> None:
     """A finished study's Optuna copy (``optuna.db`` by default) must be whole and its own:
     the study of this name with every trial. A missing local copy is written again from the
-    Tune experiment's searcher, with the final winner of ``best.json`` marked.
+    Tune experiment's searcher, with the final winner of ``best.json`` marked. An unfinished
+    study's copy (``finished=False``, checked before a resume) may lack trials, or be missing
+    (the searcher writes it again).
 
     Raises:
         ValueError: one line naming the file and the problem (corrupt, cut short, another
@@ -1012,14 +1037,14 @@ def check_optuna_copy(spec: StudySpec, experiment_path: str) -> None:
         return  # a shared database: checked by its own server
     path = Path(url.removeprefix(prefix))
     if not path.exists():
-        if experiment_path and not _is_uri(experiment_path):
+        if finished and experiment_path and not _is_uri(experiment_path):
             searcher = load_searcher(experiment_path)
             searcher._export_to = url
             searcher.export()
             best = json.loads((spec.results / spec.name / "best.json").read_text())
             mark_final_winner(url, spec.name, best.get("trial_id"), bool(best.get("feasible")))
         return
-    problem = optuna_copy_problem(path, spec.name, spec.trials)
+    problem = optuna_copy_problem(path, spec.name, spec.trials, at_most=not finished)
     if problem:
         raise ValueError(
             f"{path}: {problem}; it is only a copy for Optuna's tools: delete it and rerun the "
@@ -1027,9 +1052,10 @@ def check_optuna_copy(spec: StudySpec, experiment_path: str) -> None:
         )
 
 
-def optuna_copy_problem(path: Path, name: str, trials: int) -> str:
+def optuna_copy_problem(path: Path, name: str, trials: int, *, at_most: bool = False) -> str:
     """What is wrong with the Optuna SQLite copy at ``path`` of study ``name`` with ``trials``
-    trials (``""``: nothing). Opened read-only: nothing is created or changed."""
+    trials (``at_most``: up to ``trials``, a study under way) (``""``: nothing). Opened
+    read-only: nothing is created or changed."""
     import sqlite3
 
     try:
@@ -1047,7 +1073,7 @@ def optuna_copy_problem(path: Path, name: str, trials: int) -> str:
         return f"not a whole Optuna database ({e})"
     if check and check[0] != "ok":
         return f"a damaged Optuna database ({check[0]})"
-    if n != trials:
+    if n > trials or (n != trials and not at_most):
         return f"holds {n} trials of study {name!r}, the study has {trials}"
     return ""
 
@@ -1057,13 +1083,21 @@ def _checkpoints(grid: Any, trial_ids: Sequence[str]) -> dict[str, BCNet]:
     out = {}
     for r in grid:
         tid = str((r.metrics or {}).get("trial_id"))
-        if tid in trial_ids and r.checkpoint is not None:
-            with r.checkpoint.as_directory() as d:
-                out[tid] = load_checkpoint(d)[0]
-        elif tid in trial_ids:  # resumed from a checkpoint Tune had not recorded (resume_point)
-            stored = stored_checkpoint(r.filesystem, r.path)
-            if stored is not None:
-                out[tid] = stored[0]
+        if tid not in trial_ids:
+            continue
+        try:
+            if r.checkpoint is not None:
+                with r.checkpoint.as_directory() as d:
+                    out[tid] = load_checkpoint(d)[0]
+                continue
+        except (CheckpointError, OSError) as e:  # the final phase retrains it
+            print(f"trial {tid}: its checkpoint is damaged ({' '.join(str(e).split())[:200]}); "
+                  "the final phase trains it again")  # fmt: skip
+            continue
+        # resumed from a checkpoint Tune had not recorded (resume_point)
+        stored = stored_checkpoint(r.filesystem, r.path)
+        if stored is not None:
+            out[tid] = stored[0]
     return out
 
 
