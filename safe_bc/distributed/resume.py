@@ -173,7 +173,8 @@ def check_resume(
     """
     record = read_record(out)
     reported, ended = history_events(out / "history.jsonl")
-    has_work = bool(reported) or (out / "trials.parquet").exists()
+    tables = (out / "trials.parquet").exists()
+    has_work = bool(reported or ended) or tables
     fresh = "pass --fresh to start the study over"
     if record is not None:
         stored_path = record.get("experiment_path")
@@ -190,7 +191,7 @@ def check_resume(
                     f"would mix both; rerun with the same study file to resume, or {fresh}"
                 )
     if not restoring:
-        if has_work:
+        if ended or tables:  # in-flight reports only: nothing finished is lost by a new start
             n = len(ended)
             raise ResumeRefused(
                 f"the study at {out} has recorded trials ({n} finished) but no Tune experiment "
@@ -198,6 +199,8 @@ def check_resume(
             )
         return
     if not local:
+        return
+    if not ended:  # nothing finished: Tune may start over without losing anything
         return
     file, known, problem = tune_state(exp_path)
     where = file or Path(exp_path)

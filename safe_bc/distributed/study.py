@@ -856,6 +856,7 @@ def _run_study(
     clock.skip()
     meta = {**meta, "final_phase_seconds": round(time.perf_counter() - t0, 1)}
     _write_final(spec, final, candidates, meta)
+    check_optuna_copy(spec, exp_path)  # a missing copy is written again from the searcher
     mark_final_winner(default_optuna_storage(spec), spec.name, final.winner, final.feasible)
     plot_pareto(
         trials,

@@ -146,6 +146,15 @@ def test_a_study_without_records_starts(tmp_path: Path) -> None:
     out.mkdir(parents=True)
     (out / "study.json").write_text(json.dumps({"experiment_path": "/old", "settings": {}}))
     _check(out, exp, restoring=False)  # a record but no work: a new experiment may start
+    (out / "history.jsonl").write_text('{"trial_id": "a", "phase": "trained"}\n')
+    assert "keeps its Tune experiment at /old" in _refused(out, exp, restoring=False)
+    (out / "study.json").write_text(json.dumps({"experiment_path": str(exp), "settings": {}}))
+    _check(out, exp, restoring=False)  # only a report in flight, no experiment: a new start
+    exp.mkdir(parents=True)
+    (exp / "tuner.pkl").write_bytes(b"x")  # Tune stopped before its first state: nothing ended
+    _check(out, exp)
+    (exp / "experiment_state-1.json").write_bytes(b"")
+    _check(out, exp)
 
 
 def test_tunes_copy_to_a_local_storage_is_whole_or_the_old_file(
@@ -319,3 +328,63 @@ def test_a_trial_resumed_from_an_unrecorded_checkpoint_reports_its_trained_row_a
         (row,) = reports
         assert row["phase"] == "trained" and row["resumed"] and row["duration_s"] == 4.0
         assert row["train_loss"] == 0.5 and row["n_critical"] == 3
+
+
+@pytest.mark.slow
+def test_a_real_study_keeps_its_trials_through_a_damaged_state_and_refuses_other_inputs(
+    tiny_demos: Path, tmp_path: Path, capsys
+) -> None:
+    from dataclasses import replace
+
+    from safe_bc.distributed.study import FINISHED, run_study
+    from safe_bc.study import load_study
+    from tests.conftest import tiny_collect
+    from tests.distributed.test_study_faults import SMOKE, FullDisk
+
+    spec = replace(
+        load_study(SMOKE), demos=tiny_demos, collect=tiny_collect(), storage=str(tmp_path / "ray"),
+        results=tmp_path / "results", batches=10, max_steps=40, trials=2, max_concurrent=1,
+        screen_episodes=0, final_candidates=1, final_train_seeds=1, final_episodes=1,
+        final_workers=0,
+    )  # fmt: skip
+    out, exp = tmp_path / "results" / spec.name, tmp_path / "ray" / spec.name
+    # a full disk in the loop: one line; the rerun resumes once there is space again
+    with pytest.raises(OSError) as e:
+        run_study(spec, progress=False, callbacks=[FullDisk()])
+    assert "\n" not in str(e.value) and str(e.value).count("rerun the same command") == 1
+    first = run_study(spec, progress=False, final=False)
+    assert first.complete and len(first.trials) == 2
+    folders = sorted(p.name for p in exp.glob("trial_*"))
+    assert len(folders) == 2
+
+    state = max(exp.glob("experiment_state-*.json"))
+    whole = state.read_bytes()
+    for damaged in (b"", whole[: len(whole) // 2]):  # what a full disk or a cut copy leaves
+        state.write_bytes(damaged)
+        with pytest.raises(ResumeRefused, match=r"experiment state is .*--fresh"):
+            run_study(spec, progress=False)
+        assert sorted(p.name for p in exp.glob("trial_*")) == folders  # nothing deleted
+    state.write_bytes(whole)
+
+    with pytest.raises(ResumeRefused, match=r"other settings \(max_steps 40 -> 60\)"):
+        run_study(replace(spec, max_steps=60), progress=False)
+    elsewhere = replace(spec, storage=str(tmp_path / "other"))
+    with pytest.raises(ResumeRefused, match="keeps its Tune experiment at"):
+        run_study(elsewhere, progress=False)
+    db = out / "optuna.db"
+    copy = db.read_bytes()
+    db.write_bytes(copy[:4096])  # a broken Optuna copy is refused on the resuming path too
+    with pytest.raises(ValueError, match=r"optuna\.db: "):
+        run_study(spec, progress=False)
+    db.write_bytes(copy)
+    assert not (out / FINISHED).exists()
+
+    done = run_study(spec, progress=False)  # resumes: the trials are not run again
+    assert done.complete and set(done.trials["trial_id"]) == set(first.trials["trial_id"])
+    assert (out / FINISHED).exists()
+    # a finished study never reruns silently: another storage or study file is refused
+    with pytest.raises(ResumeRefused, match="keeps its Tune experiment at"):
+        run_study(elsewhere, progress=False)
+    with pytest.raises(ResumeRefused, match=r"max_steps 40 -> 60"):
+        run_study(replace(spec, max_steps=60), progress=False)
+    assert not (tmp_path / "other").exists()
