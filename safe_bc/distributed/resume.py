@@ -41,11 +41,12 @@ RESOURCE_FIELDS = frozenset(
         "storage",
         "results",
         "optuna_storage",
+        "demos",
     }
 )
 """``StudySpec`` fields that change where and how fast the study runs, never a trial's or the
 final phase's numbers: a rerun may change them (``storage`` is compared as the experiment's
-path, ``experiment_path``)."""
+path, ``experiment_path``; the demonstrations by their digest, wherever they lie)."""
 
 
 class ResumeRefused(ValueError):

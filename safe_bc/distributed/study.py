@@ -15,6 +15,7 @@ import dataclasses
 import json
 import math
 import os
+import pickle
 import shutil
 import signal
 import sys
@@ -48,7 +49,9 @@ from safe_bc.distributed.console import TrialLines, progress_reporter, quiet_log
 from safe_bc.distributed.final import FinalOutcome, final_phase
 from safe_bc.distributed.final_store import STORE, FinalStore
 from safe_bc.distributed.resume import (
+    ResumeRefused,
     check_resume,
+    history_events,
     install_atomic_upload,
     settings_of,
 )
@@ -721,7 +724,14 @@ def _run_study(
     trainable = tune.with_resources(tune.with_parameters(trial_fn, job=job), resources)
     if restoring:
         print(f"resuming study {spec.name!r} from {exp_path}")
-        tuner = tune.Tuner.restore(exp_path, trainable=trainable, resume_errored=True)
+        try:
+            tuner = tune.Tuner.restore(exp_path, trainable=trainable, resume_errored=True)
+        except (pickle.UnpicklingError, EOFError) as e:  # Tune writes tuner.pkl in place
+            raise ResumeRefused(
+                f"{exp_path}/tuner.pkl: Tune's saved tuner is unreadable ({e}; a full disk "
+                "when the study started leaves it so): restore it from a copy, or pass --fresh "
+                "to start the study over"
+            ) from None
         _save_every_trial(tuner)
         restored = tuner._local_tuner._run_config  # this run's console, not the first run's
         restored.verbose = 1 if progress and verbose else 0
@@ -794,7 +804,9 @@ def _run_study(
             f"not know them and ran others instead; their reports stay in {HISTORY} only): "
             + ", ".join(lost)
         )
-    orphans = _remove_orphan_trial_dirs(exp_path, set(trials["trial_id"]))
+    # a trial whose end the study recorded keeps its folder, whatever Tune's state says
+    ended = history_events(out / HISTORY)[1]
+    orphans = _remove_orphan_trial_dirs(exp_path, set(trials["trial_id"]) | ended)
     if orphans:
         print(f"removed the folders of {len(orphans)} such trial(s) from {exp_path}")
     errors = int((trials["status"] == "error").sum())

@@ -330,6 +330,22 @@ def test_a_trial_resumed_from_an_unrecorded_checkpoint_reports_its_trained_row_a
         assert row["train_loss"] == 0.5 and row["n_critical"] == 3
 
 
+class FullOnce:
+    """A Tune callback whose first write fails as on a full disk (``marker``: it has failed);
+    Tune pickles it with the experiment, so the resumed run has it too, with space again."""
+
+    def __new__(cls, marker: str):
+        from ray import tune
+
+        class _FullOnce(tune.Callback):
+            def on_trial_result(self, iteration, trials, trial, result, **info):
+                if not Path(marker).exists():
+                    Path(marker).touch()
+                    raise OSError(errno.ENOSPC, "No space left on device", "/full/history.jsonl")
+
+        return _FullOnce()
+
+
 @pytest.mark.slow
 def test_a_real_study_keeps_its_trials_through_a_damaged_state_and_refuses_other_inputs(
     tiny_demos: Path, tmp_path: Path, capsys
@@ -339,7 +355,7 @@ def test_a_real_study_keeps_its_trials_through_a_damaged_state_and_refuses_other
     from safe_bc.distributed.study import FINISHED, run_study
     from safe_bc.study import load_study
     from tests.conftest import tiny_collect
-    from tests.distributed.test_study_faults import SMOKE, FullDisk
+    from tests.distributed.test_study_faults import SMOKE
 
     spec = replace(
         load_study(SMOKE), demos=tiny_demos, collect=tiny_collect(), storage=str(tmp_path / "ray"),
@@ -350,7 +366,7 @@ def test_a_real_study_keeps_its_trials_through_a_damaged_state_and_refuses_other
     out, exp = tmp_path / "results" / spec.name, tmp_path / "ray" / spec.name
     # a full disk in the loop: one line; the rerun resumes once there is space again
     with pytest.raises(OSError) as e:
-        run_study(spec, progress=False, callbacks=[FullDisk()])
+        run_study(spec, progress=False, callbacks=[FullOnce(str(tmp_path / "full"))])
     assert "\n" not in str(e.value) and str(e.value).count("rerun the same command") == 1
     first = run_study(spec, progress=False, final=False)
     assert first.complete and len(first.trials) == 2
@@ -365,6 +381,12 @@ def test_a_real_study_keeps_its_trials_through_a_damaged_state_and_refuses_other
             run_study(spec, progress=False)
         assert sorted(p.name for p in exp.glob("trial_*")) == folders  # nothing deleted
     state.write_bytes(whole)
+    tuner = exp / "tuner.pkl"
+    pickled = tuner.read_bytes()
+    tuner.write_bytes(pickled[: len(pickled) // 2])  # Tune writes it in place at the start
+    with pytest.raises(ResumeRefused, match=r"tuner\.pkl: Tune's saved tuner is unreadable"):
+        run_study(spec, progress=False)
+    tuner.write_bytes(pickled)
 
     with pytest.raises(ResumeRefused, match=r"other settings \(max_steps 40 -> 60\)"):
         run_study(replace(spec, max_steps=60), progress=False)
@@ -388,3 +410,17 @@ def test_a_real_study_keeps_its_trials_through_a_damaged_state_and_refuses_other
     with pytest.raises(ResumeRefused, match=r"max_steps 40 -> 60"):
         run_study(replace(spec, max_steps=60), progress=False)
     assert not (tmp_path / "other").exists()
+
+
+def test_other_demonstrations_are_refused_naming_their_digests(tmp_path: Path) -> None:
+    from safe_bc.distributed.study import _check_resume
+
+    identity = {"trials": 2, "threshold": 1.0, "demos_digest": "sha256:aaa", "settings": {}}
+    _check_resume(tmp_path, identity, restoring=False)  # a new study records its identity
+    assert json.loads((tmp_path / "study.json").read_text()) == identity
+    _check_resume(tmp_path, identity, restoring=True)
+    with pytest.raises(ValueError) as e:
+        _check_resume(tmp_path, {**identity, "demos_digest": "sha256:bbb"}, restoring=True)
+    message = str(e.value)
+    assert "demos_digest sha256:aaa -> sha256:bbb" in message and "--fresh" in message
+    assert "\n" not in message
