@@ -542,11 +542,26 @@ class SaveOnTrialEnd(TrialScheduler):
 
 def _save_at_step_end(tune_controller: Any) -> None:
     """Make the save at the end of Tune's current step a forced, waited-for one (after the trial's
-    new status is set: Tune calls the scheduler first)."""
+    new status is set: Tune calls the scheduler first).
+
+    Tune's forced save waits for the *previous* copy to the storage, then starts its own in a
+    thread; a forced save here also waits for its own copy, so that when the step's callbacks
+    run (:class:`HistoryRecorder` writes the trial's end then) the storage holds the state that
+    says so: a driver killed after that line restores a state that knows the trial."""
     controller = getattr(tune_controller, "_tune_controller", tune_controller)  # unwrapped
     manager = getattr(controller, "_checkpoint_manager", None)
-    if manager is not None:
-        manager._should_force_sync_up = True
+    if manager is None:
+        return
+    manager._should_force_sync_up = True
+    if not manager.__dict__.get("_safe_bc_waits"):
+        original = manager.sync_up_experiment_state
+
+        def sync_up(save_fn: Callable[[], None], force: bool = False, wait: bool = False) -> None:
+            forced = force or manager._should_force_sync_up
+            original(save_fn=save_fn, force=force, wait=wait or forced)
+
+        manager.sync_up_experiment_state = sync_up
+        manager._safe_bc_waits = True
 
 
 def check_persistence_api() -> None:
