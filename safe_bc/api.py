@@ -426,6 +426,7 @@ def tune(job: TuneJob, *, command: str = "") -> Done:
     (130 / 143 when a signal stopped it: rerun to resume; 1 without a winner)."""
     import shlex
 
+    from safe_bc.distributed.console import one_line_warnings
     from safe_bc.distributed.study import experiment_location, format_outcome, run_study
     from safe_bc.study import load_study
 
@@ -440,7 +441,7 @@ def tune(job: TuneJob, *, command: str = "") -> Done:
     outputs = [(spec.results / spec.name, "--results")]
     if "://" not in storage:
         outputs.append((Path(experiment), "--storage"))
-    with output_locks(outputs):
+    with output_locks(outputs), one_line_warnings():
         outcome = run_study(spec, fresh=job.fresh, command=command, verbose=job.verbose)
     return Done(format_outcome(outcome, spec.params), outcome, outcome.exit_code)
 

@@ -149,6 +149,19 @@ def test_a_copy_to_a_full_disk_warns_in_one_line(
     assert not list(tmp_path.iterdir())  # no half-written copy
 
 
+def test_a_studys_warnings_print_as_one_line() -> None:
+    import warnings
+
+    from safe_bc.distributed.console import one_line_warnings
+
+    before = warnings.formatwarning
+    message = "could not copy: (sqlite3.OperationalError) full\n  [SQL: ...]"
+    with one_line_warnings():
+        shown = warnings.formatwarning(message, UserWarning, "search.py", 1, "warnings.warn(x)")
+    assert shown == "warning: could not copy: (sqlite3.OperationalError) full [SQL: ...]\n"
+    assert warnings.formatwarning is before
+
+
 def test_batch_halving_compares_with_earlier_batches_only() -> None:
     assert halving_decision(5.0, []) == TrialScheduler.CONTINUE
     assert halving_decision(5.0, [1.0, 9.0, 10.0]) == TrialScheduler.STOP
