@@ -576,6 +576,10 @@ def check_persistence_api() -> None:
         in TuneController.__init__.__code__.co_names,
         "_ExperimentCheckpointManager._should_force_sync_up": "_should_force_sync_up"
         in _ExperimentCheckpointManager.sync_up_experiment_state.__code__.co_names,
+        "_ExperimentCheckpointManager.sync_up_experiment_state(save_fn, force, wait)": (
+            _ExperimentCheckpointManager.sync_up_experiment_state.__code__.co_varnames[:4]
+            == ("self", "save_fn", "force", "wait")
+        ),
         "TunerInternal._tune_config": "_tune_config" in TunerInternal.__init__.__code__.co_names,
         "TunerInternal._run_config": "_run_config" in TunerInternal.__init__.__code__.co_names,
         "Tuner._local_tuner": "_local_tuner" in tune.Tuner.__annotations__,
