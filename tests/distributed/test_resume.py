@@ -169,6 +169,10 @@ def test_tunes_copy_to_a_local_storage_is_whole_or_the_old_file(
     install_atomic_upload()  # idempotent
     upload = storage._upload_to_fs_path
     assert upload._safe_bc_atomic
+    # what Tune's syncer of the experiment state runs is this copy
+    syncer = storage._FilesystemSyncer(storage_filesystem=pafs.LocalFileSystem())
+    command, _ = syncer._sync_up_command(local_path=str(tmp_path), uri=str(tmp_path / "x"))
+    assert command is upload
     staging, dest = tmp_path / "staging", tmp_path / "storage" / "exp"
     (staging / "sub").mkdir(parents=True)
     (staging / "experiment_state-1.json").write_text('{"trial_data": []}')
