@@ -184,7 +184,13 @@ def _train(job: TrainJob, task_eps: bool) -> Done:
 
 
 def evaluate(job: EvaluateJob) -> Done:
-    """Evaluate a checkpoint on held-out episodes; the value is the evaluation result."""
+    """Evaluate a checkpoint on held-out episodes; the value is the evaluation result. One
+    process writes ``job.out`` at a time (its output lock)."""
+    with output_lock(job.out):
+        return _evaluate(job)
+
+
+def _evaluate(job: EvaluateJob) -> Done:
     import numpy as np
 
     from safe_bc.bc import load_checkpoint, read_checkpoint_meta
@@ -197,7 +203,6 @@ def evaluate(job: EvaluateJob) -> Done:
     from safe_bc.report import estimate_lines
     from safe_bc.tasks import check_net_fits_task, task_defaults, task_of
 
-    check_output_folder(job.out)
     if job.recommender is not None:
         return evaluate_recommender(job)
     if job.checkpoint is None:
@@ -437,6 +442,7 @@ def tune(job: TuneJob, *, command: str = "") -> Done:
     (130 / 143 when a signal stopped it: rerun to resume; 1 without a winner)."""
     import shlex
 
+    from safe_bc.distributed.console import one_line_warnings
     from safe_bc.distributed.study import experiment_location, format_outcome, run_study
     from safe_bc.overrides import apply_overrides
     from safe_bc.study import load_study
@@ -458,7 +464,7 @@ def tune(job: TuneJob, *, command: str = "") -> Done:
     outputs = [(spec.results / spec.name, "--results")]
     if "://" not in storage:
         outputs.append((Path(experiment), "--storage"))
-    with output_locks(outputs):
+    with output_locks(outputs), one_line_warnings():
         outcome = run_study(spec, fresh=job.fresh, command=command, verbose=job.verbose)
     return Done(format_outcome(outcome, spec.params), outcome, outcome.exit_code)
 

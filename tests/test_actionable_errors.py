@@ -328,6 +328,29 @@ def test_an_os_error_while_writing_is_one_line_and_keeps_the_old_checkpoint(
     load_checkpoint(ckpt)
 
 
+def test_train_on_a_full_disk_is_one_line_not_torchs_traceback(
+    rehab_demos: Path, tmp_path: Path, capsys: pytest.CaptureFixture, monkeypatch
+) -> None:
+    import errno
+    import io
+
+    import torch
+
+    real_save = torch.save
+
+    class Full(io.BytesIO):
+        def write(self, data):  # the disk fills while torch writes the weights
+            raise OSError(errno.ENOSPC, "No space left on device")
+
+    # torch turns the failed write into its own RuntimeError ("unexpected pos ...")
+    monkeypatch.setattr(torch, "save", lambda obj, f, **kw: real_save(obj, Full(), **kw))
+    ckpt = tmp_path / "ckpt"
+    argv = ["train", "--demos", str(rehab_demos), "--out", str(ckpt), "--bc.train.batches", "5",
+            "--bc.network.hidden", "8", "--quiet"]  # fmt: skip
+    _one_line(capsys, main(argv), "train", "No space left on device", "weights.pt")
+    assert not ckpt.exists() or not any(ckpt.iterdir())
+
+
 def test_improve_with_demos_of_another_task_is_refused_upfront(
     rehab_start: Path, tmp_path: Path, capsys: pytest.CaptureFixture
 ) -> None:

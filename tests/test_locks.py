@@ -89,6 +89,15 @@ def test_train_into_a_held_checkpoint_writes_nothing(
     assert _listing(tmp_path) == []
 
 
+@pytest.mark.parametrize("source", ["--checkpoint", "--recommender"])
+def test_evaluate_into_a_held_folder_writes_nothing(
+    tmp_path: Path, capsys: pytest.CaptureFixture, source: str
+) -> None:
+    out = tmp_path / "eval"
+    _refused(["evaluate", source, str(tmp_path / "none"), "--out", str(out)], out, capsys)
+    assert _listing(tmp_path) == []
+
+
 def test_improve_into_a_held_run_writes_nothing(
     tmp_path: Path, capsys: pytest.CaptureFixture
 ) -> None:

@@ -105,11 +105,25 @@ def save_checkpoint(
         raise ValueError(f"checkpoint metadata is not strict JSON: {e}") from e
     directory.mkdir(parents=True, exist_ok=True)
     state = {k: v.detach().cpu().clone() for k, v in model.state_dict().items()}
-    with atomic_write(directory / WEIGHTS) as f:
-        torch.save(state, f)
+    try:
+        with atomic_write(directory / WEIGHTS) as f:
+            torch.save(state, f)
+    except (RuntimeError, OSError) as e:  # torch wraps a failed write (a full disk) in its own
+        raise _write_error(e, directory / WEIGHTS) from None
     meta["weights_sha256"] = _sha256(directory / WEIGHTS)
     write_json_atomic(directory / CONFIG, with_meta_sha256(meta), allow_nan=False)
     return directory
+
+
+def _write_error(error: BaseException, path: Path) -> BaseException:
+    """The ``OSError`` behind torch's ``RuntimeError`` of a failed write of ``path`` (a full
+    disk: one line naming the file), else ``error`` itself."""
+    seen: BaseException | None = error
+    while seen is not None:
+        if isinstance(seen, OSError):
+            return OSError(seen.errno, seen.strerror or str(seen), seen.filename or str(path))
+        seen = seen.__cause__ or seen.__context__
+    return error
 
 
 META_SHA256 = "meta_sha256"

@@ -3,8 +3,11 @@ Tune's status table every 30 s with ``--verbose``."""
 
 from __future__ import annotations
 
+import contextlib
 import math
 import sys
+import warnings
+from collections.abc import Iterator
 from typing import Any
 
 from ray import tune
@@ -88,3 +91,20 @@ class TrialLines(tune.Callback):
 
     def on_trial_error(self, iteration: int, trials: list, trial: Any, **info: Any) -> None:
         print(f"trial {trial.trial_id} failed; Tune retries it", file=sys.stderr)
+
+
+@contextlib.contextmanager
+def one_line_warnings() -> Iterator[None]:
+    """Print each warning as one line, ``warning: <message>`` (whitespace folded), for the
+    ``with`` block: a study's console is read line by line, and Python's own format adds the
+    source line that warned."""
+    before = warnings.formatwarning
+
+    def fmt(message: Any, category: Any, filename: str, lineno: int, line: Any = None) -> str:
+        return f"warning: {' '.join(str(message).split())}\n"
+
+    warnings.formatwarning = fmt
+    try:
+        yield
+    finally:
+        warnings.formatwarning = before

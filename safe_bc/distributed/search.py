@@ -186,7 +186,9 @@ class ConstrainedOptunaSearch(OptunaSearch):
                 export_study(self._ot_study, url, attrs, metric=self._metric,
                              constraint_names=list(self._constraint_keys))  # fmt: skip
             except Exception as e:  # a copy for other tools must never stop the study
-                warnings.warn(f"could not copy the Optuna study to {url}: {e}", stacklevel=2)
+                warnings.warn(
+                    f"could not copy the Optuna study to {url}: {one_line(e)}", stacklevel=2
+                )
             _COPY_SECONDS.append(time.perf_counter() - start)
 
     def batch_pending(self) -> list[str]:
@@ -217,6 +219,13 @@ class ConstrainedOptunaSearch(OptunaSearch):
     def constraints_by_trial(self) -> dict[str, dict[str, float]]:
         """Tune trial id -> the constraint values Optuna holds for that trial."""
         return {tid: dict(t.constraints) for tid, t in self._ot_trials.items()}
+
+
+def one_line(error: BaseException) -> str:
+    """The first line of ``error``'s message (SQLAlchemy's errors add the SQL statement, its
+    parameters and a link on further lines)."""
+    lines = str(error).strip().splitlines()
+    return lines[0] if lines else type(error).__name__
 
 
 def default_optuna_storage(spec: StudySpec) -> str:
@@ -346,7 +355,7 @@ def mark_final_winner(url: str, study_name: str, winner: str | None, feasible: b
         metric = stored.metric_names[0] if stored.metric_names else None
         export_study(study, url, attrs, metric=metric, winner=winner)
     except Exception as e:  # a copy for other tools must never stop the study
-        warnings.warn(f"could not mark the final winner in {url}: {e}", stacklevel=2)
+        warnings.warn(f"could not mark the final winner in {url}: {one_line(e)}", stacklevel=2)
 
 
 def _copy_into(

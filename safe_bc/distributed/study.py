@@ -15,6 +15,7 @@ import dataclasses
 import json
 import math
 import os
+import pickle
 import shutil
 import signal
 import sys
@@ -33,7 +34,7 @@ from ray.tune.schedulers import FIFOScheduler, TrialScheduler
 from ray.tune.utils import flatten_dict
 
 from safe_bc.atomic import write_json_atomic, write_text_atomic
-from safe_bc.bc import load_checkpoint
+from safe_bc.bc import CheckpointError, load_checkpoint
 from safe_bc.bc.net import BCNet
 from safe_bc.collection import CollectConfig
 from safe_bc.data.store import (
@@ -48,6 +49,13 @@ from safe_bc.data.store import (
 from safe_bc.distributed.console import TrialLines, progress_reporter, quiet_logs
 from safe_bc.distributed.final import FinalOutcome, final_phase
 from safe_bc.distributed.final_store import STORE, FinalStore
+from safe_bc.distributed.resume import (
+    ResumeRefused,
+    check_resume,
+    history_events,
+    install_atomic_upload,
+    settings_of,
+)
 from safe_bc.distributed.runtime import cluster_cpus, ensure_ray
 from safe_bc.distributed.search import (
     NUMBER,
@@ -198,7 +206,7 @@ def _check_resume(out: Path, identity: dict[str, Any], restoring: bool, exp_path
     added = 0
     if restoring and path.exists():
         stored = json.loads(path.read_text())
-        changed = [k for k, v in identity.items() if stored.get(k) != v]
+        changed = [k for k, v in identity.items() if k in stored and stored.get(k) != v]
         more = isinstance(stored.get("trials"), int) and identity["trials"] > stored["trials"]
         if changed == ["trials"] and more:
             if _is_uri(exp_path):
@@ -224,14 +232,18 @@ def _os_error_in(e: BaseException) -> OSError | None:
     seen = set()
     while e is not None and id(e) not in seen:
         seen.add(id(e))
+        if getattr(e, "reworded", False):
+            return e  # already says what a rerun does
         if isinstance(e, OSError):
             detail = e.strerror or " ".join(str(e).split()) or type(e).__name__
-            return OSError(
+            error = OSError(
                 e.errno,
                 f"{detail}; the study stopped with its state saved: fix this (e.g. free disk "
                 "space) and rerun the same command to resume",
                 e.filename,
             )
+            error.reworded = True  # type: ignore[attr-defined]
+            return error
         e = e.__cause__ or e.__context__
     return None
 
@@ -558,11 +570,26 @@ class SaveOnTrialEnd(TrialScheduler):
 
 def _save_at_step_end(tune_controller: Any) -> None:
     """Make the save at the end of Tune's current step a forced, waited-for one (after the trial's
-    new status is set: Tune calls the scheduler first)."""
+    new status is set: Tune calls the scheduler first).
+
+    Tune's forced save waits for the *previous* copy to the storage, then starts its own in a
+    thread; a forced save here also waits for its own copy, so that when the step's callbacks
+    run (:class:`HistoryRecorder` writes the trial's end then) the storage holds the state that
+    says so: a driver killed after that line restores a state that knows the trial."""
     controller = getattr(tune_controller, "_tune_controller", tune_controller)  # unwrapped
     manager = getattr(controller, "_checkpoint_manager", None)
-    if manager is not None:
-        manager._should_force_sync_up = True
+    if manager is None:
+        return
+    manager._should_force_sync_up = True
+    if not manager.__dict__.get("_safe_bc_waits"):
+        original = manager.sync_up_experiment_state
+
+        def sync_up(save_fn: Callable[[], None], force: bool = False, wait: bool = False) -> None:
+            forced = force or manager._should_force_sync_up
+            original(save_fn=save_fn, force=force, wait=wait or forced)
+
+        manager.sync_up_experiment_state = sync_up
+        manager._safe_bc_waits = True
 
 
 def check_persistence_api() -> None:
@@ -577,6 +604,10 @@ def check_persistence_api() -> None:
         in TuneController.__init__.__code__.co_names,
         "_ExperimentCheckpointManager._should_force_sync_up": "_should_force_sync_up"
         in _ExperimentCheckpointManager.sync_up_experiment_state.__code__.co_names,
+        "_ExperimentCheckpointManager.sync_up_experiment_state(save_fn, force, wait)": (
+            _ExperimentCheckpointManager.sync_up_experiment_state.__code__.co_varnames[:4]
+            == ("self", "save_fn", "force", "wait")
+        ),
         "TunerInternal._tune_config": "_tune_config" in TunerInternal.__init__.__code__.co_names,
         "TunerInternal._run_config": "_run_config" in TunerInternal.__init__.__code__.co_names,
         "Tuner._local_tuner": "_local_tuner" in tune.Tuner.__annotations__,
@@ -691,6 +722,7 @@ def _run_study(
         (out / FINISHED).unlink(missing_ok=True)
     clock.open(new_experiment=not restoring)
     identity = run_identity(spec, threshold, job.cost_limits, inputs)
+    identity.update(experiment_path=exp_path, settings=settings_of(spec.summary()))
     added = _check_resume(out, identity, restoring, exp_path)
     tuner, concurrent = _make_tuner(
         spec, job, trial_fn, restoring, exp_path, storage, concurrent,
@@ -733,6 +765,7 @@ def _run_study(
     )
     clock.close()
     timing = write_timing(out, trials, meta)
+    check_optuna_copy(spec, exp_path)  # never a finished claim over a broken copy
     write_json_atomic(out / FINISHED, _finished_record(spec), default=str)
     return replace(outcome, winner=winner, final=final, timing=timing, certificate=certificate)
 
@@ -831,6 +864,7 @@ def _prepare_outputs(spec: StudySpec, fresh: bool, verbose: bool) -> tuple[Path,
     # CheckpointConfig(num_to_keep)
     os.environ.setdefault("TUNE_WARN_EXCESSIVE_EXPERIMENT_CHECKPOINT_SYNC_THRESHOLD_S", "0")
     check_persistence_api()
+    install_atomic_upload()  # Tune's state on a local storage: whole files or the old ones
     if not verbose:
         quiet_logs()
     out = spec.results / spec.name
@@ -845,6 +879,12 @@ def _prepare_outputs(spec: StudySpec, fresh: bool, verbose: bool) -> tuple[Path,
                      TIMING_LOG, "timing.md"):  # fmt: skip
             (out / name).unlink(missing_ok=True)
         shutil.rmtree(out / STORE, ignore_errors=True)
+    else:  # the study's own records decide what may be resumed, before Ray starts
+        restorable = tune.Tuner.can_restore(exp_path)
+        check_resume(out, settings=settings_of(spec.summary()), exp_path=exp_path,
+                     restoring=restorable, local=not _is_uri(exp_path))  # fmt: skip
+        if restorable:
+            check_optuna_copy(spec, exp_path, finished=False)
     return out, storage, exp_path
 
 
@@ -889,7 +929,14 @@ def _make_tuner(
     if restoring:
         more = f" with {added} more trial(s), {spec.trials} in all" if added else ""
         print(f"resuming study {spec.name!r} from {exp_path}{more}")
-        tuner = tune.Tuner.restore(exp_path, trainable=trainable, resume_errored=True)
+        try:
+            tuner = tune.Tuner.restore(exp_path, trainable=trainable, resume_errored=True)
+        except (pickle.UnpicklingError, EOFError) as e:  # Tune writes tuner.pkl in place
+            raise ResumeRefused(
+                f"{exp_path}/tuner.pkl: Tune's saved tuner is unreadable ({e}; a full disk "
+                "when the study started leaves it so): restore it from a copy, or pass --fresh "
+                "to start the study over"
+            ) from None
         tuner._local_tuner._tune_config.num_samples = spec.trials
         for callback in tuner._local_tuner._run_config.callbacks or []:
             if isinstance(callback, TrialLines):  # "k/N" lines count to the new total
@@ -988,6 +1035,9 @@ def _final_and_certificate(
     clock.skip()
     meta = {**meta, "final_phase_seconds": round(time.perf_counter() - t0, 1)}
     _write_final(spec, final, candidates, meta)
+    check_optuna_copy(
+        spec, str(meta["experiment_path"])
+    )  # a missing copy is written again from the searcher
     mark_final_winner(default_optuna_storage(spec), spec.name, final.winner, final.feasible)
     plot_pareto(
         trials,
@@ -1021,7 +1071,9 @@ def _trial_rows(
             f"not know them and ran others instead; their reports stay in {HISTORY} only): "
             + ", ".join(lost)
         )
-    orphans = _remove_orphan_trial_dirs(exp_path, set(trials["trial_id"]))
+    # a trial whose end the study recorded keeps its folder, whatever Tune's state says
+    ended = history_events(out / HISTORY)[1]
+    orphans = _remove_orphan_trial_dirs(exp_path, set(trials["trial_id"]) | ended)
     if orphans:
         print(f"removed the folders of {len(orphans)} such trial(s) from {exp_path}")
     return trials, history, lost
@@ -1171,10 +1223,12 @@ def finished_outcome(spec: StudySpec) -> StudyOutcome | None:
     )
 
 
-def check_optuna_copy(spec: StudySpec, experiment_path: str) -> None:
+def check_optuna_copy(spec: StudySpec, experiment_path: str, *, finished: bool = True) -> None:
     """A finished study's Optuna copy (``optuna.db`` by default) must be whole and its own:
     the study of this name with every trial. A missing local copy is written again from the
-    Tune experiment's searcher, with the final winner of ``best.json`` marked.
+    Tune experiment's searcher, with the final winner of ``best.json`` marked. An unfinished
+    study's copy (``finished=False``, checked before a resume) may lack trials, or be missing
+    (the searcher writes it again).
 
     Raises:
         ValueError: one line naming the file and the problem (corrupt, cut short, another
@@ -1186,14 +1240,14 @@ def check_optuna_copy(spec: StudySpec, experiment_path: str) -> None:
         return  # a shared database: checked by its own server
     path = Path(url.removeprefix(prefix))
     if not path.exists():
-        if experiment_path and not _is_uri(experiment_path):
+        if finished and experiment_path and not _is_uri(experiment_path):
             searcher = load_searcher(experiment_path)
             searcher._export_to = url
             searcher.export()
             best = json.loads((spec.results / spec.name / "best.json").read_text())
             mark_final_winner(url, spec.name, best.get("trial_id"), bool(best.get("feasible")))
         return
-    problem = optuna_copy_problem(path, spec.name, spec.trials)
+    problem = optuna_copy_problem(path, spec.name, spec.trials, at_most=not finished)
     if problem:
         raise ValueError(
             f"{path}: {problem}; it is only a copy for Optuna's tools: delete it and rerun the "
@@ -1201,9 +1255,10 @@ def check_optuna_copy(spec: StudySpec, experiment_path: str) -> None:
         )
 
 
-def optuna_copy_problem(path: Path, name: str, trials: int) -> str:
+def optuna_copy_problem(path: Path, name: str, trials: int, *, at_most: bool = False) -> str:
     """What is wrong with the Optuna SQLite copy at ``path`` of study ``name`` with ``trials``
-    trials (``""``: nothing). Opened read-only: nothing is created or changed."""
+    trials (``at_most``: up to ``trials``, a study under way) (``""``: nothing). Opened
+    read-only: nothing is created or changed."""
     import sqlite3
 
     try:
@@ -1221,7 +1276,7 @@ def optuna_copy_problem(path: Path, name: str, trials: int) -> str:
         return f"not a whole Optuna database ({e})"
     if check and check[0] != "ok":
         return f"a damaged Optuna database ({check[0]})"
-    if n != trials:
+    if n > trials or (n != trials and not at_most):
         return f"holds {n} trials of study {name!r}, the study has {trials}"
     return ""
 
@@ -1245,13 +1300,21 @@ def _checkpoints(grid: Any, trial_ids: Sequence[str]) -> dict[str, BCNet]:
     out = {}
     for r in grid:
         tid = str((r.metrics or {}).get("trial_id"))
-        if tid in trial_ids and r.checkpoint is not None:
-            with r.checkpoint.as_directory() as d:
-                out[tid] = load_checkpoint(d)[0]
-        elif tid in trial_ids:  # resumed from a checkpoint Tune had not recorded (resume_point)
-            stored = stored_checkpoint(r.filesystem, r.path)
-            if stored is not None:
-                out[tid] = stored[0]
+        if tid not in trial_ids:
+            continue
+        try:
+            if r.checkpoint is not None:
+                with r.checkpoint.as_directory() as d:
+                    out[tid] = load_checkpoint(d)[0]
+                continue
+        except (CheckpointError, OSError) as e:  # the final phase retrains it
+            print(f"trial {tid}: its checkpoint is damaged ({' '.join(str(e).split())[:200]}); "
+                  "the final phase trains it again")  # fmt: skip
+            continue
+        # resumed from a checkpoint Tune had not recorded (resume_point)
+        stored = stored_checkpoint(r.filesystem, r.path)
+        if stored is not None:
+            out[tid] = stored[0]
     return out
 
 

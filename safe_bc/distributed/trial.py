@@ -267,20 +267,22 @@ def stored_checkpoint(
     return None
 
 
-def resume_point() -> tuple[list[BCNet], dict[str, Any]] | None:
-    """Every training seed's trained net and the checkpoint's ``extra`` when this trial has
-    trained before.
+def resume_point() -> tuple[list[BCNet], dict[str, Any], bool] | None:
+    """Every training seed's trained net, the checkpoint's ``extra`` and whether Tune had
+    recorded the checkpoint, when this trial has trained before.
 
     Tune hands over the checkpoint it recorded (a retry, a resumed study). A checkpoint the
     trial reported just before the driver stopped (Ctrl-C, or killed) is on the storage but not
     in Tune's saved experiment state, and Tune then restarts the trial without one (Ray 2.60):
-    the newest complete checkpoint in the trial's folder is used instead of retraining.
+    the newest complete checkpoint in the trial's folder is used instead of retraining (and
+    reported again: the driver may never have seen its ``trained`` report).
     """
     checkpoint = tune.get_checkpoint()
     if checkpoint is not None:
-        return _load_seeds(checkpoint)
+        return (*_load_seeds(checkpoint), True)
     storage = tune.get_context().get_storage()
-    return stored_checkpoint(storage.storage_filesystem, storage.trial_fs_path, all_seeds=True)
+    stored = stored_checkpoint(storage.storage_filesystem, storage.trial_fs_path, all_seeds=True)
+    return None if stored is None else (*stored, False)
 
 
 def trial_folder() -> Path:
@@ -369,10 +371,12 @@ def run_trial(config: dict[str, Any], job: TrialJob) -> None:
 
     resumed = resume_point()
     if resumed is not None:  # a retry or a resumed study: the weights are already trained
-        models, extra = resumed
+        models, extra, recorded = resumed
         metrics.update(extra["train"], resumed=True)
         earlier = float(extra["trained_s"])
         store_s = 0.0  # the earlier run's checkpoint time is not known
+        if not recorded:  # its trained report may be lost with the driver: the row again
+            tune.report({**metrics, "phase": "trained", "duration_s": earlier})
     else:
         results = []
         for s in seeds:

@@ -139,3 +139,31 @@ def test_ensure_demos_refuses_another_collection_and_reads_a_complete_one(
             ensure_demos(two_episodes, other, progress=False)
         assert named in str(e.value) and "\n" not in str(e.value)
     assert {p: p.stat().st_mtime_ns for p in two_episodes.rglob("*") if p.is_file()} == before
+
+
+def test_a_full_disk_while_collecting_is_one_line_and_the_rerun_resumes(
+    ray_session, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    import errno
+
+    import safe_bc.atomic as atomic
+
+    out = tmp_path / "d"
+    argv = ["collect", "--episodes", "2", "--workers", "1", "--max-steps", "30", "--out",
+            str(out), "--quiet"]  # fmt: skip
+    real = atomic.os.replace
+
+    def full_on_the_second(src, dst):  # the second episode's file does not fit
+        if str(dst).endswith("episode-00001.parquet"):
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real(src, dst)
+
+    monkeypatch.setattr(atomic.os, "replace", full_on_the_second)
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "No space left on device" in err, err
+    files = sorted(p.name for p in (out / "episodes").iterdir())
+    assert files == ["episode-00000.parquet"]  # nothing half-written beside it
+    monkeypatch.undo()
+    assert main(argv) == 0  # space again: the rerun keeps episode 0 and collects episode 1
+    assert [e.episode_id for e in read_episodes(out)] == [0, 1]

@@ -122,6 +122,46 @@ def test_a_failing_copy_warns_and_the_study_goes_on() -> None:
     assert s.study.trials[0].state.name == "COMPLETE"
 
 
+def test_a_copy_to_a_full_disk_warns_in_one_line(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import sqlite3
+
+    import sqlalchemy.exc
+
+    import safe_bc.distributed.search as search
+
+    def full(*args, **kwargs):  # what SQLAlchemy raises when SQLite finds the disk full
+        raise sqlalchemy.exc.OperationalError(
+            "INSERT INTO trials (number, study_id) VALUES (?, ?)",
+            (0, 1),
+            sqlite3.OperationalError("database or disk is full"),
+        )
+
+    monkeypatch.setattr(search, "_copy_into", full)
+    s = _searcher(batch_size=None)
+    s._export_to = f"sqlite:///{tmp_path / 'optuna.db'}"
+    cfg = s.suggest("t0")
+    with pytest.warns(UserWarning) as caught:
+        s.on_trial_complete("t0", _result(cfg["a"]))
+    (message,) = [str(w.message) for w in caught]
+    assert "database or disk is full" in message and "\n" not in message, message
+    assert not list(tmp_path.iterdir())  # no half-written copy
+
+
+def test_a_studys_warnings_print_as_one_line() -> None:
+    import warnings
+
+    from safe_bc.distributed.console import one_line_warnings
+
+    before = warnings.formatwarning
+    message = "could not copy: (sqlite3.OperationalError) full\n  [SQL: ...]"
+    with one_line_warnings():
+        shown = warnings.formatwarning(message, UserWarning, "search.py", 1, "warnings.warn(x)")
+    assert shown == "warning: could not copy: (sqlite3.OperationalError) full [SQL: ...]\n"
+    assert warnings.formatwarning is before
+
+
 def test_batch_halving_compares_with_earlier_batches_only() -> None:
     assert halving_decision(5.0, []) == TrialScheduler.CONTINUE
     assert halving_decision(5.0, [1.0, 9.0, 10.0]) == TrialScheduler.STOP

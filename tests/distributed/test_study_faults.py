@@ -72,6 +72,19 @@ def test_a_trial_end_forces_the_save_at_the_end_of_tunes_step() -> None:
     assert not manager._should_force_sync_up
     s.on_trial_complete(controller, trial, {"r": 2, "m": 1.0})
     assert manager._should_force_sync_up
+    # the forced save waits for its own copy to the storage (a plain one does not)
+    waits = []
+    manager._storage = SimpleNamespace(
+        experiment_driver_staging_path="/staging",
+        experiment_fs_path="/storage",
+        syncer=SimpleNamespace(sync_up=lambda *a, **kw: True, wait=lambda: waits.append(1)),
+    )
+    manager.sync_up_experiment_state(save_fn=lambda: None)
+    assert len(waits) == 2 and not manager._should_force_sync_up  # the previous copy, its own
+    manager._last_save_time = -1e9
+    waits.clear()
+    manager.sync_up_experiment_state(save_fn=lambda: None, force=False)
+    assert waits == []
     manager._should_force_sync_up = False
     s.on_trial_add(controller, SimpleNamespace(trial_id="t2"))
     s.on_trial_error(SimpleNamespace(_tune_controller=controller), SimpleNamespace(trial_id="t2"))
@@ -530,7 +543,7 @@ def test_an_os_error_inside_tune_is_one_line_saying_what_a_rerun_does(
         run_study(spec, progress=False, callbacks=[FullDisk()])
     assert type(e.value) is OSError and e.value.filename == "/full/history.jsonl"
     assert "No space left" in e.value.strerror and "rerun the same command" in e.value.strerror
-    assert "\n" not in str(e.value)
+    assert "\n" not in str(e.value) and str(e.value).count("rerun") == 1
 
 
 def test_a_finished_studys_optuna_copy_must_be_whole_and_its_own(tmp_path: Path) -> None:

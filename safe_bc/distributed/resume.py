@@ -1,0 +1,278 @@
+"""What a study's rerun may resume: the study's own records decide, Tune's state must agree.
+
+A study keeps its own records in ``results/<study>/``: ``study.json`` (what the trials depend
+on and where the Tune experiment lives), ``history.jsonl`` (every report, and a line per trial
+whose end Tune has saved), the trials' rounds and checkpoints, and its Optuna copy. Before a
+rerun touches Tune, :func:`check_resume` compares them with this run and with Tune's saved
+experiment state; a rerun that would drop, mix or redo finished work is refused with
+:class:`ResumeRefused`, one line naming the difference and how to recover.
+
+Tune (Ray 2.60) writes its experiment state in place and, when that state cannot be read,
+silently starts the experiment over; :func:`install_atomic_upload` makes its copy to a local
+storage folder whole-or-nothing, file by file.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import fnmatch
+import json
+import os
+import shutil
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from safe_bc.atomic import atomic_write
+
+STUDY_RECORD = "study.json"
+"""The study's identity in ``results/<study>/``: what its trials depend on."""
+TUNE_STATE = "experiment_state-*.json"
+"""Tune's saved experiment state in ``<storage>/<study>/`` (one file per driver run)."""
+
+RESOURCE_FIELDS = frozenset(
+    {
+        "max_concurrent",
+        "cpus_per_trial",
+        "cpus_per_worker",
+        "rollout_workers",
+        "final_workers",
+        "max_failures",
+        "storage",
+        "results",
+        "optuna_storage",
+        "demos",
+    }
+)
+"""``StudySpec`` fields that change where and how fast the study runs, never a trial's or the
+final phase's numbers: a rerun may change them (``storage`` is compared as the experiment's
+path, ``experiment_path``; the demonstrations by their digest, wherever they lie)."""
+
+
+class ResumeRefused(ValueError):
+    """A rerun that would drop, mix or redo a study's finished work (one line)."""
+
+
+# --- pure: what differs ---------------------------------------------------------------------
+
+
+def settings_of(summary: Mapping[str, Any]) -> dict[str, Any]:
+    """The part of ``StudySpec.summary()`` that shapes the trials and the final phase, as JSON
+    values (what ``study.json`` keeps and a resume compares)."""
+    kept = {k: v for k, v in summary.items() if k not in RESOURCE_FIELDS}
+    return json.loads(json.dumps(kept, sort_keys=True, default=str))
+
+
+def _flat(value: Any, prefix: str = "") -> dict[str, Any]:
+    if isinstance(value, Mapping):
+        out: dict[str, Any] = {}
+        for k, v in value.items():
+            out.update(_flat(v, f"{prefix}{k}."))
+        return out or {prefix.rstrip("."): {}}
+    return {prefix.rstrip("."): value}
+
+
+def differences(stored: Mapping[str, Any], now: Mapping[str, Any]) -> list[str]:
+    """``"field old -> new"`` for every (nested, dotted) field that differs.
+
+    >>> differences({"max_steps": 100, "base": {"lr": 1}}, {"max_steps": 160, "base": {"lr": 1}})
+    ['max_steps 100 -> 160']
+    """
+    a, b = _flat(stored), _flat(now)
+    missing = object()
+    out = []
+    for key in sorted(set(a) | set(b)):
+        old, new = a.get(key, missing), b.get(key, missing)
+        if old != new:
+            show = ["(none)" if v is missing else json.dumps(v, default=str) for v in (old, new)]
+            out.append(f"{key} {show[0]} -> {show[1]}")
+    return out
+
+
+def identity_problem(stored: Mapping[str, Any], now: Mapping[str, Any]) -> str:
+    """What differs between the identity a study was started with and this run's (``""``:
+    nothing). Keys the stored record lacks (a study started by an older safe_bc) are not
+    compared."""
+    shared = {k: v for k, v in now.items() if k in stored}
+    changed = differences({k: stored[k] for k in shared}, shared)
+    if not changed:
+        return ""
+    more = f" and {len(changed) - 3} more" if len(changed) > 3 else ""
+    return ", ".join(changed[:3]) + more
+
+
+# --- the study's records ------------------------------------------------------------------
+
+
+def read_record(out: Path) -> dict[str, Any] | None:
+    """``study.json`` of the study at ``out`` (``None``: none, or unreadable)."""
+    try:
+        record = json.loads((out / STUDY_RECORD).read_text())
+    except (OSError, json.JSONDecodeError):
+        return None
+    return record if isinstance(record, dict) else None
+
+
+def history_events(path: Path) -> tuple[set[str], set[str]]:
+    """``(reported, ended)``: the trial ids with a report in the study's ``history.jsonl`` and
+    those whose end Tune had saved (a ``complete`` or ``error`` event); a line cut short is
+    skipped."""
+    reported: set[str] = set()
+    ended: set[str] = set()
+    with contextlib.suppress(OSError):
+        for line in path.read_text().splitlines():
+            try:
+                row = json.loads(line)
+            except json.JSONDecodeError:
+                continue
+            if isinstance(row, dict) and "trial_id" in row:
+                (ended if row.get("event") else reported).add(str(row["trial_id"]))
+    return reported, ended
+
+
+def tune_state(exp_path: str) -> tuple[Path | None, set[str], str]:
+    """``(file, trial ids, problem)`` of the newest Tune experiment state in the local folder
+    ``exp_path`` (the one Tune restores from); ``problem`` is ``""`` when it reads whole."""
+    files = sorted(Path(exp_path).glob(TUNE_STATE))
+    if not files:
+        return None, set(), "no experiment state file"
+    newest = files[-1]
+    try:
+        data = newest.read_bytes()
+    except OSError as e:
+        return newest, set(), f"unreadable ({e.strerror or e})"
+    if not data.strip():
+        return newest, set(), "empty"
+    try:
+        state = json.loads(data)
+        ids = {str(json.loads(t[0])["trial_id"]) for t in state["trial_data"]}
+    except (ValueError, KeyError, TypeError, IndexError) as e:
+        what = " ".join(str(e).split())[:80]
+        return newest, set(), f"not whole JSON Tune can read ({what})"
+    return newest, ids, ""
+
+
+def check_resume(
+    out: Path,
+    *,
+    settings: Mapping[str, Any],
+    exp_path: str,
+    restoring: bool,
+    local: bool,
+) -> None:
+    """Refuse a rerun of the study at ``out`` that does not continue its records.
+
+    Args:
+        out: the study's ``results/<study>/``.
+        settings: this run's :func:`settings_of`.
+        exp_path: this run's Tune experiment path.
+        restoring: Tune has an experiment at ``exp_path`` to restore.
+        local: ``exp_path`` is a local folder (its state file can be read).
+
+    Raises:
+        ResumeRefused: one line naming what differs and how to recover.
+    """
+    record = read_record(out)
+    reported, ended = history_events(out / "history.jsonl")
+    tables = (out / "trials.parquet").exists()
+    has_work = bool(reported or ended) or tables
+    fresh = "pass --fresh to start the study over"
+    if record is not None:
+        stored_path = record.get("experiment_path")
+        if stored_path is not None and stored_path != exp_path and (has_work or restoring):
+            raise ResumeRefused(
+                f"the study at {out} keeps its Tune experiment at {stored_path}, not {exp_path}: "
+                f"rerun with the --storage it was started with to resume it, or {fresh} here"
+            )
+        if "settings" in record and (has_work or restoring):
+            what = identity_problem(record["settings"], settings)
+            if what:
+                raise ResumeRefused(
+                    f"the study at {out} was started with other settings ({what}): its trials "
+                    f"would mix both; rerun with the same study file to resume, or {fresh}"
+                )
+    if not restoring:
+        if ended or tables:  # in-flight reports only: nothing finished is lost by a new start
+            n = len(ended)
+            raise ResumeRefused(
+                f"the study at {out} has recorded trials ({n} finished) but no Tune experiment "
+                f"at {exp_path} to resume them with: restore that folder, or {fresh}"
+            )
+        return
+    if not local:
+        return
+    if not ended:  # nothing finished: Tune may start over without losing anything
+        return
+    file, known, problem = tune_state(exp_path)
+    where = file or Path(exp_path)
+    if problem:
+        raise ResumeRefused(
+            f"{where}: Tune's experiment state is {problem}; Tune would start over and drop the "
+            f"study's {len(ended)} finished trial(s) kept in {out}: nothing was run; restore the "
+            f"file from a copy, or {fresh}"
+        )
+    lost = sorted(ended - known)
+    if lost:
+        shown = ", ".join(lost[:5]) + (" ..." if len(lost) > 5 else "")
+        raise ResumeRefused(
+            f"{where}: Tune's experiment state does not know {len(lost)} trial(s) that "
+            f"{out / 'history.jsonl'} records as finished ({shown}): it is older or damaged, "
+            f"and resuming would drop them; nothing was run; restore the file, or {fresh}"
+        )
+
+
+# --- Tune's copy of its state, whole or not at all ------------------------------------------
+
+
+def _atomic_copy_tree(local_path: str, dest: str, exclude: list[str] | None) -> None:
+    """Copy the file or folder ``local_path`` to the local path ``dest``, every file through
+    a temporary file and a rename (a full disk leaves the old file, never half a new one)."""
+    src = Path(local_path)
+    if src.is_file():
+        pairs = [(src, Path(dest))]
+    else:
+        pairs = []
+        for root, _, files in os.walk(src):
+            for name in files:
+                path = Path(root, name)
+                rel = path.relative_to(src).as_posix()
+                if exclude and any(fnmatch.fnmatch(rel, pat) for pat in exclude):
+                    continue
+                pairs.append((path, Path(dest, rel)))
+        Path(dest).mkdir(parents=True, exist_ok=True)
+    for source, target in pairs:
+        with open(source, "rb") as f, atomic_write(target) as g:
+            shutil.copyfileobj(f, g)
+
+
+def install_atomic_upload() -> None:
+    """Make Tune's copy of the driver's files (experiment state, searcher state,
+    ``tuner.pkl``) to a *local* storage folder atomic per file; other filesystems keep Tune's
+    own copy. Idempotent.
+
+    Raises:
+        RuntimeError: the installed Ray lacks the function this replaces.
+    """
+    import pyarrow.fs as pafs
+    from ray.train._internal import storage
+
+    original = getattr(storage, "_upload_to_fs_path", None)
+    if original is None:
+        raise RuntimeError(
+            "ray.train._internal.storage has no _upload_to_fs_path; safe_bc's atomic copy of "
+            "Tune's experiment state (distributed/resume.py) needs updating for this Ray version"
+        )
+    if getattr(original, "_safe_bc_atomic", False):
+        return
+
+    def upload(local_path: str, fs: Any, fs_path: str, exclude: list[str] | None = None) -> None:
+        if isinstance(fs, pafs.LocalFileSystem) or (
+            isinstance(fs, pafs.SubTreeFileSystem) and isinstance(fs.base_fs, pafs.LocalFileSystem)
+        ):
+            base = fs.base_path if isinstance(fs, pafs.SubTreeFileSystem) else ""
+            _atomic_copy_tree(local_path, os.path.join(base, fs_path), exclude)
+            return
+        original(local_path, fs, fs_path, exclude)
+
+    upload._safe_bc_atomic = True  # type: ignore[attr-defined]
+    storage._upload_to_fs_path = upload
