@@ -30,7 +30,7 @@ import pandas as pd
 import tyro
 
 from safe_bc.bc import BCConfig
-from safe_bc.compare import EXPERT, PAPER_TABLE1, Comparison, Method, build_table
+from safe_bc.compare import EXPERT, PAPER_TABLE1, Comparison, Method, Row, build_table
 from safe_bc.envs import EnvConfig
 from safe_bc.selection import RULES, Baseline, Rest, SelectionConfig
 from safe_bc.tasks import Task, task_defaults, task_of
@@ -131,7 +131,7 @@ class ReproduceConfig:
         """``eps``, or the task's default."""
         return task_defaults(self.task).eps if self.eps is None else self.eps
 
-    def methods(self) -> list[Method]:
+    def methods(self) -> list[Row]:
         """The trained rows, in table order: the alpha mix per reading, then the baselines.
 
         Raises:

@@ -1,5 +1,6 @@
-"""The study's query stage (:data:`safe_bc.stages.STAGES` ``"queries"``): a trial's trained
-net, retrained on critical-zone queries in the stage's folder (resumable per round)."""
+"""The ``queries`` method's runner (:data:`safe_bc.methods.METHODS` ``"queries"``): a start
+agent retrained on critical-zone queries in its folder (resumable per round), and
+``safe-bc query`` from a checkpoint."""
 
 from __future__ import annotations
 
@@ -7,7 +8,11 @@ from dataclasses import fields
 from pathlib import Path
 from typing import Any
 
+import pandas as pd
+
 from safe_bc.bc.net import BCNet
+from safe_bc.envs.config import EnvConfig
+from safe_bc.methods.registry import Improved, Start
 from safe_bc.queries.config import QueryConfig
 from safe_bc.queries.run import QueryResult, run_queries
 from safe_bc.run_config import RunConfig
@@ -32,12 +37,13 @@ def query_run(
     agent: BCNet,
     run_config: RunConfig,
     demos: str | Path,
-    env_id: str,
+    env: str | EnvConfig,
     folder: str | Path,
     **kwargs: Any,
 ) -> QueryResult:
-    """:func:`run_queries` with the task's env, the demonstrations' expert and action bounds,
-    rolled out on ``config.workers`` Ray actors (0: in this process)."""
+    """:func:`run_queries` in ``env`` (an env id: the task's env), with the demonstrations'
+    expert and action bounds, rolled out on ``config.workers`` Ray actors (0: in this
+    process)."""
     from safe_bc.data.store import load_demonstrations
     from safe_bc.tasks import dataset_action_bounds, task_defaults, task_of
 
@@ -47,14 +53,15 @@ def query_run(
 
         kwargs["rollouts"] = ChunkedRayRollouts(query_tracks, config.workers)
     data = load_demonstrations(Path(demos))
-    env = task_defaults(task_of(env_id)).env
+    if isinstance(env, str):
+        env = task_defaults(task_of(env)).env
     return run_queries(
         agent,
         run_config,
         data,
         demos,
         env,
-        expert_for(demos, env_id),
+        expert_for(demos, env.env_id),
         folder,
         config,
         action_bounds=dataset_action_bounds(demos),
@@ -62,27 +69,29 @@ def query_run(
     )
 
 
-def run_stage(
-    config: QueryConfig,
-    agent: Any,
-    run_config: RunConfig,
-    demos: str,
-    env_id: str,
-    folder: Path,
-) -> tuple[Any, dict[str, float]]:
-    """The last round's agent of ``agent`` (a trained :class:`BCNet`) and its report values."""
-    from safe_bc.evaluation import NetSource
+def run(
+    config: QueryConfig, start: Start, folder: Path, *, metadata: dict[str, Any] | None = None
+) -> Improved:
+    """The ``queries`` method's runner (:data:`safe_bc.methods.METHODS`): the last round's
+    agent of ``start`` and its report values (``metadata`` is not stored: the rounds carry
+    their own)."""
     from safe_bc.rounds import policy_source
 
-    if not isinstance(agent, BCNet):
-        raise TypeError(f"the query stage starts from a trained BCNet, got {type(agent)}")
-    result = query_run(config, agent, run_config, demos, env_id, folder)
-    source: NetSource = policy_source(result.policy)
-    return source, {
-        "queries_total": float(result.total_queries),
-        "queries_per_episode": result.total_queries / max(result.total_episodes, 1),
-        "queries_seconds": float(sum(r["seconds"] for r in result.rounds)),
-    }
+    result = query_run(config, start.agent, start.run_config, start.demos, start.env, folder)
+    source = policy_source(result.policy)
+    seconds = [float(r["seconds"]) for r in result.rounds]
+    return Improved(
+        policy=source,
+        net=source,
+        report={
+            "queries_total": float(result.total_queries),
+            "queries_per_episode": result.total_queries / max(result.total_episodes, 1),
+            "queries_seconds": float(sum(seconds)),
+        },
+        history=pd.DataFrame({"iteration": range(1, len(seconds) + 1), "seconds": seconds}),
+        fresh=result.resumed_rounds < len(result.rounds),
+        result=result,
+    )
 
 
 def query_checkpoint(
