@@ -20,6 +20,7 @@ from safe_bc.jobs import (
     ExpertJob,
     ExportJob,
     ImproveJob,
+    MethodJob,
     QueryJob,
     RenderJob,
     ReproduceJob,
@@ -488,6 +489,22 @@ def improve(job: ImproveJob) -> Done:
         f"{last['lambda']:.2f}; policy of iteration {result.kept_iteration} in "
         f"{job.out / 'policy'}",
         result,
+    )
+
+
+def method(job: MethodJob) -> Done:
+    """Run (or resume) the registered method ``job.name`` from a checkpoint; the value is its
+    :class:`~safe_bc.methods.Improved`."""
+    from safe_bc.methods import method_of
+    from safe_bc.methods.start import start_from_checkpoint
+
+    spec = method_of(job.name)
+    start = start_from_checkpoint(job.start, job.demos)
+    with output_lock(job.out):
+        done = spec.run(job.config, start, job.out)
+    report = ", ".join(f"{k} {v:g}" for k, v in done.report.items())
+    return Done(
+        f"{job.out}: {spec.name} from {job.start}" + (f"; {report}" if report else ""), done
     )
 
 

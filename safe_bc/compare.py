@@ -130,6 +130,10 @@ class Comparison:
     """What the rows and values mean, printed under the table before the provenance."""
 
     def __post_init__(self) -> None:
+        for m in self.methods:
+            if not isinstance(m, KINDS):
+                kinds = ", ".join(k.__name__ for k in KINDS)
+                raise ValueError(f"comparison {self.name!r}: a row is one of {kinds}, got {m!r}")
         names = [m.name for m in self.methods]
         if not names:
             raise ValueError(f"comparison {self.name!r}: no methods")
@@ -140,9 +144,6 @@ class Comparison:
         dup = sorted({n for n in names if names.count(n) > 1})
         if dup:
             raise ValueError(f"comparison {self.name!r}: method names repeat: {dup}")
-        for m in self.methods:
-            if not isinstance(m, KINDS):
-                raise ValueError(f"comparison {self.name!r}: a row is one of {KINDS}, got {m!r}")
         bc_rows = {m.name for m in self.methods if isinstance(m, Agent)}
         agents = bc_rows | {m.name for m in self.methods if isinstance(m, FromStart)}
         for m in self.methods:

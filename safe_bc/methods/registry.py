@@ -143,7 +143,8 @@ class MethodSpec:
         """Refuse a config of another type (one line naming the method)."""
         if not isinstance(config, self.config):
             raise ValueError(
-                f"method {self.name!r} takes a {self.config.__name__}, got {type(config).__name__}"
+                f"method {self.name!r} takes a config of type {self.config.__name__}, "
+                f"got {type(config).__name__}"
             )
 
     def identify(self, config: Any, task: str) -> Any:
@@ -187,4 +188,4 @@ def method_of_config(config: Any) -> MethodSpec:
     for spec in METHODS.values():
         if type(config) is spec.config:
             return spec
-    raise ValueError(f"no registered method takes a {type(config).__name__}")
+    raise ValueError(f"no registered method takes a config of type {type(config).__name__}")
