@@ -442,10 +442,13 @@ def tune(job: TuneJob, *, command: str = "") -> Done:
 
 
 def query(job: QueryJob) -> Done:
-    """Critical-zone queries on a checkpoint (resumable); the value is the run's result."""
-    from safe_bc.queries.stage import query_checkpoint
+    """Critical-zone queries on a checkpoint (resumable; the ``queries`` method of
+    :data:`safe_bc.methods.METHODS`); the value is the run's result."""
+    from safe_bc.methods import METHODS
+    from safe_bc.methods.start import start_from_checkpoint
 
-    result = query_checkpoint(job.checkpoint, job.demos, job.out, job.config)
+    start = start_from_checkpoint(job.checkpoint, job.demos)
+    result = METHODS["queries"].run(job.config, start, job.out).result
     return Done(
         f"{result.total_queries} queries in {result.total_episodes} episodes; "
         f"agent: {result.policy}",
@@ -509,10 +512,12 @@ def method(job: MethodJob) -> Done:
 
 
 def _selfimitate(job: ImproveJob) -> Done:
-    from safe_bc.selfimprove.stage import selfimprove_checkpoint
+    from safe_bc.methods import METHODS
+    from safe_bc.methods.start import start_from_checkpoint
 
     with output_lock(job.out):
-        result = selfimprove_checkpoint(job.start, job.demos, job.out, job.selfimitation)
+        start = start_from_checkpoint(job.start, job.demos)
+        result = METHODS["selfimprove"].run(job.selfimitation, start, job.out).result
     last = result.rounds[-1]
     return Done(
         f"{job.out}: selfimitation, {len(result.rounds)} rounds ({result.resumed_rounds} "

@@ -452,12 +452,13 @@ def _improve_cell(
 def run_cell(
     comparison: Comparison, cell: str, *, workers: int | None = None, progress: bool = True
 ) -> Path:
-    """Train (a BC row) or improve (an improvement or self-imitation row, its start trained
-    first when missing) the one cell ``"METHOD:SEED"``: no evaluation, no tables. Cells are
-    independent, so a comparison's cells can run in parallel processes or on other machines
-    sharing ``out``; a later :func:`run_comparison` reuses them (each cell's folder records
-    the machine that ran it). ``workers`` overrides a self-imitation row's rollout actors (0:
-    in this process; results do not depend on it). Returns the cell's folder."""
+    """Train (a BC row) or improve (a method row, its start trained first when missing) the
+    one cell ``"METHOD:SEED"``: no evaluation, no tables. Cells are independent, so a
+    comparison's cells can run in parallel processes or on other machines sharing ``out``; a
+    later :func:`run_comparison` reuses them (each cell's folder records the machine that ran
+    it). ``workers`` overrides the rollout actors of a method row whose config has ``workers``
+    (self-imitation, queries; 0: in this process; results do not depend on it). Returns the
+    cell's folder."""
     c = comparison
     name, sep, seed_text = cell.rpartition(":")
     if not sep or not seed_text.isdigit():

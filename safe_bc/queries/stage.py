@@ -1,6 +1,5 @@
 """The ``queries`` method's runner (:data:`safe_bc.methods.METHODS` ``"queries"``): a start
-agent retrained on critical-zone queries in its folder (resumable per round), and
-``safe-bc query`` from a checkpoint."""
+agent retrained on critical-zone queries in its folder (resumable per round)."""
 
 from __future__ import annotations
 
@@ -92,19 +91,3 @@ def run(
         fresh=result.resumed_rounds < len(result.rounds),
         result=result,
     )
-
-
-def query_checkpoint(
-    checkpoint: str | Path, demos: str | Path, out: str | Path, config: QueryConfig
-) -> QueryResult:
-    """``safe-bc query``: :func:`query_run` from a ``safe-bc train`` checkpoint (its selection
-    config from its ``selection.parquet`` summary, its env from its ``extra``)."""
-    from safe_bc.bc.checkpoint import SELECTION, load_checkpoint, read_checkpoint_meta
-    from safe_bc.data.store import read_table_metadata
-    from safe_bc.selection import SelectionConfig
-
-    model, bc = load_checkpoint(checkpoint)
-    extra = read_checkpoint_meta(checkpoint).get("extra", {})
-    sel = read_table_metadata(Path(checkpoint) / SELECTION)["config"]
-    run_config = RunConfig(SelectionConfig(**sel), bc)
-    return query_run(config, model, run_config, demos, extra["env_id"], out)

@@ -1,6 +1,5 @@
 """The ``selfimprove`` method's runner (:data:`safe_bc.methods.METHODS` ``"selfimprove"``): a
-start agent improved by filtered self-imitation in its folder (resumable per round), and
-``safe-bc improve --method selfimitation`` from a checkpoint."""
+start agent improved by filtered self-imitation in its folder (resumable per round)."""
 
 from __future__ import annotations
 
@@ -93,21 +92,3 @@ def identity(config: SelfImproveConfig, task: str) -> dict[str, Any]:
     resolved = config.for_task(task)
     assert resolved.pushes is not None
     return {**resolved.identity(), "pushes": list(resolved.pushes)}
-
-
-def selfimprove_checkpoint(
-    checkpoint: str | Path, demos: str | Path | None, out: str | Path, config: SelfImproveConfig
-) -> SelfImproveResult:
-    """``safe-bc improve --method selfimitation``: :func:`selfimprove_run` from a
-    ``safe-bc train`` checkpoint (its selection config from its ``selection.parquet``
-    summary, its env and, without ``demos``, its demonstrations from its ``extra``)."""
-    from safe_bc.bc.checkpoint import SELECTION, load_checkpoint, read_checkpoint_meta
-    from safe_bc.data.store import read_table_metadata
-    from safe_bc.selection import SelectionConfig
-
-    model, bc = load_checkpoint(checkpoint)
-    extra = read_checkpoint_meta(checkpoint).get("extra", {})
-    sel = read_table_metadata(Path(checkpoint) / SELECTION)["config"]
-    run_config = RunConfig(SelectionConfig(**sel), bc)
-    data = demos if demos is not None else extra["demos"]
-    return selfimprove_run(config, model, run_config, data, extra["env_id"], out)
