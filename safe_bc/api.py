@@ -21,6 +21,7 @@ from safe_bc.jobs import (
     ExpertJob,
     ExportJob,
     ImproveJob,
+    MethodJob,
     QueryJob,
     RenderJob,
     ReproduceJob,
@@ -470,18 +471,25 @@ def tune(job: TuneJob, *, command: str = "") -> Done:
 
 
 def query(job: QueryJob) -> Done:
-    """Critical-zone queries on a checkpoint (resumable); the value is the run's result."""
-    from safe_bc.distributed.rollouts import ChunkedRayRollouts
-    from safe_bc.queries.stage import query_checkpoint
+    """Critical-zone queries on a checkpoint (resumable; the ``queries`` method of
+    :data:`safe_bc.methods.METHODS`); the value is the run's result."""
+    from dataclasses import replace
 
-    result = query_checkpoint(
-        job.checkpoint,
-        job.demos,
-        job.out,
-        job.config,
-        progress=not job.quiet,
-        parallel=ChunkedRayRollouts,
-    )
+    from safe_bc.distributed.rollouts import ChunkedRayRollouts
+    from safe_bc.methods import METHODS
+    from safe_bc.methods.start import start_from_checkpoint
+    from safe_bc.progress import progress_bar
+
+    start = start_from_checkpoint(job.checkpoint, job.demos)
+    rounds = job.config.rounds
+    with progress_bar(show=not job.quiet, total=rounds, desc="query", unit="round") as bar:
+
+        def show(summary: dict[str, Any]) -> None:
+            bar.n = int(summary["round"]) + 1  # resumed rounds count as done
+            bar.set_postfix(queries=int(summary["queries"]))
+
+        start = replace(start, parallel=ChunkedRayRollouts, on_round=show)
+        result = METHODS["queries"].run(job.config, start, job.out).result
     return Done(
         f"{result.total_queries} queries in {result.total_episodes} episodes; "
         f"agent: {result.policy}",
@@ -528,19 +536,51 @@ def improve(job: ImproveJob) -> Done:
     )
 
 
-def _selfimitate(job: ImproveJob) -> Done:
+def method(job: MethodJob) -> Done:
+    """Run (or resume) the registered method ``job.name`` from a checkpoint; the value is its
+    :class:`~safe_bc.methods.Improved`."""
+    from dataclasses import replace
+
     from safe_bc.distributed.rollouts import ChunkedRayRollouts
-    from safe_bc.selfimprove.stage import selfimprove_checkpoint
+    from safe_bc.methods import method_of
+    from safe_bc.methods.start import start_from_checkpoint
+
+    spec = method_of(job.name)
+    start = replace(start_from_checkpoint(job.start, job.demos), parallel=ChunkedRayRollouts)
+    with output_lock(job.out):
+        done = spec.run(job.config, start, job.out)
+    report = ", ".join(f"{k} {v:g}" for k, v in done.report.items())
+    return Done(
+        f"{job.out}: {spec.name} from {job.start}" + (f"; {report}" if report else ""), done
+    )
+
+
+def _selfimitate(job: ImproveJob) -> Done:
+    from dataclasses import replace
+
+    from safe_bc.distributed.rollouts import ChunkedRayRollouts
+    from safe_bc.methods import METHODS
+    from safe_bc.methods.start import start_from_checkpoint
+    from safe_bc.progress import progress_bar
+    from safe_bc.tasks import task_of
 
     with output_lock(job.out):
-        result = selfimprove_checkpoint(
-            job.start,
-            job.demos,
-            job.out,
-            job.selfimitation,
-            progress=not job.quiet,
-            parallel=ChunkedRayRollouts,
-        )
+        start = start_from_checkpoint(job.start, job.demos)
+        rounds = job.selfimitation.for_task(task_of(start.env.env_id)).rounds
+        with progress_bar(
+            show=not job.quiet, total=rounds, desc="selfimitation", unit="round"
+        ) as bar:
+
+            def show(summary: dict[str, Any]) -> None:
+                bar.n = int(summary["round"]) + 1  # resumed rounds count as done
+                bar.set_postfix(
+                    val_reward=f"{summary['validation_reward']:.2f}",
+                    accepted=bool(summary["accepted"]),
+                    kept=int(summary["kept_steps"]),
+                )
+
+            start = replace(start, parallel=ChunkedRayRollouts, on_round=show)
+            result = METHODS["selfimprove"].run(job.selfimitation, start, job.out).result
     last = result.rounds[-1]
     return Done(
         f"{job.out}: selfimitation, {len(result.rounds)} rounds ({result.resumed_rounds} "

@@ -10,6 +10,7 @@ from __future__ import annotations
 import contextlib
 import inspect
 import io
+import itertools
 import re
 import shlex
 import shutil
@@ -28,6 +29,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "tune": ("TuneJob", "tune"),
     "query": ("QueryJob", "query"),
     "improve": ("ImproveJob", "improve"),
+    "method": ("MethodJob", "method"),
     "export": ("ExportJob", "export"),
     "render": ("RenderJob", "render"),
 }
@@ -153,6 +155,8 @@ def parse(argv: Sequence[str]) -> tuple[str, Any]:
     if command not in COMMANDS:
         raise UsageError(f"unknown command {command!r}: choose {', '.join(COMMANDS)}")
     rest = _unalias(command, argv[1:])
+    if command == "method":
+        return command, _parse_method(rest)
     cls = getattr(jobs, COMMANDS[command][0])
     aliases = ", ".join(f"{a} for {f}" for a, f in ALIASES.get(command, {}).items())
     about = inspect.cleandoc(cls.__doc__ or "") + (
@@ -176,6 +180,72 @@ def parse(argv: Sequence[str]) -> tuple[str, Any]:
     except ValueError as e:  # a flattened config's __post_init__ (tyro lets it through)
         raise UsageError(_flag_of(str(e), cls)) from None
     return command, _task_defaults(command, job, given(rest))
+
+
+def _parse_method(argv: Sequence[str]) -> Any:
+    """``safe-bc method --name NAME ...``: the :class:`~safe_bc.jobs.MethodJob` of the
+    registered method ``NAME``, its other flags those of :func:`safe_bc.jobs.method_job`
+    (``--config.FIELD``: the method's config record)."""
+    import tyro
+
+    from safe_bc import jobs
+    from safe_bc.methods import METHODS
+
+    names = ",".join(METHODS)
+    name, rest, args = None, [], iter(argv)
+    for a in args:
+        if a == "--name":
+            name = next(args, None)
+        elif a.startswith("--name="):
+            name = a.partition("=")[2]
+        else:
+            rest.append(a)
+    if name is None:
+        if {"-h", "--help", "--help-full"} & set(rest):
+            print("usage: safe-bc method --name NAME --start PATH --out PATH [...]")
+            print(f"(NAME: {names.replace(',', ', ')})\n")
+            import shutil
+            import textwrap
+
+            width = min(shutil.get_terminal_size((80, 24)).columns, 120)
+            about = " ".join(inspect.cleandoc(jobs.MethodJob.__doc__ or "").split())
+            print(textwrap.fill(about, width) + "\n")
+            for f in ("name", "start", "out", "demos"):
+                doc = " ".join(inspect.cleandoc(_field_doc(jobs.MethodJob, f)).split())
+                print(textwrap.fill(f"  --{f:<8} {doc}", width, subsequent_indent=" " * 13))
+            print("  --config.FIELD  The method's settings (safe-bc method --name NAME --help).\n")
+            raise SystemExit(0)
+        raise UsageError(f"name a method: --name {{{names}}}")
+    if name not in METHODS:
+        raise UsageError(f"unknown method {name!r}: choose {names.replace(',', ', ')}")
+    argv = [name, *rest]
+    spec = METHODS[argv[0]]
+    cls = jobs.method_job(spec.config)
+    about = f"Run the method {spec.name} from a checkpoint (rerun to resume)."
+    err = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(err):
+            parsed = tyro.cli(cls, args=list(argv[1:]), prog=f"safe-bc method {spec.name}",
+                              description=about)  # fmt: skip
+    except SystemExit as e:
+        if e.code in (0, None):
+            raise
+        raise UsageError(_flag_of(_one_line(err.getvalue()), cls)) from None
+    except ValueError as e:
+        raise UsageError(_flag_of(str(e), cls)) from None
+    return jobs.MethodJob(spec.name, parsed.start, parsed.out, parsed.config, parsed.demos)
+
+
+def _field_doc(cls: type, name: str) -> str:
+    """The docstring of ``cls``'s field ``name`` (the string right below it in the source)."""
+    import ast
+
+    body = ast.parse(inspect.getsource(cls)).body[0].body  # type: ignore[attr-defined]
+    for node, below in itertools.pairwise(body):
+        target = getattr(node, "target", None)
+        if getattr(target, "id", None) == name and isinstance(below, ast.Expr):
+            return str(below.value.value)  # type: ignore[attr-defined]
+    return ""
 
 
 def _unalias(command: str, argv: Sequence[str]) -> list[str]:

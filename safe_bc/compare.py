@@ -34,18 +34,15 @@ import numpy as np
 import pandas as pd
 
 from safe_bc.bc.config import BCConfig
-from safe_bc.envs.config import Renderer, canonical_renderer
-from safe_bc.improve.config import ImproveConfig
+from safe_bc.compare_rows import KINDS, Agent, Expert, FromStart, Handover, Method, Row, View
 from safe_bc.metrics import METRICS, paired_crossed, summarize_crossed
 from safe_bc.report import fmt_ci
-from safe_bc.selection import SelectionConfig
-from safe_bc.selfimprove.config import SelfImproveConfig
 from safe_bc.tasks import TASKS, Task, task_defaults
+
+__all__ = ["Agent", "Comparison", "Expert", "FromStart", "Handover", "Method", "Row", "View"]
 
 EXPERT = "expert"
 """``mode`` (and default name) of the expert's row."""
-IMPROVED = ("improve", "selfimprove")
-"""The kinds of row that improve a start row's agents, one run per training seed."""
 
 FIGURES = ("alpha_sweep", "traces", "learning_curves")
 """Figures a comparison can ask for: reward and safety against alpha
@@ -65,173 +62,6 @@ PAPER_TABLE1 = pd.DataFrame(
 
 
 @dataclass(frozen=True)
-class Method:
-    """One row: a BC agent per training seed, the expert, or an improvement of another row."""
-
-    name: str
-    """Row label (unique in the comparison), e.g. ``alpha=0.5 (rest=all)``."""
-    selection: SelectionConfig | None = None
-    """A BC row: ``T_eps`` and the training rule of its agents. ``None`` for the other
-    kinds."""
-    bc: BCConfig | None = None
-    """A BC row's network, preprocessing and budget; ``None``: the comparison's ``bc``."""
-    expert: bool = False
-    """The task's expert (trained once: evaluated once, ``train_seed`` 0)."""
-    expert_config: Any = None
-    """An expert row's own configuration (the task's expert config type, e.g. a CarRacing
-    ``ExpertConfig`` with another driving style); ``None``: the one recorded in the
-    comparison's demonstrations. Rows of several settings compare them on the same tracks."""
-    improve: ImproveConfig | None = None
-    """An improvement row: each seed's agent of ``start`` improved with this config (its
-    ``seed`` set to the training seed)."""
-    selfimprove: SelfImproveConfig | None = None
-    """A self-imitation row: each seed's agent of ``start`` improved by filtered
-    self-imitation (:mod:`safe_bc.selfimprove`) with this config (its ``seed`` set to the
-    training seed); its retrainings use the start's selection and BC settings."""
-    start: str = ""
-    """An improvement or self-imitation row's start: the name of a BC row of the same
-    comparison (an alpha-mix row for self-imitation)."""
-    fallback_of: str = ""
-    """A diagnostic row: the agents of the row named here (a BC or improvement row of the
-    same comparison; no training, no improvement of its own) with the scripted expert acting
-    in their critical states (the comparison's zone: costs within ``eps`` of d_s). The expert
-    is privileged (it reads the track): this bounds what a safe fallback would give."""
-    defer_width: float | None = None
-    """A fallback row as deferral at use time (:class:`safe_bc.queries.defer.DeferralSource`):
-    the expert acts where the env's measured cost is within this width of d_s
-    (``c_s >= d_s - w``, warm-up excluded), and the episodes record the share of steps
-    deferred (``deferred_share``). ``None``: the shield's zone (the comparison's eps, costs
-    read off the observation)."""
-    defer_hold: int = 0
-    """With ``defer_width``: the expert also acts on the next this many steps after the last
-    step in the zone (a handover that lasts; :class:`safe_bc.queries.defer.DeferringPolicy`)."""
-    defer_lookahead: int = 0
-    """With ``defer_width``: the zone test reads the cost extrapolated this many steps from
-    its last change (a fast-rising cost hands over earlier)."""
-    defer_hold_on: tuple[str, ...] = ()
-    """With ``defer_hold``: the safety dimensions (the task's names, e.g. ``("front",)``)
-    whose zone test starts the hold; ``()``: any. A handover on the front distance lasts
-    through the corner; one on a side distance ends as the cost leaves the zone."""
-    seeds: tuple[int, ...] = ()
-    """The training seeds of a trained row, a subset of the comparison's (``()``: all of
-    them), e.g. a screened row with one seed."""
-    masked_of: str = ""
-    """The copycat check: the agents of the BC row named here (no training of their own)
-    evaluated with CarRacing's steering indicator painted black
-    (:class:`safe_bc.evaluation.MaskedSteering`)."""
-    label: str = ""
-    """How the Markdown names the row (``""``: ``name``). ``name`` stays the table's key and
-    seeds the row's bootstrap draws (:func:`safe_bc.metrics.keyed_rng`)."""
-    agents_of: str = ""
-    """A view row: the agents of the BC row named here (no training of their own) evaluated
-    as they are, typically with another ``renderer`` (agents trained on exact frames driving
-    on approximate ones)."""
-    renderer: Renderer | None = None
-    """How the row's evaluation env draws (``None``: the default, ``raster``); a BC row
-    with its own ``demos`` also collects them with it. Ignored by tasks without renderers."""
-    demos: Path | None = None
-    """A BC row's own demonstration set (``None``: the comparison's), built with the task's
-    default collection drawn by ``renderer`` if absent; its limits d_s are the row's (and its
-    views') evaluation thresholds, e.g. a whole pipeline on the raster renderer."""
-
-    @property
-    def shown(self) -> str:
-        """``label``, or ``name``."""
-        return self.label or self.name
-
-    def __post_init__(self) -> None:
-        kinds = [self.selection is not None, self.expert, self.improve is not None,
-                 self.selfimprove is not None, bool(self.fallback_of), bool(self.masked_of),
-                 bool(self.agents_of)]  # fmt: skip
-        if sum(kinds) != 1:
-            raise ValueError(
-                f"method {self.name!r}: give exactly one of selection, expert=True, improve, "
-                "selfimprove, fallback_of, masked_of, agents_of"
-            )
-        if not self.name:
-            raise ValueError("a method needs a name")
-        improves = self.improve is not None or self.selfimprove is not None
-        if improves != bool(self.start):
-            raise ValueError(
-                f"method {self.name!r}: start= goes with improve= or selfimprove= (and only "
-                "with them)"
-            )
-        if self.selfimprove is not None and not isinstance(self.selfimprove, SelfImproveConfig):
-            raise ValueError(
-                f"method {self.name!r}: selfimprove must be a SelfImproveConfig, got "
-                f"{type(self.selfimprove).__name__}"
-            )
-        if self.improve is not None and not isinstance(self.improve, ImproveConfig):
-            raise ValueError(
-                f"method {self.name!r}: improve must be an ImproveConfig, got "
-                f"{type(self.improve).__name__}"
-            )
-        if self.bc is not None and self.selection is None:
-            raise ValueError(f"method {self.name!r}: bc= is for BC rows (with selection=)")
-        if self.renderer is not None:
-            try:
-                object.__setattr__(self, "renderer", canonical_renderer(self.renderer))
-            except ValueError as e:
-                raise ValueError(f"method {self.name!r}: {e}") from None
-        if self.demos is not None and self.selection is None:
-            raise ValueError(f"method {self.name!r}: demos= is for BC rows (with selection=)")
-        if self.defer_width is not None and not (
-            self.fallback_of and math.isfinite(self.defer_width) and self.defer_width >= 0
-        ):
-            raise ValueError(
-                f"method {self.name!r}: defer_width= is a finite width >= 0 for fallback rows "
-                f"(with fallback_of=), got {self.defer_width}"
-            )
-        for name in ("defer_hold", "defer_lookahead"):
-            steps = getattr(self, name)
-            if steps and (self.defer_width is None or steps < 0):
-                raise ValueError(
-                    f"method {self.name!r}: {name}= is a number of steps >= 0 for deferral "
-                    f"rows (with defer_width=), got {steps}"
-                )
-        if self.defer_hold_on and not self.defer_hold:
-            raise ValueError(
-                f"method {self.name!r}: defer_hold_on= names the dimensions that start a hold "
-                f"(with defer_hold=), got {self.defer_hold_on} without a hold"
-            )
-        if self.expert_config is not None and not self.expert:
-            raise ValueError(f"method {self.name!r}: expert_config= is for expert rows")
-        if self.expert_config is not None and not dataclasses.is_dataclass(self.expert_config):
-            raise ValueError(
-                f"method {self.name!r}: expert_config must be an expert config (a dataclass), "
-                f"got {type(self.expert_config).__name__}"
-            )
-
-    @property
-    def kind(self) -> str:
-        """``bc``, ``expert``, ``improve``, ``selfimprove``, ``fallback``, ``masked`` or
-        ``view``."""
-        if self.fallback_of:
-            return "fallback"
-        if self.masked_of:
-            return "masked"
-        if self.agents_of:
-            return "view"
-        if self.selfimprove is not None:
-            return "selfimprove"
-        return "expert" if self.expert else "improve" if self.improve is not None else "bc"
-
-    @property
-    def labels(self) -> dict[str, Any]:
-        """Columns that identify the row in the episodes table."""
-        if self.selection is None:
-            mode = EXPERT if self.expert else self.kind
-            return {"method": self.name, "mode": mode, "alpha": np.nan, "rest": ""}
-        mix = self.selection.mode == "mix"
-        return {
-            "method": self.name,
-            "mode": self.selection.mode,
-            "alpha": self.selection.alpha if mix else float("nan"),
-            "rest": self.selection.rest if mix else "",
-        }
-
-
-@dataclass(frozen=True)
 class Comparison:
     """Methods x training seeds on the same tracks, and what to write (see the module doc)."""
 
@@ -239,8 +69,9 @@ class Comparison:
     """Stem of the outputs: ``OUT/<name>.parquet``, ``<name>.md``, ``<name>_episodes.parquet``,
     ``<name>_traces.parquet``, ``<name>_training.parquet``, ``<name>_selection/``, and the
     per-(method, seed) runs under ``<name>_runs/``."""
-    methods: tuple[Method, ...]
-    """The rows, in table order."""
+    methods: tuple[Row, ...]
+    """The rows, in table order (:mod:`safe_bc.compare_rows`: agents, the expert, methods
+    from a start, handovers over an agent, views)."""
     task: Task = "carracing"
     """The testbed (its env, expert, default collection and ``eps``)."""
     demos: Path = Path("data/demos")
@@ -299,6 +130,10 @@ class Comparison:
     """What the rows and values mean, printed under the table before the provenance."""
 
     def __post_init__(self) -> None:
+        for m in self.methods:
+            if not isinstance(m, KINDS):
+                kinds = ", ".join(k.__name__ for k in KINDS)
+                raise ValueError(f"comparison {self.name!r}: a row is one of {kinds}, got {m!r}")
         names = [m.name for m in self.methods]
         if not names:
             raise ValueError(f"comparison {self.name!r}: no methods")
@@ -309,52 +144,49 @@ class Comparison:
         dup = sorted({n for n in names if names.count(n) > 1})
         if dup:
             raise ValueError(f"comparison {self.name!r}: method names repeat: {dup}")
-        bc_rows = {m.name for m in self.methods if m.kind == "bc"}
-        agents = bc_rows | {m.name for m in self.methods if m.kind in IMPROVED}
+        bc_rows = {m.name for m in self.methods if isinstance(m, Agent)}
+        agents = bc_rows | {m.name for m in self.methods if isinstance(m, FromStart)}
         for m in self.methods:
-            if m.kind in IMPROVED and m.start not in bc_rows:
-                raise ValueError(
-                    f"method {m.name!r}: start {m.start!r} is not a BC row of {sorted(bc_rows)}"
-                )
-            if m.kind == "selfimprove":
-                start = self.method(m.start).selection
-                if start is None or start.mode != "mix":
-                    mode = None if start is None else start.mode
+            if isinstance(m, FromStart):
+                if m.start not in bc_rows:
                     raise ValueError(
-                        f"method {m.name!r}: self-imitation retrains the alpha mix; start "
-                        f"{m.start!r} has mode {mode!r}"
+                        f"method {m.name!r}: start {m.start!r} is not a BC row of {sorted(bc_rows)}"
                     )
-            if not set(m.seeds) <= set(self.train_seeds):
+                modes = m.spec.start_modes
+                mode = self.method(m.start).selection.mode
+                if modes and mode not in modes:
+                    names = " or ".join("the alpha mix" if x == "mix" else x for x in modes)
+                    raise ValueError(
+                        f"method {m.name!r}: {m.method} retrains {names}; start {m.start!r} "
+                        f"has mode {mode!r}"
+                    )
+            if isinstance(m, Agent) and not set(m.seeds) <= set(self.train_seeds):
                 raise ValueError(
                     f"method {m.name!r}: seeds {m.seeds} are not among train_seeds "
                     f"{self.train_seeds}"
                 )
-            if m.kind == "masked" and m.masked_of not in bc_rows:
+            if isinstance(m, View) and m.of not in bc_rows:
+                what = "masked_of" if m.masked else "agents_of"
                 raise ValueError(
-                    f"method {m.name!r}: masked_of {m.masked_of!r} is not a BC row of "
-                    f"{sorted(bc_rows)}"
+                    f"method {m.name!r}: {what} {m.of!r} is not a BC row of {sorted(bc_rows)}"
                 )
-            if m.kind == "view" and m.agents_of not in bc_rows:
+            if isinstance(m, Handover) and m.of not in agents:
                 raise ValueError(
-                    f"method {m.name!r}: agents_of {m.agents_of!r} is not a BC row of "
-                    f"{sorted(bc_rows)}"
-                )
-            if m.kind == "fallback" and m.fallback_of not in agents:
-                raise ValueError(
-                    f"method {m.name!r}: fallback_of {m.fallback_of!r} is not a BC, "
+                    f"method {m.name!r}: fallback_of {m.of!r} is not a BC, "
                     f"improvement or self-imitation row of {sorted(agents)}"
                 )
-        default_experts = [m.name for m in self.methods if m.expert and m.expert_config is None]
+        experts = [m for m in self.methods if isinstance(m, Expert)]
+        default_experts = [m.name for m in experts if m.config is None]
         if len(default_experts) > 1:
             raise ValueError(
                 f"comparison {self.name!r}: expert rows {default_experts} are the same expert "
                 "(give the others their own expert_config)"
             )
         kind = task_defaults(self.task).expert_type if self.task in TASKS else None
-        for m in self.methods:
-            if m.expert_config is not None and type(m.expert_config) is not kind:
+        for m in experts:
+            if m.config is not None and type(m.config) is not kind:
                 raise ValueError(
-                    f"method {m.name!r}: expert_config is a {type(m.expert_config).__name__}, "
+                    f"method {m.name!r}: expert_config is a {type(m.config).__name__}, "
                     f"task {self.task!r} takes a {getattr(kind, '__name__', kind)}"
                 )
         if not self.train_seeds or len(set(self.train_seeds)) != len(self.train_seeds):
@@ -387,25 +219,27 @@ class Comparison:
         if self.task not in TASKS:
             raise ValueError(f"task must be one of {tuple(TASKS)}, got {self.task!r}")
 
-    def method(self, name: str) -> Method:
+    def method(self, name: str) -> Row:
         """The row called ``name``."""
         return next(m for m in self.methods if m.name == name)
 
-    def seeds_of(self, method: Method) -> tuple[int, ...]:
+    def seeds_of(self, method: Row) -> tuple[int, ...]:
         """The training seeds of ``method`` (its own, else the comparison's; derived rows:
         their source row's; the expert: ``(0,)``)."""
-        if method.expert:
+        if isinstance(method, Expert):
             return (0,)
-        of = method.masked_of or method.fallback_of or method.agents_of or method.start
-        if of:
-            return self.seeds_of(self.method(of))
+        if method.source:
+            return self.seeds_of(self.method(method.source))
+        assert isinstance(method, Agent)
         return method.seeds or self.train_seeds
 
-    def with_deferral(self, rows: Iterable[Method], **changes: Any) -> Comparison:
-        """This comparison with its deferral rows (``defer_width`` set) replaced by ``rows``
-        (every other row kept, in order, ahead of them) and ``changes`` applied: a deferral
-        grid or a fresh-track table over the same agents."""
-        kept = tuple(m for m in self.methods if m.defer_width is None)
+    def with_deferral(self, rows: Iterable[Row], **changes: Any) -> Comparison:
+        """This comparison with its deferral rows (handovers with a ``HandoverConfig``)
+        replaced by ``rows`` (every other row kept, in order, ahead of them) and ``changes``
+        applied: a deferral grid or a fresh-track table over the same agents."""
+        kept = tuple(
+            m for m in self.methods if not (isinstance(m, Handover) and m.handover is not None)
+        )
         return dataclasses.replace(self, methods=(*kept, *rows), **changes)
 
     def label_of(self, name: str) -> str:
@@ -415,6 +249,7 @@ class Comparison:
     def to_dict(self) -> dict[str, Any]:
         """JSON-able (the provenance's ``config``)."""
         out = dataclasses.asdict(self)
+        out["methods"] = tuple(m.flat() for m in self.methods)
         out["demos"], out["out"] = str(self.demos), str(self.out)
         for m in out["methods"]:
             m["demos"] = None if m["demos"] is None else str(m["demos"])
@@ -500,7 +335,7 @@ def _paired_episodes(comparison: Comparison, episodes: pd.DataFrame) -> pd.DataF
     rows)."""
     agents = episodes[episodes["mode"] != EXPERT]
     ref = comparison.reference
-    if ref is None or not comparison.method(ref).expert:
+    if ref is None or not isinstance(comparison.method(ref), Expert):
         return agents
     experts = episodes[episodes["mode"] == EXPERT]
     seeds = sorted(agents["train_seed"].unique()) or [0]
@@ -757,7 +592,7 @@ def render_markdown(
             f"whose mean reward over the tracks beats {c.label_of(str(c.reference))}'s same seed"
             + (
                 " (the expert, trained once, stands in for every seed). "
-                if c.method(str(c.reference)).expert
+                if isinstance(c.method(str(c.reference)), Expert)
                 else ". "
             )
             if paired

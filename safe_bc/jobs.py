@@ -9,9 +9,9 @@ default is written twice. The functions of :mod:`safe_bc.api` take these records
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, make_dataclass
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
 import tyro
 
@@ -299,6 +299,38 @@ class ImproveJob:
     per core); the run is bit-identical either way (method ppo_lagrangian)."""
     quiet: bool = False
     """No progress bar."""
+
+
+@dataclass(frozen=True)
+class MethodJob:
+    """Run a registered method (safe_bc.methods.METHODS) from a checkpoint; rerun to resume."""
+
+    name: str
+    """The method (a key of safe_bc.methods.METHODS)."""
+    start: Path
+    """A safe-bc train checkpoint."""
+    out: Path
+    """Run folder (rerun to resume)."""
+    config: Any
+    """The method's config record (its fields are --config.FIELD flags)."""
+    demos: Path | None = None
+    """Demonstrations; None: the start's."""
+
+
+def method_job(config_type: type) -> type:
+    """The command-line record of a method whose config is ``config_type``: the fields of
+    :class:`MethodJob` but ``name``, ``config`` typed as the method's config record."""
+
+    def arg(kind: Any, doc: str) -> Any:
+        return Annotated[kind, tyro.conf.arg(help=doc)]
+
+    fields = [
+        ("start", arg(Path, "A safe-bc train checkpoint.")),
+        ("out", arg(Path, "Run folder (rerun to resume).")),
+        ("config", arg(config_type, "The method's settings."), field(default_factory=config_type)),
+        ("demos", arg(Path | None, "Demonstrations; None: the start's."), field(default=None)),
+    ]
+    return make_dataclass("MethodJob", fields, frozen=True)
 
 
 @dataclass(frozen=True)

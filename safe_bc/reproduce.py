@@ -36,7 +36,7 @@ from safe_bc.tasks import Task, task_defaults, task_of
 if TYPE_CHECKING:
     import pandas as pd
 
-    from safe_bc.compare import PAPER_TABLE1, Comparison, Method
+    from safe_bc.compare import PAPER_TABLE1, Comparison, Method, Row
 
 __all__ = ["PAPER_TABLE1", "PLAIN_BC", "Method", "ReproduceConfig", "run_reproduce", "table1"]
 
@@ -145,7 +145,7 @@ class ReproduceConfig:
         """``eps``, or the task's default."""
         return task_defaults(self.task).eps if self.eps is None else self.eps
 
-    def methods(self) -> list[Method]:
+    def methods(self) -> list[Row]:
         """The trained rows, in table order: the alpha mix per reading, then the baselines.
 
         Raises:

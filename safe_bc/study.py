@@ -455,6 +455,10 @@ class StudySpec:
     inside ``d_s`` minus a margin and beat the unperturbed run, and the agent is retrained on
     demonstrations plus kept data, for ``rounds`` rounds; a round's agent is kept only when it
     passes the keep rule. Searchable as ``selfimprove.<field>`` keys. ``None``: off."""
+    stage_configs: Mapping[str, Any] = field(default_factory=dict)
+    """Configs of further registered methods (:data:`safe_bc.methods.METHODS`) run as stages,
+    by method name (the built-in ones have their own fields above); searchable as
+    ``<name>.<field>`` keys. Empty: none."""
 
     def __post_init__(self) -> None:
         if not self.name or not self.name.replace("_", "").replace("-", "").isalnum():
@@ -466,6 +470,15 @@ class StudySpec:
             if self.critical_eps is None:
                 object.__setattr__(self, "critical_eps", eps)
         object.__setattr__(self, "space", dict(self.space))
+        object.__setattr__(self, "stage_configs", dict(self.stage_configs))
+        for name, config in self.stage_configs.items():
+            if name not in STAGES or name in {f.name for f in fields(self)}:
+                own = name in STAGES
+                raise ValueError(
+                    f"stage_configs[{name!r}]: "
+                    + (f"set StudySpec({name}=...)" if own else f"no method {name!r} is registered")
+                )
+            STAGES[name].method.check(config)
         object.__setattr__(self, "demos", Path(self.demos))
         object.__setattr__(self, "results", Path(self.results))
         object.__setattr__(self, "storage", str(self.storage))
@@ -567,7 +580,7 @@ class StudySpec:
             if not isinstance(param, Float | Int | Choice):
                 raise ValueError(f"space[{name!r}] must be Float, Int or Choice, got {param!r}")
             stage = stage_of(name)
-            if stage is not None and getattr(self, STAGES[stage].field) is None:
+            if stage is not None and self.stage_base(stage) is None:
                 field_ = STAGES[stage].field
                 raise ValueError(
                     f"space[{name!r}] searches the {stage} stage, but the study has none: "
@@ -576,7 +589,7 @@ class StudySpec:
             if stage is None:
                 owner, path = self.base, name
             else:
-                owner = getattr(self, STAGES[stage].field)
+                owner = self.stage_base(stage)
                 path = name.removeprefix(STAGES[stage].prefix)
             check_param_type(name, param, _field_value(owner, path.split("."), name))
             for value in param.bounds():  # every option / bound builds a valid config
@@ -643,13 +656,20 @@ class StudySpec:
     def stages(self) -> list[tuple[str, Stage]]:
         """The stages this study runs after training (:data:`safe_bc.stages.STAGES` entries
         whose config field is set), in registry order."""
-        return [(n, st) for n, st in STAGES.items() if getattr(self, st.field) is not None]
+        return [(n, st) for n, st in STAGES.items() if self.stage_base(n) is not None]
+
+    def stage_base(self, stage: str) -> Any:
+        """The study's config of ``stage`` before any search parameter (its own field for the
+        built-in methods, else :attr:`stage_configs`); ``None``: the stage is off."""
+        if stage in {f.name for f in fields(self)}:
+            return getattr(self, stage)
+        return self.stage_configs.get(stage)
 
     def stage_config(self, stage: str, params: Mapping[str, Any], seed: int) -> Any:
         """The trial's settings of ``stage``: its config field + the sampled ``<stage>.*``
         ``params``, with ``seed`` (the BC training seed); ``None`` when the study has none."""
         entry = STAGES[stage]
-        base = getattr(self, entry.field)
+        base = self.stage_base(stage)
         if base is None:
             return None
         own = split_params(params)[1].get(stage, {})
@@ -664,16 +684,21 @@ class StudySpec:
     def summary(self) -> dict[str, Any]:
         """JSON-able description (stored with every output)."""
         space = {k: {"type": type(p).__name__, **_param_dict(p)} for k, p in self.space.items()}
-        out = {f.name: getattr(self, f.name) for f in fields(self) if f.name not in ("space",)}
+        out = {
+            f.name: getattr(self, f.name)
+            for f in fields(self)
+            if f.name not in ("space", "stage_configs")
+        }
         out["base"] = self.base.to_dict()
         out["env"] = {f.name: getattr(self.env, f.name) for f in fields(self.env)}
         out["demos"], out["results"] = str(self.demos), str(self.results)
         out["space"] = space
         out["handover"] = None if self.handover is None else self.handover.to_dict()
         out["collect"] = None if self.collect is None else _config_json(self.collect)
-        for stage in STAGES.values():
-            config = getattr(self, stage.field)
-            out[stage.field] = None if config is None else config.to_dict()
+        for name in STAGES:
+            config = self.stage_base(name)
+            if name in out or config is not None:  # (further methods only when set)
+                out[name] = None if config is None else config.to_dict()
         return out
 
 

@@ -34,9 +34,9 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
         "core",
         (
             "safe_bc.version", "safe_bc.selection", "safe_bc.metrics",
-            "safe_bc.stages", "safe_bc.report", "safe_bc.handover", "safe_bc.seeds",
+            "safe_bc.report", "safe_bc.handover", "safe_bc.seeds",
             "safe_bc.episode", "safe_bc.policy", "safe_bc.demos", "safe_bc.run_config",
-            "safe_bc.timing", "safe_bc.envs.config", "safe_bc.data.codec",
+            "safe_bc.envs.config", "safe_bc.data.codec",
             "safe_bc.*.config", "safe_bc.*.logic", "safe_bc.methods", "safe_bc.methods.registry",
         ),
     ),

@@ -4,9 +4,9 @@ Per (method, training seed) one folder ``OUT/<name>_runs/<method>/seed<k>/``:
 
 * ``agent/``: a BC row's agent, written like ``safe-bc train`` writes a checkpoint (weights,
   config with the run, ``selection.parquet``), so it can start an improvement run;
-* ``improve/``: an improvement row's run (:func:`safe_bc.improve.improve`, itself resumable);
-* ``selfimprove/``: a self-imitation row's run
-  (:func:`safe_bc.selfimprove.run.run_selfimprove`, resumable per round);
+* ``<method>/``: a method row's run (:class:`~safe_bc.compare_rows.FromStart`: the registered
+  method's runner from the start row's ``agent/``, itself resumable; e.g. ``improve/``,
+  ``selfimprove/``);
 * ``episodes.parquet`` (and ``steps.parquet`` for the ``traces`` rows): its evaluation,
   stamped with the run and the evaluation settings.
 
@@ -32,8 +32,13 @@ from safe_bc.collection import CollectConfig
 from safe_bc.compare import (
     EXPERT,
     PAPER_TABLE1,
+    Agent,
     Comparison,
-    Method,
+    Expert,
+    FromStart,
+    Handover,
+    Row,
+    View,
     build_table,
     machines,
     render_markdown,
@@ -59,16 +64,16 @@ def _json(x: Any) -> Any:
     return json.loads(json.dumps(x, default=str))
 
 
-def run_config(comparison: Comparison, method: Method, seed: int) -> RunConfig:
+def run_config(comparison: Comparison, method: Row, seed: int) -> RunConfig:
     """A BC row's training run for ``seed``."""
-    assert method.selection is not None
+    assert isinstance(method, Agent)
     bc = method.bc or comparison.bc
     return RunConfig(
         method.selection, dataclasses.replace(bc, train=dataclasses.replace(bc.train, seed=seed))
     )
 
 
-def eval_config(comparison: Comparison, method: Method | None = None) -> EvalConfig:
+def eval_config(comparison: Comparison, method: Row | None = None) -> EvalConfig:
     """The held-out tracks every policy runs on, in the env ``method`` is evaluated in (its
     ``renderer``; ``None``: the task's default env)."""
     heldout = comparison.tracks == "heldout"
@@ -99,13 +104,13 @@ def selection_eps(comparison: Comparison) -> float:
     return task_defaults(comparison.task).eps if comparison.eps is None else comparison.eps
 
 
-def demos_of(comparison: Comparison, method: Method) -> Path:
+def demos_of(comparison: Comparison, method: Row) -> Path:
     """The demonstrations behind ``method``'s agents (its own ``demos``, those of the row it
     derives from, else the comparison's): its evaluation thresholds are their limits."""
-    of = method.masked_of or method.fallback_of or method.agents_of or method.start
-    if of:
-        return demos_of(comparison, comparison.method(of))
-    return method.demos or comparison.demos
+    if method.source:
+        return demos_of(comparison, comparison.method(method.source))
+    own = method.demos if isinstance(method, Agent) else None
+    return own or comparison.demos
 
 
 def own_demos(comparison: Comparison) -> dict[Path, Any]:
@@ -116,7 +121,7 @@ def own_demos(comparison: Comparison) -> dict[Path, Any]:
     task = comparison.task
     out: dict[Path, Any] = {}
     for m in comparison.methods:
-        if m.demos is not None and m.demos not in out:
+        if isinstance(m, Agent) and m.demos is not None and m.demos not in out:
             renderer = m.renderer or DEFAULT_RENDERER
             if comparison.collect is None:
                 out[m.demos] = CollectConfig.for_task(task_defaults(task, renderer))
@@ -128,7 +133,7 @@ def own_demos(comparison: Comparison) -> dict[Path, Any]:
     return {comparison.demos: first, **out}
 
 
-def run_digests(comparison: Comparison, cells: list[tuple[Method, int]]) -> dict[str, str]:
+def run_digests(comparison: Comparison, cells: list[tuple[Row, int]]) -> dict[str, str]:
     """What the tables read from each cell's run folder, by content: the folder's BC agent
     (its weights' SHA-256, ``agent/``) and its stored episodes (SHA-256 of
     ``episodes.parquet``), keyed by path relative to the comparison's output folder."""
@@ -149,17 +154,17 @@ def run_digests(comparison: Comparison, cells: list[tuple[Method, int]]) -> dict
     return out
 
 
-def _cells(comparison: Comparison) -> list[tuple[Method, int]]:
+def _cells(comparison: Comparison) -> list[tuple[Row, int]]:
     return [(m, s) for m in comparison.methods for s in comparison.seeds_of(m)]
 
 
-def _folder(comparison: Comparison, method: Method, seed: int) -> Path:
+def _folder(comparison: Comparison, method: Row, seed: int) -> Path:
     stem = comparison.runs or comparison.name
     base = comparison.out / f"{stem}_runs" / run_slug(method.name)
-    return base if method.expert else base / f"seed{seed}"
+    return base if isinstance(method, Expert) else base / f"seed{seed}"
 
 
-def _stamp(comparison: Comparison, method: Method, seed: int, thresholds: Any) -> dict[str, Any]:
+def _stamp(comparison: Comparison, method: Row, seed: int, thresholds: Any) -> dict[str, Any]:
     """What a stored evaluation must match to be reused."""
     settings = dataclasses.asdict(eval_config(comparison, method))
     settings.pop("workers")  # where episodes run changes nothing
@@ -167,39 +172,38 @@ def _stamp(comparison: Comparison, method: Method, seed: int, thresholds: Any) -
         settings.pop("lockstep_forward")
     if comparison.tracks != "heldout":
         settings["seeds"] = track_seeds(comparison)
-    if method.kind == "bc":
-        run: Any = run_config(comparison, method, seed).to_dict()
+    run: Any
+    if isinstance(method, Agent):
+        run = run_config(comparison, method, seed).to_dict()
         if method.demos is not None:  # (rows on the comparison's demos keep their stamps)
             run = {**run, "demos": str(method.demos)}
-    elif method.kind == "improve":
-        assert method.improve is not None
+    elif isinstance(method, FromStart):
         start = run_config(comparison, comparison.method(method.start), seed).to_dict()
-        run = {"start": start, "improve": dataclasses.replace(method.improve, seed=seed).to_dict()}
-    elif method.kind == "selfimprove":
-        start = run_config(comparison, comparison.method(method.start), seed).to_dict()
-        run = {"start": start, "selfimprove": selfimprove_identity(comparison, method, seed)}
-    elif method.kind == "fallback":
-        of = _stamp(comparison, comparison.method(method.fallback_of), seed, thresholds)["run"]
-        if method.defer_width is None:
+        run = {"start": start, method.method: method_identity(comparison, method, seed)}
+    elif isinstance(method, Handover):
+        of = _stamp(comparison, comparison.method(method.of), seed, thresholds)["run"]
+        h = method.handover
+        if h is None:
             run = {"fallback_of": of, "fallback": "expert", "eps": selection_eps(comparison)}
         else:
-            run = {"fallback_of": of, "deferral": "expert", "width": method.defer_width}
-            if method.defer_hold:  # (rows without a hold keep their stamps)
-                run["hold"] = method.defer_hold
-            if method.defer_lookahead:
-                run["lookahead"] = method.defer_lookahead
-            if method.defer_hold_on:
-                run["hold_on"] = list(method.defer_hold_on)
-    elif method.kind == "masked":
-        of = _stamp(comparison, comparison.method(method.masked_of), seed, thresholds)["run"]
-        run = {"masked_of": of, "view": "steering indicator masked"}
-    elif method.kind == "view":
-        of = _stamp(comparison, comparison.method(method.agents_of), seed, thresholds)["run"]
-        run = {"agents_of": of, "view": "as trained"}
+            run = {"fallback_of": of, "deferral": "expert", "width": h.width}
+            if h.hold:  # (rows without a hold keep their stamps)
+                run["hold"] = h.hold
+            if h.lookahead:
+                run["lookahead"] = h.lookahead
+            if h.hold_on:
+                run["hold_on"] = list(h.hold_on)
+    elif isinstance(method, View):
+        of = _stamp(comparison, comparison.method(method.of), seed, thresholds)["run"]
+        if method.masked:
+            run = {"masked_of": of, "view": "steering indicator masked"}
+        else:
+            run = {"agents_of": of, "view": "as trained"}
     else:  # (the default expert's stamp as before its own settings existed)
+        assert isinstance(method, Expert)
         run = {"expert": str(comparison.demos)}
-        if method.expert_config is not None:
-            run["expert_config"] = dataclasses.asdict(method.expert_config)
+        if method.config is not None:
+            run["expert_config"] = dataclasses.asdict(method.config)
     return _json(
         {
             "run": run,
@@ -230,42 +234,51 @@ def _agent_ok(folder: Path, run: RunConfig, demos: Path) -> bool:
     return extra.get("run") == _json(run.to_dict()) and extra.get("demos") == str(demos)
 
 
-def selfimprove_config(comparison: Comparison, method: Method, seed: int) -> Any:
+def method_config(comparison: Comparison, method: FromStart, seed: int) -> Any:
+    """A method row's run config for training seed ``seed`` (its ``seed`` set)."""
+    return dataclasses.replace(method.config, seed=seed)
+
+
+def method_identity(comparison: Comparison, method: FromStart, seed: int) -> Any:
+    """What makes a method row's run for ``seed`` (the method's identity of its config on the
+    comparison's task, :meth:`safe_bc.methods.MethodSpec.identify`)."""
+    return method.spec.identify(method_config(comparison, method, seed), comparison.task)
+
+
+def selfimprove_config(comparison: Comparison, method: FromStart, seed: int) -> Any:
     """A self-imitation row's run config for training seed ``seed`` (its ``seed``; the
     comparison task's values for the fields it leaves at ``None``)."""
-    assert method.selfimprove is not None
-    return dataclasses.replace(method.selfimprove, seed=seed).for_task(comparison.task)
+    return method_config(comparison, method, seed).for_task(comparison.task)
 
 
-def selfimprove_identity(comparison: Comparison, method: Method, seed: int) -> dict[str, Any]:
-    """What makes a self-imitation row's run: its config (``workers`` aside) with the task's
-    values filled in (a task's defaults may change)."""
-    config = selfimprove_config(comparison, method, seed)
-    assert config.pushes is not None
-    return {**config.identity(), "pushes": list(config.pushes)}
+selfimprove_identity = method_identity
+"""A self-imitation row's identity (:func:`method_identity`)."""
 
 
-def _copy_shared_rounds(c: Comparison, method: Method, seed: int, folder: Path) -> None:
-    """Seed a new self-imitation run with the done rounds of another row of ``c`` whose run
-    differs only in having fewer rounds (same start, seed and every other setting): a round
-    depends on the settings, the seed and the rounds before it, never on how many follow, so
-    those rounds are this run's first ones, bit for bit. The longest such run is copied (its
-    start, start validation and done rounds, as hard links: a written round file is never
-    changed, so the two runs share it on disk; ``identity.json`` is this run's own)."""
+def _copy_shared_rounds(c: Comparison, method: FromStart, seed: int, folder: Path) -> None:
+    """Seed a new run of a method whose runs are rounds (``shares_rounds``) with the done
+    rounds of another row of ``c`` whose run differs only in having fewer rounds (same method,
+    start, seed and every other setting): a round depends on the settings, the seed and the
+    rounds before it, never on how many follow, so those rounds are this run's first ones,
+    bit for bit. The longest such run is copied (its start, start validation and done rounds,
+    as hard links: a written round file is never changed, so the two runs share it on disk;
+    ``identity.json`` is this run's own)."""
     import os
     import shutil
 
     from safe_bc.selfimprove.config import DONE, round_dir
 
-    mine = selfimprove_identity(c, method, seed)
+    mine = method_identity(c, method, seed)
     best: tuple[int, Path] | None = None
     for other in c.methods:
-        if other.kind != "selfimprove" or other.name == method.name or other.start != method.start:
+        if not isinstance(other, FromStart) or other.method != method.method:
             continue
-        theirs = selfimprove_identity(c, other, seed)
+        if other.name == method.name or other.start != method.start:
+            continue
+        theirs = method_identity(c, other, seed)
         if theirs["rounds"] >= mine["rounds"] or {**theirs, "rounds": 0} != {**mine, "rounds": 0}:
             continue
-        source = _folder(c, other, seed) / "selfimprove"
+        source = _folder(c, other, seed) / other.spec.subfolder
         done = sum((source / round_dir(r) / DONE).is_file() for r in range(theirs["rounds"]))
         if done and (best is None or done > best[0]):
             best = (done, source)
@@ -283,39 +296,37 @@ def _copy_shared_rounds(c: Comparison, method: Method, seed: int, folder: Path) 
     tmp.rename(folder)
 
 
-def _selfimprove(comparison: Comparison, method: Method, seed: int, demos: Any) -> Any:
-    """Run (or resume) a self-imitation row's run for ``seed`` from the start row's agent of
-    that seed, in the start's env, on ``demos`` (the start's demonstration set, loaded)."""
+def _run_method(c: Comparison, method: FromStart, seed: int, data: Any, command: str | None) -> Any:
+    """Run (or resume) a method row's run for ``seed`` from the start row's agent of that
+    seed, in the start's env, on ``data`` (the start's demonstration set, loaded); a folder of
+    another run (a changed setting or start) is redone. The method's
+    :class:`~safe_bc.methods.Improved`."""
     from safe_bc.bc import load_checkpoint
-    from safe_bc.selfimprove.run import run_selfimprove
+    from safe_bc.methods import Start
 
-    c = comparison
     start = c.method(method.start)
-    config = selfimprove_config(c, method, seed)
-    model, _ = load_checkpoint(_folder(c, start, seed) / "agent")
-    kwargs: dict[str, Any] = {}
-    if config.workers > 0:
-        from safe_bc.distributed.rollouts import ChunkedRayRollouts
-        from safe_bc.selfimprove.rollout import local_rollouts
-
-        kwargs["rollouts"] = ChunkedRayRollouts(local_rollouts, config.workers)
-    path = demos_of(c, method)
+    spec = method.spec
+    agent = _folder(c, start, seed) / "agent"
+    model, _ = load_checkpoint(agent)
     env = task_defaults(c.task, start.renderer or DEFAULT_RENDERER).env
-    folder = _folder(c, method, seed) / "selfimprove"
-    if not folder.exists():
+    from safe_bc.distributed.rollouts import ChunkedRayRollouts
+
+    begin = Start(
+        model, run_config(c, start, seed), demos_of(c, method), env, agent, data,
+        parallel=ChunkedRayRollouts,
+    )  # fmt: skip
+    folder = _folder(c, method, seed) / spec.subfolder
+    if spec.shares_rounds and not folder.exists():
         _copy_shared_rounds(c, method, seed, folder)
+    config = method_config(c, method, seed)
 
     def run() -> Any:
-        return run_selfimprove(
-            model, run_config(c, start, seed), demos, path, env, folder, config,
-            action_bounds=dataset_action_bounds(path),
-            **kwargs,
-        )  # fmt: skip
+        return spec.run(config, begin, folder, metadata={"command": command})
 
     try:
         return run()
     except ValueError as e:  # a changed setting (or start) redoes the cell
-        if "belongs to another self-imitation run" not in str(e):
+        if "belongs to another" not in str(e):
             raise
         import shutil
 
@@ -324,11 +335,11 @@ def _selfimprove(comparison: Comparison, method: Method, seed: int, demos: Any) 
 
 
 def _fallback_source(
-    comparison: Comparison, method: Method, seed: int, thresholds: Any, selfimproved: dict
+    comparison: Comparison, method: Handover, seed: int, thresholds: Any, improved: dict
 ) -> Any:
-    """A fallback row's policy: the agent of ``fallback_of`` (an improved net without its own
-    shield, or a self-imitation run's final net from ``selfimproved``) with the scripted
-    expert in the critical states (:attr:`Method.fallback_of`)."""
+    """A handover row's policy: the agent of its ``of`` row (a BC agent, or a method run's
+    net without its own shield, from ``improved``) with the scripted expert in the critical
+    states (:class:`~safe_bc.compare_rows.Handover`)."""
     from safe_bc.bc import load_checkpoint
     from safe_bc.collection import stored_expert_config
     from safe_bc.improve import ImprovedSource
@@ -336,22 +347,20 @@ def _fallback_source(
     from safe_bc.selection import CriticalZone
 
     c = comparison
-    of = c.method(method.fallback_of)
-    folder = _folder(c, of, seed)
-    if of.kind == "bc":
-        net = NetSource.from_model(*load_checkpoint(folder / "agent"))
-    elif of.kind == "selfimprove":
-        net = NetSource.from_model(*load_checkpoint(selfimproved[of.name, seed].policy))
+    of = c.method(method.of)
+    if isinstance(of, Agent):
+        net = NetSource.from_model(*load_checkpoint(_folder(c, of, seed) / "agent"))
     else:
-        net = ImprovedSource.from_run(folder / "improve").improved
+        net = improved[of.name, seed].net
     limits, expert = tuple(float(x) for x in thresholds), stored_expert_config(c.demos)
-    if method.defer_width is not None:
+    h = method.handover
+    if h is not None:
         from safe_bc.queries.defer import DeferralSource, dimension_indices
 
         dims = task_defaults(c.task).safety_dims
         return DeferralSource(
-            net, expert, limits, method.defer_width, "any", method.defer_hold,
-            method.defer_lookahead, dimension_indices(method.defer_hold_on, dims),
+            net, expert, limits, h.width, "any", h.hold, h.lookahead,
+            dimension_indices(h.hold_on, dims),
         )  # fmt: skip
     shield = Shield(CriticalZone(limits, selection_eps(c), "any"), task_defaults(c.task).env.env_id)
     return ImprovedSource(net, ExpertSource(expert), shield)
@@ -367,7 +376,7 @@ def _load_sets(comparison: Comparison, progress: bool) -> dict[Path, Any]:
         ensure_demos(path, collect, progress=progress)
         sets[path] = load_demonstrations(path)
     for m in comparison.methods:  # a BC row trains on frames drawn by the renderer it runs on
-        if m.kind == "bc":
+        if isinstance(m, Agent):
             path = demos_of(comparison, m)
             env = eval_config(comparison, m).env
             warning = check_frames_renderer(read_meta(path).renderer, env, path)
@@ -377,7 +386,7 @@ def _load_sets(comparison: Comparison, progress: bool) -> dict[Path, Any]:
 
 
 def _train_agents(
-    c: Comparison, sets: dict[Path, Any], cells: list[tuple[Method, int]], progress: bool
+    c: Comparison, sets: dict[Path, Any], cells: list[tuple[Row, int]], progress: bool
 ) -> None:
     """Train and store the BC agents of ``cells`` not on disk (fail fast on an impossible
     rule before any training)."""
@@ -388,7 +397,7 @@ def _train_agents(
     todo = [
         (m, s, run_config(c, m, s))
         for m, s in cells
-        if m.kind == "bc"
+        if isinstance(m, Agent)
         and not _agent_ok(_folder(c, m, s) / "agent", run_config(c, m, s), demos_of(c, m))
     ]
     for m, _, run in todo:
@@ -430,41 +439,33 @@ def _train_agents(
 
 
 def _improve_cell(
-    c: Comparison, m: Method, s: int, sets: dict[Path, Any], command: str | None
+    c: Comparison, m: Row, s: int, sets: dict[Path, Any], command: str | None
 ) -> tuple[pd.DataFrame, dict[str, Any], Any] | None:
-    """Run (or resume) the improvement or self-imitation run of cell ``(m, s)``: its learning
-    curve, the metadata of the machine that ran it and (self-imitation) its result; ``None``
-    for the other rows."""
-    if m.kind == "selfimprove":
-        done_si = _selfimprove(c, m, s, sets[demos_of(c, m)])
-        history_si = pd.DataFrame(done_si.history()).assign(method=m.name, train_seed=s)
-        where = done_si.folder / "run.json"  # the machine that last ran rounds of it
-        if done_si.resumed_rounds < len(done_si.rounds) or not where.is_file():
-            write_text_atomic(where, json.dumps(_json(run_metadata())))
-        return history_si, json.loads(where.read_text()), done_si
-    if m.kind != "improve":
+    """Run (or resume) the method run of cell ``(m, s)``: its learning curve, the metadata of
+    the machine that ran it and the method's :class:`~safe_bc.methods.Improved`; ``None`` for
+    the other rows."""
+    if not isinstance(m, FromStart):
         return None
-    from safe_bc.improve import HISTORY, improve
-
-    assert m.improve is not None
-    start = _folder(c, c.method(m.start), s) / "agent"
-    done = improve(
-        start, _folder(c, m, s) / "improve", dataclasses.replace(m.improve, seed=s),
-        demos=demos_of(c, m), metadata={"command": command},
-    )  # fmt: skip
-    run_meta = read_table(_folder(c, m, s) / "improve" / HISTORY)[1]
-    return done.history.assign(method=m.name, train_seed=s), run_meta, None
+    done = _run_method(c, m, s, sets[demos_of(c, m)], command)
+    history = done.history.assign(method=m.name, train_seed=s)
+    if done.meta is not None:
+        return history, done.meta, done
+    where = _folder(c, m, s) / m.spec.subfolder / "run.json"  # the machine that last ran it
+    if done.fresh or not where.is_file():
+        write_text_atomic(where, json.dumps(_json(run_metadata())))
+    return history, json.loads(where.read_text()), done
 
 
 def run_cell(
     comparison: Comparison, cell: str, *, workers: int | None = None, progress: bool = True
 ) -> Path:
-    """Train (a BC row) or improve (an improvement or self-imitation row, its start trained
-    first when missing) the one cell ``"METHOD:SEED"``: no evaluation, no tables. Cells are
-    independent, so a comparison's cells can run in parallel processes or on other machines
-    sharing ``out``; a later :func:`run_comparison` reuses them (each cell's folder records
-    the machine that ran it). ``workers`` overrides a self-imitation row's rollout actors (0:
-    in this process; results do not depend on it). Returns the cell's folder."""
+    """Train (a BC row) or improve (a method row, its start trained first when missing) the
+    one cell ``"METHOD:SEED"``: no evaluation, no tables. Cells are independent, so a
+    comparison's cells can run in parallel processes or on other machines sharing ``out``; a
+    later :func:`run_comparison` reuses them (each cell's folder records the machine that ran
+    it). ``workers`` overrides the rollout actors of a method row whose config has ``workers``
+    (self-imitation, queries; 0: in this process; results do not depend on it). Returns the
+    cell's folder."""
     c = comparison
     name, sep, seed_text = cell.rpartition(":")
     if not sep or not seed_text.isdigit():
@@ -475,12 +476,16 @@ def run_cell(
     m, s = c.method(name), int(seed_text)
     if s not in c.seeds_of(m):
         raise ValueError(f"{name} has training seeds {list(c.seeds_of(m))}, not {s}")
-    if workers is not None and m.selfimprove is not None:
-        m = dataclasses.replace(m, selfimprove=dataclasses.replace(m.selfimprove, workers=workers))
+    has_workers = isinstance(m, FromStart) and "workers" in {
+        f.name for f in dataclasses.fields(m.config)
+    }
+    if workers is not None and has_workers:
+        assert isinstance(m, FromStart)
+        m = dataclasses.replace(m, config=dataclasses.replace(m.config, workers=workers))
         c = dataclasses.replace(c, methods=tuple(m if x.name == name else x for x in c.methods))
     sets = _load_sets(c, progress)
-    needs = [(m, s)] if m.kind == "bc" else []
-    if m.start:
+    needs = [(m, s)] if isinstance(m, Agent) else []
+    if isinstance(m, FromStart):
         needs.append((c.method(m.start), s))
     _train_agents(c, sets, needs, progress)
     _improve_cell(c, m, s, sets, run_metadata().get("command"))
@@ -525,50 +530,43 @@ def run_comparison(
     cells = _cells(c)
     _train_agents(c, sets, cells, progress)
     histories, run_metas = [], []
-    selfimproved: dict[tuple[str, int], Any] = {}
+    improved: dict[tuple[str, int], Any] = {}
     for m, s in cells:
         ran = _improve_cell(c, m, s, sets, meta.get("command"))
         if ran is None:
             continue
-        history, run_meta, done_si = ran
+        history, run_meta, improved[m.name, s] = ran
         histories.append(history)
         run_metas.append(run_meta)
-        if done_si is not None:
-            selfimproved[m.name, s] = done_si
 
     # 3. evaluation of the cells without a matching stored one, in one call
     sources: dict[str, Any] = {}
-    stamps: dict[str, tuple[Method, int, dict[str, Any]]] = {}
+    stamps: dict[str, tuple[Row, int, dict[str, Any]]] = {}
     stored: dict[str, pd.DataFrame] = {}
     eval_metas: list[dict[str, Any]] = []
     for m, s in cells:
-        key = EXPERT if m.expert and m.expert_config is None else f"{m.name} seed={s}"
+        default_expert = isinstance(m, Expert) and m.config is None
+        key = EXPERT if default_expert else f"{m.name} seed={s}"
         stamp = _stamp(c, m, s, limits[demos_of(c, m)])
         stamps[key] = (m, s, stamp)
         have = _stored(_folder(c, m, s), stamp)
         if have is not None:
             stored[key] = have[0]
             eval_metas.append(have[1])
-        elif m.expert:
+        elif isinstance(m, Expert):
             sources[key] = ExpertSource(
-                stored_expert_config(c.demos) if m.expert_config is None else m.expert_config
+                stored_expert_config(c.demos) if m.config is None else m.config
             )
-        elif m.kind == "bc":
+        elif isinstance(m, Agent):
             sources[key] = NetSource.from_model(*load_checkpoint(_folder(c, m, s) / "agent"))
-        elif m.kind == "improve":
-            from safe_bc.improve import ImprovedSource
-
-            sources[key] = ImprovedSource.from_run(_folder(c, m, s) / "improve")
-        elif m.kind == "selfimprove":
-            sources[key] = NetSource.from_model(*load_checkpoint(selfimproved[m.name, s].policy))
-        elif m.kind == "masked":
-            agent = _folder(c, c.method(m.masked_of), s) / "agent"
-            sources[key] = MaskedSource(NetSource.from_model(*load_checkpoint(agent)))
-        elif m.kind == "view":
-            agent = _folder(c, c.method(m.agents_of), s) / "agent"
-            sources[key] = NetSource.from_model(*load_checkpoint(agent))
+        elif isinstance(m, FromStart):
+            sources[key] = improved[m.name, s].policy
+        elif isinstance(m, View):
+            agent = NetSource.from_model(*load_checkpoint(_folder(c, c.method(m.of), s) / "agent"))
+            sources[key] = MaskedSource(agent) if m.masked else agent
         else:
-            sources[key] = _fallback_source(c, m, s, limits[demos_of(c, m)], selfimproved)
+            assert isinstance(m, Handover)
+            sources[key] = _fallback_source(c, m, s, limits[demos_of(c, m)], improved)
     if progress:
         print(f"compare {c.name}: evaluating {len(sources)} of {len(stamps)} policies")
     groups: dict[tuple[str, Path], list[str]] = {}  # one call per (env, thresholds)
@@ -604,7 +602,7 @@ def run_comparison(
         )
         if stamp["keep_steps"]:
             traces.append(read_table(_folder(c, m, s) / "steps.parquet")[0])
-        if m.kind == "bc":
+        if isinstance(m, Agent):
             from safe_bc.bc import read_checkpoint_meta
 
             extra = read_checkpoint_meta(_folder(c, m, s) / "agent")["extra"]
@@ -654,7 +652,11 @@ def write_outputs(
             refs = {  # the expert's and the starts' held-out mean reward
                 c.label_of(m.name): float(means[m.name])
                 for m in c.methods
-                if m.name in means and (m.expert or m.name in {x.start for x in c.methods})
+                if m.name in means
+                and (
+                    isinstance(m, Expert)
+                    or m.name in {x.source for x in c.methods if isinstance(x, FromStart)}
+                )
             }
             labels = {m.name: m.shown for m in c.methods}
             plot_learning_curves(history, refs, c.out / file, labels=labels)

@@ -1,35 +1,45 @@
-"""The study's improvement stage (:data:`safe_bc.stages.STAGES` ``"improve"``): a trial's
-trained net, improved by constrained RL in the stage's folder (resumable)."""
+"""The ``improve`` method's runner (:data:`safe_bc.methods.METHODS` ``"improve"``): a start
+agent improved by constrained RL in its own folder (resumable)."""
 
 from __future__ import annotations
 
 from pathlib import Path
 from typing import Any
 
-from safe_bc.bc.net import BCNet
 from safe_bc.improve.config import ImproveConfig
-from safe_bc.improve.run import improve_from_net
-from safe_bc.run_config import RunConfig
+from safe_bc.methods.registry import Improved, Start
 
 
-def run_stage(
-    config: ImproveConfig,
-    agent: Any,
-    run_config: RunConfig,
-    demos: str,
-    env_id: str,
-    folder: Path,
-    *,
-    parallel: Any = None,
-) -> tuple[Any, dict[str, float]]:
-    """The improved agent of ``agent`` (a trained :class:`BCNet`) and its report values
-    (``parallel`` is unused: the stage's rollout envs run in this process)."""
-    if not isinstance(agent, BCNet):
-        raise TypeError(f"the improvement stage starts from a trained BCNet, got {type(agent)}")
-    source, result = improve_from_net(
-        agent, run_config.bc, run_config.selection, demos, env_id, folder, config
+def run(
+    config: ImproveConfig, start: Start, folder: Path, *, metadata: dict[str, Any] | None = None
+) -> Improved:
+    """:func:`safe_bc.improve.improve` from ``start``: from its checkpoint into ``folder``
+    itself when it is one (a comparison's agent, ``--start``), else (a study trial's net) by
+    :func:`safe_bc.improve.run.improve_from_net` (``folder/start``, ``folder/run``). The
+    policy is the improved agent behind its shield when ``config.shield``; the net, without."""
+    from safe_bc.data.store import read_table
+    from safe_bc.improve import HISTORY, ImprovedSource, improve, improve_from_net
+
+    if start.checkpoint is None:
+        rc = start.run_config
+        source, result = improve_from_net(
+            start.agent, rc.bc, rc.selection, start.demos, start.env.env_id, folder, config,
+            metadata=metadata,
+        )  # fmt: skip
+        meta = None
+    else:
+        result = improve(start.checkpoint, folder, config, demos=start.demos, metadata=metadata)
+        source = ImprovedSource.from_run(folder)
+        meta = read_table(folder / HISTORY)[1]
+    return Improved(
+        policy=source,
+        net=source.improved,
+        report={
+            "improve_seconds": float(result.history["seconds"].sum()),
+            "improve_kept_iteration": float(result.kept_iteration),
+        },
+        history=result.history,
+        meta=meta,
+        fresh=result.resumed_at < result.iterations,
+        result=result,
     )
-    return source, {
-        "improve_seconds": float(result.history["seconds"].sum()),
-        "improve_kept_iteration": float(result.kept_iteration),
-    }

@@ -5,7 +5,7 @@
   selection (pure numpy);
 * :mod:`~safe_bc.queries.rollout`: one episode of the agent with the expert asked in the zone;
 * :mod:`~safe_bc.queries.run`: the resumable rounds (roll out, label, retrain);
-* :mod:`~safe_bc.queries.stage`: the study stage (``STAGES["queries"]``);
+* :mod:`~safe_bc.queries.stage`: the method's runner (``METHODS["queries"]``);
 * :mod:`~safe_bc.queries.defer`: the deferral wrapper and the width rule;
 * :mod:`~safe_bc.queries.measure`: the comparison (plain processes, no Ray).
 """

@@ -12,6 +12,5 @@ is not below the previous agent's.
 * :mod:`~safe_bc.selfimprove.rollout`: one track's unperturbed and pushed runs, validation;
 * :mod:`~safe_bc.selfimprove.data`: round files (atomic) and the training data;
 * :mod:`~safe_bc.selfimprove.run`: the resumable rounds;
-* :mod:`~safe_bc.selfimprove.stage`: the study stage (``STAGES["selfimprove"]``) and the
-  ``safe-bc improve --method selfimitation`` entry.
+* :mod:`~safe_bc.selfimprove.stage`: the method's runner (``METHODS["selfimprove"]``).
 """

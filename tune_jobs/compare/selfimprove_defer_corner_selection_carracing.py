@@ -48,7 +48,7 @@ def corner_row(width: float, hold: int, lookahead: int) -> Method:
     return replace(
         row,
         name=f"{row.name}front",
-        defer_hold_on=HOLD_ON,
+        handover=replace(row.handover, hold_on=HOLD_ON),
         label=f"{row.label} after the front distance",
     )
 

@@ -1,0 +1,65 @@
+"""Improvement methods: one interface (:class:`MethodSpec`, :class:`Start`, :class:`Improved`)
+and one registry (:data:`METHODS`) that the study's stages, the comparison runner and the
+command line read (:mod:`safe_bc.methods.registry`). The built-in methods are registered
+here, one line each, in the order study stages run; their runners live beside their code."""
+
+from __future__ import annotations
+
+from safe_bc.improve.config import ImproveConfig
+from safe_bc.methods.registry import (
+    METHODS,
+    Improved,
+    MethodSpec,
+    Runner,
+    Start,
+    method_of,
+    method_of_config,
+    register_method,
+)
+from safe_bc.queries.config import QueryConfig
+from safe_bc.selfimprove.config import SelfImproveConfig
+
+__all__ = [
+    "METHODS",
+    "Improved",
+    "MethodSpec",
+    "Runner",
+    "Start",
+    "method_of",
+    "method_of_config",
+    "register_method",
+]
+
+register_method(
+    MethodSpec(
+        name="improve",
+        config=ImproveConfig,
+        runner="safe_bc.improve.stage:run",
+        metrics=("improve_seconds", "improve_kept_iteration"),
+        summed=("improve_seconds",),
+        label="improving",
+    )
+)
+register_method(
+    MethodSpec(
+        name="queries",
+        config=QueryConfig,
+        runner="safe_bc.queries.stage:run",
+        metrics=("queries_total", "queries_per_episode", "queries_seconds"),
+        summed=("queries_total", "queries_seconds"),
+        label="querying the expert",
+    )
+)
+register_method(
+    MethodSpec(
+        name="selfimprove",
+        config=SelfImproveConfig,
+        runner="safe_bc.selfimprove.stage:run",
+        metrics=("selfimprove_accepted_rounds", "selfimprove_kept_steps", "selfimprove_seconds"),
+        summed=("selfimprove_kept_steps", "selfimprove_seconds"),
+        label="self-imitating",
+        identity="safe_bc.selfimprove.stage:identity",
+        start_modes=("mix",),
+        shares_rounds=True,
+    )
+)
