@@ -82,23 +82,33 @@ def plot_alpha_sweep(table: pd.DataFrame, path: Path, *, paper: pd.DataFrame | N
 
 
 def plot_traces(
-    traces: pd.DataFrame, labels: dict[str, dict[str, Any]], path: Path, *, episode: int = 0
+    traces: pd.DataFrame,
+    labels: dict[str, dict[str, Any]],
+    path: Path,
+    *,
+    episode: int = 0,
+    limits: dict[str, float] | None = None,
 ) -> Path:
-    """Left/right safety over one held-out episode for each policy (Figures 5-6)."""
+    """Each safety dimension's distance over one held-out episode for each policy (Figures
+    5-6), with ``limits`` (per dimension, the distance at ``d_s``) as dashed lines in the
+    dimension's colour: below a line is beyond the expert's limit."""
     policies = list(dict.fromkeys(traces["policy"]))
     fig, axes = plt.subplots(len(policies), 1, figsize=(9, 2.3 * len(policies)), squeeze=False)
     for ax, key in zip(axes[:, 0], policies, strict=True):
         df = traces[traces["policy"] == key]
         seed = sorted(df["env_seed"].unique())[episode]
         df = df[(df["env_seed"] == seed) & ~df["warmup"]]
-        for col in [c for c in df.columns if c.startswith("safety_")]:
-            ax.plot(df["step"], df[col], lw=0.8, label=col.removeprefix("safety_"))
+        for i, col in enumerate(c for c in df.columns if c.startswith("safety_")):
+            dim = col.removeprefix("safety_")
+            ax.plot(df["step"], df[col], lw=0.8, color=f"C{i}", label=dim)
+            if limits and dim in limits:
+                ax.axhline(limits[dim], color=f"C{i}", ls="--", lw=0.8, label=f"{dim} at d_s")
         off = df[df["offroad"]]
         if len(off):
             ax.plot(off["step"], np.zeros(len(off)), "r|", label="off-road")
         lab = labels.get(key, {})
         ax.set_title(f"{lab.get('method', key)} (track seed {seed})", fontsize=9)
-        ax.set_ylabel("distance")
+        ax.set_ylabel("distance (higher is safer)")
         ax.legend(fontsize=7, ncol=4, loc="upper right")
     axes[-1, 0].set_xlabel("step")
     return save_figure(fig, path)

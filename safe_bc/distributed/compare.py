@@ -613,6 +613,7 @@ def run_comparison(
     meta["seconds"] = round(time.perf_counter() - started, 1)
     meta["inputs"] = {**meta["inputs"], "runs": run_digests(c, cells)}
     meta["demo_safety_mean"] = float(combined(demos.safety[demos.scored]).mean())
+    meta["limit_distances"] = limit_distances(demos)
     meta["run_machines"] = machines(run_metas)
     meta["eval_machines"] = machines(eval_metas)
     write_table_atomic(c.out / f"{c.name}_episodes.parquet", episodes, meta)
@@ -622,6 +623,13 @@ def run_comparison(
     if history is not None:
         write_table_atomic(c.out / f"{c.name}_history.parquet", history, meta)
     return write_outputs(c, episodes, steps, train_df, meta, history)
+
+
+def limit_distances(demos: Any) -> dict[str, float]:
+    """Per safety dimension, the distance at the limit ``d_s``: the demonstrations' closest
+    scored approach (``d_s`` is their largest cost, and a cost falls as the distance grows)."""
+    scored = demos.safety[demos.scored]
+    return {d: float(scored[:, j].min()) for j, d in enumerate(demos.safety_dims)}
 
 
 def write_outputs(
@@ -646,7 +654,10 @@ def write_outputs(
             plot_alpha_sweep(sweep, c.out / file, paper=PAPER_TABLE1 if c.paper else None)
         elif figure == "traces" and len(traces):
             pairs = episodes[["policy", "method"]].drop_duplicates().values
-            plot_traces(traces, {p: {"method": m} for p, m in pairs}, c.out / file)
+            plot_traces(
+                traces, {p: {"method": m} for p, m in pairs}, c.out / file,
+                limits=meta.get("limit_distances"),
+            )  # fmt: skip
         elif figure == "learning_curves" and history is not None and len(history):
             means = episodes.groupby("method")["reward"].mean()
             refs = {  # the expert's and the starts' held-out mean reward
