@@ -88,3 +88,47 @@ def fmt_ci(
     spec = f"{'+' if signed else ''}.{digits}f"
     lo, hi = row[f"{metric}_lo"], row[f"{metric}_hi"]
     return f"{value:{spec}} [{lo:{spec}}, {hi:{spec}}]"
+
+
+DISTANCE_UNIT = "the task's distance to its limit (CarRacing: px to the grass)"
+"""Unit of safety distances and their differences, named without a task."""
+
+_UNITS: tuple[tuple[str, str], ...] = (
+    ("seconds", "s"),
+    ("_s", "s"),
+    ("minutes", "min"),
+    ("share", "fraction of 1"),
+    ("fraction", "fraction of 1"),
+    ("_rate", "fraction of 1"),
+    ("_ucb", "fraction of 1 (one-sided 95% upper bound)"),
+    ("ucb95", "fraction of 1 (one-sided 95% upper bound)"),
+    ("reward", "return (the env's reward summed over an episode)"),
+    ("safety", DISTANCE_UNIT),
+    ("excursion", DISTANCE_UNIT),
+    ("steps", "env steps"),
+    ("episodes", "episodes"),
+    ("samples_per_s", "samples / s"),
+    ("loss", "mean squared action error"),
+)
+"""``(part of a column name, unit)``, first match wins (see :func:`column_unit`)."""
+
+
+def column_unit(name: str) -> str | None:
+    """The unit of a result table's column, read off its name (``None``: a label, a count
+    without unit, a setting).
+
+    >>> column_unit("reward_lo")
+    "return (the env's reward summed over an episode)"
+    >>> column_unit("safety_min") == DISTANCE_UNIT, column_unit("deferred_share")
+    (True, 'fraction of 1')
+    >>> column_unit("duration_s"), column_unit("episodes_beyond"), column_unit("method")
+    ('s', 'episodes', None)
+    """
+    if name == "samples_per_s":
+        return "samples / s"
+    for part, unit in _UNITS:
+        if part == "_s" and not name.endswith("_s"):
+            continue
+        if part in name:
+            return unit
+    return None

@@ -170,13 +170,35 @@ def write_table_atomic(path: Path, frame: Any, metadata: dict[str, Any] | None =
     metadata = with_provenance(metadata)
     if dirty is not None:
         metadata = {**metadata, "dirty_tree": dirty}
-    table = pa.Table.from_pandas(frame, preserve_index=False)
+    table = with_units(pa.Table.from_pandas(frame, preserve_index=False))
     if metadata is not None:
         merged = dict(table.schema.metadata or {})
         merged[META_KEY] = json.dumps(metadata, sort_keys=True, default=str).encode()
         table = table.replace_schema_metadata(merged)
     with atomic_write(path) as f:
         pq.write_table(table, f, compression="zstd")
+
+
+def with_units(table: pa.Table) -> pa.Table:
+    """``table`` with each column's unit (:func:`safe_bc.report.column_unit`) in its Arrow
+    field metadata (``unit``), where its name tells one."""
+    from safe_bc.report import column_unit
+
+    fields = []
+    for f in table.schema:
+        unit = column_unit(f.name)
+        if unit is not None:
+            f = f.with_metadata({**(f.metadata or {}), b"unit": unit.encode()})
+        fields.append(f)
+    return table.cast(pa.schema(fields, metadata=table.schema.metadata))
+
+
+def column_units(path: Path) -> dict[str, str]:
+    """The units a result table's columns carry (:func:`with_units`)."""
+    schema = pq.read_schema(path)
+    return {
+        f.name: f.metadata[b"unit"].decode() for f in schema if f.metadata and b"unit" in f.metadata
+    }
 
 
 def read_table(path: Path) -> tuple[Any, dict[str, Any]]:

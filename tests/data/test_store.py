@@ -244,3 +244,22 @@ def test_files_without_column_checksums_are_read_as_before(tmp_path: Path) -> No
     pq.write_table(table.replace_schema_metadata(kept), path)
     assert read_episodes(tmp_path)[0].rewards.tolist() == [1.0] * 12
     assert read_columns(tmp_path, ["reward"])["reward"].tolist() == [1.0] * 12
+
+
+def test_result_tables_carry_each_columns_unit(tmp_path) -> None:
+    import pandas as pd
+
+    from safe_bc.data.store import column_units, read_table, write_table_atomic
+    from safe_bc.report import DISTANCE_UNIT
+
+    frame = pd.DataFrame(
+        {"method": ["a"], "reward": [1.0], "safety_mean": [2.0], "deferred_share": [0.1],
+         "eval_seconds": [3.0], "episodes_beyond": [0]}
+    )  # fmt: skip
+    write_table_atomic(tmp_path / "t.parquet", frame, {"seed": 1, "git_revision": "abc"})
+    units = column_units(tmp_path / "t.parquet")
+    assert units["safety_mean"] == DISTANCE_UNIT and units["deferred_share"] == "fraction of 1"
+    assert units["eval_seconds"] == "s" and units["episodes_beyond"] == "episodes"
+    assert "method" not in units and units["reward"].startswith("return")
+    table, meta = read_table(tmp_path / "t.parquet")
+    assert table.equals(frame) and meta == {"seed": 1, "git_revision": "abc"}
