@@ -83,7 +83,9 @@ def test_the_example_task_registers_through_its_entry_point(
     assert task_of("lane_task/Lane-v0") == "lane"
     study = load_study(tmp_path / "source" / "lane_study.py")
     assert study.env == spec.env and study.critical_eps == spec.eps
-    assert study.collect == spec.collect_config()
+    from safe_bc.collection import CollectConfig
+
+    assert study.collect == CollectConfig.for_task(spec)
 
 
 def test_a_plugin_that_cannot_load_is_one_line_exit_2(tmp_path: Path) -> None:

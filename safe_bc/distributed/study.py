@@ -291,6 +291,13 @@ def _study_history(history: pd.DataFrame, trials: pd.DataFrame) -> tuple[pd.Data
     if "phase" in kept:  # a round reported again by a restarted trial (from its stored
         # episodes, :func:`safe_bc.distributed.trial.stored_round`) counts once: the last report
         kept = kept[~kept.duplicated(["trial_id", "phase"], keep="last")]
+    # in trial order, each trial's reports in its order (not in the order concurrent trials'
+    # reports happened to arrive), so the same study gives the same table
+    numbers = trials["trial_number"] if "trial_number" in trials else range(len(trials))
+    number = kept["trial_id"].map(dict(zip(trials["trial_id"], numbers, strict=True)))
+    order = [number] + ([kept["training_iteration"]] if "training_iteration" in kept else [])
+    keys = pd.DataFrame({f"k{i}": k.to_numpy() for i, k in enumerate(order)}, index=kept.index)
+    kept = kept.loc[keys.sort_values(list(keys.columns), kind="stable").index]
     return kept.reset_index(drop=True), lost
 
 

@@ -319,7 +319,8 @@ def run_selfimprove(
         rows = SelfImproveResult(folder, rounds, resumed, agent_name, start_val).history()
         write_curve(folder / CURVE, pd.DataFrame(rows), "iteration", "selfimprove", identity)
 
-    write_curve_so_far()
+    if not (had_curve := (folder / CURVE).is_file()):  # a rerun of done rounds keeps it
+        write_curve_so_far()
     for r in range(config.rounds):
         here = folder / round_dir(r)
         done = read_json(here / DONE)
@@ -408,5 +409,6 @@ def run_selfimprove(
         write_curve_so_far()
         if on_round is not None:
             on_round(summary)
-    write_curve_so_far()  # a rerun whose rounds were all done
+    if resumed == len(rounds) and not had_curve:
+        write_curve_so_far()  # a run whose rounds were all done before its curve existed
     return SelfImproveResult(folder, rounds, resumed, agent_name, start_val)

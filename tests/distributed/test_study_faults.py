@@ -122,6 +122,18 @@ def test_history_keeps_the_trials_tune_knows_and_names_the_lost_ones(tmp_path: P
     kept, names = _study_history(history, trials)
     assert list(kept["trial_id"]) == ["a", "a", "b"] and names == ["x"]
     assert _study_history(pd.DataFrame(), trials)[1] == []
+    arrived = pd.DataFrame(  # concurrent trials' reports, in the order they arrived
+        {"trial_id": ["b", "a", "b", "a"], "training_iteration": [1, 1, 2, 2],
+         "phase": ["trained", "trained", "evaluated", "evaluated"]}
+    )  # fmt: skip
+    numbered = pd.DataFrame({"trial_id": ["b", "a"], "trial_number": [1, 0]})
+    kept, _ = _study_history(arrived, numbered)
+    assert list(zip(kept["trial_id"], kept["phase"], strict=True)) == [
+        ("a", "trained"),
+        ("a", "evaluated"),
+        ("b", "trained"),
+        ("b", "evaluated"),
+    ]  # trial order, each trial's reports in its order: the same study, the same table
 
     exp = tmp_path / "exp"
     for name in ("trial_a", "trial_b", "trial_x", "trial_y", "other"):
