@@ -10,6 +10,7 @@ from __future__ import annotations
 import contextlib
 import inspect
 import io
+import os
 import re
 import shlex
 import sys
@@ -18,7 +19,7 @@ from typing import Any
 
 from safe_bc.bc.checkpoint import CheckpointError
 from safe_bc.data.store import DatasetError
-from safe_bc.distributed.runtime import RayUnavailableError, check_ray_address
+from safe_bc.distributed.runtime import RayUnavailableError, check_ray_address, stop_ray
 from safe_bc.locks import OutputLockedError
 
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -206,7 +207,12 @@ def run(command: str, job: Any, argv: Sequence[str]) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point: parse, run, turn expected failures into one-line errors."""
+    """Entry point: parse, run, turn expected failures into one-line errors.
+
+    Ctrl-C or SIGTERM (``StudyStopped``, a ``KeyboardInterrupt``) prints one line, shuts Ray
+    down and, when run as the program (``argv`` not given), exits at once with 130 or 143.
+    """
+    argv_given = argv is not None
     argv = list(sys.argv[1:] if argv is None else argv)
     name = argv[0] if argv and argv[0] in COMMANDS else None
     where = f"safe-bc {name}" if name else "safe-bc"
@@ -239,8 +245,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     except KeyboardInterrupt as e:  # StudyStopped says which signal and what a rerun does
         what = str(e) or "interrupted; rerun the same command to resume"
-        print(f"{where}: {what}", file=sys.stderr)
-        return getattr(e, "exit_code", 130)
+        print(f"{where}: {what}", file=sys.stderr, flush=True)
+        code = getattr(e, "exit_code", 130)
+        stop_ray()
+        if argv_given:
+            return code
+        # the program itself: nothing is left to write (every output is written whole), and
+        # the interpreter's teardown (torch's, Ray's hooks) took seconds
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
 
 
 if __name__ == "__main__":

@@ -3,6 +3,7 @@ Tune's status table every 30 s with ``--verbose``."""
 
 from __future__ import annotations
 
+import logging
 import math
 import sys
 from typing import Any
@@ -30,13 +31,32 @@ def progress_reporter(spec: StudySpec) -> tune.CLIReporter:
 def quiet_logs() -> None:
     """Tune's, Train's and Optuna's INFO lines (experiment state written, checkpoint created,
     study created) off: the trial lines and the summary say what a user needs."""
-    import logging
-
     import optuna
 
     for name in ("ray.tune", "ray.train"):
         logging.getLogger(name).setLevel(logging.WARNING)
     optuna.logging.set_verbosity(optuna.logging.WARNING)
+
+
+TUNE_STOP_LINES = (
+    "Stop signal received",
+    "Experiment has been interrupted",
+    "Training has been interrupted",
+)
+"""How Ray Tune's lines on a Ctrl-C start: its handler's notice and its advice to resume with
+``Tuner.restore(...)`` (a study resumes by running the same command, as its own line says)."""
+
+
+def _not_a_stop_line(record: logging.LogRecord) -> bool:
+    return not str(record.msg).startswith(TUNE_STOP_LINES)
+
+
+def quiet_stop() -> None:
+    """Ray Tune's lines on a Ctrl-C off (they come from ``ray.tune.tune``); its other warnings
+    stay. Idempotent."""
+    tune_logger = logging.getLogger("ray.tune.tune")
+    if _not_a_stop_line not in tune_logger.filters:
+        tune_logger.addFilter(_not_a_stop_line)
 
 
 def trial_line(result: dict[str, Any], done: int, total: int) -> str:

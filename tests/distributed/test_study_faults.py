@@ -624,6 +624,28 @@ def test_sigterm_and_ctrl_c_in_the_final_phase_stop_in_one_line_and_the_rerun_re
     assert again.returncode == rerun.returncode and "finished before" in again.stdout
 
 
+def test_a_deferred_signal_stops_after_the_grace_period_and_prints_nothing(
+    monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    import safe_bc.distributed.stop as stop_mod
+    from safe_bc.distributed.stop import StudyStopped, _stop_signals, deferred_stop
+
+    monkeypatch.setattr(stop_mod, "STOP_GRACE_S", 0.2)
+    for signum, code in ((signal.SIGTERM, 143), (signal.SIGINT, 130)):
+        t0 = time.monotonic()
+        with _stop_signals(), pytest.raises(StudyStopped) as e, deferred_stop():
+            signal.raise_signal(signum)
+            while time.monotonic() - t0 < 10:  # work that outlasts the grace period
+                time.sleep(0.01)
+            pytest.fail("not stopped after the grace period")
+        assert e.value.exit_code == code and time.monotonic() - t0 < 5
+    # stopped at a stop point in time: the timer is cancelled and delivers nothing later
+    with _stop_signals(), pytest.raises(StudyStopped), deferred_stop():
+        signal.raise_signal(signal.SIGINT)
+    time.sleep(0.4)
+    assert capsys.readouterr() == ("", "")  # the one line is the command line's
+
+
 def test_a_signal_in_a_deferred_block_stops_at_the_next_stop_point_with_its_own_code() -> None:
     from safe_bc.distributed.stop import StudyStopped, _stop_signals, deferred_stop, stop_point
 
