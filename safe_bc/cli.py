@@ -247,13 +247,18 @@ def main(argv: Sequence[str] | None = None) -> int:
         what = str(e) or "interrupted; rerun the same command to resume"
         print(f"{where}: {what}", file=sys.stderr, flush=True)
         code = getattr(e, "exit_code", 130)
-        stop_ray()
         if argv_given:
+            stop_ray()
             return code
-        # the program itself: nothing is left to write (every output is written whole), and
+        # the program itself: the line above is its last output (Ray's shutdown printed
+        # workers' dying words), nothing is left to write (every output is written whole), and
         # the interpreter's teardown (torch's, Ray's hooks) took seconds
         sys.stdout.flush()
         sys.stderr.flush()
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.dup2(devnull, sys.stderr.fileno())
+        stop_ray()
         os._exit(code)
 
 
