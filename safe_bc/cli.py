@@ -13,6 +13,7 @@ import io
 import os
 import re
 import shlex
+import signal
 import sys
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -206,13 +207,36 @@ def run(command: str, job: Any, argv: Sequence[str]) -> int:
     return done.code
 
 
+class Interrupted(KeyboardInterrupt):
+    """Ctrl-C or SIGTERM outside a study's own handling: one line, exit 130 or 143."""
+
+    def __init__(self, signum: int) -> None:
+        self.exit_code = 128 + signum
+        super().__init__(
+            f"stopped by {signal.Signals(signum).name}; rerun the same command to resume"
+        )
+
+
+def _interrupt(signum: int, frame: Any) -> None:
+    raise Interrupted(signum)
+
+
+def _set_signals(handler: Any) -> None:
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, handler)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point: parse, run, turn expected failures into one-line errors.
 
     Ctrl-C or SIGTERM (``StudyStopped``, a ``KeyboardInterrupt``) prints one line, shuts Ray
     down and, when run as the program (``argv`` not given), exits at once with 130 or 143.
+    The program stops on SIGTERM as on Ctrl-C, and shuts Ray down after a finished command,
+    ignoring signals from then on.
     """
     argv_given = argv is not None
+    if not argv_given:  # the program: SIGTERM stops it like Ctrl-C (a study sets its own)
+        _set_signals(_interrupt)
     argv = list(sys.argv[1:] if argv is None else argv)
     name = argv[0] if argv and argv[0] in COMMANDS else None
     where = f"safe-bc {name}" if name else "safe-bc"
@@ -225,7 +249,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             from safe_bc.distributed.runtime import ensure_ray
 
             ensure_ray()
-        return run(command, job, argv)
+        code = run(command, job, argv)
+        if not argv_given:  # the command is done: a signal no longer interrupts its exit
+            _set_signals(signal.SIG_IGN)
+            stop_ray()
+        return code
     except (
         UsageError,
         DatasetError,
@@ -244,6 +272,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"{where}: error: {place}{detail}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as e:  # StudyStopped says which signal and what a rerun does
+        if not argv_given:  # another signal ends the program now (Ray's processes with it)
+            _set_signals(signal.SIG_DFL)
         what = str(e) or "interrupted; rerun the same command to resume"
         print(f"{where}: {what}", file=sys.stderr, flush=True)
         code = getattr(e, "exit_code", 130)

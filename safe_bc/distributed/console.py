@@ -10,12 +10,20 @@ from typing import Any
 
 from ray import tune
 
+from safe_bc.distributed.stop import stopping
 from safe_bc.study import OBJECTIVE, StudySpec
+
+
+class StudyReporter(tune.CLIReporter):
+    """Tune's status table, silent once a signal stops the study (its one line says so)."""
+
+    def should_report(self, trials: list, done: bool = False) -> bool:
+        return not stopping() and super().should_report(trials, done)
 
 
 def progress_reporter(spec: StudySpec) -> tune.CLIReporter:
     """Tune's status table every 30 s: the objective, safety, feasibility and the parameters."""
-    return tune.CLIReporter(
+    return StudyReporter(
         metric_columns={
             OBJECTIVE: "reward",
             "safety_mean": "safety",
@@ -48,15 +56,22 @@ TUNE_STOP_LINES = (
 
 
 def _not_a_stop_line(record: logging.LogRecord) -> bool:
-    return not str(record.msg).startswith(TUNE_STOP_LINES)
+    return not stopping() and not str(record.msg).startswith(TUNE_STOP_LINES)
+
+
+TUNE_STOP_LOGGERS = ("ray.tune.tune", "ray.tune.analysis.experiment_analysis")
+"""Where Tune's lines on a stop come from: the run's end (trials that "did not complete", the
+run time), the result grid (metrics it cannot fetch for trials that had not reported yet)."""
 
 
 def quiet_stop() -> None:
-    """Ray Tune's lines on a Ctrl-C off (they come from ``ray.tune.tune``); its other warnings
-    stay. Idempotent."""
-    tune_logger = logging.getLogger("ray.tune.tune")
-    if _not_a_stop_line not in tune_logger.filters:
-        tune_logger.addFilter(_not_a_stop_line)
+    """Ray Tune's lines on a Ctrl-C off: its notice and its advice always, everything of
+    :data:`TUNE_STOP_LOGGERS` once a signal stops the study; its other warnings stay.
+    Idempotent."""
+    for name in TUNE_STOP_LOGGERS:
+        tune_logger = logging.getLogger(name)
+        if _not_a_stop_line not in tune_logger.filters:
+            tune_logger.addFilter(_not_a_stop_line)
 
 
 def trial_line(result: dict[str, Any], done: int, total: int) -> str:

@@ -223,8 +223,8 @@ def start_local_ray(num_cpus: int | None = None, **kwargs) -> None:
 
 
 def stop_ray() -> None:
-    """Shut down this process's Ray (its local processes with it), quietly; a second Ctrl-C or
-    SIGTERM meanwhile ends the process at once (Ray's processes die with it)."""
+    """Shut down this process's Ray (its local processes with it), quietly (no-op without
+    one)."""
     import logging
     import sys
 
@@ -234,9 +234,6 @@ def stop_ray() -> None:
 
     if not ray.is_initialized():
         return
-    if threading.current_thread() is threading.main_thread():
-        for signum in HELD_SIGNALS:
-            signal.signal(signum, signal.SIG_DFL)
     logging.getLogger("ray").setLevel(logging.CRITICAL)
     ray.shutdown()
 

@@ -58,6 +58,8 @@ class _Stop:
         :func:`stop_point`, a second one (or :data:`STOP_GRACE_S` later) at once."""
         self.grace: threading.Timer | None = None
         """Delivers the recorded signal again when the grace period is over."""
+        self.fitting = False
+        """Inside Tune's ``fit`` (see :func:`fitting`)."""
 
     def _outside_fit(self, signum: int, frame: Any) -> None:
         if self.deferring and not self.signum:
@@ -124,13 +126,38 @@ def _fit_stopped() -> int:
     handler puts the one before it (ours) back when it has caught a signal."""
     if _STOP is None:
         return 0
-    tune_handled = threading.current_thread() is threading.main_thread() and not int(
-        os.environ.get("TUNE_DISABLE_SIGINT_HANDLER", "0")
-    )
-    if tune_handled and signal.getsignal(signal.SIGINT) == _STOP._outside_fit:
+    if _tune_handles_sigint() and signal.getsignal(signal.SIGINT) == _STOP._outside_fit:
         _STOP.signum = _STOP.signum or signal.SIGINT
     _STOP.install()
     return _STOP.signum
+
+
+def _tune_handles_sigint() -> bool:
+    return threading.current_thread() is threading.main_thread() and not int(
+        os.environ.get("TUNE_DISABLE_SIGINT_HANDLER", "0")
+    )
+
+
+@contextmanager
+def fitting() -> Iterator[None]:
+    """Marks Tune's ``fit``, for :func:`stopping`."""
+    if _STOP is None:
+        yield
+        return
+    _STOP.fitting = True
+    try:
+        yield
+    finally:
+        _STOP.fitting = False
+
+
+def stopping() -> bool:
+    """A signal is stopping the study run in this process (in ``fit``: Tune's handler has
+    caught a Ctrl-C, which puts the study's back, or a SIGTERM was handed to it)."""
+    if _STOP is None:
+        return False
+    caught = _STOP.fitting and _tune_handles_sigint()
+    return bool(_STOP.signum) or (caught and signal.getsignal(signal.SIGINT) == _STOP._outside_fit)
 
 
 @contextmanager
