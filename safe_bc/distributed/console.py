@@ -10,7 +10,7 @@ from typing import Any
 
 from ray import tune
 
-from safe_bc.distributed.stop import stopping
+from safe_bc.distributed.stop import stopping, tune_caught_signal
 from safe_bc.study import OBJECTIVE, StudySpec
 
 
@@ -56,6 +56,8 @@ TUNE_STOP_LINES = (
 
 
 def _not_a_stop_line(record: logging.LogRecord) -> bool:
+    if str(record.msg).startswith(TUNE_STOP_LINES[0]):  # Tune's handler caught a Ctrl-C
+        tune_caught_signal()
     return not stopping() and not str(record.msg).startswith(TUNE_STOP_LINES)
 
 
@@ -67,7 +69,8 @@ run time), the result grid (metrics it cannot fetch for trials that had not repo
 def quiet_stop() -> None:
     """Ray Tune's lines on a Ctrl-C off: its notice and its advice always, everything of
     :data:`TUNE_STOP_LOGGERS` once a signal stops the study; its other warnings stay.
-    Idempotent."""
+    Idempotent. Tune's handler logs its notice first thing (Ray 2.60), which is how
+    :func:`stopping` learns of a Ctrl-C that Tune caught: ``ray.tune`` must log warnings."""
     for name in TUNE_STOP_LOGGERS:
         tune_logger = logging.getLogger(name)
         if _not_a_stop_line not in tune_logger.filters:

@@ -58,8 +58,8 @@ class _Stop:
         :func:`stop_point`, a second one (or :data:`STOP_GRACE_S` later) at once."""
         self.grace: threading.Timer | None = None
         """Delivers the recorded signal again when the grace period is over."""
-        self.fitting = False
-        """Inside Tune's ``fit`` (see :func:`fitting`)."""
+        self.tune_caught = False
+        """Tune's handler has caught a Ctrl-C (see :func:`tune_caught_signal`)."""
 
     def _outside_fit(self, signum: int, frame: Any) -> None:
         if self.deferring and not self.signum:
@@ -138,26 +138,17 @@ def _tune_handles_sigint() -> bool:
     )
 
 
-@contextmanager
-def fitting() -> Iterator[None]:
-    """Marks Tune's ``fit``, for :func:`stopping`."""
-    if _STOP is None:
-        yield
-        return
-    _STOP.fitting = True
-    try:
-        yield
-    finally:
-        _STOP.fitting = False
+def tune_caught_signal() -> None:
+    """Note that Tune's SIGINT handler has caught a signal (its notice is the sign: the handler
+    logs it before anything else, see :func:`safe_bc.distributed.console.quiet_stop`)."""
+    if _STOP is not None:
+        _STOP.tune_caught = True
 
 
 def stopping() -> bool:
     """A signal is stopping the study run in this process (in ``fit``: Tune's handler has
-    caught a Ctrl-C, which puts the study's back, or a SIGTERM was handed to it)."""
-    if _STOP is None:
-        return False
-    caught = _STOP.fitting and _tune_handles_sigint()
-    return bool(_STOP.signum) or (caught and signal.getsignal(signal.SIGINT) == _STOP._outside_fit)
+    caught a Ctrl-C, or a SIGTERM was recorded and handed to it)."""
+    return _STOP is not None and bool(_STOP.signum or _STOP.tune_caught)
 
 
 @contextmanager

@@ -63,7 +63,6 @@ from safe_bc.distributed.stop import (
     _fit_stopped,
     _reinstall_signals,
     _stop_signals,
-    fitting,
 )
 from safe_bc.distributed.trial import TrialJob, cached_demos, run_trial, stored_checkpoint
 from safe_bc.provenance import check_result_write, provenance
@@ -754,8 +753,7 @@ def _run_study(
             clock.add(COPY, seconds)
 
     try:
-        with fitting():
-            grid = tuner.fit()
+        grid = tuner.fit()
     except Exception as e:  # Tune wraps an OSError of a callback (a full disk) in a TuneError
         _fit_stopped()
         with contextlib.suppress(OSError):  # the time log must not hide the error

@@ -445,6 +445,48 @@ def test_sigterm_during_fit_goes_to_tunes_handler_and_is_reported_after_it() -> 
         assert _fit_stopped() == signal.SIGINT
 
 
+def test_stopping_is_seen_in_fit_and_silences_tunes_stop_lines_and_status_table() -> None:
+    import logging
+
+    from safe_bc.distributed.console import StudyReporter, quiet_stop
+    from safe_bc.distributed.stop import _stop_signals, stopping
+
+    quiet_stop()
+    quiet_stop()  # idempotent
+    seen: list[str] = []
+
+    class Keep(logging.Handler):
+        def emit(self, record: logging.LogRecord) -> None:
+            seen.append(record.getMessage().split(" ", 1)[0])
+
+    tune_log = logging.getLogger("ray.tune.tune")
+    grid_log = logging.getLogger("ray.tune.analysis.experiment_analysis")
+    keep = Keep()
+    for log in (tune_log, grid_log):
+        log.addHandler(keep)
+    reporter = StudyReporter(max_report_frequency=0)
+    try:
+        assert not stopping()
+        with _stop_signals():
+            tune_log.warning("Tune detects GPUs, but no trials are using GPUs.")
+            assert not stopping() and reporter.should_report([], done=True)
+            # Tune's handler caught a Ctrl-C: its notice comes first
+            tune_log.warning("Stop signal received (e.g. via SIGINT/Ctrl+C), ending ...")
+            assert stopping() and not reporter.should_report([], done=True)
+            tune_log.error("Trials did not complete: [...]")
+            grid_log.warning("Failed to fetch metrics for 2 trial(s):")
+            tune_log.warning("Experiment has been interrupted, but ...")
+        assert not stopping()
+        with _stop_signals() as stop:
+            stop.signum = signal.SIGTERM  # recorded (handed to Tune as SIGINT)
+            assert stopping()
+            tune_log.warning("Tune detects GPUs, but no trials are using GPUs.")
+    finally:
+        for log in (tune_log, grid_log):
+            log.removeHandler(keep)
+    assert seen == ["Tune"]
+
+
 def test_a_trial_stopped_right_after_its_suggestion_has_no_config_and_still_gets_a_row() -> None:
     from safe_bc.distributed.study import _records
 
