@@ -229,10 +229,10 @@ def _set_signals(handler: Any) -> None:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point: parse, run, turn expected failures into one-line errors.
 
-    Ctrl-C or SIGTERM (``StudyStopped``, a ``KeyboardInterrupt``) prints one line, shuts Ray
-    down and, when run as the program (``argv`` not given), exits at once with 130 or 143.
-    The program stops on SIGTERM as on Ctrl-C, and shuts Ray down after a finished command,
-    ignoring signals from then on.
+    Ctrl-C or SIGTERM (``StudyStopped``, a ``KeyboardInterrupt``) prints one line and returns
+    130 or 143. Run as the program (``argv`` not given) it also stops on SIGTERM as on Ctrl-C
+    where no study handles it, shuts Ray down and exits at once after a stop, and shuts Ray
+    down ignoring signals after a finished command.
     """
     argv_given = argv is not None
     if not argv_given:  # the program: SIGTERM stops it like Ctrl-C (a study sets its own)
@@ -277,8 +277,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         what = str(e) or "interrupted; rerun the same command to resume"
         print(f"{where}: {what}", file=sys.stderr, flush=True)
         code = getattr(e, "exit_code", 130)
-        if argv_given:
-            stop_ray()
+        if argv_given:  # a caller in this process: its Ray and its exit are its own
             return code
         # the program itself: the line above is its last output (Ray's shutdown printed
         # workers' dying words), nothing is left to write (every output is written whole), and
