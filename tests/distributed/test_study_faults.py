@@ -122,8 +122,9 @@ def test_history_keeps_the_trials_tune_knows_and_names_the_lost_ones(tmp_path: P
 
 
 def _session_pids(sid: int) -> list[int]:
-    """Processes of session ``sid`` (the driver started with ``start_new_session``, and the
-    Ray processes it started)."""
+    """Processes of session ``sid`` (the driver started with ``start_new_session``; Ray's own
+    processes run in sessions of their own and die with the driver: tests/distributed/
+    test_signals.py finds them by an environment marker)."""
     pids = []
     for entry in Path("/proc").iterdir():
         if entry.name.isdigit():
