@@ -440,7 +440,12 @@ def compare(job: CompareJob) -> Done:
 def tune(job: TuneJob, *, command: str = "") -> Done:
     """Run (or resume) the study of ``job.study`` with ``job``'s overrides (or its
     ``replicates``); the value is the study outcome; its code is the outcome's ``exit_code``
-    (130 / 143 when a signal stopped it: rerun to resume; 1 without a winner)."""
+    (1 without a winner, 130 for an incomplete study).
+
+    Raises:
+        StudyStopped: Ctrl-C or SIGTERM stopped the study (a ``KeyboardInterrupt`` whose
+            ``exit_code`` is 130 or 143), once what finished is written: rerun to resume.
+    """
     import shlex
 
     from safe_bc.distributed.console import one_line_warnings
@@ -467,6 +472,10 @@ def tune(job: TuneJob, *, command: str = "") -> Done:
         outputs.append((Path(experiment), "--storage"))
     with output_locks(outputs), one_line_warnings():
         outcome = run_study(spec, fresh=job.fresh, command=command, verbose=job.verbose)
+    if outcome.stopped_by:  # what finished is written; the stop is one line, not a summary
+        from safe_bc.distributed.stop import StudyStopped
+
+        raise StudyStopped(outcome.stopped_by)
     return Done(format_outcome(outcome, spec.params), outcome, outcome.exit_code)
 
 

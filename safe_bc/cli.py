@@ -11,9 +11,11 @@ import contextlib
 import inspect
 import io
 import itertools
+import os
 import re
 import shlex
 import shutil
+import signal
 import sys
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -300,8 +302,45 @@ def run(command: str, job: Any, argv: Sequence[str]) -> int:
     return done.code
 
 
+class Interrupted(KeyboardInterrupt):
+    """Ctrl-C or SIGTERM outside a study's own handling: one line, exit 130 or 143."""
+
+    def __init__(self, signum: int) -> None:
+        self.exit_code = 128 + signum
+        super().__init__(
+            f"stopped by {signal.Signals(signum).name}; rerun the same command to resume"
+        )
+
+
+def _interrupt(signum: int, frame: Any) -> None:
+    raise Interrupted(signum)
+
+
+def _stop_ray() -> None:
+    """Shut this process's Ray down, where a command started it (the command line imports
+    Ray only when a command needs it)."""
+    if "safe_bc.distributed.runtime" in sys.modules:
+        from safe_bc.distributed.runtime import stop_ray
+
+        stop_ray()
+
+
+def _set_signals(handler: Any) -> None:
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, handler)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point: parse, run, turn expected failures into one-line errors."""
+    """Entry point: parse, run, turn expected failures into one-line errors.
+
+    Ctrl-C or SIGTERM (``StudyStopped``, a ``KeyboardInterrupt``) prints one line and returns
+    130 or 143. Run as the program (``argv`` not given) it also stops on SIGTERM as on Ctrl-C
+    where no study handles it, shuts Ray down and exits at once after a stop, and shuts Ray
+    down ignoring signals after a finished command.
+    """
+    argv_given = argv is not None
+    if not argv_given:  # the program: SIGTERM stops it like Ctrl-C (a study sets its own)
+        _set_signals(_interrupt)
     argv = list(sys.argv[1:] if argv is None else argv)
     name = argv[0] if argv and argv[0] in COMMANDS else None
     where = f"safe-bc {name}" if name else "safe-bc"
@@ -316,11 +355,29 @@ def main(argv: Sequence[str] | None = None) -> int:
             from safe_bc.distributed.runtime import ensure_ray
 
             ensure_ray()
-        return run(command, job, argv)
+        code = run(command, job, argv)
+        if not argv_given:  # the command is done: a signal no longer interrupts its exit
+            _set_signals(signal.SIG_IGN)
+            _stop_ray()
+        return code
     except KeyboardInterrupt as e:  # StudyStopped says which signal and what a rerun does
+        if not argv_given:  # another signal ends the program now (Ray's processes with it)
+            _set_signals(signal.SIG_DFL)
         what = str(e) or "interrupted; rerun the same command to resume"
-        print(f"{where}: {what}", file=sys.stderr)
-        return getattr(e, "exit_code", 130)
+        print(f"{where}: {what}", file=sys.stderr, flush=True)
+        code = getattr(e, "exit_code", 130)
+        if argv_given:  # a caller in this process: its Ray and its exit are its own
+            return code
+        # the program itself: the line above is its last output (Ray's shutdown printed
+        # workers' dying words), nothing is left to write (every output is written whole), and
+        # the interpreter's teardown (torch's, Ray's hooks) took seconds
+        sys.stdout.flush()
+        sys.stderr.flush()
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.dup2(devnull, sys.stderr.fileno())
+        _stop_ray()
+        os._exit(code)
     except Exception as e:
         if isinstance(e, _one_line_errors()):
             print(f"{where}: error: {e}", file=sys.stderr)

@@ -4,6 +4,7 @@ Tune's status table every 30 s with ``--verbose``."""
 from __future__ import annotations
 
 import contextlib
+import logging
 import math
 import sys
 import warnings
@@ -12,12 +13,20 @@ from typing import Any
 
 from ray import tune
 
+from safe_bc.distributed.stop import stopping, tune_caught_signal
 from safe_bc.study import OBJECTIVE, StudySpec
+
+
+class StudyReporter(tune.CLIReporter):
+    """Tune's status table, silent once a signal stops the study (its one line says so)."""
+
+    def should_report(self, trials: list, done: bool = False) -> bool:
+        return not stopping() and super().should_report(trials, done)
 
 
 def progress_reporter(spec: StudySpec) -> tune.CLIReporter:
     """Tune's status table every 30 s: the objective, safety, feasibility and the parameters."""
-    return tune.CLIReporter(
+    return StudyReporter(
         metric_columns={
             OBJECTIVE: "reward",
             "safety_mean": "safety",
@@ -33,13 +42,42 @@ def progress_reporter(spec: StudySpec) -> tune.CLIReporter:
 def quiet_logs() -> None:
     """Tune's, Train's and Optuna's INFO lines (experiment state written, checkpoint created,
     study created) off: the trial lines and the summary say what a user needs."""
-    import logging
-
     import optuna
 
     for name in ("ray.tune", "ray.train"):
         logging.getLogger(name).setLevel(logging.WARNING)
     optuna.logging.set_verbosity(optuna.logging.WARNING)
+
+
+TUNE_STOP_LINES = (
+    "Stop signal received",
+    "Experiment has been interrupted",
+    "Training has been interrupted",
+)
+"""How Ray Tune's lines on a Ctrl-C start: its handler's notice and its advice to resume with
+``Tuner.restore(...)`` (a study resumes by running the same command, as its own line says)."""
+
+
+def _not_a_stop_line(record: logging.LogRecord) -> bool:
+    if str(record.msg).startswith(TUNE_STOP_LINES[0]):  # Tune's handler caught a Ctrl-C
+        tune_caught_signal()
+    return not stopping() and not str(record.msg).startswith(TUNE_STOP_LINES)
+
+
+TUNE_STOP_LOGGERS = ("ray.tune.tune", "ray.tune.analysis.experiment_analysis")
+"""Where Tune's lines on a stop come from: the run's end (trials that "did not complete", the
+run time), the result grid (metrics it cannot fetch for trials that had not reported yet)."""
+
+
+def quiet_stop() -> None:
+    """Ray Tune's lines on a Ctrl-C off: its notice and its advice always, everything of
+    :data:`TUNE_STOP_LOGGERS` once a signal stops the study; its other warnings stay.
+    Idempotent. Tune's handler logs its notice first thing (Ray 2.60), which is how
+    :func:`stopping` learns of a Ctrl-C that Tune caught: ``ray.tune`` must log warnings."""
+    for name in TUNE_STOP_LOGGERS:
+        tune_logger = logging.getLogger(name)
+        if _not_a_stop_line not in tune_logger.filters:
+            tune_logger.addFilter(_not_a_stop_line)
 
 
 def trial_line(result: dict[str, Any], done: int, total: int) -> str:

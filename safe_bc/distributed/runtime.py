@@ -7,13 +7,26 @@
   settings (``RAY_AUTH_MODE=token`` + ``RAY_AUTH_TOKEN``), after a quick check that something
   answers at the address (:func:`check_ray_address`): without it ``ray.init()`` retries for
   more than ten minutes when nothing is there.
+
+A local Ray's own processes (GCS, raylet and through it the workers) run in a session of
+their own, so a signal to the driver's process group (``timeout``, ``docker stop``, ``kill --
+-PGID``) reaches the driver only, which then stops Ray itself; they still die with the driver
+(Ray asks the kernel to kill them when it exits). Ctrl-C and SIGTERM during ``ray.init`` are
+held until it returns (:func:`signals_held`): an exception raised inside it left a
+half-started Ray that crashed the driver on exit.
 """
 
 from __future__ import annotations
 
 import os
+import signal
 import socket
+import subprocess
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
+from typing import Any
 from urllib.parse import urlsplit
 
 # Ray is imported where it is used: the command line checks RAY_ADDRESS before importing it.
@@ -122,8 +135,78 @@ def loopback_only() -> None:
     ray_constants.ENABLE_RAY_CLUSTER = False
 
 
+HELD_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+"""The signals :func:`signals_held` holds back while Ray starts."""
+
+
+@contextmanager
+def signals_held() -> Iterator[None]:
+    """Hold Ctrl-C and SIGTERM back until the block ends, then deliver them to the handlers that
+    were in place before it.
+
+    ``ray.init`` replaces the SIGTERM handler with its own (``sys.exit``); a Python handler set
+    before the block (a study's) is put back, a default one is left as Ray set it. A signal
+    that arrived in the block is delivered when it ends, after the handlers are back (one of
+    each kind: the kernel keeps no count). Outside the main thread this does nothing (signals
+    are handled there).
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    before = {signum: signal.getsignal(signum) for signum in HELD_SIGNALS}
+    mask = signal.pthread_sigmask(signal.SIG_BLOCK, HELD_SIGNALS)
+    try:
+        yield
+    finally:
+        for signum, handler in before.items():
+            if callable(handler) and signal.getsignal(signum) is not handler:
+                signal.signal(signum, handler)
+        signal.pthread_sigmask(signal.SIG_SETMASK, mask)  # a held signal is handled here
+
+
+def _unblock_held() -> None:
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, [signal.SIGTERM])
+
+
+def own_session(popen: type[subprocess.Popen]) -> type[subprocess.Popen]:
+    """``popen`` whose processes start a session (and process group) of their own, with SIGTERM
+    unblocked (they inherit the driver's mask of :func:`signals_held`; Ray blocks SIGINT in
+    them on purpose and that stays)."""
+
+    class OwnSession(popen):  # type: ignore[misc, valid-type]
+        def __init__(self, *args: Any, **kwargs: Any) -> None:
+            inner = kwargs.get("preexec_fn")
+
+            def preexec() -> None:
+                if inner is not None:
+                    inner()
+                _unblock_held()
+
+            kwargs["start_new_session"] = True
+            kwargs["preexec_fn"] = preexec
+            super().__init__(*args, **kwargs)
+
+    return OwnSession
+
+
+@contextmanager
+def ray_processes_in_own_session() -> Iterator[None]:
+    """Ray's processes started in the block (``ray.init`` of a local Ray) get a session of
+    their own. Ray starts them with ``ray._private.services.ConsolePopen`` (checked by
+    tests/distributed/test_runtime.py against the pinned Ray)."""
+    import ray._private.services as services
+
+    popen = services.ConsolePopen
+    services.ConsolePopen = own_session(popen)
+    try:
+        yield
+    finally:
+        services.ConsolePopen = popen
+
+
 def start_local_ray(num_cpus: int | None = None, **kwargs) -> None:
-    """A private local Ray: loopback only, no token auth, no dashboard.
+    """A private local Ray: loopback only, no token auth, no dashboard, its processes in a
+    session of their own; Ctrl-C and SIGTERM while it starts are handled once it has.
 
     ``kwargs`` go to ``ray.init`` (e.g. ``log_to_driver``, ``object_store_memory``).
     """
@@ -135,7 +218,24 @@ def start_local_ray(num_cpus: int | None = None, **kwargs) -> None:
     kwargs.setdefault("dashboard_host", "127.0.0.1")
     import ray
 
-    ray.init(address="local", num_cpus=num_cpus, **kwargs)
+    with ray_processes_in_own_session(), signals_held():
+        ray.init(address="local", num_cpus=num_cpus, **kwargs)
+
+
+def stop_ray() -> None:
+    """Shut down this process's Ray (its local processes with it), quietly (no-op without
+    one)."""
+    import logging
+    import sys
+
+    if "ray" not in sys.modules:
+        return
+    import ray
+
+    if not ray.is_initialized():
+        return
+    logging.getLogger("ray").setLevel(logging.CRITICAL)
+    ray.shutdown()
 
 
 def ensure_ray(num_cpus: int | None = None) -> None:

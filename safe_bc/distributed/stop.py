@@ -4,19 +4,25 @@
 Outside Tune's ``fit`` a signal raises :class:`StudyStopped`; inside :func:`deferred_stop`
 (the final phase's training and evaluations, where an exception raised at an arbitrary point
 of torch's lazy imports left them half-initialised) the first signal is recorded and raised
-at the next :func:`stop_point`, after the agent or evaluation under way is stored; during
-``fit`` Tune's own handler saves the experiment and returns.
+at the next :func:`stop_point`, after the agent or evaluation under way is stored, or after
+:data:`STOP_GRACE_S` seconds, whichever comes first (``docker stop`` and Kubernetes send
+SIGKILL some seconds after SIGTERM); during ``fit`` Tune's own handler saves the experiment
+and returns.
 """
 
 from __future__ import annotations
 
+import _thread
 import os
 import signal
-import sys
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Any
+
+STOP_GRACE_S = 5.0
+"""How long a signal inside :func:`deferred_stop` waits for the agent or evaluation under way
+before it stops the study anyway (that piece of work is then redone by the rerun)."""
 
 
 class StudyStopped(KeyboardInterrupt):
@@ -49,20 +55,27 @@ class _Stop:
         self.previous: dict[int, Any] = {}
         self.deferring = 0
         """Inside :func:`deferred_stop`: the first signal is recorded and raised at the next
-        :func:`stop_point` (a second one at once)."""
+        :func:`stop_point`, a second one (or :data:`STOP_GRACE_S` later) at once."""
+        self.grace: threading.Timer | None = None
+        """Delivers the recorded signal again when the grace period is over."""
+        self.tune_caught = False
+        """Tune's handler has caught a Ctrl-C (see :func:`tune_caught_signal`)."""
 
     def _outside_fit(self, signum: int, frame: Any) -> None:
         if self.deferring and not self.signum:
             self.signum = signum
-            print(
-                f"{signal.Signals(signum).name} received: stopping once the agent or evaluation "
-                "under way is finished and kept (send it again to stop at once)",
-                file=sys.stderr,
-                flush=True,
-            )
+            self.grace = threading.Timer(STOP_GRACE_S, _thread.interrupt_main, args=(signum,))
+            self.grace.daemon = True
+            self.grace.start()
             return
+        self.cancel_grace()
         self.signum = self.signum or signum
         raise StudyStopped(signum)
+
+    def cancel_grace(self) -> None:
+        if self.grace is not None:
+            self.grace.cancel()
+            self.grace = None
 
     def _term(self, signum: int, frame: Any) -> None:
         if signal.getsignal(signal.SIGINT) == self._outside_fit:
@@ -80,6 +93,7 @@ class _Stop:
             self.previous.setdefault(signum, old)
 
     def restore(self) -> None:
+        self.cancel_grace()
         for signum, old in self.previous.items():
             signal.signal(signum, old)
 
@@ -112,13 +126,29 @@ def _fit_stopped() -> int:
     handler puts the one before it (ours) back when it has caught a signal."""
     if _STOP is None:
         return 0
-    tune_handled = threading.current_thread() is threading.main_thread() and not int(
-        os.environ.get("TUNE_DISABLE_SIGINT_HANDLER", "0")
-    )
-    if tune_handled and signal.getsignal(signal.SIGINT) == _STOP._outside_fit:
+    if _tune_handles_sigint() and signal.getsignal(signal.SIGINT) == _STOP._outside_fit:
         _STOP.signum = _STOP.signum or signal.SIGINT
     _STOP.install()
     return _STOP.signum
+
+
+def _tune_handles_sigint() -> bool:
+    return threading.current_thread() is threading.main_thread() and not int(
+        os.environ.get("TUNE_DISABLE_SIGINT_HANDLER", "0")
+    )
+
+
+def tune_caught_signal() -> None:
+    """Note that Tune's SIGINT handler has caught a signal (its notice is the sign: the handler
+    logs it before anything else, see :func:`safe_bc.distributed.console.quiet_stop`)."""
+    if _STOP is not None:
+        _STOP.tune_caught = True
+
+
+def stopping() -> bool:
+    """A signal is stopping the study run in this process (in ``fit``: Tune's handler has
+    caught a Ctrl-C, or a SIGTERM was recorded and handed to it)."""
+    return _STOP is not None and bool(_STOP.signum or _STOP.tune_caught)
 
 
 @contextmanager
@@ -138,4 +168,5 @@ def deferred_stop() -> Iterator[None]:
 def stop_point() -> None:
     """Raise :class:`StudyStopped` when a deferred signal has arrived."""
     if _STOP is not None and _STOP.signum:
+        _STOP.cancel_grace()
         raise StudyStopped(_STOP.signum)

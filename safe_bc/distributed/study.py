@@ -46,7 +46,7 @@ from safe_bc.data.store import (
     storage_folders,
     write_table_atomic,
 )
-from safe_bc.distributed.console import TrialLines, progress_reporter, quiet_logs
+from safe_bc.distributed.console import TrialLines, progress_reporter, quiet_logs, quiet_stop
 from safe_bc.distributed.final import FinalOutcome, final_phase
 from safe_bc.distributed.final_store import STORE, FinalStore
 from safe_bc.distributed.resume import (
@@ -872,6 +872,7 @@ def _prepare_outputs(spec: StudySpec, fresh: bool, verbose: bool) -> tuple[Path,
     os.environ.setdefault("TUNE_WARN_EXCESSIVE_EXPERIMENT_CHECKPOINT_SYNC_THRESHOLD_S", "0")
     check_persistence_api()
     install_atomic_upload()  # Tune's state on a local storage: whole files or the old ones
+    quiet_stop()  # a stopped study says so in one line
     if not verbose:
         quiet_logs()
     out = spec.results / spec.name

@@ -6,6 +6,7 @@ import ipaddress
 import os
 import socket
 import time
+from pathlib import Path
 
 import psutil
 import pytest
@@ -108,3 +109,80 @@ def test_local_ray_listens_on_loopback_only(ray_session) -> None:
     assert "gcs_server" in names and "raylet" in names, bound
     assert f"({worker})" in names and f"({me.pid})" in names, bound
     assert ray.util.get_node_ip_address() == "127.0.0.1"
+
+
+def test_ray_processes_run_in_a_session_of_their_own(ray_session) -> None:
+    ray = ray_session
+
+    @ray.remote(num_cpus=0)
+    def pid() -> int:
+        return os.getpid()
+
+    worker = ray.get(pid.remote())
+    me = psutil.Process()
+    ours = os.getsid(0)
+    ray_procs = {p.pid: p.name() for p in me.children(recursive=True)}
+    started = [n for n in ray_procs.values() if n in ("gcs_server", "raylet")]
+    assert sorted(started) == ["gcs_server", "raylet"], ray_procs
+    # a signal to the driver's process group (timeout, docker stop) reaches none of them
+    assert all(os.getsid(p) != ours for p in ray_procs), ray_procs
+    assert os.getsid(worker) != ours and os.getpgid(worker) != os.getpgrp()
+
+
+def _blocked(pid: int) -> int:
+    """The signal mask of process ``pid`` (``SigBlk`` in /proc)."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("SigBlk:"):
+            return int(line.split()[1], 16)
+    raise AssertionError("no SigBlk line")
+
+
+def test_own_session_popen_starts_a_session_with_sigterm_unblocked() -> None:
+    import signal
+    import subprocess
+
+    from safe_bc.distributed.runtime import own_session, signals_held
+
+    calls = []
+    popen = own_session(subprocess.Popen)
+    with signals_held():  # as during ray.init: the driver holds SIGINT and SIGTERM back
+        assert _blocked(os.getpid()) & (1 << (signal.SIGTERM - 1))
+        child = popen(["sleep", "30"], preexec_fn=lambda: calls.append(1))
+    try:
+        assert os.getsid(child.pid) == child.pid != os.getsid(0)
+        mask = _blocked(child.pid)
+        assert not mask & (1 << (signal.SIGTERM - 1))
+        assert mask & (1 << (signal.SIGINT - 1))  # still held: Ray blocks it in its processes
+        child.terminate()
+        assert child.wait(timeout=10) == -signal.SIGTERM
+    finally:
+        child.kill()
+        child.wait()
+    assert not _blocked(os.getpid()) & (1 << (signal.SIGTERM - 1))
+
+
+def test_signals_held_deliver_after_the_block_to_the_handlers_set_before_it() -> None:
+    import signal
+
+    from safe_bc.distributed.runtime import signals_held
+
+    got: list[tuple[str, int]] = []
+    before = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        signal.signal(signal.SIGINT, lambda s, f: got.append(("ours", s)))
+        signal.signal(signal.SIGTERM, lambda s, f: got.append(("ours", s)))
+        with signals_held():
+            signal.signal(signal.SIGTERM, lambda s, f: got.append(("ray's", s)))  # as ray.init
+            signal.raise_signal(signal.SIGTERM)
+            signal.raise_signal(signal.SIGINT)
+            assert got == []  # held
+        assert sorted(got) == [("ours", signal.SIGINT), ("ours", signal.SIGTERM)]
+        # a default SIGTERM handler before the block stays as the block left it (Ray's)
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+        with signals_held():
+            signal.signal(signal.SIGTERM, lambda s, f: got.append(("ray's", s)))
+        signal.raise_signal(signal.SIGTERM)
+        assert got[-1] == ("ray's", signal.SIGTERM)
+    finally:
+        for s, h in before.items():
+            signal.signal(s, h)

@@ -147,8 +147,9 @@ def test_history_keeps_the_trials_tune_knows_and_names_the_lost_ones(tmp_path: P
 
 
 def _session_pids(sid: int) -> list[int]:
-    """Processes of session ``sid`` (the driver started with ``start_new_session``, and the
-    Ray processes it started)."""
+    """Processes of session ``sid`` (the driver started with ``start_new_session``; Ray's own
+    processes run in sessions of their own and die with the driver: tests/distributed/
+    test_signals.py finds them by an environment marker)."""
     pids = []
     for entry in Path("/proc").iterdir():
         if entry.name.isdigit():
@@ -470,6 +471,48 @@ def test_sigterm_during_fit_goes_to_tunes_handler_and_is_reported_after_it() -> 
         assert _fit_stopped() == signal.SIGINT
 
 
+def test_stopping_is_seen_in_fit_and_silences_tunes_stop_lines_and_status_table() -> None:
+    import logging
+
+    from safe_bc.distributed.console import StudyReporter, quiet_stop
+    from safe_bc.distributed.stop import _stop_signals, stopping
+
+    quiet_stop()
+    quiet_stop()  # idempotent
+    seen: list[str] = []
+
+    class Keep(logging.Handler):
+        def emit(self, record: logging.LogRecord) -> None:
+            seen.append(record.getMessage().split(" ", 1)[0])
+
+    tune_log = logging.getLogger("ray.tune.tune")
+    grid_log = logging.getLogger("ray.tune.analysis.experiment_analysis")
+    keep = Keep()
+    for log in (tune_log, grid_log):
+        log.addHandler(keep)
+    reporter = StudyReporter(max_report_frequency=0)
+    try:
+        assert not stopping()
+        with _stop_signals():
+            tune_log.warning("Tune detects GPUs, but no trials are using GPUs.")
+            assert not stopping() and reporter.should_report([], done=True)
+            # Tune's handler caught a Ctrl-C: its notice comes first
+            tune_log.warning("Stop signal received (e.g. via SIGINT/Ctrl+C), ending ...")
+            assert stopping() and not reporter.should_report([], done=True)
+            tune_log.error("Trials did not complete: [...]")
+            grid_log.warning("Failed to fetch metrics for 2 trial(s):")
+            tune_log.warning("Experiment has been interrupted, but ...")
+        assert not stopping()
+        with _stop_signals() as stop:
+            stop.signum = signal.SIGTERM  # recorded (handed to Tune as SIGINT)
+            assert stopping()
+            tune_log.warning("Tune detects GPUs, but no trials are using GPUs.")
+    finally:
+        for log in (tune_log, grid_log):
+            log.removeHandler(keep)
+    assert seen == ["Tune"]
+
+
 def test_a_trial_stopped_right_after_its_suggestion_has_no_config_and_still_gets_a_row() -> None:
     from safe_bc.distributed.study import _records
 
@@ -647,6 +690,28 @@ def test_sigterm_and_ctrl_c_in_the_final_phase_stop_in_one_line_and_the_rerun_re
     assert (out / "final.parquet").exists() and (out / "finished.json").exists()
     again = subprocess.run(command, cwd=REPO, env=env, capture_output=True, text=True, timeout=600)
     assert again.returncode == rerun.returncode and "finished before" in again.stdout
+
+
+def test_a_deferred_signal_stops_after_the_grace_period_and_prints_nothing(
+    monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    import safe_bc.distributed.stop as stop_mod
+    from safe_bc.distributed.stop import StudyStopped, _stop_signals, deferred_stop
+
+    monkeypatch.setattr(stop_mod, "STOP_GRACE_S", 0.2)
+    for signum, code in ((signal.SIGTERM, 143), (signal.SIGINT, 130)):
+        t0 = time.monotonic()
+        with _stop_signals(), pytest.raises(StudyStopped) as e, deferred_stop():
+            signal.raise_signal(signum)
+            while time.monotonic() - t0 < 10:  # work that outlasts the grace period
+                time.sleep(0.01)
+            pytest.fail("not stopped after the grace period")
+        assert e.value.exit_code == code and time.monotonic() - t0 < 5
+    # stopped at a stop point in time: the timer is cancelled and delivers nothing later
+    with _stop_signals(), pytest.raises(StudyStopped), deferred_stop():
+        signal.raise_signal(signal.SIGINT)
+    time.sleep(0.4)
+    assert capsys.readouterr() == ("", "")  # the one line is the command line's
 
 
 def test_a_signal_in_a_deferred_block_stops_at_the_next_stop_point_with_its_own_code() -> None:
