@@ -691,15 +691,17 @@ def frame_cache(
     """
     root = Path(root)
     shape = (int(sum(lengths)), *meta.obs_shape)
-    path = root / FRAME_CACHE_DIR / f"frames-{content_key(root, ids)}.npy"
-    if path.exists():
-        try:
-            cached = FrameFile(path, shape)
-            cached.verify()
-            return cached
-        except FrameFileError as e:  # truncated, damaged or unverifiable: written again below
-            if checksum_path(path).exists():
-                print(f"{e}; writing the decoded-frame cache again", file=sys.stderr)
+    name = f"frames-{content_key(root, ids)}.npy"
+    places = [root / FRAME_CACHE_DIR / name, user_cache_dir() / FRAME_CACHE_DIR / name]
+    for path in places:
+        if path.exists():
+            try:
+                cached = FrameFile(path, shape)
+                cached.verify()
+                return cached
+            except FrameFileError as e:  # truncated, damaged or unverifiable: written again
+                if checksum_path(path).exists():
+                    print(f"{e}; writing the decoded-frame cache again", file=sys.stderr)
 
     def decoded() -> Iterator[np.ndarray]:
         for i, n in zip(ids, lengths, strict=True):
@@ -708,17 +710,32 @@ def frame_cache(
                 raise DatasetError(f"{episode_path(root, i)}: changed while being read")
             yield ep.observations
 
-    try:
-        write_frame_file(path, shape, decoded())
-    except OSError as e:
-        raise DatasetError(
-            f"{path}: cannot write the decoded-frame cache ({_first_line(e)}); make the "
-            "dataset folder writable or load it with frames='memory'"
-        ) from None
-    for old in [*path.parent.glob("frames-*.npy"), *path.parent.glob("frames-*.sha256")]:
-        if old not in (path, checksum_path(path)):
-            old.unlink(missing_ok=True)
-    return FrameFile(path, shape)
+    errors = []
+    for path in places:  # beside the dataset; where it is read-only, in the user's cache
+        try:
+            write_frame_file(path, shape, decoded())
+        except OSError as e:
+            errors.append(f"{path}: {_first_line(e)}")
+            continue
+        for old in [*path.parent.glob("frames-*.npy"), *path.parent.glob("frames-*.sha256")]:
+            if old not in (path, checksum_path(path)) and path.parent == places[0].parent:
+                old.unlink(missing_ok=True)
+        return FrameFile(path, shape)
+    raise DatasetError(
+        f"cannot write the decoded-frame cache ({'; '.join(errors)}); make the dataset folder "
+        "or $SAFE_BC_CACHE writable, or load it with frames='memory'"
+    )
+
+
+def user_cache_dir() -> Path:
+    """Where derived files go when a dataset's own folder is read-only: ``$SAFE_BC_CACHE``,
+    else ``$XDG_CACHE_HOME/safe_bc``, else ``~/.cache/safe_bc``."""
+    import os
+
+    if os.environ.get("SAFE_BC_CACHE"):
+        return Path(os.environ["SAFE_BC_CACHE"])
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base) / "safe_bc"
 
 
 # --- experiment storage: the pyarrow filesystems Ray Tune keeps a study on -----------------

@@ -162,15 +162,39 @@ def test_truncated_frame_cache_is_written_again(tmp_path: Path) -> None:
     assert demos.observations.path == path and path.read_bytes() == whole
 
 
-def test_unwritable_dataset_folder_is_named(tmp_path: Path, monkeypatch) -> None:
-    _dataset(tmp_path)
+def test_a_read_only_dataset_caches_its_frames_in_the_users_cache(
+    tmp_path: Path, monkeypatch
+) -> None:
+    from safe_bc.data import store
+
+    data, cache = tmp_path / "data", tmp_path / "cache"
+    data.mkdir()
+    _dataset(data)
+    monkeypatch.setenv("SAFE_BC_CACHE", str(cache))
+    real = store.write_frame_file
+
+    def read_only_data(path, *args, **kwargs):
+        if Path(path).is_relative_to(data):
+            raise PermissionError("read-only file system")
+        return real(path, *args, **kwargs)
+
+    monkeypatch.setattr("safe_bc.data.store.write_frame_file", read_only_data)
+    demos = load_demonstrations(data, "stream")
+    assert demos.observations.path.parent == cache / FRAME_CACHE_DIR
+    np.testing.assert_array_equal(
+        demos.observations[np.arange(12)], load_demonstrations(data, "memory").observations
+    )
+    stamp = demos.observations.path.stat().st_mtime_ns  # found there again, not rewritten
+    assert load_demonstrations(data, "stream").observations.path.stat().st_mtime_ns == stamp
 
     def refuse(*args, **kwargs):
         raise PermissionError("read-only file system")
 
     monkeypatch.setattr("safe_bc.data.store.write_frame_file", refuse)
-    with pytest.raises(DatasetError, match="frames='memory'"):
-        load_demonstrations(tmp_path, "stream")
+    monkeypatch.setenv("SAFE_BC_CACHE", str(tmp_path / "other"))
+    with pytest.raises(DatasetError, match="frames='memory'") as e:
+        load_demonstrations(data, "stream")
+    assert str(data) in str(e.value) and str(tmp_path / "other") in str(e.value)
 
 
 def test_zeroed_frames_in_the_cache_are_rebuilt_saying_so(
@@ -200,6 +224,7 @@ def test_zeroed_frames_in_the_cache_are_rebuilt_saying_so(
         raise PermissionError("read-only file system")
 
     monkeypatch.setattr("safe_bc.data.store.write_frame_file", refuse)
+    monkeypatch.setenv("SAFE_BC_CACHE", str(tmp_path / "cache"))
     with pytest.raises(DatasetError) as info:
         load_demonstrations(tmp_path, "stream")
-    assert "\n" not in str(info.value) and str(info.value).startswith(f"{path}: ")
+    assert "\n" not in str(info.value) and f"{path}: read-only" in str(info.value)
