@@ -217,3 +217,18 @@ def test_carracing_zoom_in_frames_carry_no_cost() -> None:
     finally:
         group.close()
         plain.close()
+
+
+def test_the_lagrangian_margin_is_the_tasks_unless_set() -> None:
+    from safe_bc.improve.config import ImproveConfig
+    from safe_bc.methods import METHODS
+    from safe_bc.tasks import task_defaults
+
+    assert ImproveConfig().cost_margin is None
+    spec = METHODS["improve"]
+    assert spec.identify(ImproveConfig(), "rehab")["cost_margin"] == 0.05
+    assert spec.identify(ImproveConfig(), "carracing")["cost_margin"] == 1.0  # px, not 0.05
+    assert spec.identify(ImproveConfig(cost_margin=0.2), "carracing")["cost_margin"] == 0.2
+    assert task_defaults("rehab").cost_margin == 0.05
+    with pytest.raises(ValueError, match="cost_margin"):
+        ImproveConfig(cost_margin=-1.0)

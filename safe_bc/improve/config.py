@@ -8,7 +8,7 @@ register its envs).
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from typing import Any, Literal, get_args
 
 CostSignal = Literal["indicator", "excursion"]
@@ -47,11 +47,12 @@ class ImproveConfig:
     """Per-step cost of the Lagrangian, read off the step's outcome (the next state's true
     costs): ``"indicator"`` 1 when beyond ``d_s - cost_margin`` in some dimension,
     ``"excursion"`` how far beyond (largest over the dimensions, in cost units)."""
-    cost_margin: float = 0.05
+    cost_margin: float | None = None
     """Tightens the Lagrangian's limit to ``d_s - cost_margin`` (0: exactly ``d_s``), so the
     deterministic policy keeps a margin that the noisy training policy is charged for: a
-    safety margin *inside* ``d_s`` (cost units; ``d_s`` is 0.77 / 0.80 / 2.14 on the rehab
-    pathway). 0.05 from the rehab margin sweep (``tune_jobs/compare/margin_sweep.py``,
+    safety margin *inside* ``d_s``, in the task's cost units. ``None``: the task's
+    (``TaskSpec.cost_margin``, resolved by the run from its start's env: rehab 0.05, CarRacing
+    1 px). Rehab's 0.05 from the rehab margin sweep (``tune_jobs/compare/margin_sweep.py``,
     ``results/improve/rehab/sweep/margin_sweep.md``, 3 training seeds x 512 selection patients
     disjoint from the held-out ones): its rule (the highest selection gain among the candidates
     with no selection programme beyond ``d_s``) chose the shield + Lagrangian with margin 0.05
@@ -147,7 +148,7 @@ class ImproveConfig:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
         for name in ("cost_margin", "cost_budget", "lambda_init", "lambda_lr", "anchor_coef",
                      "critic_warmup", "ent_coef", "eval_every", "seed"):  # fmt: skip
-            if not getattr(self, name) >= 0:
+            if getattr(self, name) is not None and not getattr(self, name) >= 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         for name in ("lr", "critic_lr", "init_std", "clip_coef", "max_grad_norm", "lambda_max"):
             if not getattr(self, name) > 0:
@@ -160,6 +161,13 @@ class ImproveConfig:
     def to_dict(self) -> dict[str, Any]:
         """JSON-able field dict."""
         return asdict(self)
+
+    def for_margin(self, task_margin: float) -> ImproveConfig:
+        """This config with ``task_margin`` (the task's ``TaskSpec.cost_margin``) where
+        :attr:`cost_margin` is left at ``None``: what a run executes and records."""
+        if self.cost_margin is not None:
+            return self
+        return replace(self, cost_margin=float(task_margin))
 
     @property
     def mode(self) -> str:

@@ -104,7 +104,9 @@ class Improver:
         envs: EnvGroupFactory = LocalEnvs,
     ) -> None:
         from safe_bc.experiment import select_for
+        from safe_bc.tasks import task_defaults, task_of
 
+        config = config.for_margin(task_defaults(task_of(start.env_id)).cost_margin)
         self.cfg, self.start = config, start
         self.pre_cfg = start.config.preprocess
         self.imitation = copy.deepcopy(start.model).eval()

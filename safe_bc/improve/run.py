@@ -63,6 +63,17 @@ def _identity(start: Path, demos: Path | None, config: ImproveConfig) -> dict[st
     }
 
 
+def for_start_task(config: ImproveConfig, start: Path, demos: Path | None) -> ImproveConfig:
+    """``config`` with the task's values (``TaskSpec.cost_margin``) for what it leaves at
+    ``None``, the task being the start checkpoint's env's."""
+    from safe_bc.tasks import task_defaults, task_of
+
+    if config.cost_margin is not None:
+        return config
+    meta, _ = _start_meta(start, demos)
+    return config.for_margin(task_defaults(task_of(meta["extra"]["env_id"])).cost_margin)
+
+
 def improve(
     start: str | Path,
     out: str | Path,
@@ -98,10 +109,10 @@ def improve(
     from safe_bc.data.store import write_table_atomic
     from safe_bc.provenance import run_metadata
 
-    config = config or ImproveConfig()
     start, out = Path(start), Path(out)
     t0 = time.perf_counter()
     demos = Path(demos) if demos is not None else None
+    config = for_start_task(config or ImproveConfig(), start, demos)
     identity = _identity(start, demos, config)
     finished = _finished(out, identity, config.iterations)
     if finished is not None:

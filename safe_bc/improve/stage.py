@@ -10,6 +10,14 @@ from safe_bc.improve.config import ImproveConfig
 from safe_bc.methods.registry import Improved, Start
 
 
+def identity(config: ImproveConfig, task: str) -> dict[str, Any]:
+    """What makes a run of ``config`` on ``task``: its fields, with the task's margin where it
+    leaves ``cost_margin`` at ``None`` (what the run executes and records)."""
+    from safe_bc.tasks import task_defaults
+
+    return config.for_margin(task_defaults(task).cost_margin).to_dict()
+
+
 def run(
     config: ImproveConfig, start: Start, folder: Path, *, metadata: dict[str, Any] | None = None
 ) -> Improved:

@@ -35,6 +35,7 @@ register_method(
         name="improve",
         config=ImproveConfig,
         runner="safe_bc.improve.stage:run",
+        identity="safe_bc.improve.stage:identity",
         metrics=("improve_seconds", "improve_kept_iteration"),
         summed=("improve_seconds",),
         label="improving",

@@ -151,6 +151,10 @@ class TaskSpec:
     """Whether the paper reports a Table 1 for this task (``reproduce`` compares with it)."""
     drawing: Drawing | None = None
     """How ``safe-bc render`` draws its episodes; ``None``: it cannot be rendered."""
+    cost_margin: float = 0.0
+    """The improvement's margin inside ``d_s`` in the task's cost units
+    (``ImproveConfig.cost_margin`` left at ``None``): the Lagrangian charges steps beyond
+    ``d_s - cost_margin``."""
     handover: Any = None
     """The critical-zone handover a recommender of this task uses by default (a
     :class:`safe_bc.handover.HandoverConfig`, in the cost's units, chosen by a committed

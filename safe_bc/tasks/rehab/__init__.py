@@ -38,5 +38,7 @@ SPEC = TaskSpec(
     # results/queries/rehab/summary.md: the smallest width of {0.025, 0.05, 0.1, 0.2} with no
     # selection programme beyond d_s, else the largest (none reached zero: 0.2, 1 of 600)
     handover=HandoverConfig(0.2),
+    # results/improve/rehab/sweep/margin_sweep.md: the sweep's rule chose 0.05
+    cost_margin=0.05,
 )
 """The rehabilitation entry of :data:`safe_bc.tasks.TASKS`."""
