@@ -488,3 +488,32 @@ def test_a_run_against_the_expert_keeps_only_runs_that_beat_it(
             assert t.push_rewards[p.push] > t.expert_reward
     env_steps = sum(t.reference_steps + sum(t.push_steps) + t.expert_steps for t in tracks)
     assert summary["env_steps"] == env_steps
+
+
+def test_a_tasks_record_carries_its_self_imitation_defaults() -> None:
+    """A task names its measured self-imitation settings on its record; a config that leaves
+    them at None takes them, a task without any is refused naming what to set."""
+    from dataclasses import replace
+
+    from safe_bc.selfimprove.config import LOOP_PUSHES, TASK_DEFAULTS
+    from safe_bc.tasks import register_task, task_defaults, task_of
+    from safe_bc.tasks.registry import TASKS
+
+    rehab = task_defaults("rehab")
+    assert dict(rehab.selfimprove)["pushes"] == LOOP_PUSHES["rehab"]
+    assert SelfImproveConfig().for_task("rehab").kept_in == "critical"
+    twin = replace(
+        rehab, name="rehab_twin", env=replace(rehab.env, env_id="rehab_twin-v0"), gym_envs=(),
+        selfimprove=(("rounds", 7), ("pushes", ("0+0.1",)), ("kept_in", "zone")),
+    )  # fmt: skip
+    try:
+        register_task(twin)
+        resolved = SelfImproveConfig().for_task("rehab_twin")
+        assert (resolved.rounds, resolved.pushes, resolved.kept_in) == (7, ("0+0.1",), "zone")
+    finally:
+        TASKS.pop("rehab_twin", None)
+        TASK_DEFAULTS.pop("rehab_twin", None)
+        task_defaults.cache_clear()
+        task_of.cache_clear()
+    with pytest.raises(ValueError, match="no self-imitation defaults"):
+        SelfImproveConfig().for_task("rehab_twin")

@@ -35,16 +35,10 @@ LOOP_PUSHES: dict[str, tuple[str, ...]] = {
 +0.03 / +0.05, brake x0.9 / x0.8 / x0.5 (the loop a user measured by hand); rehab:
 intensity and duration +-0.05."""
 
-TASK_DEFAULTS: dict[str, dict[str, Any]] = {
-    "carracing": {
-        "rounds": 4,
-        "pushes": ("1+0.015", "1+0.025", "2*0.95", "2*0.9", "2*0.75"),
-        "kept_in": "rest",
-    },
-    "rehab": {"rounds": 2, "pushes": LOOP_PUSHES["rehab"], "kept_in": "critical"},
-}
-"""Each task's values for the fields a :class:`SelfImproveConfig` leaves at ``None``, each
-chosen by its selection table (3 training seeds x 50 selection tracks or 200 selection
+TASK_DEFAULTS: dict[str, dict[str, Any]] = {}
+"""Each registered task's values for the fields a :class:`SelfImproveConfig` leaves at
+``None`` (its ``TaskSpec.selfimprove``, filled in when the task is registered), each chosen by
+its selection table (3 training seeds x 50 selection tracks or 200 selection
 patients; ``scripts/selfimprove_choice.py``'s rule: among the rows with a reliable reward gain
 over the start, the fewest episodes beyond d_s). CarRacing: 4 rounds of the loop's pushes at
 half size (offsets halved, scales halfway to 1; ``results/selfimprove/carracing/

@@ -151,6 +151,11 @@ class TaskSpec:
     """Whether the paper reports a Table 1 for this task (``reproduce`` compares with it)."""
     drawing: Drawing | None = None
     """How ``safe-bc render`` draws its episodes; ``None``: it cannot be rendered."""
+    selfimprove: tuple[tuple[str, Any], ...] = ()
+    """The self-imitation settings this task's measurements chose (``(field, value)`` pairs of
+    :class:`safe_bc.selfimprove.config.SelfImproveConfig`: ``rounds``, ``pushes``,
+    ``kept_in``), taken where a config leaves them at ``None``; empty: none measured (such a
+    config must set them)."""
     cost_margin: float = 0.0
     """The improvement's margin inside ``d_s`` in the task's cost units
     (``ImproveConfig.cost_margin`` left at ``None``): the Lagrangian charges steps beyond
@@ -199,6 +204,10 @@ def register_task(spec: TaskSpec) -> TaskSpec:
     for entry in spec.gym_envs:
         entry.register()
     TASKS[spec.name] = spec
+    if spec.selfimprove:
+        from safe_bc.selfimprove.config import TASK_DEFAULTS
+
+        TASK_DEFAULTS[spec.name] = dict(spec.selfimprove)
     task_defaults.cache_clear()
     task_of.cache_clear()
     return spec

@@ -86,5 +86,11 @@ SPEC = TaskSpec(
     handover=HandoverConfig(2.0, lookahead=6, hold=6, hold_on=("front",)),
     # the margin the CarRacing improvement ran with (results/improve/carracing), not swept
     cost_margin=1.0,
+    # results/selfimprove/carracing/rounds_choice.md and choice.md (SelfImproveConfig's doc)
+    selfimprove=(
+        ("rounds", 4),
+        ("pushes", ("1+0.015", "1+0.025", "2*0.95", "2*0.9", "2*0.75")),
+        ("kept_in", "rest"),
+    ),
 )
 """The CarRacing entry of :data:`safe_bc.tasks.TASKS`."""

@@ -40,5 +40,11 @@ SPEC = TaskSpec(
     handover=HandoverConfig(0.2),
     # results/improve/rehab/sweep/margin_sweep.md: the sweep's rule chose 0.05
     cost_margin=0.05,
+    # results/selfimprove/rehab/choice.md: the loop's pushes, 2 rounds, kept rows in T_eps
+    selfimprove=(
+        ("rounds", 2),
+        ("pushes", ("0+0.05", "0-0.05", "1+0.05", "1-0.05")),
+        ("kept_in", "critical"),
+    ),
 )
 """The rehabilitation entry of :data:`safe_bc.tasks.TASKS`."""
