@@ -152,6 +152,22 @@ def tune_state(exp_path: str) -> tuple[Path | None, set[str], str]:
     return newest, ids, ""
 
 
+def with_more_trials(stored: Mapping[str, Any], now: Mapping[str, Any]) -> dict[str, Any]:
+    """``stored`` settings taking ``now``'s trial count where it is larger: more trials
+    continue a study (the driver raises Tune's count), fewer would drop finished ones.
+
+    >>> with_more_trials({"trials": 2, "batches": 5}, {"trials": 3, "batches": 6})
+    {'trials': 3, 'batches': 5}
+    >>> with_more_trials({"trials": 3}, {"trials": 2})
+    {'trials': 3}
+    """
+    out = dict(stored)
+    before, after = stored.get("trials"), now.get("trials")
+    if isinstance(before, int) and isinstance(after, int) and after > before:
+        out["trials"] = after
+    return out
+
+
 def check_resume(
     out: Path,
     *,
@@ -185,7 +201,7 @@ def check_resume(
                 f"rerun with the --storage it was started with to resume it, or {fresh} here"
             )
         if "settings" in record and (has_work or restoring):
-            what = identity_problem(record["settings"], settings)
+            what = identity_problem(with_more_trials(record["settings"], settings), settings)
             if what:
                 raise ResumeRefused(
                     f"the study at {out} was started with other settings ({what}): its trials "
