@@ -53,8 +53,10 @@ from safe_bc.distributed.resume import (
     ResumeRefused,
     check_resume,
     history_events,
+    identity_problem,
     install_atomic_upload,
     settings_of,
+    with_more_trials,
 )
 from safe_bc.distributed.runtime import cluster_cpus, ensure_ray
 from safe_bc.distributed.search import (
@@ -206,6 +208,8 @@ def _check_resume(out: Path, identity: dict[str, Any], restoring: bool, exp_path
     added = 0
     if restoring and path.exists():
         stored = json.loads(path.read_text())
+        if "settings" in stored and "settings" in identity:  # the count is checked as trials
+            stored["settings"] = with_more_trials(stored["settings"], identity["settings"])
         changed = [k for k, v in identity.items() if k in stored and stored.get(k) != v]
         more = isinstance(stored.get("trials"), int) and identity["trials"] > stored["trials"]
         if changed == ["trials"] and more:
@@ -217,7 +221,12 @@ def _check_resume(out: Path, identity: dict[str, Any], restoring: bool, exp_path
             raise_trial_count(exp_path, identity["trials"])
             added = identity["trials"] - stored["trials"]
         elif changed:
-            what = ", ".join(f"{k} {stored.get(k)} -> {identity[k]}" for k in changed)
+            what = ", ".join(
+                identity_problem(stored[k], identity[k])
+                if k == "settings"
+                else f"{k} {stored.get(k)} -> {identity[k]}"
+                for k in changed
+            )
             raise ValueError(
                 f"the study at {out} was started with other settings ({what}); rerun with "
                 f"the same ones to resume (more trials are allowed), or pass --fresh to start over"
