@@ -125,10 +125,14 @@ def _module(name: str):
 
 def test_rehab_improvement_settings_are_the_sweeps_last_choice() -> None:
     """The last tested candidate is the sweep's choice; the rehab comparison runs with its
-    margin (``ImproveConfig.cost_margin``) and its shield zone, shield + Lagrangian."""
+    margin (rehab's ``TaskSpec.cost_margin``, which ``ImproveConfig`` takes when left unset)
+    and its shield zone, shield + Lagrangian."""
+    from safe_bc.tasks import task_defaults
+
     sweep, rehab = _module("margin_sweep"), _module("improve_rehab")
     chosen = sweep.CANDIDATES[sweep.TESTED[-1]]
-    assert ImproveConfig().cost_margin == chosen["cost_margin"]
+    assert ImproveConfig().cost_margin is None
+    assert task_defaults("rehab").cost_margin == chosen["cost_margin"]
     assert chosen.get("eps") == rehab.SHIELD_EPS
     both = rehab.COMPARISON.method("both").improve
     assert (both.shield, both.lagrangian, both.eps) == (True, True, chosen["eps"])
