@@ -3,7 +3,8 @@
 Usage::
 
     .venv/bin/python -m scripts.design_replicates \\
-        --design two_seeds=results/default_two_seeds --design half=results/default \\
+        --design two_seeds=results/default_two_seeds \\
+        --design half=results/checks/make_tune/half/one_seed \\
         --out results/checks/make_tune/half/replicates
 
 Each ``--design LABEL=FOLDER`` is a study folder whose ``replicates/r<k>/`` hold finished
