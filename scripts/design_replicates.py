@@ -28,6 +28,7 @@ import json
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -129,6 +130,24 @@ def compare(designs: dict[str, pd.DataFrame], tables: dict[str, pd.DataFrame]) -
     return pd.DataFrame(rows)
 
 
+def design_inputs(folder: Path) -> dict[str, dict[str, Any]]:
+    """Per replicate of the design at ``folder``, the demonstrations its final phase read: the
+    digest its tables record, else (made before digests were recorded) the described set its
+    ``d_s`` match (:func:`scripts.input_sets.described_set`)."""
+    from safe_bc.data.store import read_table_metadata
+    from scripts.input_sets import described_set
+
+    out = {}
+    for rdir in sorted((folder / "replicates").glob("r*"), key=lambda p: int(p.name[1:])):
+        meta = read_table_metadata(rdir / "final.parquet")
+        demos = (meta.get("inputs") or {}).get("demos") or {}
+        if demos.get("digest"):
+            out[rdir.name] = {"digest": demos["digest"], "identified_by": "its tables"}
+        else:
+            out[rdir.name] = described_set(meta.get("cost_limits")) or {"digest": None}
+    return out
+
+
 def markdown(table: pd.DataFrame, meta: dict) -> str:
     """The table in words and numbers."""
     shown = []
@@ -199,6 +218,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         command="python -m scripts.design_replicates " + " ".join(
             f"--design {a}={b}" for a, b in pairs) + f" --out {args.out}",
         designs=[list(x) for x in pairs], bootstrap_seed=SEED, resamples=BOOT,  # in order
+        inputs={label: design_inputs(Path(folder)) for label, folder in pairs},
     )  # fmt: skip
     args.out.parent.mkdir(parents=True, exist_ok=True)
     write_table_atomic(args.out.with_suffix(".parquet"), table, meta)

@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 from collections import defaultdict
 from pathlib import Path
+from typing import Any
 
 import pyarrow.parquet as pq
 
@@ -33,6 +34,19 @@ def recorded_limits(path: Path) -> tuple[float, ...] | None:
         if isinstance(value, list) and value and all(isinstance(x, int | float) for x in value):
             return tuple(round(float(x), 2) for x in value)
     return None
+
+
+def described_set(limits: Any, root: Path = ROOT) -> dict[str, Any]:
+    """The described CarRacing set (``results/demos/**/summary.json``) whose ``d_s`` are
+    ``limits`` to 0.01: its digest and summary file, for a table made before digests were
+    recorded (``{}``: none matches)."""
+    want = tuple(round(float(x), 2) for x in limits or ())
+    for path in sorted((root / "results" / "demos").rglob("summary.json")):
+        summary = json.loads(path.read_text())
+        if tuple(round(float(v["d_s"]), 2) for v in summary["limits"].values()) == want:
+            where = path.relative_to(root).as_posix()
+            return {"digest": summary.get("digest"), "identified_by": f"its d_s, as {where}"}
+    return {}
 
 
 def set_names(root: Path = ROOT) -> dict[tuple[float, ...], str]:

@@ -232,3 +232,28 @@ def test_uncertified_replicates_keep_the_table_without_certificate_columns() -> 
     s = replicates_summary(table)
     assert "certified" not in s and "certified" not in s["verdict"]
     assert "certified on its own block" not in replicates_markdown(table, s, PARAMS)
+
+
+def test_a_replicate_finished_before_a_field_was_added_counts_as_finished(tmp_path) -> None:
+    import json as _json
+
+    from safe_bc.data.store import write_table_atomic
+    from safe_bc.distributed.replicates import finished, replicate_inputs
+
+    spec = replicate_spec(replace(DEFAULT, results=tmp_path), 1)
+    folder = spec.results / spec.name
+    folder.mkdir(parents=True)
+    study = _json.loads(_json.dumps(spec.summary(), default=str))
+    study.pop("validation_demos")  # recorded before the field existed
+    write_table_atomic(folder / "final.parquet", pd.DataFrame({"a": [1]}),
+                       {"complete": True, "study": study})  # fmt: skip
+    assert not finished(spec)  # best.json is written last
+    (folder / "best.json").write_text("{}")
+    assert finished(spec)
+    assert not finished(replace(spec, final_episodes=spec.final_episodes + 1))
+    sources = {"r0": {"inputs": {"demos": {"digest": "sha256:a", "episodes": 5}}},
+               "r1": {"inputs": {"demos": {"digest": "sha256:a", "episodes": 5}}},
+               "r2": {}}  # fmt: skip
+    assert replicate_inputs(sources) == {
+        "demos": [{"digest": "sha256:a", "episodes": 5}, {"digest": None}]
+    }

@@ -68,13 +68,22 @@ def _as_stored(value: Any) -> Any:
 
 def finished(spec: StudySpec) -> bool:
     """Whether the study ``spec`` (a replicate) has its final phase written for exactly these
-    settings: ``final.parquet`` records a complete study with this summary, and ``best.json``
+    settings: ``final.parquet`` records a complete study with this summary (a field the
+    recorded summary lacks, added to ``StudySpec`` since, is not compared: as a resume compares
+    identities, :func:`safe_bc.distributed.resume.identity_problem`), and ``best.json``
     (written last) is there."""
+    from safe_bc.distributed.resume import identity_problem
+
     folder = spec.results / spec.name
     if not ((folder / "final.parquet").is_file() and (folder / "best.json").is_file()):
         return False
     meta = read_table_metadata(folder / "final.parquet")
-    return meta.get("complete") is True and meta.get("study") == _as_stored(spec.summary())
+    stored = meta.get("study")
+    return (
+        meta.get("complete") is True
+        and isinstance(stored, dict)
+        and not identity_problem(stored, _as_stored(spec.summary()))
+    )
 
 
 def read_replicate(spec: StudySpec, k: int) -> ReplicateResult:
@@ -105,7 +114,7 @@ def read_replicate(spec: StudySpec, k: int) -> ReplicateResult:
 
 def _source(spec: StudySpec) -> dict[str, Any]:
     """Where replicate ``spec``'s numbers come from: its final table's command, provenance,
-    seeds."""
+    seeds and inputs (the demonstrations' digest and collector settings)."""
     path = spec.results / spec.name / "final.parquet"
     meta = read_table_metadata(path) if path.is_file() else {}
     return {
@@ -113,6 +122,7 @@ def _source(spec: StudySpec) -> dict[str, Any]:
         "command": meta.get("command", ""),
         "seeds": replicate_seeds(spec),
         "provenance": meta.get("provenance", {}),
+        "inputs": meta.get("inputs", {}),
     }
 
 
@@ -174,12 +184,23 @@ def run_replicates(
         "replicate_stride": REPLICATE_STRIDE,
         "summary": summary,
         "sources": sources,
+        "inputs": replicate_inputs(sources),
         "provenance": prov,
     }
     write_table_atomic(out / TABLE, table, meta)
     write_text_atomic(out / REPORT, replicates_markdown(table, summary, spec.params, _note(
         command, sources)))  # fmt: skip
     return ReplicatesOutcome(True, tuple(ran), table, summary, out, errors)
+
+
+def replicate_inputs(sources: dict[str, dict[str, Any]]) -> dict[str, Any]:
+    """The demonstration sets the replicates read (``{"demos": [record, ...]}``, one record per
+    digest; a replicate whose tables record none counts as ``{"digest": None}``)."""
+    sets: dict[Any, dict[str, Any]] = {}
+    for src in sources.values():
+        record = dict(src.get("inputs", {}).get("demos") or {"digest": None})
+        sets.setdefault(record.get("digest"), record)
+    return {"demos": list(sets.values())}
 
 
 def _note(command: str, sources: dict[str, dict[str, Any]]) -> str:

@@ -72,3 +72,10 @@ def test_the_committed_comparison_re_derives() -> None:
     designs = {k: paired_episodes(REPO / v) for k, v in meta["designs"]}
     tables = {k: read_table(REPO / v / "replicates.parquet")[0] for k, v in meta["designs"]}
     pd.testing.assert_frame_equal(compare(designs, tables), table)
+
+
+def test_the_committed_comparison_names_every_replicates_demonstrations() -> None:
+    _, meta = read_table(REPO / "results/checks/make_tune/half/replicates.parquet")
+    for label, _folder in meta["designs"]:
+        inputs = meta["inputs"][label]
+        assert len(inputs) == 3 and all(v["digest"].startswith("sha256:") for v in inputs.values())
