@@ -139,7 +139,8 @@ def design_inputs(folder: Path) -> dict[str, dict[str, Any]]:
 
     out = {}
     for rdir in sorted((folder / "replicates").glob("r*"), key=lambda p: int(p.name[1:])):
-        meta = read_table_metadata(rdir / "final.parquet")
+        final = rdir / "final.parquet"
+        meta = read_table_metadata(final) if final.is_file() else {}
         demos = (meta.get("inputs") or {}).get("demos") or {}
         if demos.get("digest"):
             out[rdir.name] = {"digest": demos["digest"], "identified_by": "its tables"}
