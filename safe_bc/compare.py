@@ -84,8 +84,9 @@ class Comparison:
     """Where tables, figures and runs go."""
     runs: str = ""
     """Stem of the runs folder, ``OUT/<runs>_runs/`` (``""``: ``name``): another comparison's
-    stem shares its trained agents, improvement runs and evaluations (same rows, same
-    settings), e.g. a diagnostic adding rows to a finished comparison."""
+    stem shares its trained agents and improvement runs (same rows, same settings), e.g. a
+    diagnostic adding rows to a finished comparison. Evaluations are shared by what made them
+    whatever the stem (``OUT/stored_evaluations/``, :mod:`safe_bc.eval_store`)."""
     train_seeds: tuple[int, ...] = (0,)
     """Training seeds, shared by every trained method (one agent per method and seed)."""
     episodes: int = 20

@@ -132,6 +132,18 @@ def test_committed_table1_rederives_exactly_from_its_episodes() -> None:
     )
 
 
+def stored_evaluations(out: Path) -> dict[str, str]:
+    """The stored evaluations' episode files under a comparison's ``out`` (named by what made
+    them, not by row): file name -> the policy it holds."""
+    from safe_bc.eval_store import FOLDER
+
+    found = {}
+    for path in sorted((out / FOLDER).glob("*.parquet")):
+        if not path.name.endswith(".steps.parquet"):
+            (found[path.name],) = set(read_table(path)[0]["policy"])
+    return found
+
+
 TINY = ImproveConfig(
     iterations=2,
     episodes_per_iter=2,
@@ -201,16 +213,32 @@ COMPARISON = Comparison(
     from safe_bc.distributed.compare import run_comparison
 
     weights = tmp_path / "tiny_runs" / "start" / "seed1" / "agent" / "config.json"
-    evaluated = tmp_path / "tiny_runs" / "improved" / "seed1" / "episodes.parquet"
-    before = weights.stat().st_mtime_ns, evaluated.stat().st_mtime_ns
+
+    def stored() -> dict[str, int]:  # the stored evaluations, by what made them
+        return {p.name: p.stat().st_mtime_ns for p in (tmp_path / "stored_evaluations").iterdir()}
+
+    before = weights.stat().st_mtime_ns, stored()
+    assert len(before[1]) == 5 + 1  # 5 cells' episodes, the traced row's steps
+    assert {f"stored_evaluations/{n}" for n in before[1] if "steps" not in n} <= set(
+        meta["inputs"]["runs"]
+    )
     curve, _ = read_table(weights.parent / "curve.parquet")  # every agent's learning curve
     assert curve["batch"].tolist() == [5] and curve["train_loss"].notna().all()
     again = run_comparison(comp, progress=False)
-    assert (weights.stat().st_mtime_ns, evaluated.stat().st_mtime_ns) == before
+    assert (weights.stat().st_mtime_ns, stored()) == before
     pd.testing.assert_frame_equal(again, table, check_exact=True)
+    # another comparison sharing the runs folder with the same settings shares every
+    # evaluation (nothing evaluated); one with other settings gets its own, overwriting none
+    same = run_comparison(replace(comp, name="same", runs="tiny"), progress=False)
+    assert stored() == before[1]
+    pd.testing.assert_frame_equal(same, table, check_exact=True)
     # a changed setting redoes only what it changes: more tracks re-evaluate every cell
-    more = run_comparison(replace(comp, episodes=4), progress=False)
+    more = run_comparison(replace(comp, name="more", runs="tiny", episodes=4), progress=False)
     assert weights.stat().st_mtime_ns == before[0] and (more["n_tracks"] == 4).all()
+    after = stored()
+    assert len(after) == 2 * len(before[1]) and {n: after[n] for n in before[1]} == before[1]
+    pd.testing.assert_frame_equal(run_comparison(comp, progress=False), table, check_exact=True)
+    assert stored() == after
 
 
 def test_with_deferral_replaces_the_deferral_rows_and_keeps_the_others_in_order() -> None:

@@ -85,19 +85,24 @@ def test_expert_settings_compared_on_the_same_patients(rehab_demos, tmp_path: Pa
     assert row["n_pairs"] == 3
     assert row["d_reward"] == pytest.approx((bold["reward"] - default["reward"]).mean())
 
-    folder = tmp_path / "experts_runs"
-    before = {p.name: (p / "episodes.parquet").stat().st_mtime_ns for p in folder.iterdir()}
+    from safe_bc.eval_store import FOLDER
+    from tests.test_compare import stored_evaluations
+
+    def mtimes() -> dict[str, int]:
+        return {name: (tmp_path / FOLDER / name).stat().st_mtime_ns for name in stored}
+
+    stored = stored_evaluations(tmp_path)
+    before = mtimes()
     again = run_comparison(comp, progress=False)
     pd.testing.assert_frame_equal(again, table, check_exact=True)
-    after = {p.name: (p / "episodes.parquet").stat().st_mtime_ns for p in folder.iterdir()}
-    assert after == before
+    assert mtimes() == before and stored_evaluations(tmp_path) == stored
     bolder = replace(BOLD, intensity_step=0.08)
     run_comparison(
         replace(comp, methods=(EXPERT, Method("bold", expert=True, expert_config=bolder))),
         progress=False,
-    )
-    after = {p.name: (p / "episodes.parquet").stat().st_mtime_ns for p in folder.iterdir()}
-    assert after["expert"] == before["expert"] and after["bold"] != before["bold"]
+    )  # the other expert is a new evaluation: stored beside the first, which stays
+    now = stored_evaluations(tmp_path)
+    assert mtimes() == before and sorted(now[n] for n in set(now) - set(stored)) == ["bold seed=0"]
 
 
 def limits_of(demos: Path):

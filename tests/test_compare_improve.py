@@ -227,7 +227,8 @@ def test_tiny_fallback_rows_share_the_runs_of_another_comparison(rehab_demos, tm
 
     from safe_bc.bc import BCConfig, NetworkConfig, TrainConfig
     from safe_bc.distributed.compare import run_comparison
-    from tests.test_compare import TINY
+    from safe_bc.eval_store import FOLDER
+    from tests.test_compare import TINY, stored_evaluations
 
     base = Comparison(
         "tiny",
@@ -299,14 +300,15 @@ def test_tiny_fallback_rows_share_the_runs_of_another_comparison(rehab_demos, tm
     assert table.loc["improved+deferall", "deferred_share"] == 1.0
     assert np.isnan(table.loc["start", "deferred_share"])
     assert "steps deferred" in (tmp_path / "defer.md").read_text()
+    files = {policy: name for name, policy in stored_evaluations(tmp_path).items()}
     stamps = {  # a held row's stamp names its hold; rows without one keep their old stamps
-        name: read_table(next(tmp_path.glob(f"tiny_runs/{name}/seed0/episodes.parquet")))[1]
-        for name in ("start?defer0", "start?defer0held", "start?defer0heldon")
+        name: read_table(tmp_path / FOLDER / files[f"{name} seed=0"])[1]
+        for name in ("start+defer0", "start+defer0held", "start+defer0heldon")
     }
-    assert stamps["start?defer0held"]["stamp"]["run"]["hold"] == 5
-    assert "hold" not in stamps["start?defer0"]["stamp"]["run"]
-    assert "hold_on" not in stamps["start?defer0held"]["stamp"]["run"]
-    assert stamps["start?defer0heldon"]["stamp"]["run"]["hold_on"] == ["fatigue"]
+    assert stamps["start+defer0held"]["stamp"]["run"]["hold"] == 5
+    assert "hold" not in stamps["start+defer0"]["stamp"]["run"]
+    assert "hold_on" not in stamps["start+defer0held"]["stamp"]["run"]
+    assert stamps["start+defer0heldon"]["stamp"]["run"]["hold_on"] == ["fatigue"]
     held = by.loc["start+defer0held", "deferred_share"]  # a hold on one dimension holds less
     assert (by.loc["start+defer0heldon", "deferred_share"] <= held).all()
     with pytest.raises(ValueError, match="defer_hold_on= names the dimensions"):

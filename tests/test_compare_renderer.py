@@ -131,13 +131,14 @@ def test_tiny_exact_row_raster_view_and_raster_pipeline(ray_session, tmp_path):
     assert not (runs / "raster/seed0/agent").exists()
     assert (runs / "raster_pipeline/seed0/agent/weights.pt").exists()
     assert table.loc["raster", "n_pairs"] == 2 == table.loc["raster pipeline", "n_pairs"]
+    stored = {  # the stored evaluations (named by what made them), by policy
+        read_table(p)[0]["policy"].iloc[0]: p
+        for p in (tmp_path / "stored_evaluations").glob("*.parquet")
+    }
+    assert set(stored) == {"exact seed=0", "raster seed=0", "raster pipeline seed=0"}
     stamps = {
-        name: read_table(runs / slug / "seed0/episodes.parquet")[1]["stamp"]
-        for name, slug in (
-            ("exact", "exact"),
-            ("raster", "raster"),
-            ("raster pipeline", "raster_pipeline"),
-        )
+        name: read_table(stored[f"{name} seed=0"])[1]["stamp"]
+        for name in ("exact", "raster", "raster pipeline")
     }
     assert stamps["exact"]["eval"]["env"]["renderer"] == "exact"
     assert stamps["raster"]["eval"]["env"]["renderer"] == "raster"
@@ -154,12 +155,10 @@ def test_tiny_exact_row_raster_view_and_raster_pipeline(ray_session, tmp_path):
     ]
     assert inputs["demos"][1]["collector"]["renderer"] == "raster"
     assert set(inputs["runs"]) == {
-        "tinyrender_runs/exact/seed0/agent", "tinyrender_runs/exact/seed0/episodes.parquet",
-        "tinyrender_runs/raster/seed0/episodes.parquet",
-        "tinyrender_runs/raster_pipeline/seed0/agent",
-        "tinyrender_runs/raster_pipeline/seed0/episodes.parquet",
+        "tinyrender_runs/exact/seed0/agent", "tinyrender_runs/raster_pipeline/seed0/agent",
+        *(f"stored_evaluations/{p.name}" for p in stored.values()),
     }  # fmt: skip
-    before = (runs / "raster_pipeline/seed0/episodes.parquet").stat().st_mtime_ns
+    before = stored["raster pipeline seed=0"].stat().st_mtime_ns
     run_comparison(comp, progress=False)
     assert read_table(tmp_path / "tinyrender.parquet")[1]["inputs"] == inputs  # nothing redone
-    assert (runs / "raster_pipeline/seed0/episodes.parquet").stat().st_mtime_ns == before
+    assert stored["raster pipeline seed=0"].stat().st_mtime_ns == before

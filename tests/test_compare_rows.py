@@ -29,23 +29,75 @@ FILES = sorted((ROOT / "tune_jobs/compare").glob("*.py"))
 
 
 def test_every_stored_evaluation_keeps_its_stamp(monkeypatch) -> None:
-    """Every committed evaluation of a comparison cell (``<runs>_runs/.../episodes.parquet``)
-    carries the stamp the runner computes for that cell now: stored evaluations stay reused."""
+    """Every committed stored evaluation (``OUT/stored_evaluations/<key>.parquet``) is the one the
+    runner finds for some comparison cell now: the key of the stamp it computes for that cell
+    (with the thresholds of the set it was made from) names the file, and the file records
+    that stamp; stored evaluations stay reused."""
     from safe_bc.data.store import read_table_metadata
-    from safe_bc.distributed.compare import _folder, _stamp
+    from safe_bc.distributed.compare import cell_stamp
+    from safe_bc.eval_store import FOLDER, episodes_path
 
     monkeypatch.chdir(ROOT)
+    committed = {
+        p.resolve(): read_table_metadata(p)["stamp"]
+        for p in Path("results").rglob(f"{FOLDER}/*.parquet")
+        if not p.name.endswith(".steps.parquet")
+    }
+    limits = {str(s["thresholds"]): s["thresholds"] for s in committed.values()}  # each set's
+    found: set[Path] = set()
     checked = 0
     for file in FILES:
         c = load_comparison(file)
         for m in c.methods:
             for s in c.seeds_of(m):
-                stored = _folder(c, m, s) / "episodes.parquet"
-                if stored.is_file():
-                    stamp = read_table_metadata(stored)["stamp"]
-                    assert _stamp(c, m, s, stamp["thresholds"]) == stamp, (file.name, m.name, s)
-                    checked += 1
-    assert checked >= 100  # the committed evaluations of every kind of row
+                for thresholds in limits.values():
+                    stamp = cell_stamp(c, m, s, thresholds)
+                    path = episodes_path(c.out, stamp).resolve()
+                    if path in committed:
+                        assert committed[path] == stamp, (file.name, m.name, s)
+                        found.add(path)
+                        checked += 1
+    assert checked >= 100  # the committed evaluations of every kind of row, some shared
+    assert sorted(set(committed) - found) == []  # none left where no comparison looks
+
+
+def test_runs_folder_sharers_share_an_evaluation_only_when_the_same_one() -> None:
+    """Two comparisons sharing a runs folder: the same settings give every cell the same
+    stored evaluation, other settings (here the tracks, or one row's alpha) other ones."""
+    from safe_bc.distributed.compare import plan_evaluations
+    from safe_bc.eval_store import episodes_path
+
+    a = Comparison(
+        "a",
+        methods=(
+            Expert("expert"),
+            Agent("bc", SelectionConfig(alpha=0.5)),
+            Handover("bc+d2", "bc", HandoverConfig(2.0)),
+        ),
+        runs="shared",
+        train_seeds=(0, 1),
+        episodes=4,
+    )
+    limits = {a.demos: [10.0, 10.0, 10.0]}
+
+    def files(c: Comparison) -> dict[str, Path]:
+        return {
+            k: episodes_path(c.out, cell.stamp) for k, cell in plan_evaluations(c, limits).items()
+        }
+
+    mine = files(a)
+    assert len(set(mine.values())) == len(mine) == 5  # expert, 2 x bc, 2 x bc+d2
+    assert files(dataclasses.replace(a, name="b")) == mine
+    others = files(dataclasses.replace(a, name="b", episodes=5))
+    assert set(others.values()).isdisjoint(mine.values())
+    alpha = dataclasses.replace(
+        a, name="b", methods=(a.methods[0], Agent("bc", SelectionConfig(alpha=0.3)), a.methods[2])
+    )
+    changed = files(alpha)
+    assert changed["expert"] == mine["expert"]
+    assert {k for k in mine if changed[k] != mine[k]} == {
+        f"{r} seed={s}" for r in ("bc", "bc+d2") for s in (0, 1)
+    }
 
 
 @pytest.mark.parametrize("file", FILES, ids=[f.stem for f in FILES])
@@ -95,3 +147,51 @@ def test_a_method_row_names_a_registered_method() -> None:
         Comparison("t", methods=(Agent("a", SelectionConfig()), "b"))  # type: ignore[arg-type]
     row = dataclasses.replace(Handover("d", "a", HandoverConfig(1.0)), of="b")
     assert row.fallback_of == "b"
+
+
+def test_comparisons_re_derive_their_tables_from_the_stored_evaluations(monkeypatch) -> None:
+    """Every comparison whose cells' evaluations are committed re-derives its episode table
+    value for value from them (found by key, in plan order, labelled as the runner labels
+    them), and its table from that (with its committed training and history tables)."""
+    import pandas as pd
+
+    from safe_bc.compare import build_table
+    from safe_bc.data.store import read_table
+    from safe_bc.distributed.compare import EXPERT, Cell, cell_stamp, episodes_table
+    from safe_bc.eval_store import FOLDER, episodes_path
+
+    monkeypatch.chdir(ROOT)
+    committed = {p.resolve(): p for p in Path("results").rglob(f"{FOLDER}/*.parquet")}
+    limits = {
+        str(t): t for t in (read_table(p)[1]["stamp"]["thresholds"] for p in committed.values())
+    }
+    derived = 0
+    for file in FILES:
+        c = load_comparison(file)
+        plan, stored = {}, {}
+        for m in c.methods:
+            for s in c.seeds_of(m):
+                key = EXPERT if isinstance(m, Expert) and m.config is None else f"{m.name} seed={s}"
+                for t in limits.values():
+                    stamp = cell_stamp(c, m, s, t)
+                    path = episodes_path(c.out, stamp).resolve()
+                    if path in committed:
+                        plan[key], stored[key] = Cell(m, s, stamp), read_table(path)[0]
+                        break
+        if not plan:
+            continue
+        n_cells = sum(len(c.seeds_of(m)) for m in c.methods)
+        assert len(plan) == n_cells, (file.name, "cells without a stored evaluation")
+        episodes = episodes_table(plan, stored)
+        pd.testing.assert_frame_equal(
+            episodes, read_table(c.out / f"{c.name}_episodes.parquet")[0], check_exact=True
+        )
+        training = read_table(c.out / f"{c.name}_training.parquet")[0]
+        history_file = c.out / f"{c.name}_history.parquet"
+        history = read_table(history_file)[0] if history_file.exists() else None
+        table = build_table(c, episodes, training, history)
+        pd.testing.assert_frame_equal(
+            table, read_table(c.out / f"{c.name}.parquet")[0], check_exact=True
+        )
+        derived += 1
+    assert derived >= 7

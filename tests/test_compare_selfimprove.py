@@ -105,7 +105,11 @@ def test_tiny_rehab_comparison_with_a_selfimitation_row(rehab_demos, tmp_path, m
     final = folder / "start" if last["agent"] == "start" else folder / last["agent"] / POLICY
     episodes, _ = read_table(tmp_path / "tiny_episodes.parquet")
     mine = episodes[episodes["method"] == "selfimit"].set_index("env_seed")
-    stamp = read_table(tmp_path / "tiny_runs/selfimit/seed0/episodes.parquet")[1]["stamp"]
+    (stamp,) = (  # the row's stored evaluation, named by what made it
+        meta["stamp"]
+        for meta in (read_table(p)[1] for p in (tmp_path / "stored_evaluations").glob("*.parquet"))
+        if "selfimprove" in meta["stamp"]["run"]
+    )
     again, _ = evaluate_policies(
         {"x": NetSource.from_model(*load_checkpoint(final))}, eval_config(comp),
         thresholds=np.asarray(stamp["thresholds"]), progress=False, seeds=track_seeds(comp),

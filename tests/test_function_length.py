@@ -14,7 +14,6 @@ MAX_LINES = 100
 """A function's lines from its ``def`` to its last line, docstring and comments included."""
 
 LONG: dict[str, int] = {
-    "distributed/compare.py:run_comparison": 137,
     "distributed/trial.py:run_trial": 123,
     "queries/measure.py:run": 218,
     "queries/run.py:run_queries": 112,

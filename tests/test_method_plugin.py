@@ -152,10 +152,12 @@ def test_the_toy_method_is_a_comparison_row(nudge, rehab_demos, tmp_path) -> Non
     from safe_bc.data.store import read_table
     from safe_bc.distributed.compare import eval_config, run_comparison, track_seeds
     from safe_bc.distributed.evaluate import LOCKSTEP_ENVS, evaluate_policies
+    from safe_bc.eval_store import FOLDER
     from safe_bc.evaluation import NetSource
     from safe_bc.handover import HandoverConfig
     from safe_bc.selection import SelectionConfig
     from tests.conftest import rehab_collect
+    from tests.test_compare import stored_evaluations
 
     row = FromStart("nudged", start="start", config=NudgeConfig(0.5))
     assert row.method == NAME and row.kind == NAME
@@ -180,7 +182,9 @@ def test_the_toy_method_is_a_comparison_row(nudge, rehab_demos, tmp_path) -> Non
     table = run_comparison(comp, progress=False).set_index("method")
     assert table.loc["nudged", "mode"] == NAME and "minutes" in table
     cell = tmp_path / "tiny_runs/nudged/seed0"
-    stamp = read_table(cell / "episodes.parquet")[1]["stamp"]
+    files = {policy: name for name, policy in stored_evaluations(tmp_path).items()}
+    evaluated = tmp_path / FOLDER / files["nudged seed=0"]
+    stamp = read_table(evaluated)[1]["stamp"]
     assert stamp["run"][NAME] == {"scale": 0.5, "seed": 0} and "start" in stamp["run"]
     assert json.loads((cell / NAME / "run.json").read_text())["python"]
 
@@ -196,9 +200,9 @@ def test_the_toy_method_is_a_comparison_row(nudge, rehab_demos, tmp_path) -> Non
     np.testing.assert_array_equal(mine["reward"].to_numpy(), again["reward"].to_numpy())
 
     # a rerun reuses the run and every stored evaluation
-    before = (cell / "episodes.parquet").stat().st_mtime_ns
+    before = evaluated.stat().st_mtime_ns
     run_comparison(comp, progress=False)
-    assert (cell / "episodes.parquet").stat().st_mtime_ns == before
+    assert evaluated.stat().st_mtime_ns == before
 
 
 def test_the_toy_method_is_a_command(nudge, rehab_start, tmp_path, capsys) -> None:

@@ -1,19 +1,27 @@
 """Running a :class:`~safe_bc.compare.Comparison`: train, improve, evaluate, write; resumable.
 
-Per (method, training seed) one folder ``OUT/<name>_runs/<method>/seed<k>/``:
+Per (method, training seed) one folder ``OUT/<runs>_runs/<method>/seed<k>/``:
 
 * ``agent/``: a BC row's agent, written like ``safe-bc train`` writes a checkpoint (weights,
   config with the run, ``selection.parquet``), so it can start an improvement run;
 * ``<method>/``: a method row's run (:class:`~safe_bc.compare_rows.FromStart`: the registered
   method's runner from the start row's ``agent/``, itself resumable; e.g. ``improve/``,
-  ``selfimprove/``);
-* ``episodes.parquet`` (and ``steps.parquet`` for the ``traces`` rows): its evaluation,
-  stamped with the run and the evaluation settings.
+  ``selfimprove/``).
 
-A rerun reuses every folder whose stamp matches and trains, improves or evaluates only the
-rest, so an interrupted comparison resumes where it stopped; a changed setting redoes the
-cells it changes. Every policy goes through the one evaluation path
-(:func:`safe_bc.distributed.evaluate.evaluate_policies`), all missing ones in one call.
+Each cell's evaluation is stored by what made it, never by folder:
+``OUT/stored_evaluations/<key>.parquet`` (and ``<key>.steps.parquet`` for the ``traces`` rows),
+``key`` the content key of its stamp (:func:`cell_stamp`, :mod:`safe_bc.eval_store`: the run
+or agent, the tracks, the evaluation settings, the thresholds). Two comparisons needing the
+same evaluation share it; two needing different ones never overwrite each other.
+
+A rerun reuses every agent and run whose recorded config matches and every evaluation whose
+stamp is stored, and trains, improves or evaluates only the rest, so an interrupted
+comparison resumes where it stopped; a changed setting redoes the cells it changes. Every
+policy goes through the one evaluation path
+(:func:`safe_bc.distributed.evaluate.evaluate_policies`), all missing ones in one call per env
+and thresholds. The driver is a plan (:func:`plan_evaluations`, pure), the runs
+(:func:`_train_agents`, :func:`_improve_cell`, :func:`_evaluate`) and the report
+(:func:`_report`, :func:`write_outputs`).
 """
 
 from __future__ import annotations
@@ -52,6 +60,7 @@ from safe_bc.data.store import (
     write_table_atomic,
 )
 from safe_bc.envs.config import DEFAULT_RENDERER
+from safe_bc.eval_store import episodes_path, steps_path
 from safe_bc.evaluation import EvalConfig, ExpertSource, MaskedSource, NetSource
 from safe_bc.experiment import RunConfig, save_curve, save_selection, select_for
 from safe_bc.metrics import combined
@@ -133,21 +142,22 @@ def own_demos(comparison: Comparison) -> dict[Path, Any]:
     return {comparison.demos: first, **out}
 
 
-def run_digests(comparison: Comparison, cells: list[tuple[Row, int]]) -> dict[str, str]:
-    """What the tables read from each cell's run folder, by content: the folder's BC agent
-    (its weights' SHA-256, ``agent/``) and its stored episodes (SHA-256 of
-    ``episodes.parquet``), keyed by path relative to the comparison's output folder."""
+def run_digests(comparison: Comparison, plan: dict[str, Cell]) -> dict[str, str]:
+    """What the tables read, by content: each cell's BC agent (its weights' SHA-256,
+    ``<runs>_runs/<row>/seed<k>/agent/``) and its stored evaluation (SHA-256 of
+    ``stored_evaluations/<key>.parquet``), keyed by path relative to the comparison's output
+    folder."""
     import hashlib
 
     from safe_bc.bc import read_checkpoint_meta
 
     out: dict[str, str] = {}
-    for m, s in cells:
-        folder = _folder(comparison, m, s)
+    for cell in plan.values():
+        folder = _folder(comparison, cell.row, cell.seed)
         if (folder / "agent" / "config.json").is_file():
             weights = read_checkpoint_meta(folder / "agent").get("weights_sha256", "")
             out[str((folder / "agent").relative_to(comparison.out))] = f"sha256:{weights}"
-        episodes = folder / "episodes.parquet"
+        episodes = episodes_path(comparison.out, cell.stamp)
         if episodes.is_file():
             digest = hashlib.sha256(episodes.read_bytes()).hexdigest()
             out[str(episodes.relative_to(comparison.out))] = f"sha256:{digest}"
@@ -164,8 +174,10 @@ def _folder(comparison: Comparison, method: Row, seed: int) -> Path:
     return base if isinstance(method, Expert) else base / f"seed{seed}"
 
 
-def _stamp(comparison: Comparison, method: Row, seed: int, thresholds: Any) -> dict[str, Any]:
-    """What a stored evaluation must match to be reused."""
+def cell_stamp(comparison: Comparison, method: Row, seed: int, thresholds: Any) -> dict[str, Any]:
+    """What made the evaluation of cell ``(method, seed)``: its run (or agent, or expert), the
+    evaluation settings and tracks, the thresholds; its content key names the stored file
+    (:func:`safe_bc.eval_store.episodes_path`)."""
     settings = dataclasses.asdict(eval_config(comparison, method))
     settings.pop("workers")  # where episodes run changes nothing
     if settings["lockstep_forward"] == "rows":  # the one-env rows: stamps made before it hold
@@ -181,7 +193,7 @@ def _stamp(comparison: Comparison, method: Row, seed: int, thresholds: Any) -> d
         start = run_config(comparison, comparison.method(method.start), seed).to_dict()
         run = {"start": start, method.method: method_identity(comparison, method, seed)}
     elif isinstance(method, Handover):
-        of = _stamp(comparison, comparison.method(method.of), seed, thresholds)["run"]
+        of = cell_stamp(comparison, comparison.method(method.of), seed, thresholds)["run"]
         h = method.handover
         if h is None:
             run = {"fallback_of": of, "fallback": "expert", "eps": selection_eps(comparison)}
@@ -194,7 +206,7 @@ def _stamp(comparison: Comparison, method: Row, seed: int, thresholds: Any) -> d
             if h.hold_on:
                 run["hold_on"] = list(h.hold_on)
     elif isinstance(method, View):
-        of = _stamp(comparison, comparison.method(method.of), seed, thresholds)["run"]
+        of = cell_stamp(comparison, comparison.method(method.of), seed, thresholds)["run"]
         if method.masked:
             run = {"masked_of": of, "view": "steering indicator masked"}
         else:
@@ -214,9 +226,10 @@ def _stamp(comparison: Comparison, method: Row, seed: int, thresholds: Any) -> d
     )
 
 
-def _stored(folder: Path, stamp: dict[str, Any]) -> tuple[pd.DataFrame, dict] | None:
-    """The stored evaluation (episodes, metadata) when it matches ``stamp``."""
-    path = folder / "episodes.parquet"
+def _stored(out: Path, stamp: dict[str, Any]) -> tuple[pd.DataFrame, dict] | None:
+    """The stored evaluation (episodes, metadata) of ``stamp`` under ``out``, if any (its
+    recorded stamp checked too)."""
+    path = episodes_path(out, stamp)
     if not path.exists():
         return None
     frame, meta = read_table(path)
@@ -492,6 +505,31 @@ def run_cell(
     return _folder(c, m, s)
 
 
+@dataclasses.dataclass(frozen=True)
+class Cell:
+    """One evaluated (row, training seed) of a comparison's plan."""
+
+    row: Row
+    """The row."""
+    seed: int
+    """The training seed (an expert row's one seed)."""
+    stamp: dict[str, Any]
+    """What made its evaluation (:func:`cell_stamp`): its stored file's key."""
+
+
+def plan_evaluations(comparison: Comparison, limits: dict[Path, Any]) -> dict[str, Cell]:
+    """Every cell's evaluation, by its policy key in the episode tables (``"expert"`` for the
+    default expert, else ``"<row> seed=<k>"``), in spec order; ``limits``: each demonstration
+    set's thresholds ``d_s`` (the evaluation thresholds of the rows behind it). Pure."""
+    c = comparison
+    plan: dict[str, Cell] = {}
+    for m, s in _cells(c):
+        default_expert = isinstance(m, Expert) and m.config is None
+        key = EXPERT if default_expert else f"{m.name} seed={s}"
+        plan[key] = Cell(m, s, cell_stamp(c, m, s, limits[demos_of(c, m)]))
+    return plan
+
+
 def run_comparison(
     comparison: Comparison, *, progress: bool = True, command: str | None = None
 ) -> pd.DataFrame:
@@ -500,14 +538,9 @@ def run_comparison(
     Returns:
         The table (:func:`safe_bc.compare.build_table`).
     """
-    from safe_bc.bc import load_checkpoint
-    from safe_bc.collection import stored_expert_config
-    from safe_bc.distributed.evaluate import LOCKSTEP_ENVS, evaluate_policies
-
     started = time.perf_counter()
     c = comparison
     sets = _load_sets(c, progress)
-    demos = sets[c.demos]
     meta = run_metadata(
         config=_json(c.to_dict()),
         train_seeds=list(c.train_seeds),
@@ -518,104 +551,138 @@ def run_comparison(
         meta["command"] = command
     c.out.mkdir(parents=True, exist_ok=True)
     eps = selection_eps(c)
-    base = select_for(demos, SelectionConfig(eps=eps, alpha=0.0))
-    save_selection(c.out / f"{c.name}_selection", demos, base, meta)
+    save_selection(
+        c.out / f"{c.name}_selection", sets[c.demos],
+        select_for(sets[c.demos], SelectionConfig(eps=eps, alpha=0.0)), meta,
+    )  # fmt: skip
     limits = {  # each set's d_s: the evaluation thresholds of the rows behind it
         path: select_for(d, SelectionConfig(eps=eps, alpha=0.0)).thresholds
         for path, d in sets.items()
     }
-
-    # 1. BC agents not on disk; 2. improvement and self-imitation runs (each resumes itself),
-    # one after the other in the driver
-    cells = _cells(c)
-    _train_agents(c, sets, cells, progress)
-    histories, run_metas = [], []
-    improved: dict[tuple[str, int], Any] = {}
-    for m, s in cells:
+    # 1. BC agents not on disk; 2. method runs (each resumes itself), one after the other
+    _train_agents(c, sets, _cells(c), progress)
+    histories, run_metas, improved = [], [], {}
+    for m, s in _cells(c):
         ran = _improve_cell(c, m, s, sets, meta.get("command"))
-        if ran is None:
-            continue
-        history, run_meta, improved[m.name, s] = ran
-        histories.append(history)
-        run_metas.append(run_meta)
+        if ran is not None:
+            history, run_meta, improved[m.name, s] = ran
+            histories.append(history)
+            run_metas.append(run_meta)
+    # 3. the evaluations not stored, in one call per (env, thresholds); 4. the outputs
+    plan = plan_evaluations(c, limits)
+    stored, eval_metas = _evaluate(c, plan, limits, improved, meta, progress)
+    meta["seconds"] = round(time.perf_counter() - started, 1)
+    meta["inputs"] = {**meta["inputs"], "runs": run_digests(c, plan)}
+    meta["demo_safety_mean"] = float(combined(sets[c.demos].safety[sets[c.demos].scored]).mean())
+    meta["limit_distances"] = limit_distances(sets[c.demos])
+    meta["run_machines"] = machines(run_metas)
+    meta["eval_machines"] = machines(eval_metas)
+    return _report(c, plan, stored, meta, histories)
 
-    # 3. evaluation of the cells without a matching stored one, in one call
-    sources: dict[str, Any] = {}
-    stamps: dict[str, tuple[Row, int, dict[str, Any]]] = {}
+
+def _source(c: Comparison, cell: Cell, limits: dict[Path, Any], improved: dict) -> Any:
+    """The policy that cell ``cell`` evaluates."""
+    from safe_bc.bc import load_checkpoint
+    from safe_bc.collection import stored_expert_config
+
+    m, s = cell.row, cell.seed
+    if isinstance(m, Expert):
+        return ExpertSource(stored_expert_config(c.demos) if m.config is None else m.config)
+    if isinstance(m, Agent):
+        return NetSource.from_model(*load_checkpoint(_folder(c, m, s) / "agent"))
+    if isinstance(m, FromStart):
+        return improved[m.name, s].policy
+    if isinstance(m, View):
+        agent = NetSource.from_model(*load_checkpoint(_folder(c, c.method(m.of), s) / "agent"))
+        return MaskedSource(agent) if m.masked else agent
+    assert isinstance(m, Handover)
+    return _fallback_source(c, m, s, limits[demos_of(c, m)], improved)
+
+
+def _evaluate(
+    c: Comparison,
+    plan: dict[str, Cell],
+    limits: dict[Path, Any],
+    improved: dict,
+    meta: dict[str, Any],
+    progress: bool,
+) -> tuple[dict[str, pd.DataFrame], list[dict[str, Any]]]:
+    """Every planned cell's episodes (by policy key), read from its stored evaluation or
+    evaluated now (all missing ones in one call per env and thresholds, each then stored under
+    its key), and the metadata of each evaluation."""
+    from safe_bc.distributed.evaluate import LOCKSTEP_ENVS, evaluate_policies
+
     stored: dict[str, pd.DataFrame] = {}
     eval_metas: list[dict[str, Any]] = []
-    for m, s in cells:
-        default_expert = isinstance(m, Expert) and m.config is None
-        key = EXPERT if default_expert else f"{m.name} seed={s}"
-        stamp = _stamp(c, m, s, limits[demos_of(c, m)])
-        stamps[key] = (m, s, stamp)
-        have = _stored(_folder(c, m, s), stamp)
-        if have is not None:
-            stored[key] = have[0]
+    groups: dict[tuple[str, Path], list[str]] = {}  # the missing ones, per (env, thresholds)
+    for key, cell in plan.items():
+        have = _stored(c.out, cell.stamp)
+        if have is not None:  # the policy named as this comparison names it
+            stored[key] = have[0].assign(policy=key)
             eval_metas.append(have[1])
-        elif isinstance(m, Expert):
-            sources[key] = ExpertSource(
-                stored_expert_config(c.demos) if m.config is None else m.config
-            )
-        elif isinstance(m, Agent):
-            sources[key] = NetSource.from_model(*load_checkpoint(_folder(c, m, s) / "agent"))
-        elif isinstance(m, FromStart):
-            sources[key] = improved[m.name, s].policy
-        elif isinstance(m, View):
-            agent = NetSource.from_model(*load_checkpoint(_folder(c, c.method(m.of), s) / "agent"))
-            sources[key] = MaskedSource(agent) if m.masked else agent
         else:
-            assert isinstance(m, Handover)
-            sources[key] = _fallback_source(c, m, s, limits[demos_of(c, m)], improved)
+            m = cell.row
+            groups.setdefault((m.renderer or DEFAULT_RENDERER, demos_of(c, m)), []).append(key)
     if progress:
-        print(f"compare {c.name}: evaluating {len(sources)} of {len(stamps)} policies")
-    groups: dict[tuple[str, Path], list[str]] = {}  # one call per (env, thresholds)
-    for key in sources:
-        m = stamps[key][0]
-        groups.setdefault((m.renderer or DEFAULT_RENDERER, demos_of(c, m)), []).append(key)
+        missing = sum(len(keys) for keys in groups.values())
+        print(f"compare {c.name}: evaluating {missing} of {len(plan)} policies")
     for keys in groups.values():
-        m = stamps[keys[0]][0]
+        m = plan[keys[0]].row
         episodes, steps = evaluate_policies(
-            {k: sources[k] for k in keys}, eval_config(c, m),
+            {k: _source(c, plan[k], limits, improved) for k in keys}, eval_config(c, m),
             thresholds=limits[demos_of(c, m)], progress=progress,
             envs_per_worker=LOCKSTEP_ENVS, seeds=track_seeds(c),
         )  # fmt: skip
         for key in keys:
-            m, s, stamp = stamps[key]
-            folder = _folder(c, m, s)
+            stamp = plan[key].stamp
             cell_meta = {**meta, "stamp": stamp}
             ep = episodes[episodes["policy"] == key].reset_index(drop=True)
             if stamp["keep_steps"]:
                 st = steps[steps["policy"] == key].reset_index(drop=True)
-                write_table_atomic(folder / "steps.parquet", st, cell_meta)
-            write_table_atomic(folder / "episodes.parquet", ep, cell_meta)
+                write_table_atomic(steps_path(c.out, stamp), st, cell_meta)
+            write_table_atomic(episodes_path(c.out, stamp), ep, cell_meta)
             stored[key] = ep
             eval_metas.append(cell_meta)
+    return stored, eval_metas
 
-    # 4. the tables, in spec order
-    parts, traces, train_rows = [], [], []
-    for key, (m, s, stamp) in stamps.items():
-        labels = {**m.labels, "train_seed": s}
+
+def episodes_table(plan: dict[str, Cell], stored: dict[str, pd.DataFrame]) -> pd.DataFrame:
+    """The comparison's episodes: each planned cell's stored episodes (by policy key) with its
+    row's labels and training seed, in plan order. Pure."""
+    parts = []
+    for key, cell in plan.items():
+        labels = {**cell.row.labels, "train_seed": cell.seed}
         ep = stored[key]
         parts.append(
             pd.DataFrame({"policy": ep["policy"], **labels}).join(ep.drop(columns="policy"))
         )
-        if stamp["keep_steps"]:
-            traces.append(read_table(_folder(c, m, s) / "steps.parquet")[0])
-        if isinstance(m, Agent):
-            from safe_bc.bc import read_checkpoint_meta
+    return pd.concat(parts, ignore_index=True)
 
+
+def _report(
+    c: Comparison,
+    plan: dict[str, Cell],
+    stored: dict[str, pd.DataFrame],
+    meta: dict[str, Any],
+    histories: list[pd.DataFrame],
+) -> pd.DataFrame:
+    """The episode, trace, training and history tables (in spec order), then the table, its
+    Markdown and figures (:func:`write_outputs`)."""
+    from safe_bc.bc import read_checkpoint_meta
+
+    traces, train_rows = [], []
+    for key, cell in plan.items():
+        m, s = cell.row, cell.seed
+        labels = {**m.labels, "train_seed": s}
+        if cell.stamp["keep_steps"]:
+            st = read_table(steps_path(c.out, cell.stamp))[0]
+            traces.append(st.assign(policy=key))
+        if isinstance(m, Agent):
             extra = read_checkpoint_meta(_folder(c, m, s) / "agent")["extra"]
             train_rows.append({**labels, **extra["train_row"]})
-    episodes = pd.concat(parts, ignore_index=True)
+    episodes = episodes_table(plan, stored)
     steps = pd.concat(traces, ignore_index=True) if traces else pd.DataFrame()
     train_df = pd.DataFrame(train_rows)
-    meta["seconds"] = round(time.perf_counter() - started, 1)
-    meta["inputs"] = {**meta["inputs"], "runs": run_digests(c, cells)}
-    meta["demo_safety_mean"] = float(combined(demos.safety[demos.scored]).mean())
-    meta["limit_distances"] = limit_distances(demos)
-    meta["run_machines"] = machines(run_metas)
-    meta["eval_machines"] = machines(eval_metas)
     write_table_atomic(c.out / f"{c.name}_episodes.parquet", episodes, meta)
     write_table_atomic(c.out / f"{c.name}_traces.parquet", steps, meta)
     write_table_atomic(c.out / f"{c.name}_training.parquet", train_df, meta)
