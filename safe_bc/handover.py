@@ -3,16 +3,22 @@ it without torch or Ray).
 
 The handover turns an agent into a recommender that never acts where the expert's own limit is
 close: the expert acts wherever the measured cost, extrapolated ``lookahead`` steps along its
-last change, is within ``width`` of ``d_s`` in some dimension, and for ``hold`` more steps
-after a zone step of the ``hold_on`` dimensions. :class:`safe_bc.queries.defer.DeferringPolicy`
-carries it out.
+last change, is within ``width`` (or the dimension's own entry of ``widths``) of ``d_s`` in
+some dimension, and for ``hold`` more steps after a zone step of the ``hold_on`` dimensions.
+With ``fallback="cap"`` the expert's action does not replace the agent's but bounds it: each
+action component goes no further than the expert's in the direction that raises the costs.
+:class:`safe_bc.queries.defer.DeferringPolicy` carries it out.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass
-from typing import Any
+from typing import Any, Literal
+
+Fallback = Literal["expert", "cap"]
+"""What acts in the zone: ``expert``, the expert's action; ``cap``, the agent's action capped
+per component by the expert's in the task's safer direction (``TaskSpec.safer_actions``)."""
 
 
 @dataclass(frozen=True)
@@ -27,6 +33,11 @@ class HandoverConfig:
     """Steps the expert keeps acting after a zone step of the ``hold_on`` dimensions."""
     hold_on: tuple[str, ...] = ()
     """Safety dimensions whose zone steps start a hold (empty: any dimension)."""
+    widths: tuple[tuple[str, float], ...] = ()
+    """``(dimension, width)`` pairs overriding ``width`` for those safety dimensions (tasks
+    whose costs have different units per dimension); empty: ``width`` everywhere."""
+    fallback: Fallback = "expert"
+    """What acts in the zone (:data:`Fallback`)."""
 
     def __post_init__(self) -> None:
         if not (isinstance(self.width, int | float) and math.isfinite(self.width)):
@@ -38,6 +49,25 @@ class HandoverConfig:
             if isinstance(value, bool) or not isinstance(value, int) or value < 0:
                 raise ValueError(f"handover {name} must be an integer >= 0 steps, got {value!r}")
         object.__setattr__(self, "hold_on", tuple(str(d) for d in self.hold_on))
+        pairs = tuple((str(d), float(w)) for d, w in dict(self.widths).items())
+        for d, w in pairs:
+            if not (math.isfinite(w) and w >= 0):
+                raise ValueError(f"handover width of {d!r} must be a finite number >= 0, got {w}")
+        object.__setattr__(self, "widths", pairs)
+        if self.fallback not in ("expert", "cap"):
+            raise ValueError(f"handover fallback must be 'expert' or 'cap', got {self.fallback!r}")
+
+    def width_per_dim(self, dims: tuple[str, ...]) -> tuple[float, ...]:
+        """The zone's width in each of the task's safety dimensions ``dims``.
+
+        >>> HandoverConfig(0.2, widths=(("fatigue", 0.15),)).width_per_dim(("hr", "fatigue"))
+        (0.2, 0.15)
+        """
+        own = dict(self.widths)
+        unknown = sorted(set(own) - set(dims))
+        if unknown:
+            raise ValueError(f"handover widths name unknown dimension(s) {unknown}: {list(dims)}")
+        return tuple(own.get(d, float(self.width)) for d in dims)
 
     def label(self, unit: str = "") -> str:
         """A short description for tables and prints.
@@ -46,17 +76,29 @@ class HandoverConfig:
         'expert within 2 px of d_s 6 steps ahead, held 6 steps after front'
         """
         out = f"expert within {self.width:g}{unit} of d_s"
+        if self.widths:
+            own = ", ".join(f"{d} {w:g}{unit}" for d, w in self.widths)
+            out = f"expert within w of d_s (w: {own}; else {self.width:g}{unit})"
         if self.lookahead:
             out += f" {self.lookahead} steps ahead"
         if self.hold:
             out += f", held {self.hold} steps"
             if self.hold_on:
                 out += f" after {', '.join(self.hold_on)}"
+        if self.fallback == "cap":
+            out += ", capping the agent's action"
         return out
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-able fields."""
-        return {**asdict(self), "hold_on": list(self.hold_on)}
+        """JSON-able fields; ``widths`` and ``fallback`` only where set (a handover without them
+        keeps the identity it always had)."""
+        out = {**asdict(self), "hold_on": list(self.hold_on)}
+        out.pop("widths"), out.pop("fallback")
+        if self.widths:
+            out["widths"] = dict(self.widths)
+        if self.fallback != "expert":
+            out["fallback"] = self.fallback
+        return out
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> HandoverConfig:
@@ -66,4 +108,6 @@ class HandoverConfig:
             lookahead=int(data.get("lookahead", 0)),
             hold=int(data.get("hold", 0)),
             hold_on=tuple(data.get("hold_on", ())),
+            widths=tuple(dict(data.get("widths", {})).items()),
+            fallback=data.get("fallback", "expert"),
         )

@@ -85,6 +85,7 @@ class DeferringPolicy:
         hold: int = 0,
         lookahead: int = 0,
         hold_on: tuple[int, ...] | None = None,
+        safer: tuple[int, ...] | None = None,
     ) -> None:
         if hold < 0 or lookahead < 0:
             raise ValueError(f"hold and lookahead must be >= 0 steps, got {hold}, {lookahead}")
@@ -94,6 +95,7 @@ class DeferringPolicy:
         self.agent, self.expert, self.zone = agent, expert, zone
         self.hold, self.lookahead = int(hold), int(lookahead)
         self.hold_on = None if hold_on is None else tuple(int(i) for i in hold_on)
+        self.safer = None if safer is None else np.asarray(safer, np.float32)
         self.state = HandoverState()
         self._info: dict[str, Any] = {}
 
@@ -113,7 +115,15 @@ class DeferringPolicy:
     def act(self, obs: np.ndarray, env: gym.Env) -> np.ndarray:
         own = self.agent.act(obs, env)
         defer = self._decide(self.state, self._info)
-        return np.asarray(self.expert.act(obs, env), np.float32) if defer else own
+        return self._fallback(own, self.expert.act(obs, env)) if defer else own
+
+    def _fallback(self, own: Any, expert: Any) -> np.ndarray:
+        """The action where the expert is consulted: its own, or (``safer`` set: the cap) the
+        agent's, each component no further than the expert's against the safer direction."""
+        expert = np.asarray(expert, np.float32)
+        if self.safer is None:
+            return expert
+        return cap_action(np.asarray(own, np.float32), expert, self.safer)
 
     def _decide(self, state: HandoverState, info: dict[str, Any]) -> bool:
         return handover_decision(state, info, self.zone, self.hold, self.lookahead, self.hold_on)
@@ -139,8 +149,9 @@ class LockstepDeferringPolicy(DeferringPolicy):
         hold: int = 0,
         lookahead: int = 0,
         hold_on: tuple[int, ...] | None = None,
+        safer: tuple[int, ...] | None = None,
     ) -> None:
-        super().__init__(agent, make_expert(), zone, hold, lookahead, hold_on)
+        super().__init__(agent, make_expert(), zone, hold, lookahead, hold_on, safer)
         self.make_expert = make_expert
         self._envs: list[gym.Env] = []
         self._experts: list[Policy] = []
@@ -168,12 +179,22 @@ class LockstepDeferringPolicy(DeferringPolicy):
         actions = np.array(self.agent.act_slots(obs, slots, forward), np.float32)
         for i, s in enumerate(int(x) for x in slots):
             if self._decide(self._states[s], self._infos[s]):
-                actions[i] = np.asarray(self._experts[s].act(obs[i], self._envs[s]), np.float32)
+                actions[i] = self._fallback(actions[i], self._experts[s].act(obs[i], self._envs[s]))
         return actions
 
     def slot_report(self, slot: int) -> tuple[dict[str, float], dict[str, np.ndarray]]:
         """Slot ``slot``'s :meth:`episode_report`."""
         return handover_report(self._states[slot])
+
+
+def cap_action(own: np.ndarray, expert: np.ndarray, safer: np.ndarray) -> np.ndarray:
+    """The agent's action ``own`` capped by the expert's: per component, the one further in the
+    safer direction (``safer``: -1 where a lower value is safer, +1 where a higher one is).
+
+    >>> cap_action(np.array([0.5, -0.5]), np.array([0.2, 0.0]), np.array([-1, -1])).tolist()
+    [0.20000000298023224, -0.5]
+    """
+    return np.where(safer < 0, np.minimum(own, expert), np.maximum(own, expert)).astype(np.float32)
 
 
 def dimension_indices(names: tuple[str, ...], dims: tuple[str, ...]) -> tuple[int, ...] | None:
@@ -210,13 +231,21 @@ class DeferralSource:
     """Steps the cost is extrapolated for the zone test (0: the cost itself)."""
     hold_on: tuple[int, ...] | None = None
     """Dimensions (indices) whose zone test starts the hold (``None``: any)."""
+    widths: tuple[float, ...] | None = None
+    """The zone's width per dimension (``None``: ``width`` in every one)."""
+    safer: tuple[int, ...] | None = None
+    """The task's safer direction per action component for a capping handover (``None``: the
+    expert's action replaces the agent's)."""
 
     def build(self) -> DeferringPolicy:
         """The deferring policy; a :class:`LockstepDeferringPolicy` when the agent acts for
         envs in lockstep (a BC net), so the evaluation steps several envs at once."""
         zone = CriticalZone(self.limits, self.width, self.combine)  # type: ignore[arg-type]
+        if self.widths is not None:  # c >= d - w per dimension: the zone at d - w, width 0
+            shifted = tuple(d - w for d, w in zip(self.limits, self.widths, strict=True))
+            zone = CriticalZone(shifted, 0.0, self.combine)  # type: ignore[arg-type]
         agent = self.agent.build()
-        args = (zone, self.hold, self.lookahead, self.hold_on)
+        args = (zone, self.hold, self.lookahead, self.hold_on, self.safer)
         if isinstance(agent, BatchPolicy):
             return LockstepDeferringPolicy(agent, lambda: build_expert(self.expert), *args)
         return DeferringPolicy(agent, build_expert(self.expert), *args)
@@ -226,8 +255,19 @@ def handover_source(
     agent: Any, handover: Any, expert: Any, limits: Any, dims: tuple[str, ...]
 ) -> DeferralSource:
     """``agent`` (a policy source) with ``handover`` (a :class:`safe_bc.handover.HandoverConfig`)
-    to ``expert`` (its config) at the limits ``d_s`` of a task with safety dimensions ``dims``."""
+    to ``expert`` (its config) at the limits ``d_s`` of a task with safety dimensions ``dims``;
+    a capping handover takes the expert's task's safer direction (refused where it has none)."""
+    from safe_bc.tasks.registry import spec_of_expert
+
+    safer = None
+    if handover.fallback == "cap":
+        task = spec_of_expert(type(expert))
+        if task.safer_actions is None:
+            raise ValueError(f"a capping handover needs a safer direction: {task.name!r} has none")
+        safer = tuple(task.safer_actions)
+    widths = handover.width_per_dim(dims) if handover.widths else None
     return DeferralSource(
         agent, expert, tuple(float(x) for x in limits), float(handover.width), "any",
         int(handover.hold), int(handover.lookahead), dimension_indices(handover.hold_on, dims),
+        widths, safer,
     )  # fmt: skip

@@ -164,6 +164,10 @@ class TaskSpec:
     """The critical-zone handover a recommender of this task uses by default (a
     :class:`safe_bc.handover.HandoverConfig`, in the cost's units, chosen by a committed
     measurement on the task's selection tracks); ``None``: none measured yet."""
+    safer_actions: tuple[int, ...] | None = None
+    """Per action component, the sign of the direction in which no safety cost rises
+    (``-1``: a lower value is safer, ``+1``: a higher one), what a handover with
+    ``fallback="cap"`` needs; ``None``: the task has no such direction (CarRacing's steering)."""
 
     def __post_init__(self) -> None:
         if not self.name or not self.env.env_id:
@@ -175,6 +179,10 @@ class TaskSpec:
             raise ValueError(f"{self.name}: action_bounds must be two equal, non-empty tuples")
         if not self.safety_dims:
             raise ValueError(f"{self.name}: a task needs at least one safety dimension")
+        if self.safer_actions is not None and (
+            len(self.safer_actions) != len(low) or set(self.safer_actions) - {-1, 1}
+        ):
+            raise ValueError(f"{self.name}: safer_actions must be -1 or +1 per action component")
 
     @property
     def expert_type(self) -> type:

@@ -85,3 +85,13 @@ def test_the_committed_certificates_re_derive_from_their_episodes(study: str) ->
     assert certificate == meta["certificate"] == card["certificate"]
     committed, _ = read_table(root / "results" / study / "certify.parquet")
     pd.testing.assert_frame_equal(table, committed, check_exact=True)
+
+
+def test_the_deferred_goal_is_the_study_s_own_limit_where_it_sets_one() -> None:
+    clinic = StudySpec("s", {}, handover=HandoverConfig(0.2), certify_episodes=150,
+                       certify_seed=30, deferred_share_limit=0.10)  # fmt: skip
+    frame = episodes(2.0, 0).assign(
+        deferred_share=lambda d: np.where(d["method"] == RECOMMENDER, 0.08, np.nan)
+    )
+    assert summarize_certification(frame, clinic)[2]["goals"]["deferred_below_0.1"]
+    assert not summarize_certification(frame, spec())[2]["goals"]["deferred_below_0.05"]

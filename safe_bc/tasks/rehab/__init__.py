@@ -40,6 +40,9 @@ SPEC = TaskSpec(
     handover=HandoverConfig(0.2),
     # results/improve/rehab/sweep/margin_sweep.md: the sweep's rule chose 0.05
     cost_margin=0.05,
+    # env.py's dynamics: heart rate, blood pressure and fatigue rise with the session's
+    # intensity and duration (tests/tasks/rehab/test_safer_actions.py)
+    safer_actions=(-1, -1),
     # results/selfimprove/rehab/choice.md: the loop's pushes, 2 rounds, kept rows in T_eps
     selfimprove=(
         ("rounds", 2),

@@ -1,0 +1,109 @@
+"""The handover's settings: per-dimension widths and the capping fallback, their identity, and
+the deferring policy that carries them out on the real rehab env."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from safe_bc.collection import build_expert
+from safe_bc.envs import make_env
+from safe_bc.handover import HandoverConfig
+from safe_bc.queries.defer import cap_action, handover_source
+from safe_bc.tasks import task_defaults
+
+
+def test_a_handover_without_the_new_fields_keeps_its_identity() -> None:
+    assert HandoverConfig(2.0, lookahead=6, hold=6, hold_on=("front",)).to_dict() == {
+        "width": 2.0, "lookahead": 6, "hold": 6, "hold_on": ["front"],
+    }  # fmt: skip
+
+
+def test_widths_and_fallback_round_trip_and_are_checked() -> None:
+    h = HandoverConfig(0.2, widths=(("fatigue", 0.15), ("heart_rate", 0.1)), fallback="cap")
+    assert HandoverConfig.from_dict(h.to_dict()) == h
+    assert h.width_per_dim(("heart_rate", "fatigue", "blood_pressure")) == (0.1, 0.15, 0.2)
+    assert "capping" in h.label()
+    with pytest.raises(ValueError, match="unknown dimension"):
+        h.width_per_dim(("left", "front"))
+    with pytest.raises(ValueError, match="fallback"):
+        HandoverConfig(0.2, fallback="agent")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="fatigue"):
+        HandoverConfig(0.2, widths=(("fatigue", -1.0),))
+
+
+def test_cap_keeps_each_component_on_the_safer_side() -> None:
+    own, expert = np.array([0.5, -0.5, 0.1]), np.array([0.2, 0.0, 0.3])
+    assert cap_action(own, expert, np.array([-1, -1, 1])).tolist() == pytest.approx(
+        [0.2, -0.5, 0.3]
+    )
+
+
+class _Fixed:
+    """A policy that always prescribes the same session."""
+
+    def __init__(self, action: tuple[float, float]) -> None:
+        self.action = np.asarray(action, np.float32)
+
+    def reset(self, env, rng) -> None:
+        pass
+
+    def act(self, obs, env):
+        return self.action
+
+
+class _Source:
+    def __init__(self, action: tuple[float, float]) -> None:
+        self.action = action
+
+    def build(self) -> _Fixed:
+        return _Fixed(self.action)
+
+
+def _run(handover: HandoverConfig, action: tuple[float, float], steps: int = 12) -> tuple:
+    rehab = task_defaults("rehab")
+    limits = np.array([0.75, 5.0, 5.0])  # heart rate alone can reach its zone
+    policy = handover_source(
+        _Source(action), handover, rehab.expert, limits, rehab.safety_dims
+    ).build()
+    env = make_env(rehab.env)
+    obs, info = env.reset(seed=3)
+    policy.reset(env, np.random.default_rng(3))
+    expert = build_expert(rehab.expert)
+    expert.reset(env, np.random.default_rng(3))
+    acted = []
+    for _ in range(steps):
+        policy.see(info)
+        acted.append(np.asarray(policy.act(obs, env)))
+        obs, _, term, trunc, info = env.step(acted[-1])
+        if term or trunc:
+            break
+    env.close()
+    return np.array(acted), np.array(policy.flags)
+
+
+def test_per_dimension_widths_decide_the_zone() -> None:
+    """A heart-rate width of 0 never defers below d_s; a wide one defers once the rate is up."""
+    narrow = HandoverConfig(0.0, widths=(("heart_rate", 0.0),))
+    wide = HandoverConfig(0.0, widths=(("heart_rate", 0.25),))
+    _, flags_narrow = _run(narrow, (0.0, 0.0))
+    _, flags_wide = _run(wide, (0.0, 0.0))
+    assert flags_wide.sum() > flags_narrow.sum()
+
+
+def test_the_cap_never_prescribes_more_than_the_agent_or_the_expert() -> None:
+    wide = {"widths": (("heart_rate", 0.25),)}
+    hard, _ = _run(HandoverConfig(0.0, **wide), (1.0, 1.0))
+    capped, flags = _run(HandoverConfig(0.0, fallback="cap", **wide), (1.0, 1.0))
+    assert flags.any() and (~flags).any()
+    assert (capped <= 1.0).all()
+    assert (capped[flags] < 1.0).any()  # where the guideline prescribes less, it caps
+    assert (capped[~flags] == 1.0).all()  # outside the zone the agent acts
+    assert hard.shape[1] == capped.shape[1] == 2
+
+
+def test_a_capping_handover_is_refused_where_the_task_has_no_safer_direction() -> None:
+    car = task_defaults("carracing")
+    with pytest.raises(ValueError, match="safer direction: 'carracing'"):
+        handover_source(_Source((0.0, 0.0, 0.0)), HandoverConfig(2.0, fallback="cap"),
+                        car.expert, np.ones(3), car.safety_dims)  # fmt: skip
