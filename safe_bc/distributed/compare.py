@@ -205,6 +205,10 @@ def cell_stamp(comparison: Comparison, method: Row, seed: int, thresholds: Any) 
                 run["lookahead"] = h.lookahead
             if h.hold_on:
                 run["hold_on"] = list(h.hold_on)
+            if h.widths:
+                run["widths"] = dict(h.widths)
+            if h.fallback != "expert":
+                run["fallback"] = h.fallback
     elif isinstance(method, View):
         of = cell_stamp(comparison, comparison.method(method.of), seed, thresholds)["run"]
         if method.masked:
@@ -368,13 +372,9 @@ def _fallback_source(
     limits, expert = tuple(float(x) for x in thresholds), stored_expert_config(c.demos)
     h = method.handover
     if h is not None:
-        from safe_bc.queries.defer import DeferralSource, dimension_indices
+        from safe_bc.queries.defer import handover_source
 
-        dims = task_defaults(c.task).safety_dims
-        return DeferralSource(
-            net, expert, limits, h.width, "any", h.hold, h.lookahead,
-            dimension_indices(h.hold_on, dims),
-        )  # fmt: skip
+        return handover_source(net, h, expert, limits, task_defaults(c.task).safety_dims)
     shield = Shield(CriticalZone(limits, selection_eps(c), "any"), task_defaults(c.task).env.env_id)
     return ImprovedSource(net, ExpertSource(expert), shield)
 
