@@ -16,7 +16,9 @@ from safe_bc.compare import (
     Handover,
     Method,
     View,
+    family,
     load_comparison,
+    load_comparisons,
 )
 from safe_bc.compare_rows import FLAT_FIELDS, KINDS
 from safe_bc.handover import HandoverConfig
@@ -26,6 +28,8 @@ from safe_bc.selfimprove.config import SelfImproveConfig
 
 ROOT = Path(__file__).parents[1]
 FILES = sorted((ROOT / "tune_jobs/compare").glob("*.py"))
+NAMES = [(f, name) for f in FILES for name in family(f)]
+"""Every comparison of every family file: (file, address)."""
 
 
 def test_every_stored_evaluation_keeps_its_stamp(monkeypatch) -> None:
@@ -36,24 +40,27 @@ def test_every_stored_evaluation_keeps_its_stamp(monkeypatch) -> None:
 
     monkeypatch.chdir(ROOT)
     checked = 0
+    cells = 0
     for file in FILES:
-        c = load_comparison(file)
-        for m in c.methods:
-            for s in c.seeds_of(m):
-                stored = _folder(c, m, s) / "episodes.parquet"
-                if stored.is_file():
-                    stamp = read_table_metadata(stored)["stamp"]
-                    assert _stamp(c, m, s, stamp["thresholds"]) == stamp, (file.name, m.name, s)
-                    checked += 1
+        for name, c in load_comparisons(file).items():
+            for m in c.methods:
+                for s in c.seeds_of(m):
+                    cells += 1
+                    stored = _folder(c, m, s) / "episodes.parquet"
+                    if stored.is_file():
+                        stamp = read_table_metadata(stored)["stamp"]
+                        assert _stamp(c, m, s, stamp["thresholds"]) == stamp, (name, m.name, s)
+                        checked += 1
+    assert cells == 588  # every cell of every comparison
     assert checked >= 100  # the committed evaluations of every kind of row
 
 
-@pytest.mark.parametrize("file", FILES, ids=[f.stem for f in FILES])
-def test_every_row_reads_as_its_flat_record(file: Path, monkeypatch) -> None:
+@pytest.mark.parametrize(("file", "name"), NAMES, ids=[f"{f.stem}:{n}" for f, n in NAMES])
+def test_every_row_reads_as_its_flat_record(file: Path, name: str, monkeypatch) -> None:
     """Each row is one of the kinds; its flat record lists every flat field in order, and the
     flat spelling builds the same row back."""
     monkeypatch.chdir(ROOT)
-    c = load_comparison(file)
+    c = load_comparison(file, name)
     for m in c.methods:
         assert isinstance(m, KINDS)
         flat = m.flat()
