@@ -24,7 +24,6 @@ import importlib.util
 import math
 import re
 import sys
-import types
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -272,17 +271,6 @@ Entry = Comparison | Fresh
 """A family's entry: a comparison, or a fresh comparison resolved when it runs."""
 
 
-def sibling(file: str | Path, name: str) -> types.ModuleType:
-    """The comparison file ``name`` beside ``file`` as a module."""
-    path = Path(file).with_name(f"{name}.py")
-    spec = importlib.util.spec_from_file_location(f"safe_bc_compare_{name}", path)
-    if spec is None or spec.loader is None:
-        raise ValueError(f"{path}: cannot be imported")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
 def family(path: str | Path) -> dict[str, Entry]:
     """The comparisons a family file (``tune_jobs/compare/<family>.py``) declares, by address,
     as declared (a :class:`~safe_bc.protocol.Fresh` one unresolved: nothing is read).
@@ -309,8 +297,6 @@ def family(path: str | Path) -> dict[str, Entry]:
         sys.modules.pop(module_name, None)
         raise ValueError(f"{path}: {type(e).__name__}: {e}") from None
     declared = getattr(module, FAMILY, None)
-    if declared is None and isinstance(getattr(module, "COMPARISON", None), Comparison):
-        declared = (module.COMPARISON,)  # a file of one comparison
     if isinstance(declared, tuple):
         keys = [c.name for c in declared if isinstance(c, Entry)]
         dup = sorted({k for k in keys if keys.count(k) > 1})
