@@ -1,18 +1,22 @@
 """One comparison: named methods x training seeds on the same held-out tracks.
 
-A :class:`Comparison` (a frozen spec in a file under ``tune_jobs/compare/``, as study files
-hold a ``StudySpec``) names its methods: behaviour-cloning agents (a selection rule and,
-optionally, their own network and budget), the expert, and improvement runs from another
-method's agents (PPO-Lagrangian or filtered self-imitation). Every trained method gets one
-agent per training seed (the seeds shared by every method); every agent and the expert are
-evaluated on the same tracks (``eval_seed``, ``episodes``) through the one evaluation path.
-The table has one row per method: means and 95% crossed bootstrap CIs over training seeds x
-tracks, and, against the ``reference`` method, paired differences on the same (seed, track)
-cells; for improvement rows, env steps and wall time per run.
+A :class:`Comparison` (a frozen spec, one of a family file's ``COMPARISONS`` under
+``tune_jobs/compare/``, as study files hold a ``StudySpec``) names its methods: behaviour-
+cloning agents (a selection rule and, optionally, their own network and budget), the expert,
+and improvement runs from another method's agents (PPO-Lagrangian or filtered self-
+imitation). Every trained method gets one agent per training seed (the seeds shared by every
+method); every agent and the expert are evaluated on the same tracks (``eval_seed``,
+``episodes``) through the one evaluation path. The table has one row per method: means and
+95% crossed bootstrap CIs over training seeds x tracks, and, against the ``reference``
+method, paired differences on the same (seed, track) cells; for improvement rows, env steps
+and wall time per run.
 
 This module is pure: the spec, its validation, the table and the Markdown. The runner
 (training, evaluation, per-(method, seed) resume, files) is
-:func:`safe_bc.distributed.compare.run_comparison`; ``safe-bc compare FILE`` calls it.
+:func:`safe_bc.distributed.compare.run_comparison`; ``safe-bc compare FILE --name NAME`` calls
+it. Loading a family (:func:`family`, :func:`load_comparisons`, :func:`load_comparison`) is the
+one place that reads a file: a fresh comparison's rows (:mod:`safe_bc.protocol`) are chosen
+then, from its selection's committed table.
 """
 
 from __future__ import annotations
