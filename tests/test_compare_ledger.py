@@ -53,3 +53,22 @@ def test_fresh_tables_run_on_tracks_their_selection_did_not(tables) -> None:
         ran = set(track_seeds(tables[(stem, key)]))
         chose = set(track_seeds(tables[(stem, follows)]))
         assert ran and not ran & chose, (stem, key)
+
+
+def test_tables_sharing_a_runs_folder_define_their_shared_rows_alike(tables) -> None:
+    """A runs folder holds one agent per (row, seed): tables that share it (declared in
+    different families, e.g. the self-imitation comparison and the deferral designs) give a
+    row of the same name the same definition, on the same task, demonstrations and BC."""
+    groups: dict[tuple[str, str], list[Comparison]] = {}
+    for c in tables.values():
+        groups.setdefault((str(c.out), c.runs or c.name), []).append(c)
+    shared = 0
+    for group in groups.values():
+        first = group[0]
+        for c in group[1:]:
+            assert (c.task, c.demos, c.bc) == (first.task, first.demos, first.bc), c.name
+            for m in c.methods:
+                if m.name in {r.name for r in first.methods}:
+                    assert m == first.method(m.name), (first.name, c.name, m.name)
+                    shared += 1
+    assert shared > 50

@@ -250,6 +250,14 @@ def test_both_improvements_get_the_same_env_step_budget(file: str, steps: int) -
     assert f"{episodes * steps:,}" in comp.note
 
 
+def test_a_budget_that_does_not_split_is_refused() -> None:
+    from safe_bc.selfimprove.sizing import ppo_at_budget
+
+    assert ppo_at_budget(ImproveConfig(), 24, 4, 8, 2).iterations == 6
+    with pytest.raises(ValueError, match="do not split into 4 validations"):
+        ppo_at_budget(ImproveConfig(), 24, 4, 8, 4)
+
+
 def test_cells_run_alone_then_the_comparison_reuses_them(rehab_demos, tmp_path, monkeypatch):
     """``run_cell`` trains a self-imitation row's start and runs its rounds (in this process),
     nothing else; the comparison then reuses both, and its table equals a comparison run in

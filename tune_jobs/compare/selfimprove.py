@@ -66,7 +66,9 @@ REHAB_PPO = ppo_at_budget(
 """PPO-Lagrangian + shield at rehab's budget: the improvement table's settings (shield zone
 0.1), 16-patient iterations, 3 validations."""
 CAR_START = SelectionConfig(eps=2.0, alpha=0.1)
+"""CarRacing's safety-imitation start (as in the improvement table)."""
 REHAB_START = SelectionConfig(eps=0.05, alpha=0.5)
+"""Rehab's safety-imitation start (as in the improvement table)."""
 CAR_DEFAULT = SelfImproveConfig(
     rounds=2, pushes=LOOP_PUSHES["carracing"], kept_in="rest", workers=8
 )
@@ -118,6 +120,7 @@ def car_rows(choices: dict[str, tuple[str, SelfImproveConfig]]) -> tuple[Row, ..
 
 
 CAR_PAIRED = "Paired rows: each agent against its own seed's start on the same"
+"""The CarRacing notes' shared sentence (followed by the tracks' kind)."""
 CAR = Comparison(
     name="compare",
     methods=(
