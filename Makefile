@@ -53,17 +53,16 @@ reproduce: $(STAMP)
 # The observation ablation behind PreprocessConfig's defaults (results/ablation/observation/):
 # the comparison, then the analysis that chooses the default from its episodes.
 ablation: $(STAMP)
-	$(BIN)/safe-bc compare tune_jobs/compare/observation.py $(ARGS)
+	$(BIN)/safe-bc compare tune_jobs/compare/observation.py --name observation $(ARGS)
 	$(BIN)/python -m scripts.observation_choice
 
 # The raster renderer against the exact one (results/ablation/renderer/): frames, cost errors
 # and speeds, then exact agents on raster frames, then the whole pipeline on raster frames.
 renderer: $(STAMP)
 	$(BIN)/python -m benchmarks.render_accuracy
-	$(BIN)/safe-bc compare tune_jobs/compare/renderer.py $(ARGS)
-	$(BIN)/safe-bc compare tune_jobs/compare/renderer_pipeline.py $(ARGS)
-	$(BIN)/safe-bc compare tune_jobs/compare/renderer_pipeline_table1.py $(ARGS)
-	$(BIN)/safe-bc compare tune_jobs/compare/renderer_pipeline_table1_alpha0.py $(ARGS)
+	for name in renderer pipeline pipeline_table1 pipeline_table1_alpha0; do \
+		$(BIN)/safe-bc compare tune_jobs/compare/renderer.py --name $$name $(ARGS) || exit 1; \
+	done
 
 tune: $(STAMP)
 	$(BIN)/safe-bc tune tune_jobs/$(STUDY).py $(if $(TRIALS),--trials $(TRIALS),) $(ARGS)

@@ -1275,7 +1275,7 @@ def bench_final(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
 
 IMPROVE_ENVS = 4
 """Envs of the improvement-rollout case (the episodes per iteration of
-``tune_jobs/compare/improve_carracing.py``)."""
+``tune_jobs/compare/improve.py``'s ``improve_carracing``)."""
 
 
 def bench_improve(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:

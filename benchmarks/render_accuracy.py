@@ -26,8 +26,8 @@ is at most 10% of the critical-zone width eps (``selection.DEFAULT_EPS``, 2 px),
 that moves a state's cost by a tenth of the zone the method is built on. (The 10% was set
 after a one-track smoke run.) Writes ``frames.parquet``, ``speed.parquet`` and
 ``render_accuracy.md`` under ``--out``. What the approximation does to agents is a comparison:
-``safe-bc compare tune_jobs/compare/renderer.py`` (exact agents on raster frames) and
-``renderer_pipeline*.py`` (the whole pipeline on raster frames).
+``safe-bc compare tune_jobs/compare/renderer.py --name renderer`` (exact agents on raster frames)
+and ``--name pipeline*`` (the whole pipeline on raster frames).
 """
 
 from __future__ import annotations

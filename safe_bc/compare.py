@@ -1,18 +1,22 @@
 """One comparison: named methods x training seeds on the same held-out tracks.
 
-A :class:`Comparison` (a frozen spec in a file under ``tune_jobs/compare/``, as study files
-hold a ``StudySpec``) names its methods: behaviour-cloning agents (a selection rule and,
-optionally, their own network and budget), the expert, and improvement runs from another
-method's agents (PPO-Lagrangian or filtered self-imitation). Every trained method gets one
-agent per training seed (the seeds shared by every method); every agent and the expert are
-evaluated on the same tracks (``eval_seed``, ``episodes``) through the one evaluation path.
-The table has one row per method: means and 95% crossed bootstrap CIs over training seeds x
-tracks, and, against the ``reference`` method, paired differences on the same (seed, track)
-cells; for improvement rows, env steps and wall time per run.
+A :class:`Comparison` (a frozen spec, one of a family file's ``COMPARISONS`` under
+``tune_jobs/compare/``, as study files hold a ``StudySpec``) names its methods: behaviour-
+cloning agents (a selection rule and, optionally, their own network and budget), the expert,
+and improvement runs from another method's agents (PPO-Lagrangian or filtered self-
+imitation). Every trained method gets one agent per training seed (the seeds shared by every
+method); every agent and the expert are evaluated on the same tracks (``eval_seed``,
+``episodes``) through the one evaluation path. The table has one row per method: means and
+95% crossed bootstrap CIs over training seeds x tracks, and, against the ``reference``
+method, paired differences on the same (seed, track) cells; for improvement rows, env steps
+and wall time per run.
 
 This module is pure: the spec, its validation, the table and the Markdown. The runner
 (training, evaluation, per-(method, seed) resume, files) is
-:func:`safe_bc.distributed.compare.run_comparison`; ``safe-bc compare FILE`` calls it.
+:func:`safe_bc.distributed.compare.run_comparison`; ``safe-bc compare FILE --name NAME`` calls
+it. Loading a family (:func:`family`, :func:`load_comparisons`, :func:`load_comparison`) is the
+one place that reads a file: a fresh comparison's rows (:mod:`safe_bc.protocol`) are chosen
+then, from its selection's committed table.
 """
 
 from __future__ import annotations
@@ -24,7 +28,6 @@ import importlib.util
 import math
 import re
 import sys
-import types
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -36,6 +39,7 @@ import pandas as pd
 from safe_bc.bc.config import BCConfig
 from safe_bc.compare_rows import KINDS, Agent, Expert, FromStart, Handover, Method, Row, View
 from safe_bc.metrics import METRICS, paired_crossed, summarize_crossed
+from safe_bc.protocol import Fresh, resolve
 from safe_bc.report import fmt_ci
 from safe_bc.tasks import TASKS, Task, task_defaults
 
@@ -129,6 +133,11 @@ class Comparison:
     """Markdown heading (none when empty)."""
     note: str = ""
     """What the rows and values mean, printed under the table before the provenance."""
+    shares_tracks_with: tuple[str, ...] = ()
+    """Other tables (``OUT/name``) allowed to run on tracks this one runs on: the track
+    ledger's declared sharing (:func:`safe_bc.protocol.track_clashes`; tables in the same
+    runs folder share without saying). Bookkeeping, not part of what the table measures: not
+    in :meth:`to_dict`."""
 
     def __post_init__(self) -> None:
         for m in self.methods:
@@ -250,6 +259,7 @@ class Comparison:
     def to_dict(self) -> dict[str, Any]:
         """JSON-able (the provenance's ``config``)."""
         out = dataclasses.asdict(self)
+        del out["shares_tracks_with"]
         out["methods"] = tuple(m.flat() for m in self.methods)
         out["demos"], out["out"] = str(self.demos), str(self.out)
         for m in out["methods"]:
@@ -257,25 +267,23 @@ class Comparison:
         return out
 
 
-def sibling(file: str | Path, name: str) -> types.ModuleType:
-    """The comparison file ``name`` beside ``file`` as a module, for a comparison file that
-    builds on another (``obs = sibling(__file__, "observation")``)."""
-    path = Path(file).with_name(f"{name}.py")
-    spec = importlib.util.spec_from_file_location(f"safe_bc_compare_{name}", path)
-    if spec is None or spec.loader is None:
-        raise ValueError(f"{path}: cannot be imported")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+FAMILY = "COMPARISONS"
+"""The name a family file gives its comparisons: a tuple of :class:`Comparison` and
+:class:`~safe_bc.protocol.Fresh` (each addressed by its name), or a dict from address to one
+(where two comparisons of the family share a name, writing to different folders)."""
+
+Entry = Comparison | Fresh
+"""A family's entry: a comparison, or a fresh comparison resolved when it runs."""
 
 
-def load_comparison(path: str | Path) -> Comparison:
-    """The ``COMPARISON`` of a comparison file (``tune_jobs/compare/<name>.py``).
+def family(path: str | Path) -> dict[str, Entry]:
+    """The comparisons a family file (``tune_jobs/compare/<family>.py``) declares, by address,
+    as declared (a :class:`~safe_bc.protocol.Fresh` one unresolved: nothing is read).
 
     Raises:
         FileNotFoundError: no such file.
-        ValueError: not a Python file, no ``COMPARISON`` of type :class:`Comparison`, or the
-            spec is invalid (one line naming the file).
+        ValueError: not a Python file, no ``COMPARISONS``, an entry of another type, an address
+            used twice, or an invalid spec (one line naming the file).
     """
     path = Path(path)
     if not path.is_file():
@@ -293,10 +301,63 @@ def load_comparison(path: str | Path) -> Comparison:
     except Exception as e:
         sys.modules.pop(module_name, None)
         raise ValueError(f"{path}: {type(e).__name__}: {e}") from None
-    comparison = getattr(module, "COMPARISON", None)
-    if not isinstance(comparison, Comparison):
-        raise ValueError(f"{path}: defines no COMPARISON = Comparison(...)")
-    return comparison
+    declared = getattr(module, FAMILY, None)
+    if isinstance(declared, tuple):
+        keys = [c.name for c in declared if isinstance(c, Entry)]
+        dup = sorted({k for k in keys if keys.count(k) > 1})
+        if dup:
+            raise ValueError(f"{path}: comparisons share names {dup}: give them addresses (a dict)")
+        declared = {getattr(c, "name", repr(c)): c for c in declared}
+    if not isinstance(declared, dict) or not declared:
+        raise ValueError(f"{path}: defines no {FAMILY} = (Comparison(...), ...)")
+    for key, entry in declared.items():
+        if not isinstance(entry, Entry):
+            raise ValueError(f"{path}: {key!r} is a {type(entry).__name__}, not a Comparison")
+    return declared
+
+
+def _resolved(path: Path, entries: dict[str, Entry], key: str) -> Comparison:
+    """Entry ``key`` ready to run: a fresh comparison's rows chosen on its selection's
+    committed table (``OUT/<selection name>.parquet``, read now)."""
+    entry = entries[key]
+    if isinstance(entry, Comparison):
+        return entry
+    if entry.follows not in entries or entry.follows == key:
+        raise ValueError(f"{path}: {key!r} follows {entry.follows!r}, no other comparison there")
+    from safe_bc.data.store import read_table
+
+    selection = _resolved(path, entries, entry.follows)
+    table = selection.out / f"{selection.name}.parquet"
+    if not table.is_file():
+        raise FileNotFoundError(
+            f"{path}: {key!r} chooses its rows on {table}, which is missing: run "
+            f"safe-bc compare {path} --name {entry.follows} first"
+        )
+    return resolve(entry, selection, read_table(table)[0])
+
+
+def load_comparisons(path: str | Path) -> dict[str, Comparison]:
+    """Every comparison of a family file by address, ready to run (fresh comparisons
+    resolved: their selections' tables are read now)."""
+    entries = family(path)
+    return {key: _resolved(Path(path), entries, key) for key in entries}
+
+
+def load_comparison(path: str | Path, name: str | None = None) -> Comparison:
+    """The comparison ``name`` of a family file, ready to run (``None``: the file's only one).
+
+    Raises:
+        FileNotFoundError: no such file, or a fresh comparison's selection table is missing.
+        ValueError: as :func:`family`; or ``name`` is missing or no address of the file (the
+            line lists the addresses).
+    """
+    entries = family(path)
+    if name is None and len(entries) == 1:
+        name = next(iter(entries))
+    if name not in entries:
+        what = "name one comparison" if name is None else f"no comparison {name!r}"
+        raise ValueError(f"{path}: {what} (--name): {', '.join(entries)}")
+    return _resolved(Path(path), entries, name)
 
 
 def run_slug(name: str) -> str:

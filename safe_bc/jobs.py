@@ -162,10 +162,13 @@ class ReproduceJob:
 
 @dataclass(frozen=True)
 class CompareJob:
-    """Run (or resume) a comparison file."""
+    """Run (or resume) a comparison of a family file."""
 
     comparison: tyro.conf.Positional[Path]
-    """Comparison file, e.g. tune_jobs/compare/table1.py."""
+    """Family file of comparisons, e.g. tune_jobs/compare/improve.py."""
+    name: str | None = None
+    """The comparison of the file (its address; may be left out where the file has one only;
+    a missing or unknown name lists the file's)."""
     render_only: bool = False
     """Rebuild the table from the stored episodes."""
     cell: str | None = None

@@ -6,7 +6,7 @@ Usage::
     python -m scripts.defer_designs
 
 Reads each fresh-track table of :data:`TABLES` (``safe-bc compare
-tune_jobs/compare/selfimprove_defer*_carracing.py``; a table not committed yet is skipped) and
+tune_jobs/compare/handover.py --name NAME``; a table not committed yet is skipped) and
 writes ``results/selfimprove/carracing/defer_designs.md`` and ``defer_designs.png``: per
 deferral row of the self-imitation agent (and the agent alone on the same tracks), episodes
 beyond d_s of seeds x tracks with the one-sided 95% Clopper-Pearson upper bound, the reward

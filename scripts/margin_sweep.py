@@ -6,8 +6,9 @@ Usage::
     cd results/improve/rehab/sweep && python -m scripts.margin_sweep \\
         --selection selection.parquet --test test.parquet --out /tmp/sweep  # the committed run
 
-The episodes come from ``safe-bc compare tune_jobs/compare/margin_sweep.py`` (selection
-patients) and ``margin_sweep_test.py`` (test patients); the candidates, the rule and the
+The episodes come from ``safe-bc compare tune_jobs/compare/margin_sweep.py --name
+sweep_selection`` (selection patients) and ``--name sweep_test`` (test patients); the candidates,
+the rule and the
 tested list live in ``tune_jobs/compare/margin_sweep.py``. Per candidate: the paired gain over
 the guideline clinician on the same patients (the guideline, trained once, stands in for
 every training seed; crossed bootstrap over seeds and patients, bootstrap seed 0) and the

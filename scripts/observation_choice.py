@@ -3,13 +3,13 @@ Markdown and figure, from its episode table (an analysis of committed tables).
 
 Usage::
 
-    python -m scripts.observation_choice   # after: safe-bc compare tune_jobs/compare/observation.py
+    python -m scripts.observation_choice   # after: make ablation
     python -m scripts.observation_choice --out results/ablation/budget --name budget \\
         --episodes results/ablation/budget/budget_episodes.parquet \\
         --title "Training budget (CarRacing, plain BC)"
 
-The episodes come from the comparison runner (``tune_jobs/compare/observation.py``,
-``observation_budget.py``, ``observation_network.py``: rows named by cell, masked rows
+The episodes come from the comparison runner (``tune_jobs/compare/observation.py``'s
+``observation``, ``budget``, ``network``, ...: rows named by cell, masked rows
 ``<cell>/steer_masked``) or, for the committed tables made before it, from
 ``results/ablation/*/episodes.parquet`` (``cell`` and ``view`` columns); both read the same.
 Per (cell, view): crossed means and CIs (:func:`safe_bc.metrics.summarize_crossed`);

@@ -6,7 +6,8 @@ Usage::
     python -m scripts.selfimprove_choice results/selfimprove/carracing/selection.parquet
     python -m scripts.selfimprove_choice results/selfimprove/rehab/selection.parquet
 
-Reads the table ``safe-bc compare tune_jobs/compare/selfimprove_selection_<task>.py`` wrote
+Reads the table ``safe-bc compare tune_jobs/compare/selfimprove.py --name selection_<task>``
+wrote
 (one row per method, paired columns against the start) and writes ``choice.md`` beside it
 (``<stem>_choice.md`` for another table of the same folder, :func:`choice_path`).
 

@@ -57,11 +57,16 @@ def test_load_comparison_files(tmp_path: Path) -> None:
     table1 = load_comparison(ROOT / "tune_jobs/compare/table1.py")
     assert table1.name == "table1" and table1.reference == "alpha=0 (rest=all)"
     assert table1.methods[-1].expert and len(table1.train_seeds) == 11
-    improve = load_comparison(ROOT / "tune_jobs/compare/improve_carracing.py")
+    improve = load_comparison(ROOT / "tune_jobs/compare/improve.py", "improve_carracing")
     assert [m.kind for m in improve.methods] == ["expert", "bc"] + ["improve"] * 4
+    with pytest.raises(ValueError, match=r"name one comparison \(--name\): improve_carracing, "):
+        load_comparison(ROOT / "tune_jobs/compare/improve.py")
     bad = tmp_path / "bad.py"
-    bad.write_text("COMPARISON = 3\n")
-    with pytest.raises(ValueError, match="defines no COMPARISON"):
+    bad.write_text("COMPARISONS = 3\n")
+    with pytest.raises(ValueError, match="defines no COMPARISONS"):
+        load_comparison(bad)
+    bad.write_text("COMPARISONS = {'a': 3}\n")
+    with pytest.raises(ValueError, match="'a' is a int, not a Comparison"):
         load_comparison(bad)
     with pytest.raises(FileNotFoundError):
         load_comparison(tmp_path / "none.py")
@@ -174,7 +179,7 @@ from safe_bc.selection import SelectionConfig
 from safe_bc.tasks import task_defaults
 from tests.test_compare import TINY
 
-COMPARISON = Comparison(
+TINY_COMPARISON = Comparison(
     "tiny",
     methods=(
         Method("expert", expert=True),
@@ -192,6 +197,7 @@ COMPARISON = Comparison(
     reference="start",
     traces=("start",),
 )
+COMPARISONS = (TINY_COMPARISON,)
 """
     )
     comp = load_comparison(file)
@@ -259,3 +265,16 @@ def test_with_deferral_replaces_the_deferral_rows_and_keeps_the_others_in_order(
     assert [m.name for m in grid.methods] == ["expert", "start", "late", "start+d2.0", "start+d3.0"]
     assert (grid.name, grid.episodes) == ("grid", 7) and base.name == "c"
     assert [m.name for m in base.with_deferral(()).methods] == ["expert", "start", "late"]
+
+
+@pytest.mark.parametrize("args", [[], ["--name", "nope"]])
+def test_cli_lists_a_familys_names_when_the_name_is_missing_or_wrong(
+    args: list[str], capsys: pytest.CaptureFixture
+) -> None:
+    from safe_bc.cli import main
+
+    family = ROOT / "tune_jobs/compare/margin_sweep.py"
+    code = main(["compare", str(family), *args])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and "\n" not in err, err
+    assert err.endswith("(--name): sweep_screen_seed0, sweep_selection, sweep_test")

@@ -113,9 +113,9 @@ def limits_of(demos: Path):
 
 
 def test_expert_settings_comparison_file() -> None:
-    """``tune_jobs/compare/expert_settings.py``: the default expert as the reference and the
+    """``tune_jobs/compare/expert.py``: the default expert as the reference and the
     other rows CarRacing expert settings that differ from it, on the held-out tracks."""
-    comp = load_comparison(ROOT / "tune_jobs/compare/expert_settings.py")
+    comp = load_comparison(ROOT / "tune_jobs/compare/expert.py")
     assert comp.task == "carracing" and comp.reference == "expert"
     assert comp.method("expert").expert_config is None
     others = [m for m in comp.methods if m.name != "expert"]

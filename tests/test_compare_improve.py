@@ -38,8 +38,8 @@ RENAMED = {  # the old scripts' summary columns -> the runner's
 }
 
 
-def _rederive(file: str, folder: str) -> tuple[Comparison, pd.DataFrame, pd.DataFrame]:
-    comp = load_comparison(COMPARE / file)
+def _rederive(name: str, folder: str) -> tuple[Comparison, pd.DataFrame, pd.DataFrame]:
+    comp = load_comparison(COMPARE / "improve.py", name)
     episodes, _ = read_table(ROOT / folder / "episodes.parquet")
     history, _ = read_table(ROOT / folder / "history.parquet")
     table = build_table(
@@ -51,9 +51,9 @@ def _rederive(file: str, folder: str) -> tuple[Comparison, pd.DataFrame, pd.Data
 @pytest.mark.parametrize(
     ("file", "folder"),
     [
-        ("improve_rehab.py", "results/improve/rehab"),
-        ("improve_carracing.py", "results/improve/carracing"),
-        ("improve_carracing_std003.py", "results/improve/carracing_std003"),
+        ("improve_rehab", "results/improve/rehab"),
+        ("improve_carracing", "results/improve/carracing"),
+        ("improve_carracing_std003", "results/improve/carracing_std003"),
     ],
 )
 def test_committed_improvement_tables_rederive_exactly(file: str, folder: str) -> None:
@@ -83,8 +83,8 @@ def test_committed_improvement_tables_rederive_exactly(file: str, folder: str) -
 @pytest.mark.parametrize(
     ("file", "folder"),
     [
-        ("improve_carracing.py", "results/improve/carracing"),
-        ("improve_carracing_std003.py", "results/improve/carracing_std003"),
+        ("improve_carracing", "results/improve/carracing"),
+        ("improve_carracing_std003", "results/improve/carracing_std003"),
     ],
 )
 def test_committed_per_seed_table_rederives(file: str, folder: str) -> None:
@@ -129,14 +129,14 @@ def test_rehab_improvement_settings_are_the_sweeps_last_choice() -> None:
     and its shield zone, shield + Lagrangian."""
     from safe_bc.tasks import task_defaults
 
-    sweep, rehab = _module("margin_sweep"), _module("improve_rehab")
+    sweep, improve = _module("margin_sweep"), _module("improve")
     chosen = sweep.CANDIDATES[sweep.TESTED[-1]]
     assert ImproveConfig().cost_margin is None
     assert task_defaults("rehab").cost_margin == chosen["cost_margin"]
-    assert chosen.get("eps") == rehab.SHIELD_EPS
-    both = rehab.COMPARISON.method("both").improve
+    assert chosen.get("eps") == improve.SHIELD_EPS
+    both = load_comparison(COMPARE / "improve.py", "improve_rehab").method("both").improve
     assert (both.shield, both.lagrangian, both.eps) == (True, True, chosen["eps"])
-    test = load_comparison(COMPARE / "margin_sweep_test.py")
+    test = load_comparison(COMPARE / "margin_sweep.py", "sweep_test")
     assert [m.name for m in test.methods][2:] == sweep.TESTED
     assert (test.tracks, test.eval_seed, test.episodes) == ("heldout", 5, 200)
 
@@ -188,9 +188,9 @@ def test_validation_tracks_are_the_runs_validation_patients() -> None:
     from safe_bc.distributed.compare import track_seeds
     from safe_bc.improve import validation_seeds
 
-    comp = load_comparison(COMPARE / "margin_sweep.py")
+    comp = load_comparison(COMPARE / "margin_sweep.py", "sweep_selection")
     assert track_seeds(comp) == validation_seeds(1024 + 512)[1024:]
-    heldout = load_comparison(COMPARE / "improve_rehab.py")
+    heldout = load_comparison(COMPARE / "improve.py", "improve_rehab")
     assert len(set(track_seeds(heldout)) & set(track_seeds(comp))) == 0
 
 
@@ -199,7 +199,7 @@ def test_markdown_names_rows_by_label_and_lists_machines(tmp_path: Path) -> None
     and the learning-curves figure (drawn from the committed history)."""
     from safe_bc.plots import plot_learning_curves
 
-    comp, table, episodes = _rederive("improve_rehab.py", "results/improve/rehab")
+    comp, table, episodes = _rederive("improve_rehab", "results/improve/rehab")
     meta = {
         "git_revision": "r",
         "command": "c",

@@ -41,7 +41,7 @@ def test_new_method_fields_one_line(make, match) -> None:
 def test_rows_run_in_their_renderer_on_their_own_demos() -> None:
     from safe_bc.distributed.compare import demos_of, eval_config, own_demos
 
-    comp = load_comparison(COMPARE / "renderer_pipeline.py")
+    comp = load_comparison(COMPARE / "renderer.py", "pipeline")
     exact, raster = comp.methods
     assert eval_config(comp, exact).env.renderer == "exact"
     assert eval_config(comp, raster).env.renderer == "raster"
@@ -49,13 +49,13 @@ def test_rows_run_in_their_renderer_on_their_own_demos() -> None:
     sets = own_demos(comp)
     assert sets[Path("data/demos_raster")].env.renderer == "raster"
     assert sets[comp.demos].env.renderer == "exact"  # the exact rows' own set
-    view = load_comparison(COMPARE / "renderer.py")
+    view = load_comparison(COMPARE / "renderer.py", "renderer")
     assert demos_of(view, view.method("raster")) == view.demos  # the exact agents' d_s
     assert eval_config(view, view.method("raster")).env.renderer == "raster"
 
 
-def _rederive(file: str, episodes: pd.DataFrame) -> pd.DataFrame:
-    comp = load_comparison(COMPARE / file)
+def _rederive(name: str, episodes: pd.DataFrame) -> pd.DataFrame:
+    comp = load_comparison(COMPARE / "renderer.py", name)
     table = build_table(comp, label_episodes(comp, episodes))
     return table.set_index("method")
 
@@ -65,30 +65,23 @@ def test_committed_renderer_paired_table_rederives_exactly() -> None:
     are named by it."""
     episodes, meta = read_table(RENDERER / "episodes.parquet")
     committed, _ = read_table(RENDERER / "paired.parquet")
-    comp = load_comparison(COMPARE / "renderer.py")
+    comp = load_comparison(COMPARE / "renderer.py", "renderer")
     assert (comp.eval_seed, comp.episodes) == (meta["eval_seed"], meta["episodes"])
     assert comp.train_seeds == tuple(sorted(episodes["train_seed"].unique()))
-    table = _rederive("renderer.py", episodes.assign(method=episodes["renderer"]))
+    table = _rederive("renderer", episodes.assign(method=episodes["renderer"]))
     got = table.loc[["raster"], PAIRED].reset_index(drop=True)
     pd.testing.assert_frame_equal(got, committed[PAIRED], check_dtype=False)
 
 
-@pytest.mark.parametrize(
-    ("file", "stem"),
-    [
-        ("renderer_pipeline.py", "pipeline"),
-        ("renderer_pipeline_table1.py", "pipeline_table1"),
-        ("renderer_pipeline_table1_alpha0.py", "pipeline_table1_alpha0"),
-    ],
-)
-def test_committed_pipeline_paired_tables_rederive_exactly(file: str, stem: str) -> None:
+@pytest.mark.parametrize("stem", ["pipeline", "pipeline_table1", "pipeline_table1_alpha0"])
+def test_committed_pipeline_paired_tables_rederive_exactly(stem: str) -> None:
     episodes, meta = read_table(RENDERER / f"{stem}_episodes.parquet")
     committed, _ = read_table(RENDERER / f"{stem}_paired.parquet")
-    comp = load_comparison(COMPARE / file)
+    comp = load_comparison(COMPARE / "renderer.py", stem)
     assert comp.name == stem and comp.eval_seed == meta["eval_seed"]
     assert comp.train_seeds == tuple(meta["seeds"])
     assert comp.method("raster pipeline").selection.alpha == meta["alpha"]
-    table = _rederive(file, episodes.drop(columns="renderer"))
+    table = _rederive(stem, episodes.drop(columns="renderer"))
     got = table.loc[["raster pipeline"], PAIRED].reset_index(drop=True)
     pd.testing.assert_frame_equal(got, committed[PAIRED], check_dtype=False)
 

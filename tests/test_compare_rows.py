@@ -16,7 +16,9 @@ from safe_bc.compare import (
     Handover,
     Method,
     View,
+    family,
     load_comparison,
+    load_comparisons,
 )
 from safe_bc.compare_rows import FLAT_FIELDS, KINDS
 from safe_bc.handover import HandoverConfig
@@ -26,6 +28,8 @@ from safe_bc.selfimprove.config import SelfImproveConfig
 
 ROOT = Path(__file__).parents[1]
 FILES = sorted((ROOT / "tune_jobs/compare").glob("*.py"))
+NAMES = [(f, name) for f in FILES for name in family(f)]
+"""Every comparison of every family file: (file, address)."""
 
 
 def test_every_stored_evaluation_keeps_its_stamp(monkeypatch) -> None:
@@ -46,17 +50,20 @@ def test_every_stored_evaluation_keeps_its_stamp(monkeypatch) -> None:
     limits = {str(s["thresholds"]): s["thresholds"] for s in committed.values()}  # each set's
     found: set[Path] = set()
     checked = 0
+    cells = 0
     for file in FILES:
-        c = load_comparison(file)
-        for m in c.methods:
-            for s in c.seeds_of(m):
-                for thresholds in limits.values():
-                    stamp = cell_stamp(c, m, s, thresholds)
-                    path = episodes_path(c.out, stamp).resolve()
-                    if path in committed:
-                        assert committed[path] == stamp, (file.name, m.name, s)
-                        found.add(path)
-                        checked += 1
+        for name, c in load_comparisons(file).items():
+            for m in c.methods:
+                for s in c.seeds_of(m):
+                    cells += 1
+                    for thresholds in limits.values():
+                        stamp = cell_stamp(c, m, s, thresholds)
+                        path = episodes_path(c.out, stamp).resolve()
+                        if path in committed:
+                            assert committed[path] == stamp, (name, m.name, s)
+                            found.add(path)
+                            checked += 1
+    assert cells == 588  # every cell of every comparison
     assert checked >= 100  # the committed evaluations of every kind of row, some shared
     assert sorted(set(committed) - found) == []  # none left where no comparison looks
 
@@ -100,12 +107,12 @@ def test_runs_folder_sharers_share_an_evaluation_only_when_the_same_one() -> Non
     }
 
 
-@pytest.mark.parametrize("file", FILES, ids=[f.stem for f in FILES])
-def test_every_row_reads_as_its_flat_record(file: Path, monkeypatch) -> None:
+@pytest.mark.parametrize(("file", "name"), NAMES, ids=[f"{f.stem}:{n}" for f, n in NAMES])
+def test_every_row_reads_as_its_flat_record(file: Path, name: str, monkeypatch) -> None:
     """Each row is one of the kinds; its flat record lists every flat field in order, and the
     flat spelling builds the same row back."""
     monkeypatch.chdir(ROOT)
-    c = load_comparison(file)
+    c = load_comparison(file, name)
     for m in c.methods:
         assert isinstance(m, KINDS)
         flat = m.flat()
@@ -166,8 +173,7 @@ def test_comparisons_re_derive_their_tables_from_the_stored_evaluations(monkeypa
         str(t): t for t in (read_table(p)[1]["stamp"]["thresholds"] for p in committed.values())
     }
     derived = 0
-    for file in FILES:
-        c = load_comparison(file)
+    for _, c in (pair for file in FILES for pair in load_comparisons(file).items()):
         plan, stored = {}, {}
         for m in c.methods:
             for s in c.seeds_of(m):
@@ -181,7 +187,7 @@ def test_comparisons_re_derive_their_tables_from_the_stored_evaluations(monkeypa
         if not plan:
             continue
         n_cells = sum(len(c.seeds_of(m)) for m in c.methods)
-        assert len(plan) == n_cells, (file.name, "cells without a stored evaluation")
+        assert len(plan) == n_cells, (c.name, "cells without a stored evaluation")
         episodes = episodes_table(plan, stored)
         pd.testing.assert_frame_equal(
             episodes, read_table(c.out / f"{c.name}_episodes.parquet")[0], check_exact=True

@@ -12,7 +12,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from safe_bc.compare import Comparison, Method, load_comparison
+from safe_bc.compare import Comparison, Method, load_comparison, load_comparisons
 from safe_bc.improve import ImproveConfig
 from safe_bc.selection import SelectionConfig
 from safe_bc.selfimprove.config import SelfImproveConfig
@@ -157,49 +157,57 @@ def test_tiny_rehab_comparison_with_a_selfimitation_row(rehab_demos, tmp_path, m
     pd.testing.assert_series_equal(rerun["reward"], table["reward"])
 
 
-FILES = (
-    "selfimprove_selection_carracing.py",
-    "selfimprove_selection_carracing_rounds.py",
-    "selfimprove_selection_rehab.py",
-    "selfimprove_carracing.py",
-    "selfimprove_carracing_vs_expert.py",
-    "selfimprove_rehab.py",
-    "selfimprove_rehab_vs_expert.py",
-    "selfimprove_defer_carracing.py",
-)
+ADDRESSES = {
+    "selection_carracing": ("selfimprove", "selection_carracing"),
+    "rounds_carracing": ("selfimprove", "rounds_carracing"),
+    "selection_rehab": ("selfimprove", "selection_rehab"),
+    "compare_carracing": ("selfimprove", "compare_carracing"),
+    "compare_vs_expert_carracing": ("selfimprove", "compare_vs_expert_carracing"),
+    "compare_rehab": ("selfimprove", "compare_rehab"),
+    "compare_vs_expert_rehab": ("selfimprove", "compare_vs_expert_rehab"),
+    "defer": ("handover", "defer"),
+}
+"""Short name -> (family, address) of the comparisons these tests read."""
+FILES = tuple(ADDRESSES)
 
 
-def test_the_issue_31_files_load_on_blocks_no_other_comparison_uses() -> None:
+def _load(short: str) -> Comparison:
+    family, name = ADDRESSES[short]
+    return load_comparison(COMPARE / f"{family}.py", name)
+
+
+def test_the_issue_31_files_load_on_blocks_no_other_comparison_uses(monkeypatch) -> None:
     """The selection tracks and each testbed's fresh tracks are seed blocks of their own (the
     vs-expert files share their base file's runs and tracks)."""
     from safe_bc.distributed.compare import selfimprove_identity
 
-    loaded = {f: load_comparison(COMPARE / f) for f in FILES}
+    monkeypatch.chdir(ROOT)
+    loaded = {f: _load(f) for f in FILES}
     blocks = {f: (c.task, c.eval_seed) for f, c in loaded.items()}
-    assert blocks["selfimprove_selection_carracing.py"] == ("carracing", 13)
-    assert blocks["selfimprove_selection_carracing_rounds.py"] == ("carracing", 13)
-    assert loaded["selfimprove_selection_carracing_rounds.py"].runs == "selection"
-    assert blocks["selfimprove_selection_rehab.py"] == ("rehab", 16)
-    assert blocks["selfimprove_carracing.py"] == blocks["selfimprove_carracing_vs_expert.py"]
-    assert blocks["selfimprove_rehab.py"] == blocks["selfimprove_rehab_vs_expert.py"]
+    assert blocks["selection_carracing"] == ("carracing", 13)
+    assert blocks["rounds_carracing"] == ("carracing", 13)
+    assert loaded["rounds_carracing"].runs == "selection"
+    assert blocks["selection_rehab"] == ("rehab", 16)
+    assert blocks["compare_carracing"] == blocks["compare_vs_expert_carracing"]
+    assert blocks["compare_rehab"] == blocks["compare_vs_expert_rehab"]
     others = {
         (c.tracks, c.eval_seed)
         for p in COMPARE.glob("*.py")
-        if p.name not in FILES
-        for c in [load_comparison(p)]
+        for name, c in load_comparisons(p).items()
+        if (p.stem, name) not in ADDRESSES.values()
     }
-    for f in ("selfimprove_selection_carracing.py", "selfimprove_carracing.py",
-              "selfimprove_selection_rehab.py", "selfimprove_rehab.py"):  # fmt: skip
+    for f in ("selection_carracing", "compare_carracing",
+              "selection_rehab", "compare_rehab"):  # fmt: skip
         assert ("heldout", loaded[f].eval_seed) not in others, f
         assert loaded[f].tracks == "heldout"
     assert len({loaded[f].eval_seed for f in FILES}) == 4
-    for f in ("selfimprove_carracing_vs_expert.py", "selfimprove_rehab_vs_expert.py",
-              "selfimprove_defer_carracing.py"):  # fmt: skip
+    for f in ("compare_vs_expert_carracing", "compare_vs_expert_rehab",
+              "defer"):  # fmt: skip
         assert loaded[f].runs == "compare" and loaded[f].reference == "expert"
-    assert blocks["selfimprove_defer_carracing.py"] == blocks["selfimprove_carracing.py"]
+    assert blocks["defer"] == blocks["compare_carracing"]
     rows = {
         m.name: selfimprove_identity(sel, m, 0)
-        for f in ("selfimprove_selection_carracing.py", "selfimprove_selection_carracing_rounds.py")
+        for f in ("selection_carracing", "rounds_carracing")
         for sel in [loaded[f]]
         for m in sel.methods
         if m.selfimprove
@@ -214,7 +222,7 @@ def test_the_issue_31_files_load_on_blocks_no_other_comparison_uses() -> None:
         "bound05": ["beyond_limit", "validation_episodes"], "rounds4": ["rounds"],
         "rounds4_small": ["pushes", "rounds"],
     }  # fmt: skip
-    rehab = loaded["selfimprove_selection_rehab.py"]
+    rehab = loaded["selection_rehab"]
     rows = {m.name: selfimprove_identity(rehab, m, 0) for m in rehab.methods if m.selfimprove}
     changed = {
         name: sorted(k for k in row if row[k] != rows["defaults"][k]) for name, row in rows.items()
@@ -226,15 +234,13 @@ def test_the_issue_31_files_load_on_blocks_no_other_comparison_uses() -> None:
     }  # fmt: skip
 
 
-@pytest.mark.parametrize(
-    ("file", "steps"), [("selfimprove_carracing.py", 1000), ("selfimprove_rehab.py", 30)]
-)
+@pytest.mark.parametrize(("file", "steps"), [("compare_carracing", 1000), ("compare_rehab", 30)])
 def test_both_improvements_get_the_same_env_step_budget(file: str, steps: int) -> None:
     """PPO's training episodes (iterations x episodes per iteration) and validation episodes
     equal self-imitation's (rounds x tracks x (1 + pushes); the start and every round on the
     validation tracks), episodes of the same length (CarRacing's time limit, rehab's 30
     sessions)."""
-    comp = load_comparison(COMPARE / file)
+    comp = _load(file)
     ppo = comp.method("ppo_lagrangian").improve
     si = comp.method("selfimitation").selfimprove
     assert si == SelfImproveConfig()  # the package's defaults: the selection tables' choices
@@ -246,6 +252,14 @@ def test_both_improvements_get_the_same_env_step_budget(file: str, steps: int) -
     assert validations * ppo.eval_episodes == (si.rounds + 1) * si.validation_episodes
     assert ppo.iterations % ppo.eval_every == 0
     assert f"{episodes * steps:,}" in comp.note
+
+
+def test_a_budget_that_does_not_split_is_refused() -> None:
+    from safe_bc.selfimprove.sizing import ppo_at_budget
+
+    assert ppo_at_budget(ImproveConfig(), 24, 4, 8, 2).iterations == 6
+    with pytest.raises(ValueError, match="do not split into 4 validations"):
+        ppo_at_budget(ImproveConfig(), 24, 4, 8, 4)
 
 
 def test_cells_run_alone_then_the_comparison_reuses_them(rehab_demos, tmp_path, monkeypatch):
@@ -338,9 +352,9 @@ def test_a_longer_run_starts_from_a_shorter_rows_rounds(rehab_demos, tmp_path, m
 @pytest.mark.parametrize(
     ("task", "files", "choice"),
     [
-        ("carracing", ("selfimprove_selection_carracing.py",
-                       "selfimprove_selection_carracing_rounds.py"), "carracing/rounds_choice.md"),
-        ("rehab", ("selfimprove_selection_rehab.py",), "rehab/choice.md"),
+        ("carracing", ("selection_carracing",
+                       "rounds_carracing"), "carracing/rounds_choice.md"),
+        ("rehab", ("selection_rehab",), "rehab/choice.md"),
     ],
 )  # fmt: skip
 def test_each_tasks_defaults_are_the_row_its_selection_table_chose(task, files, choice) -> None:
@@ -355,7 +369,7 @@ def test_each_tasks_defaults_are_the_row_its_selection_table_chose(task, files, 
     rows = {
         m.name: selfimprove_identity(c, m, 0)
         for f in files
-        for c in [load_comparison(COMPARE / f)]
+        for c in [_load(f)]
         for m in c.methods
         if m.selfimprove
     }
@@ -371,13 +385,14 @@ def test_a_config_left_unset_needs_a_task_with_defaults() -> None:
     assert not SelfImproveConfig().resolved
 
 
-def test_the_deferral_widths_follow_the_committed_selection_table() -> None:
-    """``selfimprove_defer_carracing.py`` takes each improved agent's width from the committed
+def test_the_deferral_widths_follow_the_committed_selection_table(monkeypatch) -> None:
+    """``handover.py``'s ``defer`` takes each improved agent's width from the committed
     selection table by its rule: the smallest width with no selection episode beyond d_s."""
     import pandas as pd
 
-    fresh = load_comparison(COMPARE / "selfimprove_defer_carracing.py")
-    sel = load_comparison(COMPARE / "selfimprove_defer_selection_carracing.py")
+    monkeypatch.chdir(ROOT)
+    fresh = load_comparison(COMPARE / "handover.py", "defer")
+    sel = load_comparison(COMPARE / "handover.py", "defer_selection")
     table = pd.read_parquet(ROOT / "results/selfimprove/carracing/defer_selection.parquet")
     beyond = table.set_index("method")["episodes_with_violation"]
     for agent in ("ppo_lagrangian", "selfimitation"):
@@ -396,7 +411,9 @@ def test_the_deferral_widths_follow_the_committed_selection_table() -> None:
         ("corner", "defer_corner_selection", 0.05),
     ],
 )
-def test_the_trend_rows_follow_the_committed_selection_tables(fresh, selection, burden) -> None:
+def test_the_trend_rows_follow_the_committed_selection_tables(
+    fresh, selection, burden, monkeypatch
+) -> None:
     """Each fresh-track deferral file evaluates the row its selection table gives by the rule
     fixed before that table: zero episodes beyond d_s, a deferred share below the burden, then
     the smallest share (the lookahead file: the rule without its burden, none met it)."""
@@ -405,7 +422,8 @@ def test_the_trend_rows_follow_the_committed_selection_tables(fresh, selection, 
     table = pd.read_parquet(ROOT / f"results/selfimprove/carracing/{selection}.parquet")
     rows = table[table["method"].str.contains("ahead")].set_index("method")
     ok = rows[(rows["episodes_with_violation"] == 0) & (rows["deferred_share"] < burden)]
-    comp = load_comparison(COMPARE / f"selfimprove_defer_{fresh}_carracing.py")
+    monkeypatch.chdir(ROOT)
+    comp = load_comparison(COMPARE / "handover.py", f"defer_{fresh}")
     (row,) = [m.name for m in comp.methods if m.defer_width is not None]
     assert row == ok["deferred_share"].idxmin()
     if fresh == "lookahead":  # the burden left no row: the file says so in its note

@@ -1,7 +1,8 @@
 """The rehabilitation pathway with the improvement stage: the best *safe* improver.
 
-Every trial trains the safety-imitation agent of ``tune_jobs/compare/improve_rehab.py``
-(alpha 0.5, eps 0.05, 2000 batches), improves it by constrained RL (``safe_bc.improve``, a
+Every trial trains the safety-imitation agent of ``improve_rehab`` in
+``tune_jobs/compare/improve.py`` (alpha 0.5, eps 0.05, 2000 batches), improves it by
+constrained RL (``safe_bc.improve``, a
 short run: 100 iterations of 32 patients, half the patients per iteration of that comparison
 and half its iterations) and is evaluated as an improved agent under the study's usual
 constraints (safety mean at least the guideline clinician's, no session beyond ``d_s``).

@@ -56,9 +56,10 @@ class ImproveConfig:
     ``results/improve/rehab/sweep/margin_sweep.md``, 3 training seeds x 512 selection patients
     disjoint from the held-out ones): its rule (the highest selection gain among the candidates
     with no selection programme beyond ``d_s``) chose the shield + Lagrangian with margin 0.05
-    and a shield zone of 0.1 (``eps``, which ``tune_jobs/compare/improve_rehab.py`` sets);
+    and a shield zone of 0.1 (``eps``, which ``improve_rehab`` of ``tune_jobs/compare/improve.py``
+    sets);
     Lagrangian only with margins 0.02 / 0.05 / 0.1 let 7 / 4 / 1 of 1536 cross. CarRacing
-    passes its own margin in px (``tune_jobs/compare/improve_carracing.py``: 1 px)."""
+    passes its own margin in px (``tune_jobs/compare/improve.py``: 1 px)."""
     cost_budget: float = 0.1
     """Allowed expected cost per episode of the *stochastic* training policy at the tightened
     limit, ``J_c <= budget``. With 0 the exploration noise alone keeps the multiplier rising

@@ -172,7 +172,9 @@ def test_comparison_file_rows_are_the_committed_cells() -> None:
     bootstrap), with the committed seeds, and masks exactly the bar-kept cells; the runner's
     row names read back as (cell, view)."""
     raw, _ = read_table(ROOT / "results/ablation/observation/episodes.parquet")
-    comp = OBS.COMPARISON
+    from safe_bc.compare import load_comparison
+
+    comp = load_comparison(ROOT / "tune_jobs/compare/observation.py", "observation")
     got = {(m.name, comp.seeds_of(m)) for m in comp.methods}
     want = {
         (c if v == "full" else c + OBS.MASKED, tuple(sorted(int(x) for x in s)))
@@ -184,10 +186,8 @@ def test_comparison_file_rows_are_the_committed_cells() -> None:
     assert set(zip(views["cell"], views["view"], strict=True)) == set(
         raw[["cell", "view"]].drop_duplicates().itertuples(index=False, name=None)
     )
-    for name, out in (("observation_budget", "budget"), ("observation_network", "network")):
-        from safe_bc.compare import load_comparison
-
-        c = load_comparison(ROOT / f"tune_jobs/compare/{name}.py")
+    for out in ("budget", "network"):
+        c = load_comparison(ROOT / "tune_jobs/compare/observation.py", out)
         cells = set(read_table(ROOT / f"results/ablation/{out}/episodes.parquet")[0]["cell"])
         assert {m.name for m in c.methods} == cells
 

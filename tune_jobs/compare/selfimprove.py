@@ -1,0 +1,223 @@
+"""Self-imitation against PPO-Lagrangian, the start and the expert; its safety choices.
+
+Fresh tracks, equal env-step budgets:
+
+* ``compare_carracing`` (3 training seeds x 50 held-out tracks of block 14) and
+  ``compare_rehab`` (3 x 200 patients of block 15): the expert; the safety-imitation start
+  (the paired reference; CarRacing: BC with alpha 0.1, eps 2 px; rehab: alpha 0.5, eps 0.05);
+  PPO-Lagrangian + shield and self-imitation (the package's defaults, which the selection
+  tables chose), each from every seed's start. Self-imitation rolls out ``rounds x
+  tracks_per_round x (1 + pushes)`` training episodes
+  (:func:`safe_bc.selfimprove.sizing.rollout_episodes`: 576 on CarRacing, episodes of at most
+  1000 steps; 240 on rehab, episodes of 30 sessions); the PPO row runs as many, and as many
+  validation episodes (:func:`~safe_bc.selfimprove.sizing.ppo_at_budget`). Both run in the
+  driver process, rollouts in-process, so wall times compare. The table records each run's
+  env steps (training rollouts; validation) and minutes, ``compare_history.parquet`` the
+  learning curves.
+* ``compare_vs_expert_carracing``, ``compare_vs_expert_rehab``: the same rows, runs and stored
+  evaluations paired against the expert (standing in for every training seed); nothing runs
+  again.
+
+Selection tracks, which chose the defaults (so the fresh tables report other blocks):
+
+* ``selection_carracing`` (3 x 50 tracks of block 13) and ``selection_rehab`` (3 x 200 patients
+  of block 16): self-imitation with the defaults of the time (:data:`CAR_DEFAULT`,
+  :data:`REHAB_DEFAULT`: 2 rounds, kept rows in the rest pool) and one row per safety choice,
+  each changing one field: a margin inside d_s, kept segments, kept rows in T_eps, no back-off
+  in the critical zone, T_eps half of each retraining batch, a 5% bound of the keep rule (with
+  64 validation tracks), 4 rounds, 4 rounds of half-size pushes.
+* ``rounds_carracing``: the defaults, 4 rounds, 4 rounds of half-size pushes on CarRacing
+  (``selection_carracing``'s runs: a round never depends on how many follow, so the defaults'
+  first two rounds are copied). The rule that turns the selection tables into defaults:
+  ``python -m scripts.selfimprove_choice``.
+
+Run: ``safe-bc compare tune_jobs/compare/selfimprove.py --name NAME`` (resumes per method,
+seed and round; ``--cell METHOD:SEED --workers 0`` runs one cell in its own process). Writes
+``results/selfimprove/<task>/<name>*``.
+"""
+
+from dataclasses import replace
+from pathlib import Path
+
+from safe_bc.compare import Agent, Comparison, Expert, FromStart, Row
+from safe_bc.improve.config import ImproveConfig
+from safe_bc.selection import SelectionConfig
+from safe_bc.selfimprove.config import LOOP_PUSHES, SelfImproveConfig
+from safe_bc.selfimprove.sizing import half, ppo_at_budget, rollout_episodes, validation_budget
+
+SELF = SelfImproveConfig()
+"""The fresh tables' self-imitation: the package's defaults (CarRacing: 4 rounds of half-size
+pushes; rehab: 2 rounds, kept rows in T_eps)."""
+CAR_EPISODES = rollout_episodes(SELF, "carracing")
+"""CarRacing's shared training budget in episodes (576 with the defaults)."""
+REHAB_EPISODES = rollout_episodes(SELF, "rehab")
+"""Rehab's shared training budget in episodes (240 with the defaults)."""
+CAR_PPO = ppo_at_budget(
+    ImproveConfig(episodes_per_iter=4, n_envs=4, cost_margin=1.0, checkpoint_every=1,
+                  shield=True, lagrangian=True),
+    CAR_EPISODES, 4, validation_budget(SELF, "carracing"), 4,
+)  # fmt: skip
+"""PPO-Lagrangian + shield at CarRacing's budget: 4-episode iterations (the improvement
+table's sizing for pixels, cost margin 1 px), 4 validations."""
+REHAB_PPO = ppo_at_budget(
+    ImproveConfig(eps=0.1, shield=True, lagrangian=True),
+    REHAB_EPISODES, 16, validation_budget(SELF, "rehab"), 3,
+)  # fmt: skip
+"""PPO-Lagrangian + shield at rehab's budget: the improvement table's settings (shield zone
+0.1), 16-patient iterations, 3 validations."""
+CAR_START = SelectionConfig(eps=2.0, alpha=0.1)
+"""CarRacing's safety-imitation start (as in the improvement table)."""
+REHAB_START = SelectionConfig(eps=0.05, alpha=0.5)
+"""Rehab's safety-imitation start (as in the improvement table)."""
+CAR_DEFAULT = SelfImproveConfig(
+    rounds=2, pushes=LOOP_PUSHES["carracing"], kept_in="rest", workers=8
+)
+"""CarRacing's defaults when its selection table was made (rollouts on 8 Ray actors; results
+do not depend on it)."""
+REHAB_DEFAULT = SelfImproveConfig(rounds=2, pushes=LOOP_PUSHES["rehab"], kept_in="rest")
+"""Rehab's defaults when its selection table was made."""
+MARGIN = REHAB_START.eps / 2
+"""Rehab's margin row: half the selection's eps inside d_s (as 1 px is half CarRacing's 2)."""
+
+CAR_CHOICES = {  # name: (label, config)
+    "defaults": ("self-imitation, defaults", CAR_DEFAULT),
+    "margin1px": ("margin 1 px inside d_s", replace(CAR_DEFAULT, margin=1.0)),
+    "segment": ("kept segments (50 steps)", replace(CAR_DEFAULT, keep_unit="segment")),
+    "critical": ("kept rows in T_eps", replace(CAR_DEFAULT, kept_in="critical")),
+    "no_backoff": ("no back-off in the critical zone", replace(CAR_DEFAULT, backoff=False)),
+    "alpha05": ("T_eps half of each retraining batch", replace(CAR_DEFAULT, alpha=0.5)),
+    "bound05": ("keep rule bound 5% (64 validation tracks)",
+                replace(CAR_DEFAULT, beyond_limit=0.05, validation_episodes=64)),
+}  # fmt: skip
+CAR_ROUNDS = {
+    "defaults": CAR_CHOICES["defaults"],
+    "rounds4": ("4 rounds", replace(CAR_DEFAULT, rounds=4)),
+    "rounds4_small": ("4 rounds, half-size pushes",
+                      replace(CAR_DEFAULT, rounds=4,
+                              pushes=tuple(half(s) for s in LOOP_PUSHES["carracing"]))),
+}  # fmt: skip
+REHAB_CHOICES = {
+    "defaults": ("self-imitation, defaults", REHAB_DEFAULT),
+    "margin": (f"margin {MARGIN:g} inside d_s", replace(REHAB_DEFAULT, margin=MARGIN)),
+    "segment": ("kept segments (10 sessions)",
+                replace(REHAB_DEFAULT, keep_unit="segment", segment_steps=10)),
+    "critical": ("kept rows in T_eps", replace(REHAB_DEFAULT, kept_in="critical")),
+    "no_backoff": ("no back-off in the critical zone", replace(REHAB_DEFAULT, backoff=False)),
+    "rounds4": ("4 rounds", replace(REHAB_DEFAULT, rounds=4)),
+    "rounds4_small": ("4 rounds, half-size pushes",
+                      replace(REHAB_DEFAULT, rounds=4,
+                              pushes=tuple(half(s) for s in LOOP_PUSHES["rehab"]))),
+}  # fmt: skip
+
+
+def car_rows(choices: dict[str, tuple[str, SelfImproveConfig]]) -> tuple[Row, ...]:
+    """The expert, the CarRacing start and one self-imitation row per choice."""
+    return (
+        Expert("expert", label="expert (scripted, privileged)"),
+        Agent("imitation", CAR_START, label="safety-imitation start (alpha 0.1)"),
+        *(FromStart(n, "imitation", c, label=label) for n, (label, c) in choices.items()),
+    )
+
+
+CAR_PAIRED = "Paired rows: each agent against its own seed's start on the same"
+"""The CarRacing notes' shared sentence (followed by the tracks' kind)."""
+CAR = Comparison(
+    name="compare",
+    methods=(
+        *car_rows({}),
+        FromStart("ppo_lagrangian", "imitation", CAR_PPO, label="PPO-Lagrangian + shield"),
+        FromStart(
+            "selfimitation", "imitation", SELF, label="self-imitation (4 rounds, half-size pushes)"
+        ),
+    ),
+    task="carracing",
+    out=Path("results/selfimprove/carracing"),
+    train_seeds=(0, 1, 2),
+    episodes=50,
+    eval_seed=14,
+    reference="imitation",
+    paired_metrics=("reward", "violation_steps"),
+    totals=("any_violation",),
+    per_seed=True,
+    figures=(("learning_curves", "compare_learning_curves.png"),),
+    title="Self-imitation vs PPO-Lagrangian on CarRacing, equal env-step budgets",
+    note=f"Both improvements from the same starts with at most {CAR_EPISODES * 1000:,} "
+    f"training env steps per run. {CAR_PAIRED} fresh tracks. env steps / run: training "
+    "rollouts; validation env steps / run: the episodes that pick (PPO) or accept "
+    "(self-imitation) the final agent.",
+)
+CAR_SELECTION = replace(
+    CAR,
+    name="selection",
+    methods=car_rows(CAR_CHOICES),
+    eval_seed=13,
+    totals=(),
+    figures=(("learning_curves", "selection_learning_curves.png"),),
+    title="Self-imitation on CarRacing: the safety choices on selection tracks",
+    note="Selection tracks (block 13): these choose the defaults; the fresh-track comparison "
+    f"is selfimprove_carracing.py. {CAR_PAIRED} tracks. env steps / run: training rollouts "
+    "(unperturbed and pushed runs); validation env steps: the keep rule's episodes.",
+)
+REHAB = Comparison(
+    name="compare",
+    methods=(
+        Expert("expert", label="guideline clinician (expert)"),
+        Agent("imitation", REHAB_START, label="safety-imitation start"),
+        FromStart("ppo_lagrangian", "imitation", REHAB_PPO, label="PPO-Lagrangian + shield"),
+        FromStart("selfimitation", "imitation", SELF, label="self-imitation"),
+    ),
+    task="rehab",
+    demos=Path("data/rehab_demos"),
+    out=Path("results/selfimprove/rehab"),
+    train_seeds=(0, 1, 2),
+    episodes=200,
+    eval_seed=15,
+    workers=0,
+    reference="imitation",
+    paired_metrics=("reward", "violating_sessions"),
+    totals=("any_violating_session", "last_session_violation", "violation_steps"),
+    per_seed=True,
+    figures=(("learning_curves", "compare_learning_curves.png"),),
+    title="Self-imitation vs PPO-Lagrangian on the rehabilitation pathway, equal env-step budgets",
+    note=f"Reward: capacity gain (points). Both improvements from the same starts with "
+    f"{REHAB_EPISODES * 30:,} training env steps per run. Paired rows: each agent against "
+    "its own seed's start on the same patients. env steps / run: training rollouts; validation "
+    "env steps / run: the episodes that pick (PPO) or accept (self-imitation) the final agent.",
+)
+
+
+def vs_expert(c: Comparison) -> Comparison:
+    """``c`` paired against the expert: its runs and stored evaluations, no figure."""
+    return replace(c, name="compare_vs_expert", runs="compare", reference="expert", figures=())
+
+
+COMPARISONS = {
+    "compare_carracing": CAR,
+    "compare_vs_expert_carracing": vs_expert(CAR),
+    "selection_carracing": CAR_SELECTION,
+    "rounds_carracing": replace(
+        CAR_SELECTION,
+        name="rounds",
+        runs="selection",
+        methods=car_rows(CAR_ROUNDS),
+        figures=(("learning_curves", "rounds_learning_curves.png"),),
+        title="Self-imitation on CarRacing: more rounds, and smaller steps, on selection tracks",
+    ),
+    "compare_rehab": REHAB,
+    "compare_vs_expert_rehab": vs_expert(REHAB),
+    "selection_rehab": replace(
+        REHAB,
+        name="selection",
+        methods=(
+            *REHAB.methods[:2],
+            *(FromStart(n, "imitation", c, label=label) for n, (label, c) in REHAB_CHOICES.items()),
+        ),
+        eval_seed=16,
+        figures=(("learning_curves", "selection_learning_curves.png"),),
+        title="Self-imitation on the rehabilitation pathway: the safety choices on selection "
+        "patients",
+        note="Selection patients (block 16): these choose the defaults; the fresh-patient "
+        "comparison is selfimprove_rehab.py. Reward: capacity gain (points). Paired rows: each "
+        "agent against its own seed's start on the same patients.",
+    ),
+}
