@@ -39,6 +39,7 @@ import pandas as pd
 from safe_bc.bc.config import BCConfig
 from safe_bc.compare_rows import KINDS, Agent, Expert, FromStart, Handover, Method, Row, View
 from safe_bc.metrics import METRICS, paired_crossed, summarize_crossed
+from safe_bc.policy import LockstepForward, check_lockstep_forward
 from safe_bc.protocol import Fresh, resolve
 from safe_bc.report import fmt_ci
 from safe_bc.tasks import TASKS, Task, task_defaults
@@ -110,6 +111,11 @@ class Comparison:
     """Network, preprocessing and budget of BC rows without their own ``bc``."""
     max_steps: int | None = None
     """Step cap of evaluation episodes (``None``: the env's)."""
+    lockstep_forward: LockstepForward = "batched"
+    """How an agent acts for the envs it steps in lockstep
+    (:attr:`safe_bc.evaluation.EvalConfig.lockstep_forward`): ``"rows"`` gives every episode
+    bit for bit as one env alone would (the queries family's tables, made one env at a time);
+    ``"batched"``, one forward for all, may differ in the last bits."""
     eps: float | None = None
     """Critical-zone width of the evaluation and the selection thresholds; ``None``: the
     task's."""
@@ -162,6 +168,17 @@ class Comparison:
                     raise ValueError(
                         f"method {m.name!r}: start {m.start!r} is not a BC row of {sorted(bc_rows)}"
                     )
+                budget_of = getattr(m.config, "budget_of", "")
+                earlier = [x.name for x in self.methods[: self.methods.index(m)]]
+                source = self.method(budget_of) if budget_of in earlier else None
+                if budget_of and not (
+                    isinstance(source, FromStart)
+                    and (source.method, source.start) == (m.method, m.start)
+                ):
+                    raise ValueError(
+                        f"method {m.name!r}: budget_of {budget_of!r} is no earlier {m.method} "
+                        f"row from start {m.start!r}"
+                    )
                 modes = m.spec.start_modes
                 mode = self.method(m.start).selection.mode
                 if modes and mode not in modes:
@@ -213,6 +230,7 @@ class Comparison:
             raise ValueError(f"workers must be >= 0, got {self.workers}")
         if self.eps is not None and not (math.isfinite(self.eps) and self.eps >= 0):
             raise ValueError(f"eps must be a finite number >= 0, got {self.eps}")
+        check_lockstep_forward(self.lockstep_forward)
         if self.reference is not None and self.reference not in names:
             raise ValueError(f"reference {self.reference!r} is not a method of {names}")
         for t in self.totals:
@@ -260,6 +278,8 @@ class Comparison:
         """JSON-able (the provenance's ``config``)."""
         out = dataclasses.asdict(self)
         del out["shares_tracks_with"]
+        if self.lockstep_forward == "batched":  # (recorded configs before the field hold)
+            del out["lockstep_forward"]
         out["methods"] = tuple(m.flat() for m in self.methods)
         out["demos"], out["out"] = str(self.demos), str(self.out)
         for m in out["methods"]:

@@ -31,20 +31,28 @@ if TYPE_CHECKING:
 RuleFn = Callable[..., list[Handover]]
 
 
-def _beyond(table: pd.DataFrame, row: Handover) -> int:
-    return int(table.loc[row.name, "episodes_with_violation"])
+BEYOND = "episodes_with_violation"
+"""The table column counting a row's episodes beyond d_s (a step beyond it)."""
 
 
-def smallest_safe_width(table: pd.DataFrame, candidates: Sequence[Handover]) -> list[Handover]:
+def _beyond(table: pd.DataFrame, row: Handover, column: str = BEYOND) -> int:
+    return int(table.loc[row.name, column])
+
+
+def smallest_safe_width(
+    table: pd.DataFrame, candidates: Sequence[Handover], beyond: str = BEYOND
+) -> list[Handover]:
     """Per agent handed over (candidates grouped by ``of``, in table order): the row of the
-    smallest width with no selection episode beyond d_s, else the row of the largest width."""
+    smallest width with no selection episode beyond d_s, else the row of the largest width.
+    ``beyond``: the column counting a row's episodes beyond d_s (e.g. the clinic's
+    ``total_any_violating_session``, an outcome beyond it, the last one included)."""
     agents: dict[str, list[Handover]] = {}
     for r in candidates:
         agents.setdefault(r.of, []).append(r)
     picked = []
     for rows in agents.values():
         by_width = sorted(rows, key=lambda r: r.handover.width)  # type: ignore[union-attr]
-        safe = [r for r in by_width if _beyond(table, r) == 0]
+        safe = [r for r in by_width if _beyond(table, r, beyond) == 0]
         picked.append(safe[0] if safe else by_width[-1])
     return picked
 

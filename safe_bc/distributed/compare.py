@@ -95,6 +95,7 @@ def eval_config(comparison: Comparison, method: Row | None = None) -> EvalConfig
         env=task_defaults(comparison.task, renderer).env,
         max_steps=comparison.max_steps,
         eps=selection_eps(comparison),
+        lockstep_forward=comparison.lockstep_forward,
     )
 
 
@@ -251,15 +252,30 @@ def _agent_ok(folder: Path, run: RunConfig, demos: Path) -> bool:
     return extra.get("run") == _json(run.to_dict()) and extra.get("demos") == str(demos)
 
 
-def method_config(comparison: Comparison, method: FromStart, seed: int) -> Any:
-    """A method row's run config for training seed ``seed`` (its ``seed`` set)."""
-    return dataclasses.replace(method.config, seed=seed)
+def method_config(
+    comparison: Comparison, method: FromStart, seed: int, improved: dict | None = None
+) -> Any:
+    """A method row's run config for training seed ``seed`` (its ``seed`` set); a config whose
+    ``budget_of`` names another row resolved from that row's run of the seed in ``improved``
+    (its :class:`~safe_bc.methods.Improved`, whose report has ``queries_total``)."""
+    config = dataclasses.replace(method.config, seed=seed)
+    of = getattr(config, "budget_of", "")
+    if of and improved is not None:
+        config = config.with_budget(int(improved[of, seed].report["queries_total"]))
+    return config
 
 
 def method_identity(comparison: Comparison, method: FromStart, seed: int) -> Any:
     """What makes a method row's run for ``seed`` (the method's identity of its config on the
-    comparison's task, :meth:`safe_bc.methods.MethodSpec.identify`)."""
-    return method.spec.identify(method_config(comparison, method, seed), comparison.task)
+    comparison's task, :meth:`safe_bc.methods.MethodSpec.identify`); a ``budget_of`` row's
+    name is replaced by the identity of that row's run, which fixes the budget."""
+    identity = method.spec.identify(method_config(comparison, method, seed), comparison.task)
+    of = identity.get("budget_of", "") if isinstance(identity, dict) else ""
+    if of:
+        source = comparison.method(of)
+        assert isinstance(source, FromStart)
+        identity = {**identity, "budget_of": method_identity(comparison, source, seed)}
+    return identity
 
 
 def selfimprove_config(comparison: Comparison, method: FromStart, seed: int) -> Any:
@@ -313,7 +329,14 @@ def _copy_shared_rounds(c: Comparison, method: FromStart, seed: int, folder: Pat
     tmp.rename(folder)
 
 
-def _run_method(c: Comparison, method: FromStart, seed: int, data: Any, command: str | None) -> Any:
+def _run_method(
+    c: Comparison,
+    method: FromStart,
+    seed: int,
+    data: Any,
+    command: str | None,
+    improved: dict | None = None,
+) -> Any:
     """Run (or resume) a method row's run for ``seed`` from the start row's agent of that
     seed, in the start's env, on ``data`` (the start's demonstration set, loaded); a folder of
     another run (a changed setting or start) is redone. The method's
@@ -335,7 +358,7 @@ def _run_method(c: Comparison, method: FromStart, seed: int, data: Any, command:
     folder = _folder(c, method, seed) / spec.subfolder
     if spec.shares_rounds and not folder.exists():
         _copy_shared_rounds(c, method, seed, folder)
-    config = method_config(c, method, seed)
+    config = method_config(c, method, seed, improved)
 
     def run() -> Any:
         return spec.run(config, begin, folder, metadata={"command": command})
@@ -452,14 +475,19 @@ def _train_agents(
 
 
 def _improve_cell(
-    c: Comparison, m: Row, s: int, sets: dict[Path, Any], command: str | None
+    c: Comparison,
+    m: Row,
+    s: int,
+    sets: dict[Path, Any],
+    command: str | None,
+    improved: dict | None = None,
 ) -> tuple[pd.DataFrame, dict[str, Any], Any] | None:
     """Run (or resume) the method run of cell ``(m, s)``: its learning curve, the metadata of
     the machine that ran it and the method's :class:`~safe_bc.methods.Improved`; ``None`` for
-    the other rows."""
+    the other rows. ``improved``: the runs done so far (a ``budget_of`` row's source's)."""
     if not isinstance(m, FromStart):
         return None
-    done = _run_method(c, m, s, sets[demos_of(c, m)], command)
+    done = _run_method(c, m, s, sets[demos_of(c, m)], command, improved)
     history = done.history.assign(method=m.name, train_seed=s)
     if done.meta is not None:
         return history, done.meta, done
@@ -501,7 +529,11 @@ def run_cell(
     if isinstance(m, FromStart):
         needs.append((c.method(m.start), s))
     _train_agents(c, sets, needs, progress)
-    _improve_cell(c, m, s, sets, run_metadata().get("command"))
+    command, improved = run_metadata().get("command"), {}
+    of = getattr(m.config, "budget_of", "") if isinstance(m, FromStart) else ""
+    if of:  # the run that sets the budget first (resumed when done)
+        improved[of, s] = _improve_cell(c, c.method(of), s, sets, command)[2]  # type: ignore[index]
+    _improve_cell(c, m, s, sets, command, improved)
     return _folder(c, m, s)
 
 
@@ -563,7 +595,7 @@ def run_comparison(
     _train_agents(c, sets, _cells(c), progress)
     histories, run_metas, improved = [], [], {}
     for m, s in _cells(c):
-        ran = _improve_cell(c, m, s, sets, meta.get("command"))
+        ran = _improve_cell(c, m, s, sets, meta.get("command"), improved)
         if ran is not None:
             history, run_meta, improved[m.name, s] = ran
             histories.append(history)

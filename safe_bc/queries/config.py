@@ -4,7 +4,7 @@ file or the CLI reads :class:`QueryConfig` without importing torch or Ray)."""
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from typing import Any, Literal, get_args
 
 QueryMode = Literal["critical", "full"]
@@ -60,6 +60,11 @@ class QueryConfig:
     """At most this many queries per round (``None``: no cap). The kept queries are the first
     in (track, step) order: what an expert who stops after this many labels gives. The
     comparison gives ``full`` the number the ``critical`` run used."""
+    budget_of: str = ""
+    """A comparison row of this method whose run sets :attr:`query_budget` (``""``: none): per
+    round, its total queries over this run's rounds, rounded up (at least 1), that run's
+    same training seed; e.g. DAgger (``"full"``) at the critical-zone run's number of queries.
+    The comparison runner resolves it after that row's run (:meth:`with_budget`)."""
     batches: int | None = None
     """BC batches of each retraining (``None``: the run config's ``bc.train.batches``)."""
     max_steps: int | None = None
@@ -84,10 +89,25 @@ class QueryConfig:
             raise ValueError(f"eps must be a finite number >= 0, got {self.eps}")
         if self.workers < 0 or self.seed < 0:
             raise ValueError(f"workers and seed must be >= 0, got {self.workers}, {self.seed}")
+        if self.budget_of and self.query_budget is not None:
+            raise ValueError("set query_budget or budget_of, not both")
+
+    def with_budget(self, total_queries: int) -> QueryConfig:
+        """This config with :attr:`budget_of` resolved: that run asked ``total_queries``.
+
+        >>> QueryConfig(mode="full", budget_of="critical").with_budget(7).query_budget
+        4
+        """
+        budget = max(1, math.ceil(int(total_queries) / self.rounds))
+        return replace(self, query_budget=budget, budget_of="")
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-able field dict."""
-        return asdict(self)
+        """JSON-able field dict (``budget_of`` only where set: records of runs without one
+        stay what they were)."""
+        out = asdict(self)
+        if not out["budget_of"]:
+            del out["budget_of"]
+        return out
 
     def identity(self) -> dict[str, Any]:
         """The fields that change the run's data or weights (``workers`` does not)."""

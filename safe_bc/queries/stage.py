@@ -82,6 +82,11 @@ def run(
     ``start.on_round``."""
     from safe_bc.rounds import policy_source
 
+    if config.budget_of:
+        raise ValueError(
+            f"budget_of={config.budget_of!r} names a comparison row: resolve it first "
+            "(QueryConfig.with_budget; the comparison runner does)"
+        )
     result = query_run(
         config, start.agent, start.run_config, start.demos, start.env, folder,
         parallel=start.parallel, on_round=start.on_round,
@@ -96,7 +101,14 @@ def run(
             "queries_per_episode": result.total_queries / max(result.total_episodes, 1),
             "queries_seconds": float(sum(seconds)),
         },
-        history=pd.DataFrame({"iteration": range(1, len(seconds) + 1), "seconds": seconds}),
+        history=pd.DataFrame(
+            {
+                "iteration": range(1, len(seconds) + 1),
+                "seconds": seconds,
+                "queries": [int(r["queries"]) for r in result.rounds],
+                "episodes": [int(r["episodes"]) for r in result.rounds],
+            }
+        ),
         fresh=result.resumed_rounds < len(result.rounds),
         result=result,
     )
