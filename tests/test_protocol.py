@@ -42,6 +42,18 @@ def test_smallest_safe_width_per_agent() -> None:
     assert [m.name for m in resolve(fresh, _selection(), table).methods][3:] == ["a+1", "b+2"]
 
 
+def test_smallest_safe_width_counts_the_column_it_is_given() -> None:
+    """The clinic's rule counts outcomes beyond d_s (a ``total_`` column), not steps."""
+    rule = Rule("smallest_safe_width", {"beyond": "total_any_violating_session"})
+    table = _table({"a+2": 1, "a+1": 1, "b+2": 1, "b+1": 1}).assign(
+        total_any_violating_session=[1, 0, 0, 2]
+    )
+    fresh = Fresh("fresh", "sel", (rule,), eval_seed=14)
+    assert [m.name for m in resolve(fresh, _selection(), table).methods][3:] == ["a+1", "b+2"]
+    plain = Fresh("fresh", "sel", (Rule("smallest_safe_width"),), eval_seed=14)
+    assert [m.name for m in resolve(plain, _selection(), table).methods][3:] == ["a+2", "b+2"]
+
+
 def test_least_deferred_falls_back_to_the_next_rule() -> None:
     strict = Rule("least_deferred", {"burden": 0.05})
     relaxed = Rule("least_deferred", {"burden": 1.0}, note=" (relaxed)")
