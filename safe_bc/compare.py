@@ -168,17 +168,7 @@ class Comparison:
                     raise ValueError(
                         f"method {m.name!r}: start {m.start!r} is not a BC row of {sorted(bc_rows)}"
                     )
-                budget_of = getattr(m.config, "budget_of", "")
-                earlier = [x.name for x in self.methods[: self.methods.index(m)]]
-                source = self.method(budget_of) if budget_of in earlier else None
-                if budget_of and not (
-                    isinstance(source, FromStart)
-                    and (source.method, source.start) == (m.method, m.start)
-                ):
-                    raise ValueError(
-                        f"method {m.name!r}: budget_of {budget_of!r} is no earlier {m.method} "
-                        f"row from start {m.start!r}"
-                    )
+                self._check_budget_of(m)
                 modes = m.spec.start_modes
                 mode = self.method(m.start).selection.mode
                 if modes and mode not in modes:
@@ -246,6 +236,20 @@ class Comparison:
                 raise ValueError(f"figure {fig!r}: file must be a .png, got {file!r}")
         if self.task not in TASKS:
             raise ValueError(f"task must be one of {tuple(TASKS)}, got {self.task!r}")
+
+    def _check_budget_of(self, m: FromStart) -> None:
+        """A method row whose config's ``budget_of`` names another row: an earlier row of the
+        same method from the same start."""
+        budget_of = getattr(m.config, "budget_of", "")
+        earlier = [x.name for x in self.methods[: self.methods.index(m)]]
+        source = self.method(budget_of) if budget_of in earlier else None
+        if budget_of and not (
+            isinstance(source, FromStart) and (source.method, source.start) == (m.method, m.start)
+        ):
+            raise ValueError(
+                f"method {m.name!r}: budget_of {budget_of!r} is no earlier {m.method} row "
+                f"from start {m.start!r}"
+            )
 
     def method(self, name: str) -> Row:
         """The row called ``name``."""

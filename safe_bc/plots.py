@@ -175,12 +175,12 @@ def plot_queries(
     *,
     block: str = "fresh",
 ) -> Path:
-    """Critical-zone queries and deferral (``safe_bc.queries.measure``'s ``summary.parquet``
-    per testbed): one row of two panels per testbed, on its ``block`` episodes. Left: reward
-    minus the expert's (paired crossed 95% CI), each method labelled with its burden (training
-    queries per rollout, or ``deferred[testbed][method]``: the mean share of steps deferred);
-    right: the share of episodes beyond ``d_s`` (dot) and its one-sided 95% Clopper-Pearson
-    bound (bar end)."""
+    """Critical-zone queries and deferral (the queries family's ``summary.parquet`` per
+    testbed, :mod:`safe_bc.queries.report`): one row of two panels per testbed, on its
+    ``block`` episodes. Left: reward minus the expert's (paired crossed 95% CI), each method
+    labelled with its burden (training queries per rollout, or ``deferred[testbed][method]``:
+    the mean share of steps deferred); right: the share of episodes beyond ``d_s`` (dot) and
+    its one-sided 95% Clopper-Pearson bound (bar end)."""
     from matplotlib.ticker import PercentFormatter
 
     fig, axes = plt.subplots(len(summaries), 2, figsize=(11, 2.6 * len(summaries)), squeeze=False)

@@ -15,7 +15,6 @@ MAX_LINES = 100
 
 LONG: dict[str, int] = {
     "distributed/trial.py:run_trial": 123,
-    "queries/measure.py:run": 218,
     "queries/run.py:run_queries": 112,
     "selfimprove/run.py:run_selfimprove": 188,
 }

@@ -24,7 +24,6 @@ own (not a ``sha256:...`` digest, a path or part of a longer word)."""
 
 ALLOWED: dict[str, set[str]] = {
     # the heading of results/queries/*/summary.md
-    "safe_bc/queries/measure.py": {"issue 35"},
     # the heading of results/selfimprove/carracing/defer_designs.md
     "scripts/defer_designs.py": {"issue 35"},
     # the comparison's note, stored with its tables

@@ -7,5 +7,6 @@
 * :mod:`~safe_bc.queries.run`: the resumable rounds (roll out, label, retrain);
 * :mod:`~safe_bc.queries.stage`: the method's runner (``METHODS["queries"]``);
 * :mod:`~safe_bc.queries.defer`: the deferral wrapper and the width rule;
-* :mod:`~safe_bc.queries.measure`: the comparison (plain processes, no Ray).
+* :mod:`~safe_bc.queries.summary`, :mod:`~safe_bc.queries.report`: the summary of the queries
+  family (``tune_jobs/compare/queries.py``, run by the comparison runner).
 """

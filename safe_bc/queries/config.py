@@ -49,8 +49,8 @@ class QueryConfig:
     or beyond ``d_s``); ``"full"``: at every visited scored state (DAgger)."""
     rounds: int = 2
     """Rounds of roll-out, query and retraining. 2 fits the measurement's 10-minute budget
-    on 16 cores (``python -m safe_bc.queries.measure``); more rounds need a longer run to
-    choose."""
+    on 16 cores (the queries family, ``tune_jobs/compare/queries.py``); more rounds need a
+    longer run to choose."""
     episodes_per_round: int = 16
     """Rollout episodes (training tracks, :func:`track_seeds`) per round: one per core of
     the 16-core measurement machine."""

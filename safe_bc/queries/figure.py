@@ -1,8 +1,8 @@
-"""The figure of the query and deferral measurements (:mod:`safe_bc.queries.measure`):
-``python -m safe_bc.queries.figure OUT DIR [DIR ...]``
-draws every ``DIR`` (a ``safe_bc.queries.measure`` output folder: its ``summary.parquet`` and
-its committed episode tables) as one testbed row of :func:`safe_bc.plots.plot_queries`, on the
-fresh tracks (patients), into ``OUT`` (PNG)."""
+"""The figure of the query and deferral measurements (the queries family,
+``tune_jobs/compare/queries.py``): ``python -m safe_bc.queries.figure OUT DIR [DIR ...]``
+draws every ``DIR`` (a task's folder: its ``summary.parquet`` and its fresh comparison's
+episode table, ``queries_episodes.parquet``) as one testbed row of
+:func:`safe_bc.plots.plot_queries`, on the fresh tracks (patients), into ``OUT`` (PNG)."""
 
 from __future__ import annotations
 
@@ -11,32 +11,35 @@ from pathlib import Path
 
 import pandas as pd
 
+FRESH = "queries"
+"""The fresh comparison's name (its episode table ``<name>_episodes.parquet``)."""
 
-def deferred_shares(folder: Path, block: int) -> dict[str, float]:
-    """Mean share of steps deferred to the expert per deferring method, over its episodes of
-    held-out ``block`` (the episode tables' ``deferred_share``)."""
+
+def deferred_shares(folder: Path, summary: pd.DataFrame) -> dict[str, float]:
+    """Mean share of steps deferred to the expert per deferring method of the ``summary`` (its
+    fresh rows with a width), over that deferral's episodes on the fresh tracks (the row
+    ``<method>-<width>`` of the fresh comparison's episode table)."""
     from safe_bc.data.store import read_table
 
-    frames = [read_table(p)[0] for p in sorted((folder / "episodes" / f"block{block}").glob("*"))]
-    episodes = pd.concat(frames, ignore_index=True)
-    if "deferred_share" not in episodes:
-        return {}
-    shares = episodes.dropna(subset=["deferred_share"]).groupby("method")["deferred_share"]
-    return {str(k): float(v) for k, v in shares.mean().items()}
+    episodes = read_table(folder / f"{FRESH}_episodes.parquet")[0]
+    fresh = summary[(summary["block"] == "fresh") & summary["width"].notna()]
+    return {
+        str(m): float(episodes.loc[episodes["method"] == f"{m}-{w:g}", "deferred_share"].mean())
+        for m, w in zip(fresh["method"], fresh["width"], strict=True)
+    }
 
 
 def draw(out: Path, folders: list[Path]) -> Path:
     """The figure of ``folders`` (one row each, named by the measured task) at ``out``."""
     from safe_bc.data.store import read_table
     from safe_bc.plots import plot_queries
-    from safe_bc.queries.measure import FRESH_BLOCK
 
     summaries, deferred = {}, {}
     for folder in folders:
         table, meta = read_table(folder / "summary.parquet")
         name = str(meta.get("task", "carracing"))  # (the first CarRacing run predates the field)
         summaries[name] = table
-        deferred[name] = deferred_shares(folder, FRESH_BLOCK)
+        deferred[name] = deferred_shares(folder, table)
     return plot_queries(summaries, deferred, out)
 
 

@@ -29,6 +29,9 @@ from safe_bc.queries.summary import (
     widths_table,
 )
 
+NO_HISTORY = pd.DataFrame(columns=["method", "train_seed", "queries", "episodes"])
+"""A query history without runs."""
+
 
 def deferrals(comparison: Comparison) -> list[Handover]:
     """The comparison's deferral rows (handovers with a width)."""
@@ -37,11 +40,13 @@ def deferrals(comparison: Comparison) -> list[Handover]:
 
 def summary(selection: Comparison, fresh: Comparison) -> tuple[pd.DataFrame, pd.DataFrame]:
     """The summary and the widths table of a selection comparison and its fresh one, from
-    their stored episode tables and the selection's query history."""
+    their stored episode tables and the selection's query history (absent where the query
+    runs were not kept: no queries per episode then, NaN)."""
     crossing = CROSSING[selection.task]
     sel = read_table(selection.out / f"{selection.name}_episodes.parquet")[0]
     new = read_table(fresh.out / f"{fresh.name}_episodes.parquet")[0]
-    history = read_table(selection.out / f"{selection.name}_history.parquet")[0]
+    runs = selection.out / f"{selection.name}_history.parquet"
+    history = read_table(runs)[0] if runs.is_file() else NO_HISTORY
     picked = deferrals(fresh)
     chosen = {r.name: DEFERRAL[r.of] for r in picked}
     widths = {DEFERRAL[r.of]: float(r.handover.width) for r in picked}  # type: ignore[union-attr]

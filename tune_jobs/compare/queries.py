@@ -83,7 +83,9 @@ CARRACING = replace(
     totals=(),
     title="Critical-zone queries and deferral: selection tracks (CarRacing)",
     note="Selection tracks (held-out block 11) for the deferral widths.",
+    shares_tracks_with=("results/ablation/renderer/renderer", "results/ablation/renderer/pipeline"),
 )
+"""The car's: its selection block's first 20 tracks are also the renderer tables' (block 11)."""
 SAFEST = Rule("smallest_safe_width")
 """Per agent the smallest width with no selection episode beyond d_s, else the largest."""
 FRESH = (
