@@ -35,6 +35,7 @@ from ray.tune.schedulers import AsyncHyperBandScheduler, FIFOScheduler, TrialSch
 from ray.tune.search.optuna import OptunaSearch
 
 from safe_bc.study import CONSTRAINTS, Choice, Float, Int, Param, StudySpec
+from safe_bc.study_plan import default_optuna_storage
 
 SCORE = "score"
 """Result key of the screening score the halving compares: the reward, minus :data:`SCREEN_PENALTY`
@@ -226,14 +227,6 @@ def one_line(error: BaseException) -> str:
     parameters and a link on further lines)."""
     lines = str(error).strip().splitlines()
     return lines[0] if lines else type(error).__name__
-
-
-def default_optuna_storage(spec: StudySpec) -> str:
-    """The study's Optuna storage URL: ``spec.optuna_storage``, else a SQLite file beside the
-    tables, ``sqlite:///<results>/<name>/optuna.db`` (absolute path)."""
-    if spec.optuna_storage:
-        return spec.optuna_storage
-    return f"sqlite:///{(spec.results / spec.name / 'optuna.db').resolve()}"
 
 
 def export_study(

@@ -606,8 +606,10 @@ def test_a_finished_studys_optuna_copy_must_be_whole_and_its_own(tmp_path: Path)
 
     from safe_bc.distributed.study import check_optuna_copy
     from safe_bc.study import StudySpec
+    from safe_bc.study_plan import plan_study
 
     spec = StudySpec("mine", {"selection.alpha": Float(0.0, 1.0)}, trials=2, results=tmp_path)
+    plan = plan_study(spec, fresh=False, command="", final=True)
     path = tmp_path / "mine" / "optuna.db"
     path.parent.mkdir()
 
@@ -622,7 +624,7 @@ def test_a_finished_studys_optuna_copy_must_be_whole_and_its_own(tmp_path: Path)
 
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     make("mine", 2)
-    check_optuna_copy(spec, "")  # whole and its own
+    check_optuna_copy(plan, "")  # whole and its own
     whole = path.read_bytes()
     cases = {
         "cut short": whole[:4096],
@@ -631,15 +633,15 @@ def test_a_finished_studys_optuna_copy_must_be_whole_and_its_own(tmp_path: Path)
     for what, data in cases.items():
         path.write_bytes(data)
         with pytest.raises(ValueError) as e:
-            check_optuna_copy(spec, "")
+            check_optuna_copy(plan, "")
         assert str(path) in str(e.value) and "rerun the same command" in str(e.value), what
         assert "\n" not in str(e.value)
     make("other", 2)
     with pytest.raises(ValueError, match=r"holds no study 'mine'.*not this study's"):
-        check_optuna_copy(spec, "")
+        check_optuna_copy(plan, "")
     make("mine", 1)
     with pytest.raises(ValueError, match="holds 1 trials of study 'mine', the study has 2"):
-        check_optuna_copy(spec, "")
+        check_optuna_copy(plan, "")
 
 
 @pytest.mark.slow
