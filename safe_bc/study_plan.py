@@ -20,7 +20,7 @@ import pandas as pd
 
 from safe_bc.collection import CollectConfig
 from safe_bc.study import ConstraintBars, StudySpec
-from safe_bc.tasks import task_defaults, task_of
+from safe_bc.tasks import TaskSpec, task_defaults, task_of
 
 RESOURCE_FIELDS = frozenset(
     {
@@ -70,8 +70,11 @@ def default_optuna_storage(spec: StudySpec) -> str:
 def safety_axis_label(env_id: str) -> str:
     """The safety mean's axis label in the task's words (``px to the grass`` for the car;
     the cost's units where a task names none)."""
-    drawing = task_defaults(task_of(env_id)).drawing
-    what = drawing.closest if drawing is not None else "distance to the limit, cost units"
+    return _safety_label(task_defaults(task_of(env_id)))
+
+
+def _safety_label(task: TaskSpec) -> str:
+    what = task.drawing.closest if task.drawing is not None else "distance to the limit, cost units"
     return f"safety mean ({what}, higher is safer)"
 
 
@@ -117,32 +120,34 @@ class StudyPlan:
 
 def plan_study(spec: StudySpec, *, fresh: bool, command: str, final: bool) -> StudyPlan:
     """The plan of a run of ``spec`` (``fresh``, ``command``, ``final``: :class:`StudyPlan`)."""
-    storage, exp_path = experiment_location(spec)
     summary = spec.summary()
+    settings = settings_of(summary)
+    storage, exp_path = experiment_location(spec)
+    optuna_url = default_optuna_storage(spec)
+    task = task_defaults(task_of(spec.env.env_id))
+    axes = {"objective": spec.objective, "safety_label": _safety_label(task)}
+    collect = spec.collect or CollectConfig.for_task(task)
     return StudyPlan(
         spec=spec,
         out=spec.results / spec.name,
         storage=storage,
         exp_path=exp_path,
         local=not is_uri(exp_path),
-        optuna_url=default_optuna_storage(spec),
+        optuna_url=optuna_url,
         fresh=fresh,
         command=command,
         final=final,
         demos=spec.demos.resolve(),
-        collect=spec.collect or CollectConfig.for_task(task_defaults(task_of(spec.env.env_id))),
+        collect=collect,
         validation=None if spec.validation_demos is None else spec.validation_demos.resolve(),
         summary=summary,
-        settings=settings_of(summary),
+        settings=settings,
         finished=json.loads(json.dumps({"study": summary}, sort_keys=True, default=str)),
         trial_resources=(
             {"CPU": spec.cpus_per_trial},
             *[{"CPU": spec.cpus_per_worker}] * spec.rollout_workers,
         ),
-        pareto_axes={
-            "objective": spec.objective,
-            "safety_label": safety_axis_label(spec.env.env_id),
-        },
+        pareto_axes=axes,
     )
 
 

@@ -1,11 +1,17 @@
 """Running a ``StudySpec`` on Ray Tune + Optuna: constrained search, resumable, re-evaluated.
 
-The pieces live in their own modules: the searcher and scheduler (``distributed/search.py``),
-one trial (``distributed/trial.py``) and the final phase (``distributed/final.py``). Here
-:func:`run_study` builds or restores the Tuner, writes ``trials.parquet``,
-``history.parquet`` and ``pareto.png``, then runs the final phase on the top trials and writes
-``final.parquet``, ``final_episodes.parquet``, ``final_paired.parquet`` (paired differences to
-the expert and to plain BC on the same tracks) and ``best.json``.
+:func:`run_study` reads as plan -> run -> report. The plan is pure and made once
+(:func:`safe_bc.study_plan.plan_study`: paths, the Tune experiment, the Optuna copy, what a
+resume compares); the run's phases receive the plan and the records of the phases before:
+:func:`_start` (outputs, Ray, the demonstrations, the bars and the trials' job, the resume
+check), :func:`_tune` (the Tuner, new or restored, and its fit), then
+:func:`_final_and_certificate` for a complete tuning with a winner. The report writes
+``trials.parquet``, ``history.parquet`` and ``pareto.png`` (:func:`_report_trials`), the
+final phase's ``final.parquet``, ``final_episodes.parquet``, ``final_paired.parquet`` and
+``best.json`` (:func:`_write_final`), the certificate and recommender (:func:`deliver`), the
+time table and the finished mark. The pieces live in their own modules: the searcher,
+scheduler and Optuna copy (``distributed/search.py``), one trial (``distributed/trial.py``)
+and the final phase (``distributed/final.py``).
 """
 
 from __future__ import annotations
@@ -61,6 +67,7 @@ from safe_bc.distributed.search import (
     NUMBER,
     ConstrainedOptunaSearch,
     SpaceSampler,
+    check_optuna_copy,
     load_searcher,
     make_scheduler,
     make_searcher,
@@ -784,21 +791,17 @@ def _start(plan: StudyPlan, clock: StudyClock, console: Console) -> StudyStart:
     demos, inputs = _study_demos(plan, console.progress)
     clock.lap("demos")
     threshold, limits = constraint_bars(plan.spec, demos.safety_mean, demos.dim_safety_means())
+    cost_limits = tuple(float(x) for x in demos.limits)
+    identity = run_identity(plan, threshold, cost_limits, inputs)
     if plan.validation is not None:
         _check_validation_demos(plan.validation, plan.demos)
-    job = TrialJob(
-        plan.spec,
-        str(plan.demos),
-        limits,
-        tuple(float(x) for x in demos.limits),
-        None if plan.validation is None else str(plan.validation),
-    )
+    validation = None if plan.validation is None else str(plan.validation)
+    job = TrialJob(plan.spec, str(plan.demos), limits, cost_limits, validation)
     restoring = tune.Tuner.can_restore(plan.exp_path)
     if not restoring:  # a new experiment: rows of an older one do not belong to it
         (plan.out / HISTORY).unlink(missing_ok=True)
         (plan.out / FINISHED).unlink(missing_ok=True)
     clock.open(new_experiment=not restoring)
-    identity = run_identity(plan, threshold, job.cost_limits, inputs)
     added = _check_resume(plan.out, identity, restoring, plan.exp_path)
     return StudyStart(cpus, demos, inputs, threshold, limits, job, restoring, added)
 
@@ -900,12 +903,14 @@ def _make_tuner(plan: StudyPlan, start: StudyStart, console: Console) -> tuple[t
         # saved state), whatever the cluster is now
         concurrent = tuner._local_tuner._tune_config.max_concurrent_trials or concurrent
         return tuner, concurrent
+    searcher = make_searcher(spec, concurrent, export_to=plan.optuna_url)
+    halving = make_scheduler(spec)
     lines = [TrialLines(spec.trials)] if console.progress and not console.verbose else []
     tuner = tune.Tuner(
         trainable,
         tune_config=tune.TuneConfig(
-            search_alg=make_searcher(spec, concurrent),
-            scheduler=SaveOnTrialEnd(make_scheduler(spec)),
+            search_alg=searcher,
+            scheduler=SaveOnTrialEnd(halving),
             num_samples=spec.trials,
             max_concurrent_trials=concurrent,
             reuse_actors=True,
@@ -1012,6 +1017,7 @@ def _report_trials(plan: StudyPlan, start: StudyStart, grid: Any) -> TrialReport
     decide returned."""
     spec, out = plan.spec, plan.out
     trials, history, lost = _trial_rows(plan, grid)
+    winner = choose_winner(trials, spec.objective)
     errors = int((trials["status"] == "error").sum())
     finished = int(trials["status"].isin(["done", "stopped", "invalid", "error"]).sum())
     complete = finished >= spec.trials
@@ -1022,7 +1028,6 @@ def _report_trials(plan: StudyPlan, start: StudyStart, grid: Any) -> TrialReport
     )  # fmt: skip
     write_table_atomic(out / "trials.parquet", trials, meta)
     write_table_atomic(out / "history.parquet", history, meta)
-    winner = choose_winner(trials, spec.objective)
     title = f"{spec.name}: {finished}/{spec.trials} trials"
     plot_pareto(trials, start.threshold, out / "pareto.png", title=title, **plan.pareto_axes)
     return TrialReport(trials, meta, complete, errors, winner, title)
@@ -1032,16 +1037,17 @@ def _trial_rows(plan: StudyPlan, grid: Any) -> tuple[pd.DataFrame, pd.DataFrame,
     """The trial table and the report history from Tune's results, the trials a killed driver
     lost named and their folders removed: ``(trials, history, lost trial ids)``."""
     params, out, exp_path = plan.spec.params, plan.out, plan.exp_path
-    trials = trial_table(_records(grid, params), params)
-    history, lost = _study_history(read_history(out / HISTORY), trials)
+    reports, records = read_history(out / HISTORY), _records(grid, params)
+    # a trial whose end the study recorded keeps its folder, whatever Tune's state says
+    ended = history_events(out / HISTORY)[1]
+    trials = trial_table(records, params)
+    history, lost = _study_history(reports, trials)
     if lost:
         print(
             f"{len(lost)} trial(s) were lost with a killed driver (the restored experiment does "
             f"not know them and ran others instead; their reports stay in {HISTORY} only): "
             + ", ".join(lost)
         )
-    # a trial whose end the study recorded keeps its folder, whatever Tune's state says
-    ended = history_events(out / HISTORY)[1]
     orphans = _remove_orphan_trial_dirs(exp_path, set(trials["trial_id"]) | ended)
     if orphans:
         print(f"removed the folders of {len(orphans)} such trial(s) from {exp_path}")
@@ -1186,64 +1192,6 @@ def finished_outcome(plan: StudyPlan) -> StudyOutcome | None:
         timing=timing,
         certificate=certificate,
     )
-
-
-def check_optuna_copy(plan: StudyPlan, experiment_path: str, *, finished: bool = True) -> None:
-    """A finished study's Optuna copy (``optuna.db`` by default) must be whole and its own:
-    the study of this name with every trial. A missing local copy is written again from the
-    Tune experiment's searcher, with the final winner of ``best.json`` marked. An unfinished
-    study's copy (``finished=False``, checked before a resume) may lack trials, or be missing
-    (the searcher writes it again).
-
-    Raises:
-        ValueError: one line naming the file and the problem (corrupt, cut short, another
-            study's, trials missing).
-    """
-    url, name = plan.optuna_url, plan.spec.name
-    prefix = "sqlite:///"
-    if not url.startswith(prefix):
-        return  # a shared database: checked by its own server
-    path = Path(url.removeprefix(prefix))
-    if not path.exists():
-        if finished and experiment_path and not is_uri(experiment_path):
-            searcher = load_searcher(experiment_path)
-            searcher._export_to = url
-            searcher.export()
-            best = json.loads((plan.out / "best.json").read_text())
-            mark_final_winner(url, name, best.get("trial_id"), bool(best.get("feasible")))
-        return
-    problem = optuna_copy_problem(path, name, plan.spec.trials, at_most=not finished)
-    if problem:
-        raise ValueError(
-            f"{path}: {problem}; it is only a copy for Optuna's tools: delete it and rerun the "
-            "same command to write it again from the study's Tune experiment"
-        )
-
-
-def optuna_copy_problem(path: Path, name: str, trials: int, *, at_most: bool = False) -> str:
-    """What is wrong with the Optuna SQLite copy at ``path`` of study ``name`` with ``trials``
-    trials (``at_most``: up to ``trials``, a study under way) (``""``: nothing). Opened
-    read-only: nothing is created or changed."""
-    import sqlite3
-
-    try:
-        with contextlib.closing(sqlite3.connect(f"file:{path}?mode=ro", uri=True)) as db:
-            rows = db.execute("SELECT study_id FROM studies WHERE study_name = ?", (name,))
-            found = rows.fetchall()
-            if not found:
-                names = [r[0] for r in db.execute("SELECT study_name FROM studies")]
-                return f"holds no study {name!r} (it holds {names or 'none'}): not this study's"
-            (n,) = db.execute(
-                "SELECT COUNT(*) FROM trials WHERE study_id = ?", (found[0][0],)
-            ).fetchone()
-            check = db.execute("PRAGMA quick_check").fetchone()
-    except sqlite3.Error as e:
-        return f"not a whole Optuna database ({e})"
-    if check and check[0] != "ok":
-        return f"a damaged Optuna database ({check[0]})"
-    if n > trials or (n != trials and not at_most):
-        return f"holds {n} trials of study {name!r}, the study has {trials}"
-    return ""
 
 
 def _checkpoints(grid: Any, trial_ids: Sequence[str]) -> dict[str, BCNet]:

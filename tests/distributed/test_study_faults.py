@@ -403,7 +403,7 @@ def test_final_phase_resumes_per_agent_and_evaluation_and_a_finished_study_only_
     assert format_outcome(again, spec.params) == format_outcome(first, spec.params)
     (out / "optuna.db").unlink()  # the copy for Optuna's tools is written again from Tune's
     run_study(spec, progress=False)
-    from safe_bc.distributed.study import optuna_copy_problem
+    from safe_bc.distributed.search import optuna_copy_problem
 
     assert optuna_copy_problem(out / "optuna.db", spec.name, spec.trials) == ""
     (out / "optuna.db").write_bytes(b"SQLite format 3\0" + b"\0" * 100)  # cut short
@@ -604,7 +604,7 @@ def test_an_os_error_inside_tune_is_one_line_saying_what_a_rerun_does(
 def test_a_finished_studys_optuna_copy_must_be_whole_and_its_own(tmp_path: Path) -> None:
     import optuna
 
-    from safe_bc.distributed.study import check_optuna_copy
+    from safe_bc.distributed.search import check_optuna_copy
     from safe_bc.study import StudySpec
     from safe_bc.study_plan import plan_study
 
