@@ -676,17 +676,17 @@ def run_study(
             another task.
     """
     plan = plan_study(spec, fresh=fresh, command=command, final=final)
-    console = Console(progress, verbose, tuple(callbacks), trial_fn)
+    options = DriverOptions(progress, verbose, tuple(callbacks), trial_fn)
     with _stop_signals() as stop:
         try:
-            outcome = _run_study(plan, console)
+            outcome = _run_study(plan, options)
         except OSError as e:  # one line at the CLI, saying what a rerun does
             raise _os_error_in(e) from None
         return replace(outcome, stopped_by=stop.signum) if stop.signum else outcome
 
 
 @dataclass(frozen=True)
-class Console:
+class DriverOptions:
     """How this driver run talks and what it hands Tune (not part of the plan: a rerun may
     change it)."""
 
@@ -741,7 +741,7 @@ class TrialReport:
     """``pareto.png``'s title."""
 
 
-def _run_study(plan: StudyPlan, console: Console) -> StudyOutcome:
+def _run_study(plan: StudyPlan, options: DriverOptions) -> StudyOutcome:
     """The plan run and reported: a study finished before only reads its tables back; else
     set up, tune, write the trial tables, then (for a complete tuning with a winner) the final
     phase, the certificate and the finished mark."""
@@ -753,8 +753,8 @@ def _run_study(plan: StudyPlan, console: Console) -> StudyOutcome:
         )
         return done
     clock = StudyClock(plan.out / TIMING_LOG)
-    start = _start(plan, clock, console)
-    grid, stopped = _tune(plan, start, clock, console)
+    start = _start(plan, clock, options)
+    grid, stopped = _tune(plan, start, clock, options)
     report = _report_trials(plan, start, grid)
     clock.lap("trial_tables")
     outcome = StudyOutcome(
@@ -765,7 +765,7 @@ def _run_study(plan: StudyPlan, console: Console) -> StudyOutcome:
         clock.close()
         timing = write_timing(plan.out, report.trials, report.meta)
         return replace(outcome, stopped_by=stopped, timing=timing)
-    final, certificate, meta = _final_and_certificate(plan, start, grid, report, clock, console)
+    final, certificate, meta = _final_and_certificate(plan, start, grid, report, clock, options)
     clock.close()
     timing = write_timing(plan.out, report.trials, meta)
     check_optuna_copy(plan, plan.exp_path)  # never a finished claim over a broken copy
@@ -778,17 +778,17 @@ def _run_study(plan: StudyPlan, console: Console) -> StudyOutcome:
 # --- the run ------------------------------------------------------------------------------------
 
 
-def _start(plan: StudyPlan, clock: StudyClock, console: Console) -> StudyStart:
+def _start(plan: StudyPlan, clock: StudyClock, options: DriverOptions) -> StudyStart:
     """The outputs made ready (emptied with ``fresh``, else the resume checked), Ray started,
     the demonstrations read (collected when missing), the bars and the trials' job, and the
     run's identity recorded (``study.json``)."""
-    _prepare_outputs(plan, console.verbose)
+    _prepare_outputs(plan, options.verbose)
     clock.skip()
     ensure_ray()
     clock.lap("ray_start")
     cpus = cluster_cpus()
     _reinstall_signals()  # ray.init replaced the SIGTERM handler
-    demos, inputs = _study_demos(plan, console.progress)
+    demos, inputs = _study_demos(plan, options.progress)
     clock.lap("demos")
     threshold, limits = constraint_bars(plan.spec, demos.safety_mean, demos.dim_safety_means())
     cost_limits = tuple(float(x) for x in demos.limits)
@@ -807,10 +807,10 @@ def _start(plan: StudyPlan, clock: StudyClock, console: Console) -> StudyStart:
 
 
 def _tune(
-    plan: StudyPlan, start: StudyStart, clock: StudyClock, console: Console
+    plan: StudyPlan, start: StudyStart, clock: StudyClock, options: DriverOptions
 ) -> tuple[Any, Any]:
     """The tuning loop: ``(Tune's result grid, the stop it ended on)``."""
-    tuner, concurrent = _make_tuner(plan, start, console)
+    tuner, concurrent = _make_tuner(plan, start, options)
     meter = _running_meter(tuner)
     spec = plan.spec
     print(
@@ -870,17 +870,19 @@ def _study_demos(plan: StudyPlan, progress: bool) -> tuple[Any, dict[str, Any]]:
     return demos, {"demos": dataset_record(plan.demos)}
 
 
-def _make_tuner(plan: StudyPlan, start: StudyStart, console: Console) -> tuple[tune.Tuner, int]:
+def _make_tuner(
+    plan: StudyPlan, start: StudyStart, options: DriverOptions
+) -> tuple[tune.Tuner, int]:
     """The Tune run, restored from the experiment (with ``start.added`` more trials) or new,
     and how many trials run at once (a restored run keeps the limit it started with)."""
     spec, exp_path = plan.spec, plan.exp_path
     resources = tune.PlacementGroupFactory(list(plan.trial_resources))
     trainable = tune.with_resources(
-        tune.with_parameters(console.trial_fn, job=start.job), resources
+        tune.with_parameters(options.trial_fn, job=start.job), resources
     )
     concurrent = spec.concurrency(start.cpus)  # how many at once, never which
-    reporter = progress_reporter(spec) if console.verbose else None
-    verbose = 1 if console.progress and console.verbose else 0
+    reporter = progress_reporter(spec) if options.verbose else None
+    verbose = 1 if options.progress and options.verbose else 0
     if start.restoring:
         more = f" with {start.added} more trial(s), {spec.trials} in all" if start.added else ""
         print(f"resuming study {spec.name!r} from {exp_path}{more}")
@@ -905,7 +907,7 @@ def _make_tuner(plan: StudyPlan, start: StudyStart, console: Console) -> tuple[t
         return tuner, concurrent
     searcher = make_searcher(spec, concurrent, export_to=plan.optuna_url)
     halving = make_scheduler(spec)
-    lines = [TrialLines(spec.trials)] if console.progress and not console.verbose else []
+    lines = [TrialLines(spec.trials)] if options.progress and not options.verbose else []
     tuner = tune.Tuner(
         trainable,
         tune_config=tune.TuneConfig(
@@ -930,7 +932,7 @@ def _make_tuner(plan: StudyPlan, start: StudyStart, console: Console) -> tuple[t
                 HistoryRecorder(str((plan.out / HISTORY).resolve())),
                 RunningMeter(),
                 *lines,
-                *console.callbacks,
+                *options.callbacks,
             ],
             progress_reporter=reporter,
             verbose=verbose,
@@ -969,7 +971,7 @@ def _final_and_certificate(
     grid: Any,
     report: TrialReport,
     clock: StudyClock,
-    console: Console,
+    options: DriverOptions,
 ) -> tuple[FinalOutcome, Any, dict[str, Any]]:
     """The final phase on the candidates, its tables and plot, then the winner's certificate
     and recommender: ``(final outcome, certificate, meta with the final phase's seconds)``."""
@@ -980,7 +982,7 @@ def _final_and_certificate(
     t0 = time.perf_counter()
     store = FinalStore(plan.out / STORE)
     final = final_phase(
-        spec, start.job, candidates, checkpoints, start.demos, progress=console.progress,
+        spec, start.job, candidates, checkpoints, start.demos, progress=options.progress,
         store=store,
     )  # fmt: skip
     final_s = time.perf_counter() - t0
@@ -1004,7 +1006,7 @@ def _final_and_certificate(
         **plan.pareto_axes,
     )
     clock.lap("final_tables")
-    certificate = deliver(plan, start.job, final, meta, store, progress=console.progress)
+    certificate = deliver(plan, start.job, final, meta, store, progress=options.progress)
     clock.lap("certification")
     return final, certificate, meta
 
