@@ -882,6 +882,7 @@ def _make_tuner(
     )
     concurrent = spec.concurrency(start.cpus)  # how many at once, never which
     reporter = progress_reporter(spec) if options.verbose else None
+    lines = [TrialLines(spec.trials)] if options.progress and not options.verbose else []
     verbose = 1 if options.progress and options.verbose else 0
     if start.restoring:
         more = f" with {start.added} more trial(s), {spec.trials} in all" if start.added else ""
@@ -907,7 +908,6 @@ def _make_tuner(
         return tuner, concurrent
     searcher = make_searcher(spec, concurrent, export_to=plan.optuna_url)
     halving = make_scheduler(spec)
-    lines = [TrialLines(spec.trials)] if options.progress and not options.verbose else []
     tuner = tune.Tuner(
         trainable,
         tune_config=tune.TuneConfig(
@@ -1162,11 +1162,11 @@ def finished_outcome(plan: StudyPlan) -> StudyOutcome | None:
             f"delete {out / FINISHED} and rerun the same command to rewrite the outputs (the "
             "trials and the final phase's finished work are kept and not redone)"
         ) from None
-    check_optuna_copy(plan, str(meta.get("experiment_path", "")))
     try:  # absent for a study finished before timings were recorded
         timing = read_table(out / TIMING)[0] if (out / TIMING).exists() else None
     except DatasetError:
         timing = None
+    check_optuna_copy(plan, str(meta.get("experiment_path", "")))
     final = FinalOutcome(
         table, episodes, best.get("trial_id"), bool(best.get("feasible")),
         str(best.get("message", "")), dict(fmeta.get("configs", {})),
