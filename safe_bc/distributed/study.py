@@ -708,7 +708,7 @@ class StudyStart:
     cpus: float
     """The cluster's CPUs."""
     demos: Any
-    """The demonstrations (:class:`safe_bc.data.store.Demonstrations`)."""
+    """The demonstrations (:class:`safe_bc.demos.Demonstrations`)."""
     inputs: dict[str, Any]
     """The inputs' record (the demonstrations' identity) stored with every table."""
     threshold: float
