@@ -450,9 +450,10 @@ def tune(job: TuneJob, *, command: str = "") -> Done:
     import shlex
 
     from safe_bc.distributed.console import one_line_warnings
-    from safe_bc.distributed.study import experiment_location, format_outcome, run_study
+    from safe_bc.distributed.study import format_outcome, run_study
     from safe_bc.overrides import apply_overrides
     from safe_bc.study import load_study
+    from safe_bc.study_plan import experiment_location
 
     spec = replace(load_study(job.study), **job.overrides())
     for path, value in job.spec_overrides():

@@ -340,9 +340,11 @@ def family(path: str | Path) -> dict[str, Entry]:
     return declared
 
 
-def _resolved(path: Path, entries: dict[str, Entry], key: str) -> Comparison:
+def _resolved(path: Path, entries: dict[str, Entry], key: str, planned: bool = False) -> Comparison:
     """Entry ``key`` ready to run: a fresh comparison's rows chosen on its selection's
-    committed table (``OUT/<selection name>.parquet``, read now)."""
+    committed table (``OUT/<selection name>.parquet``, read now). ``planned``: a fresh
+    comparison whose selection has not run yet stands as its selection's rows without the
+    candidates, on its own tracks (what the track ledger needs)."""
     entry = entries[key]
     if isinstance(entry, Comparison):
         return entry
@@ -350,8 +352,13 @@ def _resolved(path: Path, entries: dict[str, Entry], key: str) -> Comparison:
         raise ValueError(f"{path}: {key!r} follows {entry.follows!r}, no other comparison there")
     from safe_bc.data.store import read_table
 
-    selection = _resolved(path, entries, entry.follows)
+    selection = _resolved(path, entries, entry.follows, planned)
     table = selection.out / f"{selection.name}.parquet"
+    if not table.is_file() and planned:
+        changes: dict[str, Any] = {"name": entry.name, "eval_seed": entry.eval_seed}
+        if entry.episodes is not None:
+            changes["episodes"] = entry.episodes
+        return selection.with_deferral((), shares_tracks_with=entry.shares_tracks_with, **changes)
     if not table.is_file():
         raise FileNotFoundError(
             f"{path}: {key!r} chooses its rows on {table}, which is missing: run "
@@ -360,15 +367,18 @@ def _resolved(path: Path, entries: dict[str, Entry], key: str) -> Comparison:
     return resolve(entry, selection, read_table(table)[0])
 
 
-def load_comparisons(path: str | Path) -> dict[str, Comparison]:
+def load_comparisons(path: str | Path, planned: bool = False) -> dict[str, Comparison]:
     """Every comparison of a family file by address, ready to run (fresh comparisons
-    resolved: their selections' tables are read now)."""
+    resolved: their selections' tables are read now). ``planned``: a fresh comparison whose
+    selection has not run yet is included without its chosen rows (on its own tracks) instead
+    of refused."""
     entries = family(path)
-    return {key: _resolved(Path(path), entries, key) for key in entries}
+    return {key: _resolved(Path(path), entries, key, planned) for key in entries}
 
 
-def load_comparison(path: str | Path, name: str | None = None) -> Comparison:
-    """The comparison ``name`` of a family file, ready to run (``None``: the file's only one).
+def load_comparison(path: str | Path, name: str | None = None, planned: bool = False) -> Comparison:
+    """The comparison ``name`` of a family file, ready to run (``None``: the file's only one;
+    ``planned`` as :func:`load_comparisons`).
 
     Raises:
         FileNotFoundError: no such file, or a fresh comparison's selection table is missing.
@@ -381,7 +391,7 @@ def load_comparison(path: str | Path, name: str | None = None) -> Comparison:
     if name not in entries:
         what = "name one comparison" if name is None else f"no comparison {name!r}"
         raise ValueError(f"{path}: {what} (--name): {', '.join(entries)}")
-    return _resolved(Path(path), entries, name)
+    return _resolved(Path(path), entries, name, planned)
 
 
 def run_slug(name: str) -> str:

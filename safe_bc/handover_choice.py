@@ -19,9 +19,22 @@ from safe_bc.metrics import clopper_pearson_upper, episodes_beyond, paired_to_re
 EXPERT = "expert"
 """Method label of the expert's own episodes on the selection block."""
 
-Rule = Literal["fewest_deferred"]
+Rule = Literal["fewest_deferred", "fewest_deferred_else_fewest_beyond"]
 """``fewest_deferred``: among the candidates with no selection episode beyond ``d_s`` and a mean
-deferred share below the limit, the fewest steps deferred; ties go to the higher reward."""
+deferred share below the limit, the fewest steps deferred; ties go to the higher reward; none
+qualifies: none. ``fewest_deferred_else_fewest_beyond``: the same, and where none qualifies, among
+the candidates below the deferral limit the fewest episodes beyond ``d_s``, then the fewest
+steps deferred (a choice always, for a certificate to judge)."""
+
+RULE_TEXT: dict[str, str] = {
+    "fewest_deferred": "among the candidates with no episode beyond d_s and a mean deferred "
+    "share below the limit, the fewest steps deferred; ties go to the higher reward",
+    "fewest_deferred_else_fewest_beyond": "among the candidates with no episode beyond d_s and "
+    "a mean deferred share below the limit, the fewest steps deferred (ties: the higher "
+    "reward); where none has zero, among those below the limit the fewest episodes beyond d_s, "
+    "then the fewest steps deferred",
+}
+"""Each rule in words, for the measurement's Markdown."""
 
 
 @dataclass(frozen=True)
@@ -125,7 +138,11 @@ def choose(table: pd.DataFrame, choice: HandoverChoice) -> int | None:
     2
     """
     rows = table[table["candidate"] != EXPERT]
-    ok = rows[(rows["episodes_beyond"] == 0) & (rows["deferred_share"] < choice.deferred_limit)]
+    light = rows[rows["deferred_share"] < choice.deferred_limit]
+    ok = light[light["episodes_beyond"] == 0]
+    if ok.empty and choice.rule == "fewest_deferred_else_fewest_beyond" and not light.empty:
+        best = light.sort_values(["episodes_beyond", "deferred_share"]).iloc[0]
+        return int(str(best["candidate"])[1:])
     if ok.empty:
         return None
     best = ok.sort_values(["deferred_share", "reward"], ascending=[True, False]).iloc[0]

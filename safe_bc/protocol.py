@@ -70,9 +70,30 @@ def least_deferred(
     return [min(ok, key=lambda x: x[:2])[2]] if ok else []
 
 
+def best_lower_bound(
+    table: pd.DataFrame, candidates: Sequence[Handover], burden: float
+) -> list[Handover]:
+    """Among the rows with no selection episode beyond d_s and a mean deferred share below
+    ``burden``, the one with the highest lower bound of the paired reward interval against the
+    table's reference (``d_reward_lo``); ties: fewer training env steps of the agent handed over
+    (``env_steps`` of its ``of`` row), then table order; none: no row."""
+
+    def steps(r: Handover) -> float:
+        value = table["env_steps"].get(r.of) if "env_steps" in table else None
+        return float(value) if value is not None and value == value else 0.0
+
+    ok = [
+        (-float(table.loc[r.name, "d_reward_lo"]), steps(r), i, r)
+        for i, r in enumerate(candidates)
+        if _beyond(table, r) == 0 and float(table.loc[r.name, "deferred_share"]) < burden
+    ]
+    return [min(ok, key=lambda x: x[:3])[3]] if ok else []
+
+
 RULES: dict[str, RuleFn] = {
     "smallest_safe_width": smallest_safe_width,
     "least_deferred": least_deferred,
+    "best_lower_bound": best_lower_bound,
 }
 """Rule name -> ``rule(table, candidates, **params)``: the chosen candidates (possibly none).
 ``table`` is the selection's table indexed by row name; ``candidates`` its deferral rows, in

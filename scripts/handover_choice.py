@@ -30,6 +30,7 @@ from safe_bc.eval_config import EvalConfig
 from safe_bc.evaluation import ExpertSource, NetSource
 from safe_bc.handover_choice import (
     EXPERT,
+    RULE_TEXT,
     HandoverChoice,
     candidate_label,
     choice_table,
@@ -134,16 +135,16 @@ def run(choice: HandoverChoice, workers: int, command: str) -> str:
             f"Every candidate over the agents of `{choice.recommender}` ({seeds} training seeds x "
             f"{choice.episodes} selection episodes of held-out block {choice.eval_seed}, the same "
             f"episodes for every candidate and seed), the expert alone on the same episodes. Rule, "
-            f"fixed before the run ({choice.rule}): among the candidates with no episode beyond "
-            f"d_s and a mean deferred share below {choice.deferred_limit:g}, the fewest steps "
-            f"deferred; ties go to the higher reward. d_reward: paired with the expert on the same "
+            f"fixed before the run ({choice.rule}): {RULE_TEXT[choice.rule]} (deferred-share "
+            f"limit {choice.deferred_limit:g}). d_reward: paired with the expert on the same "
             f"episodes, crossed 95% bootstrap CI (training seeds x episodes).",
             "",
             f"**{verdict}**",
             "",
             markdown_table(shown.round(4).values.tolist(), cols),
             "",
-            f"Made by `{command}`; code {meta.get('git_commit', '?')}.",
+            f"Made by `{command}`; code {str(meta.get('git_revision', '?'))[:12]}, "
+            f"{meta.get('cpu_model', '?')} ({meta.get('cpus', '?')} CPUs).",
             "",
         ]
     )

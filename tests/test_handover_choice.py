@@ -57,3 +57,17 @@ def test_the_rule_takes_the_fewest_deferred_among_safe_rows_under_the_limit() ->
     assert choose(table, c) == 1
     assert candidate_label(choose(table, c)) == "h01"
     assert choose(table, _choice(grid, limit=0.04)) is None  # every safe row defers too much
+
+
+def test_the_fallback_rule_takes_the_fewest_crossings_under_the_deferral_limit() -> None:
+    from dataclasses import replace
+
+    grid = handover_grid({"a": (0.1, 0.2, 0.3)})
+    c = replace(_choice(grid), rule="fewest_deferred_else_fewest_beyond")
+    episodes = _episodes(
+        {"h00": [1, 1, 0], "h01": [0, 1, 0], "h02": [0, 0, 0], EXPERT: [0, 0, 1]},
+        {"h00": 0.01, "h01": 0.05, "h02": 0.5},
+    )
+    table = choice_table(episodes, c)
+    assert choose(table, _choice(grid)) is None  # the zero-crossing row defers too much
+    assert choose(table, c) == 1  # fewest crossings (2 of 6) among rows under the limit

@@ -70,6 +70,21 @@ def test_least_deferred_falls_back_to_the_next_rule() -> None:
     assert [m.name for m in c.methods] == ["expert", "a", "b"]
 
 
+def test_best_lower_bound_takes_the_highest_paired_bound_among_safe_cheap_rows() -> None:
+    rule = Rule("best_lower_bound", {"burden": 0.05})
+    fresh = Fresh("f", "sel", (rule,), eval_seed=25)
+    table = _table({"a+2": 0, "a+1": 0, "b+2": 1, "b+1": 0, "a": 0, "b": 0},
+                   {"a+2": 0.03, "a+1": 0.06, "b+2": 0.01, "b+1": 0.04})  # fmt: skip
+    table["d_reward_lo"] = [-1.0, 5.0, 9.0, 0.5, None, None]
+    table["env_steps"] = [None, None, None, None, 200.0, 100.0]
+    # a+1 defers too much, b+2 crossed: b+1 (0.5) beats a+2 (-1)
+    assert [m.name for m in resolve(fresh, _selection(), table).methods][3:] == ["b+1"]
+    table.loc[table["method"] == "a+2", "d_reward_lo"] = 0.5  # a tie: fewer env steps (b's)
+    assert [m.name for m in resolve(fresh, _selection(), table).methods][3:] == ["b+1"]
+    table.loc[table["method"] == "b", "env_steps"] = 300.0
+    assert [m.name for m in resolve(fresh, _selection(), table).methods][3:] == ["a+2"]
+
+
 def test_a_rule_is_named_and_the_table_has_the_candidates() -> None:
     with pytest.raises(ValueError, match="unknown rule 'best'"):
         Rule("best")

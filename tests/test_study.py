@@ -215,7 +215,7 @@ def test_pareto_mask_summary_and_figure(tmp_path: Path) -> None:
         axes.extend([fig.axes[0].get_xlabel(), fig.axes[0].get_ylabel()])
         return real_save(fig, *args, **kwargs)
 
-    from safe_bc.distributed.study import safety_axis_label
+    from safe_bc.study_plan import safety_axis_label
     from safe_bc.tasks import task_defaults
 
     t["reward_lcb"] = t["reward_mean"] - 10.0

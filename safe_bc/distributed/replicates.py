@@ -20,7 +20,7 @@ import pandas as pd
 
 from safe_bc.atomic import write_text_atomic
 from safe_bc.data.store import read_table, read_table_metadata, write_table_atomic
-from safe_bc.distributed.study import experiment_location, format_outcome, run_study
+from safe_bc.distributed.study import format_outcome, run_study
 from safe_bc.distributed.trial import TrialJob, run_trial
 from safe_bc.locks import output_locks
 from safe_bc.provenance import check_result_write, provenance
@@ -35,6 +35,7 @@ from safe_bc.replicates import (
     replicates_summary,
 )
 from safe_bc.study import StudySpec
+from safe_bc.study_plan import experiment_location
 
 TABLE = f"{REPLICATES}.parquet"
 """The replicate table, in the study's folder."""

@@ -30,37 +30,12 @@ STUDY_RECORD = "study.json"
 TUNE_STATE = "experiment_state-*.json"
 """Tune's saved experiment state in ``<storage>/<study>/`` (one file per driver run)."""
 
-RESOURCE_FIELDS = frozenset(
-    {
-        "max_concurrent",
-        "cpus_per_trial",
-        "cpus_per_worker",
-        "rollout_workers",
-        "final_workers",
-        "max_failures",
-        "storage",
-        "results",
-        "optuna_storage",
-        "demos",
-    }
-)
-"""``StudySpec`` fields that change where and how fast the study runs, never a trial's or the
-final phase's numbers: a rerun may change them (``storage`` is compared as the experiment's
-path, ``experiment_path``; the demonstrations by their digest, wherever they lie)."""
-
 
 class ResumeRefused(ValueError):
     """A rerun that would drop, mix or redo a study's finished work (one line)."""
 
 
 # --- pure: what differs ---------------------------------------------------------------------
-
-
-def settings_of(summary: Mapping[str, Any]) -> dict[str, Any]:
-    """The part of ``StudySpec.summary()`` that shapes the trials and the final phase, as JSON
-    values (what ``study.json`` keeps and a resume compares)."""
-    kept = {k: v for k, v in summary.items() if k not in RESOURCE_FIELDS}
-    return json.loads(json.dumps(kept, sort_keys=True, default=str))
 
 
 def _flat(value: Any, prefix: str = "") -> dict[str, Any]:
@@ -180,7 +155,7 @@ def check_resume(
 
     Args:
         out: the study's ``results/<study>/``.
-        settings: this run's :func:`settings_of`.
+        settings: this run's :func:`safe_bc.study_plan.settings_of`.
         exp_path: this run's Tune experiment path.
         restoring: Tune has an experiment at ``exp_path`` to restore.
         local: ``exp_path`` is a local folder (its state file can be read).

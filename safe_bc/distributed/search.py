@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import contextlib
 import copy
+import json
 import math
 import time
 import warnings
@@ -35,6 +36,7 @@ from ray.tune.schedulers import AsyncHyperBandScheduler, FIFOScheduler, TrialSch
 from ray.tune.search.optuna import OptunaSearch
 
 from safe_bc.study import CONSTRAINTS, Choice, Float, Int, Param, StudySpec
+from safe_bc.study_plan import StudyPlan, is_uri
 
 SCORE = "score"
 """Result key of the screening score the halving compares: the reward, minus :data:`SCREEN_PENALTY`
@@ -228,14 +230,6 @@ def one_line(error: BaseException) -> str:
     return lines[0] if lines else type(error).__name__
 
 
-def default_optuna_storage(spec: StudySpec) -> str:
-    """The study's Optuna storage URL: ``spec.optuna_storage``, else a SQLite file beside the
-    tables, ``sqlite:///<results>/<name>/optuna.db`` (absolute path)."""
-    if spec.optuna_storage:
-        return spec.optuna_storage
-    return f"sqlite:///{(spec.results / spec.name / 'optuna.db').resolve()}"
-
-
 def export_study(
     study: Any,
     url: str,
@@ -395,8 +389,11 @@ def check_private_api(searcher: OptunaSearch) -> None:
         )
 
 
-def make_searcher(spec: StudySpec, concurrent: int | None = None) -> ConstrainedOptunaSearch:
-    """The study's constrained TPE searcher (maximises ``spec.objective``), batched when the
+def make_searcher(
+    spec: StudySpec, concurrent: int | None = None, *, export_to: str | None = None
+) -> ConstrainedOptunaSearch:
+    """The study's constrained TPE searcher (maximises ``spec.objective``, copying its Optuna
+    study to ``export_to``, a storage URL, when given), batched when the
     study says so (``spec.batch_size``). With batches, the constant liar follows the batch
     size, never the trials at once (``concurrent``, resolved from the cluster, or
     ``max_concurrent``, which ``--max-concurrent`` changes); without batches (whose trials
@@ -419,7 +416,7 @@ def make_searcher(spec: StudySpec, concurrent: int | None = None) -> Constrained
         study_name=spec.name,
         batch_size=spec.batch_size,
         max_trials=spec.trials,
-        export_to=default_optuna_storage(spec),
+        export_to=export_to,
     )
 
 
@@ -530,3 +527,64 @@ def screen_score(reward: float, constraint: float) -> float:
     """
     ok = math.isfinite(constraint) and constraint <= 0
     return float(reward) if ok else float(reward) - SCREEN_PENALTY
+
+
+# --- the copy's check ---------------------------------------------------------------------------
+
+
+def check_optuna_copy(plan: StudyPlan, experiment_path: str, *, finished: bool = True) -> None:
+    """A finished study's Optuna copy (``optuna.db`` by default) must be whole and its own:
+    the study of this name with every trial. A missing local copy is written again from the
+    Tune experiment's searcher, with the final winner of ``best.json`` marked. An unfinished
+    study's copy (``finished=False``, checked before a resume) may lack trials, or be missing
+    (the searcher writes it again).
+
+    Raises:
+        ValueError: one line naming the file and the problem (corrupt, cut short, another
+            study's, trials missing).
+    """
+    url, name = plan.optuna_url, plan.spec.name
+    prefix = "sqlite:///"
+    if not url.startswith(prefix):
+        return  # a shared database: checked by its own server
+    path = Path(url.removeprefix(prefix))
+    if not path.exists():
+        if finished and experiment_path and not is_uri(experiment_path):
+            searcher = load_searcher(experiment_path)
+            searcher._export_to = url
+            searcher.export()
+            best = json.loads((plan.out / "best.json").read_text())
+            mark_final_winner(url, name, best.get("trial_id"), bool(best.get("feasible")))
+        return
+    problem = optuna_copy_problem(path, name, plan.spec.trials, at_most=not finished)
+    if problem:
+        raise ValueError(
+            f"{path}: {problem}; it is only a copy for Optuna's tools: delete it and rerun the "
+            "same command to write it again from the study's Tune experiment"
+        )
+
+
+def optuna_copy_problem(path: Path, name: str, trials: int, *, at_most: bool = False) -> str:
+    """What is wrong with the Optuna SQLite copy at ``path`` of study ``name`` with ``trials``
+    trials (``at_most``: up to ``trials``, a study under way) (``""``: nothing). Opened
+    read-only: nothing is created or changed."""
+    import sqlite3
+
+    try:
+        with contextlib.closing(sqlite3.connect(f"file:{path}?mode=ro", uri=True)) as db:
+            rows = db.execute("SELECT study_id FROM studies WHERE study_name = ?", (name,))
+            found = rows.fetchall()
+            if not found:
+                names = [r[0] for r in db.execute("SELECT study_name FROM studies")]
+                return f"holds no study {name!r} (it holds {names or 'none'}): not this study's"
+            (n,) = db.execute(
+                "SELECT COUNT(*) FROM trials WHERE study_id = ?", (found[0][0],)
+            ).fetchone()
+            check = db.execute("PRAGMA quick_check").fetchone()
+    except sqlite3.Error as e:
+        return f"not a whole Optuna database ({e})"
+    if check and check[0] != "ok":
+        return f"a damaged Optuna database ({check[0]})"
+    if n > trials or (n != trials and not at_most):
+        return f"holds {n} trials of study {name!r}, the study has {trials}"
+    return ""

@@ -1,11 +1,17 @@
 """Running a ``StudySpec`` on Ray Tune + Optuna: constrained search, resumable, re-evaluated.
 
-The pieces live in their own modules: the searcher and scheduler (``distributed/search.py``),
-one trial (``distributed/trial.py``) and the final phase (``distributed/final.py``). Here
-:func:`run_study` builds or restores the Tuner, writes ``trials.parquet``,
-``history.parquet`` and ``pareto.png``, then runs the final phase on the top trials and writes
-``final.parquet``, ``final_episodes.parquet``, ``final_paired.parquet`` (paired differences to
-the expert and to plain BC on the same tracks) and ``best.json``.
+:func:`run_study` reads as plan -> run -> report. The plan is pure and made once
+(:func:`safe_bc.study_plan.plan_study`: paths, the Tune experiment, the Optuna copy, what a
+resume compares); the run's phases receive the plan and the records of the phases before:
+:func:`_start` (outputs, Ray, the demonstrations, the bars and the trials' job, the resume
+check), :func:`_tune` (the Tuner, new or restored, and its fit), then
+:func:`_final_and_certificate` for a complete tuning with a winner. The report writes
+``trials.parquet``, ``history.parquet`` and ``pareto.png`` (:func:`_report_trials`), the
+final phase's ``final.parquet``, ``final_episodes.parquet``, ``final_paired.parquet`` and
+``best.json`` (:func:`_write_final`), the certificate and recommender (:func:`deliver`), the
+time table and the finished mark. The pieces live in their own modules: the searcher,
+scheduler and Optuna copy (``distributed/search.py``), one trial (``distributed/trial.py``)
+and the final phase (``distributed/final.py``).
 """
 
 from __future__ import annotations
@@ -21,7 +27,7 @@ import signal
 import sys
 import time
 import uuid
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -36,7 +42,6 @@ from ray.tune.utils import flatten_dict
 from safe_bc.atomic import write_json_atomic, write_text_atomic
 from safe_bc.bc import CheckpointError, load_checkpoint
 from safe_bc.bc.net import BCNet
-from safe_bc.collection import CollectConfig
 from safe_bc.data.store import (
     DatasetError,
     dataset_record,
@@ -55,7 +60,6 @@ from safe_bc.distributed.resume import (
     history_events,
     identity_problem,
     install_atomic_upload,
-    settings_of,
     with_more_trials,
 )
 from safe_bc.distributed.runtime import cluster_cpus, ensure_ray
@@ -63,7 +67,7 @@ from safe_bc.distributed.search import (
     NUMBER,
     ConstrainedOptunaSearch,
     SpaceSampler,
-    default_optuna_storage,
+    check_optuna_copy,
     load_searcher,
     make_scheduler,
     make_searcher,
@@ -90,6 +94,14 @@ from safe_bc.study import (
     subset_warnings,
     summary_lines,
     trial_table,
+)
+from safe_bc.study_plan import (
+    StudyPlan,
+    constraint_bars,
+    is_uri,
+    plan_study,
+    run_identity,
+    trials_meta,
 )
 from safe_bc.tasks import check_frames_renderer, task_defaults, task_of
 from safe_bc.timing import COPY, TOTAL, timing_lines, timing_markdown, timing_table
@@ -160,20 +172,6 @@ def trial_dirname(trial: Any) -> str:
     return f"trial_{trial.trial_id}"
 
 
-def _is_uri(path: str) -> bool:
-    return "://" in path
-
-
-def experiment_location(spec: StudySpec) -> tuple[str, str]:
-    """``(storage_path, experiment_path)``: local folders made absolute, URIs kept."""
-    storage = spec.storage if _is_uri(spec.storage) else str(Path(spec.storage).resolve())
-    return storage, f"{storage.rstrip('/')}/{spec.name}"
-
-
-def _delete_tree(path: str) -> None:
-    delete_storage_tree(path)
-
-
 def _check_env(spec: StudySpec, demos: Path) -> None:
     meta = read_meta(demos)
     if meta.env_id != spec.env.env_id:
@@ -213,7 +211,7 @@ def _check_resume(out: Path, identity: dict[str, Any], restoring: bool, exp_path
         changed = [k for k, v in identity.items() if k in stored and stored.get(k) != v]
         more = isinstance(stored.get("trials"), int) and identity["trials"] > stored["trials"]
         if changed == ["trials"] and more:
-            if _is_uri(exp_path):
+            if is_uri(exp_path):
                 raise ValueError(
                     f"adding trials to a study needs a local --storage (the study's Tune "
                     f"experiment is at {exp_path})"
@@ -677,203 +675,157 @@ def run_study(
         ValueError: a resumed study with another trial count or threshold, or demos of
             another task.
     """
+    plan = plan_study(spec, fresh=fresh, command=command, final=final)
+    options = DriverOptions(progress, verbose, tuple(callbacks), trial_fn)
     with _stop_signals() as stop:
         try:
-            outcome = _run_study(
-                spec, fresh, command, progress, callbacks, trial_fn, final, verbose
-            )
+            outcome = _run_study(plan, options)
         except OSError as e:  # one line at the CLI, saying what a rerun does
             raise _os_error_in(e) from None
         return replace(outcome, stopped_by=stop.signum) if stop.signum else outcome
 
 
-def _run_study(
-    spec: StudySpec,
-    fresh: bool,
-    command: str,
-    progress: bool,
-    callbacks: Sequence[Any],
-    trial_fn: Callable[[dict[str, Any], TrialJob], None],
-    final_phase_too: bool = True,
-    verbose: bool = False,
-) -> StudyOutcome:
-    """:func:`run_study`'s steps in order: set up, tune, write the trial tables, then (for a
-    complete tuning with a winner) the final phase, the certificate and the finished mark."""
-    if not fresh:
-        done = finished_outcome(spec)
-        if done is not None:
-            print(
-                f"study {spec.name!r} finished before with these settings: its result, read "
-                f"from {done.out}/ (pass --fresh to run it again from scratch)"
-            )
-            return done
+@dataclass(frozen=True)
+class DriverOptions:
+    """How this driver run talks and what it hands Tune (not part of the plan: a rerun may
+    change it)."""
 
-    clock = StudyClock(spec.results / spec.name / TIMING_LOG)
-    out, storage, exp_path = _prepare_outputs(spec, fresh, verbose)
-    clock.skip()
-    ensure_ray()
-    clock.lap("ray_start")
-    cpus = cluster_cpus()
-    concurrent = spec.concurrency(cpus)  # how many at once, never which (nothing else reads it)
-    _reinstall_signals()  # ray.init replaced the SIGTERM handler
-    demos_path, demos, inputs = _study_demos(spec, progress)
-    clock.lap("demos")
-    expert_safety = demos.safety_mean
-    threshold, limits = constraint_bars(spec, expert_safety, demos.dim_safety_means())
-    validation = None
-    if spec.validation_demos is not None:
-        validation = spec.validation_demos.resolve()
-        _check_validation_demos(validation, demos_path)
-    job = TrialJob(
-        spec,
-        str(demos_path),
-        limits,
-        tuple(float(x) for x in demos.limits),
-        None if validation is None else str(validation),
-    )
+    progress: bool
+    """A line per finished trial and the final phase's progress."""
+    verbose: bool
+    """Tune's own status table instead of the trial lines."""
+    callbacks: tuple[Any, ...]
+    """Extra Tune callbacks of a new run."""
+    trial_fn: Callable[[dict[str, Any], TrialJob], None]
+    """The per-trial function ``(config, job)``."""
 
-    restoring = tune.Tuner.can_restore(exp_path)
-    if not restoring:  # a new experiment: rows of an older one do not belong to it
-        (out / HISTORY).unlink(missing_ok=True)
-        (out / FINISHED).unlink(missing_ok=True)
-    clock.open(new_experiment=not restoring)
-    identity = run_identity(spec, threshold, job.cost_limits, inputs)
-    identity.update(experiment_path=exp_path, settings=settings_of(spec.summary()))
-    added = _check_resume(out, identity, restoring, exp_path)
-    tuner, concurrent = _make_tuner(
-        spec, job, trial_fn, restoring, exp_path, storage, concurrent,
-        progress=progress, verbose=verbose, callbacks=callbacks, added=added,
-    )  # fmt: skip
-    meter = _running_meter(tuner)
-    print(
-        f"study {spec.name!r}: up to {concurrent} trial(s) at once ({cpus:g} CPUs, "
-        f"{spec.trial_cpus:g} per trial, batches of {spec.batch_size}, "
-        f"max_concurrent {spec.max_concurrent})"
-    )
-    take_copy_seconds()  # only this run's copies
-    clock.skip()
-    grid, stopped = _fit(tuner, clock, concurrent, meter, cpus)
 
-    trials, history, lost = _trial_rows(spec, grid, out, exp_path)
-    errors = int((trials["status"] == "error").sum())
-    finished = int(trials["status"].isin(["done", "stopped", "invalid", "error"]).sum())
-    complete = finished >= spec.trials
-    meta = trials_meta(
-        spec, trials, command=command, threshold=threshold, limits=limits,
-        expert_safety=expert_safety, cost_limits=job.cost_limits, inputs=inputs,
-        exp_path=exp_path, complete=complete, lost=lost, provenance=provenance(),
-    )  # fmt: skip
-    write_table_atomic(out / "trials.parquet", trials, meta)
-    write_table_atomic(out / "history.parquet", history, meta)
-    winner = choose_winner(trials, spec.objective)
-    title = f"{spec.name}: {finished}/{spec.trials} trials"
-    axes = pareto_axes(spec)
-    plot_pareto(trials, threshold, out / "pareto.png", title=title, **axes)  # no verdict yet
+@dataclass(frozen=True)
+class StudyStart:
+    """What the set-up of a run found: the demonstrations, the bars, the trials' job and
+    whether Tune resumes an experiment."""
+
+    cpus: float
+    """The cluster's CPUs."""
+    demos: Any
+    """The demonstrations (:class:`safe_bc.demos.Demonstrations`)."""
+    inputs: dict[str, Any]
+    """The inputs' record (the demonstrations' identity) stored with every table."""
+    threshold: float
+    """The safety threshold."""
+    limits: ConstraintBars
+    """The bars every trial is held to."""
+    job: TrialJob
+    """What every trial receives."""
+    restoring: bool
+    """Tune restores an experiment."""
+    added: int
+    """Trials added to a restored experiment."""
+
+
+@dataclass(frozen=True)
+class TrialReport:
+    """The trial tables as written, and what they decide."""
+
+    trials: pd.DataFrame
+    """The trial table (``trials.parquet``)."""
+    meta: dict[str, Any]
+    """Its metadata (extended by every later table)."""
+    complete: bool
+    """Every trial finished."""
+    errors: int
+    """Trials that failed after all retries."""
+    winner: Winner | None
+    """The best trial on the trials' own evaluation."""
+    title: str
+    """``pareto.png``'s title."""
+
+
+def _run_study(plan: StudyPlan, options: DriverOptions) -> StudyOutcome:
+    """The plan run and reported: a study finished before only reads its tables back; else
+    set up, tune, write the trial tables, then (for a complete tuning with a winner) the final
+    phase, the certificate and the finished mark."""
+    done = None if plan.fresh else finished_outcome(plan)
+    if done is not None:
+        print(
+            f"study {plan.spec.name!r} finished before with these settings: its result, read "
+            f"from {done.out}/ (pass --fresh to run it again from scratch)"
+        )
+        return done
+    clock = StudyClock(plan.out / TIMING_LOG)
+    start = _start(plan, clock, options)
+    grid, stopped = _tune(plan, start, clock, options)
+    report = _report_trials(plan, start, grid)
     clock.lap("trial_tables")
-    outcome = StudyOutcome(complete, trials, None, None, threshold, out, exp_path, errors)
-    if not complete or winner is None or stopped or not final_phase_too:
+    outcome = StudyOutcome(
+        report.complete, report.trials, None, None, start.threshold, plan.out, plan.exp_path,
+        report.errors,
+    )  # fmt: skip
+    if not report.complete or report.winner is None or stopped or not plan.final:
         clock.close()
-        timing = write_timing(out, trials, meta)
+        timing = write_timing(plan.out, report.trials, report.meta)
         return replace(outcome, stopped_by=stopped, timing=timing)
-
-    final, certificate, meta = _final_and_certificate(
-        spec, job, trials, grid, demos, meta, clock, title, threshold, progress
-    )
+    final, certificate, meta = _final_and_certificate(plan, start, grid, report, clock, options)
     clock.close()
-    timing = write_timing(out, trials, meta)
-    check_optuna_copy(spec, exp_path)  # never a finished claim over a broken copy
-    write_json_atomic(out / FINISHED, _finished_record(spec), default=str)
-    return replace(outcome, winner=winner, final=final, timing=timing, certificate=certificate)
-
-
-# --- the plan: pure -----------------------------------------------------------------------------
-
-
-def constraint_bars(
-    spec: StudySpec, expert_safety: float, dim_safety: Mapping[str, float]
-) -> tuple[float, ConstraintBars]:
-    """The study's safety threshold (the expert's demonstrated safety mean unless the spec
-    sets one) and the bars every trial is held to."""
-    threshold = expert_safety if spec.threshold is None else float(spec.threshold)
-    limits = ConstraintBars(
-        threshold,
-        dim_safety,
-        spec.violation_tolerance,
-        spec.safety_constraint,
-        spec.violation_bound,
-        spec.violation_share_limit,
-        spec.deferred_share_limit if spec.handover is not None else 1.0,
+    timing = write_timing(plan.out, report.trials, meta)
+    check_optuna_copy(plan, plan.exp_path)  # never a finished claim over a broken copy
+    write_json_atomic(plan.out / FINISHED, plan.finished, default=str)
+    return replace(
+        outcome, winner=report.winner, final=final, timing=timing, certificate=certificate
     )
-    return threshold, limits
-
-
-def run_identity(
-    spec: StudySpec, threshold: float, cost_limits: Sequence[float], inputs: dict[str, Any]
-) -> dict[str, Any]:
-    """What a resumed study must share with the run it resumes (:func:`_check_resume`)."""
-    return {
-        "trials": spec.trials,
-        "threshold": threshold,
-        "limits": list(cost_limits),
-        "batch_size": spec.batch_size,
-        "demos_digest": inputs["demos"]["digest"],
-    }
-
-
-def trials_meta(
-    spec: StudySpec,
-    trials: pd.DataFrame,
-    *,
-    command: str,
-    threshold: float,
-    limits: ConstraintBars,
-    expert_safety: float,
-    cost_limits: Sequence[float],
-    inputs: dict[str, Any],
-    exp_path: str,
-    complete: bool,
-    lost: list[str],
-    provenance: dict[str, Any],
-) -> dict[str, Any]:
-    """The metadata of the trial and history tables (and, extended, of every later table)."""
-    return {
-        "command": command,
-        "study": spec.summary(),
-        "threshold": threshold,
-        "dim_thresholds": dict(limits.dim_thresholds),
-        "violation_tolerance": spec.violation_tolerance,
-        "violation_bound": spec.violation_bound,
-        "violation_share_limit": spec.violation_share_limit,
-        "objective": spec.objective,
-        "safety_constraint": spec.safety_constraint,
-        "expert_demo_safety_mean": expert_safety,
-        "cost_limits": list(cost_limits),
-        "inputs": inputs,
-        "handover": None if spec.handover is None else spec.handover.to_dict(),
-        "deferred_share_limit": spec.deferred_share_limit if spec.handover is not None else None,
-        "seeds": {
-            "train_seed": spec.base.bc.train.seed,
-            "eval_seed": spec.eval_seed,
-            "eval_seeds": [int(x) for x in str(trials["eval_seeds"].iloc[0]).split(",")]
-            if len(trials) and trials["eval_seeds"].iloc[0]
-            else [],
-            "final_seed": spec.final_seed,
-            "certify_seed": spec.certify_seed if spec.certify_episodes else None,
-            "sampler_seed": spec.sampler_seed,
-        },
-        "experiment_path": exp_path,
-        "complete": complete,
-        "lost_trials": lost,
-        "provenance": provenance,
-    }
 
 
 # --- the run ------------------------------------------------------------------------------------
 
 
-def _prepare_outputs(spec: StudySpec, fresh: bool, verbose: bool) -> tuple[Path, str, str]:
+def _start(plan: StudyPlan, clock: StudyClock, options: DriverOptions) -> StudyStart:
+    """The outputs made ready (emptied with ``fresh``, else the resume checked), Ray started,
+    the demonstrations read (collected when missing), the bars and the trials' job, and the
+    run's identity recorded (``study.json``)."""
+    _prepare_outputs(plan, options.verbose)
+    clock.skip()
+    ensure_ray()
+    clock.lap("ray_start")
+    cpus = cluster_cpus()
+    _reinstall_signals()  # ray.init replaced the SIGTERM handler
+    demos, inputs = _study_demos(plan, options.progress)
+    clock.lap("demos")
+    threshold, limits = constraint_bars(plan.spec, demos.safety_mean, demos.dim_safety_means())
+    cost_limits = tuple(float(x) for x in demos.limits)
+    identity = run_identity(plan, threshold, cost_limits, inputs)
+    if plan.validation is not None:
+        _check_validation_demos(plan.validation, plan.demos)
+    validation = None if plan.validation is None else str(plan.validation)
+    job = TrialJob(plan.spec, str(plan.demos), limits, cost_limits, validation)
+    restoring = tune.Tuner.can_restore(plan.exp_path)
+    if not restoring:  # a new experiment: rows of an older one do not belong to it
+        (plan.out / HISTORY).unlink(missing_ok=True)
+        (plan.out / FINISHED).unlink(missing_ok=True)
+    clock.open(new_experiment=not restoring)
+    added = _check_resume(plan.out, identity, restoring, plan.exp_path)
+    return StudyStart(cpus, demos, inputs, threshold, limits, job, restoring, added)
+
+
+def _tune(
+    plan: StudyPlan, start: StudyStart, clock: StudyClock, options: DriverOptions
+) -> tuple[Any, Any]:
+    """The tuning loop: ``(Tune's result grid, the stop it ended on)``."""
+    tuner, concurrent = _make_tuner(plan, start, options)
+    meter = _running_meter(tuner)
+    spec = plan.spec
+    print(
+        f"study {spec.name!r}: up to {concurrent} trial(s) at once ({start.cpus:g} CPUs, "
+        f"{spec.trial_cpus:g} per trial, batches of {spec.batch_size}, "
+        f"max_concurrent {spec.max_concurrent})"
+    )
+    take_copy_seconds()  # only this run's copies
+    clock.skip()
+    return _fit(tuner, clock, concurrent, meter, start.cpus)
+
+
+def _prepare_outputs(plan: StudyPlan, verbose: bool) -> None:
     """Tune's settings for this driver, the output folder checked writable (and emptied with
-    ``fresh``); ``(out, storage, experiment path)``."""
+    ``fresh``, else the study's own records asked whether it may be resumed)."""
     os.environ.setdefault("TUNE_DISABLE_AUTO_CALLBACK_LOGGERS", "1")
     os.environ.setdefault("RAY_AIR_NEW_OUTPUT", "0")  # the terse status table of CLIReporter
     # SaveOnTrialEnd forces saves; Tune would call two within 5 s "excessive" and blame
@@ -884,11 +836,10 @@ def _prepare_outputs(spec: StudySpec, fresh: bool, verbose: bool) -> tuple[Path,
     quiet_stop()  # a stopped study says so in one line
     if not verbose:
         quiet_logs()
-    out = spec.results / spec.name
+    out = plan.out
     check_result_write(out / "trials.parquet")  # a dirty tree fails now, not after the trials
-    storage, exp_path = experiment_location(spec)
-    if fresh:
-        _delete_tree(exp_path)
+    if plan.fresh:
+        delete_storage_tree(plan.exp_path)
         for name in ("trials", "history", "final", "final_episodes", "final_paired"):
             (out / f"{name}.parquet").unlink(missing_ok=True)
         (out / FINISHED).unlink(missing_ok=True)  # first: a kill below leaves no claim
@@ -897,54 +848,44 @@ def _prepare_outputs(spec: StudySpec, fresh: bool, verbose: bool) -> tuple[Path,
             (out / name).unlink(missing_ok=True)
         shutil.rmtree(out / STORE, ignore_errors=True)
     else:  # the study's own records decide what may be resumed, before Ray starts
-        restorable = tune.Tuner.can_restore(exp_path)
-        check_resume(out, settings=settings_of(spec.summary()), exp_path=exp_path,
-                     restoring=restorable, local=not _is_uri(exp_path))  # fmt: skip
+        restorable = tune.Tuner.can_restore(plan.exp_path)
+        check_resume(out, settings=plan.settings, exp_path=plan.exp_path,
+                     restoring=restorable, local=plan.local)  # fmt: skip
         if restorable:
-            check_optuna_copy(spec, exp_path, finished=False)
-    return out, storage, exp_path
+            check_optuna_copy(plan, plan.exp_path, finished=False)
 
 
-def _study_demos(spec: StudySpec, progress: bool) -> tuple[Path, Any, dict[str, Any]]:
+def _study_demos(plan: StudyPlan, progress: bool) -> tuple[Any, dict[str, Any]]:
     """The study's demonstrations (collected when missing; another collection's set is
-    refused), checked against the study's env: ``(path, demonstrations, inputs record)``."""
+    refused), checked against the study's env: ``(demonstrations, inputs record)``."""
     from safe_bc.distributed.collect import ensure_demos
 
-    demos_path = spec.demos.resolve()
-    expected = spec.collect or CollectConfig.for_task(task_defaults(task_of(spec.env.env_id)))
-    if not (demos_path / "dataset.json").exists():
-        print(f"{spec.demos}: no demonstrations yet; collecting the set the study expects")
-    ensure_demos(demos_path, expected, progress=progress)  # refuses another collection's set
-    _check_env(spec, demos_path)
-    demos = cached_demos(str(demos_path))
-    for line in subset_warnings(spec, demos):
+    if not (plan.demos / "dataset.json").exists():
+        print(f"{plan.spec.demos}: no demonstrations yet; collecting the set the study expects")
+    ensure_demos(plan.demos, plan.collect, progress=progress)  # refuses another collection's
+    _check_env(plan.spec, plan.demos)
+    demos = cached_demos(str(plan.demos))
+    for line in subset_warnings(plan.spec, demos):
         print(f"warning: {line}")
-    return demos_path, demos, {"demos": dataset_record(demos_path)}
+    return demos, {"demos": dataset_record(plan.demos)}
 
 
 def _make_tuner(
-    spec: StudySpec,
-    job: TrialJob,
-    trial_fn: Callable[[dict[str, Any], TrialJob], None],
-    restoring: bool,
-    exp_path: str,
-    storage: str,
-    concurrent: int,
-    *,
-    progress: bool,
-    verbose: bool,
-    callbacks: Sequence[Any],
-    added: int = 0,
+    plan: StudyPlan, start: StudyStart, options: DriverOptions
 ) -> tuple[tune.Tuner, int]:
-    """The Tune run, restored from ``exp_path`` (with ``added`` more trials) or new, and how
-    many trials run at once (a restored run keeps the limit it started with)."""
-    out = spec.results / spec.name
-    resources = tune.PlacementGroupFactory(
-        [{"CPU": spec.cpus_per_trial}] + [{"CPU": spec.cpus_per_worker}] * spec.rollout_workers
+    """The Tune run, restored from the experiment (with ``start.added`` more trials) or new,
+    and how many trials run at once (a restored run keeps the limit it started with)."""
+    spec, exp_path = plan.spec, plan.exp_path
+    resources = tune.PlacementGroupFactory(list(plan.trial_resources))
+    trainable = tune.with_resources(
+        tune.with_parameters(options.trial_fn, job=start.job), resources
     )
-    trainable = tune.with_resources(tune.with_parameters(trial_fn, job=job), resources)
-    if restoring:
-        more = f" with {added} more trial(s), {spec.trials} in all" if added else ""
+    concurrent = spec.concurrency(start.cpus)  # how many at once, never which
+    reporter = progress_reporter(spec) if options.verbose else None
+    lines = [TrialLines(spec.trials)] if options.progress and not options.verbose else []
+    verbose = 1 if options.progress and options.verbose else 0
+    if start.restoring:
+        more = f" with {start.added} more trial(s), {spec.trials} in all" if start.added else ""
         print(f"resuming study {spec.name!r} from {exp_path}{more}")
         try:
             tuner = tune.Tuner.restore(exp_path, trainable=trainable, resume_errored=True)
@@ -960,17 +901,18 @@ def _make_tuner(
                 callback.total = spec.trials
         _save_every_trial(tuner)
         restored = tuner._local_tuner._run_config  # this run's console, not the first run's
-        restored.verbose = 1 if progress and verbose else 0
-        restored.progress_reporter = progress_reporter(spec) if verbose else None
+        restored.verbose, restored.progress_reporter = verbose, reporter
         # Tune restores the concurrency limit the study started with (its ConcurrencyLimiter's
         # saved state), whatever the cluster is now
         concurrent = tuner._local_tuner._tune_config.max_concurrent_trials or concurrent
         return tuner, concurrent
+    searcher = make_searcher(spec, concurrent, export_to=plan.optuna_url)
+    halving = make_scheduler(spec)
     tuner = tune.Tuner(
         trainable,
         tune_config=tune.TuneConfig(
-            search_alg=make_searcher(spec, concurrent),
-            scheduler=SaveOnTrialEnd(make_scheduler(spec)),
+            search_alg=searcher,
+            scheduler=SaveOnTrialEnd(halving),
             num_samples=spec.trials,
             max_concurrent_trials=concurrent,
             reuse_actors=True,
@@ -978,7 +920,7 @@ def _make_tuner(
         ),
         run_config=tune.RunConfig(
             name=spec.name,
-            storage_path=storage,
+            storage_path=plan.storage,
             failure_config=tune.FailureConfig(max_failures=spec.max_failures),
             # a trial's (only) checkpoint forces a save of the experiment state too, so a
             # trial in flight when the driver dies resumes from it
@@ -987,13 +929,13 @@ def _make_tuner(
                 JsonLoggerCallback(),
                 CSVLoggerCallback(),
                 TBXLoggerCallback(),  # every report of a trial, per round, in TensorBoard
-                HistoryRecorder(str((out / HISTORY).resolve())),
+                HistoryRecorder(str((plan.out / HISTORY).resolve())),
                 RunningMeter(),
-                *([TrialLines(spec.trials)] if progress and not verbose else []),
-                *callbacks,
+                *lines,
+                *options.callbacks,
             ],
-            progress_reporter=progress_reporter(spec) if verbose else None,
-            verbose=1 if progress and verbose else 0,
+            progress_reporter=reporter,
+            verbose=verbose,
         ),
     )
     return tuner, concurrent
@@ -1024,50 +966,47 @@ def _fit(
 
 
 def _final_and_certificate(
-    spec: StudySpec,
-    job: TrialJob,
-    trials: pd.DataFrame,
+    plan: StudyPlan,
+    start: StudyStart,
     grid: Any,
-    demos: Any,
-    meta: dict[str, Any],
+    report: TrialReport,
     clock: StudyClock,
-    title: str,
-    threshold: float,
-    progress: bool,
+    options: DriverOptions,
 ) -> tuple[FinalOutcome, Any, dict[str, Any]]:
     """The final phase on the candidates, its tables and plot, then the winner's certificate
     and recommender: ``(final outcome, certificate, meta with the final phase's seconds)``."""
-    out = spec.results / spec.name
-    candidates = choose_candidates(trials, spec.final_candidates, spec.objective)
+    spec = plan.spec
+    candidates = choose_candidates(report.trials, spec.final_candidates, spec.objective)
     checkpoints = _checkpoints(grid, list(candidates["trial_id"]))
     clock.lap("final_checkpoints")
     t0 = time.perf_counter()
-    store = FinalStore(out / STORE)
-    final = final_phase(spec, job, candidates, checkpoints, demos, progress=progress, store=store)
+    store = FinalStore(plan.out / STORE)
+    final = final_phase(
+        spec, start.job, candidates, checkpoints, start.demos, progress=options.progress,
+        store=store,
+    )  # fmt: skip
     final_s = time.perf_counter() - t0
     parts = {f"final_{k}": v for k, v in final.seconds.items()}
     for phase, seconds in parts.items():
         clock.add(phase, seconds)
     clock.add("final_summary", max(final_s - sum(parts.values()), 0.0))
     clock.skip()
-    meta = {**meta, "final_phase_seconds": round(time.perf_counter() - t0, 1)}
-    _write_final(spec, final, candidates, meta)
-    check_optuna_copy(
-        spec, str(meta["experiment_path"])
-    )  # a missing copy is written again from the searcher
-    mark_final_winner(default_optuna_storage(spec), spec.name, final.winner, final.feasible)
+    meta = {**report.meta, "final_phase_seconds": round(time.perf_counter() - t0, 1)}
+    _write_final(plan, final, candidates, meta)
+    check_optuna_copy(plan, plan.exp_path)  # a missing copy is written again from the searcher
+    mark_final_winner(plan.optuna_url, spec.name, final.winner, final.feasible)
     plot_pareto(
-        trials,
-        threshold,
-        out / "pareto.png",
+        report.trials,
+        start.threshold,
+        plan.out / "pareto.png",
         winner=final.winner if final.feasible else None,
         candidates=list(candidates["trial_id"]),
-        title=f"{title}; final phase: "
+        title=f"{report.title}; final phase: "
         + (f"winner {final.winner}" if final.feasible else "no candidate feasible"),
-        **pareto_axes(spec),
+        **plan.pareto_axes,
     )
     clock.lap("final_tables")
-    certificate = deliver(spec, job, final, meta, store, progress=progress)
+    certificate = deliver(plan, start.job, final, meta, store, progress=options.progress)
     clock.lap("certification")
     return final, certificate, meta
 
@@ -1075,21 +1014,42 @@ def _final_and_certificate(
 # --- the report ---------------------------------------------------------------------------------
 
 
-def _trial_rows(
-    spec: StudySpec, grid: Any, out: Path, exp_path: str
-) -> tuple[pd.DataFrame, pd.DataFrame, list[str]]:
+def _report_trials(plan: StudyPlan, start: StudyStart, grid: Any) -> TrialReport:
+    """The trial and history tables and ``pareto.png`` (no verdict yet), written; what they
+    decide returned."""
+    spec, out = plan.spec, plan.out
+    trials, history, lost = _trial_rows(plan, grid)
+    winner = choose_winner(trials, spec.objective)
+    errors = int((trials["status"] == "error").sum())
+    finished = int(trials["status"].isin(["done", "stopped", "invalid", "error"]).sum())
+    complete = finished >= spec.trials
+    meta = trials_meta(
+        plan, trials, threshold=start.threshold, limits=start.limits,
+        expert_safety=start.demos.safety_mean, cost_limits=start.job.cost_limits,
+        inputs=start.inputs, complete=complete, lost=lost, provenance=provenance(),
+    )  # fmt: skip
+    write_table_atomic(out / "trials.parquet", trials, meta)
+    write_table_atomic(out / "history.parquet", history, meta)
+    title = f"{spec.name}: {finished}/{spec.trials} trials"
+    plot_pareto(trials, start.threshold, out / "pareto.png", title=title, **plan.pareto_axes)
+    return TrialReport(trials, meta, complete, errors, winner, title)
+
+
+def _trial_rows(plan: StudyPlan, grid: Any) -> tuple[pd.DataFrame, pd.DataFrame, list[str]]:
     """The trial table and the report history from Tune's results, the trials a killed driver
     lost named and their folders removed: ``(trials, history, lost trial ids)``."""
-    trials = trial_table(_records(grid, spec.params), spec.params)
-    history, lost = _study_history(read_history(out / HISTORY), trials)
+    params, out, exp_path = plan.spec.params, plan.out, plan.exp_path
+    reports, records = read_history(out / HISTORY), _records(grid, params)
+    # a trial whose end the study recorded keeps its folder, whatever Tune's state says
+    ended = history_events(out / HISTORY)[1]
+    trials = trial_table(records, params)
+    history, lost = _study_history(reports, trials)
     if lost:
         print(
             f"{len(lost)} trial(s) were lost with a killed driver (the restored experiment does "
             f"not know them and ran others instead; their reports stay in {HISTORY} only): "
             + ", ".join(lost)
         )
-    # a trial whose end the study recorded keeps its folder, whatever Tune's state says
-    ended = history_events(out / HISTORY)[1]
     orphans = _remove_orphan_trial_dirs(exp_path, set(trials["trial_id"]) | ended)
     if orphans:
         print(f"removed the folders of {len(orphans)} such trial(s) from {exp_path}")
@@ -1101,7 +1061,7 @@ RECOMMENDER_DIR = "recommender"
 
 
 def deliver(
-    spec: StudySpec,
+    plan: StudyPlan,
     job: TrialJob,
     final: FinalOutcome,
     meta: dict[str, Any],
@@ -1117,7 +1077,7 @@ def deliver(
     from safe_bc.distributed.final import final_workers
     from safe_bc.recommender import RecommenderCard, write_recommender
 
-    out = spec.results / spec.name
+    spec, out = plan.spec, plan.out
     winner = final.winner
     if winner is None:
         return None
@@ -1171,24 +1131,20 @@ FINISHED = "finished.json"
 study only reads the tables back and prints the result (:func:`finished_outcome`)."""
 
 
-def _finished_record(spec: StudySpec) -> dict[str, Any]:
-    return json.loads(json.dumps({"study": spec.summary()}, sort_keys=True, default=str))
-
-
-def finished_outcome(spec: StudySpec) -> StudyOutcome | None:
-    """The outcome of ``spec`` when it ran to the end before with the same settings (its
+def finished_outcome(plan: StudyPlan) -> StudyOutcome | None:
+    """The outcome of the plan's study when it ran to the end before with the same settings (its
     :data:`FINISHED` record matches and its tables read back), else ``None``.
 
     Raises:
         ValueError: one line, when the finished study's tables or its Optuna copy
             (``optuna.db``) are broken or not its own.
     """
-    out = spec.results / spec.name
+    out = plan.out
     try:
         record = json.loads((out / FINISHED).read_text())
     except (OSError, json.JSONDecodeError):
         return None
-    if record != _finished_record(spec):
+    if record != plan.finished:
         return None  # other settings (e.g. --concurrent): the normal path resumes
     try:
         trials, meta = read_table(out / "trials.parquet")
@@ -1206,11 +1162,11 @@ def finished_outcome(spec: StudySpec) -> StudyOutcome | None:
             f"delete {out / FINISHED} and rerun the same command to rewrite the outputs (the "
             "trials and the final phase's finished work are kept and not redone)"
         ) from None
-    check_optuna_copy(spec, str(meta.get("experiment_path", "")))
     try:  # absent for a study finished before timings were recorded
         timing = read_table(out / TIMING)[0] if (out / TIMING).exists() else None
     except DatasetError:
         timing = None
+    check_optuna_copy(plan, str(meta.get("experiment_path", "")))
     final = FinalOutcome(
         table, episodes, best.get("trial_id"), bool(best.get("feasible")),
         str(best.get("message", "")), dict(fmeta.get("configs", {})),
@@ -1229,7 +1185,7 @@ def finished_outcome(spec: StudySpec) -> StudyOutcome | None:
     return StudyOutcome(
         True,
         trials,
-        choose_winner(trials, spec.objective),
+        choose_winner(trials, plan.spec.objective),
         final,
         float(meta["threshold"]),
         out,
@@ -1238,78 +1194,6 @@ def finished_outcome(spec: StudySpec) -> StudyOutcome | None:
         timing=timing,
         certificate=certificate,
     )
-
-
-def check_optuna_copy(spec: StudySpec, experiment_path: str, *, finished: bool = True) -> None:
-    """A finished study's Optuna copy (``optuna.db`` by default) must be whole and its own:
-    the study of this name with every trial. A missing local copy is written again from the
-    Tune experiment's searcher, with the final winner of ``best.json`` marked. An unfinished
-    study's copy (``finished=False``, checked before a resume) may lack trials, or be missing
-    (the searcher writes it again).
-
-    Raises:
-        ValueError: one line naming the file and the problem (corrupt, cut short, another
-            study's, trials missing).
-    """
-    url = default_optuna_storage(spec)
-    prefix = "sqlite:///"
-    if not url.startswith(prefix):
-        return  # a shared database: checked by its own server
-    path = Path(url.removeprefix(prefix))
-    if not path.exists():
-        if finished and experiment_path and not _is_uri(experiment_path):
-            searcher = load_searcher(experiment_path)
-            searcher._export_to = url
-            searcher.export()
-            best = json.loads((spec.results / spec.name / "best.json").read_text())
-            mark_final_winner(url, spec.name, best.get("trial_id"), bool(best.get("feasible")))
-        return
-    problem = optuna_copy_problem(path, spec.name, spec.trials, at_most=not finished)
-    if problem:
-        raise ValueError(
-            f"{path}: {problem}; it is only a copy for Optuna's tools: delete it and rerun the "
-            "same command to write it again from the study's Tune experiment"
-        )
-
-
-def optuna_copy_problem(path: Path, name: str, trials: int, *, at_most: bool = False) -> str:
-    """What is wrong with the Optuna SQLite copy at ``path`` of study ``name`` with ``trials``
-    trials (``at_most``: up to ``trials``, a study under way) (``""``: nothing). Opened
-    read-only: nothing is created or changed."""
-    import sqlite3
-
-    try:
-        with contextlib.closing(sqlite3.connect(f"file:{path}?mode=ro", uri=True)) as db:
-            rows = db.execute("SELECT study_id FROM studies WHERE study_name = ?", (name,))
-            found = rows.fetchall()
-            if not found:
-                names = [r[0] for r in db.execute("SELECT study_name FROM studies")]
-                return f"holds no study {name!r} (it holds {names or 'none'}): not this study's"
-            (n,) = db.execute(
-                "SELECT COUNT(*) FROM trials WHERE study_id = ?", (found[0][0],)
-            ).fetchone()
-            check = db.execute("PRAGMA quick_check").fetchone()
-    except sqlite3.Error as e:
-        return f"not a whole Optuna database ({e})"
-    if check and check[0] != "ok":
-        return f"a damaged Optuna database ({check[0]})"
-    if n > trials or (n != trials and not at_most):
-        return f"holds {n} trials of study {name!r}, the study has {trials}"
-    return ""
-
-
-def safety_axis_label(env_id: str) -> str:
-    """The safety mean's axis label in the task's words (``px to the grass`` for the car;
-    the cost's units where a task names none)."""
-    drawing = task_defaults(task_of(env_id)).drawing
-    what = drawing.closest if drawing is not None else "distance to the limit, cost units"
-    return f"safety mean ({what}, higher is safer)"
-
-
-def pareto_axes(spec: StudySpec) -> dict[str, str]:
-    """``pareto.png``'s axes: the study's objective against the safety mean in the task's
-    words."""
-    return {"objective": spec.objective, "safety_label": safety_axis_label(spec.env.env_id)}
 
 
 def _checkpoints(grid: Any, trial_ids: Sequence[str]) -> dict[str, BCNet]:
@@ -1336,9 +1220,9 @@ def _checkpoints(grid: Any, trial_ids: Sequence[str]) -> dict[str, BCNet]:
 
 
 def _write_final(
-    spec: StudySpec, final: FinalOutcome, candidates: pd.DataFrame, meta: dict[str, Any]
+    plan: StudyPlan, final: FinalOutcome, candidates: pd.DataFrame, meta: dict[str, Any]
 ) -> None:
-    out = spec.results / spec.name
+    spec, out = plan.spec, plan.out
     final_meta = {
         **meta,
         "final_design": {

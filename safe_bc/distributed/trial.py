@@ -355,86 +355,144 @@ def _report_invalid(metrics: dict[str, Any], error: str, start: float) -> None:
     tune.report(metrics)
 
 
-def run_trial(config: dict[str, Any], job: TrialJob) -> None:
-    """One trial: train every training seed (or resume from its checkpoint), report, evaluate
-    in rounds (every seed on the same tracks), report."""
-    start = time.perf_counter()
-    spec = job.spec
-    seeds = spec.trial_seeds()
-    reset_trial_state(seeds[0])
-    quiet_logs()
+@dataclass(frozen=True)
+class TrialPlan:
+    """What one trial runs, decided from its sampled configuration and the study (pure)."""
+
+    seeds: list[int]
+    """The training seeds (the first one's agent is the trial's checkpoint)."""
+    params: dict[str, Any]
+    """The sampled parameters, in space order."""
+    threads: int
+    """Torch threads of the trial's process."""
+    run_cfg: RunConfig
+    """The trial's run configuration (the study's base with ``params`` applied)."""
+
+
+def trial_plan(config: dict[str, Any], spec: StudySpec) -> TrialPlan:
+    """The :class:`TrialPlan` of the trial sampled as ``config``."""
     threads = trial_threads(spec)
-    torch.set_num_threads(threads)
     params = {k: config[k] for k in spec.params}
-    run_cfg = spec.run_config(params, num_threads=threads)
+    return TrialPlan(spec.trial_seeds(), params, threads, spec.run_config(params, threads))
+
+
+def run_trial(config: dict[str, Any], job: TrialJob) -> None:
+    """One trial: train every training seed (or resume from its checkpoint), report, run the
+    study's stages, evaluate in rounds (every seed on the same tracks), report."""
+    start = time.perf_counter()
+    plan = trial_plan(config, job.spec)
+    reset_trial_state(plan.seeds[0])
+    quiet_logs()
+    torch.set_num_threads(plan.threads)
     metrics = blank_metrics(job)
+    trained = _resume_or_train(plan, job, metrics, start)
+    if trained is None:  # a configuration the data cannot support: reported, no retry
+        return
+    models, earlier, store_s = trained
+    sources = _run_stages(plan, job, models, metrics)
+    _evaluate_rounds(plan, job, sources, metrics, start, earlier, store_s)
 
+
+def _resume_or_train(
+    plan: TrialPlan, job: TrialJob, metrics: dict[str, Any], start: float
+) -> tuple[list[BCNet], float, float] | None:
+    """The trial's trained nets, from its checkpoint (a retry or a resumed study) or trained
+    and reported with a checkpoint: ``(models, seconds of an earlier run, storage seconds)``;
+    ``None`` after reporting a configuration that cannot be trained."""
     resumed = resume_point()
-    if resumed is not None:  # a retry or a resumed study: the weights are already trained
-        models, extra, recorded = resumed
-        metrics.update(extra["train"], resumed=True)
-        earlier = float(extra["trained_s"])
-        store_s = 0.0  # the earlier run's checkpoint time is not known
-        if not recorded:  # its trained report may be lost with the driver: the row again
-            tune.report({**metrics, "phase": "trained", "duration_s": earlier})
-    else:
-        results = []
-        for s in seeds:
-            if s != seeds[0]:
-                reset_trial_state(s)
-            try:
-                result, selection = train_run(
-                    cached_demos(job.demos), with_seed(run_cfg, s),
-                    action_bounds=bounds_for(job.demos), validation=validation_demos(job),
-                )  # fmt: skip
-            except SelectionError as e:  # a configuration the data cannot support: no retry
-                _report_invalid(metrics, str(e), start)
-                return
-            if not math.isfinite(result.final_loss):  # diverged: nothing to evaluate, no retry
-                _report_invalid(metrics, f"training diverged (loss {result.final_loss})", start)
-                return
-            if s == seeds[0]:
-                first_selection = selection
-            save_trial_curve(result, s, s == seeds[0], {"params": params})
-            results.append(result)
-        models, earlier = [r.model for r in results], 0.0
-        train_info = {
-            "train_loss": results[0].final_loss,
-            "train_seconds": float(sum(r.seconds for r in results)),
-            "n_critical": first_selection.n_critical,
-            "critical_fraction": first_selection.n_critical / first_selection.n_valid,
-        }
-        trained_s = time.perf_counter() - start
-        metrics.update(train_info, phase="trained", duration_s=trained_s)
-        extra = {"train": train_info, "trained_s": trained_s, "run_config": run_cfg.to_dict()}
-        if len(seeds) > 1:
-            extra["seeds"] = seeds
-        t0 = time.perf_counter()
-        with tempfile.TemporaryDirectory() as d:
-            results[0].save(d, extra=extra)
-            for s, result in zip(seeds[1:], results[1:], strict=True):
-                result.save(Path(d) / f"seed_{s}", extra={"seed": s})
-            metrics.update(store_seconds=time.perf_counter() - t0)
-            tune.report(metrics, checkpoint=tune.Checkpoint.from_directory(d))
-        # the checkpoint's copy to the storage happens in the report: counted from the next one
-        store_s = time.perf_counter() - t0
+    if resumed is None:
+        return _train(plan, job, metrics, start)
+    models, extra, recorded = resumed
+    metrics.update(extra["train"], resumed=True)
+    earlier = float(extra["trained_s"])
+    if not recorded:  # its trained report may be lost with the driver: the row again
+        tune.report({**metrics, "phase": "trained", "duration_s": earlier})
+    return models, earlier, 0.0  # the earlier run's checkpoint time is not known
 
+
+def _train(
+    plan: TrialPlan, job: TrialJob, metrics: dict[str, Any], start: float
+) -> tuple[list[BCNet], float, float] | None:
+    """Train every seed, then report the trained row with the checkpoint (every seed's net)."""
+    seeds, run_cfg = plan.seeds, plan.run_cfg
+    results = []
+    for s in seeds:
+        if s != seeds[0]:
+            reset_trial_state(s)
+        try:
+            result, selection = train_run(
+                cached_demos(job.demos), with_seed(run_cfg, s),
+                action_bounds=bounds_for(job.demos), validation=validation_demos(job),
+            )  # fmt: skip
+        except SelectionError as e:  # a configuration the data cannot support: no retry
+            _report_invalid(metrics, str(e), start)
+            return None
+        if not math.isfinite(result.final_loss):  # diverged: nothing to evaluate, no retry
+            _report_invalid(metrics, f"training diverged (loss {result.final_loss})", start)
+            return None
+        if s == seeds[0]:
+            first_selection = selection
+        save_trial_curve(result, s, s == seeds[0], {"params": plan.params})
+        results.append(result)
+    train_info = {
+        "train_loss": results[0].final_loss,
+        "train_seconds": float(sum(r.seconds for r in results)),
+        "n_critical": first_selection.n_critical,
+        "critical_fraction": first_selection.n_critical / first_selection.n_valid,
+    }
+    trained_s = time.perf_counter() - start
+    metrics.update(train_info, phase="trained", duration_s=trained_s)
+    extra = {"train": train_info, "trained_s": trained_s, "run_config": run_cfg.to_dict()}
+    if len(seeds) > 1:
+        extra["seeds"] = seeds
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory() as d:
+        results[0].save(d, extra=extra)
+        for s, result in zip(seeds[1:], results[1:], strict=True):
+            result.save(Path(d) / f"seed_{s}", extra={"seed": s})
+        metrics.update(store_seconds=time.perf_counter() - t0)
+        tune.report(metrics, checkpoint=tune.Checkpoint.from_directory(d))
+    # the checkpoint's copy to the storage happens in the report: counted from the next one
+    return [r.model for r in results], 0.0, time.perf_counter() - t0
+
+
+def _run_stages(
+    plan: TrialPlan, job: TrialJob, models: list[BCNet], metrics: dict[str, Any]
+) -> list[Any]:
+    """The study's stages on every seed's agent (their time counts in ``duration_s``, not in
+    ``eval_seconds``); the sources to evaluate, with the task's handover where the study has
+    one."""
+    spec, seeds, run_cfg = job.spec, plan.seeds, plan.run_cfg
     sources: list[Any] = [NetSource.from_model(m, run_cfg.bc) for m in models]
     agents: list[Any] = list(models)
-    for name, stage in spec.stages():  # their time counts in duration_s, not in eval_seconds
+    for name, stage in spec.stages():
         run_stage, per_seed = stage.load(), []
         for j, s in enumerate(seeds):
             folder = trial_folder() / (name if j == 0 else f"{name}_seed_{s}")
             agents[j], values = run_stage(
-                spec.stage_config(name, params, seed=s), agents[j], with_seed(run_cfg, s),
+                spec.stage_config(name, plan.params, seed=s), agents[j], with_seed(run_cfg, s),
                 job.demos, spec.env.env_id, folder, parallel=ChunkedRayRollouts,
             )  # fmt: skip
             sources[j] = agents[j]
             per_seed.append(values)
         metrics.update(stage.reduce(per_seed))
-
     if spec.handover is not None:  # the trial's recommender: the agent with its handover
         sources = [with_handover(source, job) for source in sources]
+    return sources
+
+
+def _evaluate_rounds(
+    plan: TrialPlan,
+    job: TrialJob,
+    sources: list[Any],
+    metrics: dict[str, Any],
+    start: float,
+    earlier: float,
+    store_s: float,
+) -> None:
+    """Evaluate every seed's source round by round on the same tracks (a round stored before
+    is read back), reporting the trial's values after each round."""
+    spec, seeds, run_cfg = job.spec, plan.seeds, plan.run_cfg
     rounds = eval_rounds(spec)
     parts: list[pd.DataFrame] = []
     eval_s = 0.0

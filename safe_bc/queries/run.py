@@ -88,6 +88,68 @@ def query_zone(selection: Selection, config: QueryConfig) -> CriticalZone:
     return CriticalZone(tuple(selection.thresholds), eps, selection.config.combine)
 
 
+@dataclass(frozen=True)
+class QueryPlan:
+    """What a query run does, decided from its start, run config, inputs and config."""
+
+    config: QueryConfig
+    """The query run's settings."""
+    base: Selection
+    """The demonstrations' own selection (their ``d_s`` is every round's)."""
+    retrain: RunConfig
+    """Each round's retraining (the start's run config with ``config.batches``)."""
+    start: NetSource
+    """The first round's agent."""
+    identity: dict[str, Any]
+    """What a folder resumed must have been started with (``identity.json``)."""
+    zone: CriticalZone
+    """Where the expert is asked."""
+    frame_stack: int
+    """Frames the agent sees at once."""
+    env_config: Any
+    """The environment the rounds roll out in."""
+    expert_config: Any
+    """The expert asked."""
+    demos_path: str
+    """The demonstrations, as recorded with every round's net."""
+
+
+def plan_queries(
+    start: BCNet,
+    run_config: RunConfig,
+    demos: Demonstrations,
+    demos_path: str | Path,
+    env_config: Any,
+    expert_config: Any,
+    config: QueryConfig,
+) -> QueryPlan:
+    """The :class:`QueryPlan` of a query run (nothing is read or written)."""
+    from safe_bc.experiment import select_for
+
+    base = select_for(demos, run_config.selection)
+    identity = {
+        "format": FORMAT,
+        "config": config.identity(),
+        "run_config": run_config.to_dict(),
+        "demos": str(demos_path),
+        "env": str(env_config),
+        "expert": str(expert_config),
+        "start_weights_sha256": weights_digest(start.state_dict()),
+    }
+    return QueryPlan(
+        config=config,
+        base=base,
+        retrain=with_batches(run_config, config.batches),
+        start=NetSource.from_model(start, run_config.bc),
+        identity=identity,
+        zone=query_zone(base, config),
+        frame_stack=run_config.bc.preprocess.frame_stack,
+        env_config=env_config,
+        expert_config=expert_config,
+        demos_path=str(demos_path),
+    )
+
+
 def run_queries(
     start: BCNet,
     run_config: RunConfig,
@@ -109,30 +171,15 @@ def run_queries(
     batches of each retraining). A folder of another start, run config, demonstrations or
     query config raises ``ValueError``.
     """
-    from safe_bc.experiment import select_for
-
     folder = Path(folder)
-    base = select_for(demos, run_config.selection)
-    retrain = with_batches(run_config, config.batches)
-    start_src = NetSource.from_model(start, run_config.bc)
-    identity = {
-        "format": FORMAT,
-        "config": config.identity(),
-        "run_config": run_config.to_dict(),
-        "demos": str(demos_path),
-        "env": str(env_config),
-        "expert": str(expert_config),
-        "start_weights_sha256": weights_digest(start.state_dict()),
-    }
-    check_identity(folder / IDENTITY, identity, "query run", "query config")
+    plan = plan_queries(start, run_config, demos, demos_path, env_config, expert_config, config)
+    check_identity(folder / IDENTITY, plan.identity, "query run", "query config")
     if not (folder / "start" / "config.json").is_file():  # for the record (and inspection)
         with checkpoint_unit(folder / "start") as unit:
             save_checkpoint(unit, start, run_config.bc)
-    zone = query_zone(base, config)
-    frame_stack = run_config.bc.preprocess.frame_stack
     rounds: list[dict[str, Any]] = []
     episodes: list[EpisodeQueries] = []
-    agent = start_src
+    agent: Any = plan.start
     resumed = 0
     for r in range(config.rounds):
         here = folder / round_dir(r)
@@ -143,60 +190,87 @@ def run_queries(
             resumed += 1 if resumed == r else 0
             agent = policy_source(here / POLICY)
             continue
-        t0 = time.perf_counter()
-        if (here / QUERIES).is_file():
-            mine = load_round(here / QUERIES)
-        else:
-            job = QueryJob(
-                env_config,
-                agent,
-                expert_config,
-                zone,
-                config.mode,
-                frame_stack,
-                config.max_steps,
-                config.seed,
-            )
-            seeds = track_seeds(config.seed, r, config.episodes_per_round)
-            mine = apply_budget(rollouts(job, seeds), config.query_budget)
-            save_round(here / QUERIES, mine)
-        t_roll = time.perf_counter() - t0
-        episodes += mine
-        data, queried = aggregate_rows(demos, episodes, [e.queried for e in episodes])
-        selection = aggregate_selection(
-            data.costs, data.scored, queried, retrain.selection, base.thresholds, config.mode
+        summary, agent = _query_round(
+            plan, here, r, agent, demos, episodes, rollouts, train, action_bounds
         )
-        source = train(TrainJob(data, selection, retrain, action_bounds))
-        model = net_model(source)
-        with checkpoint_unit(here / POLICY) as unit:
-            save_checkpoint(
-                unit,
-                model,
-                retrain.bc,
-                extra={
-                    "queries": {**identity, "round": r},
-                    "env_id": getattr(env_config, "env_id", None),
-                    "demos": str(demos_path),
-                },
-            )
-        counts = [e.n_queries for e in mine]
-        summary = {
-            "round": r,
-            "episodes": len(mine),
-            "queries": int(sum(counts)),
-            "queries_per_episode": float(np.mean(counts)),
-            "queries_per_step": float(sum(counts) / max(sum(e.length for e in mine), 1)),
-            "episodes_beyond": int(sum(e.beyond_steps > 0 for e in mine)),
-            "beyond_steps": int(sum(e.beyond_steps for e in mine)),
-            "rollout_reward_mean": float(np.mean([e.reward for e in mine])),
-            "train_rows": int(selection.n_valid),
-            "critical_rows": int(selection.n_critical),
-            "rollout_seconds": t_roll,
-            "seconds": time.perf_counter() - t0,
-        }
         write_json_atomic(here / DONE, summary)
         rounds.append(summary)
-        agent = source
         if on_round is not None:
             on_round(summary)
     return QueryResult(folder, rounds, resumed)
+
+
+def _query_round(
+    plan: QueryPlan,
+    here: Path,
+    r: int,
+    agent: Any,
+    demos: Demonstrations,
+    episodes: list[EpisodeQueries],
+    rollouts: RolloutFn,
+    train: TrainFn,
+    action_bounds: tuple[Any, Any] | None,
+) -> tuple[dict[str, Any], Any]:
+    """Round ``r`` in ``here``: roll ``agent`` out and ask the expert (or read the queries
+    written before), retrain on the demonstrations plus every round's queries (``episodes``,
+    extended), write the net: ``(the round's summary, its agent)``."""
+    config = plan.config
+    t0 = time.perf_counter()
+    if (here / QUERIES).is_file():
+        mine = load_round(here / QUERIES)
+    else:
+        job = QueryJob(
+            plan.env_config,
+            agent,
+            plan.expert_config,
+            plan.zone,
+            config.mode,
+            plan.frame_stack,
+            config.max_steps,
+            config.seed,
+        )
+        seeds = track_seeds(config.seed, r, config.episodes_per_round)
+        mine = apply_budget(rollouts(job, seeds), config.query_budget)
+        save_round(here / QUERIES, mine)
+    t_roll = time.perf_counter() - t0
+    episodes.extend(mine)
+    data, queried = aggregate_rows(demos, episodes, [e.queried for e in episodes])
+    retrain = plan.retrain
+    selection = aggregate_selection(
+        data.costs, data.scored, queried, retrain.selection, plan.base.thresholds, config.mode
+    )
+    source = train(TrainJob(data, selection, retrain, action_bounds))
+    with checkpoint_unit(here / POLICY) as unit:
+        save_checkpoint(
+            unit,
+            net_model(source),
+            retrain.bc,
+            extra={
+                "queries": {**plan.identity, "round": r},
+                "env_id": getattr(plan.env_config, "env_id", None),
+                "demos": plan.demos_path,
+            },
+        )
+    return round_summary(r, mine, selection, t_roll, time.perf_counter() - t0), source
+
+
+def round_summary(
+    r: int, mine: list[EpisodeQueries], selection: Selection, t_roll: float, seconds: float
+) -> dict[str, Any]:
+    """Round ``r``'s ``done.json``: its queries, the episodes beyond ``d_s``, the rows it
+    trained on and its seconds."""
+    counts = [e.n_queries for e in mine]
+    return {
+        "round": r,
+        "episodes": len(mine),
+        "queries": int(sum(counts)),
+        "queries_per_episode": float(np.mean(counts)),
+        "queries_per_step": float(sum(counts) / max(sum(e.length for e in mine), 1)),
+        "episodes_beyond": int(sum(e.beyond_steps > 0 for e in mine)),
+        "beyond_steps": int(sum(e.beyond_steps for e in mine)),
+        "rollout_reward_mean": float(np.mean([e.reward for e in mine])),
+        "train_rows": int(selection.n_valid),
+        "critical_rows": int(selection.n_critical),
+        "rollout_seconds": t_roll,
+        "seconds": seconds,
+    }

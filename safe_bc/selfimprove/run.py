@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -48,6 +48,7 @@ from safe_bc.rounds import (
     with_batches,
 )
 from safe_bc.run_config import RunConfig
+from safe_bc.selection import Selection
 from safe_bc.selfimprove.config import (
     CURVE,
     DONE,
@@ -224,6 +225,135 @@ def validation_seeds(n: int) -> list[int]:
     return [VALIDATION_SEED_BASE - k for k in range(n)]
 
 
+@dataclass(frozen=True)
+class SelfImprovePlan:
+    """What a self-imitation run does, decided from its start, run config, inputs and config
+    (:func:`plan_selfimprove`; nothing is read or written)."""
+
+    config: SelfImproveConfig
+    """The run's settings, resolved."""
+    pushes: tuple[Any, ...]
+    """The pushes every track is rolled out with."""
+    base: Selection
+    """The demonstrations' own selection."""
+    limits: tuple[float, ...]
+    """``d_s``: the demonstrations' thresholds."""
+    retrain: RunConfig
+    """Each round's retraining (the start's run config, ``config.batches``, ``config.alpha``)."""
+    selection: Any
+    """The start's selection settings (eps and how costs combine, for the validation)."""
+    start: NetSource
+    """The first round's agent."""
+    identity: dict[str, Any]
+    """What a folder resumed must have been started with (``identity.json``)."""
+    validation_seeds: list[int]
+    """The keep rule's validation tracks."""
+    backoff: float | None
+    """The explore job's back-off eps (``None``: none)."""
+    frames_on_disk: bool
+    """Each retraining reads its frames from one frame file."""
+    env_config: Any
+    """The environment the rounds roll out in."""
+    demos_path: str
+    """The demonstrations, as recorded with every round's net."""
+    action_bounds: tuple[Any, Any]
+    """The task's action bounds."""
+    frame_stack: int
+    """Frames the agent sees at once."""
+
+
+def plan_selfimprove(
+    start: BCNet,
+    run_config: RunConfig,
+    demos: Demonstrations,
+    demos_path: str | Path,
+    env_config: Any,
+    config: SelfImproveConfig,
+    action_bounds: tuple[Any, Any],
+    frames_on_disk: bool | None,
+) -> SelfImprovePlan:
+    """The :class:`SelfImprovePlan` of a run (``frames_on_disk=None``: when the observations
+    are ``uint8`` frames)."""
+    from safe_bc.experiment import select_for
+
+    if not config.resolved:
+        raise ValueError("run_selfimprove needs a resolved config: config.for_task(task)")
+    assert config.rounds is not None and config.kept_in is not None
+    pushes = config.pushes
+    assert pushes is not None
+    base = select_for(demos, run_config.selection)
+    retrain = with_batches(run_config, config.batches)
+    if config.alpha is not None:
+        retrain = replace(retrain, selection=replace(retrain.selection, alpha=config.alpha))
+    start_src = NetSource.from_model(start, run_config.bc)
+    identity = {
+        "format": FORMAT,
+        "config": {**config.identity(), "pushes": list(pushes)},
+        "run_config": run_config.to_dict(),
+        "demos": str(demos_path),
+        "env": str(env_config),
+        "start_weights_sha256": weights_digest(start_src.state),
+    }
+    sel = run_config.selection
+    backoff = None
+    if config.backoff:
+        backoff = sel.eps if config.backoff_eps is None else config.backoff_eps
+    if frames_on_disk is None:
+        obs = demos.observations
+        frames_on_disk = obs.dtype == np.uint8 and len(obs.shape) == 4
+    return SelfImprovePlan(
+        config=config,
+        pushes=tuple(pushes),
+        base=base,
+        limits=tuple(float(x) for x in base.thresholds),
+        retrain=retrain,
+        selection=sel,
+        start=start_src,
+        identity=identity,
+        validation_seeds=validation_seeds(config.validation_episodes),
+        backoff=backoff,
+        frames_on_disk=bool(frames_on_disk),
+        env_config=env_config,
+        demos_path=str(demos_path),
+        action_bounds=action_bounds,
+        frame_stack=run_config.bc.preprocess.frame_stack,
+    )
+
+
+@dataclass
+class _Progress:
+    """Where a run's rounds stand: the current agent and the kept rows it was trained on."""
+
+    agent: Any
+    """The agent the next round starts from."""
+    agent_name: str
+    """``start`` or the last accepted round's folder."""
+    reward_now: float
+    """The current agent's validation reward (a round must beat it)."""
+    kept_so_far: list[KeptPiece] = field(default_factory=list)
+    """Accepted rows read so far (frame-less placeholders when the frames stay on disk)."""
+    kept_sources: list[Path] = field(default_factory=list)
+    """The round files of :attr:`kept_so_far`, in order."""
+    kept_files: list[Path] = field(default_factory=list)
+    """Accepted done rounds' kept rows, read when a round must run."""
+    rounds: list[dict[str, Any]] = field(default_factory=list)
+    """Each round's ``done.json``."""
+    resumed: int = 0
+    """Rounds found done when the call began."""
+
+
+def _validate(plan: SelfImprovePlan, rollouts: RolloutFn, agent: NetSource) -> dict[str, float]:
+    """``agent`` on the validation tracks: episodes beyond ``d_s``, reward, env steps."""
+    sel, config = plan.selection, plan.config
+    job = ValidateJob(plan.env_config, agent, plan.limits, sel.eps, sel.combine, config.max_steps)
+    rows = rollouts(job, plan.validation_seeds)
+    return {
+        "validation_beyond": int(sum(m["any_violation"] > 0 for m in rows)),
+        "validation_reward": float(np.mean([m["reward"] for m in rows])),
+        "validation_env_steps": int(sum(m["steps"] for m in rows)),
+    }
+
+
 def run_selfimprove(
     start: BCNet,
     run_config: RunConfig,
@@ -253,162 +383,161 @@ def run_selfimprove(
     accepted rounds held in memory and concatenated peaked near 19 GB. The same rows, batches
     and weights either way.
     """
-    from safe_bc.experiment import select_for
-
-    if not config.resolved:
-        raise ValueError("run_selfimprove needs a resolved config: config.for_task(task)")
-    assert config.rounds is not None and config.kept_in is not None
-    pushes = config.pushes
-    assert pushes is not None
+    plan = plan_selfimprove(
+        start, run_config, demos, demos_path, env_config, config, action_bounds, frames_on_disk
+    )
     folder = Path(folder)
-    base = select_for(demos, run_config.selection)
-    limits = tuple(float(x) for x in base.thresholds)
-    retrain = with_batches(run_config, config.batches)
-    if config.alpha is not None:
-        retrain = replace(retrain, selection=replace(retrain.selection, alpha=config.alpha))
-    start_src = NetSource.from_model(start, run_config.bc)
-    identity = {
-        "format": FORMAT,
-        "config": {**config.identity(), "pushes": list(pushes)},
-        "run_config": run_config.to_dict(),
-        "demos": str(demos_path),
-        "env": str(env_config),
-        "start_weights_sha256": weights_digest(start_src.state),
-    }
-    check_identity(folder / IDENTITY, identity, "self-imitation run", "config")
+    check_identity(folder / IDENTITY, plan.identity, "self-imitation run", "config")
     if not (folder / "start" / "config.json").is_file():  # the final agent when none is kept
         with checkpoint_unit(folder / "start") as unit:
             save_checkpoint(
                 unit, start, run_config.bc,
                 extra={"env_id": getattr(env_config, "env_id", None), "demos": str(demos_path)},
             )  # fmt: skip
-    sel = run_config.selection
-    seeds_val = validation_seeds(config.validation_episodes)
-
-    def validate(agent: NetSource) -> dict[str, float]:
-        job = ValidateJob(env_config, agent, limits, sel.eps, sel.combine, config.max_steps)
-        rows = rollouts(job, seeds_val)
-        return {
-            "validation_beyond": int(sum(m["any_violation"] > 0 for m in rows)),
-            "validation_reward": float(np.mean([m["reward"] for m in rows])),
-            "validation_env_steps": int(sum(m["steps"] for m in rows)),
-        }
-
     start_val = read_json(folder / START_VALIDATION)
     if start_val is None:
         t0 = time.perf_counter()
-        start_val = validate(start_src)
-        start_val["validation_episodes"] = len(seeds_val)
+        start_val = _validate(plan, rollouts, plan.start)
+        start_val["validation_episodes"] = len(plan.validation_seeds)
         start_val["seconds"] = time.perf_counter() - t0
         write_json_atomic(folder / START_VALIDATION, start_val)
     expert_side = _expert_side(config, demos_path, env_config)
-    backoff = None
-    if config.backoff:
-        backoff = sel.eps if config.backoff_eps is None else config.backoff_eps
-    agent, agent_name, reward_now = start_src, "start", float(start_val["validation_reward"])
-    if frames_on_disk is None:
-        obs = demos.observations
-        frames_on_disk = obs.dtype == np.uint8 and len(obs.shape) == 4
-    kept_so_far: list[KeptPiece] = []  # frame-less placeholders when frames_on_disk
-    kept_sources: list[Path] = []  # the round files of kept_so_far, in order
-    kept_files: list[Path] = []  # accepted done rounds' kept rows, read when a round must run
-    rounds: list[dict[str, Any]] = []
-    resumed = 0
+    state = _Progress(plan.start, "start", float(start_val["validation_reward"]))
 
     def write_curve_so_far() -> None:
-        rows = SelfImproveResult(folder, rounds, resumed, agent_name, start_val).history()
-        write_curve(folder / CURVE, pd.DataFrame(rows), "iteration", "selfimprove", identity)
+        rows = SelfImproveResult(
+            folder, state.rounds, state.resumed, state.agent_name, start_val
+        ).history()
+        write_curve(folder / CURVE, pd.DataFrame(rows), "iteration", "selfimprove", plan.identity)
 
     if not (had_curve := (folder / CURVE).is_file()):  # a rerun of done rounds keeps it
         write_curve_so_far()
+    assert config.rounds is not None
     for r in range(config.rounds):
         here = folder / round_dir(r)
         done = read_json(here / DONE)
         if done is not None and (here / POLICY / "config.json").is_file():
-            rounds.append(done)
-            resumed += 1 if resumed == r else 0
+            state.rounds.append(done)
+            state.resumed += 1 if state.resumed == r else 0
             if done["accepted"]:
-                kept_files.append(here / KEPT)
-                agent, agent_name = policy_source(here / POLICY), round_dir(r)
-                reward_now = float(done["validation_reward"])
+                state.kept_files.append(here / KEPT)
+                state.agent, state.agent_name = policy_source(here / POLICY), round_dir(r)
+                state.reward_now = float(done["validation_reward"])
             continue
-        kept_so_far += [
-            p for f in kept_files for t in load_round(f, not frames_on_disk) for p in t.pieces
-        ]
-        kept_sources += kept_files
-        kept_files = []
-        t0 = time.perf_counter()
-        if (here / KEPT).is_file():
-            tracks: list[TrackResult] = load_round(here / KEPT)
-        else:
-            job = ExploreJob(
-                env_config, agent, tuple(pushes), action_bounds, limits, config.keep_unit,
-                config.segment_steps, config.margin, backoff,
-                run_config.bc.preprocess.frame_stack, config.max_steps, config.seed,
-                config.keep_against, config.keep_best, *expert_side,
-            )  # fmt: skip
-            tracks = rollouts(job, track_seeds(config.seed, r, config.tracks_per_round))
-            save_round(here / KEPT, tracks)
-        t_roll = time.perf_counter() - t0
-        mine = [p for t in tracks for p in t.pieces]
-        pieces = kept_so_far + mine
-        frames = None
-        if frames_on_disk:
-            n = len(demos) + sum(len(p.steps) for p in pieces)
-            shape = (n, *demos.observations.shape[1:])
-            chunks = frame_chunks(demos.observations, kept_sources, mine)
-            frames = FrameFile(write_frame_file(here / FRAMES, shape, chunks), shape)
-        data, kept = aggregate_rows(demos, pieces, [p.trained for p in pieces], frames)
-        selection = kept_selection(
-            data.costs, data.scored, kept, retrain.selection, base.thresholds, config.kept_in
-        )
-        try:
-            source = train(TrainJob(data, selection, retrain, action_bounds))
-        finally:
-            if frames is not None:
-                frames.close()
-                (here / FRAMES).unlink(missing_ok=True)
-                checksum_path(here / FRAMES).unlink(missing_ok=True)
-        with checkpoint_unit(here / POLICY) as unit:
-            save_checkpoint(
-                unit,
-                net_model(source),
-                retrain.bc,
-                extra={
-                    "selfimprove": {**identity, "round": r},
-                    "env_id": getattr(env_config, "env_id", None),
-                    "demos": str(demos_path),
-                },
-            )
-        val = validate(source)
-        accepted, bound = accept_round(
-            val["validation_beyond"], config.validation_episodes, val["validation_reward"],
-            reward_now, config.beyond_limit,
-        )  # fmt: skip
-        rollout, extras = round_summary(r, tracks, mine, selection, config)
-        summary = {
-            **rollout,
-            **val,
-            "previous_validation_reward": reward_now,
-            "validation_beyond_upper": bound,
-            "accepted": accepted,
-            "rollout_seconds": t_roll,
-            "seconds": time.perf_counter() - t0,
-            **extras,
-        }
-        if accepted:
-            agent, agent_name, reward_now = source, round_dir(r), val["validation_reward"]
-            if frames_on_disk:  # the frames stay in this round's file
-                kept_so_far += [frameless(p) for p in mine]
-                kept_sources.append(here / KEPT)
-            else:
-                kept_so_far += mine
-        summary["agent"] = agent_name
+        summary = _self_round(plan, here, r, state, demos, expert_side, rollouts, train)
         write_json_atomic(here / DONE, summary)
-        rounds.append(summary)
+        state.rounds.append(summary)
         write_curve_so_far()
         if on_round is not None:
             on_round(summary)
-    if resumed == len(rounds) and not had_curve:
+    if state.resumed == len(state.rounds) and not had_curve:
         write_curve_so_far()  # a run whose rounds were all done before its curve existed
-    return SelfImproveResult(folder, rounds, resumed, agent_name, start_val)
+    return SelfImproveResult(folder, state.rounds, state.resumed, state.agent_name, start_val)
+
+
+def _self_round(
+    plan: SelfImprovePlan,
+    here: Path,
+    r: int,
+    state: _Progress,
+    demos: Demonstrations,
+    expert_side: tuple[Any, Any, tuple[str, ...]],
+    rollouts: RolloutFn,
+    train: TrainFn,
+) -> dict[str, Any]:
+    """Round ``r`` in ``here``: explore from the current agent (or read the rows kept before),
+    retrain on the kept rows so far plus this round's, write the net, validate it and apply
+    the keep rule (``state`` moves on when accepted); the round's ``done.json``."""
+    config, frames_on_disk = plan.config, plan.frames_on_disk
+    state.kept_so_far += [
+        p for f in state.kept_files for t in load_round(f, not frames_on_disk) for p in t.pieces
+    ]
+    state.kept_sources += state.kept_files
+    state.kept_files = []
+    t0 = time.perf_counter()
+    if (here / KEPT).is_file():
+        tracks: list[TrackResult] = load_round(here / KEPT)
+    else:
+        job = ExploreJob(
+            plan.env_config, state.agent, plan.pushes, plan.action_bounds, plan.limits,
+            config.keep_unit, config.segment_steps, config.margin, plan.backoff,
+            plan.frame_stack, config.max_steps, config.seed, config.keep_against,
+            config.keep_best, *expert_side,
+        )  # fmt: skip
+        tracks = rollouts(job, track_seeds(config.seed, r, config.tracks_per_round))
+        save_round(here / KEPT, tracks)
+    t_roll = time.perf_counter() - t0
+    mine = [p for t in tracks for p in t.pieces]
+    selection, source = _retrain(plan, here, r, state, demos, mine, train)
+    val = _validate(plan, rollouts, source)
+    accepted, bound = accept_round(
+        val["validation_beyond"], config.validation_episodes, val["validation_reward"],
+        state.reward_now, config.beyond_limit,
+    )  # fmt: skip
+    rollout, extras = round_summary(r, tracks, mine, selection, config)
+    summary = {
+        **rollout,
+        **val,
+        "previous_validation_reward": state.reward_now,
+        "validation_beyond_upper": bound,
+        "accepted": accepted,
+        "rollout_seconds": t_roll,
+        "seconds": time.perf_counter() - t0,
+        **extras,
+    }
+    if accepted:
+        state.agent, state.agent_name = source, round_dir(r)
+        state.reward_now = val["validation_reward"]
+        if frames_on_disk:  # the frames stay in this round's file
+            state.kept_so_far += [frameless(p) for p in mine]
+            state.kept_sources.append(here / KEPT)
+        else:
+            state.kept_so_far += mine
+    summary["agent"] = state.agent_name
+    return summary
+
+
+def _retrain(
+    plan: SelfImprovePlan,
+    here: Path,
+    r: int,
+    state: _Progress,
+    demos: Demonstrations,
+    mine: list[KeptPiece],
+    train: TrainFn,
+) -> tuple[Any, Any]:
+    """BC retrained from scratch on the demonstrations, the kept rows so far and ``mine``
+    (frames from one frame file when they stay on disk), its net written:
+    ``(selection, source)``."""
+    config, retrain = plan.config, plan.retrain
+    pieces = state.kept_so_far + mine
+    frames = None
+    if plan.frames_on_disk:
+        n = len(demos) + sum(len(p.steps) for p in pieces)
+        shape = (n, *demos.observations.shape[1:])
+        chunks = frame_chunks(demos.observations, state.kept_sources, mine)
+        frames = FrameFile(write_frame_file(here / FRAMES, shape, chunks), shape)
+    data, kept = aggregate_rows(demos, pieces, [p.trained for p in pieces], frames)
+    assert config.kept_in is not None
+    selection = kept_selection(
+        data.costs, data.scored, kept, retrain.selection, plan.base.thresholds, config.kept_in
+    )
+    try:
+        source = train(TrainJob(data, selection, retrain, plan.action_bounds))
+    finally:
+        if frames is not None:
+            frames.close()
+            (here / FRAMES).unlink(missing_ok=True)
+            checksum_path(here / FRAMES).unlink(missing_ok=True)
+    with checkpoint_unit(here / POLICY) as unit:
+        save_checkpoint(
+            unit,
+            net_model(source),
+            retrain.bc,
+            extra={
+                "selfimprove": {**plan.identity, "round": r},
+                "env_id": getattr(plan.env_config, "env_id", None),
+                "demos": plan.demos_path,
+            },
+        )
+    return selection, source

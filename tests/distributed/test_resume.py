@@ -18,9 +18,9 @@ from safe_bc.distributed.resume import (
     differences,
     identity_problem,
     install_atomic_upload,
-    settings_of,
     tune_state,
 )
+from safe_bc.study_plan import settings_of
 
 SETTINGS = {"trials": 2, "max_steps": 100, "base": {"bc": {"lr": 0.001}}}
 

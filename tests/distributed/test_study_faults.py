@@ -403,7 +403,7 @@ def test_final_phase_resumes_per_agent_and_evaluation_and_a_finished_study_only_
     assert format_outcome(again, spec.params) == format_outcome(first, spec.params)
     (out / "optuna.db").unlink()  # the copy for Optuna's tools is written again from Tune's
     run_study(spec, progress=False)
-    from safe_bc.distributed.study import optuna_copy_problem
+    from safe_bc.distributed.search import optuna_copy_problem
 
     assert optuna_copy_problem(out / "optuna.db", spec.name, spec.trials) == ""
     (out / "optuna.db").write_bytes(b"SQLite format 3\0" + b"\0" * 100)  # cut short
@@ -604,10 +604,12 @@ def test_an_os_error_inside_tune_is_one_line_saying_what_a_rerun_does(
 def test_a_finished_studys_optuna_copy_must_be_whole_and_its_own(tmp_path: Path) -> None:
     import optuna
 
-    from safe_bc.distributed.study import check_optuna_copy
+    from safe_bc.distributed.search import check_optuna_copy
     from safe_bc.study import StudySpec
+    from safe_bc.study_plan import plan_study
 
     spec = StudySpec("mine", {"selection.alpha": Float(0.0, 1.0)}, trials=2, results=tmp_path)
+    plan = plan_study(spec, fresh=False, command="", final=True)
     path = tmp_path / "mine" / "optuna.db"
     path.parent.mkdir()
 
@@ -622,7 +624,7 @@ def test_a_finished_studys_optuna_copy_must_be_whole_and_its_own(tmp_path: Path)
 
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     make("mine", 2)
-    check_optuna_copy(spec, "")  # whole and its own
+    check_optuna_copy(plan, "")  # whole and its own
     whole = path.read_bytes()
     cases = {
         "cut short": whole[:4096],
@@ -631,15 +633,15 @@ def test_a_finished_studys_optuna_copy_must_be_whole_and_its_own(tmp_path: Path)
     for what, data in cases.items():
         path.write_bytes(data)
         with pytest.raises(ValueError) as e:
-            check_optuna_copy(spec, "")
+            check_optuna_copy(plan, "")
         assert str(path) in str(e.value) and "rerun the same command" in str(e.value), what
         assert "\n" not in str(e.value)
     make("other", 2)
     with pytest.raises(ValueError, match=r"holds no study 'mine'.*not this study's"):
-        check_optuna_copy(spec, "")
+        check_optuna_copy(plan, "")
     make("mine", 1)
     with pytest.raises(ValueError, match="holds 1 trials of study 'mine', the study has 2"):
-        check_optuna_copy(spec, "")
+        check_optuna_copy(plan, "")
 
 
 @pytest.mark.slow

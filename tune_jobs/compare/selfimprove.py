@@ -31,6 +31,19 @@ Selection tracks, which chose the defaults (so the fresh tables report other blo
   first two rounds are copied). The rule that turns the selection tables into defaults:
   ``python -m scripts.selfimprove_choice``.
 
+Beyond the expert, planned before it runs (docs/improvement.md):
+
+* ``beyond_selection`` (3 x 50 tracks of block 24): from the same starts, four self-imitation
+  candidates, each evaluated alone and with the task's corner handover (``TaskSpec.handover``):
+  A the defaults; B A keeping only pushed runs that beat the expert's run on the same track;
+  C B exploring under the handover with the loop's full-size pushes; D C keeping at most the
+  best 2 pushed runs per track.
+* ``beyond`` (block 25) and ``beyond_replication`` (block 26, nothing changed but the tracks):
+  the handover row the rule picks on the selection table (no episode beyond d_s, under 5% of
+  steps deferred, the highest lower bound of the paired reward interval against the expert;
+  ties: fewer env steps), beside every candidate alone, the start and the expert, paired with
+  the expert. Cost: 12 self-imitation runs (26-37 min each on 2 cores in one process).
+
 Run: ``safe-bc compare tune_jobs/compare/selfimprove.py --name NAME`` (resumes per method,
 seed and round; ``--cell METHOD:SEED --workers 0`` runs one cell in its own process). Writes
 ``results/selfimprove/<task>/<name>*``.
@@ -39,11 +52,13 @@ seed and round; ``--cell METHOD:SEED --workers 0`` runs one cell in its own proc
 from dataclasses import replace
 from pathlib import Path
 
-from safe_bc.compare import Agent, Comparison, Expert, FromStart, Row
+from safe_bc.compare import Agent, Comparison, Expert, FromStart, Handover, Row
 from safe_bc.improve.config import ImproveConfig
+from safe_bc.protocol import Fresh, Rule
 from safe_bc.selection import SelectionConfig
 from safe_bc.selfimprove.config import LOOP_PUSHES, SelfImproveConfig
 from safe_bc.selfimprove.sizing import half, ppo_at_budget, rollout_episodes, validation_budget
+from safe_bc.tasks import task_defaults
 
 SELF = SelfImproveConfig()
 """The fresh tables' self-imitation: the package's defaults (CarRacing: 4 rounds of half-size
@@ -185,6 +200,48 @@ REHAB = Comparison(
     "env steps / run: the episodes that pick (PPO) or accept (self-imitation) the final agent.",
 )
 
+CORNER = task_defaults("carracing").handover
+"""The car's corner handover: the recommender's, and the candidates' at use."""
+BEYOND_B = replace(SELF, keep_against="expert")
+BEYOND_C = replace(BEYOND_B, handover=CORNER, pushes=LOOP_PUSHES["carracing"])
+BEYOND_CANDIDATES = {
+    "si_agent_bar": ("A: self-imitation, defaults", SELF),
+    "si_expert_bar": ("B: kept only above the expert's run", BEYOND_B),
+    "si_explore": ("C: B exploring under the handover, full-size pushes", BEYOND_C),
+    "si_explore_best2": ("D: C keeping the best 2 pushed runs per track",
+                         replace(BEYOND_C, keep_best=2)),
+}  # fmt: skip
+BEYOND_SELECTION = replace(
+    CAR,
+    name="beyond_selection",
+    runs="beyond",
+    methods=(
+        *car_rows({}),
+        *(FromStart(n, "imitation", c, label=label) for n, (label, c) in BEYOND_CANDIDATES.items()),
+        *(
+            Handover(f"{n}+corner", n, CORNER, label=f"{label} + corner handover")
+            for n, (label, _) in BEYOND_CANDIDATES.items()
+        ),
+    ),
+    eval_seed=24,
+    reference="expert",
+    figures=(("learning_curves", "beyond_selection_learning_curves.png"),),
+    title="Beyond the expert: self-imitation candidates with the corner handover, selection "
+    "tracks (CarRacing)",
+    note="Selection tracks (block 24): the rule picks one handover row for the fresh blocks "
+    "(25, 26). Paired rows: each agent against the expert on the same tracks. steps deferred: "
+    "the mean share of an episode's steps on which the expert acted.",
+)
+BEST = (
+    Rule("best_lower_bound", {"burden": 0.05},
+         note="no selection episode beyond d_s, under 5% of steps deferred, the highest lower "
+              "bound of the paired reward interval against the expert"),
+)  # fmt: skip
+BEYOND_NOTE = (
+    "the handover row was chosen on 3 x 50 selection tracks of block 24 by the rule fixed "
+    "before the run ({rule}). Paired rows: each agent against the expert on the same tracks."
+)
+
 
 def vs_expert(c: Comparison) -> Comparison:
     """``c`` paired against the expert: its runs and stored evaluations, no figure."""
@@ -219,5 +276,22 @@ COMPARISONS = {
         note="Selection patients (block 16): these choose the defaults; the fresh-patient "
         "comparison is selfimprove_rehab.py. Reward: capacity gain (points). Paired rows: each "
         "agent against its own seed's start on the same patients.",
+    ),
+    "beyond_selection": BEYOND_SELECTION,
+    "beyond": Fresh(
+        "beyond",
+        "beyond_selection",
+        BEST,
+        eval_seed=25,
+        title="Beyond the expert: fresh tracks (CarRacing)",
+        note=f"Fresh tracks (block 25); {BEYOND_NOTE}",
+    ),
+    "beyond_replication": Fresh(
+        "beyond_replication",
+        "beyond_selection",
+        BEST,
+        eval_seed=26,
+        title="Beyond the expert: a second fresh block (CarRacing)",
+        note=f"Fresh tracks (block 26, nothing changed but the tracks); {BEYOND_NOTE}",
     ),
 }

@@ -1,0 +1,71 @@
+"""A study run's plan (``safe_bc.study_plan``) is made from the spec alone, without Ray or a
+file, and holds what the driver's phases read."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import pandas as pd
+
+from safe_bc.handover import HandoverConfig
+from safe_bc.study import Float, StudySpec
+from safe_bc.study_plan import constraint_bars, plan_study, run_identity, trials_meta
+
+
+def _spec(tmp_path: Path, **kw) -> StudySpec:
+    base = StudySpec(
+        "s", {"selection.alpha": Float(0.0, 1.0)}, trials=3, results=tmp_path / "results",
+        storage=str(tmp_path / "ray"), demos=tmp_path / "demos", rollout_workers=2,
+    )  # fmt: skip
+    return replace(base, **kw)
+
+
+def test_the_plan_places_every_output_and_touches_no_file(tmp_path: Path) -> None:
+    plan = plan_study(_spec(tmp_path), fresh=True, command="safe-bc tune s.py", final=False)
+    assert plan.out == tmp_path / "results" / "s"
+    assert plan.exp_path == f"{tmp_path / 'ray'}/s" and plan.local
+    assert plan.optuna_url == f"sqlite:///{plan.out / 'optuna.db'}"
+    assert plan.demos == tmp_path / "demos" and plan.validation is None
+    assert (plan.fresh, plan.command, plan.final) == (True, "safe-bc tune s.py", False)
+    assert plan.trial_resources == ({"CPU": 1.0}, {"CPU": 1.0}, {"CPU": 1.0})
+    assert plan.collect.env == plan.spec.env  # the task's default collection
+    assert "px to the grass" in plan.pareto_axes["safety_label"]
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_resource_change_keeps_the_settings_and_the_finished_mark(tmp_path: Path) -> None:
+    plan = plan_study(_spec(tmp_path), fresh=False, command="", final=True)
+    faster = plan_study(
+        _spec(tmp_path, max_concurrent=4, cpus_per_trial=0.5), fresh=False, command="", final=True
+    )
+    assert faster.settings == plan.settings and "max_concurrent" not in plan.settings
+    assert faster.finished != plan.finished  # the mark keeps the whole summary
+    longer = plan_study(_spec(tmp_path, max_steps=160), fresh=False, command="", final=True)
+    assert longer.settings != plan.settings
+
+
+def test_bars_identity_and_metadata_follow_the_plan(tmp_path: Path) -> None:
+    spec = _spec(tmp_path, threshold=None, handover=HandoverConfig(1.0), deferred_share_limit=0.2)
+    plan = plan_study(spec, fresh=False, command="c", final=True)
+    threshold, limits = constraint_bars(spec, 2.5, {"a": 1.0})
+    assert threshold == 2.5 and limits.deferred_share_limit == 0.2
+    assert constraint_bars(replace(spec, threshold=4.0), 2.5, {})[0] == 4.0
+    inputs = {"demos": {"digest": "sha256:x"}}
+    identity = run_identity(plan, threshold, [1.0], inputs)
+    assert identity == {
+        "trials": 3, "threshold": 2.5, "limits": [1.0], "batch_size": spec.batch_size,
+        "demos_digest": "sha256:x", "experiment_path": plan.exp_path, "settings": plan.settings,
+    }  # fmt: skip
+    trials = pd.DataFrame({"eval_seeds": ["7,8"]})
+    meta = trials_meta(
+        plan, trials, threshold=threshold, limits=limits, expert_safety=2.5, cost_limits=[1.0],
+        inputs=inputs, complete=True, lost=[], provenance={},
+    )  # fmt: skip
+    assert meta["seeds"]["eval_seeds"] == [7, 8] and meta["command"] == "c"
+    assert meta["deferred_share_limit"] == 0.2 and meta["study"] == plan.summary
+    empty = trials_meta(
+        plan, trials.iloc[:0], threshold=threshold, limits=limits, expert_safety=2.5,
+        cost_limits=[1.0], inputs=inputs, complete=False, lost=[], provenance={},
+    )  # fmt: skip
+    assert empty["seeds"]["eval_seeds"] == []
