@@ -1,7 +1,7 @@
 """The clinic's handover, chosen by measurement: per-dimension widths (heart rate and fatigue
 are fractions, blood pressure is in 100 mmHg: one width does not fit all three) and what acts in
 the zone (the guideline's prescription, or the agent's capped by it), over the agents of the
-committed rehab recommender.
+rehab recommender the study delivered before it (``results/rehab/handover/recommender/``).
 
 Candidates: heart rate 0.05-0.15 (0.2, the committed width, deferred 26.7% of sessions in the
 rehab study's certificate, beyond the 10% limit), fatigue 0.05-0.2, blood pressure 0.2 (the
@@ -23,7 +23,7 @@ from safe_bc.handover_choice import HandoverChoice, handover_grid
 
 CHOICE = HandoverChoice(
     name="rehab",
-    recommender=Path("results/rehab/recommender"),
+    recommender=Path("results/rehab/handover/recommender"),
     candidates=handover_grid(
         {
             "heart_rate": (0.05, 0.1, 0.15),

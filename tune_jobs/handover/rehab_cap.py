@@ -1,5 +1,6 @@
 """The clinic's handover, stage 2: the capping handover with wider fatigue and blood-pressure
-zones, over the agents of the committed rehab recommender.
+zones, over the agents of the rehab recommender the study delivered before it
+(``results/rehab/handover/recommender/``).
 
 Stage 1 (``rehab.py``, block 60, ``results/rehab/handover/``) found no handover with zero
 crossings in 3000 selection programmes; at every pair of widths the cap (the agent's
@@ -26,7 +27,7 @@ from safe_bc.handover_choice import HandoverChoice, handover_grid
 
 CHOICE = HandoverChoice(
     name="rehab_cap",
-    recommender=Path("results/rehab/recommender"),
+    recommender=Path("results/rehab/handover/recommender"),
     candidates=handover_grid(
         {
             "heart_rate": (0.05, 0.1),

@@ -35,9 +35,14 @@ SPEC = TaskSpec(
     action_bounds=((-1.0, -1.0), (1.0, 1.0)),
     safety_dims=REHAB_SAFETY_DIMS,
     observed_costs=observed_costs,
-    # results/queries/rehab/summary.md: the smallest width of {0.025, 0.05, 0.1, 0.2} with no
-    # selection programme beyond d_s, else the largest (none reached zero: 0.2, 1 of 600)
-    handover=HandoverConfig(0.2),
+    # results/rehab/handover_cap/choice.md (stage 2 of tune_jobs/handover/): per-dimension
+    # widths, the agent's prescription capped by the guideline's in the zone; no candidate of
+    # either stage reached zero crossings, the rule's fallback chose the fewest (3 of 3000)
+    handover=HandoverConfig(
+        0.2,
+        widths=(("heart_rate", 0.1), ("fatigue", 0.2), ("blood_pressure", 0.2)),
+        fallback="cap",
+    ),
     # results/improve/rehab/sweep/margin_sweep.md: the sweep's rule chose 0.05
     cost_margin=0.05,
     # env.py's dynamics: heart rate, blood pressure and fatigue rise with the session's
