@@ -4,7 +4,7 @@ zones, over the agents of the rehab recommender the study delivered before it
 
 Stage 1 (``rehab.py``, block 60, ``results/rehab/handover/``) found no handover with zero
 crossings in 3000 selection programmes; at every pair of widths the cap (the agent's
-prescription, no harder than the guideline's in the zone) crossed 1.5-10x less often than handing
+prescription, no harder than the guideline's in the zone) crossed 1.4-10x less often than handing
 the session to the guideline; the fewest crossings (1 of 3000, a blood-pressure crossing) came
 with the cap at heart rate 0.1 or 0.15 and fatigue 0.2, 7.8% and 15.9% of sessions deferred.
 Candidates here: the cap at heart rate 0.05 or 0.1, fatigue 0.2 or 0.3, blood pressure 0.2, 0.3
