@@ -107,3 +107,14 @@ def test_a_capping_handover_is_refused_where_the_task_has_no_safer_direction() -
     with pytest.raises(ValueError, match="safer direction: 'carracing'"):
         handover_source(_Source((0.0, 0.0, 0.0)), HandoverConfig(2.0, fallback="cap"),
                         car.expert, np.ones(3), car.safety_dims)  # fmt: skip
+
+
+def test_policy_args_carry_the_widths_and_the_safer_direction() -> None:
+    rehab = task_defaults("rehab")
+    h = HandoverConfig(0.2, widths=(("heart_rate", 0.1),), fallback="cap")
+    zone, hold, lookahead, hold_on, safer = handover_source(
+        None, h, rehab.expert, (0.8, 0.8, 2.0), rehab.safety_dims
+    ).policy_args()
+    flags = zone.per_dim(np.array([[0.71, 0.61, 1.79], [0.69, 0.59, 1.81]]))
+    assert flags.tolist() == [[True, True, False], [False, False, True]]
+    assert (hold, lookahead, hold_on, safer) == (0, 0, None, (-1, -1))

@@ -240,15 +240,20 @@ class DeferralSource:
     def build(self) -> DeferringPolicy:
         """The deferring policy; a :class:`LockstepDeferringPolicy` when the agent acts for
         envs in lockstep (a BC net), so the evaluation steps several envs at once."""
+        agent = self.agent.build()
+        args = self.policy_args()
+        if isinstance(agent, BatchPolicy):
+            return LockstepDeferringPolicy(agent, lambda: build_expert(self.expert), *args)
+        return DeferringPolicy(agent, build_expert(self.expert), *args)
+
+    def policy_args(self) -> tuple[CriticalZone, int, int, tuple[int, ...] | None, Any]:
+        """The zone, hold, lookahead, hold dimensions and safer direction a
+        :class:`DeferringPolicy` takes after its agent and expert."""
         zone = CriticalZone(self.limits, self.width, self.combine)  # type: ignore[arg-type]
         if self.widths is not None:  # c >= d - w per dimension: the zone at d - w, width 0
             shifted = tuple(d - w for d, w in zip(self.limits, self.widths, strict=True))
             zone = CriticalZone(shifted, 0.0, self.combine)  # type: ignore[arg-type]
-        agent = self.agent.build()
-        args = (zone, self.hold, self.lookahead, self.hold_on, self.safer)
-        if isinstance(agent, BatchPolicy):
-            return LockstepDeferringPolicy(agent, lambda: build_expert(self.expert), *args)
-        return DeferringPolicy(agent, build_expert(self.expert), *args)
+        return zone, self.hold, self.lookahead, self.hold_on, self.safer
 
 
 def handover_source(

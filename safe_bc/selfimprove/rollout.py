@@ -201,16 +201,12 @@ class ExploreJob:
             if push is None:
                 return agent
             return ZoneWatch(agent, push, self.limits, self.backoff_eps)
-        from safe_bc.queries.defer import DeferringPolicy, dimension_indices
-        from safe_bc.selection import CriticalZone
+        from safe_bc.queries.defer import DeferringPolicy, handover_source
 
         if expert is None:
             raise ValueError("a self-imitation run under the handover needs the expert's config")
-        h = self.handover
-        deferring = DeferringPolicy(
-            agent, expert, CriticalZone(self.limits, float(h.width), "any"), int(h.hold),
-            int(h.lookahead), dimension_indices(tuple(h.hold_on), self.dims),
-        )  # fmt: skip
+        settings = handover_source(None, self.handover, self.expert, self.limits, self.dims)
+        deferring = DeferringPolicy(agent, expert, *settings.policy_args())
         return HandoverWatch(deferring, push, self.limits, self.backoff_eps)
 
 
