@@ -95,13 +95,17 @@ class Row:
     def flat(self) -> dict[str, Any]:
         """The flat record as ``dataclasses.asdict`` wrote it: every field of
         :data:`FLAT_FIELDS` in order, configs as dicts (then, for a method without a flat
-        field, ``method`` and ``config``)."""
+        field, ``method`` and ``config``; for a handover with per-dimension widths or a cap,
+        ``handover``)."""
         own = self._flat()
         out = {k: dataclasses.asdict(v) if dataclasses.is_dataclass(v) else v
                for k, v in ({**FLAT_FIELDS, **own}).items() if k in FLAT_FIELDS}  # fmt: skip
         for k in ("method", "config"):
             if k in own:
                 out[k] = dataclasses.asdict(own[k]) if dataclasses.is_dataclass(own[k]) else own[k]
+        handover = vars(self).get("handover")
+        if handover is not None and (handover.widths or handover.fallback != "expert"):
+            out["handover"] = handover.to_dict()  # settings the flat fields cannot spell
         return out
 
     @property

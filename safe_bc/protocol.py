@@ -71,12 +71,13 @@ def least_deferred(
 
 
 def best_lower_bound(
-    table: pd.DataFrame, candidates: Sequence[Handover], burden: float
+    table: pd.DataFrame, candidates: Sequence[Handover], burden: float, beyond: str = BEYOND
 ) -> list[Handover]:
     """Among the rows with no selection episode beyond d_s and a mean deferred share below
     ``burden``, the one with the highest lower bound of the paired reward interval against the
     table's reference (``d_reward_lo``); ties: fewer training env steps of the agent handed over
-    (``env_steps`` of its ``of`` row), then table order; none: no row."""
+    (``env_steps`` of its ``of`` row), then table order; none: no row. ``beyond`` as in
+    :func:`smallest_safe_width`."""
 
     def steps(r: Handover) -> float:
         value = table["env_steps"].get(r.of) if "env_steps" in table else None
@@ -85,7 +86,7 @@ def best_lower_bound(
     ok = [
         (-float(table.loc[r.name, "d_reward_lo"]), steps(r), i, r)
         for i, r in enumerate(candidates)
-        if _beyond(table, r) == 0 and float(table.loc[r.name, "deferred_share"]) < burden
+        if _beyond(table, r, beyond) == 0 and float(table.loc[r.name, "deferred_share"]) < burden
     ]
     return [min(ok, key=lambda x: x[:3])[3]] if ok else []
 

@@ -43,6 +43,10 @@ Beyond the expert, planned before it runs (docs/improvement.md):
   steps deferred, the highest lower bound of the paired reward interval against the expert;
   ties: fewer env steps), beside every candidate alone, the start and the expert, paired with
   the expert. Cost: 12 self-imitation runs (26-37 min each on 2 cores in one process).
+* ``beyond_selection_rehab`` (3 x 200 patients of block 63), ``beyond_rehab`` (block 64),
+  ``beyond_replication_rehab`` (block 65): the same design in the clinic (A the clinic's
+  defaults; B kept only above the guideline's run; C B under the clinic's handover; D C with
+  the best 2 pushed runs per patient), the rule's deferral bound 10%.
 
 Run: ``safe-bc compare tune_jobs/compare/selfimprove.py --name NAME`` (resumes per method,
 seed and round; ``--cell METHOD:SEED --workers 0`` runs one cell in its own process). Writes
@@ -242,6 +246,50 @@ BEYOND_NOTE = (
     "before the run ({rule}). Paired rows: each agent against the expert on the same tracks."
 )
 
+REHAB_HANDOVER = task_defaults("rehab").handover
+"""The clinic's handover (per-dimension widths, the agent capped by the guideline)."""
+REHAB_B = replace(SELF, keep_against="expert")
+REHAB_C = replace(REHAB_B, handover=REHAB_HANDOVER)
+REHAB_BEYOND = {
+    "si_agent_bar": ("A: self-imitation, defaults", SELF),
+    "si_expert_bar": ("B: kept only above the guideline's run", REHAB_B),
+    "si_explore": ("C: B exploring under the handover", REHAB_C),
+    "si_explore_best2": ("D: C keeping the best 2 pushed runs per patient",
+                         replace(REHAB_C, keep_best=2)),
+}  # fmt: skip
+REHAB_BEYOND_SELECTION = replace(
+    REHAB,
+    name="beyond_selection",
+    runs="beyond",
+    methods=(
+        *REHAB.methods[:2],
+        *(FromStart(n, "imitation", c, label=label) for n, (label, c) in REHAB_BEYOND.items()),
+        *(
+            Handover(f"{n}+handover", n, REHAB_HANDOVER, label=f"{label} + handover")
+            for n, (label, _) in REHAB_BEYOND.items()
+        ),
+    ),
+    eval_seed=63,
+    reference="expert",
+    figures=(("learning_curves", "beyond_selection_learning_curves.png"),),
+    title="Beyond the guideline: self-imitation candidates with the clinic's handover, "
+    "selection patients",
+    note="Selection patients (block 63): the rule picks one handover row for the fresh blocks "
+    "(64, 65). Reward: capacity gain (points). Paired rows: each agent against the guideline on "
+    "the same patients. sessions deferred: the mean share of a programme's sessions on which "
+    "the guideline capped the agent.",
+)
+REHAB_BEST = (
+    Rule("best_lower_bound", {"burden": 0.10, "beyond": "total_any_violating_session"},
+         note="no selection programme beyond d_s, under 10% of sessions deferred, the highest "
+              "lower bound of the paired reward interval against the guideline"),
+)  # fmt: skip
+REHAB_BEYOND_NOTE = (
+    "the handover row was chosen on 3 x 200 selection patients of block 63 by the rule fixed "
+    "before the run ({rule}). Reward: capacity gain (points). Paired rows: each agent against "
+    "the guideline on the same patients."
+)
+
 
 def vs_expert(c: Comparison) -> Comparison:
     """``c`` paired against the expert: its runs and stored evaluations, no figure."""
@@ -285,6 +333,23 @@ COMPARISONS = {
         eval_seed=25,
         title="Beyond the expert: fresh tracks (CarRacing)",
         note=f"Fresh tracks (block 25); {BEYOND_NOTE}",
+    ),
+    "beyond_selection_rehab": REHAB_BEYOND_SELECTION,
+    "beyond_rehab": Fresh(
+        "beyond",
+        "beyond_selection_rehab",
+        REHAB_BEST,
+        eval_seed=64,
+        title="Beyond the guideline: fresh patients (rehab)",
+        note=f"Fresh patients (block 64); {REHAB_BEYOND_NOTE}",
+    ),
+    "beyond_replication_rehab": Fresh(
+        "beyond_replication",
+        "beyond_selection_rehab",
+        REHAB_BEST,
+        eval_seed=65,
+        title="Beyond the guideline: a second fresh block (rehab)",
+        note=f"Fresh patients (block 65, nothing changed but the patients); {REHAB_BEYOND_NOTE}",
     ),
     "beyond_replication": Fresh(
         "beyond_replication",
