@@ -57,6 +57,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from safe_bc.compare import Agent, Comparison, Expert, FromStart, Handover, Row
+from safe_bc.handover import HandoverConfig
 from safe_bc.improve.config import ImproveConfig
 from safe_bc.protocol import Fresh, Rule
 from safe_bc.selection import SelectionConfig
@@ -204,91 +205,128 @@ REHAB = Comparison(
     "env steps / run: the episodes that pick (PPO) or accept (self-imitation) the final agent.",
 )
 
+
+def beyond_selection(
+    base: Comparison,
+    starts: tuple[Row, ...],
+    candidates: dict[str, tuple[str, SelfImproveConfig]],
+    handover: HandoverConfig,
+    tag: str,
+    block: int,
+    title: str,
+    note: str,
+) -> Comparison:
+    """The beyond-the-expert selection table: ``starts`` (the expert and the start), each
+    candidate from the start, and each candidate with ``handover`` (rows ``<name>+<tag>``,
+    labelled ``<label> + <tag> handover``; ``tag`` "handover": ``<label> + handover``)."""
+    shown = "handover" if tag == "handover" else f"{tag} handover"
+    return replace(
+        base,
+        name="beyond_selection",
+        runs="beyond",
+        methods=(
+            *starts,
+            *(FromStart(n, "imitation", c, label=label) for n, (label, c) in candidates.items()),
+            *(
+                Handover(f"{n}+{tag}", n, handover, label=f"{label} + {shown}")
+                for n, (label, _) in candidates.items()
+            ),
+        ),
+        eval_seed=block,
+        reference="expert",
+        figures=(("learning_curves", "beyond_selection_learning_curves.png"),),
+        title=title,
+        note=note,
+    )
+
+
+def beyond_fresh(
+    follows: str, rule: Rule, blocks: tuple[int, int], what: str, titles: tuple[str, str], note: str
+) -> dict[str, Fresh]:
+    """The two fresh tables that follow a beyond-the-expert selection (``what``: tracks or
+    patients), addressed by the selection's suffix."""
+    suffix = follows.removeprefix("beyond_selection")
+    (first, second), (title, again) = blocks, titles
+    return {
+        f"beyond{suffix}": Fresh(
+            "beyond", follows, (rule,), eval_seed=first, title=title,
+            note=f"Fresh {what} (block {first}); {note}",
+        ),
+        f"beyond_replication{suffix}": Fresh(
+            "beyond_replication", follows, (rule,), eval_seed=second, title=again,
+            note=f"Fresh {what} (block {second}, nothing changed but the {what}); {note}",
+        ),
+    }  # fmt: skip
+
+
 CORNER = task_defaults("carracing").handover
 """The car's corner handover: the recommender's, and the candidates' at use."""
 BEYOND_B = replace(SELF, keep_against="expert")
 BEYOND_C = replace(BEYOND_B, handover=CORNER, pushes=LOOP_PUSHES["carracing"])
-BEYOND_CANDIDATES = {
-    "si_agent_bar": ("A: self-imitation, defaults", SELF),
-    "si_expert_bar": ("B: kept only above the expert's run", BEYOND_B),
-    "si_explore": ("C: B exploring under the handover, full-size pushes", BEYOND_C),
-    "si_explore_best2": ("D: C keeping the best 2 pushed runs per track",
-                         replace(BEYOND_C, keep_best=2)),
-}  # fmt: skip
-BEYOND_SELECTION = replace(
-    CAR,
-    name="beyond_selection",
-    runs="beyond",
-    methods=(
-        *car_rows({}),
-        *(FromStart(n, "imitation", c, label=label) for n, (label, c) in BEYOND_CANDIDATES.items()),
-        *(
-            Handover(f"{n}+corner", n, CORNER, label=f"{label} + corner handover")
-            for n, (label, _) in BEYOND_CANDIDATES.items()
-        ),
-    ),
-    eval_seed=24,
-    reference="expert",
-    figures=(("learning_curves", "beyond_selection_learning_curves.png"),),
-    title="Beyond the expert: self-imitation candidates with the corner handover, selection "
-    "tracks (CarRacing)",
-    note="Selection tracks (block 24): the rule picks one handover row for the fresh blocks "
-    "(25, 26). Paired rows: each agent against the expert on the same tracks. steps deferred: "
-    "the mean share of an episode's steps on which the expert acted.",
-)
-BEST = (
-    Rule("best_lower_bound", {"burden": 0.05},
-         note="no selection episode beyond d_s, under 5% of steps deferred, the highest lower "
-              "bound of the paired reward interval against the expert"),
-)  # fmt: skip
-BEYOND_NOTE = (
-    "the handover row was chosen on 3 x 50 selection tracks of block 24 by the rule fixed "
-    "before the run ({rule}). Paired rows: each agent against the expert on the same tracks."
-)
-
 REHAB_HANDOVER = task_defaults("rehab").handover
 """The clinic's handover (per-dimension widths, the agent capped by the guideline)."""
 REHAB_B = replace(SELF, keep_against="expert")
 REHAB_C = replace(REHAB_B, handover=REHAB_HANDOVER)
-REHAB_BEYOND = {
-    "si_agent_bar": ("A: self-imitation, defaults", SELF),
-    "si_expert_bar": ("B: kept only above the guideline's run", REHAB_B),
-    "si_explore": ("C: B exploring under the handover", REHAB_C),
-    "si_explore_best2": ("D: C keeping the best 2 pushed runs per patient",
-                         replace(REHAB_C, keep_best=2)),
-}  # fmt: skip
-REHAB_BEYOND_SELECTION = replace(
-    REHAB,
-    name="beyond_selection",
-    runs="beyond",
-    methods=(
-        *REHAB.methods[:2],
-        *(FromStart(n, "imitation", c, label=label) for n, (label, c) in REHAB_BEYOND.items()),
-        *(
-            Handover(f"{n}+handover", n, REHAB_HANDOVER, label=f"{label} + handover")
-            for n, (label, _) in REHAB_BEYOND.items()
-        ),
+PAIRED_EXPERT = "Paired rows: each agent against the {} on the same {}."
+BEYOND = {
+    "beyond_selection": beyond_selection(
+        CAR, car_rows({}),
+        {
+            "si_agent_bar": ("A: self-imitation, defaults", SELF),
+            "si_expert_bar": ("B: kept only above the expert's run", BEYOND_B),
+            "si_explore": ("C: B exploring under the handover, full-size pushes", BEYOND_C),
+            "si_explore_best2": ("D: C keeping the best 2 pushed runs per track",
+                                 replace(BEYOND_C, keep_best=2)),
+        },
+        CORNER, "corner", 24,
+        "Beyond the expert: self-imitation candidates with the corner handover, selection "
+        "tracks (CarRacing)",
+        "Selection tracks (block 24): the rule picks one handover row for the fresh blocks "
+        f"(25, 26). {PAIRED_EXPERT.format('expert', 'tracks')} steps deferred: the mean share of "
+        "an episode's steps on which the expert acted.",
     ),
-    eval_seed=63,
-    reference="expert",
-    figures=(("learning_curves", "beyond_selection_learning_curves.png"),),
-    title="Beyond the guideline: self-imitation candidates with the clinic's handover, "
-    "selection patients",
-    note="Selection patients (block 63): the rule picks one handover row for the fresh blocks "
-    "(64, 65). Reward: capacity gain (points). Paired rows: each agent against the guideline on "
-    "the same patients. sessions deferred: the mean share of a programme's sessions on which "
-    "the guideline capped the agent.",
-)
-REHAB_BEST = (
-    Rule("best_lower_bound", {"burden": 0.10, "beyond": "total_any_violating_session"},
-         note="no selection programme beyond d_s, under 10% of sessions deferred, the highest "
-              "lower bound of the paired reward interval against the guideline"),
-)  # fmt: skip
-REHAB_BEYOND_NOTE = (
-    "the handover row was chosen on 3 x 200 selection patients of block 63 by the rule fixed "
-    "before the run ({rule}). Reward: capacity gain (points). Paired rows: each agent against "
-    "the guideline on the same patients."
-)
+    **beyond_fresh(
+        "beyond_selection",
+        Rule("best_lower_bound", {"burden": 0.05},
+             note="no selection episode beyond d_s, under 5% of steps deferred, the highest "
+                  "lower bound of the paired reward interval against the expert"),
+        (25, 26), "tracks",
+        ("Beyond the expert: fresh tracks (CarRacing)",
+         "Beyond the expert: a second fresh block (CarRacing)"),
+        "the handover row was chosen on 3 x 50 selection tracks of block 24 by the rule fixed "
+        f"before the run ({{rule}}). {PAIRED_EXPERT.format('expert', 'tracks')}",
+    ),
+    "beyond_selection_rehab": beyond_selection(
+        REHAB, REHAB.methods[:2],
+        {
+            "si_agent_bar": ("A: self-imitation, defaults", SELF),
+            "si_expert_bar": ("B: kept only above the guideline's run", REHAB_B),
+            "si_explore": ("C: B exploring under the handover", REHAB_C),
+            "si_explore_best2": ("D: C keeping the best 2 pushed runs per patient",
+                                 replace(REHAB_C, keep_best=2)),
+        },
+        REHAB_HANDOVER, "handover", 63,
+        "Beyond the guideline: self-imitation candidates with the clinic's handover, "
+        "selection patients",
+        "Selection patients (block 63): the rule picks one handover row for the fresh blocks "
+        "(64, 65). Reward: capacity gain (points). "
+        f"{PAIRED_EXPERT.format('guideline', 'patients')} sessions deferred: the mean share of "
+        "a programme's sessions on which the guideline capped the agent.",
+    ),
+    **beyond_fresh(
+        "beyond_selection_rehab",
+        Rule("best_lower_bound", {"burden": 0.10, "beyond": "total_any_violating_session"},
+             note="no selection programme beyond d_s, under 10% of sessions deferred, the "
+                  "highest lower bound of the paired reward interval against the guideline"),
+        (64, 65), "patients",
+        ("Beyond the guideline: fresh patients (rehab)",
+         "Beyond the guideline: a second fresh block (rehab)"),
+        "the handover row was chosen on 3 x 200 selection patients of block 63 by the rule "
+        "fixed before the run ({rule}). Reward: capacity gain (points). "
+        f"{PAIRED_EXPERT.format('guideline', 'patients')}",
+    ),
+}  # fmt: skip
+"""Beyond the expert, in the car and the clinic: a selection table and two fresh ones each."""
 
 
 def vs_expert(c: Comparison) -> Comparison:
@@ -325,38 +363,5 @@ COMPARISONS = {
         "comparison is selfimprove_rehab.py. Reward: capacity gain (points). Paired rows: each "
         "agent against its own seed's start on the same patients.",
     ),
-    "beyond_selection": BEYOND_SELECTION,
-    "beyond": Fresh(
-        "beyond",
-        "beyond_selection",
-        BEST,
-        eval_seed=25,
-        title="Beyond the expert: fresh tracks (CarRacing)",
-        note=f"Fresh tracks (block 25); {BEYOND_NOTE}",
-    ),
-    "beyond_selection_rehab": REHAB_BEYOND_SELECTION,
-    "beyond_rehab": Fresh(
-        "beyond",
-        "beyond_selection_rehab",
-        REHAB_BEST,
-        eval_seed=64,
-        title="Beyond the guideline: fresh patients (rehab)",
-        note=f"Fresh patients (block 64); {REHAB_BEYOND_NOTE}",
-    ),
-    "beyond_replication_rehab": Fresh(
-        "beyond_replication",
-        "beyond_selection_rehab",
-        REHAB_BEST,
-        eval_seed=65,
-        title="Beyond the guideline: a second fresh block (rehab)",
-        note=f"Fresh patients (block 65, nothing changed but the patients); {REHAB_BEYOND_NOTE}",
-    ),
-    "beyond_replication": Fresh(
-        "beyond_replication",
-        "beyond_selection",
-        BEST,
-        eval_seed=26,
-        title="Beyond the expert: a second fresh block (CarRacing)",
-        note=f"Fresh tracks (block 26, nothing changed but the tracks); {BEYOND_NOTE}",
-    ),
+    **BEYOND,
 }
