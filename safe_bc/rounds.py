@@ -15,7 +15,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from safe_bc.atomic import write_json_atomic
-from safe_bc.bc.checkpoint import load_checkpoint
+from safe_bc.bc.checkpoint import checkpoint_unit, load_checkpoint, save_checkpoint
 from safe_bc.bc.net import BCNet
 from safe_bc.demos import Demonstrations
 from safe_bc.evaluation import NetSource
@@ -93,6 +93,29 @@ def net_model(source: NetSource) -> BCNet:
     model = BCNet(ModelSpec.from_dict(source.spec), cfg.preprocess, cfg.network)
     model.load_state_dict(source.state)
     return model.eval()
+
+
+def save_round_net(
+    path: Path,
+    source: NetSource,
+    bc: Any,
+    method: str,
+    identity: Mapping[str, Any],
+    round_: int,
+    env_config: Any,
+    demos_path: Any,
+) -> None:
+    """Save round ``round_``'s retrained net at ``path`` (atomically, checksummed), recording
+    the run's ``identity`` under ``method`` with the round, the env id and the demonstrations."""
+    with checkpoint_unit(path) as unit:
+        save_checkpoint(
+            unit, net_model(source), bc,
+            extra={
+                method: {**identity, "round": round_},
+                "env_id": getattr(env_config, "env_id", None),
+                "demos": demos_path,
+            },
+        )  # fmt: skip
 
 
 def policy_source(policy: Path) -> NetSource:

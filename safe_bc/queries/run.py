@@ -42,9 +42,9 @@ from safe_bc.rounds import (
     TrainJob,
     aggregate_rows,
     check_identity,
-    net_model,
     policy_source,
     read_json,
+    save_round_net,
     train_local,
     weights_digest,
     with_batches,
@@ -240,17 +240,16 @@ def _query_round(
         data.costs, data.scored, queried, retrain.selection, plan.base.thresholds, config.mode
     )
     source = train(TrainJob(data, selection, retrain, action_bounds))
-    with checkpoint_unit(here / POLICY) as unit:
-        save_checkpoint(
-            unit,
-            net_model(source),
-            retrain.bc,
-            extra={
-                "queries": {**plan.identity, "round": r},
-                "env_id": getattr(plan.env_config, "env_id", None),
-                "demos": plan.demos_path,
-            },
-        )
+    save_round_net(
+        here / POLICY,
+        source,
+        retrain.bc,
+        "queries",
+        plan.identity,
+        r,
+        plan.env_config,
+        plan.demos_path,
+    )
     return round_summary(r, mine, selection, t_roll, time.perf_counter() - t0), source
 
 

@@ -40,9 +40,9 @@ from safe_bc.rounds import (
     TrainJob,
     aggregate_rows,
     check_identity,
-    net_model,
     policy_source,
     read_json,
+    save_round_net,
     train_local,
     weights_digest,
     with_batches,
@@ -529,15 +529,14 @@ def _retrain(
             frames.close()
             (here / FRAMES).unlink(missing_ok=True)
             checksum_path(here / FRAMES).unlink(missing_ok=True)
-    with checkpoint_unit(here / POLICY) as unit:
-        save_checkpoint(
-            unit,
-            net_model(source),
-            retrain.bc,
-            extra={
-                "selfimprove": {**plan.identity, "round": r},
-                "env_id": getattr(plan.env_config, "env_id", None),
-                "demos": plan.demos_path,
-            },
-        )
+    save_round_net(
+        here / POLICY,
+        source,
+        retrain.bc,
+        "selfimprove",
+        plan.identity,
+        r,
+        plan.env_config,
+        plan.demos_path,
+    )
     return selection, source
