@@ -57,6 +57,8 @@ class CollectReport:
     steps: int
     seconds: float
     worker_restarts: int
+    meta: DatasetMeta
+    """The dataset's metadata as stored (the first collection's provenance on resume)."""
 
     @property
     def steps_per_s(self) -> float:
@@ -102,18 +104,25 @@ def collect(
     out = Path(out)
     if not out.parent.exists():
         raise FileNotFoundError(f"parent directory of --out does not exist: {out.parent}")
-    with output_lock(out):
-        return _collect(config, out, progress=progress, max_retries=max_retries)
+    return _collect(config, out, dataset_meta(config), progress=progress, max_retries=max_retries)
 
 
 def _collect(
-    config: CollectConfig, out: Path, *, progress: bool, max_retries: int
+    config: CollectConfig, out: Path, expected: DatasetMeta, *, progress: bool, max_retries: int
 ) -> CollectReport:
-    meta = init_dataset(out, dataset_meta(config))
+    """:func:`collect` with the metadata the collection writes (``expected``) made."""
+    with output_lock(out):
+        return _fill(config, out, init_dataset(out, expected), progress, max_retries)
+
+
+def _fill(
+    config: CollectConfig, out: Path, meta: DatasetMeta, progress: bool, max_retries: int
+) -> CollectReport:
+    """The missing episodes of the locked dataset at ``out`` (metadata ``meta``) collected."""
     done = set(completed_episodes(out, meta))
     todo = [i for i in range(config.episodes) if i not in done]
     reused = sorted(done & set(range(config.episodes)))
-    report_args = dict(root=out, reused=reused)
+    report_args = dict(root=out, reused=reused, meta=meta)
     start = time.perf_counter()
     if not todo:
         return CollectReport(**report_args, collected=[], steps=0, seconds=0.0, worker_restarts=0)
@@ -173,10 +182,11 @@ def ensure_demos(
     """
     out = Path(out)
     config = config or CollectConfig()
+    expected = dataset_meta(config)
     if (out / META_FILE).exists():
         meta = read_meta(out)
         done = completed_episodes(out, meta)
-        problem = settings_mismatch(meta, len(done), dataset_meta(config), config.episodes)
+        problem = settings_mismatch(meta, len(done), expected, config.episodes)
         if problem:
             raise DatasetError(
                 f"{out}: these demonstrations were collected with other settings than this run "
@@ -184,6 +194,6 @@ def ensure_demos(
                 "and rerun to collect the expected set"
             )
         if len(done) >= config.episodes:
-            return CollectReport(out, [], sorted(done), 0, 0.0, 0)
+            return CollectReport(out, [], sorted(done), 0, 0.0, 0, meta)
     out.parent.mkdir(parents=True, exist_ok=True)
-    return collect(config, out, progress=progress)
+    return _collect(config, out, expected, progress=progress, max_retries=3)
