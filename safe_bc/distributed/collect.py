@@ -110,60 +110,61 @@ def collect(
 def _collect(
     config: CollectConfig, out: Path, expected: DatasetMeta, *, progress: bool, max_retries: int
 ) -> CollectReport:
-    """:func:`collect` with the metadata the collection writes (``expected``) made."""
+    """:func:`collect` with the metadata the collection writes (``expected``) made: the
+    dataset locked, made or checked, and its missing episodes collected."""
     with output_lock(out):
-        return _fill(config, out, init_dataset(out, expected), progress, max_retries)
+        meta = init_dataset(out, expected)
+        done = set(completed_episodes(out, meta))
+        todo = [i for i in range(config.episodes) if i not in done]
+        reused = sorted(done & set(range(config.episodes)))
+        report_args = dict(root=out, reused=reused, meta=meta)
+        start = time.perf_counter()
+        if not todo:
+            return CollectReport(
+                **report_args, collected=[], steps=0, seconds=0.0, worker_restarts=0
+            )
 
-
-def _fill(
-    config: CollectConfig, out: Path, meta: DatasetMeta, progress: bool, max_retries: int
-) -> CollectReport:
-    """The missing episodes of the locked dataset at ``out`` (metadata ``meta``) collected."""
-    done = set(completed_episodes(out, meta))
-    todo = [i for i in range(config.episodes) if i not in done]
-    reused = sorted(done & set(range(config.episodes)))
-    report_args = dict(root=out, reused=reused, meta=meta)
-    start = time.perf_counter()
-    if not todo:
-        return CollectReport(**report_args, collected=[], steps=0, seconds=0.0, worker_restarts=0)
-
-    ensure_ray()
-    worker_cls = RolloutWorker.options(
-        num_cpus=cpus_per_actor(min(config.workers, len(todo))), max_restarts=0
-    )
-    collected: list[int] = []
-    steps = 0
-    bar = tqdm(
-        total=config.episodes, initial=len(reused), desc="collect", unit="ep", disable=not progress
-    )
-
-    def store(eid: int, episode: Episode) -> None:
-        nonlocal steps
-        write_episode(out, episode, meta)
-        collected.append(eid)
-        steps += len(episode)
-        bar.update(1)
-        bar.set_postfix(steps_per_s=f"{steps / (time.perf_counter() - start):.0f}")
-
-    with bar:
-        restarts = run_on_actors(
-            lambda: worker_cls.remote(config),
-            config.workers,
-            todo,
-            lambda actor, eid: actor.run_episode.remote(eid),
-            store,
-            max_retries=max_retries,
-            on_restart=lambda slot, eid: bar.write(
-                f"worker {slot} died during episode {eid}; replaced, episode restarted"
-            ),
+        ensure_ray()
+        worker_cls = RolloutWorker.options(
+            num_cpus=cpus_per_actor(min(config.workers, len(todo))), max_restarts=0
         )
-    return CollectReport(
-        **report_args,
-        collected=sorted(collected),
-        steps=steps,
-        seconds=time.perf_counter() - start,
-        worker_restarts=restarts,
-    )
+        collected: list[int] = []
+        steps = 0
+        bar = tqdm(
+            total=config.episodes,
+            initial=len(reused),
+            desc="collect",
+            unit="ep",
+            disable=not progress,
+        )
+
+        def store(eid: int, episode: Episode) -> None:
+            nonlocal steps
+            write_episode(out, episode, meta)
+            collected.append(eid)
+            steps += len(episode)
+            bar.update(1)
+            bar.set_postfix(steps_per_s=f"{steps / (time.perf_counter() - start):.0f}")
+
+        with bar:
+            restarts = run_on_actors(
+                lambda: worker_cls.remote(config),
+                config.workers,
+                todo,
+                lambda actor, eid: actor.run_episode.remote(eid),
+                store,
+                max_retries=max_retries,
+                on_restart=lambda slot, eid: bar.write(
+                    f"worker {slot} died during episode {eid}; replaced, episode restarted"
+                ),
+            )
+        return CollectReport(
+            **report_args,
+            collected=sorted(collected),
+            steps=steps,
+            seconds=time.perf_counter() - start,
+            worker_restarts=restarts,
+        )
 
 
 def ensure_demos(
