@@ -548,12 +548,12 @@ def load_demonstrations(root: Path, frames: FrameMode = DEFAULT_FRAMES) -> Demon
     if frames not in ("memory", "stream"):
         raise ValueError(f"frames must be 'memory' or 'stream', not {frames!r}")
     meta = read_meta(root)
-    if frames == "memory" or meta.obs_encoding == "vector":
-        return Demonstrations.from_episodes(read_episodes(root))
-    episodes = read_episodes(root, observations=False)
-    ids = [ep.episode_id for ep in episodes]
-    lengths = [len(ep) for ep in episodes]
-    source = frame_cache(root, meta, ids, lengths)
+    stream = frames == "stream" and meta.obs_encoding != "vector"
+    episodes = read_episodes(root, observations=not stream)
+    source = None
+    if stream:
+        ids, lengths = [ep.episode_id for ep in episodes], [len(ep) for ep in episodes]
+        source = frame_cache(root, meta, ids, lengths)
     return Demonstrations.from_episodes(episodes, observations=source)
 
 
