@@ -40,7 +40,7 @@ import hashlib
 import json
 import re
 import sys
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -183,6 +183,15 @@ def write_table_atomic(path: Path, frame: Any, metadata: dict[str, Any] | None =
     table = table.cast(pa.schema(fields, metadata=merged))
     with atomic_write(path) as f:
         pq.write_table(table, f, compression="zstd")
+
+
+def write_tables_atomic(
+    folder: Path, frames: Mapping[str, Any], metadata: dict[str, Any] | None = None
+) -> None:
+    """The result tables of one step, ``folder/<name>.parquet`` for each of ``frames``, each
+    written as :func:`write_table_atomic` writes it, with the same ``metadata``."""
+    for name, frame in frames.items():
+        write_table_atomic(Path(folder) / f"{name}.parquet", frame, metadata)
 
 
 def column_units(path: Path) -> dict[str, str]:

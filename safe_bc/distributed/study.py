@@ -51,6 +51,7 @@ from safe_bc.data.store import (
     read_table,
     storage_folders,
     write_table_atomic,
+    write_tables_atomic,
 )
 from safe_bc.distributed.console import TrialLines, progress_reporter, quiet_logs, quiet_stop
 from safe_bc.distributed.final import FinalOutcome, final_phase
@@ -1031,8 +1032,7 @@ def _report_trials(plan: StudyPlan, start: StudyStart, grid: Any) -> TrialReport
         expert_safety=start.demos.safety_mean, cost_limits=start.job.cost_limits,
         inputs=start.inputs, complete=complete, lost=lost, provenance=provenance(),
     )  # fmt: skip
-    write_table_atomic(out / "trials.parquet", trials, meta)
-    write_table_atomic(out / "history.parquet", history, meta)
+    write_tables_atomic(out, {"trials": trials, "history": history}, meta)
     title = f"{spec.name}: {finished}/{spec.trials} trials"
     plot_pareto(trials, start.threshold, out / "pareto.png", title=title, **plan.pareto_axes)
     return TrialReport(trials, meta, complete, errors, winner, title)
@@ -1093,8 +1093,8 @@ def deliver(
             identity=final.configs.get(winner), progress=progress,
         )  # fmt: skip
         cert_meta = {**meta, "certificate": cert.certificate, "winner": winner}
-        write_table_atomic(out / "certify.parquet", cert.table, cert_meta)
-        write_table_atomic(out / "certify_episodes.parquet", cert.episodes, cert_meta)
+        tables = {"certify": cert.table, "certify_episodes": cert.episodes}
+        write_tables_atomic(out, tables, cert_meta)
         certificate = cert.certificate
     models = {s: final.models[(winner, s)] for s in seeds}
     if not all(isinstance(m, BCNet) for m, _ in models.values()):
@@ -1239,10 +1239,10 @@ def _write_final(
         "winner_feasible": final.feasible,
         "configs": final.configs,
     }
-    write_table_atomic(out / "final.parquet", final.table, final_meta)
-    write_table_atomic(out / "final_episodes.parquet", final.episodes, final_meta)
+    tables = {"final": final.table, "final_episodes": final.episodes}
     if len(final.paired):
-        write_table_atomic(out / "final_paired.parquet", final.paired, final_meta)
+        tables["final_paired"] = final.paired
+    write_tables_atomic(out, tables, final_meta)
     win = candidates[candidates["trial_id"] == final.winner]
     row = win.iloc[0].to_dict() if len(win) else {}
     best = {
