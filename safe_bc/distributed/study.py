@@ -859,7 +859,8 @@ def _prepare_outputs(plan: StudyPlan, verbose: bool) -> None:
 
 def _study_demos(plan: StudyPlan, progress: bool) -> tuple[Any, dict[str, Any]]:
     """The study's demonstrations (collected when missing; another collection's set is
-    refused), checked against the study's env: ``(demonstrations, inputs record)``."""
+    refused), checked against the study's env, recorded, then loaded:
+    ``(demonstrations, inputs record)``."""
     from safe_bc.distributed.collect import ensure_demos
 
     if not (plan.demos / "dataset.json").exists():
@@ -868,10 +869,11 @@ def _study_demos(plan: StudyPlan, progress: bool) -> tuple[Any, dict[str, Any]]:
     _check_env(plan.spec.env, meta, plan.demos)
     if plan.validation is not None:
         _check_validation_demos(plan.validation, plan.demos, meta)
+    inputs = {"demos": dataset_record(plan.demos)}
     demos = cached_demos(str(plan.demos))
     for line in subset_warnings(plan.spec, demos):
         print(f"warning: {line}")
-    return demos, {"demos": dataset_record(plan.demos)}
+    return demos, inputs
 
 
 def _make_tuner(
