@@ -239,6 +239,19 @@ def with_provenance(metadata: dict[str, Any] | None) -> dict[str, Any]:
     return metadata
 
 
+def result_metadata(path: str | Path, metadata: dict[str, Any] | None) -> dict[str, Any]:
+    """The metadata a result table at ``path`` is written with: ``metadata``
+    :func:`with_provenance`, and the dirty tree's record where :func:`check_result_write`
+    allows one (``"dirty_tree"``).
+
+    Raises:
+        DirtyTreeError: as :func:`check_result_write`.
+    """
+    dirty = check_result_write(path)
+    metadata = with_provenance(metadata)
+    return metadata if dirty is None else {**metadata, "dirty_tree": dirty}
+
+
 def run_metadata(**fields: Any) -> dict[str, Any]:
     """What a result table records: the command line, ``fields`` (seeds, configs) and
     :func:`provenance`."""

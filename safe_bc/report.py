@@ -132,3 +132,12 @@ def column_unit(name: str) -> str | None:
         if part in name:
             return unit
     return None
+
+
+def units_of(names: Sequence[str]) -> dict[str, str]:
+    """Column name -> its unit (:func:`column_unit`), for the columns whose name tells one.
+
+    >>> units_of(["reward_lo", "method"])
+    {'reward_lo': "return (the env's reward summed over an episode)"}
+    """
+    return {n: u for n in names if (u := column_unit(n)) is not None}

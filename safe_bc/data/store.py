@@ -40,7 +40,7 @@ import hashlib
 import json
 import re
 import sys
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -164,37 +164,39 @@ def write_table_atomic(path: Path, frame: Any, metadata: dict[str, Any] | None =
     (:func:`safe_bc.provenance.check_result_write`). Metadata that records no provenance gets
     this run's (:func:`safe_bc.provenance.with_provenance`: revision, CPU, torch's kernels).
     """
-    from safe_bc.provenance import check_result_write, with_provenance
+    from safe_bc.provenance import result_metadata
+    from safe_bc.report import units_of
 
-    dirty = check_result_write(path)
-    metadata = with_provenance(metadata)
-    if dirty is not None:
-        metadata = {**metadata, "dirty_tree": dirty}
-    table = with_units(pa.Table.from_pandas(frame, preserve_index=False))
-    if metadata is not None:
-        merged = dict(table.schema.metadata or {})
-        merged[META_KEY] = json.dumps(metadata, sort_keys=True, default=str).encode()
-        table = table.replace_schema_metadata(merged)
+    metadata = result_metadata(path, metadata)
+    table = pa.Table.from_pandas(frame, preserve_index=False)
+    units = units_of(table.column_names)
+    fields = [
+        f.with_metadata({**(f.metadata or {}), b"unit": units[f.name].encode()})
+        if f.name in units
+        else f
+        for f in table.schema
+    ]
+    merged = {
+        **(table.schema.metadata or {}),
+        META_KEY: json.dumps(metadata, sort_keys=True, default=str).encode(),
+    }
+    table = table.cast(pa.schema(fields, metadata=merged))
     with atomic_write(path) as f:
         pq.write_table(table, f, compression="zstd")
 
 
-def with_units(table: pa.Table) -> pa.Table:
-    """``table`` with each column's unit (:func:`safe_bc.report.column_unit`) in its Arrow
-    field metadata (``unit``), where its name tells one."""
-    from safe_bc.report import column_unit
-
-    fields = []
-    for f in table.schema:
-        unit = column_unit(f.name)
-        if unit is not None:
-            f = f.with_metadata({**(f.metadata or {}), b"unit": unit.encode()})
-        fields.append(f)
-    return table.cast(pa.schema(fields, metadata=table.schema.metadata))
+def write_tables_atomic(
+    folder: Path, frames: Mapping[str, Any], metadata: dict[str, Any] | None = None
+) -> None:
+    """The result tables of one step, ``folder/<name>.parquet`` for each of ``frames``, each
+    written as :func:`write_table_atomic` writes it, with the same ``metadata``."""
+    for name, frame in frames.items():
+        write_table_atomic(Path(folder) / f"{name}.parquet", frame, metadata)
 
 
 def column_units(path: Path) -> dict[str, str]:
-    """The units a result table's columns carry (:func:`with_units`)."""
+    """The units a result table's columns carry (:func:`write_table_atomic` puts each one,
+    :func:`safe_bc.report.units_of`, in its column's Arrow field metadata as ``unit``)."""
     schema = pq.read_schema(path)
     return {
         f.name: f.metadata[b"unit"].decode() for f in schema if f.metadata and b"unit" in f.metadata
@@ -555,12 +557,12 @@ def load_demonstrations(root: Path, frames: FrameMode = DEFAULT_FRAMES) -> Demon
     if frames not in ("memory", "stream"):
         raise ValueError(f"frames must be 'memory' or 'stream', not {frames!r}")
     meta = read_meta(root)
-    if frames == "memory" or meta.obs_encoding == "vector":
-        return Demonstrations.from_episodes(read_episodes(root))
-    episodes = read_episodes(root, observations=False)
-    ids = [ep.episode_id for ep in episodes]
-    lengths = [len(ep) for ep in episodes]
-    source = frame_cache(root, meta, ids, lengths)
+    stream = frames == "stream" and meta.obs_encoding != "vector"
+    episodes = read_episodes(root, observations=not stream)
+    source = None
+    if stream:
+        ids, lengths = [ep.episode_id for ep in episodes], [len(ep) for ep in episodes]
+        source = frame_cache(root, meta, ids, lengths)
     return Demonstrations.from_episodes(episodes, observations=source)
 
 

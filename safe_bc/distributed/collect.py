@@ -57,6 +57,8 @@ class CollectReport:
     steps: int
     seconds: float
     worker_restarts: int
+    meta: DatasetMeta
+    """The dataset's metadata as stored (the first collection's provenance on resume)."""
 
     @property
     def steps_per_s(self) -> float:
@@ -102,59 +104,67 @@ def collect(
     out = Path(out)
     if not out.parent.exists():
         raise FileNotFoundError(f"parent directory of --out does not exist: {out.parent}")
-    with output_lock(out):
-        return _collect(config, out, progress=progress, max_retries=max_retries)
+    return _collect(config, out, dataset_meta(config), progress=progress, max_retries=max_retries)
 
 
 def _collect(
-    config: CollectConfig, out: Path, *, progress: bool, max_retries: int
+    config: CollectConfig, out: Path, expected: DatasetMeta, *, progress: bool, max_retries: int
 ) -> CollectReport:
-    meta = init_dataset(out, dataset_meta(config))
-    done = set(completed_episodes(out, meta))
-    todo = [i for i in range(config.episodes) if i not in done]
-    reused = sorted(done & set(range(config.episodes)))
-    report_args = dict(root=out, reused=reused)
-    start = time.perf_counter()
-    if not todo:
-        return CollectReport(**report_args, collected=[], steps=0, seconds=0.0, worker_restarts=0)
+    """:func:`collect` with the metadata the collection writes (``expected``) made: the
+    dataset locked, made or checked, and its missing episodes collected."""
+    with output_lock(out):
+        meta = init_dataset(out, expected)
+        done = set(completed_episodes(out, meta))
+        todo = [i for i in range(config.episodes) if i not in done]
+        reused = sorted(done & set(range(config.episodes)))
+        report_args = dict(root=out, reused=reused, meta=meta)
+        start = time.perf_counter()
+        if not todo:
+            return CollectReport(
+                **report_args, collected=[], steps=0, seconds=0.0, worker_restarts=0
+            )
 
-    ensure_ray()
-    worker_cls = RolloutWorker.options(
-        num_cpus=cpus_per_actor(min(config.workers, len(todo))), max_restarts=0
-    )
-    collected: list[int] = []
-    steps = 0
-    bar = tqdm(
-        total=config.episodes, initial=len(reused), desc="collect", unit="ep", disable=not progress
-    )
-
-    def store(eid: int, episode: Episode) -> None:
-        nonlocal steps
-        write_episode(out, episode, meta)
-        collected.append(eid)
-        steps += len(episode)
-        bar.update(1)
-        bar.set_postfix(steps_per_s=f"{steps / (time.perf_counter() - start):.0f}")
-
-    with bar:
-        restarts = run_on_actors(
-            lambda: worker_cls.remote(config),
-            config.workers,
-            todo,
-            lambda actor, eid: actor.run_episode.remote(eid),
-            store,
-            max_retries=max_retries,
-            on_restart=lambda slot, eid: bar.write(
-                f"worker {slot} died during episode {eid}; replaced, episode restarted"
-            ),
+        ensure_ray()
+        worker_cls = RolloutWorker.options(
+            num_cpus=cpus_per_actor(min(config.workers, len(todo))), max_restarts=0
         )
-    return CollectReport(
-        **report_args,
-        collected=sorted(collected),
-        steps=steps,
-        seconds=time.perf_counter() - start,
-        worker_restarts=restarts,
-    )
+        collected: list[int] = []
+        steps = 0
+        bar = tqdm(
+            total=config.episodes,
+            initial=len(reused),
+            desc="collect",
+            unit="ep",
+            disable=not progress,
+        )
+
+        def store(eid: int, episode: Episode) -> None:
+            nonlocal steps
+            write_episode(out, episode, meta)
+            collected.append(eid)
+            steps += len(episode)
+            bar.update(1)
+            bar.set_postfix(steps_per_s=f"{steps / (time.perf_counter() - start):.0f}")
+
+        with bar:
+            restarts = run_on_actors(
+                lambda: worker_cls.remote(config),
+                config.workers,
+                todo,
+                lambda actor, eid: actor.run_episode.remote(eid),
+                store,
+                max_retries=max_retries,
+                on_restart=lambda slot, eid: bar.write(
+                    f"worker {slot} died during episode {eid}; replaced, episode restarted"
+                ),
+            )
+        return CollectReport(
+            **report_args,
+            collected=sorted(collected),
+            steps=steps,
+            seconds=time.perf_counter() - start,
+            worker_restarts=restarts,
+        )
 
 
 def ensure_demos(
@@ -173,10 +183,11 @@ def ensure_demos(
     """
     out = Path(out)
     config = config or CollectConfig()
+    expected = dataset_meta(config)
     if (out / META_FILE).exists():
         meta = read_meta(out)
         done = completed_episodes(out, meta)
-        problem = settings_mismatch(meta, len(done), dataset_meta(config), config.episodes)
+        problem = settings_mismatch(meta, len(done), expected, config.episodes)
         if problem:
             raise DatasetError(
                 f"{out}: these demonstrations were collected with other settings than this run "
@@ -184,6 +195,6 @@ def ensure_demos(
                 "and rerun to collect the expected set"
             )
         if len(done) >= config.episodes:
-            return CollectReport(out, [], sorted(done), 0, 0.0, 0)
+            return CollectReport(out, [], sorted(done), 0, 0.0, 0, meta)
     out.parent.mkdir(parents=True, exist_ok=True)
-    return collect(config, out, progress=progress)
+    return _collect(config, out, expected, progress=progress, max_retries=3)

@@ -44,12 +44,14 @@ from safe_bc.bc import CheckpointError, load_checkpoint
 from safe_bc.bc.net import BCNet
 from safe_bc.data.store import (
     DatasetError,
+    DatasetMeta,
     dataset_record,
     delete_storage_tree,
     read_meta,
     read_table,
     storage_folders,
     write_table_atomic,
+    write_tables_atomic,
 )
 from safe_bc.distributed.console import TrialLines, progress_reporter, quiet_logs, quiet_stop
 from safe_bc.distributed.final import FinalOutcome, final_phase
@@ -81,6 +83,7 @@ from safe_bc.distributed.stop import (
     _stop_signals,
 )
 from safe_bc.distributed.trial import TrialJob, cached_demos, run_trial, stored_checkpoint
+from safe_bc.envs.config import EnvConfig
 from safe_bc.plots import plot_pareto
 from safe_bc.provenance import check_result_write, provenance
 from safe_bc.study import (
@@ -172,27 +175,28 @@ def trial_dirname(trial: Any) -> str:
     return f"trial_{trial.trial_id}"
 
 
-def _check_env(spec: StudySpec, demos: Path) -> None:
-    meta = read_meta(demos)
-    if meta.env_id != spec.env.env_id:
+def _check_env(env: EnvConfig, meta: DatasetMeta, demos: Path) -> None:
+    """The demonstrations at ``demos`` (metadata ``meta``) must be of the study's env."""
+    if meta.env_id != env.env_id:
         raise ValueError(
             f"{demos} holds {meta.env_id} demonstrations but the study evaluates on "
-            f"{spec.env.env_id}; set StudySpec(env=EnvConfig({meta.env_id!r}))"
+            f"{env.env_id}; set StudySpec(env=EnvConfig({meta.env_id!r}))"
         )
-    warning = check_frames_renderer(meta.renderer, spec.env, demos)
+    warning = check_frames_renderer(meta.renderer, env, demos)
     if warning:
         print(f"warning: {warning}", file=sys.stderr)
 
 
-def _check_validation_demos(validation: Path, demos: Path) -> None:
-    """The study's validation set must be another set of the same task and observations."""
+def _check_validation_demos(validation: Path, demos: Path, meta: DatasetMeta) -> None:
+    """The study's validation set must be another set of the same task and observations as
+    the demonstrations at ``demos`` (metadata ``meta``)."""
     if not (validation / "dataset.json").exists():
         raise ValueError(f"validation_demos {validation}: no demonstration set there")
-    a, b = read_meta(validation), read_meta(demos)
-    if a.env_id != b.env_id or tuple(a.obs_shape) != tuple(b.obs_shape):
+    a = read_meta(validation)
+    if a.env_id != meta.env_id or tuple(a.obs_shape) != tuple(meta.obs_shape):
         raise ValueError(
             f"validation_demos {validation} holds {a.env_id} {tuple(a.obs_shape)} observations, "
-            f"the study's demonstrations {b.env_id} {tuple(b.obs_shape)}"
+            f"the study's demonstrations {meta.env_id} {tuple(meta.obs_shape)}"
         )
     if validation == demos:
         raise ValueError("validation_demos is the training set itself; collect another one")
@@ -793,8 +797,6 @@ def _start(plan: StudyPlan, clock: StudyClock, options: DriverOptions) -> StudyS
     threshold, limits = constraint_bars(plan.spec, demos.safety_mean, demos.dim_safety_means())
     cost_limits = tuple(float(x) for x in demos.limits)
     identity = run_identity(plan, threshold, cost_limits, inputs)
-    if plan.validation is not None:
-        _check_validation_demos(plan.validation, plan.demos)
     validation = None if plan.validation is None else str(plan.validation)
     job = TrialJob(plan.spec, str(plan.demos), limits, cost_limits, validation)
     restoring = tune.Tuner.can_restore(plan.exp_path)
@@ -857,17 +859,21 @@ def _prepare_outputs(plan: StudyPlan, verbose: bool) -> None:
 
 def _study_demos(plan: StudyPlan, progress: bool) -> tuple[Any, dict[str, Any]]:
     """The study's demonstrations (collected when missing; another collection's set is
-    refused), checked against the study's env: ``(demonstrations, inputs record)``."""
+    refused), checked against the study's env, recorded, then loaded:
+    ``(demonstrations, inputs record)``."""
     from safe_bc.distributed.collect import ensure_demos
 
     if not (plan.demos / "dataset.json").exists():
         print(f"{plan.spec.demos}: no demonstrations yet; collecting the set the study expects")
-    ensure_demos(plan.demos, plan.collect, progress=progress)  # refuses another collection's
-    _check_env(plan.spec, plan.demos)
+    meta = ensure_demos(plan.demos, plan.collect, progress=progress).meta  # or refuses the set
+    _check_env(plan.spec.env, meta, plan.demos)
+    if plan.validation is not None:
+        _check_validation_demos(plan.validation, plan.demos, meta)
+    inputs = {"demos": dataset_record(plan.demos)}
     demos = cached_demos(str(plan.demos))
     for line in subset_warnings(plan.spec, demos):
         print(f"warning: {line}")
-    return demos, {"demos": dataset_record(plan.demos)}
+    return demos, inputs
 
 
 def _make_tuner(
@@ -1028,8 +1034,7 @@ def _report_trials(plan: StudyPlan, start: StudyStart, grid: Any) -> TrialReport
         expert_safety=start.demos.safety_mean, cost_limits=start.job.cost_limits,
         inputs=start.inputs, complete=complete, lost=lost, provenance=provenance(),
     )  # fmt: skip
-    write_table_atomic(out / "trials.parquet", trials, meta)
-    write_table_atomic(out / "history.parquet", history, meta)
+    write_tables_atomic(out, {"trials": trials, "history": history}, meta)
     title = f"{spec.name}: {finished}/{spec.trials} trials"
     plot_pareto(trials, start.threshold, out / "pareto.png", title=title, **plan.pareto_axes)
     return TrialReport(trials, meta, complete, errors, winner, title)
@@ -1090,8 +1095,8 @@ def deliver(
             identity=final.configs.get(winner), progress=progress,
         )  # fmt: skip
         cert_meta = {**meta, "certificate": cert.certificate, "winner": winner}
-        write_table_atomic(out / "certify.parquet", cert.table, cert_meta)
-        write_table_atomic(out / "certify_episodes.parquet", cert.episodes, cert_meta)
+        tables = {"certify": cert.table, "certify_episodes": cert.episodes}
+        write_tables_atomic(out, tables, cert_meta)
         certificate = cert.certificate
     models = {s: final.models[(winner, s)] for s in seeds}
     if not all(isinstance(m, BCNet) for m, _ in models.values()):
@@ -1236,10 +1241,10 @@ def _write_final(
         "winner_feasible": final.feasible,
         "configs": final.configs,
     }
-    write_table_atomic(out / "final.parquet", final.table, final_meta)
-    write_table_atomic(out / "final_episodes.parquet", final.episodes, final_meta)
+    tables = {"final": final.table, "final_episodes": final.episodes}
     if len(final.paired):
-        write_table_atomic(out / "final_paired.parquet", final.paired, final_meta)
+        tables["final_paired"] = final.paired
+    write_tables_atomic(out, tables, final_meta)
     win = candidates[candidates["trial_id"] == final.winner]
     row = win.iloc[0].to_dict() if len(win) else {}
     best = {
