@@ -98,15 +98,16 @@ def test_a_studys_validation_set_must_be_another_set_of_the_task(
     rehab_demos: Path, tmp_path: Path
 ) -> None:
     from safe_bc.collection import CollectConfig
-    from safe_bc.data.store import init_dataset
+    from safe_bc.data.store import init_dataset, read_meta
     from safe_bc.distributed.collect import dataset_meta
     from safe_bc.distributed.study import _check_validation_demos
 
+    meta = read_meta(rehab_demos)
     with pytest.raises(ValueError, match="no demonstration set there"):
-        _check_validation_demos(tmp_path / "none", rehab_demos)
+        _check_validation_demos(tmp_path / "none", rehab_demos, meta)
     with pytest.raises(ValueError, match="the training set itself"):
-        _check_validation_demos(rehab_demos, rehab_demos)
+        _check_validation_demos(rehab_demos, rehab_demos, meta)
     car = tmp_path / "car"  # a CarRacing set (its dataset.json is what the check reads)
     init_dataset(car, dataset_meta(CollectConfig(episodes=1)))
     with pytest.raises(ValueError, match=r"holds CarRacing.* observations, the study's"):
-        _check_validation_demos(car, rehab_demos)
+        _check_validation_demos(car, rehab_demos, meta)

@@ -75,7 +75,8 @@ def test_registry_entries_are_complete():
     assert tuple(TASKS)[:2] == ("carracing", "rehab")  # the built-ins, in order
     for task in TASKS:
         entry = task_defaults(task)
-        optional = {"drawing", "handover"}  # None: cannot be rendered / no handover measured
+        # None: cannot be rendered / no handover measured / no safer direction of the actions
+        optional = {"drawing", "handover", "safer_actions"}
         missing = [
             f.name
             for f in dataclasses.fields(entry)
