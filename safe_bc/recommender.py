@@ -55,7 +55,8 @@ class Recommendation:
     action: np.ndarray
     """``(A,) float32``: the action to take."""
     actor: Actor
-    """Who chose it: ``"agent"``, or ``"expert"`` inside the handover zone."""
+    """Who chose it: ``"agent"``, or ``"expert"`` inside the handover zone (with a capping
+    handover: the expert's action bounded the agent's there)."""
     margin: dict[str, float]
     """Per safety dimension, ``d_s - c_s`` of the current state: how far the state is inside
     the expert's worst cost (negative: beyond ``d_s``)."""
