@@ -73,6 +73,28 @@ def _changed_files() -> list[str]:
     return [line[3:] for line in out.splitlines() if line.strip()]
 
 
+def committed_unchanged(folder: str | Path) -> bool:
+    """Whether ``folder`` holds files git tracks, none of them changed or deleted since the
+    checkout's last commit: a published result (e.g. a study's committed tables on a fresh
+    clone), not the records of a run that went on here. ``False`` outside a git checkout."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        return False
+    try:
+
+        def git(*args: str) -> str:
+            return subprocess.run(
+                ["git", *args, "--", "."], cwd=folder, capture_output=True, text=True, check=True
+            ).stdout
+
+        return (
+            bool(git("ls-files").strip())
+            and not git("status", "--porcelain", "--untracked-files=no").strip()
+        )
+    except (OSError, subprocess.CalledProcessError):
+        return False
+
+
 def check_result_write(path: str | Path) -> dict[str, Any] | None:
     """Refuse to write a result table under the checkout's ``results/`` from a dirty git tree
     (uncommitted changes to tracked files outside ``results/``: the table could not be

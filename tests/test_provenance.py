@@ -76,3 +76,30 @@ def test_without_proc_cpuinfo_the_fields_fall_back(monkeypatch) -> None:
     monkeypatch.setattr(provenance.platform, "processor", lambda: "")
     assert provenance._cpu() == {"cpu_model": "unknown", "cpu_vendor": "unknown",
                                  "cpu_simd": "unknown"}  # fmt: skip
+
+
+def test_a_committed_unchanged_folder_is_a_published_result(tmp_path: Path) -> None:
+    import subprocess
+
+    from safe_bc.provenance import committed_unchanged
+
+    def git(*args: str) -> None:
+        subprocess.run(["git", *args], cwd=tmp_path, check=True, capture_output=True)
+
+    study = tmp_path / "results" / "s"
+    study.mkdir(parents=True)
+    (study / "study.json").write_text("{}")
+    assert not committed_unchanged(study)  # no git checkout
+    git("init", "-q")
+    assert not committed_unchanged(study)  # nothing tracked
+    git("add", ".")
+    git("-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "s")
+    assert committed_unchanged(study)
+    (study / "trials.parquet").write_text("new")  # an untracked new file: still the commit's
+    assert committed_unchanged(study)
+    (study / "study.json").write_text('{"a": 1}')  # a run went on here
+    assert not committed_unchanged(study)
+    git("checkout", "--", ".")
+    (study / "study.json").unlink()
+    assert not committed_unchanged(study)
+    assert not committed_unchanged(tmp_path / "none")

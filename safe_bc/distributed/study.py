@@ -85,7 +85,7 @@ from safe_bc.distributed.stop import (
 from safe_bc.distributed.trial import TrialJob, cached_demos, run_trial, stored_checkpoint
 from safe_bc.envs.config import EnvConfig
 from safe_bc.plots import plot_pareto
-from safe_bc.provenance import check_result_write, provenance
+from safe_bc.provenance import check_result_write, committed_unchanged, provenance
 from safe_bc.study import (
     TRIAL_METRICS,
     ConstraintBars,
@@ -840,7 +840,14 @@ def _prepare_outputs(plan: StudyPlan, verbose: bool) -> None:
         quiet_logs()
     out = plan.out
     check_result_write(out / "trials.parquet")  # a dirty tree fails now, not after the trials
-    if plan.fresh:
+    restorable = not plan.fresh and tune.Tuner.can_restore(plan.exp_path)
+    published = not plan.fresh and not restorable and committed_unchanged(out)
+    if published:  # the committed study on a clone: run it again, git keeps the committed one
+        print(
+            f"{out}: the committed study, without its Tune experiment here: running it again "
+            "from the start (compare the new tables with `git diff`)"
+        )
+    if plan.fresh or published:
         delete_storage_tree(plan.exp_path)
         for name in ("trials", "history", "final", "final_episodes", "final_paired"):
             (out / f"{name}.parquet").unlink(missing_ok=True)
@@ -850,7 +857,6 @@ def _prepare_outputs(plan: StudyPlan, verbose: bool) -> None:
             (out / name).unlink(missing_ok=True)
         shutil.rmtree(out / STORE, ignore_errors=True)
     else:  # the study's own records decide what may be resumed, before Ray starts
-        restorable = tune.Tuner.can_restore(plan.exp_path)
         check_resume(out, settings=plan.settings, exp_path=plan.exp_path,
                      restoring=restorable, local=plan.local)  # fmt: skip
         if restorable:
