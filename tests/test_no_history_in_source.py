@@ -26,8 +26,6 @@ ALLOWED: dict[str, set[str]] = {
     # the heading of results/queries/*/summary.md
     # the heading of results/selfimprove/carracing/defer_designs.md
     "scripts/defer_designs.py": {"issue 35"},
-    # the comparison's note, stored with its tables
-    "tune_jobs/compare/handover.py": {"issue 35"},
     # notes of make bench's rows in results/bench.parquet
     "benchmarks/bench.py": {"issue 33"},
     # example trial ids in a doctest, an example agent digest in a test

@@ -131,7 +131,7 @@ WIDE = replace(
     eval_seed=18,
     title="Self-imitation with deferral to the expert near d_s: 3 x 150 selection tracks "
     "(CarRacing)",
-    note=f"Selection tracks (block 18) for the width of issue 35's deferral. {PAIRED} "
+    note=f"Selection tracks (block 18) for the width of the wide-block deferral. {PAIRED} "
     f"tracks. {DEFERRED}.",
 )  # fmt: skip
 HELD = f"Selection tracks (block 18), the wide selection's. {PAIRED} tracks. {DEFERRED}"
