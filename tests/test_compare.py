@@ -247,6 +247,42 @@ COMPARISONS = (TINY_COMPARISON,)
     assert stored() == after
 
 
+def test_agents_trained_on_other_demonstrations_are_trained_again(
+    rehab_demos, tmp_path: Path, monkeypatch
+) -> None:
+    """A stored agent is reused only when the set at its demonstrations' path has the content
+    digest it was trained on: the same path holding other content trains it again."""
+    import safe_bc.distributed.compare as runner
+    from safe_bc.bc import NetworkConfig, TrainConfig, read_checkpoint_meta
+    from safe_bc.collection import CollectConfig
+    from safe_bc.data.store import data_digest
+    from safe_bc.tasks import task_defaults
+
+    comp = Comparison(
+        "digest",
+        methods=(Method("bc", selection=SelectionConfig(eps=0.05, alpha=0.5)),),
+        task="rehab",
+        demos=rehab_demos,
+        collect=CollectConfig.for_task(task_defaults("rehab"), episodes=8, workers=1),
+        out=tmp_path,
+        train_seeds=(0,),
+        episodes=2,
+        workers=1,
+        bc=BCConfig(network=NetworkConfig(hidden=16), train=TrainConfig(batches=5, batch_size=8)),
+    )
+    table = runner.run_comparison(comp, progress=False)
+    config = tmp_path / "digest_runs" / "bc" / "seed0" / "agent" / "config.json"
+    assert read_checkpoint_meta(config.parent)["extra"]["demos_digest"] == data_digest(rehab_demos)
+    before = config.stat().st_mtime_ns
+    runner.run_comparison(comp, progress=False)
+    assert config.stat().st_mtime_ns == before  # same set: reused
+    monkeypatch.setattr(runner, "data_digest", lambda path: "sha256:" + "0" * 64)
+    again = runner.run_comparison(comp, progress=False)
+    assert config.stat().st_mtime_ns != before  # other content at the same path: trained again
+    speed = ["samples_per_s"]  # the retraining's wall-clock; everything else is the same
+    pd.testing.assert_frame_equal(again.drop(columns=speed), table.drop(columns=speed))
+
+
 def test_with_deferral_replaces_the_deferral_rows_and_keeps_the_others_in_order() -> None:
     base = Comparison(
         "c",

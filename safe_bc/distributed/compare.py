@@ -53,6 +53,7 @@ from safe_bc.compare import (
     run_slug,
 )
 from safe_bc.data.store import (
+    data_digest,
     dataset_record,
     load_demonstrations,
     read_meta,
@@ -241,7 +242,10 @@ def _stored(out: Path, stamp: dict[str, Any]) -> tuple[pd.DataFrame, dict] | Non
     return (frame, meta) if meta.get("stamp") == stamp else None
 
 
-def _agent_ok(folder: Path, run: RunConfig, demos: Path) -> bool:
+def _agent_ok(folder: Path, run: RunConfig, demos: Path, digest: str) -> bool:
+    """Whether ``folder`` holds an agent trained by ``run`` on the demonstrations at ``demos``
+    whose content digest is ``digest`` (an agent that records no digest, or another, was
+    trained on another set: it is trained again)."""
     from safe_bc.bc import read_checkpoint_meta
 
     try:
@@ -249,7 +253,11 @@ def _agent_ok(folder: Path, run: RunConfig, demos: Path) -> bool:
     except Exception:  # absent or torn: train again
         return False
     extra = meta.get("extra", {})
-    return extra.get("run") == _json(run.to_dict()) and extra.get("demos") == str(demos)
+    return (
+        extra.get("run") == _json(run.to_dict())
+        and extra.get("demos") == str(demos)
+        and extra.get("demos_digest") == digest
+    )
 
 
 def method_config(
@@ -430,11 +438,14 @@ def _train_agents(
     from safe_bc.distributed.train import train_many
 
     demos = sets[c.demos]
+    digests = {path: data_digest(path) for path in sets}
     todo = [
         (m, s, run_config(c, m, s))
         for m, s in cells
         if isinstance(m, Agent)
-        and not _agent_ok(_folder(c, m, s) / "agent", run_config(c, m, s), demos_of(c, m))
+        and not _agent_ok(
+            _folder(c, m, s) / "agent", run_config(c, m, s), demos_of(c, m), digests[demos_of(c, m)]
+        )
     ]
     for m, _, run in todo:
         select_for(sets[demos_of(c, m)], run.selection).sampler(
@@ -464,8 +475,8 @@ def _train_agents(
         }
         agent_meta = _json(
             run_metadata(
-                demos=str(demos_of(c, m)), env_id=env_id, run=run.to_dict(), train=result.summary(),
-                train_row=train_row,
+                demos=str(demos_of(c, m)), demos_digest=digests[demos_of(c, m)], env_id=env_id,
+                run=run.to_dict(), train=result.summary(), train_row=train_row,
             )
         )  # fmt: skip
         with checkpoint_unit(_folder(c, m, s) / "agent") as unit:
