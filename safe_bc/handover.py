@@ -6,7 +6,9 @@ close: the expert acts wherever the measured cost, extrapolated ``lookahead`` st
 last change, is within ``width`` (or the dimension's own entry of ``widths``) of ``d_s`` in
 some dimension, and for ``hold`` more steps after a zone step of the ``hold_on`` dimensions.
 With ``fallback="cap"`` the expert's action does not replace the agent's but bounds it: each
-action component goes no further than the expert's in the direction that raises the costs.
+action component goes no further than the expert's in the direction that raises the costs; with
+``fallback="safest"`` the zone's action is the task's safest one (each component at its bound in
+the safer direction), whatever the agent or the expert would do.
 :class:`safe_bc.queries.defer.DeferringPolicy` carries it out.
 """
 
@@ -16,9 +18,11 @@ import math
 from dataclasses import asdict, dataclass
 from typing import Any, Literal
 
-Fallback = Literal["expert", "cap"]
+Fallback = Literal["expert", "cap", "safest"]
 """What acts in the zone: ``expert``, the expert's action; ``cap``, the agent's action capped
-per component by the expert's in the task's safer direction (``TaskSpec.safer_actions``)."""
+per component by the expert's in the task's safer direction (``TaskSpec.safer_actions``);
+``safest``, each action component at its bound in that direction."""
+FALLBACKS: tuple[str, ...] = ("expert", "cap", "safest")
 
 
 @dataclass(frozen=True)
@@ -54,8 +58,8 @@ class HandoverConfig:
             if not (math.isfinite(w) and w >= 0):
                 raise ValueError(f"handover width of {d!r} must be a finite number >= 0, got {w}")
         object.__setattr__(self, "widths", pairs)
-        if self.fallback not in ("expert", "cap"):
-            raise ValueError(f"handover fallback must be 'expert' or 'cap', got {self.fallback!r}")
+        if self.fallback not in FALLBACKS:
+            raise ValueError(f"handover fallback must be one of {FALLBACKS}, got {self.fallback!r}")
 
     def width_per_dim(self, dims: tuple[str, ...]) -> tuple[float, ...]:
         """The zone's width in each of the task's safety dimensions ``dims``.
@@ -87,6 +91,8 @@ class HandoverConfig:
                 out += f" after {', '.join(self.hold_on)}"
         if self.fallback == "cap":
             out += ", capping the agent's action"
+        if self.fallback == "safest":
+            out += ", the safest action there"
         return out
 
     def to_dict(self) -> dict[str, Any]:

@@ -12,7 +12,7 @@ Layout of ``DIR`` (``results/<study>/recommender/``)::
 >>> import safe_bc
 >>> rec = safe_bc.load_recommender("results/default/recommender")  # doctest: +SKIP
 >>> rec.reset(env)                                                 # doctest: +SKIP
->>> step = rec.step(obs, info, env)  # .action, .actor ("agent"/"expert"), .margin  # doctest: +SKIP
+>>> step = rec.step(obs, info, env)  # .action, .actor, .margin  # doctest: +SKIP
 """
 
 from __future__ import annotations
@@ -41,7 +41,10 @@ CARD_SHA256 = "card_sha256"
 handover or digest is refused."""
 CARD = "recommender.json"
 """The card's file name."""
-Actor = Literal["agent", "expert"]
+Actor = Literal["agent", "expert", "safest"]
+"""Who chose a step's action: the agent; inside the handover's zone the expert (or, with a
+capping handover, the agent bounded by the expert); or the task's safest action (a
+``safest`` handover)."""
 
 
 class RecommenderError(ValueError):
@@ -55,8 +58,8 @@ class Recommendation:
     action: np.ndarray
     """``(A,) float32``: the action to take."""
     actor: Actor
-    """Who chose it: ``"agent"``, or ``"expert"`` inside the handover zone (with a capping
-    handover: the expert's action bounded the agent's there)."""
+    """Who chose it (:data:`Actor`): ``"agent"``, or inside the handover zone ``"expert"``
+    (with a capping handover: the expert's action bounded the agent's there) or ``"safest"``."""
     margin: dict[str, float]
     """Per safety dimension, ``d_s - c_s`` of the current state: how far the state is inside
     the expert's worst cost (negative: beyond ``d_s``)."""
@@ -216,7 +219,10 @@ class Recommender:
             see(info)
         action = np.asarray(self._policy.act(obs, env), np.float32)
         flags = getattr(self._policy, "flags", None)
-        actor: Actor = "expert" if flags and flags[-1] else "agent"
+        handover = self.card.handover_config
+        safest = handover is not None and handover.fallback == "safest"
+        zone: Actor = "safest" if safest else "expert"
+        actor: Actor = zone if flags and flags[-1] else "agent"
         cost = np.asarray(info["cost"], np.float64)
         margin = {d: float(x) for d, x in zip(self.dims, self.limits - cost, strict=True)}
         return Recommendation(action, actor, margin)

@@ -102,19 +102,31 @@ def test_the_cap_never_prescribes_more_than_the_agent_or_the_expert() -> None:
     assert hard.shape[1] == capped.shape[1] == 2
 
 
-def test_a_capping_handover_is_refused_where_the_task_has_no_safer_direction() -> None:
+@pytest.mark.parametrize("fallback", ["cap", "safest"])
+def test_a_handover_needing_a_safer_direction_is_refused_where_the_task_has_none(
+    fallback,
+) -> None:
     car = task_defaults("carracing")
-    with pytest.raises(ValueError, match="safer direction: 'carracing'"):
-        handover_source(_Source((0.0, 0.0, 0.0)), HandoverConfig(2.0, fallback="cap"),
+    with pytest.raises(ValueError, match=f"'{fallback}' handover needs a safer direction: 'car"):
+        handover_source(_Source((0.0, 0.0, 0.0)), HandoverConfig(2.0, fallback=fallback),
                         car.expert, np.ones(3), car.safety_dims)  # fmt: skip
+
+
+def test_the_safest_handover_prescribes_the_lightest_session_in_the_zone_only() -> None:
+    wide = {"widths": (("heart_rate", 0.25),)}
+    safest, flags = _run(HandoverConfig(0.0, fallback="safest", **wide), (1.0, 1.0))
+    assert flags.any() and (~flags).any()
+    assert (safest[flags] == -1.0).all()  # 30% HRR for 10 min: both bounds of the box
+    assert (safest[~flags] == 1.0).all()  # outside the zone the agent acts
+    assert "safest action" in HandoverConfig(0.0, fallback="safest").label()
 
 
 def test_policy_args_carry_the_widths_and_the_safer_direction() -> None:
     rehab = task_defaults("rehab")
     h = HandoverConfig(0.2, widths=(("heart_rate", 0.1),), fallback="cap")
-    zone, hold, lookahead, hold_on, safer = handover_source(
+    zone, hold, lookahead, hold_on, safer, safest = handover_source(
         None, h, rehab.expert, (0.8, 0.8, 2.0), rehab.safety_dims
     ).policy_args()
     flags = zone.per_dim(np.array([[0.71, 0.61, 1.79], [0.69, 0.59, 1.81]]))
     assert flags.tolist() == [[True, True, False], [False, False, True]]
-    assert (hold, lookahead, hold_on, safer) == (0, 0, None, (-1, -1))
+    assert (hold, lookahead, hold_on, safer, safest) == (0, 0, None, (-1, -1), False)

@@ -86,6 +86,7 @@ class DeferringPolicy:
         lookahead: int = 0,
         hold_on: tuple[int, ...] | None = None,
         safer: tuple[int, ...] | None = None,
+        safest: bool = False,
     ) -> None:
         if hold < 0 or lookahead < 0:
             raise ValueError(f"hold and lookahead must be >= 0 steps, got {hold}, {lookahead}")
@@ -96,6 +97,9 @@ class DeferringPolicy:
         self.hold, self.lookahead = int(hold), int(lookahead)
         self.hold_on = None if hold_on is None else tuple(int(i) for i in hold_on)
         self.safer = None if safer is None else np.asarray(safer, np.float32)
+        if safest and self.safer is None:
+            raise ValueError("the safest action needs the task's safer direction (safer=)")
+        self.safest = bool(safest)
         self.state = HandoverState()
         self._info: dict[str, Any] = {}
 
@@ -115,15 +119,19 @@ class DeferringPolicy:
     def act(self, obs: np.ndarray, env: gym.Env) -> np.ndarray:
         own = self.agent.act(obs, env)
         defer = self._decide(self.state, self._info)
-        return self._fallback(own, self.expert.act(obs, env)) if defer else own
+        return self._fallback(own, obs, env, self.expert) if defer else own
 
-    def _fallback(self, own: Any, expert: Any) -> np.ndarray:
-        """The action where the expert is consulted: its own, or (``safer`` set: the cap) the
-        agent's, each component no further than the expert's against the safer direction."""
-        expert = np.asarray(expert, np.float32)
+    def _fallback(self, own: Any, obs: np.ndarray, env: gym.Env, expert: Policy) -> np.ndarray:
+        """The action in the zone: the expert's; (``safer`` set: the cap) the agent's, each
+        component no further than the expert's against the safer direction; or (``safest``)
+        each component at the action space's bound in the safer direction (the expert is not
+        consulted)."""
+        if self.safest:
+            return safest_action(env.action_space, self.safer)
+        action = np.asarray(expert.act(obs, env), np.float32)
         if self.safer is None:
-            return expert
-        return cap_action(np.asarray(own, np.float32), expert, self.safer)
+            return action
+        return cap_action(np.asarray(own, np.float32), action, self.safer)
 
     def _decide(self, state: HandoverState, info: dict[str, Any]) -> bool:
         return handover_decision(state, info, self.zone, self.hold, self.lookahead, self.hold_on)
@@ -150,8 +158,9 @@ class LockstepDeferringPolicy(DeferringPolicy):
         lookahead: int = 0,
         hold_on: tuple[int, ...] | None = None,
         safer: tuple[int, ...] | None = None,
+        safest: bool = False,
     ) -> None:
-        super().__init__(agent, make_expert(), zone, hold, lookahead, hold_on, safer)
+        super().__init__(agent, make_expert(), zone, hold, lookahead, hold_on, safer, safest)
         self.make_expert = make_expert
         self._envs: list[gym.Env] = []
         self._experts: list[Policy] = []
@@ -179,7 +188,7 @@ class LockstepDeferringPolicy(DeferringPolicy):
         actions = np.array(self.agent.act_slots(obs, slots, forward), np.float32)
         for i, s in enumerate(int(x) for x in slots):
             if self._decide(self._states[s], self._infos[s]):
-                actions[i] = self._fallback(actions[i], self._experts[s].act(obs[i], self._envs[s]))
+                actions[i] = self._fallback(actions[i], obs[i], self._envs[s], self._experts[s])
         return actions
 
     def slot_report(self, slot: int) -> tuple[dict[str, float], dict[str, np.ndarray]]:
@@ -195,6 +204,17 @@ def cap_action(own: np.ndarray, expert: np.ndarray, safer: np.ndarray) -> np.nda
     [0.20000000298023224, -0.5]
     """
     return np.where(safer < 0, np.minimum(own, expert), np.maximum(own, expert)).astype(np.float32)
+
+
+def safest_action(space: Any, safer: np.ndarray) -> np.ndarray:
+    """The action of the box ``space`` furthest in the safer direction: per component its
+    lower bound where ``safer`` is -1, its upper bound where it is +1.
+
+    >>> from gymnasium.spaces import Box
+    >>> safest_action(Box(-1.0, 1.0, (2,)), np.array([-1, 1])).tolist()
+    [-1.0, 1.0]
+    """
+    return np.where(safer < 0, space.low, space.high).astype(np.float32)
 
 
 def dimension_indices(names: tuple[str, ...], dims: tuple[str, ...]) -> tuple[int, ...] | None:
@@ -236,6 +256,8 @@ class DeferralSource:
     safer: tuple[int, ...] | None = None
     """The task's safer direction per action component for a capping handover (``None``: the
     expert's action replaces the agent's)."""
+    safest: bool = False
+    """The zone's action is the safest one (:func:`safest_action`; needs ``safer``)."""
 
     def build(self) -> DeferringPolicy:
         """The deferring policy; a :class:`LockstepDeferringPolicy` when the agent acts for
@@ -246,14 +268,14 @@ class DeferralSource:
             return LockstepDeferringPolicy(agent, lambda: build_expert(self.expert), *args)
         return DeferringPolicy(agent, build_expert(self.expert), *args)
 
-    def policy_args(self) -> tuple[CriticalZone, int, int, tuple[int, ...] | None, Any]:
-        """The zone, hold, lookahead, hold dimensions and safer direction a
+    def policy_args(self) -> tuple[CriticalZone, int, int, tuple[int, ...] | None, Any, bool]:
+        """The zone, hold, lookahead, hold dimensions, safer direction and safest switch a
         :class:`DeferringPolicy` takes after its agent and expert."""
         zone = CriticalZone(self.limits, self.width, self.combine)  # type: ignore[arg-type]
         if self.widths is not None:  # c >= d - w per dimension: the zone at d - w, width 0
             shifted = tuple(d - w for d, w in zip(self.limits, self.widths, strict=True))
             zone = CriticalZone(shifted, 0.0, self.combine)  # type: ignore[arg-type]
-        return zone, self.hold, self.lookahead, self.hold_on, self.safer
+        return zone, self.hold, self.lookahead, self.hold_on, self.safer, self.safest
 
 
 def handover_source(
@@ -261,18 +283,21 @@ def handover_source(
 ) -> DeferralSource:
     """``agent`` (a policy source) with ``handover`` (a :class:`safe_bc.handover.HandoverConfig`)
     to ``expert`` (its config) at the limits ``d_s`` of a task with safety dimensions ``dims``;
-    a capping handover takes the expert's task's safer direction (refused where it has none)."""
+    a capping or safest-action handover takes the expert's task's safer direction (refused where
+    it has none)."""
     from safe_bc.tasks.registry import spec_of_expert
 
     safer = None
-    if handover.fallback == "cap":
+    if handover.fallback in ("cap", "safest"):
         task = spec_of_expert(type(expert))
         if task.safer_actions is None:
-            raise ValueError(f"a capping handover needs a safer direction: {task.name!r} has none")
+            raise ValueError(
+                f"a {handover.fallback!r} handover needs a safer direction: {task.name!r} has none"
+            )
         safer = tuple(task.safer_actions)
     widths = handover.width_per_dim(dims) if handover.widths else None
     return DeferralSource(
         agent, expert, tuple(float(x) for x in limits), float(handover.width), "any",
         int(handover.hold), int(handover.lookahead), dimension_indices(handover.hold_on, dims),
-        widths, safer,
+        widths, safer, handover.fallback == "safest",
     )  # fmt: skip
