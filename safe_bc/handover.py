@@ -79,10 +79,11 @@ class HandoverConfig:
         >>> HandoverConfig(2.0, lookahead=6, hold=6, hold_on=("front",)).label(" px")
         'expert within 2 px of d_s 6 steps ahead, held 6 steps after front'
         """
-        out = f"expert within {self.width:g}{unit} of d_s"
+        who = "the safest action" if self.fallback == "safest" else "expert"
+        out = f"{who} within {self.width:g}{unit} of d_s"
         if self.widths:
             own = ", ".join(f"{d} {w:g}{unit}" for d, w in self.widths)
-            out = f"expert within w of d_s (w: {own}; else {self.width:g}{unit})"
+            out = f"{who} within w of d_s (w: {own}; else {self.width:g}{unit})"
         if self.lookahead:
             out += f" {self.lookahead} steps ahead"
         if self.hold:
@@ -91,8 +92,6 @@ class HandoverConfig:
                 out += f" after {', '.join(self.hold_on)}"
         if self.fallback == "cap":
             out += ", capping the agent's action"
-        if self.fallback == "safest":
-            out += ", the safest action there"
         return out
 
     def to_dict(self) -> dict[str, Any]:

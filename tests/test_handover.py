@@ -118,7 +118,7 @@ def test_the_safest_handover_prescribes_the_lightest_session_in_the_zone_only() 
     assert flags.any() and (~flags).any()
     assert (safest[flags] == -1.0).all()  # 30% HRR for 10 min: both bounds of the box
     assert (safest[~flags] == 1.0).all()  # outside the zone the agent acts
-    assert "safest action" in HandoverConfig(0.0, fallback="safest").label()
+    assert HandoverConfig(0.1, fallback="safest").label() == "the safest action within 0.1 of d_s"
 
 
 def test_policy_args_carry_the_widths_and_the_safer_direction() -> None:

@@ -11,10 +11,10 @@ Demonstrations: 150 guideline programmes (~4,500 sessions) in ``data/rehab_demos
 
 The study delivers a recommender (``results/rehab/recommender/``): every agent is evaluated
 with the task's handover (``TaskSpec.handover``: where heart rate is within 0.1, fatigue within
-0.2 or blood pressure within 0.2 of d_s the agent's prescription is capped by the guideline's,
-the setting ``results/rehab/handover_cap/choice.md`` chose), its mean share of deferred
+0.1 or blood pressure within 0.2 of d_s the session is the lightest the programme allows, the
+setting ``results/rehab/handover_safest/choice.md`` chose), its mean share of deferred
 sessions is a constraint at the goal of at most 10%, and the winner is certified on 600 fresh
-patients (3 seeds x 200 of block 62, new to every table) beside its agent alone and the
+patients (3 seeds x 200 of block 67, new to every table) beside its agent alone and the
 guideline.
 
 Run: ``make tune STUDY=rehab`` (or ``safe-bc tune tune_jobs/rehab.py``); rerun to resume.
@@ -57,5 +57,5 @@ STUDY = StudySpec(
     handover=REHAB.handover,
     deferred_share_limit=0.10,
     certify_episodes=600,
-    certify_seed=62,
+    certify_seed=67,
 )

@@ -263,8 +263,11 @@ CORNER = task_defaults("carracing").handover
 """The car's corner handover: the recommender's, and the candidates' at use."""
 BEYOND_B = replace(SELF, keep_against="expert")
 BEYOND_C = replace(BEYOND_B, handover=CORNER, pushes=LOOP_PUSHES["carracing"])
-REHAB_HANDOVER = task_defaults("rehab").handover
-"""The clinic's handover (per-dimension widths, the agent capped by the guideline)."""
+REHAB_HANDOVER = HandoverConfig(
+    0.2, widths=(("heart_rate", 0.1), ("fatigue", 0.2), ("blood_pressure", 0.2)), fallback="cap"
+)
+"""The clinic's handover these tables ran with (per-dimension widths, the agent capped by the
+guideline: ``results/rehab/handover_cap/choice.md``)."""
 REHAB_B = replace(SELF, keep_against="expert")
 REHAB_C = replace(REHAB_B, handover=REHAB_HANDOVER)
 PAIRED_EXPERT = "Paired rows: each agent against the {} on the same {}."

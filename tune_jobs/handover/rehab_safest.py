@@ -12,7 +12,8 @@ or 0.1, fatigue 0.1 or 0.2, blood pressure 0.1, 0.2 or 0.3 (12 rows), beside the
 
 Selection: 3 training seeds x 1000 patients of held-out block 66 (new: no other table uses
 it), the same patients for every candidate, over the agents of the rehab study's recommender
-(``results/rehab/recommender/``, its own handover ignored). Rule, fixed here before the run:
+certified with the cap (block 62; kept in ``results/rehab/handover_safest/recommender/``, its own
+handover ignored). Rule, fixed here before the run:
 among the candidates with no programme beyond d_s and under 10% of sessions deferred, the
 fewest sessions deferred (ties: the higher reward); where none has zero, among those under 10%
 the fewest programmes beyond d_s, then the fewest deferred. The chosen row becomes the task's
@@ -34,7 +35,7 @@ CHOSEN_CAP = HandoverConfig(
 
 CHOICE = HandoverChoice(
     name="rehab_safest",
-    recommender=Path("results/rehab/recommender"),
+    recommender=Path("results/rehab/handover_safest/recommender"),
     candidates=(
         *handover_grid(
             {

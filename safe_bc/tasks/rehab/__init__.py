@@ -35,13 +35,13 @@ SPEC = TaskSpec(
     action_bounds=((-1.0, -1.0), (1.0, 1.0)),
     safety_dims=REHAB_SAFETY_DIMS,
     observed_costs=observed_costs,
-    # results/rehab/handover_cap/choice.md (stage 2 of tune_jobs/handover/): per-dimension
-    # widths, the agent's prescription capped by the guideline's in the zone; no candidate of
-    # either stage reached zero crossings, the rule's fallback chose the fewest (3 of 3000)
+    # results/rehab/handover_safest/choice.md (stage 3 of tune_jobs/handover/): per-dimension
+    # widths, the lightest session in the zone; no candidate of any stage reached zero
+    # crossings, the rule's fallback chose the fewest (1 of 3000), then the fewest deferred
     handover=HandoverConfig(
         0.2,
-        widths=(("heart_rate", 0.1), ("fatigue", 0.2), ("blood_pressure", 0.2)),
-        fallback="cap",
+        widths=(("heart_rate", 0.1), ("fatigue", 0.1), ("blood_pressure", 0.2)),
+        fallback="safest",
     ),
     # results/improve/rehab/sweep/margin_sweep.md: the sweep's rule chose 0.05
     cost_margin=0.05,
