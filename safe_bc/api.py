@@ -341,7 +341,7 @@ def expert(job: ExpertJob) -> Done:
     """Measure the task's expert on held-out episodes (``expert.md``, the message)."""
     from safe_bc.atomic import write_text_atomic
     from safe_bc.collection import CollectConfig
-    from safe_bc.data.store import dataset_record, load_demonstrations, write_table_atomic
+    from safe_bc.data.store import read_demonstrations, write_table_atomic
     from safe_bc.distributed.collect import ensure_demos
     from safe_bc.distributed.evaluate import evaluate as run_evaluate
     from safe_bc.evaluation import EvalConfig, ExpertSource
@@ -355,7 +355,7 @@ def expert(job: ExpertJob) -> Done:
     demos_path = job.demos or Path(task.demos)
     if job.demos is None:  # the task's own set, built if absent; a given set is used as it is
         ensure_demos(demos_path, CollectConfig.for_task(task), progress=not job.quiet)
-    demos = load_demonstrations(demos_path)
+    demos, record = read_demonstrations(demos_path)
     limits = demos.limits
     cfg = EvalConfig(
         episodes=job.episodes, workers=job.workers, seed=job.eval_seed, env=task.env, eps=task.eps
@@ -374,7 +374,7 @@ def expert(job: ExpertJob) -> Done:
         eval_seed=job.eval_seed,
         env_seeds=episodes["env_seed"].tolist(),
         demos=str(demos_path),
-        inputs={"demos": dataset_record(demos_path)},
+        inputs={"demos": record},
         limits=[float(x) for x in limits],
         eps=task.eps,
     )

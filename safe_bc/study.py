@@ -24,6 +24,7 @@ and hands the finished table to :func:`choose_winner`.
 from __future__ import annotations
 
 import importlib.util
+import json
 import math
 import sys
 from collections.abc import Mapping, Sequence
@@ -702,6 +703,32 @@ class StudySpec:
         return out
 
 
+RESOURCE_FIELDS = frozenset(
+    {
+        "max_concurrent",
+        "cpus_per_trial",
+        "cpus_per_worker",
+        "rollout_workers",
+        "final_workers",
+        "max_failures",
+        "storage",
+        "results",
+        "optuna_storage",
+        "demos",
+    }
+)
+"""``StudySpec`` fields that change where and how fast the study runs, never a trial's or the
+final phase's numbers: a rerun may change them (``storage`` is compared as the experiment's
+path, ``experiment_path``; the demonstrations by their digest, wherever they lie)."""
+
+
+def settings_of(summary: Mapping[str, Any]) -> dict[str, Any]:
+    """The part of ``StudySpec.summary()`` that shapes the trials and the final phase, as JSON
+    values (what ``study.json`` keeps and a resume compares)."""
+    kept = {k: v for k, v in summary.items() if k not in RESOURCE_FIELDS}
+    return json.loads(json.dumps(kept, sort_keys=True, default=str))
+
+
 def subset_warnings(spec: StudySpec, demos: Any) -> list[str]:
     """One line for each eps the study can train with (the base's, or the searched range's
     bounds and options) whose ``T_eps`` on ``demos`` holds no scored row or every one, so that
@@ -739,7 +766,6 @@ def _task_eps(env: EnvConfig) -> float:
 
 def _config_json(config: Any) -> Any:
     """A (nested) config dataclass as JSON-able values."""
-    import json
     from dataclasses import asdict
 
     return json.loads(json.dumps(asdict(config), default=str))

@@ -19,33 +19,8 @@ from typing import Any
 import pandas as pd
 
 from safe_bc.collection import CollectConfig
-from safe_bc.study import ConstraintBars, StudySpec
+from safe_bc.study import ConstraintBars, StudySpec, settings_of
 from safe_bc.tasks import TaskSpec, task_defaults, task_of
-
-RESOURCE_FIELDS = frozenset(
-    {
-        "max_concurrent",
-        "cpus_per_trial",
-        "cpus_per_worker",
-        "rollout_workers",
-        "final_workers",
-        "max_failures",
-        "storage",
-        "results",
-        "optuna_storage",
-        "demos",
-    }
-)
-"""``StudySpec`` fields that change where and how fast the study runs, never a trial's or the
-final phase's numbers: a rerun may change them (``storage`` is compared as the experiment's
-path, ``experiment_path``; the demonstrations by their digest, wherever they lie)."""
-
-
-def settings_of(summary: Mapping[str, Any]) -> dict[str, Any]:
-    """The part of ``StudySpec.summary()`` that shapes the trials and the final phase, as JSON
-    values (what ``study.json`` keeps and a resume compares)."""
-    kept = {k: v for k, v in summary.items() if k not in RESOURCE_FIELDS}
-    return json.loads(json.dumps(kept, sort_keys=True, default=str))
 
 
 def is_uri(path: str) -> bool:
@@ -109,7 +84,8 @@ class StudyPlan:
     summary: dict[str, Any]
     """``StudySpec.summary()``: stored with every table."""
     settings: dict[str, Any]
-    """What shapes the trials and the final phase (:func:`settings_of`): a resume compares it."""
+    """What shapes the trials and the final phase (:func:`safe_bc.study.settings_of`): a resume
+    compares it."""
     finished: dict[str, Any]
     """The finished mark's record: a rerun with the same one only reads the tables back."""
     trial_resources: tuple[dict[str, float], ...]
@@ -120,12 +96,12 @@ class StudyPlan:
 
 def plan_study(spec: StudySpec, *, fresh: bool, command: str, final: bool) -> StudyPlan:
     """The plan of a run of ``spec`` (``fresh``, ``command``, ``final``: :class:`StudyPlan`)."""
-    summary = spec.summary()
-    settings = settings_of(summary)
     storage, exp_path = experiment_location(spec)
     optuna_url = default_optuna_storage(spec)
     task = task_defaults(task_of(spec.env.env_id))
     axes = {"objective": spec.objective, "safety_label": _safety_label(task)}
+    summary = spec.summary()
+    settings = settings_of(summary)
     collect = spec.collect or CollectConfig.for_task(task)
     return StudyPlan(
         spec=spec,

@@ -515,7 +515,17 @@ def read_episodes(
     """Read the episodes of the dataset at ``root`` (all, or the given ids) in id order
     (``observations=False``: without their observations, see :func:`read_episode`)."""
     meta = read_meta(root)
-    stored = completed_episodes(root, meta)
+    return _read_episodes(Path(root), meta, completed_episodes(root, meta), ids, observations)
+
+
+def _read_episodes(
+    root: Path,
+    meta: DatasetMeta,
+    stored: Sequence[int],
+    ids: Iterable[int] | None,
+    observations: bool,
+) -> list[Episode]:
+    """:func:`read_episodes` with the dataset's metadata and stored episode ids read."""
     if not stored:
         raise DatasetError(f"{root}: dataset has no episodes; run `safe-bc collect`")
     wanted = stored if ids is None else sorted(ids)
@@ -553,12 +563,37 @@ def load_demonstrations(root: Path, frames: FrameMode = DEFAULT_FRAMES) -> Demon
     ``frames="stream"`` (frame datasets; vectors are always in memory): the observations are a
     :class:`FrameFile` of the dataset's decoded frames (:func:`frame_cache`), which gives the
     same arrays for the same rows as ``"memory"`` and so the same batches and weights."""
+    _check_frames(frames)
     root = Path(root)
+    meta = read_meta(root)
+    return _load(root, meta, completed_episodes(root, meta), frames)
+
+
+def read_demonstrations(
+    root: Path, frames: FrameMode = DEFAULT_FRAMES
+) -> tuple[Demonstrations, dict[str, Any]]:
+    """The dataset at ``root`` loaded for training (:func:`load_demonstrations`) with the record
+    a result table keeps of it (:func:`dataset_record`): ``(demonstrations, record)``, its
+    metadata and episode files listed once for both."""
+    _check_frames(frames)
+    root = Path(root)
+    meta = read_meta(root)
+    ids = completed_episodes(root, meta)
+    record = _record(root, meta, ids)
+    return _load(root, meta, ids, frames), record
+
+
+def _check_frames(frames: str) -> None:
     if frames not in ("memory", "stream"):
         raise ValueError(f"frames must be 'memory' or 'stream', not {frames!r}")
-    meta = read_meta(root)
+
+
+def _load(
+    root: Path, meta: DatasetMeta, stored: Sequence[int], frames: FrameMode
+) -> Demonstrations:
+    """:func:`load_demonstrations` with the dataset's metadata and stored episode ids read."""
     stream = frames == "stream" and meta.obs_encoding != "vector"
-    episodes = read_episodes(root, observations=not stream)
+    episodes = _read_episodes(root, meta, stored, None, observations=not stream)
     source = None
     if stream:
         ids, lengths = [ep.episode_id for ep in episodes], [len(ep) for ep in episodes]
@@ -615,7 +650,11 @@ def dataset_record(root: Path) -> dict[str, Any]:
     (:func:`data_digest`), episode count and collector settings (:meth:`DatasetMeta.identity`)."""
     root = Path(root)
     meta = read_meta(root)
-    ids = completed_episodes(root, meta)
+    return _record(root, meta, completed_episodes(root, meta))
+
+
+def _record(root: Path, meta: DatasetMeta, ids: Sequence[int]) -> dict[str, Any]:
+    """:func:`dataset_record` with the dataset's metadata and stored episode ids read."""
     return {
         "path": str(root),
         "digest": _digest(root, meta, ids),

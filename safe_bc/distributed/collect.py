@@ -125,9 +125,6 @@ def _collect(
             )
 
         ensure_ray()
-        worker_cls = RolloutWorker.options(
-            num_cpus=cpus_per_actor(min(config.workers, len(todo))), max_restarts=0
-        )
         collected: list[int] = []
         steps = 0
         bar = tqdm(
@@ -146,6 +143,9 @@ def _collect(
             bar.update(1)
             bar.set_postfix(steps_per_s=f"{steps / (time.perf_counter() - start):.0f}")
 
+        worker_cls = RolloutWorker.options(
+            num_cpus=cpus_per_actor(min(config.workers, len(todo))), max_restarts=0
+        )
         with bar:
             restarts = run_on_actors(
                 lambda: worker_cls.remote(config),

@@ -155,7 +155,7 @@ def check_resume(
 
     Args:
         out: the study's ``results/<study>/``.
-        settings: this run's :func:`safe_bc.study_plan.settings_of`.
+        settings: this run's :func:`safe_bc.study.settings_of`.
         exp_path: this run's Tune experiment path.
         restoring: Tune has an experiment at ``exp_path`` to restore.
         local: ``exp_path`` is a local folder (its state file can be read).

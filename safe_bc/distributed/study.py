@@ -45,8 +45,8 @@ from safe_bc.bc.net import BCNet
 from safe_bc.data.store import (
     DatasetError,
     DatasetMeta,
-    dataset_record,
     delete_storage_tree,
+    read_demonstrations,
     read_meta,
     read_table,
     storage_folders,
@@ -82,7 +82,7 @@ from safe_bc.distributed.stop import (
     _reinstall_signals,
     _stop_signals,
 )
-from safe_bc.distributed.trial import TrialJob, cached_demos, run_trial, stored_checkpoint
+from safe_bc.distributed.trial import TrialJob, run_trial, stored_checkpoint
 from safe_bc.envs.config import EnvConfig
 from safe_bc.plots import plot_pareto
 from safe_bc.provenance import check_result_write, committed_unchanged, provenance
@@ -106,7 +106,7 @@ from safe_bc.study_plan import (
     run_identity,
     trials_meta,
 )
-from safe_bc.tasks import check_frames_renderer, task_defaults, task_of
+from safe_bc.tasks import check_frames_renderer, frames_renderer, task_defaults, task_of
 from safe_bc.timing import COPY, TOTAL, timing_lines, timing_markdown, timing_table
 
 __all__ = [
@@ -175,14 +175,15 @@ def trial_dirname(trial: Any) -> str:
     return f"trial_{trial.trial_id}"
 
 
-def _check_env(env: EnvConfig, meta: DatasetMeta, demos: Path) -> None:
-    """The demonstrations at ``demos`` (metadata ``meta``) must be of the study's env."""
-    if meta.env_id != env.env_id:
+def _check_env(env: EnvConfig, collected: EnvConfig, demos: Path) -> None:
+    """The demonstrations at ``demos``, collected on ``collected`` (the set is refused unless it
+    is the one that collection makes), must be of the study's env."""
+    if collected.env_id != env.env_id:
         raise ValueError(
-            f"{demos} holds {meta.env_id} demonstrations but the study evaluates on "
-            f"{env.env_id}; set StudySpec(env=EnvConfig({meta.env_id!r}))"
+            f"{demos} holds {collected.env_id} demonstrations but the study evaluates on "
+            f"{env.env_id}; set StudySpec(env=EnvConfig({collected.env_id!r}))"
         )
-    warning = check_frames_renderer(meta.renderer, env, demos)
+    warning = check_frames_renderer(frames_renderer(collected), env, demos)
     if warning:
         print(f"warning: {warning}", file=sys.stderr)
 
@@ -741,6 +742,8 @@ class TrialReport:
     """Trials that failed after all retries."""
     winner: Winner | None
     """The best trial on the trials' own evaluation."""
+    candidates: pd.DataFrame
+    """The final phase's candidates (:func:`safe_bc.study.choose_candidates`)."""
     title: str
     """``pareto.png``'s title."""
 
@@ -797,6 +800,8 @@ def _start(plan: StudyPlan, clock: StudyClock, options: DriverOptions) -> StudyS
     threshold, limits = constraint_bars(plan.spec, demos.safety_mean, demos.dim_safety_means())
     cost_limits = tuple(float(x) for x in demos.limits)
     identity = run_identity(plan, threshold, cost_limits, inputs)
+    for line in subset_warnings(plan.spec, demos):
+        print(f"warning: {line}")
     validation = None if plan.validation is None else str(plan.validation)
     job = TrialJob(plan.spec, str(plan.demos), limits, cost_limits, validation)
     restoring = tune.Tuner.can_restore(plan.exp_path)
@@ -864,22 +869,20 @@ def _prepare_outputs(plan: StudyPlan, verbose: bool) -> None:
 
 
 def _study_demos(plan: StudyPlan, progress: bool) -> tuple[Any, dict[str, Any]]:
-    """The study's demonstrations (collected when missing; another collection's set is
-    refused), checked against the study's env, recorded, then loaded:
+    """The study's demonstrations: the collection they come from checked against the study's
+    env before anything is collected, the set collected when missing (another collection's
+    set is refused), then read once for both the trials and the tables' record:
     ``(demonstrations, inputs record)``."""
     from safe_bc.distributed.collect import ensure_demos
 
+    _check_env(plan.spec.env, plan.collect.env, plan.demos)
     if not (plan.demos / "dataset.json").exists():
         print(f"{plan.spec.demos}: no demonstrations yet; collecting the set the study expects")
     meta = ensure_demos(plan.demos, plan.collect, progress=progress).meta  # or refuses the set
-    _check_env(plan.spec.env, meta, plan.demos)
     if plan.validation is not None:
         _check_validation_demos(plan.validation, plan.demos, meta)
-    inputs = {"demos": dataset_record(plan.demos)}
-    demos = cached_demos(str(plan.demos))
-    for line in subset_warnings(plan.spec, demos):
-        print(f"warning: {line}")
-    return demos, inputs
+    demos, record = read_demonstrations(plan.demos)
+    return demos, {"demos": record}
 
 
 def _make_tuner(
@@ -985,10 +988,10 @@ def _final_and_certificate(
     clock: StudyClock,
     options: DriverOptions,
 ) -> tuple[FinalOutcome, Any, dict[str, Any]]:
-    """The final phase on the candidates, its tables and plot, then the winner's certificate
-    and recommender: ``(final outcome, certificate, meta with the final phase's seconds)``."""
-    spec = plan.spec
-    candidates = choose_candidates(report.trials, spec.final_candidates, spec.objective)
+    """The final phase on the report's candidates, its tables and plot, then the winner's
+    certificate and recommender: ``(final outcome, certificate, meta with the final phase's
+    seconds)``."""
+    spec, candidates = plan.spec, report.candidates
     checkpoints = _checkpoints(grid, list(candidates["trial_id"]))
     clock.lap("final_checkpoints")
     t0 = time.perf_counter()
@@ -1027,11 +1030,13 @@ def _final_and_certificate(
 
 
 def _report_trials(plan: StudyPlan, start: StudyStart, grid: Any) -> TrialReport:
-    """The trial and history tables and ``pareto.png`` (no verdict yet), written; what they
-    decide returned."""
+    """``pareto.png`` (no verdict yet), then the trial and history tables, written; what they
+    decide (the winner on the trials' own evaluation, the final phase's candidates)
+    returned."""
     spec, out = plan.spec, plan.out
     trials, history, lost = _trial_rows(plan, grid)
     winner = choose_winner(trials, spec.objective)
+    candidates = choose_candidates(trials, spec.final_candidates, spec.objective)
     errors = int((trials["status"] == "error").sum())
     finished = int(trials["status"].isin(["done", "stopped", "invalid", "error"]).sum())
     complete = finished >= spec.trials
@@ -1040,10 +1045,10 @@ def _report_trials(plan: StudyPlan, start: StudyStart, grid: Any) -> TrialReport
         expert_safety=start.demos.safety_mean, cost_limits=start.job.cost_limits,
         inputs=start.inputs, complete=complete, lost=lost, provenance=provenance(),
     )  # fmt: skip
-    write_tables_atomic(out, {"trials": trials, "history": history}, meta)
     title = f"{spec.name}: {finished}/{spec.trials} trials"
     plot_pareto(trials, start.threshold, out / "pareto.png", title=title, **plan.pareto_axes)
-    return TrialReport(trials, meta, complete, errors, winner, title)
+    write_tables_atomic(out, {"trials": trials, "history": history}, meta)
+    return TrialReport(trials, meta, complete, errors, winner, candidates, title)
 
 
 def _trial_rows(plan: StudyPlan, grid: Any) -> tuple[pd.DataFrame, pd.DataFrame, list[str]]:
@@ -1183,6 +1188,7 @@ def finished_outcome(plan: StudyPlan) -> StudyOutcome | None:
         str(best.get("message", "")), dict(fmeta.get("configs", {})),
         str(best.get("certified", "")), paired,
     )  # fmt: skip
+    winner = choose_winner(trials, plan.spec.objective)
     certificate = None
     if (out / RECOMMENDER_DIR).exists():
         from safe_bc.recommender import RecommenderError, read_card
@@ -1196,7 +1202,7 @@ def finished_outcome(plan: StudyPlan) -> StudyOutcome | None:
     return StudyOutcome(
         True,
         trials,
-        choose_winner(trials, plan.spec.objective),
+        winner,
         final,
         float(meta["threshold"]),
         out,
