@@ -323,7 +323,7 @@ def evaluate_recommender(job: EvaluateJob) -> Done:
     write_table_atomic(job.out / "summary.parquet", table, meta)
     beyond = int(episodes_beyond(episodes).sum())
     deferred = (
-        f", {100 * episodes['deferred_share'].mean():.1f}% of steps deferred to the expert"
+        f", {100 * episodes['deferred_share'].mean():.1f}% of steps handed over"
         if "deferred_share" in episodes
         else ""
     )

@@ -197,5 +197,5 @@ def certificate_line(certificate: Mapping[str, Any]) -> str:
         f"{certificate['block']}): {certificate['episodes_beyond']} beyond d_s (at most "
         f"{100 * certificate['beyond_ucb95']:.1f}% of episodes, 95% one-sided bound); reward "
         f"{d:+.1f} [{lo:+.1f}, {hi:+.1f}] against the expert ({verdict}); "
-        f"{100 * certificate['deferred_share']:.1f}% of steps deferred to the expert"
+        f"{100 * certificate['deferred_share']:.1f}% of steps handed over (the handover acted)"
     )
