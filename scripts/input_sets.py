@@ -20,6 +20,17 @@ ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "results" / "checks" / "input_sets.md"
 REHAB_LIMITS = (0.77, 0.8, 2.14)
 """d_s of the rehab task's default collection (150 guideline programmes), rounded to 0.01."""
+DEFAULT_LIMITS = (42.15, 51.55, 42.13)
+"""d_s of the committed default CarRacing set (``results/demos/summary.json``), to 0.01."""
+STANDS: dict[str, str] = {
+    "results/ablation/renderer": "by design: it compares the exact renderer's pipeline "
+    "(its demonstrations among them) with the raster one",
+    "results/checks/make_tune": "timings of code versions since replaced, each run side by "
+    "side with the code of its day (that code collects the exact set); `make tune`'s timing "
+    "today: `results/checks/make_tune/recommender/` on the committed set",
+}
+"""Folders whose tables from another CarRacing set stand as they are, and why; every other
+such folder is to be rerun on the committed set."""
 
 
 def recorded_limits(path: Path) -> tuple[float, ...] | None:
@@ -81,18 +92,32 @@ def input_sets(root: Path = ROOT) -> str:
         folder = "/".join(parts[: min(3, len(parts) - 1)])  # results/<family>/<table or folder>
         groups[(folder, limits)] += 1
     rows = [
-        [folder, ", ".join(f"{x:.2f}" for x in limits), names.get(limits, "another set"), n]
+        [
+            folder, ", ".join(f"{x:.2f}" for x in limits), names.get(limits, "another set"), n,
+            _status(folder, limits),
+        ]
         for (folder, limits), n in sorted(groups.items())
-    ]
-    table = markdown_table(rows, ["folder", "d_s recorded", "demonstrations", "tables"])
+    ]  # fmt: skip
+    table = markdown_table(rows, ["folder", "d_s recorded", "demonstrations", "tables", "status"])
     return (
         "# Which demonstrations each committed table was made from\n\n"
         "Read off the limits d_s each table's metadata records (tables that record none are "
         "not listed). A fresh clone collects the committed default set; a table made from "
         "another described set is re-derived after collecting that set with the command named "
         "(the same digest: its content is the same); its figures stand for that set only. "
-        "Made by `python -m scripts.input_sets`.\n\n" + table + "\n"
+        "Status: current (the committed sets), stands (why another set is the right input), "
+        "or to rerun on the committed set. Made by `python -m scripts.input_sets`.\n\n"
+        + table
+        + "\n"
     )
+
+
+def _status(folder: str, limits: tuple[float, ...]) -> str:
+    """Whether a folder's tables from a set are current: the committed and the rehab sets
+    are; another set's stand where :data:`STANDS` says why, else they are to be rerun."""
+    if limits in (DEFAULT_LIMITS, REHAB_LIMITS):
+        return "current"
+    return f"stands: {STANDS[folder]}" if folder in STANDS else "to rerun on the committed set"
 
 
 def main() -> None:
