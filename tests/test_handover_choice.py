@@ -71,3 +71,20 @@ def test_the_fallback_rule_takes_the_fewest_crossings_under_the_deferral_limit()
     table = choice_table(episodes, c)
     assert choose(table, _choice(grid)) is None  # the zero-crossing row defers too much
     assert choose(table, c) == 1  # fewest crossings (2 of 6) among rows under the limit
+
+
+def test_the_clinic_s_handover_is_the_row_its_last_committed_measurement_chose() -> None:
+    """``TaskSpec.handover`` of rehab is the handover ``tune_jobs/handover/rehab_safest.py``'s
+    table chose (its metadata's ``chosen``), re-chosen from the committed table by its rule."""
+    import runpy
+
+    from safe_bc.data.store import read_table
+    from safe_bc.tasks import task_defaults
+
+    root = Path(__file__).resolve().parents[1]
+    choice = runpy.run_path(str(root / "tune_jobs/handover/rehab_safest.py"))["CHOICE"]
+    table, meta = read_table(root / choice.out / "choice.parquet")
+    index = choose(table, choice)
+    assert index is not None
+    assert choice.candidates[index].to_dict() == meta["chosen"]
+    assert task_defaults("rehab").handover == choice.candidates[index]
