@@ -4,7 +4,7 @@ Usage::
 
     .venv/bin/python -m scripts.design_replicates \\
         --design two_seeds=results/default_two_seeds \\
-        --design half=results/checks/make_tune/half/one_seed \\
+        --design half=results/default \\
         --out results/checks/make_tune/half/replicates
 
 Each ``--design LABEL=FOLDER`` is a study folder whose ``replicates/r<k>/`` hold finished

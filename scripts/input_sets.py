@@ -26,8 +26,14 @@ STANDS: dict[str, str] = {
     "results/ablation/renderer": "by design: it compares the exact renderer's pipeline "
     "(its demonstrations among them) with the raster one",
     "results/checks/make_tune": "timings of code versions since replaced, each run side by "
-    "side with the code of its day (that code collects the exact set); `make tune`'s timing "
-    "today: `results/checks/make_tune/recommender/` on the committed set",
+    "side with the code of its day (that code collects the exact set), and the half-time "
+    "design's replicates of then (`half/one_seed/`); on the committed set: `make tune`'s "
+    "timing in `recommender/`, the designs' comparison in `half/replicates.md`",
+    "results/default_two_seeds": "the two-seed design's single study of then; the same study "
+    "on the committed set is its replicate 0 (`replicates/r0/`)",
+    "results/default_one_seed": "a design tried on the way to today's default (one seed, 15 "
+    "tracks, one env at a time), replaced by `tune_jobs/default.py`, whose replicates on the "
+    "committed set are `results/default/replicates/`",
 }
 """Folders whose tables from another CarRacing set stand as they are, and why; every other
 such folder is to be rerun on the committed set."""
