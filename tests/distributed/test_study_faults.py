@@ -433,6 +433,7 @@ def test_final_phase_resumes_per_agent_and_evaluation_and_a_finished_study_only_
 def test_ctrl_c_and_sigterm_outside_fit_stop_the_study_with_their_exit_codes() -> None:
     from safe_bc.distributed.stop import StudyStopped, _stop_signals
 
+    before = signal.getsignal(signal.SIGINT)  # SIG_IGN where the suite runs in the background
     for signum, code in ((signal.SIGINT, 130), (signal.SIGTERM, 143)):
         with _stop_signals() as stop:
             signal.signal(signal.SIGTERM, lambda *a: None)  # as ray.init replaces it
@@ -443,7 +444,7 @@ def test_ctrl_c_and_sigterm_outside_fit_stop_the_study_with_their_exit_codes() -
                 signal.raise_signal(signum)
             assert e.value.exit_code == code and stop.signum == signum
             assert signal.Signals(signum).name in str(e.value)
-        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+        assert signal.getsignal(signal.SIGINT) is before  # the handler it found, restored
 
 
 def test_sigterm_during_fit_goes_to_tunes_handler_and_is_reported_after_it() -> None:
