@@ -14,6 +14,7 @@ the safer direction), whatever the agent or the expert would do.
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import asdict, dataclass
 from typing import Any, Literal
@@ -60,6 +61,16 @@ class HandoverConfig:
         object.__setattr__(self, "widths", pairs)
         if self.fallback not in FALLBACKS:
             raise ValueError(f"handover fallback must be one of {FALLBACKS}, got {self.fallback!r}")
+
+    def __eq__(self, other: object) -> bool:
+        """Equal when every setting is: the order ``widths`` lists its dimensions in does not
+        count (a record read back from sorted JSON equals the config it was written from)."""
+        if not isinstance(other, HandoverConfig):
+            return NotImplemented
+        return self.to_dict() == other.to_dict()
+
+    def __hash__(self) -> int:
+        return hash(json.dumps(self.to_dict(), sort_keys=True))
 
     def width_per_dim(self, dims: tuple[str, ...]) -> tuple[float, ...]:
         """The zone's width in each of the task's safety dimensions ``dims``.

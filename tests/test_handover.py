@@ -130,3 +130,12 @@ def test_policy_args_carry_the_widths_and_the_safer_direction() -> None:
     flags = zone.per_dim(np.array([[0.71, 0.61, 1.79], [0.69, 0.59, 1.81]]))
     assert flags.tolist() == [[True, True, False], [False, False, True]]
     assert (hold, lookahead, hold_on, safer, safest) == (0, 0, None, (-1, -1), False)
+
+
+def test_a_handover_read_back_from_sorted_json_equals_the_one_written() -> None:
+    import json
+
+    h = HandoverConfig(0.2, widths=(("heart_rate", 0.1), ("fatigue", 0.1)), fallback="safest")
+    back = HandoverConfig.from_dict(json.loads(json.dumps(h.to_dict(), sort_keys=True)))
+    assert back.widths != h.widths and back == h and hash(back) == hash(h)
+    assert back != HandoverConfig(0.2, widths=(("heart_rate", 0.1),), fallback="safest")
