@@ -25,6 +25,7 @@ Writes ``OUT/summary.parquet``, ``OUT/paired.parquet``, ``OUT/copycat.parquet``,
 from __future__ import annotations
 
 import argparse
+import hashlib
 import shlex
 import sys
 from pathlib import Path
@@ -302,6 +303,13 @@ def _describe(episodes: pd.DataFrame, meta: dict[str, Any]) -> dict[str, Any]:
     }
 
 
+def _file_digests(*paths: Path) -> dict[str, str]:
+    """``{path: "sha256:..."}`` of the tables the analysis read (those that exist)."""
+    return {
+        str(p): "sha256:" + hashlib.sha256(p.read_bytes()).hexdigest() for p in paths if p.exists()
+    }
+
+
 def main(argv: list[str] | None = None) -> int:
     from safe_bc.data.store import read_table, write_table_atomic, write_text_atomic
     from safe_bc.provenance import run_metadata
@@ -341,6 +349,10 @@ def main(argv: list[str] | None = None) -> int:
         source_revision=source.get("git_revision", "?"),
     )
     meta["command"] = command
+    meta["inputs"] = {
+        **source.get("inputs", {}),
+        "episodes": _file_digests(args.episodes, training_path),
+    }
     args.out.mkdir(parents=True, exist_ok=True)
     for name, frame in (
         ("summary", summary),

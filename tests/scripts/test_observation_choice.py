@@ -233,3 +233,14 @@ def test_the_batch_table_rederives_and_keeps_the_default_batch() -> None:
     assert row["d_any_violation_lo"] > 0  # reliably more episodes beyond d_s than batch 64
     assert ablation.choose(summary) == "bar-nosteer_rgb_k1"
     assert TrainConfig().batch_size == 64
+
+
+def test_the_batch_tables_name_the_demonstrations_and_episodes_they_read() -> None:
+    out = ROOT / "results/ablation/batch"
+    for name in ("summary", "paired", "paired_chosen", "copycat"):
+        _, meta = read_table(out / f"{name}.parquet")
+        assert meta["inputs"]["demos"][0]["digest"].startswith("sha256:")
+        assert set(meta["inputs"]["episodes"]) == {
+            "results/ablation/batch/batch_episodes.parquet",
+            "results/ablation/batch/batch_training.parquet",
+        }
