@@ -276,7 +276,13 @@ def test_agents_trained_on_other_demonstrations_are_trained_again(
     before = config.stat().st_mtime_ns
     runner.run_comparison(comp, progress=False)
     assert config.stat().st_mtime_ns == before  # same set: reused
-    monkeypatch.setattr(runner, "data_digest", lambda path: "sha256:" + "0" * 64)
+    read = runner.read_demonstrations
+
+    def other_content(path):  # the same path holding another set's content
+        demos, record = read(path)
+        return demos, {**record, "digest": "sha256:" + "0" * 64}
+
+    monkeypatch.setattr(runner, "read_demonstrations", other_content)
     again = runner.run_comparison(comp, progress=False)
     assert config.stat().st_mtime_ns != before  # other content at the same path: trained again
     speed = ["samples_per_s"]  # the retraining's wall-clock; everything else is the same

@@ -53,9 +53,7 @@ from safe_bc.compare import (
     run_slug,
 )
 from safe_bc.data.store import (
-    data_digest,
-    dataset_record,
-    load_demonstrations,
+    read_demonstrations,
     read_meta,
     read_table,
     write_table_atomic,
@@ -410,15 +408,19 @@ def _fallback_source(
     return ImprovedSource(net, ExpertSource(expert), shield)
 
 
-def _load_sets(comparison: Comparison, progress: bool) -> dict[Path, Any]:
+def _load_sets(
+    comparison: Comparison, progress: bool
+) -> tuple[dict[Path, Any], dict[Path, dict[str, Any]]]:
     """Every demonstration set the rows need (collected when missing), the comparison's
-    first; warns when a BC row's frames were drawn by another renderer."""
+    first, and the record a table keeps of each (:func:`read_demonstrations`: read once for
+    both): ``(sets, records)``; warns when a BC row's frames were drawn by another renderer."""
     from safe_bc.distributed.collect import ensure_demos
 
     sets: dict[Path, Any] = {}
+    records: dict[Path, dict[str, Any]] = {}
     for path, collect in own_demos(comparison).items():
         ensure_demos(path, collect, progress=progress)
-        sets[path] = load_demonstrations(path)
+        sets[path], records[path] = read_demonstrations(path)
     for m in comparison.methods:  # a BC row trains on frames drawn by the renderer it runs on
         if isinstance(m, Agent):
             path = demos_of(comparison, m)
@@ -426,11 +428,15 @@ def _load_sets(comparison: Comparison, progress: bool) -> dict[Path, Any]:
             warning = check_frames_renderer(read_meta(path).renderer, env, path)
             if warning and progress:
                 print(f"warning: {warning}")
-    return sets
+    return sets, records
 
 
 def _train_agents(
-    c: Comparison, sets: dict[Path, Any], cells: list[tuple[Row, int]], progress: bool
+    c: Comparison,
+    sets: dict[Path, Any],
+    records: dict[Path, dict[str, Any]],
+    cells: list[tuple[Row, int]],
+    progress: bool,
 ) -> None:
     """Train and store the BC agents of ``cells`` not on disk (fail fast on an impossible
     rule before any training)."""
@@ -438,7 +444,7 @@ def _train_agents(
     from safe_bc.distributed.train import train_many
 
     demos = sets[c.demos]
-    digests = {path: data_digest(path) for path in sets}
+    digests = {path: record["digest"] for path, record in records.items()}
     todo = [
         (m, s, run_config(c, m, s))
         for m, s in cells
@@ -535,11 +541,11 @@ def run_cell(
         assert isinstance(m, FromStart)
         m = dataclasses.replace(m, config=dataclasses.replace(m.config, workers=workers))
         c = dataclasses.replace(c, methods=tuple(m if x.name == name else x for x in c.methods))
-    sets = _load_sets(c, progress)
+    sets, records = _load_sets(c, progress)
     needs = [(m, s)] if isinstance(m, Agent) else []
     if isinstance(m, FromStart):
         needs.append((c.method(m.start), s))
-    _train_agents(c, sets, needs, progress)
+    _train_agents(c, sets, records, needs, progress)
     command, improved = run_metadata().get("command"), {}
     of = getattr(m.config, "budget_of", "") if isinstance(m, FromStart) else ""
     if of:  # the run that sets the budget first (resumed when done)
@@ -583,12 +589,12 @@ def run_comparison(
     """
     started = time.perf_counter()
     c = comparison
-    sets = _load_sets(c, progress)
+    sets, records = _load_sets(c, progress)
     meta = run_metadata(
         config=_json(c.to_dict()),
         train_seeds=list(c.train_seeds),
         eval_seed=c.eval_seed,
-        inputs={"demos": [dataset_record(path) for path in sets]},
+        inputs={"demos": list(records.values())},
     )
     if command is not None:
         meta["command"] = command
@@ -603,7 +609,7 @@ def run_comparison(
         for path, d in sets.items()
     }
     # 1. BC agents not on disk; 2. method runs (each resumes itself), one after the other
-    _train_agents(c, sets, _cells(c), progress)
+    _train_agents(c, sets, records, _cells(c), progress)
     histories, run_metas, improved = [], [], {}
     for m, s in _cells(c):
         ran = _improve_cell(c, m, s, sets, meta.get("command"), improved)
