@@ -181,6 +181,9 @@ class Recommender:
         self.agents = dict(agents)
         self.dims = tuple(card.limits)
         self.limits = np.asarray([card.limits[d] for d in self.dims], np.float64)
+        handover = card.handover_config
+        safest = handover is not None and handover.fallback == "safest"
+        self._zone_actor: Actor = "safest" if safest else "expert"
         self._policy: Any = None
 
     def source(self, seed: int | None = None) -> Any:
@@ -219,10 +222,7 @@ class Recommender:
             see(info)
         action = np.asarray(self._policy.act(obs, env), np.float32)
         flags = getattr(self._policy, "flags", None)
-        handover = self.card.handover_config
-        safest = handover is not None and handover.fallback == "safest"
-        zone: Actor = "safest" if safest else "expert"
-        actor: Actor = zone if flags and flags[-1] else "agent"
+        actor: Actor = self._zone_actor if flags and flags[-1] else "agent"
         cost = np.asarray(info["cost"], np.float64)
         margin = {d: float(x) for d, x in zip(self.dims, self.limits - cost, strict=True)}
         return Recommendation(action, actor, margin)
