@@ -24,7 +24,8 @@ DEFAULT_LIMITS = (42.15, 51.55, 42.13)
 """d_s of the committed default CarRacing set (``results/demos/summary.json``), to 0.01."""
 STANDS: dict[str, str] = {
     "results/ablation/renderer": "by design: it compares the exact renderer's pipeline "
-    "(its demonstrations among them) with the raster one",
+    "(its demonstrations among them) with the raster one; the pipeline tables collect both "
+    "sets themselves, in a folder named by the code revision that collected them",
     "results/checks/make_tune": "timings of code versions since replaced, each run side by "
     "side with the code of its day (that code collects the exact set), and the half-time "
     "design's replicates of then (`half/one_seed/`); on the committed set: `make tune`'s "
@@ -51,6 +52,23 @@ def recorded_limits(path: Path) -> tuple[float, ...] | None:
         if isinstance(value, list) and value and all(isinstance(x, int | float) for x in value):
             return tuple(round(float(x), 2) for x in value)
     return None
+
+
+UNRECORDED = "unrecorded"
+"""The ledger's stand-in for the limits of a table that names a demonstrations folder but
+records neither its limits nor its content (a table of the ablation script that preceded the
+comparison runner)."""
+
+
+def names_demos_only(path: Path) -> bool:
+    """Whether a result table names the demonstrations it read only by path: its metadata has
+    ``demos`` but no limits, no ``demos_digest`` and no ``inputs`` record. Tables inside an
+    agent's or a run's folder are left to that agent's record (its ``config.json``)."""
+    if any(part == "agent" or part.endswith("runs") for part in path.parts):
+        return False
+    raw = (pq.read_metadata(path).metadata or {}).get(b"safe_bc")
+    meta = json.loads(raw) if raw else {}
+    return "demos" in meta and not ({"demos_digest", "inputs"} & meta.keys())
 
 
 def described_set(limits: Any, root: Path = ROOT) -> dict[str, Any]:
@@ -89,27 +107,33 @@ def set_names(root: Path = ROOT) -> dict[tuple[float, ...], str]:
 def input_sets(root: Path = ROOT) -> str:
     """The Markdown report: one row per (folder two levels under ``results/``, limits)."""
     names = set_names(root)
-    groups: dict[tuple[str, tuple[float, ...]], int] = defaultdict(int)
+    groups: dict[tuple[str, tuple[float, ...] | str], int] = defaultdict(int)
     for path in sorted((root / "results").rglob("*.parquet")):
         limits = recorded_limits(path)
-        if limits is None:
+        if limits is None and not names_demos_only(path):
             continue
         parts = path.relative_to(root).parts
         folder = "/".join(parts[: min(3, len(parts) - 1)])  # results/<family>/<table or folder>
-        groups[(folder, limits)] += 1
+        groups[(folder, UNRECORDED if limits is None else limits)] += 1
     rows = [
         [
-            folder, ", ".join(f"{x:.2f}" for x in limits), names.get(limits, "another set"), n,
+            folder,
+            UNRECORDED if limits == UNRECORDED else ", ".join(f"{x:.2f}" for x in limits),
+            "a folder named by path only"
+            if limits == UNRECORDED
+            else names.get(limits, "another set"),
+            n,
             _status(folder, limits),
         ]
-        for (folder, limits), n in sorted(groups.items())
-    ]  # fmt: skip
+        for (folder, limits), n in sorted(groups.items(), key=lambda kv: (kv[0][0], str(kv[0][1])))
+    ]
     table = markdown_table(rows, ["folder", "d_s recorded", "demonstrations", "tables", "status"])
     return (
         "# Which demonstrations each committed table was made from\n\n"
         "Read off the limits d_s each table's metadata records (tables that record none are "
-        "not listed). A fresh clone collects the committed default set; a table made from "
-        "another described set is re-derived after collecting that set with the command named "
+        "not listed, unless they name a demonstrations folder by path alone: `unrecorded`). "
+        "A fresh clone collects the committed default set; a table made from another "
+        "described set is re-derived after collecting that set with the command named "
         "(the same digest: its content is the same); its figures stand for that set only. "
         "Status: current (the committed sets), stands (why another set is the right input), "
         "or to rerun on the committed set. Made by `python -m scripts.input_sets`.\n\n"
@@ -118,12 +142,17 @@ def input_sets(root: Path = ROOT) -> str:
     )
 
 
-def _status(folder: str, limits: tuple[float, ...]) -> str:
+def _status(folder: str, limits: tuple[float, ...] | str) -> str:
     """Whether a folder's tables from a set are current: the committed and the rehab sets
-    are; another set's stand where :data:`STANDS` says why, else they are to be rerun."""
+    are; another set's stand where :data:`STANDS` says why, else they are to be rerun (so are
+    tables whose set is unrecorded)."""
     if limits in (DEFAULT_LIMITS, REHAB_LIMITS):
         return "current"
-    return f"stands: {STANDS[folder]}" if folder in STANDS else "to rerun on the committed set"
+    if folder in STANDS:
+        return f"stands: {STANDS[folder]}"
+    if limits == UNRECORDED:
+        return "to rerun: its demonstrations are unidentified"
+    return "to rerun on the committed set"
 
 
 def main() -> None:
