@@ -11,13 +11,15 @@ comparison runner writes ``<name>_episodes.parquet``: name it), or the episode t
 every other policy per training seed, all on the same tracks. Writes ``paired_expert.parquet``
 beside it (for a named table ``<stem>_paired_expert.parquet``):
 :func:`safe_bc.metrics.paired_to_reference` (crossed bootstrap over training seeds and tracks,
-bootstrap seed 0) of reward, violation steps and the share of episodes beyond ``d_s``. Prints
+bootstrap seed 0) of reward, violation steps and the share of episodes beyond ``d_s``; its
+metadata's ``inputs`` are the episode table's (its demonstrations) and that table's sha256. Prints
 a Markdown table per folder. Nothing is rerun.
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import sys
 from pathlib import Path
 
@@ -52,6 +54,10 @@ def main(argv: list[str] | None = None) -> int:
             source={"table": str(source), "command": meta.get("command"),
                     "git_revision": meta.get("git_revision")},
         )  # fmt: skip
+        out_meta["inputs"] = {
+            **meta.get("inputs", {}),
+            "episodes": {str(source): "sha256:" + hashlib.sha256(source.read_bytes()).hexdigest()},
+        }
         write_table_atomic(target, paired, out_meta)
         view = pd.DataFrame({"method": paired["method"], "pairs": paired["n_pairs"]})
         for m in metrics:

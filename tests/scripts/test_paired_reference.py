@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 from pathlib import Path
 
 import pandas as pd
@@ -24,3 +25,5 @@ def test_pairs_every_seed_with_the_expert_track_by_track(tmp_path: Path, capsys)
     assert row["n_pairs"] == 15 and row["d_reward"] == pytest.approx(-9.0)
     assert row["d_violation_steps"] == pytest.approx(0.2)
     assert meta["source"]["git_revision"] == "abc" and "| both" in capsys.readouterr().out
+    digest = hashlib.sha256((tmp_path / "episodes.parquet").read_bytes()).hexdigest()
+    assert meta["inputs"]["episodes"] == {str(tmp_path / "episodes.parquet"): f"sha256:{digest}"}
