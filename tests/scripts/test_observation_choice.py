@@ -143,17 +143,29 @@ def test_the_preprocessing_default_is_the_committed_ablations_choice():
     assert PreprocessConfig().frame_stack == 1 and PreprocessConfig().resize is None
 
 
+def _committed_episodes(folder: str) -> tuple[pd.DataFrame, str]:
+    """An ablation's committed episodes as (cell, view) rows and the cell it pairs with: the
+    runner's ``<folder>_episodes.parquet`` (with its training table), or the deleted ablation
+    script's ``episodes.parquet``."""
+    out = ROOT / "results/ablation" / folder
+    runner = out / f"{folder}_episodes.parquet"
+    if runner.exists():
+        raw, source = read_table(runner)
+        training = read_table(out / f"{folder}_training.parquet")[0]
+        return ablation.cells_and_views(raw, training), source["config"]["reference"]
+    raw, meta = read_table(out / "episodes.parquet")
+    return ablation.cells_and_views(raw), meta["baseline"]
+
+
 @pytest.mark.parametrize("folder", ["observation", "budget", "network"])
 def test_committed_ablation_tables_rederive_exactly(folder: str) -> None:
-    """summary, paired, copycat and paired_chosen (written by the deleted
-    scripts/observation_ablation.py) from the committed episodes, through the analysis;
-    the choice is the committed one."""
+    """summary, paired, copycat and paired_chosen from the committed episodes, through the
+    analysis; the choice is the committed one."""
     out = ROOT / "results/ablation" / folder
-    raw, meta = read_table(out / "episodes.parquet")
-    episodes = ablation.cells_and_views(raw)
-    summary, paired, copycat = ablation.summarise(episodes, meta["baseline"])
+    episodes, baseline = _committed_episodes(folder)
+    summary, paired, copycat = ablation.summarise(episodes, baseline)
     chosen = ablation.choose(summary)
-    assert chosen == meta["chosen"]
+    assert chosen == read_table(out / "summary.parquet")[1]["chosen"]
     agents = episodes[(episodes["view"] == "full") & (episodes["cell"] != "expert")]
     to_chosen = ablation.paired_crossed(
         agents, chosen, ["reward", "violation_steps", "any_violation"], by="cell"
@@ -188,8 +200,7 @@ def test_comparison_file_rows_are_the_committed_cells() -> None:
     )
     for out in ("budget", "network"):
         c = load_comparison(ROOT / "tune_jobs/compare/observation.py", out)
-        cells = set(read_table(ROOT / f"results/ablation/{out}/episodes.parquet")[0]["cell"])
-        assert {m.name for m in c.methods} == cells
+        assert {m.name for m in c.methods} == set(_committed_episodes(out)[0]["cell"])
 
 
 def test_evaluation_path_steering_metrics_match_the_committed_episodes() -> None:
