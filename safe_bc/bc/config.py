@@ -69,8 +69,9 @@ class NetworkConfig:
     channels: tuple[int, ...] = (16, 32, 32)
     """Output channels of the conv layers (CNN only); may be empty (head on raw pixels).
     The default was measured against 8-16-16 and 32-64-64 (``results/ablation/network/``,
-    plain BC, 3 training seeds x 20 selection tracks): neither is reliably better in reward,
-    8-16-16 crossed d_s in 12/60 episodes against 1/60."""
+    plain BC, 3 training seeds x 20 selection tracks): 8-16-16 is reliably worse; 32-64-64 is
+    not reliably different in reward or crossings (its table's rule names it by one episode
+    of 60; ``docs/defaults.md`` says why the default stays)."""
 
     kernel_sizes: tuple[int, ...] = (8, 4, 3)
     """Square kernel of each conv layer (CNN only), one per entry of ``channels`` (a single
