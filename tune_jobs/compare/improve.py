@@ -13,7 +13,7 @@
 * ``fallback``: a diagnostic over ``improve_carracing``'s nets (its runs folder, nothing
   retrained): the start, PPO and shield + Lagrangian with the scripted expert acting in their
   critical states (privileged: a bound on what a safe fallback would give, not a deployable
-  CarRacing policy). No committed tables.
+  CarRacing policy); its tables (``fallback*``) beside ``improve_carracing``'s.
 * ``improve_rehab``: the guideline clinician (the reference, standing in for every training
   seed on the same patients); the safety-imitation start (BC with alpha 0.5); one run per mode
   (``shield``, ``lagrangian``, ``both``) with the rehab defaults and a shield zone of
