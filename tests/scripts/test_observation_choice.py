@@ -144,17 +144,12 @@ def test_the_preprocessing_default_is_the_committed_ablations_choice():
 
 
 def _committed_episodes(folder: str) -> tuple[pd.DataFrame, str]:
-    """An ablation's committed episodes as (cell, view) rows and the cell it pairs with: the
-    runner's ``<folder>_episodes.parquet`` (with its training table), or the deleted ablation
-    script's ``episodes.parquet``."""
+    """An ablation's committed episodes (the runner's ``<folder>_episodes.parquet``, with its
+    training table) as (cell, view) rows, and the cell it pairs with."""
     out = ROOT / "results/ablation" / folder
-    runner = out / f"{folder}_episodes.parquet"
-    if runner.exists():
-        raw, source = read_table(runner)
-        training = read_table(out / f"{folder}_training.parquet")[0]
-        return ablation.cells_and_views(raw, training), source["config"]["reference"]
-    raw, meta = read_table(out / "episodes.parquet")
-    return ablation.cells_and_views(raw), meta["baseline"]
+    raw, source = read_table(out / f"{folder}_episodes.parquet")
+    training = read_table(out / f"{folder}_training.parquet")[0]
+    return ablation.cells_and_views(raw, training), source["config"]["reference"]
 
 
 @pytest.mark.parametrize("folder", ["observation", "budget", "network"])
@@ -183,7 +178,7 @@ def test_comparison_file_rows_are_the_committed_cells() -> None:
     """tune_jobs/compare/observation.py names its rows as the committed cells (which seed the
     bootstrap), with the committed seeds, and masks exactly the bar-kept cells; the runner's
     row names read back as (cell, view)."""
-    raw, _ = read_table(ROOT / "results/ablation/observation/episodes.parquet")
+    raw, _ = _committed_episodes("observation")
     from safe_bc.compare import load_comparison
 
     comp = load_comparison(ROOT / "tune_jobs/compare/observation.py", "observation")
@@ -204,15 +199,16 @@ def test_comparison_file_rows_are_the_committed_cells() -> None:
 
 
 def test_evaluation_path_steering_metrics_match_the_committed_episodes() -> None:
-    """``steer_autocorr`` and ``steer_change`` of the one evaluation path equal the deleted
-    episode loop's for the expert on the first two committed selection tracks."""
+    """``steer_autocorr`` and ``steer_change`` of the one evaluation path equal the committed
+    table's for the expert on its first two selection tracks (needs the default
+    demonstrations: their expert and limits)."""
     from safe_bc.collection import stored_expert_config
     from safe_bc.distributed.evaluate import evaluate_policies
     from safe_bc.evaluation import EvalConfig, ExpertSource
     from safe_bc.tasks import task_defaults
 
-    raw, meta = read_table(ROOT / "results/ablation/observation/episodes.parquet")
-    demos = ROOT / meta["demos"]
+    raw, _ = read_table(ROOT / "results/ablation/observation/observation_episodes.parquet")
+    demos = ROOT / "data/demos"
     if not (demos / "dataset.json").exists():
         pytest.skip(f"no demonstrations at {demos}")
     from safe_bc.data.store import load_demonstrations
@@ -221,7 +217,7 @@ def test_evaluation_path_steering_metrics_match_the_committed_episodes() -> None
     sources = {"expert": ExpertSource(stored_expert_config(demos))}
     limits = load_demonstrations(demos).limits
     new, _ = evaluate_policies(sources, cfg, thresholds=limits, progress=False)
-    old = raw[raw["cell"] == "expert"].set_index("env_seed").loc[new["env_seed"]]
+    old = raw[raw["method"] == "expert"].set_index("env_seed").loc[new["env_seed"]]
     for c in ("reward", "steer_autocorr", "steer_change", "violation_steps"):
         np.testing.assert_allclose(new[c].to_numpy(float), old[c].to_numpy(float), rtol=1e-9)
 
