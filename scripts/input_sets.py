@@ -1,6 +1,6 @@
 """Which demonstration set every committed result table was made from, read off the limits
-``d_s`` its metadata records (tables made before digests were recorded name no set): a
-described CarRacing set (``results/demos/**/summary.json``: the committed default one, and
+``d_s`` its metadata records, or where it records none, the demonstrations' safety mean
+(tables made before digests were recorded name no set): a described CarRacing set (``results/demos/**/summary.json``: the committed default one, and
 the exact renderer's that older tables used), the rehab task's default collection, or another
 one. Writes ``results/checks/input_sets.md`` (``python -m scripts.input_sets``); a test checks
 that the committed file is current."""
@@ -20,6 +20,9 @@ ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "results" / "checks" / "input_sets.md"
 REHAB_LIMITS = (0.77, 0.8, 2.14)
 """d_s of the rehab task's default collection (150 guideline programmes), rounded to 0.01."""
+REHAB_SAFETY_MEAN = 0.265884
+"""The safety mean of the rehab task's default collection (``safe-bc collect --env rehab``), to
+six digits: how a table that records no limits names it."""
 DEFAULT_LIMITS = (42.15, 51.55, 42.13)
 """d_s of the committed default CarRacing set (``results/demos/summary.json``), to 0.01."""
 STANDS: dict[str, str] = {
@@ -71,6 +74,28 @@ def names_demos_only(path: Path) -> bool:
     return "demos" in meta and not ({"demos_digest", "inputs"} & meta.keys())
 
 
+def recorded_safety_mean(path: Path) -> float | None:
+    """The demonstrations' safety mean (``demo_safety_mean``, to six digits) a result table
+    records when it records neither limits nor an ``inputs`` record; ``None`` otherwise."""
+    raw = (pq.read_metadata(path).metadata or {}).get(b"safe_bc")
+    meta = json.loads(raw) if raw else {}
+    mean = meta.get("demo_safety_mean")
+    if "inputs" in meta or not isinstance(mean, int | float) or recorded_limits(path):
+        return None
+    return round(float(mean), 6)
+
+
+def sets_by_safety_mean(root: Path = ROOT) -> dict[float, tuple[float, ...]]:
+    """Safety mean (six digits) -> limits of each described CarRacing set and of the rehab
+    task's default set: a table that records only the mean is placed with its set."""
+    means = {REHAB_SAFETY_MEAN: REHAB_LIMITS}
+    for path in sorted((root / "results" / "demos").rglob("summary.json")):
+        summary = json.loads(path.read_text())
+        limits = tuple(round(float(v["d_s"]), 2) for v in summary["limits"].values())
+        means[round(float(summary["safety_mean"]), 6)] = limits
+    return means
+
+
 def described_set(limits: Any, root: Path = ROOT) -> dict[str, Any]:
     """The described CarRacing set (``results/demos/**/summary.json``) whose ``d_s`` are
     ``limits`` to 0.01: its digest and summary file, for a table made before digests were
@@ -105,40 +130,46 @@ def set_names(root: Path = ROOT) -> dict[tuple[float, ...], str]:
 
 
 def input_sets(root: Path = ROOT) -> str:
-    """The Markdown report: one row per (folder two levels under ``results/``, limits)."""
-    names = set_names(root)
-    groups: dict[tuple[str, tuple[float, ...] | str], int] = defaultdict(int)
+    """The Markdown report: one row per (folder two levels under ``results/``, set, what
+    identified it)."""
+    names, means = set_names(root), sets_by_safety_mean(root)
+    groups: dict[tuple[str, tuple[float, ...] | str, str], int] = defaultdict(int)
     for path in sorted((root / "results").rglob("*.parquet")):
-        limits = recorded_limits(path)
-        if limits is None and not names_demos_only(path):
+        limits: tuple[float, ...] | str | None = recorded_limits(path)
+        how = "" if limits is None else "d_s " + ", ".join(f"{x:.2f}" for x in limits)
+        mean = recorded_safety_mean(path) if limits is None else None
+        if mean is not None:
+            limits, how = means.get(mean, UNRECORDED), f"safety mean {mean:.6f} (no d_s)"
+        elif limits is None and names_demos_only(path):
+            limits, how = UNRECORDED, UNRECORDED
+        if limits is None:
             continue
         parts = path.relative_to(root).parts
         folder = "/".join(parts[: min(3, len(parts) - 1)])  # results/<family>/<table or folder>
-        groups[(folder, UNRECORDED if limits is None else limits)] += 1
+        groups[(folder, limits, how)] += 1
     rows = [
         [
             folder,
-            UNRECORDED if limits == UNRECORDED else ", ".join(f"{x:.2f}" for x in limits),
-            "a folder named by path only"
-            if limits == UNRECORDED
+            how,
+            "a folder named by path only" if limits == UNRECORDED and how == UNRECORDED
             else names.get(limits, "another set"),
             n,
             _status(folder, limits),
         ]
-        for (folder, limits), n in sorted(groups.items(), key=lambda kv: (kv[0][0], str(kv[0][1])))
-    ]
-    table = markdown_table(rows, ["folder", "d_s recorded", "demonstrations", "tables", "status"])
+        for (folder, limits, how), n in sorted(groups.items(), key=lambda kv: (kv[0][0], kv[0][2]))
+    ]  # fmt: skip
+    table = markdown_table(rows, ["folder", "recorded", "demonstrations", "tables", "status"])
     return (
         "# Which demonstrations each committed table was made from\n\n"
-        "Read off the limits d_s each table's metadata records (tables that record none are "
-        "not listed, unless they name a demonstrations folder by path alone: `unrecorded`). "
-        "A fresh clone collects the committed default set; a table made from another "
-        "described set is re-derived after collecting that set with the command named "
-        "(the same digest: its content is the same); its figures stand for that set only. "
-        "Status: current (the committed sets), stands (why another set is the right input), "
-        "or to rerun on the committed set. Made by `python -m scripts.input_sets`.\n\n"
-        + table
-        + "\n"
+        "Read off the limits d_s each table's metadata records or, where it records none, the "
+        "demonstrations' safety mean it records (to six digits; each described set's differs); "
+        "a table that names its demonstrations folder by path alone is `unrecorded`; tables "
+        "that read no demonstrations are not listed. A fresh clone collects the committed "
+        "default set; a table made from another described set is re-derived after collecting "
+        "that set with the command named (the same digest: its content is the same); its "
+        "figures stand for that set only. Status: current (the committed sets), stands (why "
+        "another set is the right input), or to rerun on the committed set. Made by "
+        "`python -m scripts.input_sets`.\n\n" + table + "\n"
     )
 
 

@@ -54,3 +54,37 @@ def test_a_table_naming_its_demonstrations_by_path_alone_is_listed_as_unrecorded
     assert "results/ablation/old" in report and "results/ablation/new" not in report
     assert _status("results/ablation/old", UNRECORDED) in report
     assert _status("results/ablation/old", UNRECORDED).startswith("to rerun")
+
+
+def test_a_recorded_safety_mean_names_the_set_a_recorded_digest_names() -> None:
+    """Where a committed table records both a demonstrations digest and the demonstrations'
+    safety mean, the mean identifies the same set as the digest (the rehab mean the rehab
+    collection's digest), and the described sets' means differ: the ledger may place a table
+    that records only the mean (Table 1 among them) with its set."""
+    import json
+
+    import pyarrow.parquet as pq
+
+    from scripts.input_sets import REHAB_LIMITS, ROOT, sets_by_safety_mean
+
+    means = sets_by_safety_mean()
+    described = {
+        json.loads(p.read_text())["digest"]: json.loads(p.read_text())["safety_mean"]
+        for p in sorted((ROOT / "results" / "demos").rglob("summary.json"))
+    }
+    assert len(set(means.values())) == len(means) == len(described) + 1
+    pairs = set()
+    for path in sorted((ROOT / "results").rglob("*.parquet")):
+        meta = json.loads((pq.read_metadata(path).metadata or {}).get(b"safe_bc", b"{}"))
+        demos = (meta.get("inputs") or {}).get("demos") or []
+        if len(demos) == 1 and "demo_safety_mean" in meta:
+            pairs.add((demos[0]["digest"], round(float(meta["demo_safety_mean"]), 6)))
+    assert len(pairs) >= 2
+    for digest, mean in pairs:
+        if digest in described:
+            assert mean == round(described[digest], 6)
+        else:
+            assert means[mean] == REHAB_LIMITS
+    report = OUT.read_text()
+    table1 = next(line for line in report.splitlines() if line.startswith("| results   "))
+    assert "safety mean" in table1 and "committed default CarRacing set" in table1
