@@ -1,9 +1,10 @@
 """Which demonstration set every committed result table was made from, read off the limits
 ``d_s`` its metadata records, or where it records none, the demonstrations' safety mean
-(tables made before digests were recorded name no set): a described CarRacing set (``results/demos/**/summary.json``: the committed default one, and
-the exact renderer's that older tables used), the rehab task's default collection, or another
-one. Writes ``results/checks/input_sets.md`` (``python -m scripts.input_sets``); a test checks
-that the committed file is current."""
+(tables made before digests were recorded name no set): a described CarRacing set
+(``results/demos/**/summary.json``: the committed default one, and the exact renderer's
+that older tables used), the rehab task's default collection, or another one. Writes
+``results/checks/input_sets.md`` (``python -m scripts.input_sets``); a test checks that the
+committed file is current."""
 
 from __future__ import annotations
 
@@ -35,9 +36,6 @@ STANDS: dict[str, str] = {
     "timing in `recommender/`, the designs' comparison in `half/replicates.md`",
     "results/default_two_seeds": "the two-seed design's single study of then; the same study "
     "on the committed set is its replicate 0 (`replicates/r0/`)",
-    "results/default_one_seed": "a design tried on the way to today's default (one seed, 15 "
-    "tracks, one env at a time), replaced by `tune_jobs/default.py`, whose replicates on the "
-    "committed set are `results/default/replicates/`",
 }
 """Folders whose tables from another CarRacing set stand as they are, and why; every other
 such folder is to be rerun on the committed set."""
