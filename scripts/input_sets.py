@@ -41,18 +41,25 @@ STANDS: dict[str, str] = {
 such folder is to be rerun on the committed set."""
 
 
-def recorded_limits(path: Path) -> tuple[float, ...] | None:
-    """The ``d_s`` a result table's metadata records (``cost_limits``, ``limits`` or
-    ``thresholds``), rounded to 0.01; ``None`` when it records none."""
+def table_meta(path: Path) -> dict[str, Any]:
+    """A result table's ``safe_bc`` metadata (``{}``: none), read from its footer."""
     raw = (pq.read_metadata(path).metadata or {}).get(b"safe_bc")
-    if not raw:
-        return None
-    meta = json.loads(raw)
+    return json.loads(raw) if raw else {}
+
+
+def limits_in(meta: dict[str, Any]) -> tuple[float, ...] | None:
+    """The ``d_s`` table metadata records (``cost_limits``, ``limits`` or ``thresholds``),
+    rounded to 0.01; ``None`` when it records none."""
     for key in ("cost_limits", "limits", "thresholds"):
         value = meta.get(key)
         if isinstance(value, list) and value and all(isinstance(x, int | float) for x in value):
             return tuple(round(float(x), 2) for x in value)
     return None
+
+
+def recorded_limits(path: Path) -> tuple[float, ...] | None:
+    """The ``d_s`` a result table's metadata records (:func:`limits_in`)."""
+    return limits_in(table_meta(path))
 
 
 UNRECORDED = "unrecorded"
@@ -61,24 +68,22 @@ records neither its limits nor its content (a table of the ablation script that 
 comparison runner)."""
 
 
-def names_demos_only(path: Path) -> bool:
-    """Whether a result table names the demonstrations it read only by path: its metadata has
-    ``demos`` but no limits, no ``demos_digest`` and no ``inputs`` record. Tables inside an
-    agent's or a run's folder are left to that agent's record (its ``config.json``)."""
+def names_demos_only(path: Path, meta: dict[str, Any] | None = None) -> bool:
+    """Whether a result table names the demonstrations it read only by path: its metadata
+    (``meta``, read from ``path`` when not given) has ``demos`` but no limits, no
+    ``demos_digest`` and no ``inputs`` record. Tables inside an agent's or a run's folder are
+    left to that agent's record (its ``config.json``)."""
     if any(part == "agent" or part.endswith("runs") for part in path.parts):
         return False
-    raw = (pq.read_metadata(path).metadata or {}).get(b"safe_bc")
-    meta = json.loads(raw) if raw else {}
+    meta = table_meta(path) if meta is None else meta
     return "demos" in meta and not ({"demos_digest", "inputs"} & meta.keys())
 
 
-def recorded_safety_mean(path: Path) -> float | None:
-    """The demonstrations' safety mean (``demo_safety_mean``, to six digits) a result table
+def safety_mean_in(meta: dict[str, Any]) -> float | None:
+    """The demonstrations' safety mean (``demo_safety_mean``, to six digits) table metadata
     records when it records neither limits nor an ``inputs`` record; ``None`` otherwise."""
-    raw = (pq.read_metadata(path).metadata or {}).get(b"safe_bc")
-    meta = json.loads(raw) if raw else {}
     mean = meta.get("demo_safety_mean")
-    if "inputs" in meta or not isinstance(mean, int | float) or recorded_limits(path):
+    if "inputs" in meta or not isinstance(mean, int | float) or limits_in(meta):
         return None
     return round(float(mean), 6)
 
@@ -133,12 +138,13 @@ def input_sets(root: Path = ROOT) -> str:
     names, means = set_names(root), sets_by_safety_mean(root)
     groups: dict[tuple[str, tuple[float, ...] | str, str], int] = defaultdict(int)
     for path in sorted((root / "results").rglob("*.parquet")):
-        limits: tuple[float, ...] | str | None = recorded_limits(path)
+        meta = table_meta(path)
+        limits: tuple[float, ...] | str | None = limits_in(meta)
         how = "" if limits is None else "d_s " + ", ".join(f"{x:.2f}" for x in limits)
-        mean = recorded_safety_mean(path) if limits is None else None
+        mean = safety_mean_in(meta)
         if mean is not None:
             limits, how = means.get(mean, UNRECORDED), f"safety mean {mean:.6f} (no d_s)"
-        elif limits is None and names_demos_only(path):
+        elif limits is None and names_demos_only(path, meta):
             limits, how = UNRECORDED, UNRECORDED
         if limits is None:
             continue
