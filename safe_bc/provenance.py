@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import datetime as _dt
 import functools
+import hashlib
 import os
 import platform
 import subprocess
@@ -139,6 +140,11 @@ ARM_IMPLEMENTERS = {"0x41": "ARM", "0x42": "Broadcom", "0x43": "Cavium", "0x46":
                     "0x48": "HiSilicon", "0x4e": "NVIDIA", "0x50": "Ampere (APM)",
                     "0x51": "Qualcomm", "0x61": "Apple", "0xc0": "Ampere"}  # fmt: skip
 """``CPU implementer`` codes of ARM's ``/proc/cpuinfo`` -> vendor."""
+
+
+def file_digest(path: str | Path) -> str:
+    """``"sha256:<hex>"`` of a file's bytes: how a table names another table it read."""
+    return "sha256:" + hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
 def parse_cpuinfo(text: str) -> dict[str, str]:

@@ -25,7 +25,6 @@ Writes ``OUT/summary.parquet``, ``OUT/paired.parquet``, ``OUT/copycat.parquet``,
 from __future__ import annotations
 
 import argparse
-import hashlib
 import shlex
 import sys
 from pathlib import Path
@@ -305,9 +304,9 @@ def _describe(episodes: pd.DataFrame, meta: dict[str, Any]) -> dict[str, Any]:
 
 def _file_digests(*paths: Path) -> dict[str, str]:
     """``{path: "sha256:..."}`` of the tables the analysis read (those that exist)."""
-    return {
-        str(p): "sha256:" + hashlib.sha256(p.read_bytes()).hexdigest() for p in paths if p.exists()
-    }
+    from safe_bc.provenance import file_digest
+
+    return {str(p): file_digest(p) for p in paths if p.exists()}
 
 
 def main(argv: list[str] | None = None) -> int:

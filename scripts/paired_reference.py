@@ -19,7 +19,6 @@ a Markdown table per folder. Nothing is rerun.
 from __future__ import annotations
 
 import argparse
-import hashlib
 import sys
 from pathlib import Path
 
@@ -27,7 +26,7 @@ import pandas as pd
 
 from safe_bc.data.store import read_table, write_table_atomic
 from safe_bc.metrics import paired_to_reference
-from safe_bc.provenance import run_metadata
+from safe_bc.provenance import file_digest, run_metadata
 from safe_bc.report import fmt_ci
 
 METRICS = ("reward", "violation_steps", "any_violation", "violating_sessions")
@@ -56,7 +55,7 @@ def main(argv: list[str] | None = None) -> int:
         )  # fmt: skip
         out_meta["inputs"] = {
             **meta.get("inputs", {}),
-            "episodes": {str(source): "sha256:" + hashlib.sha256(source.read_bytes()).hexdigest()},
+            "episodes": {str(source): file_digest(source)},
         }
         write_table_atomic(target, paired, out_meta)
         view = pd.DataFrame({"method": paired["method"], "pairs": paired["n_pairs"]})

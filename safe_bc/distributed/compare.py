@@ -63,7 +63,7 @@ from safe_bc.eval_store import episodes_path, steps_path
 from safe_bc.evaluation import EvalConfig, ExpertSource, MaskedSource, NetSource
 from safe_bc.experiment import RunConfig, save_curve, save_selection, select_for
 from safe_bc.metrics import combined
-from safe_bc.provenance import run_metadata
+from safe_bc.provenance import file_digest, run_metadata
 from safe_bc.selection import SelectionConfig
 from safe_bc.tasks import check_frames_renderer, dataset_action_bounds, task_defaults
 
@@ -147,8 +147,6 @@ def run_digests(comparison: Comparison, plan: dict[str, Cell]) -> dict[str, str]
     ``<runs>_runs/<row>/seed<k>/agent/``) and its stored evaluation (SHA-256 of
     ``stored_evaluations/<key>.parquet``), keyed by path relative to the comparison's output
     folder."""
-    import hashlib
-
     from safe_bc.bc import read_checkpoint_meta
 
     out: dict[str, str] = {}
@@ -159,8 +157,7 @@ def run_digests(comparison: Comparison, plan: dict[str, Cell]) -> dict[str, str]
             out[str((folder / "agent").relative_to(comparison.out))] = f"sha256:{weights}"
         episodes = episodes_path(comparison.out, cell.stamp)
         if episodes.is_file():
-            digest = hashlib.sha256(episodes.read_bytes()).hexdigest()
-            out[str(episodes.relative_to(comparison.out))] = f"sha256:{digest}"
+            out[str(episodes.relative_to(comparison.out))] = file_digest(episodes)
     return out
 
 
