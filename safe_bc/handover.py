@@ -17,13 +17,14 @@ from __future__ import annotations
 import json
 import math
 from dataclasses import asdict, dataclass
-from typing import Any, Literal
+from typing import Any, Literal, get_args
 
 Fallback = Literal["expert", "cap", "safest"]
 """What acts in the zone: ``expert``, the expert's action; ``cap``, the agent's action capped
 per component by the expert's in the task's safer direction (``TaskSpec.safer_actions``);
 ``safest``, each action component at its bound in that direction."""
-FALLBACKS: tuple[str, ...] = ("expert", "cap", "safest")
+FALLBACKS: tuple[str, ...] = get_args(Fallback)
+"""The fallbacks a handover accepts (:data:`Fallback`'s values)."""
 
 
 @dataclass(frozen=True)
