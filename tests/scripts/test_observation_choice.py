@@ -201,7 +201,8 @@ def test_comparison_file_rows_are_the_committed_cells() -> None:
 def test_evaluation_path_steering_metrics_match_the_committed_episodes() -> None:
     """``steer_autocorr`` and ``steer_change`` of the one evaluation path equal the committed
     table's for the expert on its first two selection tracks (needs the default
-    demonstrations: their expert and limits)."""
+    demonstrations: their expert and limits). The table was made on AMD EPYC; the check was
+    shown there (the scripted expert runs no learned net; other machine types not tried)."""
     from safe_bc.collection import stored_expert_config
     from safe_bc.distributed.evaluate import evaluate_policies
     from safe_bc.evaluation import EvalConfig, ExpertSource
