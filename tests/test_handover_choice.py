@@ -88,3 +88,20 @@ def test_the_clinic_s_handover_is_the_row_its_last_committed_measurement_chose()
     assert index is not None
     assert choice.candidates[index].to_dict() == meta["chosen"]
     assert task_defaults("rehab").handover == choice.candidates[index]
+
+
+def test_the_cap_the_later_tables_name_is_the_one_stage_2_chose() -> None:
+    """Stage 3 measures stage 2's chosen cap again and the self-imitation tables ran with it:
+    both files spell it (experiment files read no results), and both spellings are the handover
+    ``tune_jobs/handover/rehab_cap.py``'s committed table chose."""
+    import runpy
+
+    from safe_bc.data.store import read_table
+    from safe_bc.handover import HandoverConfig
+
+    root = Path(__file__).resolve().parents[1]
+    stage2 = runpy.run_path(str(root / "tune_jobs/handover/rehab_cap.py"))["CHOICE"]
+    chosen = HandoverConfig.from_dict(read_table(root / stage2.out / "choice.parquet")[1]["chosen"])
+    stage3 = runpy.run_path(str(root / "tune_jobs/handover/rehab_safest.py"))
+    selfimprove = runpy.run_path(str(root / "tune_jobs/compare/selfimprove.py"))
+    assert stage3["CHOSEN_CAP"] == chosen == selfimprove["REHAB_HANDOVER"]
