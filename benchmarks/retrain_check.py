@@ -25,8 +25,9 @@ from pathlib import Path
 
 import pandas as pd
 
-from safe_bc.compare import Comparison, load_comparison
+from safe_bc.compare import Comparison
 from safe_bc.data.store import read_table, write_table_atomic
+from safe_bc.families import load_comparison
 from safe_bc.provenance import run_metadata
 
 ROWS = (("alpha=0 (rest=all)", 0), ("alpha=0.5 (rest=all)", 1), ("BC-Safe (K=20)", 2))

@@ -421,8 +421,8 @@ def reproduce(job: ReproduceJob) -> Done:
 def compare(job: CompareJob) -> Done:
     """Run (or resume, or ``render_only`` rebuild) the comparison ``job.name`` of the family
     file ``job.comparison``."""
-    from safe_bc.compare import load_comparison
     from safe_bc.distributed.compare import rerender, run_cell, run_comparison
+    from safe_bc.families import load_comparison
 
     comparison = load_comparison(job.comparison, job.name)
     check_output_folder(comparison.out)

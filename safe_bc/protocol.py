@@ -19,14 +19,12 @@ from __future__ import annotations
 import itertools
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import pandas as pd
 
+from safe_bc.compare import Comparison
 from safe_bc.compare_rows import Handover
-
-if TYPE_CHECKING:
-    from safe_bc.compare import Comparison
 
 RuleFn = Callable[..., list[Handover]]
 

@@ -20,11 +20,12 @@ from pathlib import Path
 
 import pandas as pd
 
-from safe_bc.compare import Comparison, Expert, load_comparison
+from safe_bc.compare import Comparison, Expert
 from safe_bc.compare_rows import Handover
 from safe_bc.data.store import read_table, read_table_metadata, write_table_atomic
 from safe_bc.distributed.compare import plan_evaluations, write_outputs
 from safe_bc.eval_store import episodes_path
+from safe_bc.families import load_comparison
 from safe_bc.provenance import run_metadata
 
 FAMILY = Path("tune_jobs/compare/queries.py")

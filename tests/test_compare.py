@@ -11,8 +11,9 @@ import pandas as pd
 import pytest
 
 from safe_bc.bc import BCConfig
-from safe_bc.compare import Comparison, Method, build_table, load_comparison, render_markdown
+from safe_bc.compare import Comparison, Method, build_table, render_markdown
 from safe_bc.data.store import read_table
+from safe_bc.families import load_comparison
 from safe_bc.improve.config import ImproveConfig
 from safe_bc.selection import SelectionConfig
 

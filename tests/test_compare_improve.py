@@ -19,11 +19,11 @@ from safe_bc.compare import (
     build_table,
     display_per_seed,
     label_episodes,
-    load_comparison,
     machines,
     render_markdown,
 )
 from safe_bc.data.store import read_table
+from safe_bc.families import load_comparison
 from safe_bc.improve import ImproveConfig
 from safe_bc.selection import SelectionConfig
 from tests.conftest import rehab_collect, tiny_collect

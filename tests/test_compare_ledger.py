@@ -9,8 +9,9 @@ from pathlib import Path
 
 import pytest
 
-from safe_bc.compare import Comparison, family, load_comparisons
+from safe_bc.compare import Comparison
 from safe_bc.distributed.compare import track_seeds
+from safe_bc.families import family, load_comparisons
 from safe_bc.protocol import Fresh, track_clashes
 
 ROOT = Path(__file__).resolve().parents[1]

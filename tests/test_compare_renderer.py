@@ -11,8 +11,9 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from safe_bc.compare import Comparison, Method, build_table, label_episodes, load_comparison
+from safe_bc.compare import Comparison, Method, build_table, label_episodes
 from safe_bc.data.store import read_table
+from safe_bc.families import load_comparison
 from safe_bc.selection import SelectionConfig
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -8,19 +8,9 @@ from pathlib import Path
 
 import pytest
 
-from safe_bc.compare import (
-    Agent,
-    Comparison,
-    Expert,
-    FromStart,
-    Handover,
-    Method,
-    View,
-    family,
-    load_comparison,
-    load_comparisons,
-)
+from safe_bc.compare import Agent, Comparison, Expert, FromStart, Handover, Method, View
 from safe_bc.compare_rows import FLAT_FIELDS, KINDS
+from safe_bc.families import family, load_comparison, load_comparisons
 from safe_bc.handover import HandoverConfig
 from safe_bc.improve.config import ImproveConfig
 from safe_bc.selection import SelectionConfig

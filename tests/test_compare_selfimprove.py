@@ -12,7 +12,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from safe_bc.compare import Comparison, Method, load_comparison, load_comparisons
+from safe_bc.compare import Comparison, Method
+from safe_bc.families import load_comparison, load_comparisons
 from safe_bc.improve import ImproveConfig
 from safe_bc.selection import SelectionConfig
 from safe_bc.selfimprove.config import SelfImproveConfig

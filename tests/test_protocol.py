@@ -5,7 +5,8 @@ from __future__ import annotations
 import pandas as pd
 import pytest
 
-from safe_bc.compare import Agent, Comparison, Expert, Handover, load_comparison
+from safe_bc.compare import Agent, Comparison, Expert, Handover
+from safe_bc.families import load_comparison
 from safe_bc.handover import HandoverConfig
 from safe_bc.protocol import Fresh, Rule, resolve, track_clashes
 from safe_bc.selection import SelectionConfig

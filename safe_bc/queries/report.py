@@ -15,9 +15,10 @@ from typing import Any
 import pandas as pd
 
 from safe_bc.atomic import write_text_atomic
-from safe_bc.compare import Comparison, family, load_comparison
+from safe_bc.compare import Comparison
 from safe_bc.compare_rows import Handover
 from safe_bc.data.store import read_table, write_table_atomic
+from safe_bc.families import family, load_comparison
 from safe_bc.protocol import Fresh, candidates
 from safe_bc.provenance import run_metadata
 from safe_bc.queries.summary import (

@@ -179,7 +179,7 @@ def test_comparison_file_rows_are_the_committed_cells() -> None:
     bootstrap), with the committed seeds, and masks exactly the bar-kept cells; the runner's
     row names read back as (cell, view)."""
     raw, _ = _committed_episodes("observation")
-    from safe_bc.compare import load_comparison
+    from safe_bc.families import load_comparison
 
     comp = load_comparison(ROOT / "tune_jobs/compare/observation.py", "observation")
     got = {(m.name, comp.seeds_of(m)) for m in comp.methods}
