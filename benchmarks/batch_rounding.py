@@ -30,7 +30,7 @@ def cpu_line(key: str) -> str:
 def main() -> None:
     from safe_bc.bc import CAR_RACING_BOUNDS, BCNet, ModelSpec, NetworkConfig, PreprocessConfig
     from safe_bc.bc.preprocess import preprocess
-    from safe_bc.envs import make_env
+    from safe_bc.tasks import make_env
 
     cap = torch.backends.cpu.get_cpu_capability()
     print("python", sys.version.split()[0], "torch", torch.__version__, "capability", cap)

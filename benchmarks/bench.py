@@ -890,8 +890,9 @@ def _time_step_parts(net: Any, steps: int, seed: int) -> dict[str, float]:
     frame) ``BCPolicy.act_batch`` and ``act_slots`` (both lockstep forwards) on
     ``BATCHED_ENVS`` copies of the frame, on one expert-driven trajectory (the net acts on the
     same frames; its actions are discarded)."""
-    from safe_bc.envs import EnvConfig, make_env
+    from safe_bc.envs import EnvConfig
     from safe_bc.seeds import heldout_seed
+    from safe_bc.tasks import make_env
     from safe_bc.tasks.carracing.expert import CarRacingExpert, ExpertConfig
 
     env = make_env(EnvConfig(renderer="fast"))

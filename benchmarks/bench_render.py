@@ -26,9 +26,10 @@ __all__ = ["bench_render"]
 
 
 def _make_env(renderer: str) -> Any:
-    """``safe_bc.envs.make_env`` with this renderer: the env safe_bc steps, safety costs in
+    """``safe_bc.tasks.make_env`` with this renderer: the env safe_bc steps, safety costs in
     ``info`` (``CarRacingSafety``) and gymnasium's wrappers included."""
-    from safe_bc.envs import EnvConfig, make_env
+    from safe_bc.envs import EnvConfig
+    from safe_bc.tasks import make_env
 
     return make_env(EnvConfig(renderer=renderer))  # type: ignore[arg-type]
 
@@ -192,7 +193,8 @@ def step_breakdown(steps: int = 300, seed: int = 0) -> dict[str, float]:
     import cProfile
     import pstats
 
-    from safe_bc.envs import EnvConfig, make_env
+    from safe_bc.envs import EnvConfig
+    from safe_bc.tasks import make_env
 
     env = make_env(EnvConfig(renderer="exact"))
     try:

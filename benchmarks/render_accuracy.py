@@ -44,9 +44,10 @@ import pandas as pd
 
 from safe_bc.atomic import write_text_atomic
 from safe_bc.data.store import load_demonstrations, write_table_atomic
-from safe_bc.envs import EnvConfig, make_env
+from safe_bc.envs import EnvConfig
 from safe_bc.provenance import run_metadata
 from safe_bc.selection import DEFAULT_EPS
+from safe_bc.tasks import make_env
 from safe_bc.tasks.carracing.raster_render import DEFAULT_SUPERSAMPLE
 from safe_bc.tasks.carracing.wrapper import ZOOM_END_T
 
@@ -61,8 +62,8 @@ TOLERANCE = 0.10
 def _raster(factor: int, max_steps: int | None = None):
     import gymnasium as gym
 
-    from safe_bc.envs.factory import RASTER_CARRACING_ID, register_envs
     from safe_bc.tasks.carracing.wrapper import CarRacingSafety
+    from safe_bc.tasks.factory import RASTER_CARRACING_ID, register_envs
 
     register_envs()
     kw = {} if max_steps is None else {"max_episode_steps": max_steps}

@@ -13,13 +13,13 @@ package first (the part before the colon). The ids are
 ``safe_bc/RehabPathway-v0`` (the rehabilitation pathway, safety costs in ``info``) and
 ``safe_bc/CarRacingFast-v3`` (CarRacing-v3 with a faster, pixel-identical renderer; wrap
 it in :class:`safe_bc.tasks.carracing.wrapper.CarRacingSafety`, or use
-:func:`safe_bc.envs.make_env`, for the safety distances in ``info``), and
+:func:`safe_bc.tasks.make_env`, for the safety distances in ``info``), and
 ``safe_bc/CarRacingRaster-v3`` (an approximate, faster renderer, opt-in: see
 :mod:`safe_bc.tasks.carracing.raster_render`). Registration imports gymnasium and numpy only
 (no torch, no Ray).
 """
 
-from safe_bc.envs.factory import ENV_IDS, register_envs
+from safe_bc.tasks.factory import ENV_IDS, register_envs
 from safe_bc.version import __version__
 
 register_envs()

@@ -122,7 +122,7 @@ def record(
     """Roll ``policy`` out on ``task``'s track ``seed`` (``env.reset(seed=seed)``), keeping
     frames and positions. The policy's randomness is seeded with ``seed`` as in evaluation.
     ``progress``: a bar over the steps (on a terminal)."""
-    from safe_bc.envs import make_env
+    from safe_bc.tasks import make_env
 
     spec = task_defaults(task, renderer)  # type: ignore[arg-type]
     drawing = drawing_of(spec)

@@ -1,4 +1,4 @@
-"""Run one episode of a policy in an env built by :func:`safe_bc.envs.make_env`."""
+"""Run one episode of a policy in an env built by :func:`safe_bc.tasks.make_env`."""
 
 from __future__ import annotations
 
@@ -199,5 +199,5 @@ def _safety_dims(env: gym.Env) -> tuple[str, ...]:
         return tuple(env.get_wrapper_attr("safety_dims"))
     except AttributeError:
         raise ValueError(
-            "env publishes no safety_dims; build it with safe_bc.envs.make_env"
+            "env publishes no safety_dims; build it with safe_bc.tasks.make_env"
         ) from None

@@ -7,10 +7,9 @@ import numpy as np
 import pytest
 
 from safe_bc.collection import build_expert
-from safe_bc.envs import make_env
 from safe_bc.handover import HandoverConfig
 from safe_bc.queries.defer import cap_action, handover_source
-from safe_bc.tasks import task_defaults
+from safe_bc.tasks import make_env, task_defaults
 
 
 def test_a_handover_without_the_new_fields_keeps_its_identity() -> None:

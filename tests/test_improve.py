@@ -199,9 +199,10 @@ def test_carracing_zoom_in_frames_carry_no_cost() -> None:
     it): a LocalEnvs step reports zero costs while ``info["warmup"]``, the env's costs after."""
     import numpy as np
 
-    from safe_bc.envs import EnvConfig, make_env
-    from safe_bc.envs.factory import CARRACING_ID
+    from safe_bc.envs import EnvConfig
     from safe_bc.improve import LocalEnvs
+    from safe_bc.tasks import make_env
+    from safe_bc.tasks.factory import CARRACING_ID
 
     group, plain = LocalEnvs(CARRACING_ID, 1), make_env(EnvConfig(CARRACING_ID))
     try:

@@ -212,11 +212,10 @@ def _limits(rehab_agent) -> tuple[float, ...]:
 def test_queries_in_the_zone_are_every_zone_step_of_the_rollout(rehab_agent, rehab_demos) -> None:
     """The counted queries are exactly the rollout's scored steps in the zone (re-run the
     same episode without asking and count them)."""
-    from safe_bc.envs import make_env
     from safe_bc.evaluation import NetSource
     from safe_bc.queries.rollout import QueryJob, query_episode
     from safe_bc.rollout import run_episode
-    from safe_bc.tasks import task_defaults
+    from safe_bc.tasks import make_env, task_defaults
     from safe_bc.tasks.rehab.expert import GuidelineExpert
 
     model, cfg, _ = rehab_agent
@@ -264,10 +263,9 @@ def test_full_mode_with_a_budget_keeps_the_first_queries(rehab_agent, rehab_demo
 
 
 def test_evaluation_reports_the_deferred_share(rehab_agent, rehab_demos) -> None:
-    from safe_bc.envs import make_env
     from safe_bc.evaluation import NetSource, evaluate_episode
     from safe_bc.queries.defer import DeferralSource
-    from safe_bc.tasks import task_defaults
+    from safe_bc.tasks import make_env, task_defaults
 
     model, cfg, _ = rehab_agent
     limits = np.array(_limits(rehab_agent))
@@ -291,12 +289,11 @@ def test_a_handover_in_lockstep_gives_the_one_env_episodes(
     from safe_bc.bc.config import BCConfig, NetworkConfig, TrainConfig
     from safe_bc.collection import stored_expert_config
     from safe_bc.data.store import load_demonstrations
-    from safe_bc.envs import make_env
     from safe_bc.evaluation import NetSource, evaluate_episodes
     from safe_bc.experiment import train_run
     from safe_bc.queries.defer import DeferralSource, LockstepDeferringPolicy
     from safe_bc.run_config import RunConfig
-    from safe_bc.tasks import task_defaults
+    from safe_bc.tasks import make_env, task_defaults
 
     if task == "rehab":
         model, cfg, demos = rehab_agent

@@ -11,7 +11,6 @@ import pytest
 
 from safe_bc.bc import BCConfig, NetworkConfig, TrainConfig
 from safe_bc.data.store import data_digest, dataset_record, load_demonstrations, read_meta
-from safe_bc.envs import make_env
 from safe_bc.experiment import RunConfig, train_run
 from safe_bc.handover import HandoverConfig
 from safe_bc.recommender import (
@@ -22,7 +21,7 @@ from safe_bc.recommender import (
     load_recommender,
     write_recommender,
 )
-from safe_bc.tasks import task_defaults
+from safe_bc.tasks import make_env, task_defaults
 
 
 @pytest.fixture(scope="module")

@@ -15,8 +15,8 @@ from safe_bc.bc import (
     NetworkConfig,
     PreprocessConfig,
 )
-from safe_bc.envs import make_env
 from safe_bc.rollout import run_episode, run_episodes_lockstep
+from safe_bc.tasks import make_env
 
 
 def test_lockstep_episodes_of_different_lengths_are_the_one_env_episodes():

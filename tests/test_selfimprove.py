@@ -81,10 +81,9 @@ def test_a_safe_better_episode_is_kept_and_one_step_past_the_margin_drops_it() -
 def test_pushes_back_off_in_the_zone_and_record_the_agents_own_action() -> None:
     """On rehab: where the state is in the back-off zone the agent's action is executed,
     elsewhere the pushed one; the recorded action is always the agent's."""
-    from safe_bc.envs import make_env
     from safe_bc.rollout import run_episode
     from safe_bc.selfimprove.rollout import Push, ZoneWatch
-    from safe_bc.tasks import task_defaults
+    from safe_bc.tasks import make_env, task_defaults
 
     class _Fixed:
         def reset(self, env, rng) -> None:
@@ -424,11 +423,10 @@ def test_new_options_enter_the_identity_only_when_set_and_are_checked() -> None:
 def test_under_the_handover_the_expert_acts_unpushed_and_the_agent_is_pushed() -> None:
     """On rehab: where the handover defers, the expert's action is executed and recorded;
     elsewhere the agent's pushed action is executed."""
-    from safe_bc.envs import make_env
     from safe_bc.handover import HandoverConfig
     from safe_bc.rollout import run_episode
     from safe_bc.selfimprove.rollout import ExploreJob, Push
-    from safe_bc.tasks import task_defaults
+    from safe_bc.tasks import make_env, task_defaults
 
     class _Fixed:
         def __init__(self, action) -> None:

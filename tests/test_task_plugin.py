@@ -135,8 +135,8 @@ def _collect_in_process(root: Path, episodes: int = 6) -> Path:
 
 def test_toy_task_is_registered_through_the_public_api():
     from safe_bc.collection import build_expert, expert_config_from_dict
-    from safe_bc.envs.factory import make_env
     from safe_bc.tasks import task_defaults, task_of
+    from safe_bc.tasks.factory import make_env
 
     assert TASKS["toy"] is TOY and task_of(TOY_ID) == "toy"
     assert task_defaults("toy") is TOY

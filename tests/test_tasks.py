@@ -91,7 +91,7 @@ def test_registry_entries_are_complete():
 def test_observed_costs_have_the_envs_shape(task):
     """Each entry's cost-from-observation mapping gives one cost per safety dimension, and for
     CarRacing (costs defined on the frame) exactly the env's costs."""
-    from safe_bc.envs import make_env
+    from safe_bc.tasks import make_env
 
     entry = task_defaults(task)
     env = make_env(dataclasses.replace(entry.env, max_episode_steps=60))
@@ -110,7 +110,7 @@ def test_observed_costs_have_the_envs_shape(task):
 def test_env_ids_are_registered_with_their_env_modules():
     import gymnasium as gym
 
-    from safe_bc.envs.factory import REHAB_ID, register_envs
+    from safe_bc.tasks.factory import REHAB_ID, register_envs
     from safe_bc.tasks.rehab.env import DEFAULT_N_SESSIONS, RehabPathwayEnv
 
     register_envs()

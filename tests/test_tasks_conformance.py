@@ -19,9 +19,9 @@ from safe_bc.collection import (
     config_dict,
     expert_config_from_dict,
 )
-from safe_bc.envs.factory import make_env
 from safe_bc.envs.info import INFO_KEYS, InfoContract, StepInfo, check_info
 from safe_bc.tasks import TASKS, task_defaults, task_of
+from safe_bc.tasks.factory import make_env
 
 STEPS = 6
 

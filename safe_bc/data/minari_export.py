@@ -34,7 +34,7 @@ Each episode's Minari metadata has the reset ``seed`` and ``safe_bc_episode_id``
 dataset's metadata has ``safe_bc`` (the source ``dataset.json``), ``safe_bc_safety_dims``
 and the limits ``costs`` was computed by (:func:`safe_bc.data.export_limits.limits_metadata`):
 ``safe_bc_cost_limits`` (``d_s`` per dimension), ``safe_bc_eps`` and
-``safe_bc_critical_zone`` (the rules). The env spec is the one :func:`safe_bc.envs.make_env` builds
+``safe_bc_critical_zone`` (the rules). The env spec is the one :func:`safe_bc.tasks.make_env` builds
 (for CarRacing with the safety wrapper), so ``dataset.recover_environment()`` gives an
 env whose ``info`` has the same ``safety``/``cost`` keys.
 
@@ -154,7 +154,8 @@ def _episodes(root: Path, meta: DatasetMeta) -> Iterator[Episode]:
 
 
 def _env_for(meta: DatasetMeta) -> Any:
-    from safe_bc.envs import EnvConfig, make_env
+    from safe_bc.envs import EnvConfig
+    from safe_bc.tasks import make_env
 
     return make_env(EnvConfig(env_id=meta.env_id, max_episode_steps=meta.max_steps))
 

@@ -60,7 +60,7 @@ class RayEnvs:
     """``n`` envs spread over ``workers`` persistent Ray actors (an :class:`EnvGroup`).
 
     Args:
-        env_id: the env (:func:`safe_bc.envs.make_env`).
+        env_id: the env (:func:`safe_bc.tasks.make_env`).
         n: number of envs.
         workers: actors (at most ``n``); each holds a contiguous slice of the envs.
         actor_cpus: each actor's CPU reservation; ``None`` shares the cluster's CPUs out

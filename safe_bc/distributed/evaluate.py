@@ -18,10 +18,11 @@ import pandas as pd
 from tqdm.auto import tqdm
 
 from safe_bc.distributed.runtime import cpus_per_actor, ensure_ray
-from safe_bc.envs import EnvConfig, make_env
+from safe_bc.envs import EnvConfig
 from safe_bc.evaluation import EvalConfig, evaluate_episodes
 from safe_bc.metrics import summarize_policies
 from safe_bc.policy import LockstepForward, Policy
+from safe_bc.tasks import make_env
 
 PolicySource = Any
 """Anything with ``build() -> Policy`` that pickles (``ExpertSource``, ``NetSource``)."""

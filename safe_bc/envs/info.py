@@ -1,6 +1,6 @@
 """The ``info`` contract every task's env meets, as a typed, checked record.
 
-Each ``reset`` and ``step`` of an env built by :func:`safe_bc.envs.make_env` describes the
+Each ``reset`` and ``step`` of an env built by :func:`safe_bc.tasks.make_env` describes the
 returned observation in ``info`` with (``S`` = the env's ``safety_dims``):
 
 * ``"safety"``: ``(S,)`` finite floats, distances to the limits, higher is safer;

@@ -80,10 +80,11 @@ EnvGroupFactory = Callable[[str, int], EnvGroup]
 
 
 class LocalEnvs:
-    """``n`` envs in this process (:func:`safe_bc.envs.make_env`)."""
+    """``n`` envs in this process (:func:`safe_bc.tasks.make_env`)."""
 
     def __init__(self, env_id: str, n: int) -> None:
-        from safe_bc.envs import EnvConfig, make_env
+        from safe_bc.envs import EnvConfig
+        from safe_bc.tasks import make_env
 
         self.envs = [make_env(EnvConfig(env_id)) for _ in range(n)]
 

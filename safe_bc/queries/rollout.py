@@ -156,7 +156,7 @@ def query_episode(
 def query_tracks(job: QueryJob, seeds: Sequence[int]) -> list[EpisodeQueries]:
     """:func:`query_episode` of every track in this process (one env, one agent, one
     expert); the same episodes whichever process runs them."""
-    from safe_bc.envs import make_env
+    from safe_bc.tasks import make_env
 
     env = make_env(job.env)
     try:

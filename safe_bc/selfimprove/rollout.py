@@ -184,7 +184,7 @@ class ExploreJob:
     def run(self, seeds: Sequence[int]) -> list[TrackResult]:
         """:func:`explore_track` of every track in this process (one env, one agent)."""
         from safe_bc.collection import build_expert
-        from safe_bc.envs import make_env
+        from safe_bc.tasks import make_env
 
         env = make_env(self.env)
         try:
@@ -307,8 +307,8 @@ class ValidateJob:
     def run(self, seeds: Sequence[int]) -> list[dict[str, float]]:
         """The evaluation's metrics of every validation track
         (:func:`safe_bc.evaluation.evaluate_episodes`)."""
-        from safe_bc.envs import make_env
         from safe_bc.evaluation import evaluate_episodes
+        from safe_bc.tasks import make_env
 
         env = make_env(self.env)
         try:

@@ -42,9 +42,13 @@ from safe_bc.tasks.registry import (
 register_task(carracing.SPEC)
 register_task(rehab.SPEC)
 
+# built from the registry as it stands with the built-ins in it (ENV_IDS lists theirs)
+from safe_bc.tasks.factory import ENV_IDS, make_env  # noqa: E402
+
 __all__ = [
     "DEFAULT_TASK",
     "ENTRY_POINTS",
+    "ENV_IDS",
     "PLUGINS_VAR",
     "TASKS",
     "Bounds",
@@ -60,6 +64,7 @@ __all__ = [
     "check_net_fits_task",
     "dataset_action_bounds",
     "frames_renderer",
+    "make_env",
     "register_envs",
     "register_task",
     "spec_of",

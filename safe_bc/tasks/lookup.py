@@ -43,7 +43,7 @@ def dataset_action_bounds(root: str | Path) -> Bounds:
 
 def action_bounds(env_config: EnvConfig) -> Bounds:
     """``(low, high)`` of the env's Box action space, read from a built env."""
-    from safe_bc.envs.factory import make_env
+    from safe_bc.tasks.factory import make_env
 
     env = make_env(env_config)
     try:

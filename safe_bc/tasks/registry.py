@@ -2,7 +2,7 @@
 
 A task is one folder (``safe_bc/tasks/<name>/``: its env, expert, observed costs and
 defaults) and one call, ``register_task(SPEC)``. Everything task-specific is read from here
-(or, for a dataset, from its ``dataset.json``): env ids, :func:`safe_bc.envs.make_env`, the
+(or, for a dataset, from its ``dataset.json``): env ids, :func:`safe_bc.tasks.make_env`, the
 experts a dataset can name, what a collection may be. A task defined outside the package is
 found in every process (Ray workers included) through an entry point of the
 ``safe_bc.tasks`` group declared by the package that holds it (``lane = "lane_task:SPEC"``

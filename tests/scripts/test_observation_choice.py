@@ -17,8 +17,9 @@ import scripts.observation_choice as ablation
 from safe_bc.bc.config import PreprocessConfig
 from safe_bc.bc.preprocess import STEERING_INDICATOR, preprocess_frames
 from safe_bc.data.store import read_table
-from safe_bc.envs import EnvConfig, make_env
+from safe_bc.envs import EnvConfig
 from safe_bc.evaluation import MaskedSteering
+from safe_bc.tasks import make_env
 
 ROOT = Path(__file__).resolve().parents[2]
 _spec = importlib.util.spec_from_file_location(

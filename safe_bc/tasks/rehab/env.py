@@ -99,7 +99,7 @@ BP reactivity, fatigue recovery and tolerance, so the best pathway is personal.
 
 The programme has ``n_sessions`` sessions (default 30: 3 a week for 10 weeks); the env
 terminates after the last one (its gymnasium registration,
-:func:`safe_bc.envs.factory.register_envs`, also puts a ``TimeLimit`` of the same length
+:func:`safe_bc.tasks.factory.register_envs`, also puts a ``TimeLimit`` of the same length
 around it, so the last step reports ``terminated=True`` and ``truncated=True``).
 
 References:

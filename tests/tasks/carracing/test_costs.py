@@ -5,8 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from safe_bc.envs import EnvConfig, make_env
+from safe_bc.envs import EnvConfig
 from safe_bc.metrics import combined
+from safe_bc.tasks import make_env
 from safe_bc.tasks.carracing.costs import (
     MAX_RANGE,
     costs_from_distances,

@@ -6,9 +6,10 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from safe_bc.envs import EnvConfig, make_env
-from safe_bc.envs.factory import RASTER_CARRACING_ID
+from safe_bc.envs import EnvConfig
+from safe_bc.tasks import make_env
 from safe_bc.tasks.carracing.raster_render import RasterCarRacing
+from safe_bc.tasks.factory import RASTER_CARRACING_ID
 
 STEPS = 90  # the zoom-in ends at step 50; the rest is scored
 

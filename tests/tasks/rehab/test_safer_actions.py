@@ -5,8 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from safe_bc.envs import make_env
-from safe_bc.tasks import task_defaults
+from safe_bc.tasks import make_env, task_defaults
 
 
 def _next_cost(seed: int, history: list[np.ndarray], action: np.ndarray) -> np.ndarray:
