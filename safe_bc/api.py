@@ -606,7 +606,7 @@ def _selfimitate(job: ImproveJob) -> Done:
 
 def export(job: ExportJob) -> Done:
     """Export a demonstration set as a Minari dataset (the value)."""
-    from safe_bc.data.minari_export import MinariNotInstalledError, export_minari
+    from safe_bc.export.minari_export import MinariNotInstalledError, export_minari
 
     try:
         dataset = export_minari(job.demos, job.dataset_id, author=job.author)

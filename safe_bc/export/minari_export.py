@@ -22,7 +22,7 @@ episode, in episode-id order):
     grass left/front/right; rehab: margins to the limits);
   - ``cost`` ``(T+1, S) float32``, higher is less safe;
   - ``costs`` ``(T+1,)`` 0.0 or 1.0 (read back as float64), the scalar cost in DSRL's form
-    (:func:`safe_bc.data.export_limits.step_costs`): 1.0 where ``observations[i]`` is a
+    (:func:`safe_bc.export.limits.step_costs`): 1.0 where ``observations[i]`` is a
     scored step beyond the limit ``d_s`` in some dimension (``c_s > d_s``), else 0.0;
   - ``warmup``, ``offroad`` ``(T+1,) bool``;
   - ``executed_action`` ``(T+1, A) float32``: entry ``t`` is the action sent to the env
@@ -32,7 +32,7 @@ episode, in episode-id order):
 
 Each episode's Minari metadata has the reset ``seed`` and ``safe_bc_episode_id``; the
 dataset's metadata has ``safe_bc`` (the source ``dataset.json``), ``safe_bc_safety_dims``
-and the limits ``costs`` was computed by (:func:`safe_bc.data.export_limits.limits_metadata`):
+and the limits ``costs`` was computed by (:func:`safe_bc.export.limits.limits_metadata`):
 ``safe_bc_cost_limits`` (``d_s`` per dimension), ``safe_bc_eps`` and
 ``safe_bc_critical_zone`` (the rules). The env spec is the one :func:`safe_bc.tasks.make_env` builds
 (for CarRacing with the safety wrapper), so ``dataset.recover_environment()`` gives an
@@ -54,7 +54,6 @@ from typing import Any
 
 import numpy as np
 
-from safe_bc.data.export_limits import COSTS, dataset_zone, limits_metadata, step_costs
 from safe_bc.data.store import (
     DatasetError,
     DatasetMeta,
@@ -64,6 +63,7 @@ from safe_bc.data.store import (
     read_meta,
 )
 from safe_bc.episode import Episode
+from safe_bc.export.limits import COSTS, dataset_zone, limits_metadata, step_costs
 
 INFO_KEYS: tuple[str, ...] = (
     "safety",

@@ -14,7 +14,7 @@ from safe_bc.tasks.carracing.perturb import PerturbationConfig
 
 minari = pytest.importorskip("minari")
 
-from safe_bc.data.minari_export import INFO_KEYS, export_minari  # noqa: E402
+from safe_bc.export.minari_export import INFO_KEYS, export_minari  # noqa: E402
 
 
 def _collect(root: Path, config: CollectConfig, episodes: int) -> Path:

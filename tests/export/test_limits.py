@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from safe_bc.data.export_limits import COSTS, limits_metadata, step_costs
+from safe_bc.export.limits import COSTS, limits_metadata, step_costs
 from safe_bc.selection import CriticalZone
 
 
