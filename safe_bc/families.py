@@ -9,12 +9,11 @@ its selection's committed table, read then.
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from pathlib import Path
 from typing import Any
 
 from safe_bc.compare import Comparison
+from safe_bc.config_file import run_config_file
 from safe_bc.protocol import Fresh, resolve
 
 FAMILY = "COMPARISONS"
@@ -35,22 +34,7 @@ def family(path: str | Path) -> dict[str, Entry]:
         ValueError: not a Python file, no ``COMPARISONS``, an entry of another type, an address
             used twice, or an invalid spec (one line naming the file).
     """
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"no comparison file {path}")
-    if path.suffix != ".py":
-        raise ValueError(f"{path}: a comparison file is a Python file (tune_jobs/compare/*.py)")
-    module_name = f"safe_bc_compare_{path.stem}"
-    spec = importlib.util.spec_from_file_location(module_name, path)
-    if spec is None or spec.loader is None:
-        raise ValueError(f"{path}: cannot be imported")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[module_name] = module
-    try:
-        spec.loader.exec_module(module)
-    except Exception as e:
-        sys.modules.pop(module_name, None)
-        raise ValueError(f"{path}: {type(e).__name__}: {e}") from None
+    module = run_config_file(path, "comparison file", "tune_jobs/compare/*.py", "safe_bc_compare_")
     declared = getattr(module, FAMILY, None)
     if isinstance(declared, tuple):
         keys = [c.name for c in declared if isinstance(c, Entry)]

@@ -23,10 +23,8 @@ and hands the finished table to :func:`choose_winner`.
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import math
-import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, fields, is_dataclass, replace
 from pathlib import Path
@@ -35,6 +33,7 @@ from typing import Any, Literal
 import numpy as np
 import pandas as pd
 
+from safe_bc.config_file import run_config_file
 from safe_bc.envs.config import EnvConfig
 from safe_bc.handover import HandoverConfig
 from safe_bc.improve.config import ImproveConfig
@@ -786,36 +785,7 @@ def load_study(path: str | Path) -> StudySpec:
             failed (a syntax error, a failing import, a bad value): one line naming the file,
             the line and the problem.
     """
-    import traceback
-
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"no study file {path}")
-    if path.suffix != ".py":
-        raise ValueError(f"{path}: a study file is a Python file (tune_jobs/<name>.py)")
-    module_name = f"safe_bc_tune_jobs_{path.stem}"
-    spec = importlib.util.spec_from_file_location(module_name, path)
-    if spec is None or spec.loader is None:
-        raise ValueError(f"{path}: cannot be imported")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[module_name] = module  # picklable by reference while the study runs
-    try:
-        spec.loader.exec_module(module)
-    except SyntaxError as e:  # also raised for a syntax error in a module the file imports
-        sys.modules.pop(module_name, None)
-        inside = Path(e.filename or path).resolve() == path.resolve()
-        where = f"{path}:{e.lineno}" if inside else f"{path}: {e.filename}:{e.lineno}"
-        raise ValueError(f"{where}: {type(e).__name__}: {e.msg}") from None
-    except Exception as e:
-        sys.modules.pop(module_name, None)
-        here = [
-            f
-            for f in traceback.extract_tb(e.__traceback__)
-            if Path(f.filename).resolve() == path.resolve()
-        ]
-        line = f":{here[-1].lineno}" if here else ""
-        problem = " ".join(str(e).split()) or "(no message)"
-        raise ValueError(f"{path}{line}: {type(e).__name__}: {problem}") from None
+    module = run_config_file(path, "study file", "tune_jobs/<name>.py", "safe_bc_tune_jobs_")
     study = getattr(module, "STUDY", None)
     if not isinstance(study, StudySpec):
         got = "nothing" if study is None else type(study).__name__
