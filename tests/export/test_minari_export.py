@@ -111,31 +111,13 @@ def test_cli_rehab_round_trip(rehab_demos, tmp_path, monkeypatch, capsys) -> Non
     from safe_bc.cli import main
 
     monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path / "minari"))
-    code = main(
-        [
-            "export",
-            "--demos",
-            str(rehab_demos),
-            "--format",
-            "minari",
-            "--dataset-id",
-            "safe_bc/rehab-guideline-v0",
-        ]
-    )
+    argv = ["export", "--demos", str(rehab_demos), "--format", "minari"]
+    argv += ["--dataset-id", "safe_bc/rehab-guideline-v0"]
+    code = main(argv)
     assert code == 0, capsys.readouterr().err
     assert "safe_bc/rehab-guideline-v0" in capsys.readouterr().out
     _check_round_trip(rehab_demos, "safe_bc/rehab-guideline-v0")
-    code = main(
-        [
-            "export",
-            "--demos",
-            str(rehab_demos),
-            "--format",
-            "minari",
-            "--dataset-id",
-            "safe_bc/rehab-guideline-v0",
-        ]
-    )
+    code = main(argv)
     assert code == 2 and "already exists" in capsys.readouterr().err
 
 
