@@ -62,8 +62,9 @@ TOLERANCE = 0.10
 def _raster(factor: int, max_steps: int | None = None):
     import gymnasium as gym
 
+    from safe_bc.tasks import register_envs
+    from safe_bc.tasks.carracing import RASTER_CARRACING_ID
     from safe_bc.tasks.carracing.wrapper import CarRacingSafety
-    from safe_bc.tasks.factory import RASTER_CARRACING_ID, register_envs
 
     register_envs()
     kw = {} if max_steps is None else {"max_episode_steps": max_steps}

@@ -19,7 +19,7 @@ it in :class:`safe_bc.tasks.carracing.wrapper.CarRacingSafety`, or use
 (no torch, no Ray).
 """
 
-from safe_bc.tasks.factory import ENV_IDS, register_envs
+from safe_bc.tasks import ENV_IDS, register_envs
 from safe_bc.version import __version__
 
 register_envs()

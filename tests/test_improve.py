@@ -202,7 +202,7 @@ def test_carracing_zoom_in_frames_carry_no_cost() -> None:
     from safe_bc.envs import EnvConfig
     from safe_bc.improve import LocalEnvs
     from safe_bc.tasks import make_env
-    from safe_bc.tasks.factory import CARRACING_ID
+    from safe_bc.tasks.carracing import CARRACING_ID
 
     group, plain = LocalEnvs(CARRACING_ID, 1), make_env(EnvConfig(CARRACING_ID))
     try:

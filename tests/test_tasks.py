@@ -110,7 +110,8 @@ def test_observed_costs_have_the_envs_shape(task):
 def test_env_ids_are_registered_with_their_env_modules():
     import gymnasium as gym
 
-    from safe_bc.tasks.factory import REHAB_ID, register_envs
+    from safe_bc.tasks import register_envs
+    from safe_bc.tasks.rehab import REHAB_ID
     from safe_bc.tasks.rehab.env import DEFAULT_N_SESSIONS, RehabPathwayEnv
 
     register_envs()

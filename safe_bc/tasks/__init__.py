@@ -11,6 +11,7 @@ perturbations) is re-exported for tasks defined elsewhere.
 
 from safe_bc.tasks import carracing, rehab
 from safe_bc.tasks.carracing.perturb import PerturbationConfig
+from safe_bc.tasks.factory import make_env
 from safe_bc.tasks.lookup import (
     action_bounds,
     check_frames_renderer,
@@ -42,8 +43,9 @@ from safe_bc.tasks.registry import (
 register_task(carracing.SPEC)
 register_task(rehab.SPEC)
 
-# built from the registry as it stands with the built-ins in it (ENV_IDS lists theirs)
-from safe_bc.tasks.factory import ENV_IDS, make_env  # noqa: E402
+ENV_IDS: tuple[str, ...] = tuple(g.id for spec in TASKS.values() for g in spec.gym_envs)
+"""The gymnasium ids that ``import safe_bc`` (or :func:`register_envs`) registers: the
+built-in tasks' (a task registered later registers its own)."""
 
 __all__ = [
     "DEFAULT_TASK",

@@ -4,36 +4,9 @@ from __future__ import annotations
 
 import gymnasium as gym
 
-from safe_bc.envs.config import EnvConfig, EnvId, Renderer
+from safe_bc.envs.config import EnvConfig
 from safe_bc.envs.info import InfoContract
-
-# the built-in tasks' ids, kept importable from here (their home is the task folders)
-from safe_bc.tasks.carracing import (
-    CARRACING_ID,
-    CARRACING_IDS,
-    FAST_CARRACING_ID,
-    RASTER_CARRACING_ID,
-)
-from safe_bc.tasks.registry import TASKS, register_envs, spec_of
-from safe_bc.tasks.rehab import REHAB_ID
-
-ENV_IDS: tuple[str, ...] = tuple(g.id for spec in TASKS.values() for g in spec.gym_envs)
-"""The gymnasium ids that ``import safe_bc`` (or :func:`register_envs`) registers: the
-built-in tasks' (a task registered later registers its own)."""
-
-__all__ = [
-    "CARRACING_ID",
-    "CARRACING_IDS",
-    "ENV_IDS",
-    "FAST_CARRACING_ID",
-    "RASTER_CARRACING_ID",
-    "REHAB_ID",
-    "EnvConfig",
-    "EnvId",
-    "Renderer",
-    "make_env",
-    "register_envs",
-]
+from safe_bc.tasks.registry import register_envs, spec_of
 
 
 def make_env(config: EnvConfig | None = None) -> gym.Env:

@@ -12,7 +12,9 @@ import numpy as np
 import pytest
 
 import safe_bc
-from safe_bc.tasks.factory import ENV_IDS, FAST_CARRACING_ID, RASTER_CARRACING_ID, REHAB_ID
+from safe_bc.tasks import ENV_IDS
+from safe_bc.tasks.carracing import FAST_CARRACING_ID, RASTER_CARRACING_ID
+from safe_bc.tasks.rehab import REHAB_ID
 
 
 def test_import_registers_every_id() -> None:

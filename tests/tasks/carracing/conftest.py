@@ -12,11 +12,11 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
+from safe_bc.tasks.carracing import CARRACING_ID
 from safe_bc.tasks.carracing.costs import pixel_distances
 from safe_bc.tasks.carracing.expert import CarRacingExpert
 from safe_bc.tasks.carracing.geometry import lateral_offset
 from safe_bc.tasks.carracing.perturb import Perturbation, PerturbationConfig
-from safe_bc.tasks.factory import CARRACING_ID
 
 
 @dataclass(frozen=True)

@@ -18,10 +18,9 @@ import pytest
 
 from safe_bc.envs import EnvConfig
 from safe_bc.tasks import make_env
-from safe_bc.tasks.carracing import costs
+from safe_bc.tasks.carracing import RASTER_CARRACING_ID, costs
 from safe_bc.tasks.carracing.costs import pixel_distances
 from safe_bc.tasks.carracing.raster_render import RasterCarRacing
-from safe_bc.tasks.factory import RASTER_CARRACING_ID
 from tests.tasks.carracing.raster_reference import (
     REFERENCE_RASTER_ID,
     make_reference_env,

@@ -8,8 +8,8 @@ import pytest
 
 from safe_bc.envs import EnvConfig
 from safe_bc.tasks import make_env
+from safe_bc.tasks.carracing import RASTER_CARRACING_ID
 from safe_bc.tasks.carracing.raster_render import RasterCarRacing
-from safe_bc.tasks.factory import RASTER_CARRACING_ID
 
 STEPS = 90  # the zoom-in ends at step 50; the rest is scored
 

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from safe_bc.policy import Policy
-from safe_bc.tasks.factory import REHAB_ID, register_envs
+from safe_bc.tasks import register_envs
+from safe_bc.tasks.rehab import REHAB_ID
 from safe_bc.tasks.rehab.env import (
     DEFAULT_N_SESSIONS,
     OBS_INDEX,
