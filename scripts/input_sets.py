@@ -19,13 +19,35 @@ from safe_bc.report import markdown_table
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "results" / "checks" / "input_sets.md"
-REHAB_LIMITS = (0.77, 0.8, 2.14)
-"""d_s of the rehab task's default collection (150 guideline programmes), rounded to 0.01."""
-REHAB_SAFETY_MEAN = 0.265884
-"""The safety mean of the rehab task's default collection (``safe-bc collect --env rehab``), to
-six digits: how a table that records no limits names it."""
-DEFAULT_LIMITS = (42.15, 51.55, 42.13)
-"""d_s of the committed default CarRacing set (``results/demos/summary.json``), to 0.01."""
+REHAB_CARD = Path("results/rehab/recommender/recommender.json")
+"""The rehab recommender's card: it records the rehab task's default collection (150
+guideline programmes, ``safe-bc collect --env rehab``) by digest and limits."""
+
+
+def rounded_limits(values: Any) -> tuple[float, ...]:
+    """``d_s`` per dimension rounded to 0.01: how the ledger matches limits across tables."""
+    return tuple(round(float(x), 2) for x in values)
+
+
+def described_sets(root: Path = ROOT) -> list[tuple[Path, dict[str, Any], tuple[float, ...]]]:
+    """Each described CarRacing set: its ``results/demos/**/summary.json``, the summary and its
+    limits (:func:`rounded_limits`)."""
+    out = []
+    for path in sorted((root / "results" / "demos").rglob("summary.json")):
+        summary = json.loads(path.read_text())
+        out.append((path, summary, rounded_limits(v["d_s"] for v in summary["limits"].values())))
+    return out
+
+
+def rehab_card(root: Path = ROOT) -> dict[str, Any]:
+    """The rehab recommender's card (:data:`REHAB_CARD`)."""
+    return json.loads((root / REHAB_CARD).read_text())
+
+
+REHAB_LIMITS = rounded_limits(rehab_card()["limits"].values())
+"""d_s of the rehab task's default collection, as its recommender's card records them."""
+DEFAULT_LIMITS = next(lim for p, _, lim in described_sets() if p.parent == ROOT / "results/demos")
+"""d_s of the committed default CarRacing set (``results/demos/summary.json``)."""
 STANDS: dict[str, str] = {
     "results/ablation/renderer": "by design: it compares the exact renderer's pipeline "
     "(its demonstrations among them) with the raster one; the pipeline tables collect both "
@@ -53,7 +75,7 @@ def limits_in(meta: dict[str, Any]) -> tuple[float, ...] | None:
     for key in ("cost_limits", "limits", "thresholds"):
         value = meta.get(key)
         if isinstance(value, list) and value and all(isinstance(x, int | float) for x in value):
-            return tuple(round(float(x), 2) for x in value)
+            return rounded_limits(value)
     return None
 
 
@@ -89,13 +111,22 @@ def safety_mean_in(meta: dict[str, Any]) -> float | None:
 
 
 def sets_by_safety_mean(root: Path = ROOT) -> dict[float, tuple[float, ...]]:
-    """Safety mean (six digits) -> limits of each described CarRacing set and of the rehab
-    task's default set: a table that records only the mean is placed with its set."""
-    means = {REHAB_SAFETY_MEAN: REHAB_LIMITS}
-    for path in sorted((root / "results" / "demos").rglob("summary.json")):
-        summary = json.loads(path.read_text())
-        limits = tuple(round(float(v["d_s"]), 2) for v in summary["limits"].values())
-        means[round(float(summary["safety_mean"]), 6)] = limits
+    """Safety mean (six digits) -> limits of each described CarRacing set (its summary's) and
+    of the rehab task's default set where its card is committed (the mean the committed tables
+    that name its digest record): a table that records only the mean is placed with its set."""
+    means = {
+        round(float(summary["safety_mean"]), 6): lim for _, summary, lim in described_sets(root)
+    }
+    if not (root / REHAB_CARD).is_file():
+        return means
+    card = rehab_card(root)
+    for path in sorted((root / "results").rglob("*.parquet")):
+        meta = table_meta(path)
+        demos = (meta.get("inputs") or {}).get("demos") or []
+        digests = [d.get("digest") if isinstance(d, dict) else d for d in demos]
+        mean = meta.get("demo_safety_mean")
+        if digests == [card["demos"]["digest"]] and isinstance(mean, int | float):
+            means[round(float(mean), 6)] = rounded_limits(card["limits"].values())
     return means
 
 
@@ -103,10 +134,9 @@ def described_set(limits: Any, root: Path = ROOT) -> dict[str, Any]:
     """The described CarRacing set (``results/demos/**/summary.json``) whose ``d_s`` are
     ``limits`` to 0.01: its digest and summary file, for a table made before digests were
     recorded (``{}``: none matches)."""
-    want = tuple(round(float(x), 2) for x in limits or ())
-    for path in sorted((root / "results" / "demos").rglob("summary.json")):
-        summary = json.loads(path.read_text())
-        if tuple(round(float(v["d_s"]), 2) for v in summary["limits"].values()) == want:
+    want = rounded_limits(limits or ())
+    for path, summary, found in described_sets(root):
+        if found == want:
             where = path.relative_to(root).as_posix()
             return {"digest": summary.get("digest"), "identified_by": f"its d_s, as {where}"}
     return {}
@@ -117,9 +147,7 @@ def set_names(root: Path = ROOT) -> dict[tuple[float, ...], str]:
     (``results/demos/**/summary.json``, named by its renderer, the command that collects it
     and its content digest) and the rehab task's default set."""
     names = {REHAB_LIMITS: "the rehab task's default set"}
-    for path in sorted((root / "results" / "demos").rglob("summary.json")):
-        summary = json.loads(path.read_text())
-        limits = tuple(round(float(v["d_s"]), 2) for v in summary["limits"].values())
+    for path, summary, limits in described_sets(root):
         renderer = summary["dataset"].get("renderer", "")
         where = path.relative_to(root).as_posix()
         default = path.parent == root / "results" / "demos"

@@ -15,22 +15,28 @@ from typing import Any
 
 import pyarrow.parquet as pq
 
-from scripts.input_sets import REHAB_LIMITS, ROOT, described_set
+from scripts.input_sets import (
+    REHAB_CARD,
+    REHAB_LIMITS,
+    ROOT,
+    described_set,
+    rehab_card,
+    rounded_limits,
+)
 
 KEY = b"safe_bc"
 
 
 def rehab_set(root: Path = ROOT) -> dict[str, Any]:
     """The rehab task's default set: the digest its committed recommender card records."""
-    card = json.loads((root / "results/rehab/recommender/recommender.json").read_text())
-    return {"digest": card["demos"]["digest"], "identified_by": "its d_s, as the rehab "
-            "recommender's card (results/rehab/recommender/recommender.json)"}  # fmt: skip
+    where = f"its d_s, as the rehab recommender's card ({REHAB_CARD})"
+    return {"digest": rehab_card(root)["demos"]["digest"], "identified_by": where}
 
 
 def inputs_for(thresholds: Any, root: Path = ROOT) -> dict[str, Any]:
     """The ``inputs`` record of an evaluation whose stamp records ``thresholds`` (``{}``: no
     known set has those d_s)."""
-    limits = tuple(round(float(x), 2) for x in thresholds)
+    limits = rounded_limits(thresholds)
     found = rehab_set(root) if limits == REHAB_LIMITS else described_set(limits, root)
     return {"demos": [found]} if found else {}
 
