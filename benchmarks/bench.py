@@ -50,6 +50,7 @@ CASES: tuple[str, ...] = (
     "study",
     "final",
     "improve",
+    "selfimprove",
 )
 """Benchmark cases, in the order they run."""
 
@@ -119,6 +120,11 @@ class Sizes:
     improve_steps: int = 150
     """Lockstep steps of the improvement rollout's 4 CarRacing envs, per variant and
     repetition."""
+    selfimprove_tracks: int = 2
+    """Training tracks of the ``selfimprove`` case's round (each run unperturbed and once per
+    CarRacing push: 6 runs a track)."""
+    selfimprove_steps: int = 200
+    """``max_steps`` of every run of the ``selfimprove`` case."""
     stream_episodes: tuple[int, ...] = (5, 100)
     """Dataset sizes (episodes) of the ``stream`` case: the source's episodes recoded (new
     episode ids and env seeds) into a temporary store, as many as each entry says."""
@@ -159,6 +165,8 @@ QUICK = Sizes(
     study_batches=10,
     final_episodes=1,
     improve_steps=20,
+    selfimprove_tracks=1,
+    selfimprove_steps=20,
     stream_episodes=(1, 3),
     stream_batches=3,
     stream_source="",
@@ -1322,6 +1330,78 @@ def bench_improve(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]
     ]
 
 
+SELFIMPROVE_ENVS = 8
+"""The lockstep width the ``selfimprove`` case times (``SelfImproveConfig.lockstep_envs``)."""
+
+
+def bench_selfimprove(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
+    """CPU seconds of a self-imitation round's rollouts (training runs, then as many
+    validation episodes as tracks): one env at a time (the path before lockstep rollouts)
+    against :data:`SELFIMPROVE_ENVS` envs in lockstep with one-row forward passes (the same
+    runs bit for bit) and with one batched forward pass, side by side in one process. CPU
+    time (``time.process_time``, one torch thread), so a loaded machine moves it less."""
+    from dataclasses import replace
+
+    import torch
+
+    from safe_bc.selfimprove.config import LOOP_PUSHES
+    from safe_bc.selfimprove.rollout import ExploreJob, ValidateJob, explore_track
+    from safe_bc.tasks import make_env, task_defaults
+
+    torch.set_num_threads(1)
+    spec = task_defaults("carracing")
+    source = _untrained_source(seed)
+    limits = (42.0, 51.0, 42.0)
+    bounds = tuple(np.asarray(b, np.float32) for b in spec.action_bounds)
+    base = ExploreJob(
+        spec.env, source, LOOP_PUSHES["carracing"], bounds, limits, backoff_eps=2.0,
+        max_steps=sizes.selfimprove_steps, rng_seed=seed,
+    )  # fmt: skip
+    val = ValidateJob(spec.env, source, limits, 2.0, max_steps=sizes.selfimprove_steps)
+    seeds = [seed + i for i in range(sizes.selfimprove_tracks)]
+    n = SELFIMPROVE_ENVS
+
+    def one_env() -> None:
+        env = make_env(spec.env)
+        agent = source.build()
+        [explore_track(env, agent, base, s) for s in seeds]
+        env.close()
+        val.run(seeds)
+
+    variants: dict[str, Callable[[], Any]] = {
+        "one env at a time": one_env,
+        f"{n} envs lockstep, one-row forwards": lambda: (
+            replace(base, lockstep_envs=n).run(seeds),
+            replace(val, lockstep_envs=n).run(seeds),
+        ),
+        f"{n} envs lockstep, batched forward": lambda: (
+            replace(base, lockstep_envs=n, forward="batched").run(seeds),
+            replace(val, lockstep_envs=n, forward="batched").run(seeds),
+        ),
+    }
+    cpu: dict[str, list[float]] = {name: [] for name in variants}
+    for rep in range(repeats):
+        for name in _order(list(variants), rep):
+            t0 = time.process_time()
+            variants[name]()
+            cpu[name].append(time.process_time() - t0)
+    runs = len(seeds) * (1 + len(base.pushes)) + len(seeds)
+    note = (
+        f"{len(seeds)} CarRacing tracks x (1 + {len(base.pushes)} pushes) runs and "
+        f"{len(seeds)} validation episodes of at most {sizes.selfimprove_steps} steps "
+        f"({runs} episodes), an untrained default BC net, one torch thread; CPU seconds "
+        "(env builds included); ratio: CPU time against one env at a time (lower is faster)"
+    )
+    first, *rest = list(variants)
+    return [
+        _self_row("selfimprove", first, cpu[first], "CPU s", note),
+        *(
+            _row("selfimprove", v, cpu[v], "CPU s", (first, cpu[first]), note, paired=True)
+            for v in rest
+        ),
+    ]
+
+
 # ---------------------------------------------------------------------------- running cases
 
 _BENCHES: dict[str, Callable[[Sizes, int, int], list[dict[str, Any]]]] = {
@@ -1333,6 +1413,7 @@ _BENCHES: dict[str, Callable[[Sizes, int, int], list[dict[str, Any]]]] = {
     "study": bench_study,
     "final": bench_final,
     "improve": bench_improve,
+    "selfimprove": bench_selfimprove,
 }
 
 

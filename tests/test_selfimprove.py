@@ -515,3 +515,105 @@ def test_a_tasks_record_carries_its_self_imitation_defaults() -> None:
         task_of.cache_clear()
     with pytest.raises(ValueError, match="no self-imitation defaults"):
         SelfImproveConfig().for_task("rehab_twin")
+
+
+# --- lockstep rollouts ----------------------------------------------------------------------
+
+
+def _same_tracks(a: list, b: list) -> bool:
+    """Two lists of TrackResults equal in every field and every kept row, bit for bit."""
+    from dataclasses import fields
+
+    for x, y in zip(a, b, strict=True):
+        for f in fields(x):
+            u, v = getattr(x, f.name), getattr(y, f.name)
+            if f.name == "pieces":
+                if len(u) != len(v):
+                    return False
+                for p, q in zip(u, v, strict=True):
+                    if (p.seed, p.push) != (q.seed, q.push):
+                        return False
+                    for name in ("steps", "trained", "observations", "actions", "costs"):
+                        if not np.array_equal(getattr(p, name), getattr(q, name)):
+                            return False
+            elif not np.array_equal(np.asarray(u), np.asarray(v), equal_nan=True):
+                return False
+    return True
+
+
+def _explore_job(task: str, source, limits, **kw):
+    from safe_bc.selfimprove.rollout import ExploreJob
+    from safe_bc.tasks import task_defaults
+
+    spec = task_defaults(task)
+    bounds = tuple(np.asarray(b, np.float32) for b in spec.action_bounds)
+    return ExploreJob(spec.env, source, limits=limits, action_bounds=bounds, **kw)
+
+
+@pytest.mark.parametrize("under_handover, bar", [(False, "agent"), (True, "expert")])
+def test_lockstep_runs_are_the_one_env_runs_bit_for_bit(
+    rehab_agent, rehab_demos, under_handover, bar
+) -> None:
+    """Rehab: every track's reference, pushed and expert runs, stepped 3 at a time with
+    one-row forward passes, give the one-env TrackResults exactly (kept rows included), with
+    the expert's bar, the best 2 runs kept and, in one case, the handover."""
+    from dataclasses import replace
+
+    from safe_bc.collection import build_expert, stored_expert_config
+    from safe_bc.data.store import load_demonstrations
+    from safe_bc.evaluation import NetSource
+    from safe_bc.experiment import select_for
+    from safe_bc.selfimprove.rollout import explore_track
+    from safe_bc.tasks import make_env, task_defaults
+
+    model, cfg = rehab_agent
+    spec = task_defaults("rehab")
+    expert_cfg = stored_expert_config(rehab_demos)
+    limits = select_for(load_demonstrations(rehab_demos), cfg.selection).thresholds
+    job = _explore_job(
+        "rehab", NetSource.from_model(model, cfg.bc), tuple(float(x) for x in limits),
+        pushes=("0+0.15", "1+0.15", "0-0.15"), keep_against=bar, keep_best=2,
+        expert=expert_cfg, handover=spec.handover if under_handover else None,
+        dims=spec.safety_dims, backoff_eps=0.05,
+    )  # fmt: skip
+    seeds = [11, 12, 13, 14, 15, 16]
+    env = make_env(spec.env)
+    agent = job.agent.build()
+    one = [explore_track(env, agent, job, s, build_expert(expert_cfg)) for s in seeds]
+    env.close()
+    pooled = replace(job, lockstep_envs=3).run(seeds)
+    assert _same_tracks(one, pooled)
+    assert any(t.pieces for t in one)  # the rule kept rows to compare
+    again = replace(job, lockstep_envs=3, forward="batched")
+    assert _same_tracks(again.run(seeds), again.run(seeds))
+
+
+def test_car_lockstep_runs_are_the_one_env_runs_bit_for_bit(tiny_demos) -> None:
+    """CarRacing frames, 100-step runs, 3 pushes that release the brake (a 10-batch agent
+    brakes), on 2 tracks with 10-step windows kept: 3 envs in lockstep with one-row forward
+    passes give the one-env runs' outcomes and kept frames exactly."""
+    from dataclasses import replace
+
+    from safe_bc.bc.config import BCConfig, TrainConfig
+    from safe_bc.data.store import load_demonstrations
+    from safe_bc.evaluation import NetSource
+    from safe_bc.experiment import train_run
+    from safe_bc.run_config import RunConfig
+    from safe_bc.selection import SelectionConfig
+    from safe_bc.selfimprove.rollout import explore_track
+    from safe_bc.tasks import make_env, task_defaults
+
+    cfg = RunConfig(SelectionConfig(alpha=0.5), BCConfig(train=TrainConfig(batches=10)))
+    result, _ = train_run(load_demonstrations(tiny_demos), cfg)
+    job = _explore_job(
+        "carracing", NetSource.from_model(result.model, cfg.bc), (1e3, 1e3, 1e3),
+        pushes=("2*0", "1+0.5,2*0", "0+0.3,2*0"), max_steps=100, backoff_eps=2.0,
+        unit="segment", segment_steps=10,
+    )  # fmt: skip
+    seeds = [5, 6]
+    env = make_env(task_defaults("carracing").env)
+    one = [explore_track(env, job.agent.build(), job, s) for s in seeds]
+    env.close()
+    pooled = replace(job, lockstep_envs=3).run(seeds)
+    assert _same_tracks(one, pooled)
+    assert sum(len(t.pieces) for t in one) > 0  # frames were kept and compared

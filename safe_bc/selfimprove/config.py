@@ -13,6 +13,9 @@ from safe_bc.handover import HandoverConfig
 KeepUnit = Literal["episode", "segment"]
 KeptIn = Literal["rest", "zone", "critical"]
 KeepAgainst = Literal["agent", "expert"]
+Forward = Literal["rows", "batched"]
+"""How lockstep runs reach the agent's net: the values of ``safe_bc.policy.LockstepForward``
+(named here so that this module stays stdlib only)."""
 
 FORMAT = "safe_bc.selfimprove/2"
 """Run-folder format (2: rounds and the start's validation record their env steps)."""
@@ -149,6 +152,15 @@ class SelfImproveConfig:
     agent alone."""
     workers: int = 0
     """Rollout actors (Ray); 0 rolls out in this process. Results do not depend on it."""
+    lockstep_envs: int = 8
+    """Envs each rollout process steps its runs in together (training runs and validation
+    episodes, one ``act_slots`` call per step; ``benchmarks/bench.py``'s self-imitation round
+    row measures it). With ``lockstep_forward="rows"`` results do not depend on it."""
+    lockstep_forward: Forward = "rows"
+    """``"rows"``: the net computes each lockstep run's row on its own, so every run is the
+    one-env run bit for bit on any CPU; ``"batched"``: one forward pass over the running runs
+    (faster per step; the same runs again for the same seeds and ``lockstep_envs`` on one
+    machine type, not the one-env runs: ``safe_bc.policy.LockstepForward``)."""
     seed: int = 0
     """Picks the rollout tracks; the study stage sets it to the training seed."""
 
@@ -188,6 +200,13 @@ class SelfImproveConfig:
             raise ValueError(f"keep_best must be >= 1 or None, got {self.keep_best}")
         if self.handover is not None and not isinstance(self.handover, HandoverConfig):
             raise ValueError(f"handover must be a HandoverConfig or None, got {self.handover!r}")
+        if self.lockstep_forward not in get_args(Forward):
+            raise ValueError(
+                f"lockstep_forward must be one of {get_args(Forward)}, "
+                f"got {self.lockstep_forward!r}"
+            )
+        if int(self.lockstep_envs) < 1:
+            raise ValueError(f"lockstep_envs must be >= 1, got {self.lockstep_envs}")
         if self.workers < 0 or self.seed < 0:
             raise ValueError(f"workers and seed must be >= 0, got {self.workers}, {self.seed}")
 
@@ -222,6 +241,8 @@ class SelfImproveConfig:
         identity names only the options it uses."""
         out = self.to_dict()
         out.pop("workers")
+        if self.lockstep_forward == "rows":  # the one-env runs whatever the pool's width
+            out.pop("lockstep_envs")
         for name, neutral in UNSET_OMITTED.items():
             if out[name] == neutral:
                 out.pop(name)
@@ -233,6 +254,7 @@ UNSET_OMITTED: dict[str, Any] = {
     "keep_against": "agent",
     "keep_best": None,
     "handover": None,
+    "lockstep_forward": "rows",
 }
 """The options a run's identity names only when set (their neutral values: the start's alpha,
-the agent's own run as the bar, every kept run, no handover)."""
+the agent's own run as the bar, every kept run, no handover, the one-env runs' rounding)."""

@@ -12,7 +12,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from safe_bc.policy import Policy
+from safe_bc.policy import BatchPolicy, LockstepForward, Policy
 from safe_bc.queries.logic import context_rows
 from safe_bc.rollout import run_episode
 from safe_bc.selfimprove.config import KeepUnit, parse_push
@@ -180,19 +180,36 @@ class ExploreJob:
     """A :class:`safe_bc.handover.HandoverConfig` the runs drive under (``None``: none)."""
     dims: tuple[str, ...] = ()
     """The task's safety dimensions (the handover's ``hold_on`` names them)."""
+    lockstep_envs: int = 1
+    """Envs the runs are stepped in together (:func:`explore_tracks`); 1: one at a time."""
+    forward: LockstepForward = "rows"
+    """How the agent's net sees the lockstep runs (:data:`safe_bc.policy.LockstepForward`):
+    ``"rows"`` gives the one-env runs bit for bit; ``"batched"`` is faster and may round
+    differently."""
 
     def run(self, seeds: Sequence[int]) -> list[TrackResult]:
-        """:func:`explore_track` of every track in this process (one env, one agent)."""
+        """Every track in this process: :func:`explore_tracks` over ``lockstep_envs`` envs
+        (a net agent), else :func:`explore_track` one track at a time."""
         from safe_bc.collection import build_expert
         from safe_bc.tasks import make_env
 
-        env = make_env(self.env)
+        agent = self.agent.build()
+        make_expert = None if self.expert is None else (lambda: build_expert(self.expert))
+        n = max(1, min(int(self.lockstep_envs), len(seeds) * max(1, len(self.pushes))))
+        envs = [make_env(self.env) for _ in range(n if isinstance(agent, BatchPolicy) else 1)]
         try:
-            agent = self.agent.build()
-            expert = None if self.expert is None else build_expert(self.expert)
-            return [explore_track(env, agent, self, s, expert) for s in seeds]
+            if isinstance(agent, BatchPolicy):
+                return explore_tracks(envs, agent, self, seeds, make_expert)
+            expert = None if make_expert is None else make_expert()
+            return [explore_track(envs[0], agent, self, s, expert) for s in seeds]
         finally:
-            env.close()
+            for env in envs:
+                env.close()
+
+    def episode_rng(self, seed: int, k: int) -> np.random.Generator:
+        """The generator of run ``k`` on track ``seed`` (0: unperturbed, ``1..P``: the pushes,
+        ``P + 1``: the expert's own run)."""
+        return np.random.default_rng([self.rng_seed, int(seed), k])
 
     def driver(self, agent: Policy, expert: Policy | None, push: Push | None) -> Any:
         """The policy a run executes: the agent with the push behind its back-off zone, or,
@@ -216,74 +233,149 @@ def explore_track(
     """Roll ``agent`` out on track ``seed`` unperturbed, then once per push (under the job's
     handover to ``expert`` where it has one), and ``expert`` alone when the job's bar is the
     expert's run; cut out the kept steps of each pushed run (labels: the executed actions),
-    at most ``keep_best`` runs of them."""
-    limits = np.asarray(job.limits, np.float64)
+    at most ``keep_best`` runs of them. One env, one run at a time: the reference
+    :func:`explore_tracks` is bit for bit equal to with ``forward="rows"``."""
     low, high = (np.asarray(b, np.float32) for b in job.action_bounds)
-
-    def rng(k: int) -> np.random.Generator:
-        return np.random.default_rng([job.rng_seed, int(seed), k])
-
     ref = run_episode(
-        env, job.driver(agent, expert, None), seed, rng(0), keep_observations=False,
-        max_steps=job.max_steps,
+        env, job.driver(agent, expert, None), seed, job.episode_rng(seed, 0),
+        keep_observations=False, max_steps=job.max_steps,
     )  # fmt: skip
-    bar, expert_reward, expert_steps = ref.rewards, float("nan"), 0
-    if job.keep_against == "expert":
-        if expert is None:
-            raise ValueError("keep_against='expert' needs the expert's config")
-        ex = run_episode(
-            env, expert, seed, rng(len(job.pushes) + 1), keep_observations=False,
-            max_steps=job.max_steps,
-        )  # fmt: skip
-        bar, expert_reward, expert_steps = ex.rewards, ex.total_reward, len(ex.rewards)
-    rewards, beyond, lengths, deferred, runs = [], [], [], [], []
+    bar = _bar(env, job, seed, ref, expert)
+    pushed = []
     for i, spec in enumerate(job.pushes):
         push = Push(spec, low, high)
         driver = job.driver(agent, expert, push)
-        ep = run_episode(env, driver, seed, rng(i + 1), perturbation=push, max_steps=job.max_steps)
-        scored = ~ep.warmup
-        keep = kept_steps(
-            job.unit, ep.costs, scored, ep.final_cost, ep.rewards, bar, limits,
-            job.margin, job.segment_steps,
+        ep = run_episode(
+            env, driver, seed, job.episode_rng(seed, i + 1), perturbation=push,
+            max_steps=job.max_steps,
         )  # fmt: skip
-        runs.append((ep, np.flatnonzero(keep & scored)))
-        rewards.append(ep.total_reward)
-        beyond.append(int((np.any(ep.costs > limits, axis=1) & scored).sum()))
-        lengths.append(len(ep.rewards))
-        if isinstance(driver, HandoverWatch):
-            deferred.append(driver.deferred_steps)
-    chosen = best_runs([len(t) > 0 for _, t in runs], rewards, job.keep_best)
-    kept, pieces = [], []
-    for i, (ep, trained) in enumerate(runs):
-        if not chosen[i]:
-            trained = trained[:0]
-        kept.append(len(trained))
-        if len(trained):
-            rows = context_rows(trained, job.frame_stack)
-            pieces.append(
-                KeptPiece(
-                    seed=int(seed),
-                    push=i,
-                    steps=rows,
-                    trained=np.isin(rows, trained),
-                    observations=ep.observations[rows].copy(),
-                    actions=ep.executed_actions[rows].astype(np.float32),
-                    costs=ep.costs[rows].astype(np.float32),
-                )
-            )
+        pushed.append(_pushed_run(job, seed, i, ep, bar[0], driver))
+    return _track_result(job, seed, ref, bar, pushed)
+
+
+def explore_tracks(
+    envs: Sequence[gym.Env],
+    agent: Any,
+    job: ExploreJob,
+    seeds: Sequence[int],
+    make_expert: Any = None,
+) -> list[TrackResult]:
+    """:func:`explore_track` of every track, the unperturbed runs and then the pushed runs of
+    all ``seeds`` stepped in lockstep over ``envs`` with one ``act_slots`` call per step
+    (:func:`safe_bc.selfimprove.lockstep.run_pool`, ``job.forward``); the expert's own runs
+    one at a time in ``envs[0]``. Each pushed run's kept rows are cut out as it ends (its
+    frames are not held). ``make_expert() -> Policy``: a fresh expert per run (the handover's,
+    the bar's)."""
+    from safe_bc.selfimprove.lockstep import GivenAction, Run, run_pool
+
+    low, high = (np.asarray(b, np.float32) for b in job.action_bounds)
+
+    def run(seed: int, k: int, push: Push | None) -> Run:
+        given = GivenAction()
+        expert = None if make_expert is None else make_expert()
+        driver = job.driver(given, expert, push)  # type: ignore[arg-type]
+        return Run(int(seed), driver, given, job.episode_rng(seed, k), push, push is not None)
+
+    kw = {"max_steps": job.max_steps, "forward": job.forward}
+    refs = run_pool(envs, agent, [run(s, 0, None) for s in seeds], **kw)
+    expert = None if make_expert is None else make_expert()
+    bars = [_bar(envs[0], job, s, ref, expert) for s, ref in zip(seeds, refs, strict=True)]
+    runs = [run(s, i + 1, Push(p, low, high)) for s in seeds for i, p in enumerate(job.pushes)]
+    pushed: list[Any] = [None] * len(runs)
+    n = len(job.pushes)
+
+    def done(j: int, ep: Any) -> None:
+        t, i = divmod(j, n)
+        pushed[j] = _pushed_run(job, seeds[t], i, ep, bars[t][0], runs[j].driver)
+
+    run_pool(envs, agent, runs, on_done=done, **kw)
+    return [
+        _track_result(job, s, ref, bar, pushed[t * n : (t + 1) * n])
+        for t, (s, ref, bar) in enumerate(zip(seeds, refs, bars, strict=True))
+    ]
+
+
+def _bar(
+    env: gym.Env, job: ExploreJob, seed: int, ref: Any, expert: Policy | None
+) -> tuple[np.ndarray, float, int]:
+    """What a pushed run on track ``seed`` must beat (per-step rewards), the expert's reward
+    and env steps there (NaN and 0 when the bar is the agent's unperturbed run ``ref``)."""
+    if job.keep_against != "expert":
+        return ref.rewards, float("nan"), 0
+    if expert is None:
+        raise ValueError("keep_against='expert' needs the expert's config")
+    ex = run_episode(
+        env, expert, seed, job.episode_rng(seed, len(job.pushes) + 1), keep_observations=False,
+        max_steps=job.max_steps,
+    )  # fmt: skip
+    return ex.rewards, ex.total_reward, len(ex.rewards)
+
+
+@dataclass(frozen=True)
+class _Pushed:
+    """One pushed run's outcome and its kept rows (before ``keep_best``)."""
+
+    reward: float
+    beyond: int
+    steps: int
+    deferred: int | None
+    piece: KeptPiece | None
+
+
+def _pushed_run(
+    job: ExploreJob, seed: int, i: int, ep: Any, bar: np.ndarray, driver: Any
+) -> _Pushed:
+    """Push ``i``'s run ``ep`` on track ``seed``: its outcome and, where the keep unit keeps
+    steps, those rows with their context (frames copied, so the episode may go)."""
+    limits = np.asarray(job.limits, np.float64)
+    scored = ~ep.warmup
+    keep = kept_steps(
+        job.unit, ep.costs, scored, ep.final_cost, ep.rewards, bar, limits, job.margin,
+        job.segment_steps,
+    )  # fmt: skip
+    trained = np.flatnonzero(keep & scored)
+    piece = None
+    if len(trained):
+        rows = context_rows(trained, job.frame_stack)
+        piece = KeptPiece(
+            seed=int(seed),
+            push=i,
+            steps=rows,
+            trained=np.isin(rows, trained),
+            observations=ep.observations[rows].copy(),
+            actions=ep.executed_actions[rows].astype(np.float32),
+            costs=ep.costs[rows].astype(np.float32),
+        )
+    deferred = driver.deferred_steps if isinstance(driver, HandoverWatch) else None
+    beyond = int((np.any(ep.costs > limits, axis=1) & scored).sum())
+    return _Pushed(ep.total_reward, beyond, len(ep.rewards), deferred, piece)
+
+
+def _track_result(
+    job: ExploreJob, seed: int, ref: Any, bar: tuple[np.ndarray, float, int], pushed: list
+) -> TrackResult:
+    """Track ``seed``'s :class:`TrackResult` from its reference run, bar and pushed runs (at
+    most ``keep_best`` of them keep their rows)."""
+    limits = np.asarray(job.limits, np.float64)
+    rewards = [p.reward for p in pushed]
+    chosen = best_runs([p.piece is not None for p in pushed], rewards, job.keep_best)
+    pieces = [p.piece for p, c in zip(pushed, chosen, strict=True) if c and p.piece is not None]
     return TrackResult(
         seed=int(seed),
         reference_reward=ref.total_reward,
         reference_beyond=int((np.any(ref.costs > limits, axis=1) & ~ref.warmup).sum()),
         push_rewards=tuple(rewards),
-        push_beyond=tuple(beyond),
-        push_kept=tuple(kept),
+        push_beyond=tuple(p.beyond for p in pushed),
+        push_kept=tuple(
+            int(p.piece.trained.sum()) if c and p.piece is not None else 0
+            for p, c in zip(pushed, chosen, strict=True)
+        ),
         reference_steps=len(ref.rewards),
-        push_steps=tuple(lengths),
+        push_steps=tuple(p.steps for p in pushed),
         pieces=tuple(pieces),
-        expert_reward=expert_reward,
-        push_deferred=tuple(deferred),
-        expert_steps=expert_steps,
+        expert_reward=bar[1],
+        push_deferred=tuple(p.deferred for p in pushed if p.deferred is not None),
+        expert_steps=bar[2],
     )
 
 
@@ -303,21 +395,27 @@ class ValidateJob:
     """The selection's combine."""
     max_steps: int | None = None
     """Step cap per episode."""
+    lockstep_envs: int = 1
+    """Envs the validation episodes are stepped in together (a net agent)."""
+    forward: LockstepForward = "rows"
+    """The evaluation's ``lockstep_forward`` (``"rows"``: the one-env episodes bit for bit)."""
 
     def run(self, seeds: Sequence[int]) -> list[dict[str, float]]:
         """The evaluation's metrics of every validation track
-        (:func:`safe_bc.evaluation.evaluate_episodes`)."""
+        (:func:`safe_bc.evaluation.evaluate_episodes`, ``lockstep_envs`` at a time)."""
         from safe_bc.evaluation import evaluate_episodes
         from safe_bc.tasks import make_env
 
-        env = make_env(self.env)
+        envs = [make_env(self.env) for _ in range(max(1, min(self.lockstep_envs, len(seeds))))]
         try:
             rows = evaluate_episodes(
-                [env], self.agent.build(), seeds, thresholds=np.asarray(self.limits),
+                envs, self.agent.build(), seeds, thresholds=np.asarray(self.limits),
                 eps=self.eps, max_steps=self.max_steps, combine=self.combine,  # type: ignore[arg-type]
+                lockstep_forward=self.forward,
             )  # fmt: skip
         finally:
-            env.close()
+            for env in envs:
+                env.close()
         return [metrics for metrics, _ in rows]
 
 

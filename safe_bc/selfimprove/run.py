@@ -345,7 +345,10 @@ class _Progress:
 def _validate(plan: SelfImprovePlan, rollouts: RolloutFn, agent: NetSource) -> dict[str, float]:
     """``agent`` on the validation tracks: episodes beyond ``d_s``, reward, env steps."""
     sel, config = plan.selection, plan.config
-    job = ValidateJob(plan.env_config, agent, plan.limits, sel.eps, sel.combine, config.max_steps)
+    job = ValidateJob(
+        plan.env_config, agent, plan.limits, sel.eps, sel.combine, config.max_steps,
+        config.lockstep_envs, config.lockstep_forward,
+    )  # fmt: skip
     rows = rollouts(job, plan.validation_seeds)
     return {
         "validation_beyond": int(sum(m["any_violation"] > 0 for m in rows)),
@@ -462,7 +465,7 @@ def _self_round(
             plan.env_config, state.agent, plan.pushes, plan.action_bounds, plan.limits,
             config.keep_unit, config.segment_steps, config.margin, plan.backoff,
             plan.frame_stack, config.max_steps, config.seed, config.keep_against,
-            config.keep_best, *expert_side,
+            config.keep_best, *expert_side, config.lockstep_envs, config.lockstep_forward,
         )  # fmt: skip
         tracks = rollouts(job, track_seeds(config.seed, r, config.tracks_per_round))
         save_round(here / KEPT, tracks)
