@@ -143,12 +143,13 @@ def train(job: TrainJob, *, task_eps: bool = False) -> Done:
 def _train(job: TrainJob, task_eps: bool) -> Done:
     from safe_bc.bc.checkpoint import checkpoint_unit
     from safe_bc.curves import EVENTS_GLOB
-    from safe_bc.data.store import load_demonstrations, read_meta
+    from safe_bc.data.store import check_dataset, load_demonstrations, read_meta
     from safe_bc.demos import hold_out_episodes
     from safe_bc.experiment import save_curve, save_selection, train_run
     from safe_bc.provenance import run_metadata
     from safe_bc.tasks import dataset_action_bounds, task_defaults, task_of
 
+    check_dataset(job.demos)  # a damaged set is refused before its frame cache is made
     demos = load_demonstrations(job.demos)
     env_id = read_meta(job.demos).env_id
     run = job.run
@@ -467,6 +468,7 @@ def tune(job: TuneJob, *, command: str = "") -> Done:
 
         argv = shlex.split(command) or ["safe-bc", "tune", str(job.study)]
         return Done("", code=tune_replicates(spec, job.replicates, fresh=job.fresh, argv=argv))
+    _check_study_demos(spec)
     # one study run per results folder and per (local) Tune experiment folder
     storage, experiment = experiment_location(spec)
     outputs = [(spec.results / spec.name, "--results")]
@@ -479,6 +481,16 @@ def tune(job: TuneJob, *, command: str = "") -> Done:
 
         raise StudyStopped(outcome.stopped_by)
     return Done(format_outcome(outcome, spec.params), outcome, outcome.exit_code)
+
+
+def _check_study_demos(spec: Any) -> None:
+    """A study's demonstrations, where they exist, are a whole set (checked before Ray
+    starts); a missing folder is collected by the study."""
+    from safe_bc.data.store import check_dataset
+
+    for path in (spec.demos, spec.validation_demos):
+        if path is not None and Path(path).exists():
+            check_dataset(Path(path), "--demos" if path == spec.demos else "--validation-demos")
 
 
 def query(job: QueryJob) -> Done:
@@ -606,8 +618,10 @@ def _selfimitate(job: ImproveJob) -> Done:
 
 def export(job: ExportJob) -> Done:
     """Export a demonstration set as a Minari dataset (the value)."""
+    from safe_bc.data.store import check_dataset
     from safe_bc.export.minari_export import MinariNotInstalledError, export_minari
 
+    check_dataset(job.demos)  # before Minari writes its namespace files
     try:
         dataset = export_minari(job.demos, job.dataset_id, author=job.author)
     except MinariNotInstalledError as e:

@@ -126,6 +126,12 @@ class EvaluateJob:
     quiet: bool = False
     """No progress bar."""
 
+    def __post_init__(self) -> None:
+        if self.max_steps is not None and self.max_steps < 1:
+            raise ValueError(f"--max-steps must be >= 1 or omitted, got {self.max_steps}")
+        if self.episodes < 1:
+            raise ValueError(f"--episodes must be >= 1, got {self.episodes}")
+
 
 @dataclass(frozen=True)
 class ExpertJob:
@@ -384,6 +390,11 @@ class RenderJob:
     """No progress bars (they show on a terminal only)."""
 
     def __post_init__(self) -> None:
+        suffixes = (".png",) if self.paths else (".mp4", ".gif")
+        if Path(self.out).suffix.lower() not in suffixes:
+            raise ValueError(f"--out must end in {' or '.join(suffixes)}, got {str(self.out)!r}")
+        if not Path(self.out).parent.is_dir():
+            raise ValueError(f"--out {self.out}: its folder {Path(self.out).parent} does not exist")
         if self.seed < 0:
             raise ValueError(f"seed must be >= 0, got {self.seed}")
         if self.max_steps is not None and self.max_steps < 1:

@@ -377,3 +377,83 @@ def test_a_checkpoint_naming_another_task_is_refused_before_evaluation(
     code = main(["improve", "--start", str(ckpt), "--out", str(tmp_path / "run"), "--quiet"])
     _one_line(capsys, code, "improve", "names CarRacing-v3")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["ckpt"]
+
+
+# ------------------------------------------- bad input: one line, exit 2, nothing made
+def _damaged(root: Path) -> Path:
+    """A two-episode set whose first episode's bytes changed after it was sealed."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    _dataset(root)
+    path = root / "episodes" / "episode-00000.parquet"
+    table = pq.read_table(path)
+    rows = table.column("reward").to_pylist()
+    rows[0] += 1.0
+    column = table.schema.get_field_index("reward")
+    pq.write_table(table.set_column(column, "reward", pa.array(rows, pa.float32())), path)
+    return path
+
+
+@pytest.mark.parametrize(
+    ("argv", "parts"),
+    [
+        (["render", "--expert", "--out", "{tmp}/x.txt"], ("--out must end in .mp4 or .gif",)),
+        (["render", "--expert", "--out", "{tmp}/nowhere/r.mp4"], ("does not exist",)),
+        (["evaluate", "--checkpoint", "{tmp}/c", "--out", "{tmp}/o", "--max-steps", "-5"],
+         ("--max-steps must be >= 1",)),
+    ],
+)  # fmt: skip
+def test_bad_flags_are_one_line_and_make_nothing(
+    tmp_path: Path, capsys: pytest.CaptureFixture, argv: list[str], parts: tuple[str, ...]
+) -> None:
+    code = main([a.format(tmp=tmp_path) for a in argv])
+    _one_line(capsys, code, argv[0], *parts)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_damaged_set_is_refused_before_train_makes_its_frame_cache(
+    tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    path = _damaged(tmp_path / "demos")
+    code = main(["train", "--demos", str(tmp_path / "demos"), "--out", str(tmp_path / "ckpt")])
+    _one_line(capsys, code, "train", str(path), "damaged")
+    assert sorted(p.name for p in (tmp_path / "demos").iterdir()) == ["dataset.json", "episodes"]
+    assert not (tmp_path / "ckpt").exists()
+
+
+def test_a_damaged_set_is_refused_before_export_writes(
+    tmp_path: Path, capsys: pytest.CaptureFixture, monkeypatch
+) -> None:
+    pytest.importorskip("minari")
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path / "minari"))
+    path = _damaged(tmp_path / "demos")
+    code = main(
+        ["export", "--dataset-id", "safe_bc/damaged-v0", "--demos", str(tmp_path / "demos")]
+    )
+    _one_line(capsys, code, "export", str(path), "damaged")
+    assert not (tmp_path / "minari").exists()
+
+
+@pytest.mark.parametrize("damage", ["file", "damaged"])
+def test_tune_refuses_bad_demonstrations_before_ray_starts(
+    tmp_path: Path, capsys: pytest.CaptureFixture, monkeypatch, damage: str
+) -> None:
+    import ray
+
+    def no_ray(*_: object, **__: object) -> None:
+        raise AssertionError("Ray started before the demonstrations were checked")
+
+    monkeypatch.setattr(ray, "init", no_ray)
+    if damage == "file":
+        demos = tmp_path / "demos.txt"
+        demos.write_text("not a set")
+        parts: tuple[str, ...] = ("--demos", "a file, not a demonstration set folder")
+    else:
+        demos = tmp_path / "demos"
+        parts = (str(_damaged(demos)), "damaged")
+    study = Path(__file__).resolve().parents[1] / "tune_jobs" / "smoke.py"
+    argv = ["tune", str(study), "--demos", str(demos), "--results", str(tmp_path / "r")]
+    code = main(argv)
+    _one_line(capsys, code, "tune", *parts)
+    assert not (tmp_path / "r").exists()

@@ -260,6 +260,18 @@ def read_meta(root: Path) -> DatasetMeta:
     return DatasetMeta.from_json(meta_path.read_text(), source=str(meta_path))
 
 
+def check_dataset(root: Path, flag: str = "--demos") -> None:
+    """Refuse, in one line naming the folder or the file, a path that is no demonstration set
+    or a set with a damaged episode (every episode's schema, identity and column checksums
+    read), before a command writes or starts anything; ``flag``: the option that named it."""
+    root = Path(root)
+    if root.exists() and not root.is_dir():
+        raise DatasetError(f"{flag} {root}: a file, not a demonstration set folder")
+    meta = read_meta(root)
+    for episode_id in completed_episodes(root, meta):
+        _read_episode_table(episode_path(root, episode_id))
+
+
 def write_episode(root: Path, episode: Episode, meta: DatasetMeta) -> Path:
     """Encode ``episode`` and write it atomically to its file under ``root``."""
     if episode.safety_dims != meta.safety_dims:
