@@ -55,6 +55,10 @@ Beyond the expert, planned before it runs (docs/improvement.md):
   clinic's handovers (the task's: the safest action in the zone; the cap), the same rule
   (no selection programme beyond d_s, under 10% of sessions deferred, the highest paired
   lower bound). Writes ``results/selfimprove/rehab_lagrangian/``.
+* ``beyond_narrow_selection_rehab_lagrangian`` (block 73), ``beyond_narrow_rehab_lagrangian``
+  (74), ``beyond_narrow_replication_rehab_lagrangian`` (75): the third, written after the
+  second's cap rows stayed inside d_s with the gain but acted on 13.5-17.9% of sessions: the
+  same agents (its runs) under the cap at half and a quarter of its widths, the same rule.
 
 Run: ``safe-bc compare tune_jobs/compare/selfimprove.py --name NAME`` (resumes per method,
 seed and round; ``--cell METHOD:SEED --workers 0`` runs one cell in its own process). Writes
@@ -401,6 +405,64 @@ BEYOND_CLINIC = {
 """The clinic's second design: a selection table and two fresh ones."""
 
 
+def scaled_cap(k: float) -> HandoverConfig:
+    """The cap handover (:data:`REHAB_HANDOVER`) with every width times ``k``."""
+    widths = tuple((d, round(w * k, 6)) for d, w in REHAB_HANDOVER.widths)
+    return replace(REHAB_HANDOVER, width=round(REHAB_HANDOVER.width * k, 6), widths=widths)
+
+
+NARROW_CAPS = {"cap_half": ("the cap at half width", scaled_cap(0.5)),
+               "cap_quarter": ("the cap at a quarter width", scaled_cap(0.25))}  # fmt: skip
+"""The clinic's third design's handovers: the second design's cap kept its patients inside
+d_s with the gain (+2.21 [1.75, 2.68], +1.68 [1.15, 2.34]) but acted on 13.5-17.9% of
+sessions, above the 10% bound; narrower zones act less."""
+CLINIC_NARROW = replace(
+    CLINIC_LAGRANGIAN,
+    name="beyond_narrow_selection",
+    methods=(
+        *CLINIC_LAGRANGIAN.methods[:4],
+        *(
+            Handover(f"{n}+{tag}", n, h, label=f"{label} + {shown}")
+            for n, (label, _) in LAGRANGIAN_ROWS.items()
+            for tag, (shown, h) in NARROW_CAPS.items()
+        ),
+    ),
+    eval_seed=73,
+    title="Beyond the guideline: the Lagrangian improvers under narrower caps, selection patients",
+    note="Selection patients (block 73): the rule picks one handover row for the fresh blocks "
+    "(74, 75). Reward: capacity gain (points). "
+    f"{PAIRED_EXPERT.format('guideline', 'patients')} sessions deferred: the mean share of "
+    "a programme's sessions on which the handover acted.",
+)
+"""The clinic's third design, written after the second: the same agents (its runs), the cap
+handover at half and a quarter of its widths."""
+NARROW_RULE = Rule(
+    "best_lower_bound", {"burden": 0.10, "beyond": "total_any_violating_session"},
+    note="no selection programme beyond d_s, under 10% of sessions deferred, the highest "
+         "lower bound of the paired reward interval against the guideline",
+)  # fmt: skip
+NARROW_NOTE = (
+    "the handover row was chosen on 3 x 200 selection patients of block 73 by the rule fixed "
+    "before the run ({rule}). Reward: capacity gain (points). "
+    f"{PAIRED_EXPERT.format('guideline', 'patients')}"
+)
+BEYOND_CLINIC_NARROW = {
+    "beyond_narrow_selection_rehab_lagrangian": CLINIC_NARROW,
+    "beyond_narrow_rehab_lagrangian": Fresh(
+        "beyond_narrow", "beyond_narrow_selection_rehab_lagrangian", (NARROW_RULE,),
+        eval_seed=74, title="Beyond the guideline: narrower caps, fresh patients (rehab)",
+        note=f"Fresh patients (block 74); {NARROW_NOTE}",
+    ),
+    "beyond_narrow_replication_rehab_lagrangian": Fresh(
+        "beyond_narrow_replication", "beyond_narrow_selection_rehab_lagrangian",
+        (NARROW_RULE,), eval_seed=75,
+        title="Beyond the guideline: narrower caps, a second fresh block (rehab)",
+        note=f"Fresh patients (block 75, nothing changed but the patients); {NARROW_NOTE}",
+    ),
+}  # fmt: skip
+"""The clinic's third design: a selection table and two fresh ones."""
+
+
 def vs_expert(c: Comparison) -> Comparison:
     """``c`` paired against the expert: its runs and stored evaluations, no figure."""
     return replace(c, name="compare_vs_expert", runs="compare", reference="expert", figures=())
@@ -437,4 +499,5 @@ COMPARISONS = {
     ),
     **BEYOND,
     **BEYOND_CLINIC,
+    **BEYOND_CLINIC_NARROW,
 }
