@@ -59,6 +59,10 @@ Beyond the expert, planned before it runs (docs/improvement.md):
   (74), ``beyond_narrow_replication_rehab_lagrangian`` (75): the third, written after the
   second's cap rows stayed inside d_s with the gain but acted on 13.5-17.9% of sessions: the
   same agents (its runs) under the cap at half and a quarter of its widths, the same rule.
+* ``beyond_mid_selection_rehab_lagrangian`` (block 76), ``beyond_mid_rehab_lagrangian`` (77),
+  ``beyond_mid_replication_rehab_lagrangian`` (78): the fourth, written after the third's
+  narrow caps acted on 0.3-1.6% of sessions but let 2-5 of 600 programmes beyond d_s: the cap
+  at 0.75 and 0.6 of its widths.
 
 Run: ``safe-bc compare tune_jobs/compare/selfimprove.py --name NAME`` (resumes per method,
 seed and round; ``--cell METHOD:SEED --workers 0`` runs one cell in its own process). Writes
@@ -67,6 +71,7 @@ seed and round; ``--cell METHOD:SEED --workers 0`` runs one cell in its own proc
 
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 from safe_bc.compare import Agent, Comparison, Expert, FromStart, Handover, Row
 from safe_bc.handover import HandoverConfig
@@ -411,56 +416,80 @@ def scaled_cap(k: float) -> HandoverConfig:
     return replace(REHAB_HANDOVER, width=round(REHAB_HANDOVER.width * k, 6), widths=widths)
 
 
-NARROW_CAPS = {"cap_half": ("the cap at half width", scaled_cap(0.5)),
-               "cap_quarter": ("the cap at a quarter width", scaled_cap(0.25))}  # fmt: skip
-"""The clinic's third design's handovers: the second design's cap kept its patients inside
-d_s with the gain (+2.21 [1.75, 2.68], +1.68 [1.15, 2.34]) but acted on 13.5-17.9% of
-sessions, above the 10% bound; narrower zones act less."""
-CLINIC_NARROW = replace(
-    CLINIC_LAGRANGIAN,
-    name="beyond_narrow_selection",
-    methods=(
-        *CLINIC_LAGRANGIAN.methods[:4],
-        *(
-            Handover(f"{n}+{tag}", n, h, label=f"{label} + {shown}")
-            for n, (label, _) in LAGRANGIAN_ROWS.items()
-            for tag, (shown, h) in NARROW_CAPS.items()
-        ),
-    ),
-    eval_seed=73,
-    title="Beyond the guideline: the Lagrangian improvers under narrower caps, selection patients",
-    note="Selection patients (block 73): the rule picks one handover row for the fresh blocks "
-    "(74, 75). Reward: capacity gain (points). "
-    f"{PAIRED_EXPERT.format('guideline', 'patients')} sessions deferred: the mean share of "
-    "a programme's sessions on which the handover acted.",
-)
-"""The clinic's third design, written after the second: the same agents (its runs), the cap
-handover at half and a quarter of its widths."""
 NARROW_RULE = Rule(
     "best_lower_bound", {"burden": 0.10, "beyond": "total_any_violating_session"},
     note="no selection programme beyond d_s, under 10% of sessions deferred, the highest "
          "lower bound of the paired reward interval against the guideline",
 )  # fmt: skip
-NARROW_NOTE = (
-    "the handover row was chosen on 3 x 200 selection patients of block 73 by the rule fixed "
-    "before the run ({rule}). Reward: capacity gain (points). "
-    f"{PAIRED_EXPERT.format('guideline', 'patients')}"
-)
-BEYOND_CLINIC_NARROW = {
-    "beyond_narrow_selection_rehab_lagrangian": CLINIC_NARROW,
-    "beyond_narrow_rehab_lagrangian": Fresh(
-        "beyond_narrow", "beyond_narrow_selection_rehab_lagrangian", (NARROW_RULE,),
-        eval_seed=74, title="Beyond the guideline: narrower caps, fresh patients (rehab)",
-        note=f"Fresh patients (block 74); {NARROW_NOTE}",
-    ),
-    "beyond_narrow_replication_rehab_lagrangian": Fresh(
-        "beyond_narrow_replication", "beyond_narrow_selection_rehab_lagrangian",
-        (NARROW_RULE,), eval_seed=75,
-        title="Beyond the guideline: narrower caps, a second fresh block (rehab)",
-        note=f"Fresh patients (block 75, nothing changed but the patients); {NARROW_NOTE}",
-    ),
-}  # fmt: skip
-"""The clinic's third design: a selection table and two fresh ones."""
+"""The clinic's rule (the first design's)."""
+
+
+def cap_design(
+    stem: str, caps: dict[str, tuple[str, HandoverConfig]], blocks: tuple[int, int, int], what: str
+) -> dict[str, Any]:
+    """A clinic design over the second design's agents (its runs): each Lagrangian improver
+    alone and under each of ``caps``; a selection table ``<stem>_selection`` on ``blocks[0]``
+    and fresh tables ``<stem>``, ``<stem>_replication`` on the other two, the rows the
+    clinic's rule picks (``what``: the handovers, for the titles)."""
+    selection, first, second = blocks
+    rule_note = (
+        f"the handover row was chosen on 3 x 200 selection patients of block {selection} by the "
+        "rule fixed before the run ({rule}). Reward: capacity gain (points). "
+        f"{PAIRED_EXPERT.format('guideline', 'patients')}"
+    )
+    follows = f"{stem}_selection_rehab_lagrangian"
+    return {
+        follows: replace(
+            CLINIC_LAGRANGIAN,
+            name=f"{stem}_selection",
+            methods=(
+                *CLINIC_LAGRANGIAN.methods[:4],
+                *(
+                    Handover(f"{n}+{tag}", n, h, label=f"{label} + {shown}")
+                    for n, (label, _) in LAGRANGIAN_ROWS.items()
+                    for tag, (shown, h) in caps.items()
+                ),
+            ),
+            eval_seed=selection,
+            title=f"Beyond the guideline: the Lagrangian improvers under {what}, selection "
+            "patients",
+            note=f"Selection patients (block {selection}): the rule picks one handover row for "
+            f"the fresh blocks ({first}, {second}). Reward: capacity gain (points). "
+            f"{PAIRED_EXPERT.format('guideline', 'patients')} sessions deferred: the mean "
+            "share of a programme's sessions on which the handover acted.",
+        ),
+        f"{stem}_rehab_lagrangian": Fresh(
+            stem, follows, (NARROW_RULE,), eval_seed=first,
+            title=f"Beyond the guideline: {what}, fresh patients (rehab)",
+            note=f"Fresh patients (block {first}); {rule_note}",
+        ),
+        f"{stem}_replication_rehab_lagrangian": Fresh(
+            f"{stem}_replication", follows, (NARROW_RULE,), eval_seed=second,
+            title=f"Beyond the guideline: {what}, a second fresh block (rehab)",
+            note=f"Fresh patients (block {second}, nothing changed but the patients); "
+            f"{rule_note}",
+        ),
+    }  # fmt: skip
+
+
+BEYOND_CLINIC_NARROW = cap_design(
+    "beyond_narrow",
+    {"cap_half": ("the cap at half width", scaled_cap(0.5)),
+     "cap_quarter": ("the cap at a quarter width", scaled_cap(0.25))},
+    (73, 74, 75), "narrower caps",
+)  # fmt: skip
+"""The clinic's third design, written after the second's cap rows stayed inside d_s with the
+gain (+2.21 [1.75, 2.68], +1.68 [1.15, 2.34]) but acted on 13.5-17.9% of sessions, above the
+10% bound: the cap at half and a quarter of its widths."""
+BEYOND_CLINIC_MID = cap_design(
+    "beyond_mid",
+    {"cap_075": ("the cap at 0.75 width", scaled_cap(0.75)),
+     "cap_060": ("the cap at 0.6 width", scaled_cap(0.6))},
+    (76, 77, 78), "caps between",
+)  # fmt: skip
+"""The clinic's fourth design, written after the third: the half and quarter caps acted on
+0.3-1.6% of sessions but let 2-5 of 600 selection programmes beyond d_s, the full cap 0 with
+13.5-17.9%; widths between them, 0.75 and 0.6 of the cap's."""
 
 
 def vs_expert(c: Comparison) -> Comparison:
@@ -500,4 +529,5 @@ COMPARISONS = {
     **BEYOND,
     **BEYOND_CLINIC,
     **BEYOND_CLINIC_NARROW,
+    **BEYOND_CLINIC_MID,
 }
