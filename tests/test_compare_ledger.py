@@ -30,8 +30,7 @@ def tables() -> dict[tuple[str, str], Comparison]:
 
 
 def test_no_two_tables_share_tracks_undeclared(tables) -> None:
-    # 50 made, 6 planned (beyond the expert in the car: blocks 24-26; the clinic's caps between:
-    # blocks 76-78)
+    # 53 made, 3 planned (beyond the expert in the car: blocks 24-26)
     assert len(tables) == 56
     assert track_clashes(tables.values(), track_seeds) == []
 
