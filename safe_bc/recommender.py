@@ -33,9 +33,12 @@ from safe_bc.handover import HandoverConfig
 
 FORMAT = "safe_bc.recommender/2"
 """The format :func:`write_recommender` writes: the card carries :data:`CARD_SHA256`."""
-FORMATS = ("safe_bc.recommender/1", FORMAT)
-"""The formats :func:`read_card` accepts; ``/1`` (the same card, written before it was sealed)
-loads without the seal."""
+UNSEALED = "safe_bc.recommender/1"
+"""The format of a card written before cards were sealed: its d_s, handover and digest could be
+edited unseen, so :func:`read_card` refuses it unless asked (``allow_unsealed=True``); every
+committed card is sealed (``/2``)."""
+FORMATS = (UNSEALED, FORMAT)
+"""The formats a card may carry."""
 CARD_SHA256 = "card_sha256"
 """Key in the card of the SHA-256 of the rest of it (sorted, compact JSON): an edited d_s,
 handover or digest is refused."""
@@ -62,7 +65,10 @@ class Recommendation:
     (with a capping handover: the expert's action bounded the agent's there) or ``"safest"``."""
     margin: dict[str, float]
     """Per safety dimension, ``d_s - c_s`` of the current state: how far the state is inside
-    the expert's worst cost (negative: beyond ``d_s``)."""
+    the expert's worst cost (negative: beyond ``d_s``); NaN on a step that is not scored."""
+    scored: bool = True
+    """Whether the state is scored against ``d_s`` (False on the env's warm-up steps, e.g.
+    CarRacing's zoom-in frames, whose costs no crossing count reads)."""
 
 
 @dataclass(frozen=True)
@@ -99,10 +105,19 @@ class RecommenderCard:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
 
     @classmethod
-    def from_dict(cls, data: Mapping[str, Any], where: Any = CARD) -> RecommenderCard:
-        """Inverse of :meth:`to_dict`; one-line error for a foreign or damaged card."""
+    def from_dict(
+        cls, data: Mapping[str, Any], where: Any = CARD, *, allow_unsealed: bool = False
+    ) -> RecommenderCard:
+        """Inverse of :meth:`to_dict`; one-line error for a foreign, damaged or (unless
+        ``allow_unsealed``) unsealed card."""
         if data.get("format") not in FORMATS:
             raise RecommenderError(f"{where}: not a safe_bc recommender card ({FORMAT})")
+        if data.get("format") == UNSEALED and not allow_unsealed:
+            raise RecommenderError(
+                f"{where}: an unsealed card ({UNSEALED}: its d_s and handover are not checked); "
+                "write the recommender again from its study, or load it with "
+                "allow_unsealed=True"
+            )
         if data.get("format") == FORMAT and data.get(CARD_SHA256) != card_digest(data):
             raise RecommenderError(
                 f"{where}: the card does not match its {CARD_SHA256} (edited or damaged); "
@@ -157,8 +172,9 @@ def card_digest(data: Mapping[str, Any]) -> str:
     return hashlib.sha256(text.encode()).hexdigest()
 
 
-def read_card(path: Path) -> RecommenderCard:
-    """The card of the recommender folder ``path``."""
+def read_card(path: Path, *, allow_unsealed: bool = False) -> RecommenderCard:
+    """The card of the recommender folder ``path`` (an unsealed ``/1`` card only with
+    ``allow_unsealed``)."""
     path = Path(path)
     file = path / CARD
     if not file.exists():
@@ -167,7 +183,7 @@ def read_card(path: Path) -> RecommenderCard:
         data = json.loads(file.read_text())
     except (OSError, json.JSONDecodeError) as e:
         raise RecommenderError(f"{file}: unreadable ({e})") from None
-    return RecommenderCard.from_dict(data, file)
+    return RecommenderCard.from_dict(data, file, allow_unsealed=allow_unsealed)
 
 
 class Recommender:
@@ -209,7 +225,19 @@ class Recommender:
     def reset(
         self, env: gym.Env, rng: np.random.Generator | None = None, seed: int | None = None
     ) -> None:
-        """Start an episode (after ``env.reset``) with seed ``seed``'s agent."""
+        """Start an episode (after ``env.reset``) with seed ``seed``'s agent; an env of
+        another task than the card's is refused in one line."""
+        try:
+            dims = tuple(env.get_wrapper_attr("safety_dims"))
+        except AttributeError:
+            dims = ()
+        if dims != self.dims:
+            raise RecommenderError(
+                f"a recommender for {self.card.task!r} (safety dimensions "
+                f"{', '.join(self.dims)}) cannot act in an env measuring "
+                f"{', '.join(dims) or 'no safety dimensions'}: make the {self.card.task} env "
+                "with safe_bc.tasks.make_env"
+            )
         self._policy = self.source(seed).build()
         self._policy.reset(env, rng if rng is not None else np.random.default_rng(0))
 
@@ -224,12 +252,18 @@ class Recommender:
         flags = getattr(self._policy, "flags", None)
         actor: Actor = self._zone_actor if flags and flags[-1] else "agent"
         cost = np.asarray(info["cost"], np.float64)
-        margin = {d: float(x) for d, x in zip(self.dims, self.limits - cost, strict=True)}
-        return Recommendation(action, actor, margin)
+        scored = not bool(info.get("warmup", False))
+        gap = self.limits - cost if scored else np.full(len(self.dims), np.nan)
+        margin = {d: float(x) for d, x in zip(self.dims, gap, strict=True)}
+        return Recommendation(action, actor, margin, scored)
 
 
 def load_recommender(
-    path: str | Path, *, task: str | None = None, demos: str | Path | None = None
+    path: str | Path,
+    *,
+    task: str | None = None,
+    demos: str | Path | None = None,
+    allow_unsealed: bool = False,
 ) -> Recommender:
     """Load the recommender folder ``path`` (every weight file checked against its checksum).
 
@@ -237,6 +271,7 @@ def load_recommender(
         task: refuse it unless it was made for this task.
         demos: refuse it unless these demonstrations are the ones its ``d_s`` came from (same
             content digest).
+        allow_unsealed: load a card written before cards were sealed (:data:`UNSEALED`).
 
     Raises:
         RecommenderError: one line naming the folder and the problem.
@@ -244,7 +279,7 @@ def load_recommender(
     from safe_bc.bc import CheckpointError, load_checkpoint
 
     path = Path(path)
-    card = read_card(path)
+    card = read_card(path, allow_unsealed=allow_unsealed)
     if task is not None and task != card.task:
         raise RecommenderError(f"{path}: a recommender for {card.task!r}, not for {task!r}")
     if demos is not None:

@@ -79,11 +79,13 @@ def test_written_loaded_and_refused_for_another_task_data_or_damage(
         load_recommender(out, demos=tiny_demos)
     unsealed = {k: v for k, v in sealed.items() if k != "card_sha256"}
     (out / CARD).write_text(json.dumps({**unsealed, "format": "safe_bc.recommender/1"}))
-    assert load_recommender(out).card.seeds == [0, 1]  # a card written before the seal
+    with pytest.raises(RecommenderError, match="unsealed card"):  # a seal stripped, or never
+        load_recommender(out)
+    assert load_recommender(out, allow_unsealed=True).card.seeds == [0, 1]  # asked for
     weights = out / "seed_1" / "weights.pt"
     weights.write_bytes(weights.read_bytes()[:-7] + b"damaged")
     with pytest.raises(RecommenderError, match="agent of seed 1"):
-        load_recommender(out)
+        load_recommender(out, allow_unsealed=True)
     with pytest.raises(RecommenderError, match="no recommender here"):
         load_recommender(tmp_path / "nothing")
     (out / CARD).write_text('{"format": "other"}')
@@ -106,12 +108,16 @@ def test_step_gives_the_action_who_acted_and_the_margin(
     for _ in range(70):
         step = rec.step(obs, info, env)
         assert step.action.shape == (3,) and step.action.dtype == np.float32
-        assert step.margin == pytest.approx(
-            {
-                d: float(x)
-                for d, x in zip(rec.dims, demos.limits - np.asarray(info["cost"]), strict=True)
-            }
-        )
+        assert step.scored == (not info["warmup"])
+        if step.scored:
+            assert step.margin == pytest.approx(
+                {
+                    d: float(x)
+                    for d, x in zip(rec.dims, demos.limits - np.asarray(info["cost"]), strict=True)
+                }
+            )
+        else:  # a warm-up (zoom) state is not scored: no margin to read a crossing from
+            assert all(np.isnan(m) for m in step.margin.values())
         actors.append((step.actor, bool(info["warmup"])))
         obs, _, terminated, truncated, info = env.step(step.action)
         assert not (terminated or truncated)
@@ -124,3 +130,26 @@ def test_step_gives_the_action_who_acted_and_the_margin(
         assert "agent" in scored
     if width is None:
         assert set(scored) == {"agent"}
+
+
+def test_a_recommender_refuses_an_env_of_another_task(agents, tiny_demos: Path, tmp_path) -> None:
+    nets, demos = agents
+    write_recommender(tmp_path / "r", card_for(tiny_demos, demos, HandoverConfig(2.0)), nets)
+    rec = load_recommender(tmp_path / "r")
+    env = make_env(task_defaults("rehab").env)
+    env.reset(seed=0)
+    with pytest.raises(RecommenderError, match=r"a recommender for .carracing. .* cannot act in"):
+        rec.reset(env)
+    env.close()
+
+
+def test_every_committed_card_is_sealed() -> None:
+    """Committed recommenders load without allow_unsealed: every card is format /2 and
+    matches its seal."""
+    from safe_bc.recommender import FORMAT, read_card
+
+    root = Path(__file__).resolve().parents[1]
+    cards = sorted(root.glob("results/**/recommender/recommender.json"))
+    assert len(cards) >= 7
+    for card in cards:
+        assert read_card(card.parent).format == FORMAT, card
