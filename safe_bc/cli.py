@@ -98,8 +98,20 @@ def _one_line(box: str) -> str:
         else:
             rows.append(body)
     sections.append(" ".join(rows))
-    keep = [s for s in sections if s and not re.match(r"(Argument|For full) help", s)]
+    keep = [_short(s) for s in sections if s and not re.match(r"(Argument|For full) help", s)]
     return "; ".join(keep).replace("__tyro-dummy-inner__.", "").removeprefix("Error parsing ")
+
+
+def _short(section: str) -> str:
+    """A section of tyro's box without its help texts: the unrecognized flags alone (not the
+    values after them) and the suggested flags' names (at most 3), not their docstrings."""
+    if section.startswith("Unrecognized options:"):
+        flags = [t for t in section.split(":", 1)[1].replace(",", " ").split() if t[:1] == "-"]
+        return f"unrecognized option(s) {', '.join(flags)}" if flags else section
+    if section.startswith("Perhaps you meant"):
+        names = list(dict.fromkeys(re.findall(r"(?<![\w-])--[\w][\w.-]*", section)))
+        return f"did you mean {', '.join(names[:3])}?" if names else section
+    return section
 
 
 def _flag_of(message: str, cls: type) -> str:

@@ -134,7 +134,8 @@ def _help(command: str) -> str:
         (["--bc.train.lr", "inf"], "--bc.train.lr: lr must be a finite number > 0"),
         (["--bc.network.channels", "8", "0", "4"], "--bc.network.channels: channels[i] must"),
         (["--bc.train.batch_size", "x"], "--bc.train.batch-size"),
-        (["--no-such-flag", "1"], "Unrecognized options: --no-such-flag"),
+        (["--no-such-flag", "1"], "unrecognized option(s) --no-such-flag"),
+        (["--lr", "0.1"], "unrecognized option(s) --lr; did you mean --bc.train.lr?"),
         (["--selection.quantile", "0.9"], "--selection.quantile applies with --selection.thre"),
         (["--selection.beta", "2"], "--selection.beta applies with --selection.mode cost_weighted"),
     ],
@@ -146,6 +147,7 @@ def test_bad_train_flags_are_one_line_exit_2(
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith("safe-bc train: error: "), err
     assert message in err, err
+    assert "``" not in err and "(default:" not in err  # names, not the suggested flags' docs
 
 
 @pytest.mark.parametrize(
