@@ -525,13 +525,12 @@ def improve(job: ImproveJob) -> Done:
     self-imitation (resumable); the value is the run's result."""
     if job.method == "selfimitation":
         return _selfimitate(job)
-    from tqdm import tqdm
-
     from safe_bc.improve import LocalEnvs
     from safe_bc.improve import improve as run_improve
+    from safe_bc.progress import progress_bar
 
     config = job.config
-    bar = tqdm(total=config.iterations, desc=f"improve ({config.mode})", disable=job.quiet)
+    bar = progress_bar(show=not job.quiet, total=config.iterations, desc=f"improve ({config.mode})")
 
     def show(row: dict[str, float]) -> None:
         bar.n = int(row["iteration"])

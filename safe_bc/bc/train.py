@@ -12,7 +12,6 @@ from typing import Any
 import numpy as np
 import pandas as pd
 import torch
-from tqdm import tqdm
 
 from safe_bc.bc.checkpoint import save_checkpoint
 from safe_bc.bc.config import BCConfig, NetworkConfig, PreprocessConfig, TrainConfig
@@ -27,6 +26,7 @@ from safe_bc.bc.preprocess import (
     standardization_stats,
 )
 from safe_bc.demos import Demonstrations
+from safe_bc.progress import progress_bar
 from safe_bc.selection import BatchSampler, Selection, warn_if_improper_subset
 
 LogFn = Callable[[int, dict[str, float]], None]
@@ -349,7 +349,8 @@ def train_bc(
         window = 0.0
         start = time.perf_counter()
         paused = 0.0  # validation time, kept out of the loop's seconds
-        bar = tqdm(range(1, train_cfg.batches + 1), disable=not progress, desc="bc", unit="batch")
+        batches = range(1, train_cfg.batches + 1)
+        bar = progress_bar(show=progress, iterable=batches, desc="bc", unit="batch")
         for step in bar:
             rows = sampler.sample()
             x, y = builder.inputs(rows), builder.targets(rows)

@@ -14,7 +14,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import ray
-from tqdm.auto import tqdm
 
 from safe_bc.collection import CollectConfig, EpisodeMaker, config_dict, env_facts
 from safe_bc.data.store import (
@@ -31,6 +30,7 @@ from safe_bc.distributed.pool import run_on_actors
 from safe_bc.distributed.runtime import cpus_per_actor, ensure_ray
 from safe_bc.episode import Episode
 from safe_bc.locks import output_lock
+from safe_bc.progress import progress_bar
 from safe_bc.provenance import provenance
 from safe_bc.tasks import frames_renderer
 
@@ -127,12 +127,8 @@ def _collect(
         ensure_ray()
         collected: list[int] = []
         steps = 0
-        bar = tqdm(
-            total=config.episodes,
-            initial=len(reused),
-            desc="collect",
-            unit="ep",
-            disable=not progress,
+        bar = progress_bar(
+            show=progress, total=config.episodes, initial=len(reused), desc="collect", unit="ep"
         )
 
         def store(eid: int, episode: Episode) -> None:

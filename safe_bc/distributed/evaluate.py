@@ -15,13 +15,13 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 import pandas as pd
-from tqdm.auto import tqdm
 
 from safe_bc.distributed.runtime import cpus_per_actor, ensure_ray
 from safe_bc.envs import EnvConfig
 from safe_bc.evaluation import EvalConfig, evaluate_episodes
 from safe_bc.metrics import summarize_policies
 from safe_bc.policy import LockstepForward, Policy
+from safe_bc.progress import progress_bar
 from safe_bc.tasks import make_env
 
 PolicySource = Any
@@ -112,7 +112,7 @@ def evaluate_policies(
     tasks = [(key, chunk) for key in sources for chunk in chunks]
     ep_rows: list[dict[str, Any]] = []
     traces: list[pd.DataFrame] = []
-    bar = tqdm(total=len(sources) * len(seeds), desc="evaluate", unit="ep", disable=not progress)
+    bar = progress_bar(show=progress, total=len(sources) * len(seeds), desc="evaluate", unit="ep")
 
     def record(task: tuple[str, tuple[int, ...]], values: list[tuple[dict, dict]]) -> None:
         for seed, value in zip(task[1], values, strict=True):

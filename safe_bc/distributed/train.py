@@ -7,12 +7,12 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 import ray
-from tqdm.auto import tqdm
 
 from safe_bc.bc import TrainResult
 from safe_bc.demos import Demonstrations
 from safe_bc.distributed.runtime import cpus_per_actor, ensure_ray
 from safe_bc.experiment import RunConfig, train_run
+from safe_bc.progress import progress_bar
 from safe_bc.selection import Selection
 
 
@@ -49,7 +49,7 @@ def train_many(
     index = {ref: i for i, ref in enumerate(refs)}
     results: list[Any] = [None] * len(refs)
     pending = list(refs)
-    with tqdm(total=len(refs), desc="train", unit="agent", disable=not progress) as bar:
+    with progress_bar(show=progress, total=len(refs), desc="train", unit="agent") as bar:
         while pending:
             done, pending = ray.wait(pending, num_returns=1)
             results[index[done[0]]] = ray.get(done[0])

@@ -77,7 +77,16 @@ def test_vector_mlp_learns_with_standardization():
     assert result.losses[-1] < 0.2 * result.losses[0]
 
 
-def test_log_fn_progress_and_summary(capsys):
+def test_log_fn_progress_and_summary(monkeypatch):
+    import io
+    import sys
+
+    class Terminal(io.StringIO):
+        def isatty(self) -> bool:
+            return True
+
+    err = Terminal()
+    monkeypatch.setattr(sys, "stderr", err)  # the bar is drawn on a terminal only
     demos = frame_demos(n=60)
     cfg = small_train(batches=25)
     calls = []
@@ -91,7 +100,7 @@ def test_log_fn_progress_and_summary(capsys):
         log_fn=lambda step, m: calls.append((step, sorted(m))),
     )
     assert calls == [(s, ["loss", "samples_per_s"]) for s in (10, 20, 25)]
-    assert "loss=" in capsys.readouterr().err  # tqdm postfix
+    assert "loss=" in err.getvalue()  # tqdm postfix
     summary = result.summary()
     assert summary["final_loss"] == result.losses[-1] and result.samples_per_s > 0
     assert summary["config"]["train"]["batches"] == 25
