@@ -11,7 +11,7 @@ ARGS ?=
 DESCRIBE ?= runs/demos_describe
 STAMP := $(VENV)/.installed
 
-.PHONY: install test test-slow lint format bench tune reproduce demos expert ablation renderer clean
+.PHONY: install test test-slow lint format bench tune reproduce demos expert ablation renderer beyond-car clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -62,6 +62,20 @@ renderer: $(STAMP)
 	$(BIN)/python -m benchmarks.render_accuracy
 	for name in renderer pipeline pipeline_table1 pipeline_table1_alpha0; do \
 		$(BIN)/safe-bc compare tune_jobs/compare/renderer.py --name $$name $(ARGS) || exit 1; \
+	done
+
+# The car's beyond-the-expert design (tune_jobs/compare/selfimprove.py, docs/improvement.md):
+# its 12 self-imitation cells, JOBS at a time in processes of their own (one torch thread each;
+# a finished cell, committed, is skipped), then the selection table and the two fresh tables.
+JOBS ?= 2
+BEYOND_CELLS := $(foreach m,si_agent_bar si_expert_bar si_explore si_explore_best2,$(foreach s,0 1 2,$(m):$(s)))
+beyond-car: $(STAMP)
+	mkdir -p data
+	test -d data/demos || $(BIN)/safe-bc collect --out data/demos
+	printf '%s\n' $(BEYOND_CELLS) | OMP_NUM_THREADS=1 xargs -P $(JOBS) -I{} \
+		$(BIN)/safe-bc compare tune_jobs/compare/selfimprove.py --name beyond_selection --cell {} --workers 0
+	for name in beyond_selection beyond beyond_replication; do \
+		$(BIN)/safe-bc compare tune_jobs/compare/selfimprove.py --name $$name $(ARGS) || exit 1; \
 	done
 
 tune: $(STAMP)
