@@ -346,9 +346,8 @@ def train_bc(
 
     with torch_settings(train_cfg.num_threads):
         model, optimizer = _new_model(demos, sampler, spec, net_cfg, pre_cfg, train_cfg)
-        window = 0.0
         start = time.perf_counter()
-        paused = 0.0  # validation time, kept out of the loop's seconds
+        window, paused = 0.0, 0.0  # paused: validation time, kept out of the loop's seconds
         batches = range(1, train_cfg.batches + 1)
         bar = progress_bar(show=progress, iterable=batches, desc="bc", unit="batch")
         for step in bar:
