@@ -226,17 +226,16 @@ REHAB = Comparison(
 def beyond_selection(
     base: Comparison,
     starts: tuple[Row, ...],
-    candidates: dict[str, tuple[str, SelfImproveConfig]],
-    handover: HandoverConfig,
-    tag: str,
+    candidates: dict[str, tuple[str, Any]],
+    handovers: dict[str, tuple[str, HandoverConfig]],
     block: int,
     title: str,
     note: str,
 ) -> Comparison:
     """The beyond-the-expert selection table: ``starts`` (the expert and the start), each
-    candidate from the start, and each candidate with ``handover`` (rows ``<name>+<tag>``,
-    labelled ``<label> + <tag> handover``; ``tag`` "handover": ``<label> + handover``)."""
-    shown = "handover" if tag == "handover" else f"{tag} handover"
+    candidate (``name: (label, config)``) from the start, and each candidate under each of
+    ``handovers`` (``tag: (shown, handover)``: rows ``<name>+<tag>``, labelled
+    ``<label> + <shown>``)."""
     return replace(
         base,
         name="beyond_selection",
@@ -245,8 +244,9 @@ def beyond_selection(
             *starts,
             *(FromStart(n, "imitation", c, label=label) for n, (label, c) in candidates.items()),
             *(
-                Handover(f"{n}+{tag}", n, handover, label=f"{label} + {shown}")
+                Handover(f"{n}+{tag}", n, h, label=f"{label} + {shown}")
                 for n, (label, _) in candidates.items()
+                for tag, (shown, h) in handovers.items()
             ),
         ),
         eval_seed=block,
@@ -298,7 +298,7 @@ BEYOND = {
             "si_explore_best2": ("D: C keeping the best 2 pushed runs per track",
                                  replace(BEYOND_C, keep_best=2)),
         },
-        CORNER, "corner", 24,
+        {"corner": ("corner handover", CORNER)}, 24,
         "Beyond the expert: self-imitation candidates with the corner handover, selection "
         "tracks (CarRacing)",
         "Selection tracks (block 24): the rule picks one handover row for the fresh blocks "
@@ -325,7 +325,7 @@ BEYOND = {
             "si_explore_best2": ("D: C keeping the best 2 pushed runs per patient",
                                  replace(REHAB_C, keep_best=2)),
         },
-        REHAB_HANDOVER, "handover", 63,
+        {"handover": ("handover", REHAB_HANDOVER)}, 63,
         "Beyond the guideline: self-imitation candidates with the clinic's handover, "
         "selection patients",
         "Selection patients (block 63): the rule picks one handover row for the fresh blocks "
@@ -366,29 +366,17 @@ LAGRANGIAN_ROWS = {  # name: (label, config)
 """The improvers that beat the guideline on the improvement table (``results/improve/rehab/
 improve.md``: +1.94 [1.26, 2.64] and +1.84 [1.29, 2.41], 1 and 3 of 600 beyond d_s)."""
 CLINIC_LAGRANGIAN = replace(
-    REHAB,
-    name="beyond_selection",
-    runs="beyond",
-    methods=(
-        *REHAB.methods[:2],
-        *(FromStart(n, "imitation", c, label=label) for n, (label, c) in LAGRANGIAN_ROWS.items()),
-        *(
-            Handover(f"{n}+{tag}", n, h, label=f"{label} + {shown}")
-            for n, (label, _) in LAGRANGIAN_ROWS.items()
-            for tag, (shown, h) in CLINIC_HANDOVERS.items()
-        ),
+    beyond_selection(
+        REHAB, REHAB.methods[:2], LAGRANGIAN_ROWS, CLINIC_HANDOVERS, 70,
+        "Beyond the guideline: the Lagrangian improvers under the clinic's handovers, "
+        "selection patients",
+        "Selection patients (block 70): the rule picks one handover row for the fresh blocks "
+        "(71, 72). Reward: capacity gain (points). "
+        f"{PAIRED_EXPERT.format('guideline', 'patients')} sessions deferred: the mean share of "
+        "a programme's sessions on which the handover acted.",
     ),
     out=Path("results/selfimprove/rehab_lagrangian"),
-    eval_seed=70,
-    reference="expert",
-    figures=(("learning_curves", "beyond_selection_learning_curves.png"),),
-    title="Beyond the guideline: the Lagrangian improvers under the clinic's handovers, "
-    "selection patients",
-    note="Selection patients (block 70): the rule picks one handover row for the fresh blocks "
-    "(71, 72). Reward: capacity gain (points). "
-    f"{PAIRED_EXPERT.format('guideline', 'patients')} sessions deferred: the mean share of "
-    "a programme's sessions on which the handover acted.",
-)
+)  # fmt: skip
 """The clinic's second beyond design, written after the first (``beyond_selection_rehab``)
 showed every self-imitation candidate below the guideline: the two PPO-Lagrangian improvers
 that beat it, each alone and under each of the clinic's two handovers."""
@@ -440,23 +428,17 @@ def cap_design(
     follows = f"{stem}_selection_rehab_lagrangian"
     return {
         follows: replace(
-            CLINIC_LAGRANGIAN,
-            name=f"{stem}_selection",
-            methods=(
-                *CLINIC_LAGRANGIAN.methods[:4],
-                *(
-                    Handover(f"{n}+{tag}", n, h, label=f"{label} + {shown}")
-                    for n, (label, _) in LAGRANGIAN_ROWS.items()
-                    for tag, (shown, h) in caps.items()
-                ),
+            beyond_selection(
+                REHAB, REHAB.methods[:2], LAGRANGIAN_ROWS, caps, selection,
+                f"Beyond the guideline: the Lagrangian improvers under {what}, selection "
+                "patients",
+                f"Selection patients (block {selection}): the rule picks one handover row for "
+                f"the fresh blocks ({first}, {second}). Reward: capacity gain (points). "
+                f"{PAIRED_EXPERT.format('guideline', 'patients')} sessions deferred: the mean "
+                "share of a programme's sessions on which the handover acted.",
             ),
-            eval_seed=selection,
-            title=f"Beyond the guideline: the Lagrangian improvers under {what}, selection "
-            "patients",
-            note=f"Selection patients (block {selection}): the rule picks one handover row for "
-            f"the fresh blocks ({first}, {second}). Reward: capacity gain (points). "
-            f"{PAIRED_EXPERT.format('guideline', 'patients')} sessions deferred: the mean "
-            "share of a programme's sessions on which the handover acted.",
+            name=f"{stem}_selection",
+            out=CLINIC_LAGRANGIAN.out,
         ),
         f"{stem}_rehab_lagrangian": Fresh(
             stem, follows, (NARROW_RULE,), eval_seed=first,
