@@ -288,6 +288,12 @@ guideline: ``results/rehab/handover_cap/choice.md``)."""
 REHAB_B = replace(SELF, keep_against="expert")
 REHAB_C = replace(REHAB_B, handover=REHAB_HANDOVER)
 PAIRED_EXPERT = "Paired rows: each agent against the {} on the same {}."
+CLINIC_RULE = Rule(
+    "best_lower_bound", {"burden": 0.10, "beyond": "total_any_violating_session"},
+    note="no selection programme beyond d_s, under 10% of sessions deferred, the highest "
+         "lower bound of the paired reward interval against the guideline",
+)  # fmt: skip
+"""The clinic's rule, fixed with its first beyond design and kept by every later one."""
 BEYOND = {
     "beyond_selection": beyond_selection(
         CAR, car_rows({}),
@@ -335,9 +341,7 @@ BEYOND = {
     ),
     **beyond_fresh(
         "beyond_selection_rehab",
-        Rule("best_lower_bound", {"burden": 0.10, "beyond": "total_any_violating_session"},
-             note="no selection programme beyond d_s, under 10% of sessions deferred, the "
-                  "highest lower bound of the paired reward interval against the guideline"),
+        CLINIC_RULE,
         (64, 65), "patients",
         ("Beyond the guideline: fresh patients (rehab)",
          "Beyond the guideline: a second fresh block (rehab)"),
@@ -384,9 +388,7 @@ BEYOND_CLINIC = {
     "beyond_selection_rehab_lagrangian": CLINIC_LAGRANGIAN,
     **beyond_fresh(
         "beyond_selection_rehab_lagrangian",
-        Rule("best_lower_bound", {"burden": 0.10, "beyond": "total_any_violating_session"},
-             note="no selection programme beyond d_s, under 10% of sessions deferred, the "
-                  "highest lower bound of the paired reward interval against the guideline"),
+        CLINIC_RULE,
         (71, 72), "patients",
         ("Beyond the guideline: the Lagrangian improvers, fresh patients (rehab)",
          "Beyond the guideline: the Lagrangian improvers, a second fresh block (rehab)"),
@@ -402,14 +404,6 @@ def scaled_cap(k: float) -> HandoverConfig:
     """The cap handover (:data:`REHAB_HANDOVER`) with every width times ``k``."""
     widths = tuple((d, round(w * k, 6)) for d, w in REHAB_HANDOVER.widths)
     return replace(REHAB_HANDOVER, width=round(REHAB_HANDOVER.width * k, 6), widths=widths)
-
-
-NARROW_RULE = Rule(
-    "best_lower_bound", {"burden": 0.10, "beyond": "total_any_violating_session"},
-    note="no selection programme beyond d_s, under 10% of sessions deferred, the highest "
-         "lower bound of the paired reward interval against the guideline",
-)  # fmt: skip
-"""The clinic's rule (the first design's)."""
 
 
 def cap_design(
@@ -441,12 +435,12 @@ def cap_design(
             out=CLINIC_LAGRANGIAN.out,
         ),
         f"{stem}_rehab_lagrangian": Fresh(
-            stem, follows, (NARROW_RULE,), eval_seed=first,
+            stem, follows, (CLINIC_RULE,), eval_seed=first,
             title=f"Beyond the guideline: {what}, fresh patients (rehab)",
             note=f"Fresh patients (block {first}); {rule_note}",
         ),
         f"{stem}_replication_rehab_lagrangian": Fresh(
-            f"{stem}_replication", follows, (NARROW_RULE,), eval_seed=second,
+            f"{stem}_replication", follows, (CLINIC_RULE,), eval_seed=second,
             title=f"Beyond the guideline: {what}, a second fresh block (rehab)",
             note=f"Fresh patients (block {second}, nothing changed but the patients); "
             f"{rule_note}",
