@@ -264,6 +264,7 @@ def load_recommender(
     task: str | None = None,
     demos: str | Path | None = None,
     allow_unsealed: bool = False,
+    allow_uncertified: bool = False,
 ) -> Recommender:
     """Load the recommender folder ``path`` (every weight file checked against its checksum).
 
@@ -272,6 +273,8 @@ def load_recommender(
         demos: refuse it unless these demonstrations are the ones its ``d_s`` came from (same
             content digest).
         allow_unsealed: load a card written before cards were sealed (:data:`UNSEALED`).
+        allow_uncertified: load the closest candidate of a study none of whose candidates met
+            every constraint (its card's ``source["feasible"]`` is False).
 
     Raises:
         RecommenderError: one line naming the folder and the problem.
@@ -280,6 +283,12 @@ def load_recommender(
 
     path = Path(path)
     card = read_card(path, allow_unsealed=allow_unsealed)
+    if card.source.get("feasible") is False and not allow_uncertified:
+        raise RecommenderError(
+            f"{path}: an uncertified recommender (no candidate of study "
+            f"{card.source.get('study')!r} met every constraint; this is the closest, "
+            f"{card.source.get('winner')}); load it with allow_uncertified=True to inspect it"
+        )
     if task is not None and task != card.task:
         raise RecommenderError(f"{path}: a recommender for {card.task!r}, not for {task!r}")
     if demos is not None:

@@ -153,3 +153,17 @@ def test_every_committed_card_is_sealed() -> None:
     assert len(cards) >= 7
     for card in cards:
         assert read_card(card.parent).format == FORMAT, card
+
+
+def test_an_uncertified_recommender_loads_only_when_asked(agents, tiny_demos: Path, tmp_path):
+    """A study none of whose candidates met every constraint marks its closest candidate's
+    card (``source["feasible"]`` False): refused by default, loaded when asked."""
+    from dataclasses import replace
+
+    nets, demos = agents
+    card = card_for(tiny_demos, demos, HandoverConfig(2.0))
+    source = {"study": "s", "winner": "t1", "feasible": False}
+    write_recommender(tmp_path / "r", replace(card, source=source), nets)
+    with pytest.raises(RecommenderError, match=r"an uncertified recommender .* closest, t1"):
+        load_recommender(tmp_path / "r")
+    assert load_recommender(tmp_path / "r", allow_uncertified=True).card.source == source

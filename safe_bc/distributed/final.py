@@ -487,6 +487,38 @@ def _run_stages(
     return agents
 
 
+CONSTRAINT_NAMES = {
+    "constraint_safety": "safety mean below the expert's",
+    "constraint_violation": "too many episodes beyond d_s",
+    "constraint_deferral": "too many steps deferred",
+}
+"""What each constraint column of the final table says when it is missed (> 0)."""
+
+
+def missed_constraints(table: pd.DataFrame) -> list[str]:
+    """One line per candidate of the final table that misses a constraint, naming what it
+    missed and by how much (the constraint's value, ``> 0`` when missed); none: every
+    candidate is feasible. Pure.
+
+    >>> t = pd.DataFrame({"method": ["a", "b"], "role": ["candidate"] * 2,
+    ...     "constraint": [0.2, -1.0], "constraint_safety": [0.2, -1.0],
+    ...     "constraint_violation": [-0.1, -1.0], "constraint_deferral": [-1.0, -1.0]})
+    >>> missed_constraints(t)
+    ["candidate a: safety mean below the expert's (constraint_safety +0.2)"]
+    """
+    lines = []
+    for row in table[table["role"] == "candidate"].to_dict("records"):
+        if float(row["constraint"]) <= 0:
+            continue
+        missed = [
+            f"{what} ({name} {float(row[name]):+.3g})"
+            for name, what in CONSTRAINT_NAMES.items()
+            if name in row and not float(row[name]) <= 0
+        ]
+        lines.append(f"candidate {row['method']}: " + ("; ".join(missed) or "a constraint is NaN"))
+    return lines
+
+
 def choose_final(table: pd.DataFrame) -> tuple[str | None, bool, str]:
     """The best feasible candidate by re-evaluated reward, else the least infeasible one.
 
@@ -512,6 +544,6 @@ def choose_final(table: pd.DataFrame) -> tuple[str | None, bool, str]:
     return (
         str(best["method"]),
         False,
-        f"no candidate met both constraints on the re-evaluation: closest is {best['method']} "
+        f"no candidate met every constraint on the re-evaluation: closest is {best['method']} "
         f"(constraint {best['constraint']:.3g}, reward {best['reward']:.1f})",
     )

@@ -162,12 +162,15 @@ class StudyOutcome:
     @property
     def exit_code(self) -> int:
         """``safe-bc tune``'s exit status: 143 after SIGTERM, 130 when incomplete (Ctrl-C),
-        1 when trials failed or none finished, else 0."""
+        1 when trials failed or none finished, 3 when no final candidate met every constraint
+        (its recommender, if written, is marked uncertified), else 0."""
         if self.stopped_by:
             return 128 + self.stopped_by
         if not self.complete:
             return 130
-        return 1 if self.errors or self.winner is None else 0
+        if self.errors or self.winner is None:
+            return 1
+        return 3 if self.final is not None and not self.final.feasible else 0
 
 
 def trial_dirname(trial: Any) -> str:
@@ -1090,13 +1093,21 @@ def deliver(
     weights per training seed, handover, ``d_s``, the demonstrations' identity, the
     certificate). Returns the certificate (``None`` without a certification)."""
     from safe_bc.distributed.certify import certify
-    from safe_bc.distributed.final import final_workers
+    from safe_bc.distributed.final import final_workers, missed_constraints
     from safe_bc.recommender import RecommenderCard, write_recommender
 
     spec, out = plan.spec, plan.out
     winner = final.winner
     if winner is None:
         return None
+    if not final.feasible:  # the closest candidate ships marked, never as the winner
+        for line in missed_constraints(final.table):
+            print(line)
+        print(
+            f"no candidate met every constraint: {out / RECOMMENDER_DIR}/ holds the closest "
+            f"({winner}) marked uncertified; load_recommender refuses it unless "
+            "allow_uncertified=True"
+        )
     seeds = sorted(s for (m, s) in final.models if m == winner)
     certificate: dict[str, Any] = {}
     if spec.certify_episodes:
@@ -1126,6 +1137,7 @@ def deliver(
         source={
             "study": spec.name,
             "winner": winner,
+            "feasible": bool(final.feasible),
             "command": meta.get("command", ""),
             "provenance": meta.get("provenance", {}),
         },
@@ -1340,20 +1352,32 @@ def format_outcome(outcome: StudyOutcome, params: Sequence[str]) -> str:
             )
         )
         lines.append(outcome.final.message)
+        feasible = outcome.final.feasible
+        if not feasible:
+            from safe_bc.distributed.final import missed_constraints
+
+            lines += missed_constraints(tab)
+        who = "the winner" if feasible else "the closest candidate (uncertified)"
         if outcome.final.certified:
-            lines.append(f"the winner, on the fresh tracks: {outcome.final.certified}")
+            lines.append(f"{who}, on the fresh tracks: {outcome.final.certified}")
         paired = outcome.final.paired
         if outcome.final.winner is not None and len(paired):
             for _, r in paired[paired["method"] == outcome.final.winner].iterrows():
                 lines.append(
-                    f"winner - {r['vs']} (paired, same tracks): reward {r['d_reward']:+.1f} "
+                    f"{'winner' if feasible else 'closest'} - {r['vs']} (paired, same tracks): "
+                    f"reward {r['d_reward']:+.1f} "
                     f"[{r['d_reward_lo']:+.1f}, {r['d_reward_hi']:+.1f}]"
                 )
     if outcome.certificate:
         from safe_bc.distributed.certify import certificate_line
 
-        lines.append("the recommender, " + certificate_line(outcome.certificate))
-        lines.append(f"recommender: {outcome.out / RECOMMENDER_DIR}/ (safe_bc.load_recommender)")
+        certified = outcome.final is None or outcome.final.feasible
+        lines.append(
+            ("the recommender, " if certified else "the uncertified recommender, ")
+            + certificate_line(outcome.certificate)
+        )
+        how = "safe_bc.load_recommender" + ("" if certified else ", allow_uncertified=True")
+        lines.append(f"recommender: {outcome.out / RECOMMENDER_DIR}/ ({how})")
     if outcome.timing is not None and len(outcome.timing):
         lines += timing_lines(outcome.timing)
         lines.append(f"where the time went: {outcome.out / 'timing.md'}")

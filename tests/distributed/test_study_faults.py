@@ -383,7 +383,8 @@ def test_final_phase_resumes_per_agent_and_evaluation_and_a_finished_study_only_
     monkeypatch.setattr(final_mod, "train_run", counted_train)
     monkeypatch.setattr(final_mod, "evaluate_policies", counted_evaluate)
     first = run_study(spec, progress=False)
-    assert first.complete and first.final is not None and first.exit_code in (0, 1)
+    assert first.complete and first.final is not None
+    assert first.exit_code == (0 if first.final.feasible else 3)  # finished, certified or not
     # no agent retrained; the evaluation under way at the Ctrl-C finished and was kept
     assert calls["train"] == [] and len(calls["evaluate"]) == 1, calls
     assert all(name.endswith("=1") for name in calls["evaluate"][0]), calls
@@ -537,6 +538,10 @@ def test_exit_codes_of_an_outcome() -> None:
     assert replace(base, complete=False).exit_code == 130
     assert replace(base, stopped_by=signal.SIGTERM).exit_code == 143
     assert replace(base, errors=1).exit_code == 1
+    from types import SimpleNamespace
+
+    assert replace(base, final=SimpleNamespace(feasible=False)).exit_code == 3  # uncertified
+    assert replace(base, final=SimpleNamespace(feasible=True)).exit_code == 0
 
 
 # --- a full disk -------------------------------------------------------------------------------
