@@ -1544,6 +1544,18 @@ def format_table(rows: Sequence[dict[str, Any]]) -> str:
     return "\n".join([fmt_line(header), rule, *(fmt_line(line) for line in lines)])
 
 
+def bench_inputs(cases: Sequence[str], sizes: Sizes) -> dict[str, Any]:
+    """What the run read: the ``stream`` case's source set (its record: path, digest,
+    episodes) when it ran on one; every other case makes its own inputs (synthetic frames,
+    untrained nets seeded by ``--seed``, seeded tracks), so ``demos`` is ``None`` without it."""
+    source = Path(sizes.stream_source) if sizes.stream_source else None
+    if "stream" not in cases or source is None or not source.is_dir():
+        return {"demos": None, "made": "synthetic frames, seeded untrained nets, seeded tracks"}
+    from safe_bc.data.store import dataset_record
+
+    return {"demos": dataset_record(source)}
+
+
 def write_results(
     rows: Sequence[dict[str, Any]], out: Path, settings: dict[str, Any]
 ) -> pd.DataFrame:
@@ -1633,6 +1645,7 @@ def _run_all(args: argparse.Namespace, sizes: Sizes, repeats: int) -> int:
         "case_seconds": seconds,
         "total_seconds": time.perf_counter() - start,
         "argv": sys.argv[1:],
+        "inputs": bench_inputs(args.cases, sizes),
     }
     if rows:
         from safe_bc.provenance import DirtyTreeError

@@ -65,6 +65,7 @@ def test_quick_memory_and_metadata(quick_table):
         assert machine[key], key
     assert meta["settings"]["quick"] is True
     assert meta["settings"]["failed_cases"] == []
+    assert meta["settings"]["inputs"]["demos"] is None  # env and train read no dataset
     assert set(meta["memory_notes"]) == {c for c in bench.COLUMNS if c.startswith("peak_")}
 
 
