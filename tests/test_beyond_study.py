@@ -1,0 +1,60 @@
+"""The car's beyond-the-expert study (tune_jobs/beyond.py) retrains exactly what its design
+picked: the same start and self-imitation settings as the comparison's row, the task's
+handover, nothing searched, and a certification block no table runs on."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from safe_bc.families import load_comparisons
+from safe_bc.study import load_study
+from safe_bc.tasks import task_defaults
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def study():
+    return load_study(ROOT / "tune_jobs" / "beyond.py")
+
+
+@pytest.fixture(scope="module")
+def selection():
+    with pytest.MonkeyPatch.context() as mp:
+        mp.chdir(ROOT)
+        return load_comparisons(ROOT / "tune_jobs/compare/selfimprove.py", planned=True)[
+            "beyond_selection"
+        ]
+
+
+def test_the_study_runs_the_designs_pick_from_the_designs_start(study, selection) -> None:
+    rows = {m.name: m for m in selection.methods}
+    pick = rows["si_explore_best2"]
+    assert study.selfimprove == pick.config
+    start = rows[pick.start]
+    assert study.base.selection == start.selection
+    assert study.base.bc == selection.bc
+    assert study.batches == selection.bc.train.batches
+
+
+def test_the_recommender_is_the_agent_with_the_tasks_handover(study, selection) -> None:
+    assert study.handover == task_defaults("carracing").handover
+    assert dict(study.space) == {}
+    assert study.trials == 1 and study.final_candidates == 1
+    assert study.certify_episodes == 150 and study.final_train_seeds == 3
+
+
+def test_the_certification_block_is_new_to_every_table(study) -> None:
+    with pytest.MonkeyPatch.context() as mp:
+        mp.chdir(ROOT)
+        blocks = {
+            c.eval_seed
+            for f in sorted((ROOT / "tune_jobs/compare").glob("*.py"))
+            for c in load_comparisons(f, planned=True).values()
+        }
+    studies = [load_study(p) for p in sorted((ROOT / "tune_jobs").glob("*.py"))]
+    others = {s.certify_seed for s in studies if s.name != "beyond" and s.certify_episodes}
+    assert study.certify_seed not in blocks | others
+    assert study.eval_seed not in blocks and study.final_seed not in blocks
