@@ -63,6 +63,10 @@ Beyond the expert, planned before it runs (docs/improvement.md):
   ``beyond_mid_replication_rehab_lagrangian`` (78): the fourth, written after the third's
   narrow caps acted on 0.3-1.6% of sessions but let 2-5 of 600 programmes beyond d_s: the cap
   at 0.75 and 0.6 of its widths.
+* ``beyond_early_selection_rehab_lagrangian`` (block 82), ``beyond_early_rehab_lagrangian`` (83),
+  ``beyond_early_replication_rehab_lagrangian`` (84): the fifth, written after the fourth's
+  caps let one selection programme beyond d_s, the same patient for every row, after acting
+  on 40-70% of its sessions: the 0.6 cap acting a session ahead, or held 2 sessions.
 
 Run: ``safe-bc compare tune_jobs/compare/selfimprove.py --name NAME`` (resumes per method,
 seed and round; ``--cell METHOD:SEED --workers 0`` runs one cell in its own process). Writes
@@ -468,6 +472,20 @@ BEYOND_CLINIC_MID = cap_design(
 13.5-17.9%; widths between them, 0.75 and 0.6 of the cap's."""
 
 
+BEYOND_CLINIC_EARLY = cap_design(
+    "beyond_early",
+    {"cap_060_ahead": ("the cap at 0.6 width, a session ahead",
+                       replace(scaled_cap(0.6), lookahead=1)),
+     "cap_060_hold": ("the cap at 0.6 width, held 2 sessions", replace(scaled_cap(0.6), hold=2))},
+    (82, 83, 84), "a cap that acts earlier",
+)  # fmt: skip
+"""The clinic's fifth design, written after the fourth: the caps at 0.75 and 0.6 width acted on
+1.9-4.8% of sessions, and each let exactly one selection programme beyond d_s, the same patient
+for all four rows, on which the cap had acted on 40-70% of sessions: the crossing came from
+load built up before the zone. The 0.6 cap acting a session earlier (the cost extrapolated one
+session ahead) or held for 2 sessions after a zone session."""
+
+
 def vs_expert(c: Comparison) -> Comparison:
     """``c`` paired against the expert: its runs and stored evaluations, no figure."""
     return replace(c, name="compare_vs_expert", runs="compare", reference="expert", figures=())
@@ -506,4 +524,5 @@ COMPARISONS = {
     **BEYOND_CLINIC,
     **BEYOND_CLINIC_NARROW,
     **BEYOND_CLINIC_MID,
+    **BEYOND_CLINIC_EARLY,
 }
