@@ -78,7 +78,8 @@ def describe(job: DescribeJob) -> Done:
     check_output_folder(job.out)
     demos = load_demonstrations(job.demos)
     meta = read_meta(job.demos)
-    eps = task_defaults(task_of(meta.env_id)).eps if job.eps is None else job.eps
+    task = task_defaults(task_of(meta.env_id))
+    eps = task.eps if job.eps is None else job.eps
     sel = select_for(demos, SelectionConfig(eps=eps, alpha=0.0))
     scored = demos.scored
     offroad = sum(int(ep.offroad.sum()) for ep in read_episodes(job.demos))
@@ -118,8 +119,10 @@ def describe(job: DescribeJob) -> Done:
         "described_by": {"command": " ".join(sys.argv), "provenance": provenance()},
     }
     job.out.mkdir(parents=True, exist_ok=True)
-    title = f"{job.demos}: {len(demos)} pairs, rev {meta.provenance.get('git_revision', '?')[:12]}"
-    plot_cost_histograms(demos, job.out / "cost_histograms.png", eps=eps, title=title)
+    title = f"{job.demos}: {len(demos)} pairs, {summary['digest'][:19]}"
+    plot_cost_histograms(
+        demos, job.out / "cost_histograms.png", eps=eps, title=title, units=task.safety_units
+    )
     write_json_atomic(job.out / "summary.json", summary)
     keys = ("pairs", "episodes", "safety_mean", "offroad_frames", "critical_share")
     lines = [json.dumps({k: summary[k] for k in keys})]
