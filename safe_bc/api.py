@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import fnmatch
 import json
-import math
 import os
 import sys
 from dataclasses import dataclass, replace
@@ -233,34 +232,25 @@ def _evaluate(job: EvaluateJob) -> Done:
     )
     thresholds = np.asarray(sel_meta["thresholds"])
     agent: Any = NetSource.from_model(model, bc_cfg)
-    for flag, steps in (("hold", job.defer_hold), ("lookahead", job.defer_lookahead)):
-        if steps and job.defer_width is None:
-            raise ValueError(f"--defer-{flag} needs --defer-width (the zone the expert acts in)")
-    if job.defer_hold_on and not job.defer_hold:
-        raise ValueError("--defer-hold-on needs --defer-hold (the steps the handover lasts)")
-    if job.defer_width is not None:
+    h = job.handover  # its own checks ran when the job was made (HandoverFlags)
+    if h.width is not None:
         from safe_bc.queries.defer import DeferralSource, dimension_indices
         from safe_bc.queries.stage import expert_for
 
-        if not (math.isfinite(job.defer_width) and job.defer_width >= 0):
-            raise ValueError(f"--defer-width must be a finite number >= 0, got {job.defer_width}")
-        for flag, steps in (("hold", job.defer_hold), ("lookahead", job.defer_lookahead)):
-            if steps < 0:
-                raise ValueError(f"--defer-{flag} must be a number of steps >= 0, got {steps}")
-        hold_on = dimension_indices(job.defer_hold_on, task.safety_dims)
+        hold_on = dimension_indices(h.hold_on, task.safety_dims)
         expert_cfg = expert_for(extra.get("demos", ""), extra["env_id"])
         agent = DeferralSource(
-            agent, expert_cfg, tuple(float(x) for x in thresholds), job.defer_width, cfg.combine,
-            job.defer_hold, job.defer_lookahead, hold_on,
+            agent, expert_cfg, tuple(float(x) for x in thresholds), h.width, cfg.combine,
+            h.hold, h.lookahead, hold_on,
         )  # fmt: skip
     result = run_evaluate({"agent": agent}, cfg, thresholds, progress=not job.quiet)
     episodes, steps, table = result.episodes, result.steps, result.summary
     meta = run_metadata(
         checkpoint=str(job.checkpoint),
-        defer_width=job.defer_width,
-        defer_hold=job.defer_hold,
-        defer_lookahead=job.defer_lookahead,
-        defer_hold_on=list(job.defer_hold_on),
+        defer_width=h.width,
+        defer_hold=h.hold,
+        defer_lookahead=h.lookahead,
+        defer_hold_on=list(h.hold_on),
         trained_with=extra.get("run"),
         eval_seed=job.eval_seed,
         env_seeds=episodes["env_seed"].tolist(),
@@ -271,13 +261,13 @@ def _evaluate(job: EvaluateJob) -> Done:
     write_table_atomic(job.out / "steps.parquet", steps, meta)
     write_table_atomic(job.out / "summary.parquet", table, meta)
     lines = estimate_lines(table.iloc[0], [m for m in METRICS if m in table], len(episodes))
-    if job.defer_width is not None:
+    if h.width is not None:
         share = float(episodes["deferred_share"].mean())
         lines.append(
-            f"deferred to the expert within {job.defer_width:g} of d_s"
-            + (f" (held {job.defer_hold} steps)" if job.defer_hold else "")
-            + (f" after {', '.join(job.defer_hold_on)}" if job.defer_hold_on else "")
-            + (f" ({job.defer_lookahead} steps ahead)" if job.defer_lookahead else "")
+            f"deferred to the expert within {h.width:g} of d_s"
+            + (f" (held {h.hold} steps)" if h.hold else "")
+            + (f" after {', '.join(h.hold_on)}" if h.hold_on else "")
+            + (f" ({h.lookahead} steps ahead)" if h.lookahead else "")
             + f": {share:.1%} of steps"
         )
     lines.append(f"wrote {job.out}/episodes.parquet, steps.parquet, summary.parquet")
@@ -298,8 +288,8 @@ def evaluate_recommender(job: EvaluateJob) -> Done:
     from safe_bc.recommender import load_recommender
     from safe_bc.tasks import task_defaults
 
-    if job.defer_width is not None or job.defer_hold or job.defer_lookahead or job.defer_hold_on:
-        raise ValueError("--defer-* flags do not apply to --recommender (it has its handover)")
+    if job.handover.given:
+        raise ValueError("--handover.* flags do not apply to --recommender (it has its handover)")
     if job.checkpoint is not None:
         raise ValueError("give --checkpoint or --recommender, not both")
     assert job.recommender is not None
