@@ -615,13 +615,17 @@ def export(job: ExportJob) -> Done:
 
     check_dataset(job.demos)  # before Minari writes its namespace files
     try:
-        dataset = export_minari(job.demos, job.dataset_id, author=job.author)
+        dataset = export_minari(
+            job.demos, job.dataset_id, author=job.author, eps=job.eps, cost=job.cost
+        )
     except MinariNotInstalledError as e:
         raise ValueError(str(e)) from None
+    meta = dataset.storage.metadata
     return Done(
         f"{job.demos} -> Minari dataset {job.dataset_id}: {dataset.total_episodes} episode(s), "
-        f"{dataset.total_steps} steps in {dataset.storage.data_path.parent}; load it with "
-        f"minari.load_dataset({job.dataset_id!r})",
+        f"{dataset.total_steps} steps in {dataset.storage.data_path.parent}; scalar costs "
+        f"({job.cost}, eps {meta['safe_bc_eps']:g}): {meta['safe_bc_cost_steps']} step(s) "
+        f"marked; load it with minari.load_dataset({job.dataset_id!r})",
         dataset,
     )
 

@@ -385,6 +385,12 @@ class ExportJob:
     """Target format."""
     author: str | None = None
     """Recorded in the Minari metadata."""
+    cost: Literal["critical", "beyond"] = "critical"
+    """Which steps DSRL's scalar 'costs' marks 1.0: critical, the critical zone (c_s >= d_s -
+    eps in some dimension: the steps nearest the limit); beyond, steps past d_s (none in an
+    expert set, whose worst cost is d_s). docs/interop.md."""
+    eps: float | None = None
+    """The critical zone's width, cost units; None: the task's (TaskSpec.eps)."""
 
 
 @dataclass(frozen=True)
