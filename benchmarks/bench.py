@@ -51,6 +51,7 @@ CASES: tuple[str, ...] = (
     "final",
     "improve",
     "selfimprove",
+    "cli",
 )
 """Benchmark cases, in the order they run."""
 
@@ -139,6 +140,9 @@ class Sizes:
     """At least this many repetitions of the train case, whatever ``--repeats`` says: its
     ratio sits near the 0.95x target and one run's moved by +-10% (0.84x-1.03x in six runs
     of 3 repetitions), so it is timed in more back-to-back pairs."""
+    cli_min_repeats: int = 1
+    """At least this many repetitions of the ``cli`` case (a process start takes under a
+    second, so more starts cost little and steady the median)."""
 
 
 FULL = Sizes(
@@ -151,6 +155,7 @@ FULL = Sizes(
     eval_steps=200,
     act_steps=200,
     train_min_repeats=7,
+    cli_min_repeats=9,
 )
 QUICK = Sizes(
     env_steps=40,
@@ -1402,6 +1407,48 @@ def bench_selfimprove(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, A
     ]
 
 
+# ------------------------------------------------------------------------------ case: cli
+
+HELP_TARGET_S = 0.5
+"""The most seconds ``safe-bc --help`` may take, the target the ``cli`` case reports."""
+
+
+def _cli_commands() -> dict[str, list[str]]:
+    """The ``cli`` case's commands: an empty interpreter start (the baseline), then the
+    installed ``safe-bc`` script beside this interpreter (or ``python -m safe_bc.cli`` where
+    there is none) with the short help of the command list and of ``train``."""
+    script = Path(sys.executable).with_name("safe-bc")
+    cli = [str(script)] if script.exists() else [sys.executable, "-m", "safe_bc.cli"]
+    return {
+        "python -c pass": [sys.executable, "-c", "pass"],
+        "safe-bc --help": [*cli, "--help"],
+        "safe-bc train --help": [*cli, "train", "--help"],
+    }
+
+
+def bench_cli(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
+    """Wall-clock seconds from starting ``safe-bc --help`` (and ``safe-bc train --help``) in a
+    fresh process to its exit, against starting an interpreter that does nothing in the same
+    run: the value is the absolute time, the ratio what the command line adds to a bare
+    start (paired per repetition, order alternating)."""
+    commands = _cli_commands()
+    runs: dict[str, list[float]] = {name: [] for name in commands}
+    for rep in range(max(repeats, sizes.cli_min_repeats)):
+        for name in _order(list(commands), rep):
+            t0 = time.perf_counter()
+            subprocess.run(commands[name], stdout=subprocess.DEVNULL, check=True)
+            runs[name].append(time.perf_counter() - t0)
+    base, *rest = list(commands)
+    note = (
+        f"wall-clock s, process start to exit, stdout discarded; target: at most "
+        f"{HELP_TARGET_S:g} s; {PAIRED_NOTE}"
+    )
+    return [
+        _self_row("cli", base, runs[base], "s", note),
+        *(_row("cli", v, runs[v], "s", (base, runs[base]), note, paired=True) for v in rest),
+    ]
+
+
 # ---------------------------------------------------------------------------- running cases
 
 _BENCHES: dict[str, Callable[[Sizes, int, int], list[dict[str, Any]]]] = {
@@ -1414,6 +1461,7 @@ _BENCHES: dict[str, Callable[[Sizes, int, int], list[dict[str, Any]]]] = {
     "final": bench_final,
     "improve": bench_improve,
     "selfimprove": bench_selfimprove,
+    "cli": bench_cli,
 }
 
 

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import fnmatch
 import json
-import math
 import os
 import sys
 from dataclasses import dataclass, replace
@@ -78,7 +77,8 @@ def describe(job: DescribeJob) -> Done:
     check_output_folder(job.out)
     demos = load_demonstrations(job.demos)
     meta = read_meta(job.demos)
-    eps = task_defaults(task_of(meta.env_id)).eps if job.eps is None else job.eps
+    task = task_defaults(task_of(meta.env_id))
+    eps = task.eps if job.eps is None else job.eps
     sel = select_for(demos, SelectionConfig(eps=eps, alpha=0.0))
     scored = demos.scored
     offroad = sum(int(ep.offroad.sum()) for ep in read_episodes(job.demos))
@@ -118,8 +118,10 @@ def describe(job: DescribeJob) -> Done:
         "described_by": {"command": " ".join(sys.argv), "provenance": provenance()},
     }
     job.out.mkdir(parents=True, exist_ok=True)
-    title = f"{job.demos}: {len(demos)} pairs, rev {meta.provenance.get('git_revision', '?')[:12]}"
-    plot_cost_histograms(demos, job.out / "cost_histograms.png", eps=eps, title=title)
+    title = f"{job.demos}: {len(demos)} pairs, {summary['digest'][:19]}"
+    plot_cost_histograms(
+        demos, job.out / "cost_histograms.png", eps=eps, title=title, units=task.safety_units
+    )
     write_json_atomic(job.out / "summary.json", summary)
     keys = ("pairs", "episodes", "safety_mean", "offroad_frames", "critical_share")
     lines = [json.dumps({k: summary[k] for k in keys})]
@@ -230,34 +232,25 @@ def _evaluate(job: EvaluateJob) -> Done:
     )
     thresholds = np.asarray(sel_meta["thresholds"])
     agent: Any = NetSource.from_model(model, bc_cfg)
-    for flag, steps in (("hold", job.defer_hold), ("lookahead", job.defer_lookahead)):
-        if steps and job.defer_width is None:
-            raise ValueError(f"--defer-{flag} needs --defer-width (the zone the expert acts in)")
-    if job.defer_hold_on and not job.defer_hold:
-        raise ValueError("--defer-hold-on needs --defer-hold (the steps the handover lasts)")
-    if job.defer_width is not None:
+    h = job.handover  # its own checks ran when the job was made (HandoverFlags)
+    if h.width is not None:
         from safe_bc.queries.defer import DeferralSource, dimension_indices
         from safe_bc.queries.stage import expert_for
 
-        if not (math.isfinite(job.defer_width) and job.defer_width >= 0):
-            raise ValueError(f"--defer-width must be a finite number >= 0, got {job.defer_width}")
-        for flag, steps in (("hold", job.defer_hold), ("lookahead", job.defer_lookahead)):
-            if steps < 0:
-                raise ValueError(f"--defer-{flag} must be a number of steps >= 0, got {steps}")
-        hold_on = dimension_indices(job.defer_hold_on, task.safety_dims)
+        hold_on = dimension_indices(h.hold_on, task.safety_dims)
         expert_cfg = expert_for(extra.get("demos", ""), extra["env_id"])
         agent = DeferralSource(
-            agent, expert_cfg, tuple(float(x) for x in thresholds), job.defer_width, cfg.combine,
-            job.defer_hold, job.defer_lookahead, hold_on,
+            agent, expert_cfg, tuple(float(x) for x in thresholds), h.width, cfg.combine,
+            h.hold, h.lookahead, hold_on,
         )  # fmt: skip
     result = run_evaluate({"agent": agent}, cfg, thresholds, progress=not job.quiet)
     episodes, steps, table = result.episodes, result.steps, result.summary
     meta = run_metadata(
         checkpoint=str(job.checkpoint),
-        defer_width=job.defer_width,
-        defer_hold=job.defer_hold,
-        defer_lookahead=job.defer_lookahead,
-        defer_hold_on=list(job.defer_hold_on),
+        defer_width=h.width,
+        defer_hold=h.hold,
+        defer_lookahead=h.lookahead,
+        defer_hold_on=list(h.hold_on),
         trained_with=extra.get("run"),
         eval_seed=job.eval_seed,
         env_seeds=episodes["env_seed"].tolist(),
@@ -268,13 +261,13 @@ def _evaluate(job: EvaluateJob) -> Done:
     write_table_atomic(job.out / "steps.parquet", steps, meta)
     write_table_atomic(job.out / "summary.parquet", table, meta)
     lines = estimate_lines(table.iloc[0], [m for m in METRICS if m in table], len(episodes))
-    if job.defer_width is not None:
+    if h.width is not None:
         share = float(episodes["deferred_share"].mean())
         lines.append(
-            f"deferred to the expert within {job.defer_width:g} of d_s"
-            + (f" (held {job.defer_hold} steps)" if job.defer_hold else "")
-            + (f" after {', '.join(job.defer_hold_on)}" if job.defer_hold_on else "")
-            + (f" ({job.defer_lookahead} steps ahead)" if job.defer_lookahead else "")
+            f"deferred to the expert within {h.width:g} of d_s"
+            + (f" (held {h.hold} steps)" if h.hold else "")
+            + (f" after {', '.join(h.hold_on)}" if h.hold_on else "")
+            + (f" ({h.lookahead} steps ahead)" if h.lookahead else "")
             + f": {share:.1%} of steps"
         )
     lines.append(f"wrote {job.out}/episodes.parquet, steps.parquet, summary.parquet")
@@ -295,8 +288,8 @@ def evaluate_recommender(job: EvaluateJob) -> Done:
     from safe_bc.recommender import load_recommender
     from safe_bc.tasks import task_defaults
 
-    if job.defer_width is not None or job.defer_hold or job.defer_lookahead or job.defer_hold_on:
-        raise ValueError("--defer-* flags do not apply to --recommender (it has its handover)")
+    if job.handover.given:
+        raise ValueError("--handover.* flags do not apply to --recommender (it has its handover)")
     if job.checkpoint is not None:
         raise ValueError("give --checkpoint or --recommender, not both")
     assert job.recommender is not None
@@ -622,13 +615,17 @@ def export(job: ExportJob) -> Done:
 
     check_dataset(job.demos)  # before Minari writes its namespace files
     try:
-        dataset = export_minari(job.demos, job.dataset_id, author=job.author)
+        dataset = export_minari(
+            job.demos, job.dataset_id, author=job.author, eps=job.eps, cost=job.cost
+        )
     except MinariNotInstalledError as e:
         raise ValueError(str(e)) from None
+    meta = dataset.storage.metadata
     return Done(
         f"{job.demos} -> Minari dataset {job.dataset_id}: {dataset.total_episodes} episode(s), "
-        f"{dataset.total_steps} steps in {dataset.storage.data_path.parent}; load it with "
-        f"minari.load_dataset({job.dataset_id!r})",
+        f"{dataset.total_steps} steps in {dataset.storage.data_path.parent}; scalar costs "
+        f"({job.cost}, eps {meta['safe_bc_eps']:g}): {meta['safe_bc_cost_steps']} step(s) "
+        f"marked; load it with minari.load_dataset({job.dataset_id!r})",
         dataset,
     )
 

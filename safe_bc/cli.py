@@ -50,8 +50,18 @@ REQUIRES = {
 command is refused rather than the setting silently ignored)."""
 
 
-ALIASES = {"train": {"--seed": "--bc.train.seed"}, "reproduce": {"--env": "--task"}}
-"""Short flags kept from the hand-written CLI, per command: alias -> the field's flag."""
+ALIASES = {
+    "train": {"--seed": "--bc.train.seed"},
+    "reproduce": {"--env": "--task"},
+    "evaluate": {
+        "--defer-width": "--handover.width",
+        "--defer-hold": "--handover.hold",
+        "--defer-lookahead": "--handover.lookahead",
+        "--defer-hold-on": "--handover.hold-on",
+    },
+}
+"""Other spellings a command takes, per command: alias -> the field's flag (short flags kept
+from the hand-written CLI, and the names flags had before they took their config's)."""
 
 
 HELP_FLAGS = ("-h", "--help")
@@ -136,7 +146,9 @@ def _flag_of(message: str, cls: type) -> str:
 
     found = re.match(r"(?:([\w.]*): )?(\w+)(?:\[i\])? must", message)
     if not found:
-        return re.sub(r"^[A-Z]\w*: ", "", message)  # the record's name tyro puts first
+        # the record's name, or the nested config's field, that tyro puts before a message
+        # which names its flag itself
+        return re.sub(r"^[A-Z]\w*: |^[\w.]+: (?=--)", "", message)
     group = "".join(
         f"{p}."
         for p in (found[1] or "").split(".")
@@ -172,10 +184,8 @@ def parse(argv: Sequence[str]) -> tuple[str, Any]:
     if command == "method":
         return command, _parse_method(rest)
     cls = getattr(jobs, COMMANDS[command][0])
-    aliases = ", ".join(f"{a} for {f}" for a, f in ALIASES.get(command, {}).items())
-    about = inspect.cleandoc(cls.__doc__ or "") + (
-        f"\n\nShort flags: {aliases}." if aliases else ""
-    )
+    aliases = "\n".join(f"Alias {a} for {f}." for a, f in ALIASES.get(command, {}).items())
+    about = inspect.cleandoc(cls.__doc__ or "") + (f"\n\n{aliases}" if aliases else "")
     if any(a in HELP_FLAGS for a in rest):
         from safe_bc.cli_help import render
 

@@ -218,7 +218,7 @@ def _entry(flag: Flag, width: int, most: int) -> list[str]:
 
 def render(cls: type, prog: str, about: str, width: int = 100, max_lines: int = 79) -> str:
     """The short help of record ``cls`` as ``prog``'s: usage, ``about`` (its first paragraph
-    and a paragraph that starts with ``Short flags``), then the flags by group, one entry
+    and a paragraph of lines ``Alias --x for --y.``), then the flags by group, one entry
     each; entries are cut (with an ellipsis) to as many lines each as keep the whole help
     within ``max_lines`` where the flags allow it."""
     all_flags = list(flags(cls))
@@ -228,7 +228,7 @@ def render(cls: type, prog: str, about: str, width: int = 100, max_lines: int = 
     head = [usage + " [OPTIONS]", ""]
     paragraphs = [p for p in re.split(r"\n\s*\n", inspect.cleandoc(about)) if p.strip()]
     head += textwrap.wrap(plain(paragraphs[0]) if paragraphs else "", width)
-    head += [plain(p) for p in paragraphs[1:] if p.startswith("Short flags")]
+    head += [plain(a) for p in paragraphs[1:] if p.startswith("Alias ") for a in p.splitlines()]
     tail = ["", f"Every field's whole docstring: {prog} --help-full"]
     groups = _group_docs(cls)
 

@@ -9,6 +9,7 @@ default is written twice. The functions of :mod:`safe_bc.api` take these records
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field, make_dataclass
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -89,6 +90,47 @@ class TrainJob:
 
 
 @dataclass(frozen=True)
+class HandoverFlags:
+    """Deferral at use time, by the names of safe_bc.handover.HandoverConfig's fields (also
+    spelled --defer-width, --defer-hold, --defer-lookahead, --defer-hold-on: cli.ALIASES)."""
+
+    width: float | None = None
+    """The expert acts wherever the measured cost is within this width of d_s (c_s >= d_s - w,
+    cost units; "ask the clinician"), the agent elsewhere; the tables add deferred_steps and
+    deferred_share. None: the agent acts everywhere. The measured widths: docs/queries.md."""
+    lookahead: int = 0
+    """With a width: the zone test reads the cost extrapolated this many steps from its last
+    change (a fast-rising cost hands over earlier)."""
+    hold: int = 0
+    """With a width: the expert also acts on the next this many steps after the last step in
+    the zone (a handover that lasts)."""
+    hold_on: tuple[str, ...] = ()
+    """With a hold: the safety dimensions (the task's names, e.g. front) whose zone test starts
+    the hold; empty: any."""
+
+    def __post_init__(self) -> None:
+        if self.width is not None and not (math.isfinite(self.width) and self.width >= 0):
+            raise ValueError(f"--handover.width must be a finite number >= 0, got {self.width}")
+        for name in ("lookahead", "hold"):
+            steps = getattr(self, name)
+            if steps < 0:
+                raise ValueError(f"--handover.{name} must be a number of steps >= 0, got {steps}")
+            if steps and self.width is None:
+                raise ValueError(
+                    f"--handover.{name} needs --handover.width (the zone the expert acts in)"
+                )
+        if self.hold_on and not self.hold:
+            raise ValueError(
+                "--handover.hold-on needs --handover.hold (the steps the handover lasts)"
+            )
+
+    @property
+    def given(self) -> bool:
+        """Whether any setting differs from its default (a handover is asked for)."""
+        return self != HandoverFlags()
+
+
+@dataclass(frozen=True)
 class EvaluateJob:
     """Evaluate a checkpoint on held-out tracks (or patients)."""
 
@@ -98,7 +140,7 @@ class EvaluateJob:
     """A safe-bc train checkpoint (or --recommender)."""
     recommender: Path | None = None
     """A study's recommender folder (results/<study>/recommender): every training seed's agent
-    with its handover, on the same tracks (the --defer-* flags do not apply)."""
+    with its handover, on the same tracks (the --handover.* flags do not apply)."""
     recommender_seed: int | None = None
     """With --recommender: evaluate only this training seed's agent."""
     episodes: int = EvalConfig.episodes
@@ -109,20 +151,8 @@ class EvaluateJob:
     """Block of held-out seeds the episodes are drawn from (EvalConfig.seed)."""
     max_steps: int | None = None
     """Step cap per episode (EvalConfig.max_steps); None: the env's."""
-    defer_width: float | None = None
-    """Deferral at use time: the expert acts wherever the measured cost is within this width
-    of d_s (c_s >= d_s - w, cost units; "ask the clinician"), the agent elsewhere; the tables
-    add deferred_steps and deferred_share. None: the agent acts everywhere. The measured
-    widths: docs/queries.md."""
-    defer_hold: int = 0
-    """With defer_width: the expert also acts on the next this many steps after the last step
-    in the zone (a handover that lasts)."""
-    defer_lookahead: int = 0
-    """With defer_width: the zone test reads the cost extrapolated this many steps from its
-    last change (a fast-rising cost hands over earlier)."""
-    defer_hold_on: tuple[str, ...] = ()
-    """With defer_hold: the safety dimensions (the task's names, e.g. front) whose zone test
-    starts the hold; empty: any."""
+    handover: HandoverFlags = field(default_factory=HandoverFlags)
+    """Deferral at use time: the expert acts near d_s, the agent elsewhere."""
     quiet: bool = False
     """No progress bar."""
 
@@ -355,6 +385,12 @@ class ExportJob:
     """Target format."""
     author: str | None = None
     """Recorded in the Minari metadata."""
+    cost: Literal["critical", "beyond"] = "critical"
+    """Which steps DSRL's scalar 'costs' marks 1.0: critical, the critical zone (c_s >= d_s -
+    eps in some dimension: the steps nearest the limit); beyond, steps past d_s (none in an
+    expert set, whose worst cost is d_s). docs/interop.md."""
+    eps: float | None = None
+    """The critical zone's width, cost units; None: the task's (TaskSpec.eps)."""
 
 
 @dataclass(frozen=True)

@@ -33,37 +33,101 @@ def save_figure(fig: Any, path: Path) -> Path:
     return path
 
 
+COST_UNITS = "cost units"
+"""The unit of a safety dimension whose task names none (``TaskSpec.safety_units``)."""
+
+
+def unit_of(units: Sequence[str], j: int) -> str:
+    """The unit of safety dimension ``j`` (:data:`COST_UNITS` where ``units`` names none)."""
+    return units[j] if j < len(units) and units[j] else COST_UNITS
+
+
+def safety_mean_label(units: Sequence[str]) -> tuple[str, str]:
+    """The safety mean's axis label and a note for the panel: the mean of each step's
+    smallest distance, in the dimensions' unit; where their units differ, the label says so
+    and the note names them."""
+    names = list(dict.fromkeys(unit_of(units, j) for j in range(max(len(units), 1))))
+    if len(names) == 1:
+        return f"safety mean ({names[0]}, higher is safer)", ""
+    return (
+        "safety mean (mixed units, higher is safer)",
+        f"each step's smallest margin, in its dimension's unit ({', '.join(names)})",
+    )
+
+
 def plot_cost_histograms(
-    demos: Demonstrations, path: Path, *, eps: float = DEFAULT_EPS, title: str = ""
+    demos: Demonstrations,
+    path: Path,
+    *,
+    eps: float = DEFAULT_EPS,
+    title: str = "",
+    units: Sequence[str] = (),
 ) -> Path:
     """One histogram of safety distances per dimension (the paper's Figures 3, 7, 8).
 
-    The shaded band marks the critical zone of the max threshold: distances within
-    ``eps`` of the closest approach to the grass.
+    The solid red line is the distance at ``d_s`` (the closest scored approach: ``d_s`` is
+    the largest cost); the shaded band is the critical zone, distances within ``eps`` of it.
+    ``units``: per dimension, the distance's unit (``TaskSpec.safety_units``).
     """
     scored = demos.scored
     dims = demos.safety_dims
-    fig, axes = plt.subplots(1, len(dims), figsize=(4.2 * len(dims), 3.2), squeeze=False)
+    episodes = len(set(demos.episode_ids.tolist()))
+    fig, axes = plt.subplots(
+        1, len(dims), figsize=(4.4 * len(dims), 3.6), squeeze=False, layout="constrained"
+    )
     for j, (ax, d) in enumerate(zip(axes[0], dims, strict=True)):
+        unit = unit_of(units, j)
         x = demos.safety[scored, j]
         ax.hist(x, bins=40, color="tab:blue", alpha=0.8)
         lo = float(x.min())
-        ax.axvspan(lo, lo + eps, color="tab:red", alpha=0.2, label=f"critical (eps={eps:g})")
-        ax.set_xlabel(f"safety {d} (distance)")
-        ax.set_title(f"{d}: n={len(x)}, min={lo:.1f}, mean={x.mean():.1f}")
-        ax.legend(fontsize=8)
-    axes[0][0].set_ylabel("steps")
-    if title:
-        fig.suptitle(title, fontsize=9)
+        ax.axvspan(
+            lo, lo + eps, color="tab:red", alpha=0.2, label=f"critical zone (eps {eps:g} {unit})"
+        )
+        ax.axvline(lo, color="tab:red", lw=1.2, label=f"at d_s: {lo:.3g} {unit}")
+        ax.set_xlabel(f"{d}: distance ({unit}), higher is safer")
+        ax.set_title(f"{d}: mean {x.mean():.3g} {unit}", fontsize=9)
+        ax.legend(fontsize=7)
+    axes[0][0].set_ylabel("scored steps")
+    caption = (
+        f"{episodes} demonstration episodes, {int(scored.sum())} scored steps; d_s: the "
+        "largest cost, at the closest scored approach"
+    )
+    fig.suptitle(f"{title}\n{caption}" if title else caption, fontsize=9)
     return save_figure(fig, path)
 
 
-def plot_alpha_sweep(table: pd.DataFrame, path: Path, *, paper: pd.DataFrame | None = None) -> Path:
-    """Reward and safety mean against alpha, per eq. 5 reading, with CI error bars."""
-    fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
+def seeds_by_episodes(rows: pd.DataFrame) -> str:
+    """``N training seeds x M held-out episodes`` of a table's rows (their ``n_train_seeds``
+    and ``n_tracks``; values that differ between rows joined by ``/``); empty where the table
+    has no such columns."""
+    if rows.empty or not {"n_train_seeds", "n_tracks"} <= set(rows.columns):
+        return ""
+
+    def values(col: str) -> str:
+        return "/".join(str(int(v)) for v in sorted(set(rows[col].dropna())))
+
+    return f"{values('n_train_seeds')} training seeds x {values('n_tracks')} held-out episodes"
+
+
+def plot_alpha_sweep(
+    table: pd.DataFrame,
+    path: Path,
+    *,
+    paper: pd.DataFrame | None = None,
+    units: Sequence[str] = (),
+) -> Path:
+    """Reward and safety mean against alpha, per eq. 5 reading, with CI error bars; the title
+    says how many training seeds x held-out episodes each point is a mean over (read from
+    the table's ``n_train_seeds`` and ``n_tracks``)."""
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4.0), layout="constrained")
     agents = table[table["method"] != "expert"]
     expert = table[table["method"] == "expert"]
-    for ax, m, name in ((axes[0], "reward", "reward"), (axes[1], "safety_mean", "safety mean")):
+    safety, note = safety_mean_label(units)
+    panels = (
+        (axes[0], "reward", "reward (episode return)", ""),
+        (axes[1], "safety_mean", safety, note),
+    )
+    for ax, m, name, note in panels:
         for rest, df in agents.groupby("rest"):
             df = df.sort_values("alpha")
             err = np.vstack([df[m] - df[f"{m}_lo"], df[f"{m}_hi"] - df[m]])
@@ -76,8 +140,13 @@ def plot_alpha_sweep(table: pd.DataFrame, path: Path, *, paper: pd.DataFrame | N
             ax.plot(paper["alpha"], paper[m], "x:", color="gray", label="paper (2 episodes)")
         ax.set_xlabel("safety focus alpha")
         ax.set_ylabel(name)
+        ax.set_title(note, fontsize=8)
         ax.legend(fontsize=8)
-    fig.suptitle("mean and 95% CI over training seeds x held-out episodes", fontsize=9)
+    budget = seeds_by_episodes(agents)
+    title = "mean and 95% CI over " + (budget or "training seeds x held-out episodes")
+    if budget and len(expert) and "n_tracks" in expert:
+        title += f" (expert: {int(expert['n_tracks'].iloc[0])} episodes)"
+    fig.suptitle(title, fontsize=9)
     return save_figure(fig, path)
 
 
@@ -88,29 +157,55 @@ def plot_traces(
     *,
     episode: int = 0,
     limits: dict[str, float] | None = None,
+    units: dict[str, str] | None = None,
 ) -> Path:
     """Each safety dimension's distance over one held-out episode for each policy (Figures
     5-6), with ``limits`` (per dimension, the distance at ``d_s``) as dashed lines in the
-    dimension's colour: below a line is beyond the expert's limit."""
+    dimension's colour: below a line is beyond the expert's limit. ``units``: per dimension,
+    the distance's unit (:data:`COST_UNITS` where it names none). One legend for all panels, below
+    them; a panel's title names its policy (the table's policy key where it extends the
+    ``method`` label, e.g. with the training seed) and its track."""
     policies = list(dict.fromkeys(traces["policy"]))
-    fig, axes = plt.subplots(len(policies), 1, figsize=(9, 2.3 * len(policies)), squeeze=False)
+    fig, axes = plt.subplots(
+        len(policies), 1, figsize=(9, 2.3 * len(policies) + 0.9), squeeze=False, sharex=True,
+        layout="constrained",
+    )  # fmt: skip
+    columns = [c for c in traces.columns if c.startswith("safety_")]
+    dims = [c.removeprefix("safety_") for c in columns]
+    unit = {d: (units or {}).get(d) or COST_UNITS for d in dims}
+    shown = set(unit.values())
+    handles: dict[str, Any] = {}
     for ax, key in zip(axes[:, 0], policies, strict=True):
         df = traces[traces["policy"] == key]
         seed = sorted(df["env_seed"].unique())[episode]
         df = df[(df["env_seed"] == seed) & ~df["warmup"]]
-        for i, col in enumerate(c for c in df.columns if c.startswith("safety_")):
+        for i, col in enumerate(columns):
             dim = col.removeprefix("safety_")
-            ax.plot(df["step"], df[col], lw=0.8, color=f"C{i}", label=dim)
+            ax.plot(df["step"], df[col], lw=0.8, color=f"C{i}", label=f"{dim} ({unit[dim]})")
             if limits and dim in limits:
-                ax.axhline(limits[dim], color=f"C{i}", ls="--", lw=0.8, label=f"{dim} at d_s")
+                ax.axhline(
+                    limits[dim], color=f"C{i}", ls="--", lw=0.8,
+                    label=f"{dim} at d_s ({limits[dim]:.3g} {unit[dim]})",
+                )  # fmt: skip
         off = df[df["offroad"]]
         if len(off):
             ax.plot(off["step"], np.zeros(len(off)), "r|", label="off-road")
-        lab = labels.get(key, {})
-        ax.set_title(f"{lab.get('method', key)} (track seed {seed})", fontsize=9)
-        ax.set_ylabel("distance (higher is safer)")
-        ax.legend(fontsize=7, ncol=4, loc="upper right")
+        method = labels.get(key, {}).get("method", key)
+        name = key if key.startswith(method) else method
+        ax.set_title(f"{name}, episode seed {seed}", fontsize=9)
+        ax.set_ylabel(f"distance ({next(iter(shown))})" if len(shown) == 1 else "distance")
+        for h, label in zip(*ax.get_legend_handles_labels(), strict=True):
+            handles.setdefault(label, h)
     axes[-1, 0].set_xlabel("step")
+    fig.legend(
+        handles.values(), handles.keys(), loc="outside lower center", ncol=max(len(columns), 1),
+        fontsize=7, frameon=False,
+    )  # fmt: skip
+    fig.suptitle(
+        "safety distance over one held-out episode per policy (higher is safer; dashed: the "
+        "distance at d_s, below it is beyond the expert's limit)",
+        fontsize=9,
+    )
     return save_figure(fig, path)
 
 
@@ -220,6 +315,76 @@ def plot_queries(
     return save_figure(fig, path)
 
 
+def trial_budgets(trials: pd.DataFrame) -> str:
+    """How many training seeds x episodes each trial was evaluated on (the trial table's
+    ``train_seeds`` and ``episodes``), one group per budget, the largest first; empty where
+    the table has no such columns."""
+    if not {"train_seeds", "episodes"} <= set(trials.columns):
+        return ""
+    done = trials.dropna(subset=["train_seeds", "episodes"])
+    groups = []
+    for (seeds, episodes), df in done.groupby(["train_seeds", "episodes"]):
+        early = "status" in df and (df["status"] == "stopped").all()
+        groups.append(
+            (int(episodes), f"{len(df)} trials of {int(seeds)} training seed"
+             f"{'s' if seeds != 1 else ''} x {int(episodes)} episodes"
+             + (" (stopped early)" if early else ""))
+        )  # fmt: skip
+    return "; ".join(text for _, text in sorted(groups, reverse=True))
+
+
+def objective_label(objective: str) -> str:
+    """The name of what the y axis of :func:`plot_pareto` plots."""
+    if objective == "reward_lcb":
+        return "reward_lcb: the reward's one-sided lower\nconfidence bound (the objective)"
+    return f"{objective} (the objective)"
+
+
+def _zoom_box(points: np.ndarray) -> tuple[float, float, float, float]:
+    """``(x0, x1, y0, y1)`` around ``points`` ``(n, 2)`` with a margin of a third of their
+    spread on each side (1% of the value where they do not spread)."""
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    pad = np.where(hi > lo, (hi - lo) / 3, 0.01 * np.abs(hi) + 1e-9)
+    return lo[0] - pad[0], hi[0] + pad[0], lo[1] - pad[1], hi[1] + pad[1]
+
+
+def _label_trials(ax: Any, trials: pd.DataFrame, objective: str, marked: Sequence[str]) -> None:
+    """Each trial's id beside its point (trials at the same point in one label); the
+    ``marked`` ones (candidates, winner) in black above their markers, the others in grey
+    below their points."""
+    at: dict[tuple[float, float], list[str]] = {}
+    for tid, x, y in zip(trials["trial_id"], trials["safety_mean"], trials[objective], strict=True):
+        if np.isfinite(x) and np.isfinite(y):
+            at.setdefault((float(x), float(y)), []).append(str(tid)[:8])
+    for (x, y), ids in at.items():
+        key = any(i in marked for i in ids)
+        ax.annotate(
+            " = ".join(ids), (x, y), xytext=(9, 9) if key else (5, -11),
+            textcoords="offset points", fontsize=7 if key else 6,
+            color="k" if key else "0.4", annotation_clip=True,
+        )  # fmt: skip
+
+
+def _draw_trials(ax: Any, trials: pd.DataFrame, threshold: float, objective: str) -> None:
+    """One panel of :func:`plot_pareto`: feasible trials filled, infeasible hollow, the front
+    dashed, the threshold dotted."""
+    r = trials[objective].to_numpy(float)
+    s = trials["safety_mean"].to_numpy(float)
+    feas = trials["feasible"].to_numpy(bool)
+    front = pareto_mask(r, s)
+    ax.scatter(
+        s[feas], r[feas], c="tab:blue", s=30, alpha=0.85, label=f"feasible ({feas.sum()})",
+        zorder=3,
+    )  # fmt: skip
+    ax.scatter(
+        s[~feas], r[~feas], s=30, facecolors="none", edgecolors="tab:red",
+        label=f"infeasible ({(~feas & np.isfinite(r)).sum()})", zorder=3,
+    )  # fmt: skip
+    order = np.argsort(s[front])
+    ax.plot(s[front][order], r[front][order], "k--", lw=0.8, label="Pareto front")
+    ax.axvline(threshold, color="gray", ls=":", label=f"threshold {threshold:.3g}")
+
+
 def plot_pareto(
     trials: pd.DataFrame,
     threshold: float,
@@ -236,42 +401,51 @@ def plot_pareto(
     hollow, the Pareto front of the two joined, the threshold as a vertical line, the final
     phase's ``candidates`` boxed and its ``winner`` ringed (pass a winner only when the final
     phase accepted it). Markers of the candidates and the winner are hollow, drawn under the
-    trials' points, so they hide none."""
-    r = trials[objective].to_numpy(float)
-    s = trials["safety_mean"].to_numpy(float)
-    feas = trials["feasible"].to_numpy(bool)
-    front = pareto_mask(r, s)
-    fig, ax = plt.subplots(figsize=(6.4, 4.4))
+    trials' points, so they hide none.
+
+    With candidates or a winner, a second panel zooms in on them (the grey box on the first),
+    every trial there labelled with its id: they sit within a few reward points of each
+    other. The title's second line says how many seeds x episodes each trial was evaluated
+    on (:func:`trial_budgets`)."""
     boxed = trials[trials["trial_id"].isin(list(candidates))]
-    if len(boxed):
-        ax.scatter(
-            boxed["safety_mean"], boxed[objective], marker="s", s=170, facecolors="none",
-            edgecolors="k", lw=1.0, label=f"final-phase candidates ({len(boxed)})", zorder=2,
-        )  # fmt: skip
-    if winner is not None and (trials["trial_id"] == winner).any():
-        w = trials[trials["trial_id"] == winner].iloc[0]
-        ax.scatter(
-            [w["safety_mean"]], [w[objective]], marker="o", s=420, facecolors="none",
-            edgecolors="goldenrod", lw=2.5, label="winner (final phase)", zorder=2,
-        )  # fmt: skip
-    ax.scatter(
-        s[feas], r[feas], c="tab:blue", s=30, alpha=0.85, label=f"feasible ({feas.sum()})",
-        zorder=3,
-    )  # fmt: skip
-    ax.scatter(
-        s[~feas], r[~feas], s=30, facecolors="none", edgecolors="tab:red",
-        label=f"infeasible ({(~feas & np.isfinite(r)).sum()})", zorder=3,
-    )  # fmt: skip
-    order = np.argsort(s[front])
-    ax.plot(s[front][order], r[front][order], "k--", lw=0.8, label="Pareto front")
-    ax.axvline(threshold, color="gray", ls=":", label=f"threshold {threshold:.2f}")
-    ax.set_xlabel(safety_label)
-    ax.set_ylabel(
-        "reward, one-sided lower confidence bound (the objective)"
-        if objective == "reward_lcb"
-        else f"{objective.replace('_', ' ')} (the objective)"
+    chosen = trials[trials["trial_id"] == winner] if winner is not None else trials.iloc[:0]
+    marked = pd.concat([boxed, chosen])
+    panels = 2 if len(marked) else 1
+    fig, axes = plt.subplots(
+        1, panels, figsize=(6.4 * panels, 5.0), squeeze=False, layout="constrained"
     )
-    ax.set_title(title or "study trials")
-    ax.legend(fontsize=8, loc="best")
-    ax.grid(alpha=0.3)
+    for ax in axes[0]:
+        _draw_trials(ax, trials, threshold, objective)
+        if len(boxed):
+            ax.scatter(
+                boxed["safety_mean"], boxed[objective], marker="s", s=170, facecolors="none",
+                edgecolors="k", lw=1.0, label=f"final-phase candidates ({len(boxed)})",
+                zorder=2,
+            )  # fmt: skip
+        if len(chosen):
+            w = chosen.iloc[0]
+            ax.scatter(
+                [w["safety_mean"]], [w[objective]], marker="o", s=420, facecolors="none",
+                edgecolors="goldenrod", lw=2.5, label=f"winner {str(w['trial_id'])[:8]}",
+                zorder=2,
+            )  # fmt: skip
+        ax.set_xlabel(safety_label)
+        ax.set_ylabel(objective_label(objective))
+        ax.grid(alpha=0.3)
+    if panels == 2:
+        x0, x1, y0, y1 = _zoom_box(marked[["safety_mean", objective]].to_numpy(float))
+        axes[0][1].set_xlim(x0, x1)
+        axes[0][1].set_ylim(y0, y1)
+        axes[0][1].set_title("zoom on the final phase's candidates", fontsize=9)
+        _label_trials(axes[0][1], trials, objective, list(marked["trial_id"]))
+        axes[0][0].add_patch(
+            plt.Rectangle((x0, y0), x1 - x0, y1 - y0, fc="0.5", alpha=0.25, ec="0.3", zorder=1)
+        )
+    handles, names = axes[0][0].get_legend_handles_labels()
+    fig.legend(
+        handles, names, loc="outside lower center", ncol=min(len(names), 4), fontsize=8,
+        frameon=False,
+    )  # fmt: skip
+    budgets = trial_budgets(trials)
+    fig.suptitle((title or "study trials") + (f"\n{budgets}" if budgets else ""), fontsize=10)
     return save_figure(fig, path)

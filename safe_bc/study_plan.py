@@ -49,8 +49,14 @@ def safety_axis_label(env_id: str) -> str:
 
 
 def _safety_label(task: TaskSpec) -> str:
-    what = task.drawing.closest if task.drawing is not None else "distance to the limit, cost units"
-    return f"safety mean ({what}, higher is safer)"
+    units = list(dict.fromkeys(task.safety_units)) or ["cost units"]
+    if task.drawing is not None:
+        what = task.drawing.closest
+    elif len(units) == 1:
+        what = f"distance to the limit, {units[0]}"
+    else:
+        what = f"each step's smallest margin: {', '.join(units)}"
+    return f"safety mean ({what}; higher is safer)"
 
 
 @dataclass(frozen=True)

@@ -159,3 +159,20 @@ def test_quick_stream_case_compares_memory_and_streamed_frames():
             "weights identical across modes: yes"
             in rows[f"{episodes} episodes, memory: peak RSS"]["note"]
         )
+
+
+def test_quick_cli_case_times_the_help_against_a_bare_interpreter():
+    """``safe-bc --help`` and ``safe-bc train --help`` in fresh processes, each paired with
+    ``python -c pass`` in the same run: absolute seconds and the ratio (no threshold: the
+    machine is shared)."""
+    rows = bench.run_case("cli", bench.QUICK, repeats=2)["rows"]
+    assert [r["variant"] for r in rows] == [
+        "python -c pass",
+        "safe-bc --help",
+        "safe-bc train --help",
+    ]
+    assert all(r["unit"] == "s" and r["repeats"] == 2 for r in rows)
+    assert all(math.isfinite(r["value"]) and r["value"] > 0 for r in rows)
+    assert rows[0]["ratio"] == 1.0
+    assert all(r["baseline"] == "python -c pass" and r["ratio"] > 0 for r in rows[1:])
+    assert "target: at most 0.5 s" in rows[1]["note"]

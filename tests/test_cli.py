@@ -237,6 +237,27 @@ def test_short_flags_and_task_defaults() -> None:
     assert not job.verbose and parse(["tune", "s.py", "--verbose"])[1].verbose  # Tune's table
 
 
+def test_handover_flags_carry_the_configs_names_and_keep_the_old_ones() -> None:
+    import dataclasses
+
+    from safe_bc.handover import HandoverConfig
+
+    base = ["evaluate", "--checkpoint", "c", "--out", "o"]
+    new = parse([*base, "--handover.width", "2", "--handover.hold", "6",
+                 "--handover.lookahead", "6", "--handover.hold-on", "front"])[1]  # fmt: skip
+    old = parse([*base, "--defer-width", "2", "--defer-hold=6", "--defer-lookahead", "6",
+                 "--defer-hold-on", "front"])[1]  # fmt: skip
+    assert new == old
+    h = new.handover
+    assert HandoverConfig(h.width, h.lookahead, h.hold, h.hold_on) == HandoverConfig(
+        2.0, lookahead=6, hold=6, hold_on=("front",)
+    )
+    # every flag but the width (None: no handover) is a field of HandoverConfig of that name
+    names = {f.name for f in dataclasses.fields(HandoverConfig)}
+    assert {f.name for f in dataclasses.fields(h)} <= names
+    assert not parse(base)[1].handover.given and h.given
+
+
 def test_train_records_quantile_and_combine(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     demos = tmp_path / "demos"
     meta = init_dataset(demos, make_meta("raw"))

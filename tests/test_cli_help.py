@@ -58,7 +58,7 @@ def test_short_help_shows_first_sentences_and_defaults() -> None:
     assert "[2.0]" in entry and "Width of the critical edge" in entry
     assert "The default 2 px" not in text  # the docstring's second sentence
     assert "--out PATH [required]" in text
-    assert "Short flags: --seed for --bc.train.seed." in text
+    assert "Alias --seed for --bc.train.seed." in text
 
 
 def test_first_sentence_and_plain() -> None:

@@ -392,7 +392,7 @@ def test_the_figure_reads_the_committed_measurements(tmp_path) -> None:
 
 
 def test_evaluate_defers_to_the_expert_near_the_limit(rehab_start, tmp_path, capsys) -> None:
-    """``safe-bc evaluate --defer-width W``: a width wider than any cost hands every scored
+    """``safe-bc evaluate --handover.width W``: a width wider than any cost hands every scored
     session to the guideline (the episodes are then the guideline's own on those patients),
     width 0 defers only at or beyond d_s; a negative width is one clear line."""
     import pandas as pd
@@ -411,10 +411,10 @@ def test_evaluate_defers_to_the_expert_near_the_limit(rehab_start, tmp_path, cap
 
     plain = run("plain")
     assert "deferred_share" not in plain
-    everywhere = run("all", "--defer-width", "1e9")
+    everywhere = run("all", "--handover.width", "1e9")
     assert (everywhere["deferred_share"] == 1.0).all()
     assert "of steps" in capsys.readouterr().out
-    at_limit = run("zero", "--defer-width", "0")
+    at_limit = run("zero", "--defer-width", "0")  # the flag's former name, an alias
     assert (at_limit["deferred_share"] < 1.0).all()
     assert not everywhere["reward"].equals(plain["reward"])
     guideline = run_evaluate(
@@ -424,19 +424,19 @@ def test_evaluate_defers_to_the_expert_near_the_limit(rehab_start, tmp_path, cap
     ).episodes
     np.testing.assert_array_equal(guideline["reward"], everywhere["reward"])
     code = main(["evaluate", "--checkpoint", str(rehab_start), "--out", str(tmp_path / "bad"),
-                 "--defer-width", "-1", "--quiet"])  # fmt: skip
+                 "--handover.width", "-1", "--quiet"])  # fmt: skip
     assert code != 0
-    assert "--defer-width must be a finite number >= 0" in capsys.readouterr().err
-    held = run("held", "--defer-width", "0", "--defer-hold", "3", "--defer-lookahead", "2")
+    assert "--handover.width must be a finite number >= 0" in capsys.readouterr().err
+    held = run("held", "--handover.width", "0", "--handover.hold", "3", "--handover.lookahead", "2")
     assert "held 3 steps" in (out := capsys.readouterr().out) and "2 steps ahead" in out
     meta = read_table(tmp_path / "held" / "episodes.parquet")[1]
     assert meta["defer_hold"] == 3 and meta["defer_lookahead"] == 2 and len(held) == 4
     code = main(["evaluate", "--checkpoint", str(rehab_start), "--out", str(tmp_path / "bad"),
-                 "--defer-hold", "3", "--quiet"])  # fmt: skip
-    assert code != 0 and "--defer-hold needs --defer-width" in capsys.readouterr().err
+                 "--handover.hold", "3", "--quiet"])  # fmt: skip
+    assert code != 0 and "--handover.hold needs --handover.width" in capsys.readouterr().err
     code = main(["evaluate", "--checkpoint", str(rehab_start), "--out", str(tmp_path / "bad"),
-                 "--defer-width", "0", "--defer-hold-on", "x", "--quiet"])  # fmt: skip
-    assert code != 0 and "--defer-hold-on needs --defer-hold" in capsys.readouterr().err
-    bad = ["--defer-width", "0", "--defer-hold", "2", "--defer-hold-on", "x", "--quiet"]
+                 "--handover.width", "0", "--handover.hold-on", "x", "--quiet"])  # fmt: skip
+    assert code != 0 and "--handover.hold-on needs --handover.hold" in capsys.readouterr().err
+    bad = ["--handover.width", "0", "--handover.hold", "2", "--handover.hold-on", "x", "--quiet"]
     code = main(["evaluate", "--checkpoint", str(rehab_start), "--out", str(tmp_path / "b"), *bad])
     assert code != 0 and "unknown safety dimension(s) ['x']" in capsys.readouterr().err

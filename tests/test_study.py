@@ -198,7 +198,7 @@ def test_pareto_mask_summary_and_figure(tmp_path: Path) -> None:
     real_save = plt.Figure.savefig
 
     def grab(fig, *args, **kwargs):  # the legend says what the final phase decided
-        labels.extend(t.get_text() for t in fig.axes[0].get_legend().get_texts())
+        labels.extend(t.get_text() for t in fig.legends[0].get_texts())
         return real_save(fig, *args, **kwargs)
 
     plt.Figure.savefig = grab
@@ -226,8 +226,9 @@ def test_pareto_mask_summary_and_figure(tmp_path: Path) -> None:
     finally:
         plt.Figure.savefig = real_save
     assert axes == [
-        "safety mean (distance to the limit, cost units, higher is safer)",
-        "reward, one-sided lower confidence bound (the objective)",
+        "safety mean (each step's smallest margin: HRR fraction, model units, 100 mmHg; "
+        "higher is safer)",
+        "reward_lcb: the reward's one-sided lower\nconfidence bound (the objective)",
     ]
     assert "px to the grass" in safety_axis_label("CarRacing-v3")
 

@@ -761,15 +761,20 @@ def write_outputs(
     write_text_atomic(c.out / f"{c.name}.md", render_markdown(c, table, meta, episodes))
     from safe_bc.plots import plot_alpha_sweep, plot_learning_curves, plot_traces
 
+    task = task_defaults(c.task)
     for figure, file in c.figures:
         if figure == "alpha_sweep":
             sweep = table[table["mode"].isin(["mix", EXPERT])]  # the baselines have no alpha
-            plot_alpha_sweep(sweep, c.out / file, paper=PAPER_TABLE1 if c.paper else None)
+            plot_alpha_sweep(
+                sweep, c.out / file, paper=PAPER_TABLE1 if c.paper else None,
+                units=task.safety_units,
+            )  # fmt: skip
         elif figure == "traces" and len(traces):
             pairs = episodes[["policy", "method"]].drop_duplicates().values
             plot_traces(
                 traces, {p: {"method": m} for p, m in pairs}, c.out / file,
                 limits=meta.get("limit_distances"),
+                units=dict(zip(task.safety_dims, task.safety_units, strict=False)),
             )  # fmt: skip
         elif figure == "learning_curves" and history is not None and len(history):
             means = episodes.groupby("method")["reward"].mean()
@@ -805,4 +810,24 @@ def rerender(comparison: Comparison) -> pd.DataFrame:
     history_path = c.out / f"{c.name}_history.parquet"
     history = read_table(history_path)[0] if history_path.exists() else None
     meta = {**meta, "rendered": run_metadata()}
+    if "limit_distances" not in meta:
+        found = stored_limit_distances(c)
+        meta.update({"limit_distances": found} if found is not None else {})
     return write_outputs(c, episodes, traces, train_df, meta, history)
+
+
+def stored_limit_distances(c: Comparison) -> dict[str, float] | None:
+    """:func:`limit_distances` of the comparison's demonstrations for a run whose tables
+    predate recording them: read from ``c.demos`` when it is there and its ``d_s`` are the
+    ones the run's selection table recorded (the same set); else ``None``."""
+    selection = c.out / f"{c.name}_selection" / "selection.parquet"
+    if not (selection.exists() and Path(c.demos).exists()):
+        return None
+    from safe_bc.data.store import load_demonstrations, read_table_metadata
+
+    recorded = read_table_metadata(selection).get("thresholds")
+    demos = load_demonstrations(c.demos)
+    found = select_for(demos, SelectionConfig(eps=selection_eps(c), alpha=0.0)).thresholds
+    if recorded is None or not np.allclose(found, recorded, rtol=0, atol=1e-6):
+        return None
+    return limit_distances(demos)

@@ -22,8 +22,9 @@ episode, in episode-id order):
     grass left/front/right; rehab: margins to the limits);
   - ``cost`` ``(T+1, S) float32``, higher is less safe;
   - ``costs`` ``(T+1,)`` 0.0 or 1.0 (read back as float64), the scalar cost in DSRL's form
-    (:func:`safe_bc.export.limits.step_costs`): 1.0 where ``observations[i]`` is a
-    scored step beyond the limit ``d_s`` in some dimension (``c_s > d_s``), else 0.0;
+    (:func:`safe_bc.export.limits.step_costs`): by default 1.0 where ``observations[i]`` is
+    a scored step in the critical zone (``c_s >= d_s - eps`` in some dimension), else 0.0;
+    ``cost="beyond"``: 1.0 only beyond the limit (``c_s > d_s``);
   - ``warmup``, ``offroad`` ``(T+1,) bool``;
   - ``executed_action`` ``(T+1, A) float32``: entry ``t`` is the action sent to the env
     from ``observations[t]`` (aligned with ``actions[t]``; zeros at the final entry);
@@ -33,10 +34,14 @@ episode, in episode-id order):
 Each episode's Minari metadata has the reset ``seed`` and ``safe_bc_episode_id``; the
 dataset's metadata has ``safe_bc`` (the source ``dataset.json``), ``safe_bc_safety_dims``
 and the limits ``costs`` was computed by (:func:`safe_bc.export.limits.limits_metadata`):
-``safe_bc_cost_limits`` (``d_s`` per dimension), ``safe_bc_eps`` and
-``safe_bc_critical_zone`` (the rules). The env spec is the one :func:`safe_bc.tasks.make_env` builds
-(for CarRacing with the safety wrapper), so ``dataset.recover_environment()`` gives an
-env whose ``info`` has the same ``safety``/``cost`` keys.
+``safe_bc_cost_limits`` (``d_s`` per dimension), ``safe_bc_eps``, ``safe_bc_cost_rule``,
+``safe_bc_cost_steps`` (how many steps the scalar marks) and ``safe_bc_critical_zone`` (the
+rules). The env spec is the one :func:`safe_bc.tasks.make_env` builds (for CarRacing with the
+safety wrapper), so ``dataset.recover_environment()`` gives an env whose ``info`` has the
+same ``safety``/``cost`` keys. Minari stores the spec as JSON: an env registered with a
+callable entry point (a plug-in task's ``GymEnv(id, Class)``) is stored by the callable's
+import path, ``module:Class``, and refused in one line where it has none
+(:func:`storable_spec`). :func:`dsrl_dataset` reads an export back as DSRL's dataset dict.
 
 >>> import importlib.util
 >>> importlib.util.find_spec("minari") is None or callable(export_minari)
@@ -45,6 +50,8 @@ True
 
 from __future__ import annotations
 
+import dataclasses
+import importlib
 import json
 import shutil
 import warnings
@@ -63,7 +70,15 @@ from safe_bc.data.store import (
     read_meta,
 )
 from safe_bc.episode import Episode
-from safe_bc.export.limits import COSTS, dataset_zone, limits_metadata, step_costs
+from safe_bc.export.limits import (
+    COSTS,
+    DEFAULT_COST_RULE,
+    CostRule,
+    dataset_zone,
+    limits_metadata,
+    step_costs,
+)
+from safe_bc.selection import CriticalZone
 
 INFO_KEYS: tuple[str, ...] = (
     "safety",
@@ -97,10 +112,12 @@ def import_minari() -> Any:
     return minari
 
 
-def episode_buffer_fields(episode: Episode, limits: Any = None) -> dict[str, Any]:
+def episode_buffer_fields(
+    episode: Episode, zone: CriticalZone | None = None, cost: CostRule = DEFAULT_COST_RULE
+) -> dict[str, Any]:
     """The Minari ``EpisodeBuffer`` fields of one safe_bc episode (see the module doc);
-    ``limits`` (``d_s`` per dimension) gives the scalar ``costs`` (``None``: infinite limits,
-    all 0.0).
+    ``zone`` (``d_s`` per dimension and eps) and ``cost`` (the rule) give the scalar
+    ``costs`` (no zone: all 0.0).
 
     >>> from safe_bc.episode import Episode
     >>> n = 2
@@ -108,7 +125,7 @@ def episode_buffer_fields(episode: Episode, limits: Any = None) -> dict[str, Any
     ...              np.ones((n, 2), np.float32), np.zeros(n, np.float32), np.array([0, 1], bool),
     ...              np.zeros(n, bool), np.ones((n, 3), np.float32), np.zeros((n, 3), np.float32),
     ...              np.zeros(n, bool), np.zeros(n, bool))
-    >>> f = episode_buffer_fields(ep, limits=(1.0, 1.0, 1.0))
+    >>> f = episode_buffer_fields(ep, CriticalZone((1.0, 1.0, 1.0), eps=0.5))
     >>> f["observations"].shape, f["actions"].shape, f["infos"]["safety"].shape
     ((3, 4), (2, 2), (3, 3))
     >>> f["infos"]["repeated_observation"]
@@ -122,12 +139,14 @@ def episode_buffer_fields(episode: Episode, limits: Any = None) -> dict[str, Any
         return np.concatenate([a, a[-1:]], axis=0)
 
     executed = episode.executed_actions.astype(np.float32)
-    if limits is None:
-        limits = np.full(episode.costs.shape[1], np.inf)
+    if zone is None:
+        scalar = np.zeros(n, np.float32)
+    else:
+        scalar = step_costs(episode.costs, episode.warmup, zone, cost)
     infos = {
         "safety": pad_repeat(episode.safety.astype(np.float32)),
         "cost": pad_repeat(episode.costs.astype(np.float32)),
-        COSTS: pad_repeat(step_costs(episode.costs, episode.warmup, limits)),
+        COSTS: pad_repeat(scalar),
         "warmup": pad_repeat(episode.warmup.astype(bool)),
         "offroad": pad_repeat(episode.offroad.astype(bool)),
         "executed_action": np.concatenate([executed, np.zeros_like(executed[:1])], axis=0),
@@ -160,17 +179,58 @@ def _env_for(meta: DatasetMeta) -> Any:
     return make_env(EnvConfig(env_id=meta.env_id, max_episode_steps=meta.max_steps))
 
 
-def _description(meta: DatasetMeta, root: Path) -> str:
+def _description(meta: DatasetMeta, root: Path, cost: CostRule) -> str:
+    marks = {
+        "critical": "in the critical zone, c_s >= d_s - eps,",
+        "beyond": "beyond the limit d_s",
+    }[cost]
     return (
         f"safe_bc expert demonstrations of {meta.env_id} exported from {root}: actions are "
         "the expert's recorded actions; infos hold per-step safety distances ('safety', "
         f"dims {list(meta.safety_dims)}, higher is safer), costs ('cost'), 'warmup', "
-        "'offroad', 'executed_action' and DSRL's scalar 'costs' (1.0 at a scored step "
-        "beyond the limit d_s in some dimension; d_s and eps are in the dataset metadata, "
-        "safe_bc_cost_limits and safe_bc_eps). safe_bc does not store the observation after the "
-        "last step: each episode's final observation repeats the last stored one "
-        "(infos['repeated_observation'] is True there)."
+        f"'offroad', 'executed_action' and DSRL's scalar 'costs' (1.0 at a scored step {marks} "
+        "in some dimension; d_s, eps and the rule are in the dataset metadata, "
+        "safe_bc_cost_limits, safe_bc_eps and safe_bc_cost_rule). safe_bc does not store the "
+        "observation after the last step: each episode's final observation repeats the last "
+        "stored one (infos['repeated_observation'] is True there)."
     )
+
+
+def entry_point_path(entry: Any) -> str | None:
+    """``module:name`` of a callable entry point that importing ``module`` and reading its
+    top-level ``name`` gives back (gymnasium's form of an entry point); ``None`` where there is
+    none (a lambda, a class defined in a function or in ``__main__``, a nested class)."""
+    module, name = getattr(entry, "__module__", None), getattr(entry, "__qualname__", "")
+    if not module or module == "__main__" or not name.isidentifier():
+        return None
+    try:
+        found = getattr(importlib.import_module(module), name)
+    except (ImportError, AttributeError):
+        return None
+    return f"{module}:{name}" if found is entry else None
+
+
+def storable_spec(env: Any) -> Any:
+    """``env``'s spec as Minari can store it (as JSON): unchanged for an entry point given as
+    ``module:Class``, else with the callable replaced by its import path
+    (:func:`entry_point_path`).
+
+    Raises:
+        ValueError: one line naming the env and the fix, when the callable has no import
+            path.
+    """
+    spec = env.spec
+    if spec is None or isinstance(spec.entry_point, str):
+        return spec
+    path = entry_point_path(spec.entry_point)
+    if path is None:
+        raise ValueError(
+            f"{spec.id}: its entry point {spec.entry_point!r} is a callable without an import "
+            "path, which a Minari dataset cannot store; register the env by one, "
+            f"GymEnv({spec.id!r}, 'module:Class'), or define the class at the top level of an "
+            "importable module; nothing was written"
+        )
+    return dataclasses.replace(spec, entry_point=path)
 
 
 def check_dataset_id(dataset_id: str) -> None:
@@ -197,6 +257,7 @@ def export_minari(
     author: str | None = None,
     description: str | None = None,
     eps: float | None = None,
+    cost: CostRule = DEFAULT_COST_RULE,
 ) -> Any:
     """Write the safe_bc dataset at ``demos`` as the Minari dataset ``dataset_id``.
 
@@ -209,7 +270,10 @@ def export_minari(
         dataset_id: e.g. ``safe_bc/carracing-drift-v0`` (``namespace/name-vN``).
         author: optional author recorded in the Minari metadata.
         description: defaults to a summary of the layout (see the module doc).
-        eps: the critical zone's width recorded in the metadata; ``None``: the task's.
+        eps: the critical zone's width (cost units); ``None``: the task's.
+        cost: which steps the scalar ``costs`` marks
+            (:data:`safe_bc.export.limits.CostRule`): the critical zone (default) or the
+            steps beyond ``d_s``.
 
     Returns:
         The ``minari.MinariDataset``.
@@ -218,11 +282,11 @@ def export_minari(
         MinariNotInstalledError: the ``minari`` extra is missing.
         DatasetError: ``demos`` is not a readable safe_bc dataset, or has no episodes.
         ValueError: ``dataset_id`` is not a versioned Minari id (checked before anything is
-            created), or a Minari dataset ``dataset_id`` exists already.
+            created), a Minari dataset ``dataset_id`` exists already, or the env's callable
+            entry point has no import path (:func:`storable_spec`).
     """
     minari = import_minari()
     check_dataset_id(dataset_id)  # before Minari makes any folder
-    from minari.data_collector import EpisodeBuffer
     from minari.storage import get_dataset_path
 
     root = Path(demos)
@@ -238,48 +302,17 @@ def export_minari(
     zone = dataset_zone(root, meta, eps)
     env = _env_for(meta)
     try:
+        spec = storable_spec(env)
         shape = tuple(int(x) for x in env.observation_space.shape)
         if shape != tuple(meta.obs_shape):
             raise DatasetError(
                 f"{root}: observations of shape {tuple(meta.obs_shape)} do not fit "
                 f"{meta.env_id}'s observation space {shape}"
             )
-        episodes = _episodes(root, meta)
-        dataset = None
-        ids: list[int] = []
+        source = env if spec is env.spec else spec
+        text = description or _description(meta, root, cost)
         try:
-            for episode in episodes:
-                buffer = EpisodeBuffer(**episode_buffer_fields(episode, zone.limits))
-                if dataset is None:
-                    with warnings.catch_warnings():  # optional provenance fields
-                        warnings.filterwarnings(
-                            "ignore", r"`(author|author_email|code_permalink)` is set to None"
-                        )
-                        dataset = minari.create_dataset_from_buffers(
-                            dataset_id=dataset_id,
-                            buffer=[buffer],
-                            env=env,
-                            eval_env=env,
-                            algorithm_name=f"safe_bc expert ({meta.expert.get('type', 'expert')})",
-                            author=author,
-                            description=description or _description(meta, root),
-                            data_format=DATA_FORMAT,
-                            jpeg_encoding=False,
-                        )
-                else:
-                    dataset.update_dataset_from_buffer([buffer])
-                ids.append(episode.episode_id)
-            assert dataset is not None  # at least one episode, checked above
-            dataset.storage.update_episode_metadata(
-                [{"safe_bc_episode_id": i} for i in ids], range(len(ids))
-            )
-            dataset.storage.update_metadata(
-                {
-                    "safe_bc": json.loads(meta.to_json()),
-                    "safe_bc_safety_dims": list(meta.safety_dims),
-                    **limits_metadata(zone, meta.safety_dims),
-                }
-            )
+            _write(minari, dataset_id, root, meta, source, author, text, zone, cost)
         except BaseException:
             shutil.rmtree(target, ignore_errors=True)
             raise
@@ -288,11 +321,101 @@ def export_minari(
     return minari.load_dataset(dataset_id)
 
 
+def _write(
+    minari: Any,
+    dataset_id: str,
+    root: Path,
+    meta: DatasetMeta,
+    env: Any,
+    author: str | None,
+    description: str,
+    zone: CriticalZone,
+    cost: CostRule,
+) -> None:
+    """The episodes at ``root`` written one at a time as the Minari dataset ``dataset_id``
+    (``env``: the env, or its storable spec), then the dataset's metadata."""
+    from minari.data_collector import EpisodeBuffer
+
+    dataset = None
+    ids: list[int] = []
+    marked = 0
+    for episode in _episodes(root, meta):
+        fields = episode_buffer_fields(episode, zone, cost)
+        marked += int(sum(fields["infos"][COSTS][:-1]))  # the stored steps, not the repeat
+        buffer = EpisodeBuffer(**fields)
+        if dataset is None:
+            with warnings.catch_warnings():  # optional provenance fields
+                warnings.filterwarnings(
+                    "ignore", r"`(author|author_email|code_permalink)` is set to None"
+                )
+                dataset = minari.create_dataset_from_buffers(
+                    dataset_id=dataset_id,
+                    buffer=[buffer],
+                    env=env,
+                    eval_env=env,
+                    algorithm_name=f"safe_bc expert ({meta.expert.get('type', 'expert')})",
+                    author=author,
+                    description=description,
+                    data_format=DATA_FORMAT,
+                    jpeg_encoding=False,
+                )
+        else:
+            dataset.update_dataset_from_buffer([buffer])
+        ids.append(episode.episode_id)
+    assert dataset is not None  # at least one episode, checked by the caller
+    dataset.storage.update_episode_metadata(
+        [{"safe_bc_episode_id": i} for i in ids], range(len(ids))
+    )
+    dataset.storage.update_metadata(
+        {
+            "safe_bc": json.loads(meta.to_json()),
+            "safe_bc_safety_dims": list(meta.safety_dims),
+            **limits_metadata(zone, meta.safety_dims, cost),
+            "safe_bc_cost_steps": marked,
+        }
+    )
+
+
+DSRL_KEYS: tuple[str, ...] = (
+    "observations",
+    "actions",
+    "rewards",
+    "costs",
+    "terminals",
+    "timeouts",
+    "next_observations",
+)
+"""The arrays of DSRL's dataset dict (``env.get_dataset()``), the one OSRL's learners read."""
+
+
+def dsrl_dataset(dataset: Any) -> dict[str, np.ndarray]:
+    """An exported Minari dataset as DSRL's dataset dict (:data:`DSRL_KEYS`), one row per
+    transition over all episodes: the observation an action was chosen in and the next one,
+    the action, reward, ``terminals`` (terminations) and ``timeouts`` (truncations), and
+    ``costs``, the scalar of the state the action led to (``infos["costs"][1:]``; an
+    episode's last transition reads the repeated last stored step)."""
+    parts: dict[str, list[np.ndarray]] = {k: [] for k in DSRL_KEYS}
+    for ep in dataset.iterate_episodes():
+        obs = np.asarray(ep.observations)
+        parts["observations"].append(obs[:-1])
+        parts["next_observations"].append(obs[1:])
+        parts["actions"].append(np.asarray(ep.actions))
+        parts["rewards"].append(np.asarray(ep.rewards, np.float32))
+        parts["costs"].append(np.asarray(ep.infos[COSTS], np.float32)[1:])
+        parts["terminals"].append(np.asarray(ep.terminations, bool))
+        parts["timeouts"].append(np.asarray(ep.truncations, bool))
+    return {k: np.concatenate(v) for k, v in parts.items()}
+
+
 __all__ = [
     "DATA_FORMAT",
+    "DSRL_KEYS",
     "INFO_KEYS",
     "MinariNotInstalledError",
+    "dsrl_dataset",
+    "entry_point_path",
     "episode_buffer_fields",
     "export_minari",
     "import_minari",
+    "storable_spec",
 ]

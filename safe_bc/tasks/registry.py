@@ -164,6 +164,9 @@ class TaskSpec:
     """The critical-zone handover a recommender of this task uses by default (a
     :class:`safe_bc.handover.HandoverConfig`, in the cost's units, chosen by a committed
     measurement on the task's selection tracks); ``None``: none measured yet."""
+    safety_units: tuple[str, ...] = ()
+    """Per safety dimension (``safety_dims`` order), the unit its distance and cost are
+    measured in, as figures label their axes (CarRacing: ``px``); empty: ``cost units``."""
     safer_actions: tuple[int, ...] | None = None
     """Per action component, the sign of the direction in which no safety cost rises
     (``-1``: a lower value is safer, ``+1``: a higher one), what a handover with
@@ -179,6 +182,8 @@ class TaskSpec:
             raise ValueError(f"{self.name}: action_bounds must be two equal, non-empty tuples")
         if not self.safety_dims:
             raise ValueError(f"{self.name}: a task needs at least one safety dimension")
+        if self.safety_units and len(self.safety_units) != len(self.safety_dims):
+            raise ValueError(f"{self.name}: safety_units must name one unit per safety dimension")
         if self.safer_actions is not None and (
             len(self.safer_actions) != len(low) or set(self.safer_actions) - {-1, 1}
         ):

@@ -140,7 +140,8 @@ def test_rehab_export_carries_the_limits_and_dsrls_scalar_cost(
     rehab_demos, tmp_path, monkeypatch
 ) -> None:
     """Read back as a DSRL/OSRL loader would: flat transitions with one ``costs`` value each
-    (the cost of the state the action led to) and the limits from the dataset metadata."""
+    (the cost of the state the action led to) and the limits from the dataset metadata; the
+    scalar marks the critical zone unless told to mark only steps beyond d_s."""
     from safe_bc.tasks import task_defaults
 
     monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path / "minari"))
@@ -150,21 +151,110 @@ def test_rehab_export_carries_the_limits_and_dsrls_scalar_cost(
     dims = meta["safe_bc_safety_dims"]
     limits = np.array([meta["safe_bc_cost_limits"][d] for d in dims])
     assert meta["safe_bc_eps"] == 0.25 and meta["safe_bc_critical_zone"]["combine"] == "any"
+    assert meta["safe_bc_cost_rule"] == "critical"
     stored = read_episodes(rehab_demos)
     scored = np.concatenate([e.costs[~e.warmup] for e in stored])
     np.testing.assert_allclose(limits, scored.max(axis=0), rtol=1e-6)  # d_s: the worst cost
-    flat = {"costs": [], "cost": [], "warmup": []}
-    for ep in dataset.iterate_episodes():
-        costs = np.asarray(ep.infos["costs"])
-        assert costs.shape == (len(ep.actions) + 1,)
-        for key in flat:  # DSRL: one entry per transition, the next state's
-            flat[key].append(np.asarray(ep.infos[key])[1:])
-    costs, cost, warmup = (np.concatenate(flat[k]) for k in ("costs", "cost", "warmup"))
+    costs, cost, warmup = _flat(dataset, ("costs", "cost", "warmup"))
     assert len(costs) == dataset.total_steps
-    expected = (np.any(cost > limits.astype(np.float32), axis=1) & ~warmup).astype(np.float32)
+    zone = (limits - 0.25).astype(np.float32)
+    expected = (np.any(cost >= zone, axis=1) & ~warmup).astype(np.float32)
     np.testing.assert_array_equal(costs, expected)
-    # the expert set defines d_s, so none of its scored steps is beyond it; some step is at it
-    assert costs.sum() == 0 and np.any(np.isclose(cost, limits).any(axis=1))
+    assert costs.sum() > 0  # at least the step that set d_s
+    marked = sum(np.asarray(ep.infos["costs"])[:-1].sum() for ep in dataset.iterate_episodes())
+    assert meta["safe_bc_cost_steps"] == int(marked)  # the stored steps
+    # beyond d_s: the expert set defines d_s, so none of its scored steps is; some is at it
+    export_minari(rehab_demos, "safe_bc/rehab-beyond-v0", eps=0.25, cost="beyond")
+    beyond = minari.load_dataset("safe_bc/rehab-beyond-v0")
+    (scalar,) = _flat(beyond, ("costs",))
+    assert scalar.sum() == 0 and np.any(np.isclose(cost, limits).any(axis=1))
+    assert beyond.storage.metadata["safe_bc_cost_rule"] == "beyond"
     export_minari(rehab_demos, "safe_bc/rehab-default-eps-v0")
     default = minari.load_dataset("safe_bc/rehab-default-eps-v0").storage.metadata
     assert default["safe_bc_eps"] == task_defaults("rehab").eps
+
+
+def _flat(dataset, keys: tuple[str, ...]) -> list[np.ndarray]:
+    """Each info of ``keys`` over all episodes, DSRL's way: one entry per transition, the next
+    state's."""
+    return [
+        np.concatenate([np.asarray(ep.infos[k])[1:] for ep in dataset.iterate_episodes()])
+        for k in keys
+    ]
+
+
+def test_osrls_dataset_dict_from_an_export_has_cost_steps(
+    rehab_demos, tmp_path, monkeypatch, capsys
+) -> None:
+    """The dict OSRL's learners read (DSRL's ``get_dataset()``: observations, actions,
+    rewards, costs, terminals, timeouts, next_observations), built from ``safe-bc export``'s
+    dataset with the default scalar, has aligned rows and steps with cost 1."""
+    from safe_bc.cli import main
+    from safe_bc.export.minari_export import DSRL_KEYS, dsrl_dataset
+
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path / "minari"))
+    argv = ["export", "--demos", str(rehab_demos), "--dataset-id", "safe_bc/rehab-osrl-v0"]
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    data = dsrl_dataset(minari.load_dataset("safe_bc/rehab-osrl-v0"))
+    assert tuple(data) == DSRL_KEYS
+    stored = read_episodes(rehab_demos)
+    n = sum(len(e) for e in stored)
+    assert {k: len(v) for k, v in data.items()} == dict.fromkeys(DSRL_KEYS, n)
+    assert data["observations"].shape == data["next_observations"].shape == (n, 12)
+    np.testing.assert_array_equal(
+        data["observations"], np.concatenate([e.observations for e in stored])
+    )
+    ends = data["terminals"] | data["timeouts"]
+    assert ends.sum() == len(stored) and ends[-1]  # each episode ends once, at its last row
+    inside = ~ends[:-1]  # within an episode the next observation is the next row's
+    np.testing.assert_array_equal(
+        data["next_observations"][:-1][inside], data["observations"][1:][inside]
+    )
+    assert set(np.unique(data["costs"])) <= {0.0, 1.0}
+    assert data["costs"].sum() > 0, "no cost step: OSRL's cost-aware learners get no signal"
+    assert "scalar costs (critical, eps 0.05)" in out and "step(s) marked" in out
+
+
+def test_a_plugin_task_with_a_callable_entry_point_is_stored_by_its_import_path(
+    tmp_path, monkeypatch
+) -> None:
+    """``GymEnv(id, Class)`` (docs/tasks.md's form): Minari stores the env spec as JSON, so the
+    export stores ``module:Class`` and the dataset rebuilds the env from it."""
+    import gymnasium as gym
+
+    from tests.test_task_plugin import TOY_ID, ToyLane, _collect_in_process
+
+    assert gym.spec(TOY_ID).entry_point is ToyLane  # a callable, as registered
+    demos = _collect_in_process(tmp_path / "demos", episodes=2)
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path / "minari"))
+    dataset = export_minari(demos, "safe_bc/toy-lane-v0")
+    assert dataset.env_spec.entry_point == f"{ToyLane.__module__}:ToyLane"
+    env = dataset.recover_environment()
+    try:
+        assert isinstance(env.unwrapped, ToyLane)
+    finally:
+        env.close()
+
+
+def test_a_callable_without_an_import_path_is_refused_in_one_line(
+    tmp_path, monkeypatch, capsys
+) -> None:
+    import dataclasses
+
+    import gymnasium as gym
+
+    from safe_bc.cli import main
+    from tests.test_task_plugin import TOY_ID, ToyLane, _collect_in_process
+
+    demos = _collect_in_process(tmp_path / "demos", episodes=1)
+    spec = dataclasses.replace(gym.registry[TOY_ID], entry_point=lambda **kw: ToyLane())
+    monkeypatch.setitem(gym.registry, TOY_ID, spec)
+    root = tmp_path / "minari"
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(root))
+    argv = ["export", "--demos", str(demos), "--dataset-id", "safe_bc/toy-lambda-v0"]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "without an import path" in err[0], err
+    assert f"GymEnv({TOY_ID!r}, 'module:Class')" in err[0]
+    assert not (root / "safe_bc" / "toy-lambda-v0").exists()

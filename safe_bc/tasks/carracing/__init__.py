@@ -74,6 +74,7 @@ SPEC = TaskSpec(
     results="results",
     action_bounds=((-1.0, 0.0, 0.0), (1.0, 1.0, 1.0)),  # steer, gas, brake
     safety_dims=SAFETY_DIMS,
+    safety_units=("px",) * len(SAFETY_DIMS),  # the rays' pixels to the grass
     observed_costs=frame_costs,
     make_env=make_carracing,
     perturbable=True,

@@ -34,6 +34,9 @@ SPEC = TaskSpec(
     results="results/rehab",
     action_bounds=((-1.0, -1.0), (1.0, 1.0)),
     safety_dims=REHAB_SAFETY_DIMS,
+    # env.py's costs: peak HR as a fraction of HRR, the model's fatigue (1.0 at its limit),
+    # peak systolic BP in 100 mmHg
+    safety_units=("HRR fraction", "model units", "100 mmHg"),
     observed_costs=observed_costs,
     # results/rehab/handover_safest/choice.md (stage 3 of tune_jobs/handover/): per-dimension
     # widths, the lightest session in the zone; no candidate of any stage reached zero
