@@ -58,3 +58,43 @@ def test_the_certification_block_is_new_to_every_table(study) -> None:
     others = {s.certify_seed for s in studies if s.name != "beyond" and s.certify_episodes}
     assert study.certify_seed not in blocks | others
     assert study.eval_seed not in blocks and study.final_seed not in blocks
+
+
+@pytest.fixture(scope="module")
+def clinic():
+    return load_study(ROOT / "tune_jobs" / "beyond_rehab.py")
+
+
+@pytest.fixture(scope="module")
+def clinic_selection():
+    with pytest.MonkeyPatch.context() as mp:
+        mp.chdir(ROOT)
+        return load_comparisons(ROOT / "tune_jobs/compare/selfimprove.py", planned=True)[
+            "beyond_early_selection_rehab_lagrangian"
+        ]
+
+
+def test_the_clinic_study_runs_its_designs_pick(clinic, clinic_selection) -> None:
+    rows = {m.name: m for m in clinic_selection.methods}
+    pick = rows["lagrangian+cap_060_hold"]
+    agent = rows[pick.of]
+    assert clinic.handover == pick.handover
+    assert clinic.improve == agent.config
+    assert clinic.base.selection == rows[agent.start].selection
+    assert clinic.base.bc == clinic_selection.bc
+    assert dict(clinic.space) == {} and clinic.trials == 1
+    assert clinic.certify_episodes == 600 and clinic.deferred_share_limit == 0.10
+
+
+def test_the_clinic_certification_block_is_new_to_every_table(clinic) -> None:
+    with pytest.MonkeyPatch.context() as mp:
+        mp.chdir(ROOT)
+        blocks = {
+            c.eval_seed
+            for f in sorted((ROOT / "tune_jobs/compare").glob("*.py"))
+            for c in load_comparisons(f, planned=True).values()
+        }
+    studies = [load_study(p) for p in sorted((ROOT / "tune_jobs").glob("*.py"))]
+    others = {s.certify_seed for s in studies if s.name != clinic.name and s.certify_episodes}
+    assert clinic.certify_seed not in blocks | others
+    assert clinic.eval_seed not in blocks and clinic.final_seed not in blocks
