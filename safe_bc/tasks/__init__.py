@@ -18,6 +18,7 @@ from safe_bc.tasks.lookup import (
     check_net_fits_task,
     dataset_action_bounds,
     frames_renderer,
+    with_task_eps,
 )
 from safe_bc.tasks.registry import (
     DEFAULT_TASK,
@@ -73,4 +74,5 @@ __all__ = [
     "spec_of_expert",
     "task_defaults",
     "task_of",
+    "with_task_eps",
 ]
