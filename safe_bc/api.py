@@ -326,7 +326,8 @@ def evaluate_recommender(job: EvaluateJob) -> Done:
         else ""
     )
     lines = [
-        f"recommender {job.recommender} ({len(seeds)} training seed(s) x {job.episodes} tracks "
+        f"recommender {job.recommender} ({len(seeds)} training seed(s) x {job.episodes} "
+        f"{task.episodes_name} "
         f"of block {job.eval_seed}): reward {episodes['reward'].mean():.1f}, safety mean "
         f"{episodes['safety_mean'].mean():.2f}; {certified_share(beyond, len(episodes))}"
         + deferred,
