@@ -748,9 +748,8 @@ def lower_bound_crossed(
 
 
 def episodes_beyond(episodes: pd.DataFrame) -> np.ndarray:
-    """``(N,) bool``: evaluated episodes that reached a state beyond ``d_s``
-    (``any_violation``; tables made before it counted the last step's outcome also hold
-    ``any_violating_session``, an outcome beyond it, which is read too).
+    """``(N,) bool``: evaluated episodes that reached a state beyond ``d_s``: ``any_violation``
+    or, where a table holds it, ``any_violating_session`` (an outcome beyond it).
 
     >>> frame = pd.DataFrame({"any_violation": [0.0, 0.0, 1.0],
     ...                       "any_violating_session": [1.0, 0.0, 0.0]})

@@ -353,10 +353,11 @@ class StudySpec:
     violation_bound: float | None = None
     """With a confidence (e.g. 0.95), the violation constraint is a bound instead of a point
     estimate: the one-sided Clopper-Pearson upper confidence bound on the share of episodes
-    with a step beyond ``d_s`` (:func:`safe_bc.metrics.clopper_pearson_upper`, episodes taken
-    as independent) must not exceed :attr:`violation_share_limit`; the final phase applies
-    the same rule to its fresh episodes. ``None`` (default, as before): the share of steps
-    beyond ``d_s`` must not exceed :attr:`violation_tolerance`."""
+    that reach a state beyond ``d_s`` (``any_violation``, an episode ending beyond it
+    included; :func:`safe_bc.metrics.clopper_pearson_upper`, episodes taken as independent)
+    must not exceed :attr:`violation_share_limit`; the final phase applies the same rule to
+    its fresh episodes. ``None`` (default, as before): the share of steps beyond ``d_s`` must
+    not exceed :attr:`violation_tolerance`."""
     violation_share_limit: float = 0.2
     """Largest allowed upper bound on the share of episodes beyond ``d_s`` (with
     :attr:`violation_bound`). Zero violations in ``n`` episodes bound the share at about
