@@ -574,9 +574,10 @@ def synthetic_demos(n: int, seed: int = 0, episode_len: int = 250) -> Any:
 def _run_config(batches: int, seed: int) -> Any:
     from safe_bc.bc import BCConfig, TrainConfig
     from safe_bc.experiment import RunConfig
+    from safe_bc.selection import DEFAULT_EPS, SelectionConfig
 
     train = TrainConfig(batches=batches, batch_size=BATCH_SIZE, seed=seed, num_threads=1)
-    return RunConfig(bc=BCConfig(train=train))
+    return RunConfig(SelectionConfig(eps=DEFAULT_EPS), BCConfig(train=train))
 
 
 def _prebuilt_batches(demos: Any, config: Any, n: int) -> list[tuple[Any, Any]]:

@@ -134,30 +134,27 @@ def describe(job: DescribeJob) -> Done:
     return Done("\n".join(lines), summary)
 
 
-def train(job: TrainJob, *, task_eps: bool = False) -> Done:
+def train(job: TrainJob) -> Done:
     """Select ``T_eps`` and train one agent into the checkpoint ``job.out`` (whole or not at
-    all); ``task_eps``: the selection eps is the demonstrations' task's, not
-    ``job.run.selection.eps``. The value is ``(TrainResult, Selection)``."""
+    all); a ``job.run.selection.eps`` left unset is the demonstrations' task's
+    (``TaskSpec.eps``). The value is ``(TrainResult, Selection)``."""
     with output_lock(job.out):
-        return _train(job, task_eps)
+        return _train(job)
 
 
-def _train(job: TrainJob, task_eps: bool) -> Done:
+def _train(job: TrainJob) -> Done:
     from safe_bc.bc.checkpoint import checkpoint_unit
     from safe_bc.curves import EVENTS_GLOB
     from safe_bc.data.store import check_dataset, load_demonstrations, read_meta
     from safe_bc.demos import hold_out_episodes
     from safe_bc.experiment import save_curve, save_selection, train_run
     from safe_bc.provenance import run_metadata
-    from safe_bc.tasks import dataset_action_bounds, task_defaults, task_of
+    from safe_bc.tasks import dataset_action_bounds, with_task_eps
 
     check_dataset(job.demos)  # a damaged set is refused before its frame cache is made
     demos = load_demonstrations(job.demos)
     env_id = read_meta(job.demos).env_id
-    run = job.run
-    if task_eps:
-        eps = task_defaults(task_of(env_id)).eps
-        run = replace(run, selection=replace(run.selection, eps=eps))
+    run = with_task_eps(job.run, env_id)
     bounds = dataset_action_bounds(job.demos)
     held = {}
     validation = None
@@ -322,7 +319,8 @@ def evaluate_recommender(job: EvaluateJob) -> Done:
         else ""
     )
     lines = [
-        f"recommender {job.recommender} ({len(seeds)} training seed(s) x {job.episodes} tracks "
+        f"recommender {job.recommender} ({len(seeds)} training seed(s) x {job.episodes} "
+        f"{task.episodes_name} "
         f"of block {job.eval_seed}): reward {episodes['reward'].mean():.1f}, safety mean "
         f"{episodes['safety_mean'].mean():.2f}; {certified_share(beyond, len(episodes))}"
         + deferred,

@@ -314,9 +314,7 @@ def run(command: str, job: Any, argv: Sequence[str]) -> int:
 
     call: Callable[..., Any] = getattr(api, COMMANDS[command][1])
     kwargs: dict[str, Any] = {}
-    if command == "train":
-        kwargs["task_eps"] = "selection.eps" not in given(_unalias(command, argv[1:]))
-    elif command == "tune":
+    if command == "tune":
         kwargs["command"] = shlex.join(["safe-bc", *argv])
     done = call(job, **kwargs)
     if done.message:

@@ -112,8 +112,8 @@ class Comparison:
     bit for bit as one env alone would (the queries family's tables, made one env at a time);
     ``"batched"``, one forward for all, may differ in the last bits."""
     eps: float | None = None
-    """Critical-zone width of the evaluation and the selection thresholds; ``None``: the
-    task's."""
+    """Critical-zone width of the evaluation and the selection thresholds, and of the BC rows
+    whose ``selection.eps`` is unset; ``None``: the task's (``TaskSpec.eps``)."""
     reference: str | None = None
     """Row the paired columns compare with (``None``: no paired columns)."""
     paired_metrics: tuple[str, ...] = ("reward", "safety_mean", "violation_steps")
@@ -231,6 +231,19 @@ class Comparison:
                 raise ValueError(f"figure {fig!r}: file must be a .png, got {file!r}")
         if self.task not in TASKS:
             raise ValueError(f"task must be one of {tuple(TASKS)}, got {self.task!r}")
+        self._take_width()
+
+    def _take_width(self) -> None:
+        """BC rows whose ``selection.eps`` is unset take the comparison's width (:attr:`eps`,
+        else the task's)."""
+        width = task_defaults(self.task).eps if self.eps is None else self.eps
+        rows = tuple(
+            dataclasses.replace(m, selection=m.selection.with_eps(width))
+            if isinstance(m, Agent) and m.selection.eps is None
+            else m
+            for m in self.methods
+        )
+        object.__setattr__(self, "methods", rows)
 
     def _check_budget_of(self, m: FromStart) -> None:
         """A method row whose config's ``budget_of`` names another row: an earlier row of the

@@ -121,7 +121,8 @@ class Agent(Row):
     name: str
     """Row label (unique in the comparison), e.g. ``alpha=0.5 (rest=all)``."""
     selection: SelectionConfig
-    """``T_eps`` and the training rule of its agents."""
+    """``T_eps`` and the training rule of its agents (``eps`` unset: the comparison's width,
+    :attr:`safe_bc.compare.Comparison.eps`, else the task's)."""
     bc: BCConfig | None = None
     """Its network, preprocessing and budget; ``None``: the comparison's ``bc``."""
     seeds: tuple[int, ...] = ()

@@ -20,6 +20,7 @@ from safe_bc.metrics import combined, critical_zone, episode_metrics, violations
 from safe_bc.policy import BatchPolicy, LockstepForward, Policy, check_lockstep_forward
 from safe_bc.rollout import run_episode, run_episodes_lockstep
 from safe_bc.selection import Combine
+from safe_bc.tasks import spec_of_env
 
 
 @runtime_checkable
@@ -174,13 +175,16 @@ def score_episode(
     combine: Combine = "any",
 ) -> tuple[dict[str, float], dict[str, np.ndarray]]:
     """Metrics and safety trace of an episode that just ended in ``env`` (see
-    :func:`evaluate_episode`)."""
+    :func:`evaluate_episode`); the metrics that are not general are those of ``env``'s task
+    (``TaskSpec.metrics``)."""
     base = env.unwrapped  # CarRacing counts visited tiles; other tasks have none
     has_track = hasattr(base, "tile_visited_count") and len(getattr(base, "track", ())) > 0
     visited = base.tile_visited_count / len(base.track) if has_track else float("nan")
+    task = spec_of_env(env)
     metrics = episode_metrics(
-        ep, tiles_visited=visited, thresholds=thresholds, eps=eps, combine=combine
-    )
+        ep, tiles_visited=visited, thresholds=thresholds, eps=eps, combine=combine,
+        own=None if task is None else task.metrics,
+    )  # fmt: skip
     trace: dict[str, np.ndarray] = {
         "step": np.arange(len(ep), dtype=np.int32),
         "reward": ep.rewards,

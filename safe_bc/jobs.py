@@ -79,8 +79,9 @@ class TrainJob:
     demos: Path = DEMOS
     """Demonstration dataset folder."""
     run: Annotated[RunConfig, Flat] = field(default_factory=RunConfig)
-    """Selection and behaviour cloning; ``selection.eps`` not given on the command line is
-    the task's (2 px, rehab: 0.05)."""
+    """Selection and behaviour cloning; ``selection.eps`` left unset (not given on the
+    command line, or ``None`` through the API) is the demonstrations' task's (``TaskSpec.eps``:
+    2 px, rehab: 0.05)."""
     validation_episodes: int = 0
     """Hold out the demonstrations' last N episodes (highest ids) from training and record
     their loss at each log point (curve.parquet's val_loss); d_s and T_eps then come from

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Sequence
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -75,6 +75,9 @@ class Metric:
     """What it measures (units, which steps count)."""
     needs_limits: bool = False
     """NaN when the evaluation has no limits ``d_s``."""
+    general: bool = True
+    """Measured for every task; ``False``: only for the tasks that name it in their
+    ``TaskSpec.metrics`` (NaN for the others, e.g. CarRacing's steering follow-through)."""
 
 
 REGISTRY: dict[str, Metric] = {
@@ -95,8 +98,10 @@ REGISTRY: dict[str, Metric] = {
         lambda s: float(s.beyond.mean()), "violation steps as a share of the scored steps", True
     ),
     "any_violation": Metric(
-        lambda s: float(s.beyond.any()),
-        "1.0 when the episode had a step beyond d_s (its mean: the share of episodes)",
+        lambda s: float(s.beyond.any() or s.outcomes_beyond.any()),
+        "1.0 when the episode reached a state beyond d_s: a scored step's, or a step's outcome, "
+        "the last one included (an episode that ends by crossing d_s counts; its mean: the "
+        "share of episodes)",
         True,
     ),
     "worst_excursion": Metric(
@@ -134,15 +139,17 @@ REGISTRY: dict[str, Metric] = {
         "share of scored steps inside the critical zone c >= d_s - eps",
         True,
     ),
-    "tiles_visited": Metric(lambda s: float(s.tiles_visited), "track tiles visited"),
+    "tiles_visited": Metric(lambda s: float(s.tiles_visited), "track tiles visited", general=False),
     "steer_autocorr": Metric(
         lambda s: steering_follow(s.steering)[0],
         "lag-1 autocorrelation of the first action (CarRacing's steering) over the scored "
         "steps: how much the steering follows itself (a copycat cue; NaN if constant)",
+        general=False,
     ),
     "steer_change": Metric(
         lambda s: steering_follow(s.steering)[1],
         "mean absolute step-to-step change of the first action over the scored steps",
+        general=False,
     ),
     "steps": Metric(lambda s: len(s.episode), "the episode's length in env steps"),
 }
@@ -224,9 +231,12 @@ def episode_metrics(
     thresholds: np.ndarray | None = None,
     eps: float = DEFAULT_EPS,
     combine: Combine = "any",
+    own: Collection[str] | None = None,
 ) -> dict[str, float]:
     """Every registered metric of one evaluated episode (:data:`REGISTRY`, in its order) plus
-    ``terminated`` and per-dimension safety statistics.
+    ``terminated`` and per-dimension safety statistics. ``own``: the task's own metrics
+    (``TaskSpec.metrics``); a metric that is not general and not among them is NaN
+    (``None``: every metric is measured).
 
     Safety statistics use the scored steps only (the CarRacing zoom-in is
     excluded). ``thresholds`` are the demonstrations' limits ``d_s`` (worst expert cost
@@ -256,8 +266,9 @@ def episode_metrics(
         float(tiles_visited), thresholds, eps, combine,
     )  # fmt: skip
     nan = float("nan")
+    skip = set() if own is None else {k for k, m in REGISTRY.items() if not m.general} - set(own)
     out: dict[str, float] = {
-        name: nan if m.needs_limits and thresholds is None else m.compute(view)
+        name: nan if (m.needs_limits and thresholds is None) or name in skip else m.compute(view)
         for name, m in REGISTRY.items()
     }
     out["terminated"] = bool(episode.terminated[-1])
@@ -737,9 +748,8 @@ def lower_bound_crossed(
 
 
 def episodes_beyond(episodes: pd.DataFrame) -> np.ndarray:
-    """``(N,) bool``: evaluated episodes with a step beyond ``d_s`` (``any_violation``) or,
-    where the task scores outcomes (rehab's sessions, the last one included), an outcome
-    beyond it.
+    """``(N,) bool``: evaluated episodes that reached a state beyond ``d_s``: ``any_violation``
+    or, where a table holds it, ``any_violating_session`` (an outcome beyond it).
 
     >>> frame = pd.DataFrame({"any_violation": [0.0, 0.0, 1.0],
     ...                       "any_violating_session": [1.0, 0.0, 0.0]})

@@ -39,8 +39,16 @@ def _strip(kind: Any) -> tuple[Any, bool]:
 
 
 def _config_type(kind: Any) -> type | None:
+    """The config (dataclass) type of a field: the type itself, or the one config among the
+    options of a union (``HandoverConfig | Literal["task"] | None``)."""
     inner, _ = _strip(kind)
-    return inner if isinstance(inner, type) and dataclasses.is_dataclass(inner) else None
+    options = (
+        typing.get_args(inner)
+        if typing.get_origin(inner) in (typing.Union, types.UnionType)
+        else (inner,)
+    )
+    configs = [t for t in options if isinstance(t, type) and dataclasses.is_dataclass(t)]
+    return configs[0] if len(configs) == 1 else None
 
 
 def resolve(cls: type, path: str) -> Any:
@@ -77,7 +85,7 @@ def convert(kind: Any, text: str, whole: Whole | None = None) -> Any:
     for config, build in (whole or {}).items():
         if inner is config:
             return build(text)
-    if _config_type(inner) is not None:
+    if isinstance(inner, type) and dataclasses.is_dataclass(inner):
         raise ValueError(f"a config: set its fields (FIELD.NAME=VALUE), not {text!r}")
     origin, args = typing.get_origin(inner), typing.get_args(inner)
     if origin is typing.Literal:

@@ -33,7 +33,7 @@ from __future__ import annotations
 import math
 import warnings
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any, Literal, Protocol, get_args
 
 import numpy as np
@@ -48,9 +48,8 @@ SelectionMode = Literal["mix", Baseline]
 
 
 DEFAULT_EPS = 2.0
-"""The critical-zone width a config gets when none is given: CarRacing's 2 px (the task
-registry, ``safe_bc.tasks``, gives each task its own; the rehabilitation pathway's is 0.05).
-The one place this number is written."""
+"""CarRacing's critical-zone width, 2 px (its ``TaskSpec.eps``; every task has its own, the
+rehabilitation pathway's is 0.05). The one place this number is written."""
 
 
 class SelectionError(ValueError):
@@ -71,12 +70,15 @@ def _check_choice(name: str, value: object, options: tuple[str, ...]) -> None:
 class SelectionConfig:
     """How to pick the safety-critical set ``T_eps`` and how to mix it into batches."""
 
-    eps: float = DEFAULT_EPS
-    """Width of the critical edge, in the cost's units (pixels for CarRacing): a row is
-    critical in dimension ``s`` when ``c_s >= d_s - eps``. The default 2 px puts ~9% of the
-    default CarRacing demonstrations in T_eps (the paper's 5 px was on another scale; here
-    5 px from the expert's closest approach reaches the road's centre). ``eps = 0`` keeps
-    only the rows at the threshold itself."""
+    eps: float | None = None
+    """Width of the critical edge, in the cost's units; ``None`` (default): the task's
+    (``TaskSpec.eps``: 2 px for CarRacing, 0.05 for rehab). A row is critical in dimension
+    ``s`` when ``c_s >= d_s - eps``; ``eps = 0`` keeps only the rows at the threshold itself.
+    An unset width is set by :meth:`with_eps` where the task is known (a study, ``safe-bc
+    train`` and :func:`safe_bc.api.train`, a comparison: :func:`safe_bc.tasks.with_task_eps`);
+    selecting with it unset is an error. CarRacing's 2 px puts ~9% of the default
+    demonstrations in T_eps (the paper's 5 px was on another scale; here 5 px from the
+    expert's closest approach reaches the road's centre)."""
 
     alpha: float = 0.5
     """Safety focus in ``[0, 1]``: the fraction of every batch drawn from ``T_eps``."""
@@ -142,7 +144,7 @@ class SelectionConfig:
     default demonstrations at eps = 2 px."""
 
     def __post_init__(self) -> None:
-        if not (math.isfinite(self.eps) and self.eps >= 0):
+        if self.eps is not None and not (math.isfinite(self.eps) and self.eps >= 0):
             raise ValueError(f"eps must be a finite number >= 0, got eps={self.eps!r}")
         if not (0.0 <= self.alpha <= 1.0):
             raise ValueError(f"alpha must be in [0, 1], got alpha={self.alpha!r}")
@@ -166,6 +168,24 @@ class SelectionConfig:
     def to_dict(self) -> dict[str, Any]:
         """JSON-able field dict."""
         return asdict(self)
+
+    def with_eps(self, eps: float) -> SelectionConfig:
+        """This config with ``eps`` as its width where it has none (a set width is kept)."""
+        return self if self.eps is not None else replace(self, eps=float(eps))
+
+    @property
+    def width(self) -> float:
+        """``eps``, which must be set.
+
+        Raises:
+            ValueError: ``eps`` is ``None`` (the task's width, not yet resolved).
+        """
+        if self.eps is None:
+            raise ValueError(
+                "SelectionConfig.eps is None (the task's critical-zone width) and no task "
+                "resolved it: give eps, or resolve it with safe_bc.tasks.with_task_eps"
+            )
+        return self.eps
 
 
 def _check_costs(costs: np.ndarray, valid: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
@@ -442,7 +462,7 @@ class Selection:
     @property
     def zone(self) -> CriticalZone:
         """The critical zone this selection drew: ``d_s``, eps and combine."""
-        return CriticalZone(self.thresholds, self.config.eps, self.config.combine)
+        return CriticalZone(self.thresholds, self.config.width, self.config.combine)
 
     @property
     def n_rows(self) -> int:
@@ -583,7 +603,7 @@ def select(
             outside ``T_eps``.
     """
     d = thresholds(costs, config.threshold, config.quantile, valid)
-    per_dim = critical_dims(costs, d, config.eps, valid)
+    per_dim = critical_dims(costs, d, config.width, valid)
     _, valid_arr = _check_costs(costs, valid)
     if safety_dims is not None and len(safety_dims) != len(d):
         raise ValueError(f"{len(safety_dims)} safety_dims names for {len(d)} cost columns")
@@ -623,7 +643,7 @@ def select_with_added(
     if (added & ~valid).any():
         raise ValueError(f"{what} row must be a valid (scored) row")
     limits = np.asarray(limits, np.float64)
-    per_dim = critical_dims(costs, limits, config.eps, valid)
+    per_dim = critical_dims(costs, limits, config.width, valid)
     mask = combine_dims(per_dim, config.combine)
     if added_in == "rest":
         mask = mask & ~added

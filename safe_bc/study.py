@@ -28,7 +28,7 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, fields, is_dataclass, replace
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 import pandas as pd
@@ -39,9 +39,11 @@ from safe_bc.handover import HandoverConfig
 from safe_bc.improve.config import ImproveConfig
 from safe_bc.queries.config import QueryConfig
 from safe_bc.run_config import RunConfig
-from safe_bc.selection import SelectionConfig
 from safe_bc.selfimprove.config import SelfImproveConfig
 from safe_bc.stages import STAGE_METRICS, STAGES, Stage, stage_of
+
+if TYPE_CHECKING:
+    from safe_bc.tasks import TaskSpec
 
 Primitive = bool | int | float | str
 Baseline = Literal["same_network", "default"]
@@ -279,9 +281,9 @@ class StudySpec:
     ``bc.train.batch_size``, ``bc.preprocess.frame_stack``, ``bc.preprocess.grayscale``, ..."""
     base: RunConfig | None = None
     """Values of everything not searched (``bc.train.seed`` is every trial's training seed).
-    ``None``: ``RunConfig`` with the task's ``eps`` (``TaskSpec.eps``, in its cost's units) as
-    ``selection.eps``, resolved when the spec is made (a spec made by ``replace`` keeps the
-    resolved value: pass ``base=None`` with another ``env``)."""
+    ``None``: ``RunConfig()``. Its ``selection.eps`` left unset (``None``, the default) is the
+    task's (``TaskSpec.eps``, in its cost's units), resolved when the spec is made (a spec made
+    by ``replace`` keeps the resolved value: pass a base without eps with another ``env``)."""
     trials: int = 20
     """Number of trials (``--trials`` overrides)."""
     max_concurrent: int | None = None
@@ -351,10 +353,11 @@ class StudySpec:
     violation_bound: float | None = None
     """With a confidence (e.g. 0.95), the violation constraint is a bound instead of a point
     estimate: the one-sided Clopper-Pearson upper confidence bound on the share of episodes
-    with a step beyond ``d_s`` (:func:`safe_bc.metrics.clopper_pearson_upper`, episodes taken
-    as independent) must not exceed :attr:`violation_share_limit`; the final phase applies
-    the same rule to its fresh episodes. ``None`` (default, as before): the share of steps
-    beyond ``d_s`` must not exceed :attr:`violation_tolerance`."""
+    that reach a state beyond ``d_s`` (``any_violation``, an episode ending beyond it
+    included; :func:`safe_bc.metrics.clopper_pearson_upper`, episodes taken as independent)
+    must not exceed :attr:`violation_share_limit`; the final phase applies the same rule to
+    its fresh episodes. ``None`` (default, as before): the share of steps beyond ``d_s`` must
+    not exceed :attr:`violation_tolerance`."""
     violation_share_limit: float = 0.2
     """Largest allowed upper bound on the share of episodes beyond ``d_s`` (with
     :attr:`violation_bound`). Zero violations in ``n`` episodes bound the share at about
@@ -426,13 +429,15 @@ class StudySpec:
     every trained agent is rolled out, the expert labels the visited states in the critical
     zone, and the agent is retrained on demonstrations plus labels, for ``rounds`` rounds.
     Searchable as ``queries.<field>`` keys. ``None``: no queries."""
-    handover: HandoverConfig | None = None
+    handover: HandoverConfig | Literal["task"] | None = "task"
     """The critical-zone handover every agent of the study is evaluated with (trials, final
     candidates, the certification): the agent acts, the expert where the cost is near ``d_s``
     (:class:`safe_bc.handover.HandoverConfig`). The study then searches for the best
     *recommender* (agent plus handover), its deferred share is a constraint
     (:attr:`deferred_share_limit`), and the final phase also reports the winner's agent alone.
-    ``None``: agents act alone (plain BC is always evaluated alone)."""
+    ``"task"`` (default): the task's (``TaskSpec.handover``; none where the task has none
+    measured), resolved when the spec is made. ``None``: agents act alone (plain BC is always
+    evaluated alone)."""
     deferred_share_limit: float = 1.0
     """Largest allowed mean share of an episode's steps on which the expert acted (a
     constraint with :attr:`handover`; 1: none)."""
@@ -463,12 +468,7 @@ class StudySpec:
     def __post_init__(self) -> None:
         if not self.name or not self.name.replace("_", "").replace("-", "").isalnum():
             raise ValueError(f"study name must be letters, digits, - or _, got {self.name!r}")
-        if self.base is None or self.critical_eps is None:
-            eps = _task_eps(self.env)
-            if self.base is None:
-                object.__setattr__(self, "base", RunConfig(selection=SelectionConfig(eps=eps)))
-            if self.critical_eps is None:
-                object.__setattr__(self, "critical_eps", eps)
+        self._take_task_defaults()
         object.__setattr__(self, "space", dict(self.space))
         object.__setattr__(self, "stage_configs", dict(self.stage_configs))
         for name, config in self.stage_configs.items():
@@ -485,6 +485,24 @@ class StudySpec:
         self._check_sizes()
         self._check_bars_and_seeds()
         self._check_space()
+
+    def _take_task_defaults(self) -> None:
+        """The task's critical-zone width (``selection.eps`` of the base and
+        ``critical_eps``) and handover where the spec leaves them unset; one line naming the
+        env when no registered task has it."""
+        from safe_bc.tasks import with_task_eps
+
+        base = RunConfig() if self.base is None else self.base
+        unset = base.selection.eps is None or self.critical_eps is None
+        if not unset and self.handover != "task":
+            object.__setattr__(self, "base", base)
+            return
+        task = self.task()
+        object.__setattr__(self, "base", with_task_eps(base, self.env.env_id))
+        if self.critical_eps is None:
+            object.__setattr__(self, "critical_eps", float(task.eps))
+        if self.handover == "task":
+            object.__setattr__(self, "handover", task.handover)
 
     def _check_sizes(self) -> None:
         """Counts, batch sizes and workers: integers in range."""
@@ -646,6 +664,12 @@ class StudySpec:
         """The searched parameter names, in space order."""
         return tuple(self.space)
 
+    def task(self) -> TaskSpec:
+        """The registered task of :attr:`env` (its defaults, words and metrics)."""
+        from safe_bc.tasks import task_defaults, task_of
+
+        return task_defaults(task_of(self.env.env_id))
+
     def run_config(self, params: Mapping[str, Any], num_threads: int | None = None) -> RunConfig:
         """The trial's ``RunConfig``: ``base`` + sampled ``params`` (the ``RunConfig`` keys;
         stage keys such as ``improve.*`` go to :meth:`stage_config`) + the batch budget."""
@@ -753,14 +777,6 @@ def subset_warnings(spec: StudySpec, demos: Any) -> list[str]:
                 "alpha has no effect there; set an eps in the task's cost units"
             )
     return out
-
-
-def _task_eps(env: EnvConfig) -> float:
-    """The task's critical-zone width (``TaskSpec.eps``) of the env ``env``; one line naming
-    the env when no registered task has it."""
-    from safe_bc.tasks import task_defaults, task_of
-
-    return float(task_defaults(task_of(env.env_id)).eps)
 
 
 def _config_json(config: Any) -> Any:

@@ -321,6 +321,34 @@ def test_study_summary_without_errors_says_so(tmp_path: Path) -> None:
     assert "no trial finished its evaluation (no trial recorded an error)" in text
 
 
+def test_the_study_summary_names_episodes_in_the_tasks_words(tmp_path: Path) -> None:
+    """The closing summary calls the final phase's episodes what the task calls them
+    (``StudyOutcome.unit``, the task's ``episodes_name``): no "tracks" for another task."""
+    import pandas as pd
+
+    from safe_bc.distributed.final import FinalOutcome
+    from safe_bc.distributed.study import format_outcome
+
+    table = pd.DataFrame(
+        {
+            "method": ["t0", "expert"],
+            "n_train_seeds": [1, 1],
+            "n_episodes": [4, 4],
+            "reward": [1.0, 2.0],
+            "feasible": [True, True],
+        }
+    )
+    paired = pd.DataFrame({"method": ["t0"], "vs": ["expert"], "d_reward": [-1.0],
+                           "d_reward_lo": [-2.0], "d_reward_hi": [0.0]})  # fmt: skip
+    final = FinalOutcome(table, pd.DataFrame(), "t0", True, "chosen", {}, "0 of 4", paired)
+    outcome = dataclasses.replace(_invalid_outcome(tmp_path), final=final)
+    for unit in ("patients", "episodes", "tracks"):
+        text = format_outcome(dataclasses.replace(outcome, unit=unit), ["selection.eps"])
+        assert f"final phase on fresh held-out {unit} (" in text
+        assert f"on the fresh {unit}: 0 of 4" in text and f"(paired, same {unit})" in text
+        assert ("track" in text) == (unit == "tracks")
+
+
 def test_preprocessing_and_network_are_dotted_train_flags() -> None:
     from safe_bc.bc.config import PreprocessConfig
 

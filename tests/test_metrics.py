@@ -189,6 +189,39 @@ def test_outcome_violations_count_the_state_each_step_led_to() -> None:
         "violating_sessions"])  # fmt: skip
 
 
+def test_an_episode_that_ends_by_crossing_d_s_counts_as_beyond() -> None:
+    """An episode whose last step crosses ``d_s`` (a plug-in's lane ends at the edge) reached a
+    state beyond it: ``any_violation`` counts it beside ``any_violating_session``, though no
+    step started beyond ``d_s`` (``violation_steps`` 0)."""
+    from safe_bc.episode import Episode
+    from safe_bc.metrics import episode_metrics, episodes_beyond
+
+    T = 3
+    ep = Episode(
+        0, 1, np.zeros((T, 0)), np.zeros((T, 1)), np.zeros((T, 1)), np.ones(T, np.float32),
+        np.array([False, False, True]), np.zeros(T, bool), np.ones((T, 2), np.float32),
+        np.zeros((T, 2), np.float32), np.zeros(T, bool), np.zeros(T, bool), ("left", "right"),
+        final_cost=np.array([0, 3], np.float32),
+    )  # fmt: skip
+    m = episode_metrics(ep, thresholds=np.array([1.0, 1.0]))
+    assert m["violation_steps"] == 0 and m["any_violating_session"] == 1.0
+    assert m["any_violation"] == 1.0
+    assert episodes_beyond(pd.DataFrame([m])).tolist() == [True]
+
+
+def test_a_metric_that_is_not_general_is_the_named_tasks_only() -> None:
+    """``own`` (a task's ``TaskSpec.metrics``): a metric that is not general and not named is
+    NaN; ``None`` measures every metric."""
+    from safe_bc.metrics import episode_metrics
+
+    ep, limits = _episode(), np.array([7.0, 8.0, 9.0])
+    every = episode_metrics(ep, thresholds=limits)
+    assert np.isfinite(every["steer_autocorr"])
+    mine = episode_metrics(ep, thresholds=limits, own=("steer_change",))
+    assert np.isnan(mine["steer_autocorr"]) and mine["steer_change"] == every["steer_change"]
+    assert mine["reward"] == every["reward"]
+
+
 @pytest.mark.parametrize("name", list(__import__("safe_bc.metrics").metrics.REGISTRY))
 def test_registry_entries_are_complete(name: str) -> None:
     """Every registered metric says what it measures and gives one finite number per

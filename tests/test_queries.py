@@ -293,6 +293,7 @@ def test_a_handover_in_lockstep_gives_the_one_env_episodes(
     from safe_bc.experiment import train_run
     from safe_bc.queries.defer import DeferralSource, LockstepDeferringPolicy
     from safe_bc.run_config import RunConfig
+    from safe_bc.selection import SelectionConfig
     from safe_bc.tasks import make_env, task_defaults
 
     if task == "rehab":
@@ -300,8 +301,9 @@ def test_a_handover_in_lockstep_gives_the_one_env_episodes(
         expert, width, hold_on, max_steps = task_defaults("rehab").expert, 0.3, None, None
     else:
         demos = load_demonstrations(tiny_demos)
-        cfg = RunConfig(bc=BCConfig(network=NetworkConfig(channels=(4, 8, 8), hidden=16),
-                                    train=TrainConfig(batches=20)))  # fmt: skip
+        cfg = RunConfig(SelectionConfig(eps=2.0),
+                        BCConfig(network=NetworkConfig(channels=(4, 8, 8), hidden=16),
+                                 train=TrainConfig(batches=20)))  # fmt: skip
         model = train_run(demos, cfg)[0].model
         expert, width, hold_on, max_steps = stored_expert_config(tiny_demos), 12.0, (1,), 110
     limits = tuple(float(x) for x in demos.limits)
@@ -335,7 +337,7 @@ def test_the_stage_runs_end_to_end_with_ray_actors(ray_session, tiny_demos, tmp_
     from safe_bc.selection import SelectionConfig
     from safe_bc.stages import STAGES
 
-    cfg = RunConfig(SelectionConfig(alpha=0.5), BCConfig(train=TrainConfig(batches=10)))
+    cfg = RunConfig(SelectionConfig(eps=2.0, alpha=0.5), BCConfig(train=TrainConfig(batches=10)))
     result, _ = train_run(load_demonstrations(tiny_demos), cfg)
     config = QueryConfig(
         rounds=1, episodes_per_round=2, batches=10, max_steps=150, workers=2, eps=40.0

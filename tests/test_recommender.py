@@ -21,6 +21,7 @@ from safe_bc.recommender import (
     load_recommender,
     write_recommender,
 )
+from safe_bc.selection import SelectionConfig
 from safe_bc.tasks import make_env, task_defaults
 
 
@@ -28,9 +29,10 @@ from safe_bc.tasks import make_env, task_defaults
 def agents(tiny_demos: Path):
     demos = load_demonstrations(tiny_demos)
     run = RunConfig(
-        bc=BCConfig(
+        SelectionConfig(eps=2.0),
+        BCConfig(
             network=NetworkConfig(channels=(4, 8, 8), hidden=16), train=TrainConfig(batches=20)
-        )
+        ),
     )
     out = {}
     for seed in (0, 1):

@@ -331,7 +331,7 @@ def test_the_stage_runs_on_carracing_with_60_step_episodes(tiny_demos, tmp_path)
     from safe_bc.selfimprove.data import load_round
     from safe_bc.stages import STAGES
 
-    cfg = RunConfig(SelectionConfig(alpha=0.5), BCConfig(train=TrainConfig(batches=10)))
+    cfg = RunConfig(SelectionConfig(eps=2.0, alpha=0.5), BCConfig(train=TrainConfig(batches=10)))
     result, _ = train_run(load_demonstrations(tiny_demos), cfg)
     config = SelfImproveConfig(
         rounds=1, tracks_per_round=1, validation_episodes=1, batches=10, max_steps=60
@@ -362,7 +362,7 @@ def test_car_frames_read_from_disk_train_the_weights_of_frames_in_memory(
     from safe_bc.selfimprove.rollout import ValidateJob, local_rollouts
     from safe_bc.selfimprove.stage import selfimprove_run
 
-    cfg = RunConfig(SelectionConfig(alpha=0.5), BCConfig(train=TrainConfig(batches=200)))
+    cfg = RunConfig(SelectionConfig(eps=2.0, alpha=0.5), BCConfig(train=TrainConfig(batches=200)))
     result, _ = train_run(load_demonstrations(tiny_demos), cfg)
     config = SelfImproveConfig(
         rounds=2, tracks_per_round=3, validation_episodes=1, batches=10, max_steps=100,
@@ -603,7 +603,7 @@ def test_car_lockstep_runs_are_the_one_env_runs_bit_for_bit(tiny_demos) -> None:
     from safe_bc.selfimprove.rollout import explore_track
     from safe_bc.tasks import make_env, task_defaults
 
-    cfg = RunConfig(SelectionConfig(alpha=0.5), BCConfig(train=TrainConfig(batches=10)))
+    cfg = RunConfig(SelectionConfig(eps=2.0, alpha=0.5), BCConfig(train=TrainConfig(batches=10)))
     result, _ = train_run(load_demonstrations(tiny_demos), cfg)
     job = _explore_job(
         "carracing", NetSource.from_model(result.model, cfg.bc), (1e3, 1e3, 1e3),

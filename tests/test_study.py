@@ -372,26 +372,52 @@ def test_concurrency_follows_the_cluster_capped_by_the_batch_and_max_concurrent(
 
 
 def test_a_study_takes_its_tasks_eps_unless_told_and_keeps_carracings_summary() -> None:
+    from safe_bc.selection import DEFAULT_EPS, SelectionConfig
     from safe_bc.tasks import task_defaults
 
     rehab = task_defaults("rehab")
     spec = StudySpec("mine", {"selection.alpha": Float(0.0, 1.0)}, env=rehab.env)
     assert spec.base.selection.eps == spec.critical_eps == rehab.eps
-    told = StudySpec("mine", {}, env=rehab.env, base=RunConfig(), critical_eps=0.3)
-    assert told.base.selection.eps == RunConfig().selection.eps and told.critical_eps == 0.3
-    car = StudySpec("car", {})  # CarRacing's eps is the RunConfig default: the same summary
-    assert car.base == RunConfig() and car.critical_eps == task_defaults("carracing").eps
+    based = StudySpec("mine", {}, env=rehab.env, base=RunConfig(), critical_eps=0.3)
+    assert based.base.selection.eps == rehab.eps and based.critical_eps == 0.3
+    told = StudySpec("mine", {}, env=rehab.env, base=RunConfig(SelectionConfig(eps=0.2)))
+    assert told.base.selection.eps == 0.2 and told.critical_eps == rehab.eps
+    car = StudySpec("car", {})  # CarRacing's eps is 2 px, as the summary always recorded
+    assert car.base == RunConfig(SelectionConfig(eps=DEFAULT_EPS))
+    assert car.critical_eps == task_defaults("carracing").eps == DEFAULT_EPS
+
+
+def test_a_study_takes_its_tasks_handover_unless_told() -> None:
+    """``StudySpec.handover`` left at its default is the task's (``TaskSpec.handover``; none
+    for a task without one); ``None`` is agents alone; ``--set handover=...`` sets either."""
+    from safe_bc.handover import HandoverConfig
+    from safe_bc.overrides import apply_overrides, parse_override
+    from safe_bc.tasks import task_defaults
+
+    rehab, car = task_defaults("rehab"), task_defaults("carracing")
+    spec = StudySpec("r", {}, env=rehab.env)
+    assert spec.handover == rehab.handover and spec.handover.fallback == "safest"
+    assert StudySpec("c", {}).handover == car.handover != rehab.handover
+    assert StudySpec("c", {}, handover=None).handover is None
+    assert StudySpec("c", {}, handover=HandoverConfig(1.0)).handover == HandoverConfig(1.0)
+    alone = apply_overrides(spec, [parse_override(StudySpec, "handover=none")])
+    assert alone.handover is None and spec.summary()["handover"] == rehab.handover.to_dict()
+    back = apply_overrides(alone, [parse_override(StudySpec, "handover=task")])
+    assert back.handover == rehab.handover
+    wider = apply_overrides(spec, [parse_override(StudySpec, "handover.width=0.3")])
+    assert wider.handover.width == 0.3 and wider.handover.widths == rehab.handover.widths
 
 
 def test_a_study_whose_eps_makes_t_eps_everything_says_so(rehab_demos) -> None:
     from safe_bc.data.store import load_demonstrations
+    from safe_bc.selection import SelectionConfig
     from safe_bc.study import subset_warnings
     from safe_bc.tasks import task_defaults
 
     demos = load_demonstrations(rehab_demos)
     rehab = task_defaults("rehab")
     assert subset_warnings(StudySpec("ok", {}, env=rehab.env), demos) == []
-    wide = StudySpec("wide", {}, env=rehab.env, base=RunConfig())  # CarRacing's eps 2.0
+    wide = StudySpec("wide", {}, env=rehab.env, base=RunConfig(SelectionConfig(eps=2.0)))
     (line,) = subset_warnings(wide, demos)
     assert line.startswith("wide: selection.eps = 2: T_eps holds every scored row")
     searched = StudySpec("s", {"selection.eps": Float(0.01, 5.0)}, env=rehab.env)

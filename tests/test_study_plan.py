@@ -7,6 +7,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import pandas as pd
+import pytest
 
 from safe_bc.handover import HandoverConfig
 from safe_bc.study import Float, StudySpec
@@ -69,3 +70,19 @@ def test_bars_identity_and_metadata_follow_the_plan(tmp_path: Path) -> None:
         cost_limits=[1.0], inputs=inputs, complete=False, lost=[], provenance={},
     )  # fmt: skip
     assert empty["seeds"]["eval_seeds"] == []
+
+
+@pytest.mark.parametrize("name", ["default", "default_one_seed", "rehab"])
+def test_a_committed_studys_settings_re_derive_from_its_study_file(name: str) -> None:
+    """What the committed study's tables record as its settings (the identity a resume
+    compares) is what its study file gives now: the task defaults a file leaves unset (the
+    base's eps, the handover) resolve to the values it ran with."""
+    from safe_bc.data.store import read_table
+    from safe_bc.study import load_study, settings_of
+
+    repo = Path(__file__).resolve().parents[1]
+    _, meta = read_table(repo / "results" / name / "trials.parquet")
+    spec = load_study(repo / "tune_jobs" / f"{name}.py")
+    now, recorded = settings_of(spec.summary()), settings_of(meta["study"])
+    assert {k: now[k] for k in recorded} == recorded
+    assert all(now[k] is None for k in set(now) - set(recorded))  # fields the record lacks

@@ -242,3 +242,36 @@ def test_tiny_study_on_the_toy_task(ray_session, tmp_path: Path):
     trials = outcome.trials
     assert len(trials) == 2 and trials["status"].isin(["done", "stopped"]).all()
     assert (trials["status"] == "done").any()
+
+
+def test_the_tasks_eps_reaches_the_study_the_api_and_the_cli(tmp_path: Path):
+    """A plug-in task's eps (0.1 here; CarRacing's 2 px would put every row in T_eps) is the
+    width of a study whose base leaves it unset (docs/tasks.md's pattern), of
+    ``api.train(TrainJob(...))`` and of ``safe-bc train``: the same T_eps rows on each path."""
+    from safe_bc import api
+    from safe_bc.bc import BCConfig, NetworkConfig, TrainConfig
+    from safe_bc.cli import main
+    from safe_bc.data.store import load_demonstrations, read_table
+    from safe_bc.experiment import select_for
+    from safe_bc.jobs import TrainJob
+    from safe_bc.run_config import RunConfig
+    from safe_bc.selection import DEFAULT_EPS, SelectionConfig
+    from safe_bc.study import StudySpec
+
+    demos = _collect_in_process(tmp_path / "demos")
+    bc = BCConfig(network=NetworkConfig(hidden=16), train=TrainConfig(batches=20))
+    study = StudySpec("toy", {}, base=RunConfig(bc=bc), env=TOY.env, demos=demos)
+    assert study.base.selection.eps == study.critical_eps == TOY.eps
+    data = load_demonstrations(demos)
+    in_study = select_for(data, study.base.selection).n_critical
+
+    done = api.train(TrainJob(tmp_path / "api", demos, RunConfig(bc=bc), quiet=True))
+    _, by_api = done.value
+    argv = ["train", "--demos", str(demos), "--out", str(tmp_path / "cli"),
+            "--bc.train.batches", "20", "--bc.network.hidden", "16", "--quiet"]  # fmt: skip
+    assert main(argv) == 0
+    by_cli = read_table(tmp_path / "cli" / "selection.parquet")[0]["critical"].sum()
+    assert by_api.config.eps == TOY.eps
+    assert in_study == by_api.n_critical == by_cli < by_api.n_valid
+    wide = select_for(data, SelectionConfig(eps=DEFAULT_EPS))
+    assert wide.n_critical == wide.n_valid != in_study  # what an unresolved 2 px would give

@@ -1,12 +1,17 @@
 """Every registered task meets the task contract: its env (built by ``make_env``) keeps the
 ``info`` contract with the spec's safety dimensions, its expert acts inside the action box,
-its observed costs have one finite column per dimension, and its defaults make a valid
-collection. The toy task of ``tests/test_task_plugin.py`` is registered too, so a task added
-through the public API is held to the same contract."""
+its observed costs have one finite column per dimension, its defaults make a valid
+collection, and its defaults (eps, handover), words and metrics reach the study, training and
+evaluation paths. Plug-ins are held to the same contract: the toy task of
+``tests/test_task_plugin.py`` (``register_task`` in a module) and docs/tasks.md's lane task,
+registered as its entry point registers it."""
 
 from __future__ import annotations
 
 import dataclasses
+import math
+import sys
+import types
 
 import gymnasium as gym
 import numpy as np
@@ -20,15 +25,35 @@ from safe_bc.collection import (
     expert_config_from_dict,
 )
 from safe_bc.envs.info import INFO_KEYS, InfoContract, StepInfo, check_info
-from safe_bc.tasks import TASKS, task_defaults, task_of
+from safe_bc.tasks import TASKS, TaskSpec, register_task, task_defaults, task_of
 from safe_bc.tasks.factory import make_env
 
 STEPS = 6
+DOC_TASK = "lane"
+"""The task of docs/tasks.md's complete example."""
+NAMES = list(dict.fromkeys([*TASKS, DOC_TASK]))
+"""Every registered task and the docs' plug-in."""
 
 
-@pytest.mark.parametrize("task", list(TASKS))
+def spec_named(task: str) -> TaskSpec:
+    """The task's spec; docs/tasks.md's lane task is registered first where no test has yet
+    (``tests/test_docs_tasks.py`` loads it through its installed entry point): its module as
+    the page writes it, its ``SPEC`` handed to ``register_task``, as the entry point
+    ``lane = "lane_task:SPEC"`` does."""
+    if task == DOC_TASK and task not in TASKS:
+        from tests.test_docs_tasks import doc_files
+
+        if "lane_task" not in sys.modules:
+            module = sys.modules["lane_task"] = types.ModuleType("lane_task")
+            code = compile(doc_files()["lane_task.py"], "docs/tasks.md (lane_task.py)", "exec")
+            exec(code, module.__dict__)
+        register_task(sys.modules["lane_task"].SPEC)
+    return task_defaults(task)
+
+
+@pytest.mark.parametrize("task", NAMES)
 def test_task_meets_the_contract(task):
-    spec = task_defaults(task)
+    spec = spec_named(task)
     assert spec.name == task and task_of(spec.env.env_id) == task
     assert all(g.id in gym.registry for g in spec.gym_envs)
     cfg = CollectConfig.for_task(spec, episodes=1)  # the defaults are a valid collection
@@ -63,6 +88,55 @@ def test_task_meets_the_contract(task):
         assert np.all(np.isfinite(np.stack(costs)))
     finally:
         env.close()
+
+
+@pytest.mark.parametrize("task", NAMES)
+def test_the_tasks_defaults_reach_a_study_a_training_run_and_a_comparison(task):
+    """Where a study, a training run or a comparison leaves the critical-zone width and the
+    handover unset, they are the task's (``TaskSpec.eps``, ``TaskSpec.handover``)."""
+    from safe_bc.compare import Comparison
+    from safe_bc.compare_rows import Agent
+    from safe_bc.run_config import RunConfig
+    from safe_bc.selection import SelectionConfig
+    from safe_bc.study import StudySpec
+    from safe_bc.tasks import with_task_eps
+
+    spec = spec_named(task)
+    study = StudySpec("t", {}, env=spec.env, base=RunConfig())
+    assert study.base.selection.eps == study.critical_eps == spec.eps
+    assert study.handover == spec.handover and study.task() is spec
+    assert StudySpec("t", {}, env=spec.env, handover=None).handover is None
+    assert with_task_eps(RunConfig(), spec.env.env_id).selection.eps == spec.eps
+    told = RunConfig(SelectionConfig(eps=0.25))
+    assert with_task_eps(told, spec.env.env_id) is told
+    (row,) = Comparison("t", methods=(Agent("a", SelectionConfig()),), task=task).methods
+    assert row.selection.eps == spec.eps
+
+
+@pytest.mark.parametrize("task", NAMES)
+def test_the_tasks_words_and_metrics(task):
+    """An episode of the task is scored with the general metrics and the task's own
+    (``TaskSpec.metrics``) only: another task's (CarRacing's steering follow-through) are NaN,
+    so no table or console shows them; its episodes have a name of their own."""
+    from safe_bc.evaluation import score_episode
+    from safe_bc.metrics import REGISTRY
+    from safe_bc.rollout import run_episode
+
+    spec = spec_named(task)
+    assert spec.episode_name.strip() and spec.episodes_name == f"{spec.episode_name}s"
+    assert set(spec.metrics) <= {k for k, m in REGISTRY.items() if not m.general}
+    env = make_env(dataclasses.replace(spec.env, max_episode_steps=STEPS))
+    try:
+        expert = build_expert(spec.expert)
+        episode = run_episode(env, expert, 3, np.random.default_rng(3), keep_observations=False)
+        metrics, _ = score_episode(env, episode, thresholds=None, eps=spec.eps)
+    finally:
+        env.close()
+    for name, metric in REGISTRY.items():
+        if not metric.general and name not in spec.metrics:
+            assert math.isnan(metrics[name]), name
+    if task != "carracing":
+        assert spec.episodes_name != "tracks" and not spec.metrics
 
 
 GOOD = {"safety": np.ones(2), "cost": np.zeros(2), "warmup": False, "offroad": np.bool_(True)}

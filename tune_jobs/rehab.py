@@ -24,6 +24,7 @@ from pathlib import Path
 
 from safe_bc.bc import BCConfig, NetworkConfig
 from safe_bc.run_config import RunConfig
+from safe_bc.selection import SelectionConfig
 from safe_bc.study import Choice, Float, StudySpec
 from safe_bc.tasks import task_defaults
 
@@ -40,7 +41,9 @@ STUDY = StudySpec(
         "bc.train.lr": Float(1e-4, 3e-3, log=True),
         "bc.train.batch_size": Choice((32, 64, 128)),
     },
-    base=RunConfig(bc=BCConfig(network=NetworkConfig(hidden=64))),
+    # selection.eps is searched, so the base's width is never trained with; it is the 2.0
+    # that results/rehab/ records as the base's (the study's identity)
+    base=RunConfig(SelectionConfig(eps=2.0), BCConfig(network=NetworkConfig(hidden=64))),
     env=REHAB.env,
     demos=Path(REHAB.demos),
     critical_eps=REHAB.eps,

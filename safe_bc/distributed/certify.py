@@ -114,7 +114,8 @@ def certify(
             done = stored_evaluations(store, keys)
             if progress:
                 print(
-                    f"certification: seed {s}, tracks {i * per}..{(i + 1) * per - 1} of block "
+                    f"certification: seed {s}, {spec.task().episodes_name} "
+                    f"{i * per}..{(i + 1) * per - 1} of block "
                     f"{spec.certify_seed}"
                     + (f"; {len(done)} of {len(sources)} finished before" if done else "")
                 )

@@ -273,7 +273,8 @@ def _evaluate_final(
             }
             done = stored_evaluations(store, keys)
             if progress:
-                print(f"final phase: seed {s}, tracks {i * per}..{(i + 1) * per - 1} of block "
+                print(f"final phase: seed {s}, {spec.task().episodes_name} "
+                      f"{i * per}..{(i + 1) * per - 1} of block "
                       f"{spec.final_seed}" + (f"; {len(done)} of {len(sources)} evaluations "
                       "finished before" if done else ""))  # fmt: skip
             ep = evaluate_block(sources, keys, done, config, job.cost_limits, store, progress, s)

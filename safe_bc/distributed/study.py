@@ -158,6 +158,9 @@ class StudyOutcome:
     certificate: dict[str, Any] | None = None
     """The recommender's certificate (:func:`safe_bc.distributed.certify.certify`), ``None``
     without a certification."""
+    unit: str = "episodes"
+    """What the study's task calls its episodes (``TaskSpec.episodes_name``: ``tracks``,
+    ``patients``), the summary's word for them."""
 
     @property
     def exit_code(self) -> int:
@@ -769,7 +772,7 @@ def _run_study(plan: StudyPlan, options: DriverOptions) -> StudyOutcome:
     clock.lap("trial_tables")
     outcome = StudyOutcome(
         report.complete, report.trials, None, None, start.threshold, plan.out, plan.exp_path,
-        report.errors,
+        report.errors, unit=plan.spec.task().episodes_name,
     )  # fmt: skip
     if not report.complete or report.winner is None or stopped or not plan.final:
         clock.close()
@@ -1222,6 +1225,7 @@ def finished_outcome(plan: StudyPlan) -> StudyOutcome | None:
         int((trials["status"] == "error").sum()),
         timing=timing,
         certificate=certificate,
+        unit=plan.spec.task().episodes_name,
     )
 
 
@@ -1274,7 +1278,8 @@ def _write_final(
     best = {
         "study": spec.name,
         "chosen_on": "final re-evaluation: candidates retrained with "
-        f"{spec.final_train_seeds} seeds on {final.episodes['env_seed'].nunique()} fresh tracks",
+        f"{spec.final_train_seeds} seeds on {final.episodes['env_seed'].nunique()} fresh "
+        f"{spec.task().episodes_name}",
         "trial_id": final.winner,
         "feasible": final.feasible,
         "message": final.message,
@@ -1345,7 +1350,10 @@ def format_outcome(outcome: StudyOutcome, params: Sequence[str]) -> str:
                 "safety_mean", "violation_steps", "episodes_with_violation", "deferred_share",
                 "feasible"]  # fmt: skip
         tab = outcome.final.table
-        lines.append("final phase on fresh held-out tracks (95% bootstrap CIs over seeds, tracks):")
+        unit = outcome.unit
+        lines.append(
+            f"final phase on fresh held-out {unit} (95% bootstrap CIs over seeds, {unit}):"
+        )
         lines.append(
             tab[[c for c in cols if c in tab]].to_string(
                 index=False, float_format=lambda x: f"{x:.2f}"
@@ -1359,12 +1367,12 @@ def format_outcome(outcome: StudyOutcome, params: Sequence[str]) -> str:
             lines += missed_constraints(tab)
         who = "the winner" if feasible else "the closest candidate (uncertified)"
         if outcome.final.certified:
-            lines.append(f"{who}, on the fresh tracks: {outcome.final.certified}")
+            lines.append(f"{who}, on the fresh {unit}: {outcome.final.certified}")
         paired = outcome.final.paired
         if outcome.final.winner is not None and len(paired):
             for _, r in paired[paired["method"] == outcome.final.winner].iterrows():
                 lines.append(
-                    f"{'winner' if feasible else 'closest'} - {r['vs']} (paired, same tracks): "
+                    f"{'winner' if feasible else 'closest'} - {r['vs']} (paired, same {unit}): "
                     f"reward {r['d_reward']:+.1f} "
                     f"[{r['d_reward_lo']:+.1f}, {r['d_reward_hi']:+.1f}]"
                 )

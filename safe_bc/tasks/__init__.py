@@ -18,6 +18,7 @@ from safe_bc.tasks.lookup import (
     check_net_fits_task,
     dataset_action_bounds,
     frames_renderer,
+    with_task_eps,
 )
 from safe_bc.tasks.registry import (
     DEFAULT_TASK,
@@ -34,6 +35,7 @@ from safe_bc.tasks.registry import (
     register_envs,
     register_task,
     spec_of,
+    spec_of_env,
     spec_of_expert,
     task_defaults,
     task_of,
@@ -70,7 +72,9 @@ __all__ = [
     "register_envs",
     "register_task",
     "spec_of",
+    "spec_of_env",
     "spec_of_expert",
     "task_defaults",
     "task_of",
+    "with_task_eps",
 ]

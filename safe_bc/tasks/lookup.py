@@ -3,11 +3,15 @@ fits a task (no per-task branches: every value comes from a :class:`TaskSpec`)."
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from safe_bc.envs.config import RENDERER_ALIASES, EnvConfig
 from safe_bc.tasks.registry import Bounds, task_defaults, task_of
+
+if TYPE_CHECKING:
+    from safe_bc.run_config import RunConfig
 
 
 def check_net_fits_task(
@@ -28,6 +32,25 @@ def check_net_fits_task(
             f"{action_dim} action(s), but it names {env_id} ({kind}, {dims} action(s)); the "
             "checkpoint's env_id is not the task it was trained on"
         )
+
+
+def with_task_eps(run: RunConfig, env_id: str) -> RunConfig:
+    """``run`` with the critical-zone width of the task whose env is ``env_id``
+    (``TaskSpec.eps``) where its ``selection.eps`` is unset (``None``); a set width is kept.
+    The one place an unset width becomes the task's: studies, ``safe-bc train`` and
+    comparisons call it.
+
+    >>> from safe_bc.run_config import RunConfig
+    >>> from safe_bc.selection import SelectionConfig
+    >>> with_task_eps(RunConfig(), "safe_bc/RehabPathway-v0").selection.eps
+    0.05
+    >>> with_task_eps(RunConfig(SelectionConfig(eps=0.3)), "CarRacing-v3").selection.eps
+    0.3
+    """
+    if run.selection.eps is not None:
+        return run
+    eps = task_defaults(task_of(env_id)).eps
+    return replace(run, selection=run.selection.with_eps(eps))
 
 
 def dataset_action_bounds(root: str | Path) -> Bounds:

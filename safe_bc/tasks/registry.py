@@ -171,6 +171,14 @@ class TaskSpec:
     """Per action component, the sign of the direction in which no safety cost rises
     (``-1``: a lower value is safer, ``+1``: a higher one), what a handover with
     ``fallback="cap"`` needs; ``None``: the task has no such direction (CarRacing's steering)."""
+    episode_name: str = "episode"
+    """What one episode is called in messages and reports, singular (CarRacing: ``track``,
+    rehab: ``patient``); :attr:`episodes_name` is its plural."""
+    metrics: tuple[str, ...] = ()
+    """The task's own metrics: entries of :data:`safe_bc.metrics.REGISTRY` that are not
+    general (``Metric.general``, e.g. CarRacing's steering follow-through and track tiles)
+    and that this task reports; every other task reports them as NaN, so its tables and
+    console leave them out."""
 
     def __post_init__(self) -> None:
         if not self.name or not self.env.env_id:
@@ -188,11 +196,18 @@ class TaskSpec:
             len(self.safer_actions) != len(low) or set(self.safer_actions) - {-1, 1}
         ):
             raise ValueError(f"{self.name}: safer_actions must be -1 or +1 per action component")
+        if not self.episode_name.strip():
+            raise ValueError(f"{self.name}: episode_name must name an episode (e.g. 'track')")
 
     @property
     def expert_type(self) -> type:
         """The task's expert config type."""
         return type(self.expert)
+
+    @property
+    def episodes_name(self) -> str:
+        """:attr:`episode_name`'s plural (``tracks``, ``patients``, ``episodes``)."""
+        return f"{self.episode_name}s"
 
 
 TaskDefaults = TaskSpec
@@ -295,6 +310,16 @@ def task_of(env_id: str) -> Task:
     if found is None:
         raise ValueError(f"no task uses env {env_id!r} (known: {', '.join(TASKS)})")
     return found
+
+
+def spec_of_env(env: gym.Env) -> TaskSpec | None:
+    """The registered task whose env ``env`` is, matched by its gymnasium id (the task's env
+    id or one it registers, e.g. a CarRacing renderer's); ``None``: no task claims it."""
+    gym_id = env.spec.id if env.spec is not None else None
+    for spec in TASKS.values():
+        if gym_id == spec.env.env_id or gym_id in {g.id for g in spec.gym_envs}:
+            return spec
+    return None
 
 
 def spec_of(env_id: str) -> TaskSpec:

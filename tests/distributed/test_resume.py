@@ -311,7 +311,8 @@ def test_a_trial_resumed_from_an_unrecorded_checkpoint_reports_its_trained_row_a
     class Reached(Exception):
         pass
 
-    spec = StudySpec("s", {"selection.alpha": Float(0.0, 1.0)}, trials=1)
+    # no handover: agents alone need no demonstrations (a handover reads their expert)
+    spec = StudySpec("s", {"selection.alpha": Float(0.0, 1.0)}, trials=1, handover=None)
     job = trial.TrialJob(spec, "/none", ConstraintBars(1.0, {}, 0.0), (1.0, 1.0, 1.0))
     train = {"train_loss": 0.5, "train_seconds": 2.0, "n_critical": 3, "critical_fraction": 0.1}
     extra = {"train": train, "trained_s": 4.0}

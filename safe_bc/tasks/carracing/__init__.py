@@ -93,5 +93,7 @@ SPEC = TaskSpec(
         ("pushes", ("1+0.015", "1+0.025", "2*0.95", "2*0.9", "2*0.75")),
         ("kept_in", "rest"),
     ),
+    episode_name="track",
+    metrics=("tiles_visited", "steer_autocorr", "steer_change"),
 )
 """The CarRacing entry of :data:`safe_bc.tasks.TASKS`."""

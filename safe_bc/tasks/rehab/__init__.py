@@ -57,5 +57,6 @@ SPEC = TaskSpec(
         ("pushes", ("0+0.05", "0-0.05", "1+0.05", "1-0.05")),
         ("kept_in", "critical"),
     ),
+    episode_name="patient",
 )
 """The rehabilitation entry of :data:`safe_bc.tasks.TASKS`."""
