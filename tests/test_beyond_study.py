@@ -84,6 +84,7 @@ def test_the_clinic_study_runs_its_designs_pick(clinic, clinic_selection) -> Non
     assert clinic.base.bc == clinic_selection.bc
     assert dict(clinic.space) == {} and clinic.trials == 1
     assert clinic.certify_episodes == 600 and clinic.deferred_share_limit == 0.10
+    assert clinic.threshold == 0.0  # the limit d_s binds, not the guideline's mean margin
 
 
 def test_the_clinic_certification_block_is_new_to_every_table(clinic) -> None:
