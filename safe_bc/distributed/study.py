@@ -1161,11 +1161,12 @@ study only reads the tables back and prints the result (:func:`finished_outcome`
 
 def finished_outcome(plan: StudyPlan) -> StudyOutcome | None:
     """The outcome of the plan's study when it ran to the end before with the same settings (its
-    :data:`FINISHED` record matches and its tables read back), else ``None``.
+    :data:`FINISHED` record matches and every output reads back whole), else ``None``.
 
     Raises:
-        ValueError: one line, when the finished study's tables or its Optuna copy
-            (``optuna.db``) are broken or not its own.
+        ValueError: one line naming the file, when one of the finished study's tables, its
+            recommender (card or an agent's weights) or its Optuna copy (``optuna.db``) is
+            damaged or not its own.
     """
     out = plan.out
     try:
@@ -1175,54 +1176,69 @@ def finished_outcome(plan: StudyPlan) -> StudyOutcome | None:
     if record != plan.finished:
         return None  # other settings (e.g. --concurrent): the normal path resumes
     try:
-        trials, meta = read_table(out / "trials.parquet")
-        table, fmeta = read_table(out / "final.parquet")
-        episodes, _ = read_table(out / "final_episodes.parquet")
-        paired = (
-            read_table(out / "final_paired.parquet")[0]
-            if (out / "final_paired.parquet").exists()
-            else pd.DataFrame()
-        )
-        best = json.loads((out / "best.json").read_text())
-    except (DatasetError, OSError, json.JSONDecodeError) as e:
+        tables, best = _finished_tables(out), json.loads((out / "best.json").read_text())
+        certificate = _finished_recommender(out)
+    except (DatasetError, OSError, json.JSONDecodeError, ValueError) as e:
         raise ValueError(
-            f"the finished study at {out} has a broken output ({' '.join(str(e).split())}); "
+            f"the finished study at {out} has a damaged output ({' '.join(str(e).split())}); "
             f"delete {out / FINISHED} and rerun the same command to rewrite the outputs (the "
             "trials and the final phase's finished work are kept and not redone)"
         ) from None
-    try:  # absent for a study finished before timings were recorded
-        timing = read_table(out / TIMING)[0] if (out / TIMING).exists() else None
-    except DatasetError:
-        timing = None
+    trials, meta = tables["trials"]
+    table, fmeta = tables["final"]
     check_optuna_copy(plan, str(meta.get("experiment_path", "")))
     final = FinalOutcome(
-        table, episodes, best.get("trial_id"), bool(best.get("feasible")),
+        table, tables["final_episodes"][0], best.get("trial_id"), bool(best.get("feasible")),
         str(best.get("message", "")), dict(fmeta.get("configs", {})),
-        str(best.get("certified", "")), paired,
+        str(best.get("certified", "")), tables.get("final_paired", (pd.DataFrame(),))[0],
     )  # fmt: skip
-    winner = choose_winner(trials, plan.spec.objective)
-    certificate = None
-    if (out / RECOMMENDER_DIR).exists():
-        from safe_bc.recommender import RecommenderError, read_card
-
-        try:
-            certificate = read_card(out / RECOMMENDER_DIR).certificate or None
-        except RecommenderError as e:
-            raise ValueError(
-                f"{e}; delete {out / FINISHED} and rerun the same command to write it again"
-            ) from None
     return StudyOutcome(
         True,
         trials,
-        winner,
+        choose_winner(trials, plan.spec.objective),
         final,
         float(meta["threshold"]),
         out,
         str(meta.get("experiment_path", "")),
         int((trials["status"] == "error").sum()),
-        timing=timing,
+        timing=tables[TIMING_NAME][0] if TIMING_NAME in tables else None,
         certificate=certificate,
     )
+
+
+FINISHED_TABLES = ("trials", "history", "final", "final_episodes")
+"""The tables every finished study has (each read whole before it says it finished)."""
+TIMING_NAME = TIMING.removesuffix(".parquet")
+"""The time table's name."""
+OPTIONAL_TABLES = ("final_paired", TIMING_NAME, "certify", "certify_episodes")
+"""The tables a finished study may lack (no paired comparison, a study finished before timings
+were recorded, no certification); read whole where they exist."""
+
+
+def _finished_tables(out: Path) -> dict[str, tuple[pd.DataFrame, dict[str, Any]]]:
+    """Every table of the finished study at ``out``, read whole: ``{name: (rows, metadata)}``.
+
+    Raises:
+        DatasetError: a table that is missing (of :data:`FINISHED_TABLES`) or does not read
+            whole, naming its file.
+    """
+    names = [*FINISHED_TABLES, *(n for n in OPTIONAL_TABLES if (out / f"{n}.parquet").exists())]
+    return {name: read_table(out / f"{name}.parquet") for name in names}
+
+
+def _finished_recommender(out: Path) -> dict[str, Any] | None:
+    """The certificate of the finished study's recommender (``None``: no recommender, or one
+    without a certificate), its card and every agent's weights checked against their SHA-256.
+
+    Raises:
+        RecommenderError: a damaged card or agent, naming the file.
+    """
+    if not (out / RECOMMENDER_DIR).exists():
+        return None
+    from safe_bc.recommender import load_recommender
+
+    card = load_recommender(out / RECOMMENDER_DIR, allow_uncertified=True).card
+    return card.certificate or None
 
 
 def _checkpoints(grid: Any, trial_ids: Sequence[str]) -> dict[str, BCNet]:
