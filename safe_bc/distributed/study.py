@@ -58,7 +58,9 @@ from safe_bc.distributed.final import FinalOutcome, final_phase
 from safe_bc.distributed.final_store import STORE, FinalStore
 from safe_bc.distributed.resume import (
     ResumeRefused,
+    check_published,
     check_resume,
+    claim_experiment,
     history_events,
     identity_problem,
     install_atomic_upload,
@@ -813,6 +815,8 @@ def _start(plan: StudyPlan, clock: StudyClock, options: DriverOptions) -> StudyS
         (plan.out / FINISHED).unlink(missing_ok=True)
     clock.open(new_experiment=not restoring)
     added = _check_resume(plan.out, identity, restoring, plan.exp_path)
+    if plan.local:
+        claim_experiment(plan.exp_path, plan.out)
     return StudyStart(cpus, demos, inputs, threshold, limits, job, restoring, added)
 
 
@@ -851,6 +855,7 @@ def _prepare_outputs(plan: StudyPlan, verbose: bool) -> None:
     restorable = not plan.fresh and tune.Tuner.can_restore(plan.exp_path)
     published = not plan.fresh and not restorable and committed_unchanged(out)
     if published:  # the committed study on a clone: run it again, git keeps the committed one
+        check_published(out, plan.settings)  # never another study over it
         print(
             f"{out}: the committed study, without its Tune experiment here: running it again "
             "from the start (compare the new tables with `git diff`)"

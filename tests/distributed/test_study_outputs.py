@@ -99,3 +99,70 @@ def test_a_finished_study_without_its_history_table_is_refused(finished: StudyPl
     (finished.out / "history.parquet").unlink()
     with pytest.raises(ValueError, match=r"history\.parquet: no such file"):
         finished_outcome(finished)
+
+
+# --- a committed study is never overwritten by another one ---------------------------------------
+
+
+def _committed(tmp_path: Path) -> Path:
+    """A study file and its committed study (``results/mine/`` tracked by git, no Tune
+    experiment): the study file's path."""
+    import subprocess
+
+    study = tmp_path / "mine.py"
+    study.write_text(
+        "from pathlib import Path\n"
+        "from safe_bc.study import Float, StudySpec\n"
+        "STUDY = StudySpec('mine', {'selection.alpha': Float(0.0, 1.0)}, trials=3,\n"
+        f"    results=Path({str(tmp_path / 'results')!r}), storage={str(tmp_path / 'ray')!r},\n"
+        f"    demos=Path({str(tmp_path / 'demos')!r}))\n"
+    )
+    from safe_bc.study import load_study
+
+    spec = load_study(study)
+    out = spec.results / spec.name
+    out.mkdir(parents=True)
+    write_tables_atomic(
+        out, {"trials": pd.DataFrame({"trial_id": ["a"]})}, {"study": spec.summary()}
+    )
+    (out / "study.json").write_text(json.dumps({"trials": 3}))  # an older record: no settings
+    git = ["git", "-c", "user.name=t", "-c", "user.email=t@t", "-C", str(tmp_path)]
+    for args in (["init", "-q"], ["add", "results"], ["commit", "-qm", "study"]):
+        subprocess.run(git + args, check=True, capture_output=True)
+    return study
+
+
+@pytest.mark.parametrize(
+    "flags,what",
+    [
+        (["--trials", "2"], "trials 3 -> 2"),
+        (["--more-trials", "2"], "trials 3 -> 5"),
+        (["--set", "batches=500"], "batches 2000 -> 500"),
+    ],
+)
+def test_another_study_over_a_committed_one_is_refused_in_one_line_naming_the_ways_out(
+    tmp_path: Path, capsys, flags: list[str], what: str
+) -> None:
+    import ray
+
+    from safe_bc.cli import main
+
+    study = _committed(tmp_path)
+    out = tmp_path / "results" / "mine"
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    started = ray.is_initialized()
+    assert main(["tune", str(study), *flags]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(f"safe-bc tune: error: {out} holds a committed")
+    assert f"other settings ({what})" in err and "--results DIR" in err and "--fresh" in err
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before  # nothing touched
+    assert ray.is_initialized() == started and not (tmp_path / "ray").exists()
+
+
+def test_the_committed_studys_own_settings_may_run_it_again(tmp_path: Path) -> None:
+    from safe_bc.distributed.resume import check_published
+    from safe_bc.study import load_study
+
+    spec = load_study(_committed(tmp_path))
+    plan = plan_study(spec, fresh=False, command="", final=True)
+    check_published(plan.out, plan.settings)  # a reproduction: git diff compares it
