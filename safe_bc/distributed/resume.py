@@ -371,10 +371,23 @@ def _atomic_copy_tree(local_path: str, dest: str, exclude: list[str] | None) -> 
             shutil.copyfileobj(f, g)
 
 
+_FAILED_COPIES: list[OSError] = []
+"""The driver's copies of Tune's state to the storage that failed since the last
+:func:`take_failed_copy` (Tune only logs them, in a thread)."""
+
+
+def take_failed_copy() -> OSError | None:
+    """The first copy of Tune's state to the storage that failed since the last call (``None``:
+    none); the record is cleared."""
+    failed = _FAILED_COPIES[0] if _FAILED_COPIES else None
+    _FAILED_COPIES.clear()
+    return failed
+
+
 def install_atomic_upload() -> None:
     """Make Tune's copy of the driver's files (experiment state, searcher state,
     ``tuner.pkl``) to a *local* storage folder atomic per file; other filesystems keep Tune's
-    own copy. Idempotent.
+    own copy. A copy that fails is recorded for :func:`take_failed_copy`. Idempotent.
 
     Raises:
         RuntimeError: the installed Ray lacks the function this replaces.
@@ -391,7 +404,7 @@ def install_atomic_upload() -> None:
     if getattr(original, "_safe_bc_atomic", False):
         return
 
-    def upload(local_path: str, fs: Any, fs_path: str, exclude: list[str] | None = None) -> None:
+    def copy(local_path: str, fs: Any, fs_path: str, exclude: list[str] | None) -> None:
         if isinstance(fs, pafs.LocalFileSystem) or (
             isinstance(fs, pafs.SubTreeFileSystem) and isinstance(fs.base_fs, pafs.LocalFileSystem)
         ):
@@ -399,6 +412,13 @@ def install_atomic_upload() -> None:
             _atomic_copy_tree(local_path, os.path.join(base, fs_path), exclude)
             return
         original(local_path, fs, fs_path, exclude)
+
+    def upload(local_path: str, fs: Any, fs_path: str, exclude: list[str] | None = None) -> None:
+        try:
+            copy(local_path, fs, fs_path, exclude)
+        except OSError as e:  # Tune logs it and goes on; the study stops on it instead
+            _FAILED_COPIES.append(OSError(e.errno, e.strerror or str(e), e.filename or fs_path))
+            raise
 
     upload._safe_bc_atomic = True  # type: ignore[attr-defined]
     storage._upload_to_fs_path = upload

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import errno
 import json
 import math
 import os
@@ -53,7 +54,14 @@ from safe_bc.data.store import (
     write_table_atomic,
     write_tables_atomic,
 )
-from safe_bc.distributed.console import TrialLines, progress_reporter, quiet_logs, quiet_stop
+from safe_bc.distributed.console import (
+    FULL_DISK,
+    TrialLines,
+    progress_reporter,
+    quiet_full_disk,
+    quiet_logs,
+    quiet_stop,
+)
 from safe_bc.distributed.final import FinalOutcome, final_phase
 from safe_bc.distributed.final_store import STORE, FinalStore
 from safe_bc.distributed.resume import (
@@ -64,6 +72,7 @@ from safe_bc.distributed.resume import (
     history_events,
     identity_problem,
     install_atomic_upload,
+    take_failed_copy,
     with_more_trials,
 )
 from safe_bc.distributed.runtime import cluster_cpus, ensure_ray
@@ -84,7 +93,12 @@ from safe_bc.distributed.stop import (
     _reinstall_signals,
     _stop_signals,
 )
-from safe_bc.distributed.trial import TrialJob, run_trial, stored_checkpoint
+from safe_bc.distributed.trial import (
+    TrialJob,
+    checkpoint_problem,
+    run_trial,
+    stored_checkpoint,
+)
 from safe_bc.envs.config import EnvConfig
 from safe_bc.plots import plot_pareto
 from safe_bc.provenance import check_result_write, committed_unchanged, provenance
@@ -381,15 +395,34 @@ class HistoryRecorder(tune.Callback):
     def on_trial_complete(self, iteration: int, trials: list, trial: Any, **info) -> None:
         self._end(trial, "complete")
 
+    def on_trial_recover(self, iteration: int, trials: list, trial: Any, **info) -> None:
+        _stop_on_full_disk(trial)  # before Tune spends the trial's retries on it
+
     def on_trial_error(self, iteration: int, trials: list, trial: Any, **info) -> None:
+        _stop_on_full_disk(trial)  # not an error of the trial: the rerun runs it again
         self._end(trial, "error")
 
     def on_step_end(self, iteration: int, trials: list, **info) -> None:
+        failed = take_failed_copy()
+        if failed is not None:  # Tune's state did not reach the storage: no trial's end may be
+            raise failed  # recorded as saved, and the study stops (one line) to be rerun
         ended = self.__dict__.get("_ended")
         if ended:  # Tune calls this after the step's save of the experiment state
             now = time.time()
             self._append([{"trial_id": t, "event": e, "timestamp": now} for t, e in ended])
             ended.clear()
+
+
+def _stop_on_full_disk(trial: Any) -> None:
+    """Stop the study with an ``OSError`` (one line at the CLI, exit 2) when ``trial`` failed
+    because its storage is full: retrying it would fail the same way, and recording it as
+    failed would drop its finished work from the rerun."""
+    try:  # the driver's own copy of the trial's errors (the storage's may not be written)
+        error = Path(trial.error_file).read_text().rsplit("Failure # ", 1)[-1]
+    except (OSError, TypeError):
+        error = ""
+    if FULL_DISK in error or "[Errno 28]" in error or "errno 28" in error:
+        raise OSError(errno.ENOSPC, FULL_DISK, str(getattr(trial, "path", "") or ""))
 
 
 def read_history(path: Path) -> pd.DataFrame:
@@ -832,9 +865,26 @@ def _tune(
         f"{spec.trial_cpus:g} per trial, batches of {spec.batch_size}, "
         f"max_concurrent {spec.max_concurrent})"
     )
+    if start.restoring and plan.local:
+        _name_damaged_checkpoints(plan)
     take_copy_seconds()  # only this run's copies
     clock.skip()
     return _fit(tuner, clock, concurrent, meter, start.cpus)
+
+
+def _name_damaged_checkpoints(plan: StudyPlan) -> None:
+    """One line per trial in flight (not recorded as ended) whose stored checkpoint does not
+    load whole: the trial trains again (:func:`safe_bc.distributed.trial.resume_point`)."""
+    ended = history_events(plan.out / HISTORY)[1]
+    for folder in sorted(Path(plan.exp_path).glob("trial_*")):
+        tid = folder.name.removeprefix("trial_")
+        for checkpoint in [] if tid in ended else sorted(folder.glob("checkpoint_*")):
+            problem = checkpoint_problem(checkpoint)
+            if problem:
+                print(
+                    f"trial {tid}: its checkpoint is damaged ({problem[:300]}); the trial "
+                    "trains again from its last whole checkpoint, else from its start"
+                )
 
 
 def _prepare_outputs(plan: StudyPlan, verbose: bool) -> None:
@@ -847,7 +897,9 @@ def _prepare_outputs(plan: StudyPlan, verbose: bool) -> None:
     os.environ.setdefault("TUNE_WARN_EXCESSIVE_EXPERIMENT_CHECKPOINT_SYNC_THRESHOLD_S", "0")
     check_persistence_api()
     install_atomic_upload()  # Tune's state on a local storage: whole files or the old ones
+    take_failed_copy()  # a failed copy of an earlier study in this process is not this one's
     quiet_stop()  # a stopped study says so in one line
+    quiet_full_disk()  # so does a full storage
     if not verbose:
         quiet_logs()
     out = plan.out
