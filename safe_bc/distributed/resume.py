@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from safe_bc.atomic import atomic_write, write_json_atomic
+from safe_bc.provenance import repo_relative
 
 STUDY_RECORD = "study.json"
 """The study's identity in ``results/<study>/``: what its trials depend on."""
@@ -206,8 +207,9 @@ def check_resume(
     if local:  # a results folder without any record cannot be resuming the experiment
         _check_owner(out, exp_path, restoring and record is None and not has_work)
     if record is not None:
-        stored_path = record.get("experiment_path")
-        if stored_path is not None and stored_path != exp_path and (has_work or restoring):
+        stored_path = record.get("experiment_path")  # relative to the repository inside it
+        here = (exp_path, repo_relative(exp_path))
+        if stored_path is not None and stored_path not in here and (has_work or restoring):
             raise ResumeRefused(
                 f"the study at {out} keeps its Tune experiment at {stored_path}, not {exp_path}: "
                 f"rerun with the --storage it was started with to resume it, or {fresh} here"

@@ -101,7 +101,12 @@ from safe_bc.distributed.trial import (
 )
 from safe_bc.envs.config import EnvConfig
 from safe_bc.plots import plot_pareto
-from safe_bc.provenance import check_result_write, committed_unchanged, provenance
+from safe_bc.provenance import (
+    check_result_write,
+    committed_unchanged,
+    provenance,
+    repo_relative,
+)
 from safe_bc.study import (
     TRIAL_METRICS,
     ConstraintBars,
@@ -230,6 +235,8 @@ def _check_resume(out: Path, identity: dict[str, Any], restoring: bool, exp_path
     added = 0
     if restoring and path.exists():
         stored = json.loads(path.read_text())
+        if isinstance(stored.get("experiment_path"), str):  # recorded absolute before
+            stored["experiment_path"] = repo_relative(stored["experiment_path"])
         if "settings" in stored and "settings" in identity:  # the count is checked as trials
             stored["settings"] = with_more_trials(stored["settings"], identity["settings"])
         changed = [k for k, v in identity.items() if k in stored and stored.get(k) != v]
@@ -1188,7 +1195,10 @@ def deliver(
         limits=dict(zip(job_dims(job), (float(x) for x in job.cost_limits), strict=True)),
         handover=None if spec.handover is None else spec.handover.to_dict(),
         expert=read_meta(Path(job.demos)).expert,
-        demos={k: demos[k] for k in ("digest", "episodes", "collector", "path")},
+        demos={
+            **{k: demos[k] for k in ("digest", "episodes", "collector")},
+            "path": repo_relative(demos["path"]),
+        },
         seeds=seeds,
         run_config=final.configs.get(winner, {}),
         source={

@@ -202,6 +202,18 @@ def _refused_without_fresh(out: Path, exp: Path, **kw) -> str:
     return str(e.value)
 
 
+def test_a_record_of_the_experiment_relative_to_the_repository_resumes_it(tmp_path: Path) -> None:
+    from safe_bc.provenance import RESULTS
+
+    out = tmp_path / "results" / "s"
+    out.mkdir(parents=True)
+    (out / "study.json").write_text(json.dumps({"experiment_path": "results/ray/s"}))
+    (out / "history.jsonl").write_text('{"trial_id": "a", "phase": "trained"}\n')
+    _check(out, RESULTS / "ray" / "s", restoring=False)  # the same folder, however spelled
+    message = _refused(out, RESULTS / "ray" / "t", restoring=False)
+    assert "keeps its Tune experiment at results/ray/s, not " in message
+
+
 def test_a_study_without_records_starts(tmp_path: Path) -> None:
     out, exp = tmp_path / "results" / "s", tmp_path / "ray" / "s"
     _check(out, exp, restoring=False)  # nothing at all
