@@ -290,7 +290,7 @@ def claim_experiment(exp_path: str, out: Path) -> None:
 def _check_owner(out: Path, exp_path: str, unrecorded: bool) -> None:
     """One storage experiment belongs to one results folder: an experiment another folder's
     study owns (:data:`OWNER`), or, ``unrecorded``, one this folder has no records of (an
-    experiment older than the owner file), is not resumed from here."""
+    experiment without an owner file), is not resumed from here."""
     owner = experiment_owner(exp_path)
     here = str(Path(out).resolve())
     if owner is not None and owner != here:

@@ -235,7 +235,7 @@ def _check_resume(out: Path, identity: dict[str, Any], restoring: bool, exp_path
     added = 0
     if restoring and path.exists():
         stored = json.loads(path.read_text())
-        if isinstance(stored.get("experiment_path"), str):  # recorded absolute before
+        if isinstance(stored.get("experiment_path"), str):  # absolute or relative: one folder
             stored["experiment_path"] = repo_relative(stored["experiment_path"])
         if "settings" in stored and "settings" in identity:  # the count is checked as trials
             stored["settings"] = with_more_trials(stored["settings"], identity["settings"])
