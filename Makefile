@@ -78,8 +78,10 @@ beyond-car: $(STAMP)
 		$(BIN)/safe-bc compare tune_jobs/compare/selfimprove.py --name $$name $(ARGS) || exit 1; \
 	done
 
+# TRIALS=n is another study than the file's: its own results and Tune experiment under
+# runs/trials<n>/ (untracked), never over the committed results/<STUDY>/ (docs/cli.md)
 tune: $(STAMP)
-	$(BIN)/safe-bc tune tune_jobs/$(STUDY).py $(if $(TRIALS),--trials $(TRIALS),) $(ARGS)
+	$(BIN)/safe-bc tune tune_jobs/$(STUDY).py $(if $(TRIALS),--trials $(TRIALS) --results runs/trials$(TRIALS) --storage runs/trials$(TRIALS)/ray,) $(ARGS)
 
 clean:
 	rm -rf $(VENV) .pytest_cache .ruff_cache

@@ -7,7 +7,6 @@ from __future__ import annotations
 import fnmatch
 import json
 import os
-import sys
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -70,7 +69,7 @@ def describe(job: DescribeJob) -> Done:
     from safe_bc.experiment import select_for
     from safe_bc.metrics import combined
     from safe_bc.plots import plot_cost_histograms
-    from safe_bc.provenance import provenance
+    from safe_bc.provenance import command_line, provenance
     from safe_bc.selection import SelectionConfig
     from safe_bc.tasks import task_defaults, task_of
 
@@ -115,7 +114,7 @@ def describe(job: DescribeJob) -> Done:
         "critical_share": float(sel.n_critical / sel.n_valid),
         "selection": sel.to_dict(),
         "dataset": json.loads(meta.to_json()),
-        "described_by": {"command": " ".join(sys.argv), "provenance": provenance()},
+        "described_by": {"command": command_line(), "provenance": provenance()},
     }
     job.out.mkdir(parents=True, exist_ok=True)
     title = f"{job.demos}: {len(demos)} pairs, {summary['digest'][:19]}"

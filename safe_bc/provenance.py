@@ -16,6 +16,7 @@ import os
 import platform
 import subprocess
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -281,6 +282,55 @@ def result_metadata(path: str | Path, metadata: dict[str, Any] | None) -> dict[s
 
 
 def run_metadata(**fields: Any) -> dict[str, Any]:
-    """What a result table records: the command line, ``fields`` (seeds, configs) and
-    :func:`provenance`."""
-    return {"command": " ".join(sys.argv), **fields, **provenance()}
+    """What a result table records: the command line (:func:`command_line`), ``fields`` (seeds,
+    configs) and :func:`provenance`."""
+    return {"command": command_line(), **fields, **provenance()}
+
+
+def repo_relative(path: str | Path, root: str | Path = _REPO) -> str:
+    """``path`` relative to the repository ``root`` (POSIX) when it is an absolute path inside
+    it, else unchanged: what a committed record says, the same on every machine.
+
+    >>> repo_relative("/r/results/ray/x", "/r"), repo_relative("/tmp/x", "/r")
+    ('results/ray/x', '/tmp/x')
+    >>> repo_relative("data/demos", "/r"), repo_relative("/r", "/r")
+    ('data/demos', '.')
+    """
+    text = str(path)
+    if not os.path.isabs(text):
+        return text
+    relative = os.path.relpath(os.path.normpath(text), os.path.normpath(str(root)))
+    return text if relative.startswith("..") else Path(relative).as_posix()
+
+
+def command_line(argv: Sequence[str] | None = None, root: str | Path = _REPO) -> str:
+    """The command line ``argv`` (default ``sys.argv``) as a result records it: the program as
+    ``safe-bc`` when it is the command line's entry point (``.../bin/safe-bc``,
+    ``.../safe_bc/cli.py``), else by its path in the repository ``root`` or, outside it, its
+    name; and every absolute path inside ``root`` (a word, or the value of ``--flag=value``)
+    relative to it.
+
+    >>> command_line(["/r/.venv/bin/safe-bc", "describe", "--out", "/r/res", "--x=/r/a"], "/r")
+    'safe-bc describe --out res --x=a'
+    >>> command_line(["/r/safe_bc/cli.py", "compare", "--out", "/tmp/o"], "/r")
+    'safe-bc compare --out /tmp/o'
+    >>> command_line(["/usr/bin/pytest", "-q"], "/r"), command_line(["/r/scripts/s.py"], "/r")
+    ('pytest -q', 'scripts/s.py')
+    """
+    words = list(sys.argv if argv is None else argv)
+    if not words:
+        return ""
+    program = words[0].replace(os.sep, "/")
+    if program.endswith(("/safe-bc", "safe_bc/cli.py")) or program == "safe-bc":
+        program = "safe-bc"
+    else:
+        program = repo_relative(words[0], root)
+        program = Path(program).name if os.path.isabs(program) else program
+
+    def word(w: str) -> str:
+        flag, eq, value = w.partition("=")
+        if eq and flag.startswith("-"):
+            return f"{flag}={repo_relative(value, root)}"
+        return repo_relative(w, root)
+
+    return " ".join([program, *(word(w) for w in words[1:])])

@@ -19,6 +19,7 @@ from typing import Any
 import pandas as pd
 
 from safe_bc.collection import CollectConfig
+from safe_bc.provenance import repo_relative
 from safe_bc.study import ConstraintBars, StudySpec, settings_of
 from safe_bc.tasks import TaskSpec, task_defaults, task_of
 
@@ -161,7 +162,7 @@ def run_identity(
         "limits": list(cost_limits),
         "batch_size": plan.spec.batch_size,
         "demos_digest": inputs["demos"]["digest"],
-        "experiment_path": plan.exp_path,
+        "experiment_path": repo_relative(plan.exp_path),  # inside the repository: relative
         "settings": plan.settings,
     }
 

@@ -45,3 +45,24 @@ def test_make_demos_describes_into_an_untracked_folder_by_default() -> None:
 
 def test_make_demos_rewrites_the_committed_description_only_when_asked() -> None:
     assert _describe_out("DESCRIBE=results/demos") == "results/demos"
+
+
+def _tune_words(*variables: str) -> list[str]:
+    """The ``safe-bc tune`` line ``make tune`` would run, as words."""
+    dry = subprocess.run(
+        ["make", "-n", "-C", str(ROOT), "tune", *variables],
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout
+    lines = [line for line in dry.splitlines() if "safe-bc tune" in line]
+    assert len(lines) == 1, dry
+    return shlex.split(lines[0])
+
+
+def test_make_tune_with_another_trial_count_writes_folders_of_its_own() -> None:
+    assert "--results" not in _tune_words() and "--storage" not in _tune_words()
+    words = _tune_words("TRIALS=4")
+    results, storage = words[words.index("--results") + 1], words[words.index("--storage") + 1]
+    assert words[words.index("--trials") + 1] == "4"
+    assert results == "runs/trials4" and storage.startswith("runs/trials4/")

@@ -103,3 +103,14 @@ def test_a_committed_unchanged_folder_is_a_published_result(tmp_path: Path) -> N
     (study / "study.json").unlink()
     assert not committed_unchanged(study)
     assert not committed_unchanged(tmp_path / "none")
+
+
+def test_a_result_records_its_command_with_paths_relative_to_the_repository(monkeypatch) -> None:
+    from safe_bc.provenance import RESULTS, run_metadata
+
+    repo = RESULTS.parent
+    argv = [str(repo / ".venv/bin/safe-bc"), "train", "--out", str(repo / "runs/a"), "--seed", "1"]
+    monkeypatch.setattr("sys.argv", argv)
+    assert run_metadata()["command"] == "safe-bc train --out runs/a --seed 1"
+    monkeypatch.setattr("sys.argv", [str(repo / "safe_bc/cli.py"), "describe", "--out=/tmp/d"])
+    assert run_metadata()["command"] == "safe-bc describe --out=/tmp/d"  # elsewhere: as given

@@ -86,3 +86,20 @@ def test_a_committed_studys_settings_re_derive_from_its_study_file(name: str) ->
     now, recorded = settings_of(spec.summary()), settings_of(meta["study"])
     assert {k: now[k] for k in recorded} == recorded
     assert all(now[k] is None for k in set(now) - set(recorded))  # fields the record lacks
+
+
+def test_the_study_record_names_a_storage_inside_the_repository_relative_to_it(
+    tmp_path: Path,
+) -> None:
+    from safe_bc.provenance import RESULTS
+
+    inside = plan_study(
+        replace(_spec(tmp_path), storage=str(RESULTS / "ray")), fresh=False, command="", final=True
+    )
+    identity = run_identity(inside, 1.0, [1.0], {"demos": {"digest": "sha256:x"}})
+    assert identity["experiment_path"] == f"results/ray/{inside.spec.name}"
+    outside = plan_study(_spec(tmp_path), fresh=False, command="", final=True)
+    assert outside.exp_path.startswith(str(tmp_path))  # elsewhere: absolute, as it was
+    assert run_identity(outside, 1.0, [1.0], {"demos": {"digest": "x"}})["experiment_path"] == (
+        outside.exp_path
+    )

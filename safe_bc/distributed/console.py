@@ -80,6 +80,44 @@ def quiet_stop() -> None:
             tune_logger.addFilter(_not_a_stop_line)
 
 
+FULL_DISK = "No space left on device"
+"""How an ``ENOSPC`` reads (``strerror``): Tune's lines on a storage that filled up carry it."""
+FULL_DISK_LOGGERS = (
+    "ray.tune.execution.experiment_state",
+    "ray.tune.execution.tune_controller",
+    "ray.train._internal.syncer",
+    *TUNE_STOP_LOGGERS,
+)
+"""Where Tune's lines on a full storage come from: its failed saves of the experiment state
+(with their tracebacks), its trials' failures, its syncer, and the run's end."""
+
+
+def _not_a_full_disk_line(record: logging.LogRecord) -> bool:
+    text = record.getMessage()
+    if record.exc_info and record.exc_info[1] is not None:
+        text += f" {record.exc_info[1]}"
+    if FULL_DISK in text or "[Errno 28]" in text or "errno 28" in text:
+        _FULL_DISK_SEEN.append(True)
+        return False
+    return not (_FULL_DISK_SEEN and record.name in TUNE_STOP_LOGGERS)
+
+
+_FULL_DISK_SEEN: list[bool] = []
+"""Non-empty once a full storage was logged: the study stops on it in one line, so the run's
+end (trials that "did not complete") is not logged either."""
+
+
+def quiet_full_disk() -> None:
+    """Ray Tune's lines on a full storage off (:data:`FULL_DISK_LOGGERS`): the study stops on
+    it with one line of its own (:class:`safe_bc.distributed.study.HistoryRecorder`).
+    Idempotent."""
+    _FULL_DISK_SEEN.clear()
+    for name in FULL_DISK_LOGGERS:
+        tune_logger = logging.getLogger(name)
+        if _not_a_full_disk_line not in tune_logger.filters:
+            tune_logger.addFilter(_not_a_full_disk_line)
+
+
 def trial_line(result: dict[str, Any], done: int, total: int) -> str:
     """One finished trial in one line.
 

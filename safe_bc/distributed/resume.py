@@ -23,12 +23,16 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from safe_bc.atomic import atomic_write
+from safe_bc.atomic import atomic_write, write_json_atomic
+from safe_bc.provenance import repo_relative
 
 STUDY_RECORD = "study.json"
 """The study's identity in ``results/<study>/``: what its trials depend on."""
 TUNE_STATE = "experiment_state-*.json"
 """Tune's saved experiment state in ``<storage>/<study>/`` (one file per driver run)."""
+OWNER = "safe_bc_results.json"
+"""In a local ``<storage>/<study>/``: the results folder whose study the Tune experiment is
+(``{"results": "/abs/results/<study>"}``); another results folder may not resume it."""
 
 
 class ResumeRefused(ValueError):
@@ -105,6 +109,38 @@ def history_events(path: Path) -> tuple[set[str], set[str]]:
     return reported, ended
 
 
+def reported_iterations(path: Path) -> dict[str, set[int]]:
+    """Trial id -> the ``training_iteration`` of each report in the study's ``history.jsonl``
+    (a line cut short is skipped)."""
+    out: dict[str, set[int]] = {}
+    with contextlib.suppress(OSError):
+        for line in path.read_text().splitlines():
+            try:
+                row = json.loads(line)
+            except json.JSONDecodeError:
+                continue
+            if isinstance(row, dict) and "trial_id" in row and not row.get("event"):
+                it = row.get("training_iteration")
+                out.setdefault(str(row["trial_id"]), set()).update([it] if it is not None else [])
+    return out
+
+
+def state_iterations(file: Path) -> dict[str, int]:
+    """Trial id -> the ``training_iteration`` of the last result Tune's experiment state
+    ``file`` holds for it (trials that never reported are left out; ``{}`` when the file does
+    not read whole)."""
+    try:
+        trials = json.loads(file.read_bytes())["trial_data"]
+        out = {}
+        for state, runtime in trials:
+            last = (json.loads(runtime) or {}).get("last_result") or {}
+            if last.get("training_iteration") is not None:
+                out[str(json.loads(state)["trial_id"])] = int(last["training_iteration"])
+    except (OSError, ValueError, KeyError, TypeError, IndexError, AttributeError):
+        return {}
+    return out
+
+
 def tune_state(exp_path: str) -> tuple[Path | None, set[str], str]:
     """``(file, trial ids, problem)`` of the newest Tune experiment state in the local folder
     ``exp_path`` (the one Tune restores from); ``problem`` is ``""`` when it reads whole."""
@@ -168,9 +204,12 @@ def check_resume(
     tables = (out / "trials.parquet").exists()
     has_work = bool(reported or ended) or tables
     fresh = "pass --fresh to start the study over"
+    if local:  # a results folder without any record cannot be resuming the experiment
+        _check_owner(out, exp_path, restoring and record is None and not has_work)
     if record is not None:
-        stored_path = record.get("experiment_path")
-        if stored_path is not None and stored_path != exp_path and (has_work or restoring):
+        stored_path = record.get("experiment_path")  # relative to the repository inside it
+        here = (exp_path, repo_relative(exp_path))
+        if stored_path is not None and stored_path not in here and (has_work or restoring):
             raise ResumeRefused(
                 f"the study at {out} keeps its Tune experiment at {stored_path}, not {exp_path}: "
                 f"rerun with the --storage it was started with to resume it, or {fresh} here"
@@ -192,7 +231,86 @@ def check_resume(
         return
     if not local:
         return
-    if not ended:  # nothing finished: Tune may start over without losing anything
+    _check_state_knows_ended(out, exp_path, ended, fresh)
+    _check_history_whole(out, exp_path, fresh)
+
+
+def published_settings(out: Path) -> dict[str, Any] | None:
+    """The settings the study at ``out`` was made with: its ``study.json``'s, else those its
+    trial table records (a study started before ``study.json`` kept them); ``None``: neither
+    reads."""
+    record = read_record(out)
+    if record is not None and isinstance(record.get("settings"), dict):
+        return record["settings"]
+    from safe_bc.data.store import DatasetError, read_table_metadata
+    from safe_bc.study import settings_of
+
+    try:
+        summary = read_table_metadata(out / "trials.parquet").get("study")
+    except DatasetError:
+        return None
+    return settings_of(summary) if isinstance(summary, dict) else None
+
+
+def check_published(out: Path, settings: Mapping[str, Any]) -> None:
+    """A committed study (:func:`safe_bc.provenance.committed_unchanged`) is run again from the
+    start only with the settings it was made with (a reproduction, compared with ``git
+    diff``); another trial count or ``--set`` would overwrite it with another study.
+
+    Raises:
+        ResumeRefused: one line naming what differs and the two ways out.
+    """
+    stored = published_settings(out)
+    what = "its settings are unreadable" if stored is None else identity_problem(stored, settings)
+    if what:
+        raise ResumeRefused(
+            f"{out} holds a committed study made with other settings ({what}) and no Tune "
+            "experiment here to resume: pass --results DIR to write this study to DIR/"
+            f"{out.name}/, or --fresh to replace the committed one (git keeps it)"
+        )
+
+
+def experiment_owner(exp_path: str) -> str | None:
+    """The results folder recorded as the owner of the local Tune experiment ``exp_path``
+    (:data:`OWNER`; ``None``: none recorded, or unreadable)."""
+    try:
+        owner = json.loads((Path(exp_path) / OWNER).read_text()).get("results")
+    except (OSError, ValueError, AttributeError):
+        return None
+    return owner if isinstance(owner, str) else None
+
+
+def claim_experiment(exp_path: str, out: Path) -> None:
+    """Record ``out`` as the owner of the local Tune experiment ``exp_path`` (once)."""
+    if experiment_owner(exp_path) is None:
+        Path(exp_path).mkdir(parents=True, exist_ok=True)
+        write_json_atomic(Path(exp_path) / OWNER, {"results": str(Path(out).resolve())})
+
+
+def _check_owner(out: Path, exp_path: str, unrecorded: bool) -> None:
+    """One storage experiment belongs to one results folder: an experiment another folder's
+    study owns (:data:`OWNER`), or, ``unrecorded``, one this folder has no records of (an
+    experiment without an owner file), is not resumed from here."""
+    owner = experiment_owner(exp_path)
+    here = str(Path(out).resolve())
+    if owner is not None and owner != here:
+        raise ResumeRefused(
+            f"the Tune experiment at {exp_path} belongs to the study at {owner}, not {out}: "
+            f"pass another --storage for this one, or --results {Path(owner).parent} to "
+            "resume that one; nothing was run"
+        )
+    if owner is None and unrecorded:
+        raise ResumeRefused(
+            f"the Tune experiment at {exp_path} was started by a study with another --results "
+            f"({out} holds no records of it): pass another --storage for this one, or the "
+            "--results it was started with to resume it; nothing was run"
+        )
+
+
+def _check_state_knows_ended(out: Path, exp_path: str, ended: set[str], fresh: str) -> None:
+    """Tune's experiment state must read whole and know every trial ``history.jsonl`` records
+    as ended (when none has ended, Tune may start over without losing anything)."""
+    if not ended:
         return
     file, known, problem = tune_state(exp_path)
     where = file or Path(exp_path)
@@ -209,6 +327,25 @@ def check_resume(
             f"{where}: Tune's experiment state does not know {len(lost)} trial(s) that "
             f"{out / 'history.jsonl'} records as finished ({shown}): it is older or damaged, "
             f"and resuming would drop them; nothing was run; restore the file, or {fresh}"
+        )
+
+
+def _check_history_whole(out: Path, exp_path: str, fresh: str) -> None:
+    """``history.jsonl`` must hold every report Tune's experiment state knows of: Tune records
+    a result only after the study's callback has appended it, so a trial whose last result is
+    missing there (an emptied or cut-short file) would lose its rows in ``history.parquet``."""
+    file = tune_state(exp_path)[0]
+    if file is None:
+        return
+    reported = reported_iterations(out / "history.jsonl")
+    missing = sorted(t for t, n in state_iterations(file).items() if n not in reported.get(t, ()))
+    if missing:
+        shown = ", ".join(missing[:5]) + (" ..." if len(missing) > 5 else "")
+        raise ResumeRefused(
+            f"{out / 'history.jsonl'}: lacks reports of {len(missing)} trial(s) that Tune's "
+            f"experiment state {file.name} records ({shown}): the file is damaged or cut short, "
+            "and history.parquet would lose their rows; nothing was run; restore it from a "
+            f"copy, or {fresh}"
         )
 
 
@@ -236,10 +373,23 @@ def _atomic_copy_tree(local_path: str, dest: str, exclude: list[str] | None) -> 
             shutil.copyfileobj(f, g)
 
 
+_FAILED_COPIES: list[OSError] = []
+"""The driver's copies of Tune's state to the storage that failed since the last
+:func:`take_failed_copy` (Tune only logs them, in a thread)."""
+
+
+def take_failed_copy() -> OSError | None:
+    """The first copy of Tune's state to the storage that failed since the last call (``None``:
+    none); the record is cleared."""
+    failed = _FAILED_COPIES[0] if _FAILED_COPIES else None
+    _FAILED_COPIES.clear()
+    return failed
+
+
 def install_atomic_upload() -> None:
     """Make Tune's copy of the driver's files (experiment state, searcher state,
     ``tuner.pkl``) to a *local* storage folder atomic per file; other filesystems keep Tune's
-    own copy. Idempotent.
+    own copy. A copy that fails is recorded for :func:`take_failed_copy`. Idempotent.
 
     Raises:
         RuntimeError: the installed Ray lacks the function this replaces.
@@ -256,7 +406,7 @@ def install_atomic_upload() -> None:
     if getattr(original, "_safe_bc_atomic", False):
         return
 
-    def upload(local_path: str, fs: Any, fs_path: str, exclude: list[str] | None = None) -> None:
+    def copy(local_path: str, fs: Any, fs_path: str, exclude: list[str] | None) -> None:
         if isinstance(fs, pafs.LocalFileSystem) or (
             isinstance(fs, pafs.SubTreeFileSystem) and isinstance(fs.base_fs, pafs.LocalFileSystem)
         ):
@@ -264,6 +414,13 @@ def install_atomic_upload() -> None:
             _atomic_copy_tree(local_path, os.path.join(base, fs_path), exclude)
             return
         original(local_path, fs, fs_path, exclude)
+
+    def upload(local_path: str, fs: Any, fs_path: str, exclude: list[str] | None = None) -> None:
+        try:
+            copy(local_path, fs, fs_path, exclude)
+        except OSError as e:  # Tune logs it and goes on; the study stops on it instead
+            _FAILED_COPIES.append(OSError(e.errno, e.strerror or str(e), e.filename or fs_path))
+            raise
 
     upload._safe_bc_atomic = True  # type: ignore[attr-defined]
     storage._upload_to_fs_path = upload

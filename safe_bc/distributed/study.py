@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import errno
 import json
 import math
 import os
@@ -53,15 +54,25 @@ from safe_bc.data.store import (
     write_table_atomic,
     write_tables_atomic,
 )
-from safe_bc.distributed.console import TrialLines, progress_reporter, quiet_logs, quiet_stop
+from safe_bc.distributed.console import (
+    FULL_DISK,
+    TrialLines,
+    progress_reporter,
+    quiet_full_disk,
+    quiet_logs,
+    quiet_stop,
+)
 from safe_bc.distributed.final import FinalOutcome, final_phase
 from safe_bc.distributed.final_store import STORE, FinalStore
 from safe_bc.distributed.resume import (
     ResumeRefused,
+    check_published,
     check_resume,
+    claim_experiment,
     history_events,
     identity_problem,
     install_atomic_upload,
+    take_failed_copy,
     with_more_trials,
 )
 from safe_bc.distributed.runtime import cluster_cpus, ensure_ray
@@ -82,10 +93,20 @@ from safe_bc.distributed.stop import (
     _reinstall_signals,
     _stop_signals,
 )
-from safe_bc.distributed.trial import TrialJob, run_trial, stored_checkpoint
+from safe_bc.distributed.trial import (
+    TrialJob,
+    checkpoint_problem,
+    run_trial,
+    stored_checkpoint,
+)
 from safe_bc.envs.config import EnvConfig
 from safe_bc.plots import plot_pareto
-from safe_bc.provenance import check_result_write, committed_unchanged, provenance
+from safe_bc.provenance import (
+    check_result_write,
+    committed_unchanged,
+    provenance,
+    repo_relative,
+)
 from safe_bc.study import (
     TRIAL_METRICS,
     ConstraintBars,
@@ -217,6 +238,8 @@ def _check_resume(out: Path, identity: dict[str, Any], restoring: bool, exp_path
     added = 0
     if restoring and path.exists():
         stored = json.loads(path.read_text())
+        if isinstance(stored.get("experiment_path"), str):  # absolute or relative: one folder
+            stored["experiment_path"] = repo_relative(stored["experiment_path"])
         if "settings" in stored and "settings" in identity:  # the count is checked as trials
             stored["settings"] = with_more_trials(stored["settings"], identity["settings"])
         changed = [k for k, v in identity.items() if k in stored and stored.get(k) != v]
@@ -382,15 +405,34 @@ class HistoryRecorder(tune.Callback):
     def on_trial_complete(self, iteration: int, trials: list, trial: Any, **info) -> None:
         self._end(trial, "complete")
 
+    def on_trial_recover(self, iteration: int, trials: list, trial: Any, **info) -> None:
+        _stop_on_full_disk(trial)  # before Tune spends the trial's retries on it
+
     def on_trial_error(self, iteration: int, trials: list, trial: Any, **info) -> None:
+        _stop_on_full_disk(trial)  # not an error of the trial: the rerun runs it again
         self._end(trial, "error")
 
     def on_step_end(self, iteration: int, trials: list, **info) -> None:
+        failed = take_failed_copy()
+        if failed is not None:  # Tune's state did not reach the storage: no trial's end may be
+            raise failed  # recorded as saved, and the study stops (one line) to be rerun
         ended = self.__dict__.get("_ended")
         if ended:  # Tune calls this after the step's save of the experiment state
             now = time.time()
             self._append([{"trial_id": t, "event": e, "timestamp": now} for t, e in ended])
             ended.clear()
+
+
+def _stop_on_full_disk(trial: Any) -> None:
+    """Stop the study with an ``OSError`` (one line at the CLI, exit 2) when ``trial`` failed
+    because its storage is full: retrying it would fail the same way, and recording it as
+    failed would drop its finished work from the rerun."""
+    try:  # the driver's own copy of the trial's errors (the storage's may not be written)
+        error = Path(trial.error_file).read_text().rsplit("Failure # ", 1)[-1]
+    except (OSError, TypeError):
+        error = ""
+    if FULL_DISK in error or "[Errno 28]" in error or "errno 28" in error:
+        raise OSError(errno.ENOSPC, FULL_DISK, str(getattr(trial, "path", "") or ""))
 
 
 def read_history(path: Path) -> pd.DataFrame:
@@ -816,6 +858,8 @@ def _start(plan: StudyPlan, clock: StudyClock, options: DriverOptions) -> StudyS
         (plan.out / FINISHED).unlink(missing_ok=True)
     clock.open(new_experiment=not restoring)
     added = _check_resume(plan.out, identity, restoring, plan.exp_path)
+    if plan.local:
+        claim_experiment(plan.exp_path, plan.out)
     return StudyStart(cpus, demos, inputs, threshold, limits, job, restoring, added)
 
 
@@ -831,9 +875,26 @@ def _tune(
         f"{spec.trial_cpus:g} per trial, batches of {spec.batch_size}, "
         f"max_concurrent {spec.max_concurrent})"
     )
+    if start.restoring and plan.local:
+        _name_damaged_checkpoints(plan)
     take_copy_seconds()  # only this run's copies
     clock.skip()
     return _fit(tuner, clock, concurrent, meter, start.cpus)
+
+
+def _name_damaged_checkpoints(plan: StudyPlan) -> None:
+    """One line per trial in flight (not recorded as ended) whose stored checkpoint does not
+    load whole: the trial trains again (:func:`safe_bc.distributed.trial.resume_point`)."""
+    ended = history_events(plan.out / HISTORY)[1]
+    for folder in sorted(Path(plan.exp_path).glob("trial_*")):
+        tid = folder.name.removeprefix("trial_")
+        for checkpoint in [] if tid in ended else sorted(folder.glob("checkpoint_*")):
+            problem = checkpoint_problem(checkpoint)
+            if problem:
+                print(
+                    f"trial {tid}: its checkpoint is damaged ({problem[:300]}); the trial "
+                    "trains again from its last whole checkpoint, else from its start"
+                )
 
 
 def _prepare_outputs(plan: StudyPlan, verbose: bool) -> None:
@@ -846,7 +907,9 @@ def _prepare_outputs(plan: StudyPlan, verbose: bool) -> None:
     os.environ.setdefault("TUNE_WARN_EXCESSIVE_EXPERIMENT_CHECKPOINT_SYNC_THRESHOLD_S", "0")
     check_persistence_api()
     install_atomic_upload()  # Tune's state on a local storage: whole files or the old ones
+    take_failed_copy()  # a failed copy of an earlier study in this process is not this one's
     quiet_stop()  # a stopped study says so in one line
+    quiet_full_disk()  # so does a full storage
     if not verbose:
         quiet_logs()
     out = plan.out
@@ -854,6 +917,7 @@ def _prepare_outputs(plan: StudyPlan, verbose: bool) -> None:
     restorable = not plan.fresh and tune.Tuner.can_restore(plan.exp_path)
     published = not plan.fresh and not restorable and committed_unchanged(out)
     if published:  # the committed study on a clone: run it again, git keeps the committed one
+        check_published(out, plan.settings)  # never another study over it
         print(
             f"{out}: the committed study, without its Tune experiment here: running it again "
             "from the start (compare the new tables with `git diff`)"
@@ -1134,7 +1198,10 @@ def deliver(
         limits=dict(zip(job_dims(job), (float(x) for x in job.cost_limits), strict=True)),
         handover=None if spec.handover is None else spec.handover.to_dict(),
         expert=read_meta(Path(job.demos)).expert,
-        demos={k: demos[k] for k in ("digest", "episodes", "collector", "path")},
+        demos={
+            **{k: demos[k] for k in ("digest", "episodes", "collector")},
+            "path": repo_relative(demos["path"]),
+        },
         seeds=seeds,
         run_config=final.configs.get(winner, {}),
         source={
@@ -1164,11 +1231,12 @@ study only reads the tables back and prints the result (:func:`finished_outcome`
 
 def finished_outcome(plan: StudyPlan) -> StudyOutcome | None:
     """The outcome of the plan's study when it ran to the end before with the same settings (its
-    :data:`FINISHED` record matches and its tables read back), else ``None``.
+    :data:`FINISHED` record matches and every output reads back whole), else ``None``.
 
     Raises:
-        ValueError: one line, when the finished study's tables or its Optuna copy
-            (``optuna.db``) are broken or not its own.
+        ValueError: one line naming the file, when one of the finished study's tables, its
+            recommender (card or an agent's weights) or its Optuna copy (``optuna.db``) is
+            damaged or not its own.
     """
     out = plan.out
     try:
@@ -1178,55 +1246,70 @@ def finished_outcome(plan: StudyPlan) -> StudyOutcome | None:
     if record != plan.finished:
         return None  # other settings (e.g. --concurrent): the normal path resumes
     try:
-        trials, meta = read_table(out / "trials.parquet")
-        table, fmeta = read_table(out / "final.parquet")
-        episodes, _ = read_table(out / "final_episodes.parquet")
-        paired = (
-            read_table(out / "final_paired.parquet")[0]
-            if (out / "final_paired.parquet").exists()
-            else pd.DataFrame()
-        )
-        best = json.loads((out / "best.json").read_text())
-    except (DatasetError, OSError, json.JSONDecodeError) as e:
+        tables, best = _finished_tables(out), json.loads((out / "best.json").read_text())
+        certificate = _finished_recommender(out)
+    except (DatasetError, OSError, json.JSONDecodeError, ValueError) as e:
         raise ValueError(
-            f"the finished study at {out} has a broken output ({' '.join(str(e).split())}); "
+            f"the finished study at {out} has a damaged output ({' '.join(str(e).split())}); "
             f"delete {out / FINISHED} and rerun the same command to rewrite the outputs (the "
             "trials and the final phase's finished work are kept and not redone)"
         ) from None
-    try:  # absent for a study finished before timings were recorded
-        timing = read_table(out / TIMING)[0] if (out / TIMING).exists() else None
-    except DatasetError:
-        timing = None
+    trials, meta = tables["trials"]
+    table, fmeta = tables["final"]
     check_optuna_copy(plan, str(meta.get("experiment_path", "")))
     final = FinalOutcome(
-        table, episodes, best.get("trial_id"), bool(best.get("feasible")),
+        table, tables["final_episodes"][0], best.get("trial_id"), bool(best.get("feasible")),
         str(best.get("message", "")), dict(fmeta.get("configs", {})),
-        str(best.get("certified", "")), paired,
+        str(best.get("certified", "")), tables.get("final_paired", (pd.DataFrame(),))[0],
     )  # fmt: skip
-    winner = choose_winner(trials, plan.spec.objective)
-    certificate = None
-    if (out / RECOMMENDER_DIR).exists():
-        from safe_bc.recommender import RecommenderError, read_card
-
-        try:
-            certificate = read_card(out / RECOMMENDER_DIR).certificate or None
-        except RecommenderError as e:
-            raise ValueError(
-                f"{e}; delete {out / FINISHED} and rerun the same command to write it again"
-            ) from None
     return StudyOutcome(
         True,
         trials,
-        winner,
+        choose_winner(trials, plan.spec.objective),
         final,
         float(meta["threshold"]),
         out,
         str(meta.get("experiment_path", "")),
         int((trials["status"] == "error").sum()),
-        timing=timing,
+        timing=tables[TIMING_NAME][0] if TIMING_NAME in tables else None,
         certificate=certificate,
         unit=plan.spec.task().episodes_name,
     )
+
+
+FINISHED_TABLES = ("trials", "history", "final", "final_episodes")
+"""The tables every finished study has (each read whole before it says it finished)."""
+TIMING_NAME = TIMING.removesuffix(".parquet")
+"""The time table's name."""
+OPTIONAL_TABLES = ("final_paired", TIMING_NAME, "certify", "certify_episodes")
+"""The tables a finished study may lack (no paired comparison, a study finished before timings
+were recorded, no certification); read whole where they exist."""
+
+
+def _finished_tables(out: Path) -> dict[str, tuple[pd.DataFrame, dict[str, Any]]]:
+    """Every table of the finished study at ``out``, read whole: ``{name: (rows, metadata)}``.
+
+    Raises:
+        DatasetError: a table that is missing (of :data:`FINISHED_TABLES`) or does not read
+            whole, naming its file.
+    """
+    names = [*FINISHED_TABLES, *(n for n in OPTIONAL_TABLES if (out / f"{n}.parquet").exists())]
+    return {name: read_table(out / f"{name}.parquet") for name in names}
+
+
+def _finished_recommender(out: Path) -> dict[str, Any] | None:
+    """The certificate of the finished study's recommender (``None``: no recommender, or one
+    without a certificate), its card and every agent's weights checked against their SHA-256.
+
+    Raises:
+        RecommenderError: a damaged card or agent, naming the file.
+    """
+    if not (out / RECOMMENDER_DIR).exists():
+        return None
+    from safe_bc.recommender import load_recommender
+
+    card = load_recommender(out / RECOMMENDER_DIR, allow_uncertified=True).card
+    return card.certificate or None
 
 
 def _checkpoints(grid: Any, trial_ids: Sequence[str]) -> dict[str, BCNet]:

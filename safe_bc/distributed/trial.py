@@ -267,11 +267,23 @@ def stored_checkpoint(
     return None
 
 
+def checkpoint_problem(path: str | Path) -> str:
+    """Why the trial checkpoint folder ``path`` does not load whole, every training seed's net
+    checked against its SHA-256 (``""``: it does)."""
+    try:
+        _load_seeds(tune.Checkpoint(str(path)))
+    except (CheckpointError, OSError) as e:
+        return " ".join(str(e).split())
+    return ""
+
+
 def resume_point() -> tuple[list[BCNet], dict[str, Any], bool] | None:
     """Every training seed's trained net, the checkpoint's ``extra`` and whether Tune had
     recorded the checkpoint, when this trial has trained before.
 
-    Tune hands over the checkpoint it recorded (a retry, a resumed study). A checkpoint the
+    Tune hands over the checkpoint it recorded (a retry, a resumed study); a damaged one is
+    passed over for the newest whole one in the trial's folder, else the trial trains again
+    from its start (instead of failing every retry on it). A checkpoint the
     trial reported just before the driver stopped (Ctrl-C, or killed) is on the storage but not
     in Tune's saved experiment state, and Tune then restarts the trial without one (Ray 2.60):
     the newest complete checkpoint in the trial's folder is used instead of retraining (and
@@ -279,7 +291,10 @@ def resume_point() -> tuple[list[BCNet], dict[str, Any], bool] | None:
     """
     checkpoint = tune.get_checkpoint()
     if checkpoint is not None:
-        return (*_load_seeds(checkpoint), True)
+        try:
+            return (*_load_seeds(checkpoint), True)
+        except (CheckpointError, OSError):  # damaged (the driver names it): its last good state
+            pass
     storage = tune.get_context().get_storage()
     stored = stored_checkpoint(storage.storage_filesystem, storage.trial_fs_path, all_seeds=True)
     return None if stored is None else (*stored, False)

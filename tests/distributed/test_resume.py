@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import errno
 import json
+import math
 import shutil
 from pathlib import Path
 from types import SimpleNamespace
@@ -13,9 +14,12 @@ from types import SimpleNamespace
 import pytest
 
 from safe_bc.distributed.resume import (
+    OWNER,
     ResumeRefused,
     check_resume,
+    claim_experiment,
     differences,
+    experiment_owner,
     identity_problem,
     install_atomic_upload,
     tune_state,
@@ -128,6 +132,39 @@ def test_a_tune_state_that_lost_a_finished_trial_is_refused(tmp_path: Path) -> N
     _check(out2, exp2)
 
 
+def _reported_state(exp: Path, iterations: dict[str, int]) -> None:
+    """A newer Tune state whose trials' last results carry these ``training_iteration``s."""
+    data = [
+        [json.dumps({"trial_id": t, "status": "TERMINATED"}),
+         json.dumps({"last_result": {"training_iteration": n}, "last_result_time": -math.inf})]
+        for t, n in iterations.items()
+    ]  # fmt: skip
+    path = exp / "experiment_state-2026-01-03_00-00-00.json"
+    path.write_text(json.dumps({"trial_data": data, "runner_data": {}, "stats": {}}))
+
+
+@pytest.mark.parametrize("ended", [("a", "b"), ()], ids=["ended-recorded", "nothing-ended"])
+def test_a_history_that_lost_reports_tunes_state_knows_is_refused_naming_it(
+    tmp_path: Path, ended: tuple[str, ...]
+) -> None:
+    out, exp = _study(tmp_path, finished=ended)
+    history = out / "history.jsonl"
+    rows = [{"trial_id": t, "phase": p, "training_iteration": n}
+            for t in ("a", "b") for n, p in ((1, "screened"), (2, "evaluated"))]  # fmt: skip
+    history.write_text("".join(json.dumps(r) + "\n" for r in rows))
+    _reported_state(exp, {"a": 2, "b": 2, "c": 1})
+    message = _refused(out, exp)  # c's only report is missing
+    assert message.startswith(f"{history}: lacks reports of 1 trial(s)") and "(c)" in message
+    assert "history.parquet would lose their rows" in message and "nothing was run" in message
+    history.write_text("".join(json.dumps(r) + "\n" for r in rows[:3]))  # cut short: b's last
+    assert "(b, c)" in _refused(out, exp)
+    history.write_bytes(b"")  # emptied
+    assert "lacks reports of 3 trial(s)" in _refused(out, exp)
+    rows.append({"trial_id": "c", "phase": "screened", "training_iteration": 1})
+    history.write_text("".join(json.dumps(r) + "\n" for r in rows))
+    _check(out, exp)  # whole: every result Tune knows is there
+
+
 def test_another_storage_or_study_file_or_a_lost_experiment_is_refused(tmp_path: Path) -> None:
     out, exp = _study(tmp_path)
     other = tmp_path / "elsewhere" / "s"
@@ -138,6 +175,43 @@ def test_another_storage_or_study_file_or_a_lost_experiment_is_refused(tmp_path:
     shutil.rmtree(exp)  # the experiment is gone, the records are not
     message = _refused(out, exp, restoring=False)
     assert "no Tune experiment" in message and "2 finished" in message
+
+
+def test_an_experiment_belongs_to_one_results_folder(tmp_path: Path) -> None:
+    out, exp = _study(tmp_path)
+    claim_experiment(str(exp), out)
+    claim_experiment(str(exp), tmp_path / "other" / "s")  # the first claim stays
+    assert experiment_owner(str(exp)) == str(out.resolve())
+    _check(out, exp)
+    other = tmp_path / "other" / "s"
+    for restoring in (True, False):  # its Tune state saved or not yet
+        message = _refused_without_fresh(other, exp, restoring=restoring)
+        assert message.startswith(f"the Tune experiment at {exp} belongs to the study at {out}")
+        assert f"--results {out.parent} to resume that one" in message
+        assert "--storage" in message and not other.exists()
+    (exp / OWNER).unlink()  # an experiment started before its owner was recorded
+    message = _refused_without_fresh(other, exp)
+    assert f"({other} holds no records of it)" in message
+    _check(out, exp)  # its own results folder resumes it
+
+
+def _refused_without_fresh(out: Path, exp: Path, **kw) -> str:
+    with pytest.raises(ResumeRefused) as e:
+        _check(out, exp, **kw)
+    assert "\n" not in str(e.value) and "--fresh" not in str(e.value)
+    return str(e.value)
+
+
+def test_a_record_of_the_experiment_relative_to_the_repository_resumes_it(tmp_path: Path) -> None:
+    from safe_bc.provenance import RESULTS
+
+    out = tmp_path / "results" / "s"
+    out.mkdir(parents=True)
+    (out / "study.json").write_text(json.dumps({"experiment_path": "results/ray/s"}))
+    (out / "history.jsonl").write_text('{"trial_id": "a", "phase": "trained"}\n')
+    _check(out, RESULTS / "ray" / "s", restoring=False)  # the same folder, however spelled
+    message = _refused(out, RESULTS / "ray" / "t", restoring=False)
+    assert "keeps its Tune experiment at results/ray/s, not " in message
 
 
 def test_a_study_without_records_starts(tmp_path: Path) -> None:
@@ -224,6 +298,35 @@ def test_a_refused_resume_at_the_cli_is_one_line_exit_2_before_ray_starts(
     assert err.count("\n") == 1 and err.startswith("safe-bc tune: error: ")
     assert "experiment state is empty" in err and "--fresh" in err
     assert ray.is_initialized() == started  # refused before Ray was started
+
+
+def test_another_results_folder_on_the_same_storage_is_refused_at_the_cli(
+    tmp_path: Path, capsys
+) -> None:
+    from safe_bc.cli import main
+
+    smoke = Path(__file__).resolve().parents[2] / "tune_jobs" / "smoke.py"
+    study_file = tmp_path / "tiny.py"
+    study_file.write_text(
+        "from dataclasses import replace\n"
+        "from pathlib import Path\n"
+        "from safe_bc.study import load_study\n"
+        f"STUDY = replace(load_study({str(smoke)!r}), demos=Path({str(tmp_path / 'demos')!r}),\n"
+        f"    storage={str(tmp_path / 'ray')!r})\n"
+    )
+    first, exp = tmp_path / "first" / "smoke", tmp_path / "ray" / "smoke"
+    exp.mkdir(parents=True)
+    (exp / "tuner.pkl").write_bytes(b"x")
+    claim_experiment(str(exp), first)
+    import ray
+
+    started = ray.is_initialized()
+    assert main(["tune", str(study_file), "--results", str(tmp_path / "second")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("safe-bc tune: error: the Tune experiment")
+    assert f"belongs to the study at {first}" in err
+    assert ray.is_initialized() == started  # refused before Ray was started
+    assert not (tmp_path / "second" / "smoke" / "study.json").exists()
 
 
 def test_the_os_error_of_a_stopped_study_says_what_a_rerun_does_once() -> None:

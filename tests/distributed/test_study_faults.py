@@ -390,6 +390,7 @@ def test_final_phase_resumes_per_agent_and_evaluation_and_a_finished_study_only_
     assert all(name.endswith("=1") for name in calls["evaluate"][0]), calls
     calls = {"train": [], "evaluate": []}
     episodes, _ = read_table(out / "final_episodes.parquet")
+    first_history, _ = read_table(out / "history.parquet")
     store = out / STORE
     agents = sorted((store / "agents").iterdir())
     evaluations = sorted((store / "episodes").iterdir())
@@ -412,6 +413,16 @@ def test_final_phase_resumes_per_agent_and_evaluation_and_a_finished_study_only_
         run_study(spec, progress=False)
     (out / "optuna.db").unlink()
 
+    # a damaged table or agent of a finished study is named in one line, never taken as
+    # finished; the rerun that the line asks for writes it again
+    weights = sorted((out / "recommender").glob("seed_*"))[0] / "weights.pt"
+    for damaged in (out / "history.parquet", weights):
+        whole = damaged.read_bytes()
+        damaged.write_bytes(b"")
+        with pytest.raises(ValueError, match=f"{damaged}.*delete {out / FINISHED} and rerun"):
+            run_study(spec, progress=False)
+        damaged.write_bytes(whole)
+
     # killed in the final phase: one agent and one evaluation not finished yet
     (out / FINISHED).unlink()
     (out / "final.parquet").unlink()
@@ -419,7 +430,13 @@ def test_final_phase_resumes_per_agent_and_evaluation_and_a_finished_study_only_
 
     shutil.rmtree(agents[0])
     evaluations[0].unlink()
+    for damaged in (out / "history.parquet", weights):
+        damaged.write_bytes(b"")
     resumed = run_study(spec, progress=False)
+    from safe_bc import load_recommender
+
+    load_recommender(out / "recommender", allow_uncertified=True)  # written again
+    pd.testing.assert_frame_equal(read_table(out / "history.parquet")[0], first_history)
     assert len(calls["train"]) == 1, calls
     assert len(calls["evaluate"]) == 1 and len(calls["evaluate"][0]) == 1, calls
     again, _ = read_table(out / "final_episodes.parquet")
