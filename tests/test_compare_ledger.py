@@ -30,7 +30,7 @@ def tables() -> dict[tuple[str, str], Comparison]:
 
 
 def test_no_two_tables_share_tracks_undeclared(tables) -> None:
-    # 56 made, 3 planned (the clinic's fifth beyond design: blocks 82-84)
+    # every table made, none planned
     assert len(tables) == 59
     assert track_clashes(tables.values(), track_seeds) == []
 
