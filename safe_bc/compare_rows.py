@@ -104,7 +104,9 @@ class Row:
             if k in own:
                 out[k] = dataclasses.asdict(own[k]) if dataclasses.is_dataclass(own[k]) else own[k]
         handover = vars(self).get("handover")
-        if handover is not None and (handover.widths or handover.fallback != "expert"):
+        if handover is not None and (
+            handover.widths or handover.fallback != "expert" or handover.stall
+        ):
             out["handover"] = handover.to_dict()  # settings the flat fields cannot spell
         return out
 

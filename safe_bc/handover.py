@@ -44,13 +44,19 @@ class HandoverConfig:
     whose costs have different units per dimension); empty: ``width`` everywhere."""
     fallback: Fallback = "expert"
     """What acts in the zone (:data:`Fallback`)."""
+    stall: int = 0
+    """Steps in a row with the same cost in every dimension (outside warm-up) after which the
+    agent counts as stalled (a car standing still: its distances to the grass do not change)
+    and the expert takes over for :attr:`stall_hold` steps, wherever the cost is; 0: off."""
+    stall_hold: int = 0
+    """Steps the expert acts after a stall (with :attr:`stall`)."""
 
     def __post_init__(self) -> None:
         if not (isinstance(self.width, int | float) and math.isfinite(self.width)):
             raise ValueError(f"handover width must be a finite number, got {self.width!r}")
         if self.width < 0:
             raise ValueError(f"handover width must be >= 0, got {self.width}")
-        for name in ("lookahead", "hold"):
+        for name in ("lookahead", "hold", "stall", "stall_hold"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 0:
                 raise ValueError(f"handover {name} must be an integer >= 0 steps, got {value!r}")
@@ -104,17 +110,22 @@ class HandoverConfig:
                 out += f" after {', '.join(self.hold_on)}"
         if self.fallback == "cap":
             out += ", capping the agent's action"
+        if self.stall:
+            out += f"; {self.stall_hold} steps after {self.stall} still steps"
         return out
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-able fields; ``widths`` and ``fallback`` only where set (a handover without them
-        keeps the identity it always had)."""
+        """JSON-able fields; ``widths``, ``fallback`` and the stall restart only where set (a
+        handover without them keeps the identity it always had)."""
         out = {**asdict(self), "hold_on": list(self.hold_on)}
-        out.pop("widths"), out.pop("fallback")
+        for key in ("widths", "fallback", "stall", "stall_hold"):
+            out.pop(key)
         if self.widths:
             out["widths"] = dict(self.widths)
         if self.fallback != "expert":
             out["fallback"] = self.fallback
+        if self.stall:
+            out.update(stall=self.stall, stall_hold=self.stall_hold)
         return out
 
     @classmethod
@@ -127,4 +138,6 @@ class HandoverConfig:
             hold_on=tuple(data.get("hold_on", ())),
             widths=tuple(dict(data.get("widths", {})).items()),
             fallback=data.get("fallback", "expert"),
+            stall=int(data.get("stall", 0)),
+            stall_hold=int(data.get("stall_hold", 0)),
         )

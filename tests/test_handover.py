@@ -123,12 +123,12 @@ def test_the_safest_handover_prescribes_the_lightest_session_in_the_zone_only() 
 def test_policy_args_carry_the_widths_and_the_safer_direction() -> None:
     rehab = task_defaults("rehab")
     h = HandoverConfig(0.2, widths=(("heart_rate", 0.1),), fallback="cap")
-    zone, hold, lookahead, hold_on, safer, safest = handover_source(
+    zone, hold, lookahead, hold_on, safer, safest, stall = handover_source(
         None, h, rehab.expert, (0.8, 0.8, 2.0), rehab.safety_dims
     ).policy_args()
     flags = zone.per_dim(np.array([[0.71, 0.61, 1.79], [0.69, 0.59, 1.81]]))
     assert flags.tolist() == [[True, True, False], [False, False, True]]
-    assert (hold, lookahead, hold_on, safer, safest) == (0, 0, None, (-1, -1), False)
+    assert (hold, lookahead, hold_on, safer, safest, stall) == (0, 0, None, (-1, -1), False, (0, 0))
 
 
 def test_a_handover_read_back_from_sorted_json_equals_the_one_written() -> None:
@@ -138,3 +138,47 @@ def test_a_handover_read_back_from_sorted_json_equals_the_one_written() -> None:
     back = HandoverConfig.from_dict(json.loads(json.dumps(h.to_dict(), sort_keys=True)))
     assert back.widths != h.widths and back == h and hash(back) == hash(h)
     assert back != HandoverConfig(0.2, widths=(("heart_rate", 0.1),), fallback="safest")
+
+
+def test_a_stall_restart_enters_the_identity_only_where_set() -> None:
+    plain = HandoverConfig(2.0, lookahead=6, hold=6, hold_on=("front",))
+    assert "stall" not in plain.to_dict()  # every committed handover keeps its identity
+    restart = HandoverConfig(2.0, lookahead=6, hold=6, hold_on=("front",), stall=20, stall_hold=50)
+    assert restart.to_dict()["stall"] == 20 and restart.to_dict()["stall_hold"] == 50
+    assert HandoverConfig.from_dict(restart.to_dict()) == restart != plain
+    assert "50 steps after 20 still steps" in restart.label(" px")
+    with pytest.raises(ValueError, match="stall"):
+        HandoverConfig(2.0, stall=-1)
+
+
+def test_the_expert_restarts_an_agent_whose_costs_stand_still() -> None:
+    """An agent that stops outside the zone: after ``stall`` steps of an unchanged cost the
+    expert acts for ``stall_hold`` steps; never in warm-up; off without ``stall``."""
+    from safe_bc.queries.defer import DeferringPolicy
+    from safe_bc.selection import CriticalZone
+
+    class Const:
+        def __init__(self, a: float) -> None:
+            self.a = np.array([a], np.float32)
+
+        def reset(self, env=None, rng=None) -> None:
+            pass
+
+        def act(self, obs, env=None):
+            return self.a
+
+    def run(stall: tuple[int, int], warmup: bool) -> list[float]:
+        policy = DeferringPolicy(
+            Const(0.0), Const(1.0), CriticalZone((10.0,), 1.0, "any"), stall=stall
+        )
+        policy.reset(None, None)
+        out = []
+        for t in range(8):
+            cost = [2.0] if t < 6 else [2.0 + t]  # still for 6 steps, then moving
+            policy.see({"cost": cost, "warmup": warmup})
+            out.append(float(policy.act(np.zeros(1), None)[0]))
+        return out
+
+    assert run((3, 2), False) == [0, 0, 0, 1, 1, 0, 0, 0]
+    assert run((3, 2), True) == [0] * 8
+    assert run((0, 0), False) == [0] * 8

@@ -206,6 +206,8 @@ def cell_stamp(comparison: Comparison, method: Row, seed: int, thresholds: Any) 
                 run["widths"] = dict(h.widths)
             if h.fallback != "expert":
                 run["fallback"] = h.fallback
+            if h.stall:
+                run.update(stall=h.stall, stall_hold=h.stall_hold)
     elif isinstance(method, View):
         of = cell_stamp(comparison, comparison.method(method.of), seed, thresholds)["run"]
         if method.masked:

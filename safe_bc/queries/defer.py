@@ -23,6 +23,34 @@ class HandoverState:
     prev: np.ndarray | None = None
     left: int = 0
     flags: list[bool] = field(default_factory=list)
+    seen: np.ndarray | None = None
+    """The previous step's cost (with a stall restart)."""
+    still: int = 0
+    """Steps in a row with that cost."""
+    restart: int = 0
+    """Steps the expert still acts after a stall."""
+
+
+def stall_decision(
+    state: HandoverState, cost: Any, warmup: bool, stall: int, stall_hold: int
+) -> bool:
+    """Whether the expert acts for a stalled agent (updating ``state``): after ``stall`` steps
+    in a row with the same cost in every dimension (a car standing still) outside warm-up,
+    for ``stall_hold`` steps.
+
+    >>> s = HandoverState()
+    >>> [stall_decision(s, c, False, 2, 2) for c in ([1, 2], [1, 2], [1, 2], [1, 3], [1, 4])]
+    [False, False, True, True, False]
+    """
+    cost = np.asarray(cost, float)
+    same = state.seen is not None and np.array_equal(cost, state.seen)
+    state.seen, state.still = cost.copy(), (state.still + 1 if same else 0)
+    if not warmup and state.still >= stall:
+        state.restart, state.still = stall_hold, 0
+    if state.restart > 0:
+        state.restart -= 1
+        return True
+    return False
 
 
 def handover_decision(
@@ -87,6 +115,7 @@ class DeferringPolicy:
         hold_on: tuple[int, ...] | None = None,
         safer: tuple[int, ...] | None = None,
         safest: bool = False,
+        stall: tuple[int, int] = (0, 0),
     ) -> None:
         if hold < 0 or lookahead < 0:
             raise ValueError(f"hold and lookahead must be >= 0 steps, got {hold}, {lookahead}")
@@ -100,6 +129,7 @@ class DeferringPolicy:
         if safest and self.safer is None:
             raise ValueError("the safest action needs the task's safer direction (safer=)")
         self.safest = bool(safest)
+        self.stall = (int(stall[0]), int(stall[1]))
         self.state = HandoverState()
         self._info: dict[str, Any] = {}
 
@@ -134,7 +164,10 @@ class DeferringPolicy:
         return cap_action(np.asarray(own, np.float32), action, self.safer)
 
     def _decide(self, state: HandoverState, info: dict[str, Any]) -> bool:
-        return handover_decision(state, info, self.zone, self.hold, self.lookahead, self.hold_on)
+        defer = handover_decision(state, info, self.zone, self.hold, self.lookahead, self.hold_on)
+        if self.stall[0] and stall_decision(state, info["cost"], bool(info["warmup"]), *self.stall):
+            defer = state.flags[-1] = True
+        return defer
 
     def episode_report(self) -> tuple[dict[str, float], dict[str, np.ndarray]]:
         return handover_report(self.state)
@@ -159,8 +192,9 @@ class LockstepDeferringPolicy(DeferringPolicy):
         hold_on: tuple[int, ...] | None = None,
         safer: tuple[int, ...] | None = None,
         safest: bool = False,
+        stall: tuple[int, int] = (0, 0),
     ) -> None:
-        super().__init__(agent, make_expert(), zone, hold, lookahead, hold_on, safer, safest)
+        super().__init__(agent, make_expert(), zone, hold, lookahead, hold_on, safer, safest, stall)
         self.make_expert = make_expert
         self._envs: list[gym.Env] = []
         self._experts: list[Policy] = []
@@ -258,6 +292,8 @@ class DeferralSource:
     expert's action replaces the agent's)."""
     safest: bool = False
     """The zone's action is the safest one (:func:`safest_action`; needs ``safer``)."""
+    stall: tuple[int, int] = (0, 0)
+    """``(still steps, expert steps)`` of the stall restart (:func:`stall_decision`; 0: off)."""
 
     def build(self) -> DeferringPolicy:
         """The deferring policy; a :class:`LockstepDeferringPolicy` when the agent acts for
@@ -268,14 +304,16 @@ class DeferralSource:
             return LockstepDeferringPolicy(agent, lambda: build_expert(self.expert), *args)
         return DeferringPolicy(agent, build_expert(self.expert), *args)
 
-    def policy_args(self) -> tuple[CriticalZone, int, int, tuple[int, ...] | None, Any, bool]:
-        """The zone, hold, lookahead, hold dimensions, safer direction and safest switch a
-        :class:`DeferringPolicy` takes after its agent and expert."""
+    def policy_args(
+        self,
+    ) -> tuple[CriticalZone, int, int, tuple[int, ...] | None, Any, bool, tuple[int, int]]:
+        """The zone, hold, lookahead, hold dimensions, safer direction, safest switch and stall
+        restart a :class:`DeferringPolicy` takes after its agent and expert."""
         zone = CriticalZone(self.limits, self.width, self.combine)  # type: ignore[arg-type]
         if self.widths is not None:  # c >= d - w per dimension: the zone at d - w, width 0
             shifted = tuple(d - w for d, w in zip(self.limits, self.widths, strict=True))
             zone = CriticalZone(shifted, 0.0, self.combine)  # type: ignore[arg-type]
-        return zone, self.hold, self.lookahead, self.hold_on, self.safer, self.safest
+        return zone, self.hold, self.lookahead, self.hold_on, self.safer, self.safest, self.stall
 
 
 def handover_source(
@@ -300,4 +338,5 @@ def handover_source(
         agent, expert, tuple(float(x) for x in limits), float(handover.width), "any",
         int(handover.hold), int(handover.lookahead), dimension_indices(handover.hold_on, dims),
         widths, safer, handover.fallback == "safest",
+        (int(handover.stall), int(handover.stall_hold)),
     )  # fmt: skip

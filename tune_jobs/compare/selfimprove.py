@@ -43,6 +43,10 @@ Beyond the expert, planned before it runs (docs/improvement.md):
   steps deferred, the highest lower bound of the paired reward interval against the expert;
   ties: fewer env steps), beside every candidate alone, the start and the expert, paired with
   the expert. Cost: 12 self-imitation runs (26-37 min each on 2 cores in one process).
+* ``beyond_stall_selection`` (3 x 50 tracks of block 88), ``beyond_stall`` (89),
+  ``beyond_stall_replication`` (90): the car's second design, written after the first's pick
+  missed on block 26, where every agent stopped on one track: D's agents with the corner
+  handover and the expert restarting a car that stood still 20 steps (for 50 or 100 steps).
 * ``beyond_selection_rehab`` (3 x 200 patients of block 63), ``beyond_rehab`` (block 64),
   ``beyond_replication_rehab`` (block 65): the same design in the clinic (A the clinic's
   defaults; B kept only above the guideline's run; C B under the clinic's handover; D C with
@@ -292,6 +296,64 @@ guideline: ``results/rehab/handover_cap/choice.md``)."""
 REHAB_B = replace(SELF, keep_against="expert")
 REHAB_C = replace(REHAB_B, handover=REHAB_HANDOVER)
 PAIRED_EXPERT = "Paired rows: each agent against the {} on the same {}."
+CAR_RULE = Rule(
+    "best_lower_bound", {"burden": 0.05},
+    note="no selection episode beyond d_s, under 5% of steps deferred, the highest lower bound "
+         "of the paired reward interval against the expert",
+)  # fmt: skip
+"""The car's rule, fixed with its first beyond design and kept by the second."""
+
+
+def stall_restart(hold: int) -> HandoverConfig:
+    """The corner handover with the expert restarting a car that stood still 20 steps, for
+    ``hold`` steps."""
+    return replace(CORNER, stall=20, stall_hold=hold)
+
+
+BEYOND_STALL_NOTE = (
+    "the handover row was chosen on 3 x 50 selection tracks of block 88 by the rule fixed "
+    "before the run ({rule}). Paired rows: each agent against the expert on the same tracks."
+)
+BEYOND_STALL = {
+    "beyond_stall_selection": replace(
+        beyond_selection(
+            CAR, car_rows({}),
+            {"si_explore_best2": ("D: C keeping the best 2 pushed runs per track",
+                                  replace(BEYOND_C, keep_best=2))},
+            {"corner_stall50": ("corner handover, a stalled car restarted for 50 steps",
+                                stall_restart(50)),
+             "corner_stall100": ("corner handover, a stalled car restarted for 100 steps",
+                                 stall_restart(100))},
+            88,
+            "Beyond the expert, second design: D with a stalled car restarted by the expert, "
+            "selection tracks (CarRacing)",
+            "Selection tracks (block 88): the rule picks one handover row for the fresh blocks "
+            f"(89, 90). {PAIRED_EXPERT.format('expert', 'tracks')} steps deferred: the mean "
+            "share of an episode's steps on which the expert acted.",
+        ),
+        name="beyond_stall_selection",
+        figures=(),
+    ),
+    "beyond_stall": Fresh(
+        "beyond_stall", "beyond_stall_selection", (CAR_RULE,), eval_seed=89,
+        title="Beyond the expert, second design: fresh tracks (CarRacing)",
+        note=f"Fresh tracks (block 89); {BEYOND_STALL_NOTE}",
+    ),
+    "beyond_stall_replication": Fresh(
+        "beyond_stall_replication", "beyond_stall_selection", (CAR_RULE,), eval_seed=90,
+        title="Beyond the expert, second design: a second fresh block (CarRacing)",
+        note=f"Fresh tracks (block 90, nothing changed but the tracks); {BEYOND_STALL_NOTE}",
+    ),
+}  # fmt: skip
+"""The car's second beyond design, written after the first's pick (D + corner handover) met the
+goal on block 25 (+1.3 [0.4, 2.3]) and missed it on block 26 (-4.2 [-20.8, 1.8], 1/3 seeds
+above): every BC agent of the table, the start and each candidate alone or with the handover,
+stopped on one track of block 26 (speed 0 from step ~590 to the time limit, 59-65% of the tiles,
+no cost beyond d_s), where the expert finished. The same agents (D's runs) with the corner
+handover plus the expert restarting a car whose costs stood still for 20 steps, for 50 or 100
+steps; the same rule as the first design."""
+
+
 CLINIC_RULE = Rule(
     "best_lower_bound", {"burden": 0.10, "beyond": "total_any_violating_session"},
     note="no selection programme beyond d_s, under 10% of sessions deferred, the highest "
@@ -317,9 +379,7 @@ BEYOND = {
     ),
     **beyond_fresh(
         "beyond_selection",
-        Rule("best_lower_bound", {"burden": 0.05},
-             note="no selection episode beyond d_s, under 5% of steps deferred, the highest "
-                  "lower bound of the paired reward interval against the expert"),
+        CAR_RULE,
         (25, 26), "tracks",
         ("Beyond the expert: fresh tracks (CarRacing)",
          "Beyond the expert: a second fresh block (CarRacing)"),
@@ -525,4 +585,5 @@ COMPARISONS = {
     **BEYOND_CLINIC_NARROW,
     **BEYOND_CLINIC_MID,
     **BEYOND_CLINIC_EARLY,
+    **BEYOND_STALL,
 }
