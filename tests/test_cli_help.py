@@ -55,8 +55,9 @@ def test_short_help_lists_the_flags_tyro_parses(command: str) -> None:
 def test_short_help_shows_first_sentences_and_defaults() -> None:
     text = _out(["train", "--help"])
     entry = next(line for line in text.splitlines() if "--selection.eps" in line)
-    assert "[2.0]" in entry and "Width of the critical edge" in entry
-    assert "The default 2 px" not in text  # the docstring's second sentence
+    assert "[None]" in entry and "Width of the critical edge" in entry
+    assert "None (default): the task's" in " ".join(text.split())  # an unset width: the task's
+    assert "A row is critical" not in text  # the docstring's second sentence
     assert "--out PATH [required]" in text
     assert "Alias --seed for --bc.train.seed." in text
 

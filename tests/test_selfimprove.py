@@ -364,9 +364,10 @@ def test_car_frames_read_from_disk_train_the_weights_of_frames_in_memory(
 
     cfg = RunConfig(SelectionConfig(eps=2.0, alpha=0.5), BCConfig(train=TrainConfig(batches=200)))
     result, _ = train_run(load_demonstrations(tiny_demos), cfg)
+    # pushes large enough that some pushed run beats a tiny agent's run on any CPU
     config = SelfImproveConfig(
         rounds=2, tracks_per_round=3, validation_episodes=1, batches=10, max_steps=100,
-        margin=0.0, beyond_limit=1.0,
+        margin=0.0, beyond_limit=1.0, pushes=("1+0.3", "1+0.5"),
     )  # fmt: skip
 
     def run(folder: Path, on_disk: bool):
