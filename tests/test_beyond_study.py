@@ -46,7 +46,9 @@ def test_the_recommender_is_the_agent_with_the_tasks_handover(study, selection) 
     assert study.certify_episodes == 150 and study.final_train_seeds == 3
 
 
-def test_the_certification_block_is_new_to_every_table(study) -> None:
+def _assert_blocks_new(study) -> None:
+    """The study's certification block is no table's and no other study's certification
+    block; its trial and final-phase blocks are no table's."""
     with pytest.MonkeyPatch.context() as mp:
         mp.chdir(ROOT)
         blocks = {
@@ -55,9 +57,13 @@ def test_the_certification_block_is_new_to_every_table(study) -> None:
             for c in load_comparisons(f, planned=True).values()
         }
     studies = [load_study(p) for p in sorted((ROOT / "tune_jobs").glob("*.py"))]
-    others = {s.certify_seed for s in studies if s.name != "beyond" and s.certify_episodes}
+    others = {s.certify_seed for s in studies if s.name != study.name and s.certify_episodes}
     assert study.certify_seed not in blocks | others
     assert study.eval_seed not in blocks and study.final_seed not in blocks
+
+
+def test_the_certification_block_is_new_to_every_table(study) -> None:
+    _assert_blocks_new(study)
 
 
 @pytest.fixture(scope="module")
@@ -88,14 +94,4 @@ def test_the_clinic_study_runs_its_designs_pick(clinic, clinic_selection) -> Non
 
 
 def test_the_clinic_certification_block_is_new_to_every_table(clinic) -> None:
-    with pytest.MonkeyPatch.context() as mp:
-        mp.chdir(ROOT)
-        blocks = {
-            c.eval_seed
-            for f in sorted((ROOT / "tune_jobs/compare").glob("*.py"))
-            for c in load_comparisons(f, planned=True).values()
-        }
-    studies = [load_study(p) for p in sorted((ROOT / "tune_jobs").glob("*.py"))]
-    others = {s.certify_seed for s in studies if s.name != clinic.name and s.certify_episodes}
-    assert clinic.certify_seed not in blocks | others
-    assert clinic.eval_seed not in blocks and clinic.final_seed not in blocks
+    _assert_blocks_new(clinic)

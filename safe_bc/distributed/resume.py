@@ -98,6 +98,15 @@ def history_events(path: Path) -> tuple[set[str], set[str]]:
     skipped."""
     reported: set[str] = set()
     ended: set[str] = set()
+    for row in _history_rows(path):
+        (ended if row.get("event") else reported).add(str(row["trial_id"]))
+    return reported, ended
+
+
+def _history_rows(path: Path) -> list[dict[str, Any]]:
+    """The rows of the study's ``history.jsonl`` that name a trial (a line cut short, or a
+    missing file, gives none)."""
+    rows = []
     with contextlib.suppress(OSError):
         for line in path.read_text().splitlines():
             try:
@@ -105,23 +114,18 @@ def history_events(path: Path) -> tuple[set[str], set[str]]:
             except json.JSONDecodeError:
                 continue
             if isinstance(row, dict) and "trial_id" in row:
-                (ended if row.get("event") else reported).add(str(row["trial_id"]))
-    return reported, ended
+                rows.append(row)
+    return rows
 
 
 def reported_iterations(path: Path) -> dict[str, set[int]]:
     """Trial id -> the ``training_iteration`` of each report in the study's ``history.jsonl``
     (a line cut short is skipped)."""
     out: dict[str, set[int]] = {}
-    with contextlib.suppress(OSError):
-        for line in path.read_text().splitlines():
-            try:
-                row = json.loads(line)
-            except json.JSONDecodeError:
-                continue
-            if isinstance(row, dict) and "trial_id" in row and not row.get("event"):
-                it = row.get("training_iteration")
-                out.setdefault(str(row["trial_id"]), set()).update([it] if it is not None else [])
+    for row in _history_rows(path):
+        if not row.get("event"):
+            it = row.get("training_iteration")
+            out.setdefault(str(row["trial_id"]), set()).update([it] if it is not None else [])
     return out
 
 
