@@ -30,7 +30,7 @@ def tables() -> dict[tuple[str, str], Comparison]:
 
 
 def test_no_two_tables_share_tracks_undeclared(tables) -> None:
-    # 59 made, 3 planned (the car's second beyond design: blocks 88-90)
+    # every table made, none planned
     assert len(tables) == 62
     assert track_clashes(tables.values(), track_seeds) == []
 
