@@ -821,6 +821,28 @@ CONSTRAINTS = {
     "deferral": "constraint_deferral",
 }
 """Optuna constraint name -> result key; each is handed to Optuna (``<= 0`` feasible)."""
+CONSTRAINT_NAMES = {
+    "constraint_safety": "safety mean below the threshold",
+    "constraint_violation": "too many episodes beyond d_s",
+    "constraint_deferral": "too many steps deferred",
+}
+"""What each constraint key says when it is missed (``> 0``)."""
+
+
+def missed(row: Mapping[str, Any]) -> list[str]:
+    """What a trial or candidate (its result or table row) missed: each constraint ``> 0`` (or
+    NaN) named, with its value.
+
+    >>> missed({"constraint_safety": 0.2, "constraint_violation": -1.0})
+    ['safety mean below the threshold (constraint_safety +0.2)']
+    """
+    return [
+        f"{what} ({key} {float(row[key]):+.3g})"
+        for key, what in CONSTRAINT_NAMES.items()
+        if key in row and not float(row[key]) <= 0
+    ]
+
+
 OBJECTIVE = "reward_mean"
 """The maximised metric."""
 
@@ -1089,7 +1111,16 @@ def summary_lines(trials: pd.DataFrame, params: Sequence[str], top: int = 10) ->
     )
     view = order[[c for c in cols if c in order]].head(top).copy()
     view.columns = [c.rsplit(".", 1)[-1] for c in view.columns]
-    return view.to_string(index=False, float_format=lambda x: f"{x:.3g}")
+    return view.to_string(index=False, float_format=lambda x: f"{x:.3g}") + CONSTRAINT_KEY
+
+
+CONSTRAINT_KEY = (
+    "\nconstraint: the largest of the constraints, each <= 0 when met: the safety threshold "
+    "minus the safety mean; the share of steps beyond d_s (with a violation bound: the upper "
+    "confidence bound on the share of episodes beyond d_s) minus its limit; the deferred share "
+    "minus its limit"
+)
+"""The line under the trial table that says what its ``constraint`` column holds."""
 
 
 # --- what batched suggestions cost in wall-clock -------------------------------------------------

@@ -14,7 +14,7 @@ from typing import Any
 from ray import tune
 
 from safe_bc.distributed.stop import stopping, tune_caught_signal
-from safe_bc.study import OBJECTIVE, StudySpec
+from safe_bc.study import OBJECTIVE, StudySpec, missed
 
 
 class StudyReporter(tune.CLIReporter):
@@ -131,6 +131,8 @@ def trial_line(result: dict[str, Any], done: int, total: int) -> str:
     0/15 episodes beyond d_s
     4.1% deferred
     feasible (37 s)
+    >>> trial_line({**r, "feasible": False, "constraint_deferral": 0.012}, 3, 16).split(", ")[-1]
+    'infeasible: too many steps deferred (constraint_deferral +0.012) (37 s)'
     """
     tid = result.get("trial_id", "?")
     phase = result.get("phase", "")
@@ -148,6 +150,8 @@ def trial_line(result: dict[str, Any], done: int, total: int) -> str:
     if deferred is not None and not math.isnan(float(deferred)) and float(deferred) > 0:
         parts.append(f"{float(deferred):.1%} deferred")
     parts.append("feasible" if result.get("feasible") else "infeasible")
+    if not result.get("feasible") and missed(result):
+        parts[-1] += ": " + "; ".join(missed(result))
     stopped = " stopped by the screening:" if phase == "screened" else ":"
     seconds = float(result.get("duration_s", math.nan))
     return f"trial {done}/{total} {tid}{stopped} {', '.join(parts)} ({seconds:.0f} s)"

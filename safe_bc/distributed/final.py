@@ -55,7 +55,7 @@ from safe_bc.metrics import (
     paired_differences,
     summarize_policies,
 )
-from safe_bc.study import StudySpec, constraints
+from safe_bc.study import StudySpec, constraints, missed
 from safe_bc.tasks import Bounds
 
 PLAIN_BC = "plain_bc"
@@ -488,14 +488,6 @@ def _run_stages(
     return agents
 
 
-CONSTRAINT_NAMES = {
-    "constraint_safety": "safety mean below the expert's",
-    "constraint_violation": "too many episodes beyond d_s",
-    "constraint_deferral": "too many steps deferred",
-}
-"""What each constraint column of the final table says when it is missed (> 0)."""
-
-
 def missed_constraints(table: pd.DataFrame) -> list[str]:
     """One line per candidate of the final table that misses a constraint, naming what it
     missed and by how much (the constraint's value, ``> 0`` when missed); none: every
@@ -505,18 +497,14 @@ def missed_constraints(table: pd.DataFrame) -> list[str]:
     ...     "constraint": [0.2, -1.0], "constraint_safety": [0.2, -1.0],
     ...     "constraint_violation": [-0.1, -1.0], "constraint_deferral": [-1.0, -1.0]})
     >>> missed_constraints(t)
-    ["candidate a: safety mean below the expert's (constraint_safety +0.2)"]
+    ['candidate a: safety mean below the threshold (constraint_safety +0.2)']
     """
     lines = []
     for row in table[table["role"] == "candidate"].to_dict("records"):
         if float(row["constraint"]) <= 0:
             continue
-        missed = [
-            f"{what} ({name} {float(row[name]):+.3g})"
-            for name, what in CONSTRAINT_NAMES.items()
-            if name in row and not float(row[name]) <= 0
-        ]
-        lines.append(f"candidate {row['method']}: " + ("; ".join(missed) or "a constraint is NaN"))
+        what = "; ".join(missed(row)) or "a constraint is NaN"
+        lines.append(f"candidate {row['method']}: {what}")
     return lines
 
 
