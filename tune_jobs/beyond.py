@@ -16,8 +16,12 @@ and the expert.
 Constraints: the default study's (a safety mean at least the expert's, the 95% bound on
 episodes beyond d_s, at most 5% of steps deferred).
 
-Time on 2 cores: ``results/beyond/timing.md`` (one trial and three self-imitation runs of 576
-episodes each dominate it).
+Not run yet: the design's pick met its goal on fresh block 25 and missed it on block 26, and
+the second design (a stall restart in the handover) missed on blocks 89 and 90
+(docs/improvement.md). Expected time on 2 cores, from the measured runs: about an hour (four
+self-imitation runs of 14.8 CPU-minutes each, three of them in the final phase one after the
+other with their rollouts spread over the CPUs, then 450 certification episodes); once run,
+``results/beyond/timing.md``.
 
 Run: ``make tune STUDY=beyond`` (or ``safe-bc tune tune_jobs/beyond.py``); rerun to resume.
 """
