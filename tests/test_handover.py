@@ -174,7 +174,7 @@ def test_the_expert_restarts_an_agent_whose_costs_stand_still() -> None:
         policy.reset(None, None)
         out = []
         for t in range(8):
-            cost = [2.0] if t < 6 else [2.0 + t]  # still for 6 steps, then moving
+            cost = [2.0] if t < 6 else [2.0 + 0.1 * t]  # still for 6 steps, then moving
             policy.see({"cost": cost, "warmup": warmup})
             out.append(float(policy.act(np.zeros(1), None)[0]))
         return out
