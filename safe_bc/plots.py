@@ -271,7 +271,7 @@ def plot_queries(
     block: str = "fresh",
 ) -> Path:
     """Critical-zone queries and deferral (the queries family's ``summary.parquet`` per
-    testbed, :mod:`safe_bc.queries.report`): one row of two panels per testbed, on its
+    testbed, ``scripts/queries_report.py``): one row of two panels per testbed, on its
     ``block`` episodes. Left: reward minus the expert's (paired crossed 95% CI), each method
     labelled with its burden (training queries per rollout, or ``deferred[testbed][method]``:
     the mean share of steps deferred); right: the share of episodes beyond ``d_s`` (dot) and

@@ -373,26 +373,6 @@ def test_the_query_verb_runs_from_a_checkpoint(rehab_start, rehab_demos, tmp_pat
     assert (tmp_path / "q" / round_dir(0) / DONE).is_file()
 
 
-def test_the_figure_reads_the_committed_measurements(tmp_path) -> None:
-    """``python -m safe_bc.queries.figure`` draws the committed summaries; the deferred share
-    it labels is the mean ``deferred_share`` of the chosen deferral's fresh episodes."""
-    import pandas as pd
-
-    from safe_bc.queries.figure import deferred_shares, main
-
-    root = Path(__file__).resolve().parents[1] / "results/queries"
-    assert main([str(tmp_path / "q.png"), str(root / "carracing"), str(root / "rehab")]) == 0
-    assert (tmp_path / "q.png").stat().st_size > 10_000
-    summary = pd.read_parquet(root / "rehab/summary.parquet")
-    shares = deferred_shares(root / "rehab", summary)
-    episodes = pd.read_parquet(root / "rehab/queries_episodes.parquet")
-    assert shares["defer"] == pytest.approx(
-        episodes.loc[episodes["method"] == "defer-0.2", "deferred_share"].mean()
-    )
-    assert set(shares) == {"defer", "critical+defer"}
-    assert main([]) == 2
-
-
 def test_evaluate_defers_to_the_expert_near_the_limit(rehab_start, tmp_path, capsys) -> None:
     """``safe-bc evaluate --handover.width W``: a width wider than any cost hands every scored
     session to the guideline (the episodes are then the guideline's own on those patients),

@@ -1,11 +1,10 @@
 """The queries family (``tune_jobs/compare/queries.py``) through the one comparison runner:
-DAgger's budget from the critical-zone run, one-env episodes, and its summary re-derived from
-the committed comparison outputs."""
+DAgger's budget from the critical-zone run, one-env episodes and the summary's layout (its
+re-derivation from the committed outputs: ``tests/scripts/test_queries_report.py``)."""
 
 from __future__ import annotations
 
 import dataclasses
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -17,9 +16,6 @@ from safe_bc.methods import Improved
 from safe_bc.queries.config import QueryConfig
 from safe_bc.queries.summary import block_episodes, queries_per_episode, widths_table
 from safe_bc.selection import SelectionConfig
-
-ROOT = Path(__file__).resolve().parents[1]
-FAMILY = ROOT / "tune_jobs/compare/queries.py"
 
 
 def _comparison(**changes) -> Comparison:
@@ -97,33 +93,3 @@ def test_the_summary_lays_out_a_block_as_the_measurement_did() -> None:
     q = queries_per_episode(history)
     assert q["critical"] == q["critical+defer"] == pytest.approx(3 / 16)
     assert q["full"] == 0.5 and q["bc_safe"] == 0.0 and np.isnan(q["bc"])
-
-
-@pytest.mark.parametrize(
-    ("task", "not_kept"), [("rehab", ()), ("carracing", ("queries_per_episode",))]
-)
-def test_the_committed_summary_re_derives_from_the_comparisons(
-    task: str, not_kept: tuple[str, ...], monkeypatch
-) -> None:
-    """The committed summary and widths table are those of the family's two committed
-    comparisons (their episode tables and the selection's query history), value for value.
-    The car's query runs were not kept (its episodes were adopted as stored evaluations, its
-    agents not retrained), so its queries per episode, counted in those runs, are not
-    re-derived; every other value is."""
-    from safe_bc.data.store import read_table
-    from safe_bc.families import load_comparison
-    from safe_bc.queries.report import summary
-
-    monkeypatch.chdir(ROOT)
-    selection = load_comparison(FAMILY, f"{task}_selection")
-    fresh = load_comparison(FAMILY, task)
-    table, widths = summary(selection, fresh)
-    folder = ROOT / "results/queries" / task
-    committed = read_table(folder / "summary.parquet")[0]
-    assert list(table.columns) == list(committed.columns) and len(table) == 14
-    pd.testing.assert_frame_equal(
-        table.drop(columns=list(not_kept)), committed.drop(columns=list(not_kept)), check_exact=True
-    )
-    pd.testing.assert_frame_equal(
-        widths, read_table(folder / "widths.parquet")[0], check_exact=True
-    )

@@ -7,6 +7,7 @@
 * :mod:`~safe_bc.queries.run`: the resumable rounds (roll out, label, retrain);
 * :mod:`~safe_bc.queries.stage`: the method's runner (``METHODS["queries"]``);
 * :mod:`~safe_bc.queries.defer`: the deferral wrapper and the width rule;
-* :mod:`~safe_bc.queries.summary`, :mod:`~safe_bc.queries.report`: the summary of the queries
-  family (``tune_jobs/compare/queries.py``, run by the comparison runner).
+* :mod:`~safe_bc.queries.summary`: the summary of the queries family
+  (``tune_jobs/compare/queries.py``, run by the comparison runner; written by
+  ``python -m scripts.queries_report``, drawn by ``python -m scripts.queries_figure``).
 """

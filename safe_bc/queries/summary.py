@@ -4,7 +4,7 @@ reward and its paired crossed-bootstrap difference to the expert, queries or def
 per episode, the deferral widths; and the widths tried on the selection tracks.
 
 Pure (pandas): the caller reads the comparisons' episode and history tables
-(:mod:`safe_bc.queries.report`).
+(``scripts/queries_report.py``).
 """
 
 from __future__ import annotations

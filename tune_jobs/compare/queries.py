@@ -19,7 +19,7 @@ folder (``queries_runs``): every agent and query run is made once.
 
 Every episode runs as one env alone would (``lockstep_forward="rows"``). Run: ``safe-bc compare
 tune_jobs/compare/queries.py --name rehab_selection``, then ``--name rehab``, then the summary
-(``python -m safe_bc.queries.report tune_jobs/compare/queries.py --name rehab``). The car's
+(``python -m scripts.queries_report tune_jobs/compare/queries.py --name rehab``). The car's
 selection grids are the widths measured when its table was made, which tried widths from the
 smallest up and stopped at the first with no episode beyond d_s (the rule picks the same).
 """

@@ -1,6 +1,6 @@
 """Write the queries family's summary from its comparisons' outputs.
 
-``python -m safe_bc.queries.report tune_jobs/compare/queries.py --name rehab``: the fresh
+``python -m scripts.queries_report tune_jobs/compare/queries.py --name rehab``: the fresh
 comparison ``rehab`` and the selection comparison it follows (both run by ``safe-bc compare``
 first) give ``OUT/summary.parquet``, ``summary.md`` and ``widths.parquet``
 (:mod:`safe_bc.queries.summary`). Nothing is trained or evaluated.

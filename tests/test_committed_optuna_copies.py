@@ -1,6 +1,5 @@
 """Every committed study's Optuna copy says what the study decided: its objective's name, the
-screened trials PRUNED, the final phase's winner marked (``python -m scripts.optuna_copies``
-rewrites them from the committed tables)."""
+screened trials PRUNED, the final phase's winner marked, as a study writes its copy."""
 
 from __future__ import annotations
 
@@ -12,7 +11,7 @@ import pytest
 from safe_bc.data.store import read_table
 from safe_bc.distributed.search import WINNER
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[1]
 COPIES = sorted(
     p.parent
     for p in (ROOT / "results").rglob("optuna.db")

@@ -1,5 +1,5 @@
 """The figure of the query and deferral measurements (the queries family,
-``tune_jobs/compare/queries.py``): ``python -m safe_bc.queries.figure OUT DIR [DIR ...]``
+``tune_jobs/compare/queries.py``): ``python -m scripts.queries_figure OUT DIR [DIR ...]``
 draws every ``DIR`` (a task's folder: its ``summary.parquet`` and its fresh comparison's
 episode table, ``queries_episodes.parquet``) as one testbed row of
 :func:`safe_bc.plots.plot_queries`, on the fresh tracks (patients), into ``OUT`` (PNG)."""
@@ -46,7 +46,7 @@ def draw(out: Path, folders: list[Path]) -> Path:
 def main(argv: list[str] | None = None) -> int:
     args = sys.argv[1:] if argv is None else argv
     if len(args) < 2:
-        print("usage: python -m safe_bc.queries.figure OUT.png DIR [DIR ...]", file=sys.stderr)
+        print("usage: python -m scripts.queries_figure OUT.png DIR [DIR ...]", file=sys.stderr)
         return 2
     print(draw(Path(args[0]), [Path(a) for a in args[1:]]))
     return 0
