@@ -270,11 +270,9 @@ def test_tunes_copy_to_a_local_storage_is_whole_or_the_old_file(
     assert sorted(p.name for p in dest.iterdir()) == ["experiment_state-1.json", "sub"]
 
 
-def test_a_refused_resume_at_the_cli_is_one_line_exit_2_before_ray_starts(
-    tmp_path: Path, capsys
-) -> None:
-    from safe_bc.cli import main
-
+def _tiny_study(tmp_path: Path, extra: str = "") -> Path:
+    """A study file: the smoke study with its demonstrations and storage under ``tmp_path``
+    (``extra``: more ``replace`` keywords, each ending in ``, ``)."""
     smoke = Path(__file__).resolve().parents[2] / "tune_jobs" / "smoke.py"
     study_file = tmp_path / "tiny.py"
     study_file.write_text(
@@ -282,8 +280,17 @@ def test_a_refused_resume_at_the_cli_is_one_line_exit_2_before_ray_starts(
         "from pathlib import Path\n"
         "from safe_bc.study import load_study\n"
         f"STUDY = replace(load_study({str(smoke)!r}), demos=Path({str(tmp_path / 'demos')!r}),\n"
-        f"    results=Path({str(tmp_path / 'results')!r}), storage={str(tmp_path / 'ray')!r})\n"
+        f"    {extra}storage={str(tmp_path / 'ray')!r})\n"
     )
+    return study_file
+
+
+def test_a_refused_resume_at_the_cli_is_one_line_exit_2_before_ray_starts(
+    tmp_path: Path, capsys
+) -> None:
+    from safe_bc.cli import main
+
+    study_file = _tiny_study(tmp_path, f"results=Path({str(tmp_path / 'results')!r}), ")
     out, exp = tmp_path / "results" / "smoke", tmp_path / "ray" / "smoke"
     out.mkdir(parents=True)
     (out / "history.jsonl").write_text('{"trial_id": "a", "event": "complete"}\n')
@@ -305,15 +312,7 @@ def test_another_results_folder_on_the_same_storage_is_refused_at_the_cli(
 ) -> None:
     from safe_bc.cli import main
 
-    smoke = Path(__file__).resolve().parents[2] / "tune_jobs" / "smoke.py"
-    study_file = tmp_path / "tiny.py"
-    study_file.write_text(
-        "from dataclasses import replace\n"
-        "from pathlib import Path\n"
-        "from safe_bc.study import load_study\n"
-        f"STUDY = replace(load_study({str(smoke)!r}), demos=Path({str(tmp_path / 'demos')!r}),\n"
-        f"    storage={str(tmp_path / 'ray')!r})\n"
-    )
+    study_file = _tiny_study(tmp_path)
     first, exp = tmp_path / "first" / "smoke", tmp_path / "ray" / "smoke"
     exp.mkdir(parents=True)
     (exp / "tuner.pkl").write_bytes(b"x")
