@@ -96,9 +96,14 @@ def history_events(path: Path) -> tuple[set[str], set[str]]:
     """``(reported, ended)``: the trial ids with a report in the study's ``history.jsonl`` and
     those whose end Tune had saved (a ``complete`` or ``error`` event); a line cut short is
     skipped."""
+    return _events(_history_rows(path))
+
+
+def _events(rows: list[dict[str, Any]]) -> tuple[set[str], set[str]]:
+    """:func:`history_events` of rows already read."""
     reported: set[str] = set()
     ended: set[str] = set()
-    for row in _history_rows(path):
+    for row in rows:
         (ended if row.get("event") else reported).add(str(row["trial_id"]))
     return reported, ended
 
@@ -118,11 +123,11 @@ def _history_rows(path: Path) -> list[dict[str, Any]]:
     return rows
 
 
-def reported_iterations(path: Path) -> dict[str, set[int]]:
-    """Trial id -> the ``training_iteration`` of each report in the study's ``history.jsonl``
-    (a line cut short is skipped)."""
+def reported_iterations(rows: list[dict[str, Any]]) -> dict[str, set[int]]:
+    """Trial id -> the ``training_iteration`` of each report among the study's
+    ``history.jsonl`` rows (:func:`_history_rows`)."""
     out: dict[str, set[int]] = {}
-    for row in _history_rows(path):
+    for row in rows:
         if not row.get("event"):
             it = row.get("training_iteration")
             out.setdefault(str(row["trial_id"]), set()).update([it] if it is not None else [])
@@ -145,13 +150,19 @@ def state_iterations(file: Path) -> dict[str, int]:
     return out
 
 
+def newest_state(exp_path: str) -> Path | None:
+    """The newest Tune experiment state file in the local folder ``exp_path`` (the one Tune
+    restores from; ``None``: none)."""
+    files = sorted(Path(exp_path).glob(TUNE_STATE))
+    return files[-1] if files else None
+
+
 def tune_state(exp_path: str) -> tuple[Path | None, set[str], str]:
     """``(file, trial ids, problem)`` of the newest Tune experiment state in the local folder
     ``exp_path`` (the one Tune restores from); ``problem`` is ``""`` when it reads whole."""
-    files = sorted(Path(exp_path).glob(TUNE_STATE))
-    if not files:
+    newest = newest_state(exp_path)
+    if newest is None:
         return None, set(), "no experiment state file"
-    newest = files[-1]
     try:
         data = newest.read_bytes()
     except OSError as e:
@@ -204,7 +215,8 @@ def check_resume(
         ResumeRefused: one line naming what differs and how to recover.
     """
     record = read_record(out)
-    reported, ended = history_events(out / "history.jsonl")
+    rows = _history_rows(out / "history.jsonl")
+    reported, ended = _events(rows)
     tables = (out / "trials.parquet").exists()
     has_work = bool(reported or ended) or tables
     fresh = "pass --fresh to start the study over"
@@ -236,7 +248,7 @@ def check_resume(
     if not local:
         return
     _check_state_knows_ended(out, exp_path, ended, fresh)
-    _check_history_whole(out, exp_path, fresh)
+    _check_history_whole(out, exp_path, rows, fresh)
 
 
 def published_settings(out: Path) -> dict[str, Any] | None:
@@ -334,14 +346,14 @@ def _check_state_knows_ended(out: Path, exp_path: str, ended: set[str], fresh: s
         )
 
 
-def _check_history_whole(out: Path, exp_path: str, fresh: str) -> None:
+def _check_history_whole(out: Path, exp_path: str, rows: list[dict[str, Any]], fresh: str) -> None:
     """``history.jsonl`` must hold every report Tune's experiment state knows of: Tune records
     a result only after the study's callback has appended it, so a trial whose last result is
     missing there (an emptied or cut-short file) would lose its rows in ``history.parquet``."""
-    file = tune_state(exp_path)[0]
+    file = newest_state(exp_path)
     if file is None:
         return
-    reported = reported_iterations(out / "history.jsonl")
+    reported = reported_iterations(rows)
     missing = sorted(t for t, n in state_iterations(file).items() if n not in reported.get(t, ()))
     if missing:
         shown = ", ".join(missing[:5]) + (" ..." if len(missing) > 5 else "")
