@@ -17,7 +17,7 @@ zone holds the steps nearest the limit, at least the one that set ``d_s``.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, get_args
 
 import numpy as np
 
@@ -30,7 +30,7 @@ COSTS = "costs"
 CostRule = Literal["critical", "beyond"]
 """Which steps the scalar cost marks: ``critical``, the critical zone (``c_s >= d_s - eps``
 in some dimension); ``beyond``, a violation (``c_s > d_s`` in some dimension)."""
-COST_RULES: tuple[str, ...] = ("critical", "beyond")
+COST_RULES: tuple[str, ...] = get_args(CostRule)
 """The values of :data:`CostRule`."""
 DEFAULT_COST_RULE: CostRule = "critical"
 """The scalar an export carries unless told otherwise (the module doc says why)."""
