@@ -92,11 +92,20 @@ FULL_DISK_LOGGERS = (
 (with their tracebacks), its trials' failures, its syncer, and the run's end."""
 
 
+def is_full_disk(text: str) -> bool:
+    """Whether ``text`` (a log line, an error) tells of a full storage (``ENOSPC``).
+
+    >>> is_full_disk("OSError: [Errno 28] No space left on device"), is_full_disk("timeout")
+    (True, False)
+    """
+    return FULL_DISK in text or "[Errno 28]" in text or "errno 28" in text
+
+
 def _not_a_full_disk_line(record: logging.LogRecord) -> bool:
     text = record.getMessage()
     if record.exc_info and record.exc_info[1] is not None:
         text += f" {record.exc_info[1]}"
-    if FULL_DISK in text or "[Errno 28]" in text or "errno 28" in text:
+    if is_full_disk(text):
         _FULL_DISK_SEEN.append(True)
         return False
     return not (_FULL_DISK_SEEN and record.name in TUNE_STOP_LOGGERS)

@@ -57,6 +57,7 @@ from safe_bc.data.store import (
 from safe_bc.distributed.console import (
     FULL_DISK,
     TrialLines,
+    is_full_disk,
     progress_reporter,
     quiet_full_disk,
     quiet_logs,
@@ -431,7 +432,7 @@ def _stop_on_full_disk(trial: Any) -> None:
         error = Path(trial.error_file).read_text().rsplit("Failure # ", 1)[-1]
     except (OSError, TypeError):
         error = ""
-    if FULL_DISK in error or "[Errno 28]" in error or "errno 28" in error:
+    if is_full_disk(error):
         raise OSError(errno.ENOSPC, FULL_DISK, str(getattr(trial, "path", "") or ""))
 
 
