@@ -266,19 +266,28 @@ def beyond_selection(
 
 
 def beyond_fresh(
-    follows: str, rule: Rule, blocks: tuple[int, int], what: str, titles: tuple[str, str], note: str
+    follows: str,
+    rule: Rule,
+    blocks: tuple[int, int],
+    what: str,
+    titles: tuple[str, str],
+    note: str,
+    stem: str = "beyond",
+    suffix: str | None = None,
 ) -> dict[str, Fresh]:
-    """The two fresh tables that follow a beyond-the-expert selection (``what``: tracks or
-    patients), addressed by the selection's suffix."""
-    suffix = follows.removeprefix("beyond_selection")
+    """The two fresh tables ``<stem>`` and ``<stem>_replication`` that follow a beyond-the-expert
+    selection (``what``: tracks or patients), addressed by their names plus ``suffix`` (``None``:
+    the selection's, what follows ``beyond_selection`` in its address)."""
+    if suffix is None:
+        suffix = follows.removeprefix("beyond_selection")
     (first, second), (title, again) = blocks, titles
     return {
-        f"beyond{suffix}": Fresh(
-            "beyond", follows, (rule,), eval_seed=first, title=title,
+        f"{stem}{suffix}": Fresh(
+            stem, follows, (rule,), eval_seed=first, title=title,
             note=f"Fresh {what} (block {first}); {note}",
         ),
-        f"beyond_replication{suffix}": Fresh(
-            "beyond_replication", follows, (rule,), eval_seed=second, title=again,
+        f"{stem}_replication{suffix}": Fresh(
+            f"{stem}_replication", follows, (rule,), eval_seed=second, title=again,
             note=f"Fresh {what} (block {second}, nothing changed but the {what}); {note}",
         ),
     }  # fmt: skip
@@ -334,15 +343,11 @@ BEYOND_STALL = {
         name="beyond_stall_selection",
         figures=(),
     ),
-    "beyond_stall": Fresh(
-        "beyond_stall", "beyond_stall_selection", (CAR_RULE,), eval_seed=89,
-        title="Beyond the expert, second design: fresh tracks (CarRacing)",
-        note=f"Fresh tracks (block 89); {BEYOND_STALL_NOTE}",
-    ),
-    "beyond_stall_replication": Fresh(
-        "beyond_stall_replication", "beyond_stall_selection", (CAR_RULE,), eval_seed=90,
-        title="Beyond the expert, second design: a second fresh block (CarRacing)",
-        note=f"Fresh tracks (block 90, nothing changed but the tracks); {BEYOND_STALL_NOTE}",
+    **beyond_fresh(
+        "beyond_stall_selection", CAR_RULE, (89, 90), "tracks",
+        ("Beyond the expert, second design: fresh tracks (CarRacing)",
+         "Beyond the expert, second design: a second fresh block (CarRacing)"),
+        BEYOND_STALL_NOTE, stem="beyond_stall", suffix="",
     ),
 }  # fmt: skip
 """The car's second beyond design, written after the first's pick (D + corner handover) met the
@@ -498,16 +503,11 @@ def cap_design(
             name=f"{stem}_selection",
             out=CLINIC_LAGRANGIAN.out,
         ),
-        f"{stem}_rehab_lagrangian": Fresh(
-            stem, follows, (CLINIC_RULE,), eval_seed=first,
-            title=f"Beyond the guideline: {what}, fresh patients (rehab)",
-            note=f"Fresh patients (block {first}); {rule_note}",
-        ),
-        f"{stem}_replication_rehab_lagrangian": Fresh(
-            f"{stem}_replication", follows, (CLINIC_RULE,), eval_seed=second,
-            title=f"Beyond the guideline: {what}, a second fresh block (rehab)",
-            note=f"Fresh patients (block {second}, nothing changed but the patients); "
-            f"{rule_note}",
+        **beyond_fresh(
+            follows, CLINIC_RULE, (first, second), "patients",
+            (f"Beyond the guideline: {what}, fresh patients (rehab)",
+             f"Beyond the guideline: {what}, a second fresh block (rehab)"),
+            rule_note, stem=stem, suffix="_rehab_lagrangian",
         ),
     }  # fmt: skip
 
