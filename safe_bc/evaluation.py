@@ -62,12 +62,17 @@ class NetSource:
         state = {k: v.detach().cpu().clone() for k, v in model.state_dict().items()}
         return cls(model.spec.to_dict(), config.to_dict(), state)
 
-    def build(self) -> Policy:
-        """Rebuild the net (eval mode) as a policy."""
+    def to_model(self) -> tuple[BCNet, BCConfig]:
+        """Rebuild the net (eval mode) and its config."""
         cfg = BCConfig.from_dict(self.config)
         model = BCNet(ModelSpec.from_dict(self.spec), cfg.preprocess, cfg.network)
         model.load_state_dict(self.state)
-        return BCPolicy(model.eval(), cfg.preprocess)
+        return model.eval(), cfg
+
+    def build(self) -> Policy:
+        """Rebuild the net (eval mode) as a policy."""
+        model, cfg = self.to_model()
+        return BCPolicy(model, cfg.preprocess)
 
 
 class MaskedSteering:

@@ -115,3 +115,64 @@ def test_tiny_study_with_improvement_end_to_end(ray_session, rehab_demos: Path, 
     assert outcome.final is not None and outcome.final.winner is not None
     roots = list((outcome.out / "final_improve").glob("*/seed*/run/policy"))
     assert len(roots) == 2  # the candidate improved for both seeds; plain BC is not
+
+
+def test_a_studys_recommender_is_the_improved_agent_it_certified(
+    ray_session, rehab_demos: Path, tmp_path: Path
+):
+    """The recommender ships the agent the certification evaluated (the stage's output, not
+    the net the stage started from): loaded and evaluated on the certificate's patients, it
+    gives the certificate's episodes."""
+    import pandas as pd
+
+    from safe_bc.cli import main
+    from safe_bc.data.store import read_table
+    from safe_bc.distributed.study import run_study
+    from safe_bc.rounds import weights_digest
+
+    spec = replace(
+        load_study(REPO / "tune_jobs" / "beyond_rehab.py"),
+        demos=rehab_demos,
+        collect=CollectConfig.for_task(task_defaults("rehab"), episodes=8, workers=1),
+        storage=str(tmp_path / "ray"),
+        results=tmp_path / "results",
+        improve=TINY,
+        batches=20,
+        eval_episodes=2,
+        final_episodes=2,
+        final_train_seeds=1,
+        certify_episodes=3,
+        final_workers=0,
+        threshold=-1e9,  # constraints every agent meets: the recommender is certified
+        violation_bound=None,
+        violation_tolerance=1.0,
+        deferred_share_limit=1.0,
+    )
+    outcome = run_study(spec, progress=False)
+    assert outcome.certificate is not None
+    rec = outcome.out / "recommender"
+    winner = outcome.final.winner
+    improved = ImprovedSource.from_run(outcome.out / "final_improve" / winner / "seed0" / "run")
+    start, _ = load_checkpoint_of(outcome.out / "final_improve" / winner / "seed0" / "start")
+    shipped, _ = load_checkpoint_of(rec / "seed_0")
+    assert weights_digest(shipped.state_dict()) == weights_digest(improved.improved.state)
+    assert weights_digest(shipped.state_dict()) != weights_digest(start.state_dict())
+    argv = ["evaluate", "--recommender", str(rec), "--recommender-seed", "0", "--eval-seed",
+            str(spec.certify_seed), "--episodes", "3", "--workers", "0", "--out",
+            str(tmp_path / "again"), "--quiet"]  # fmt: skip
+    assert main(argv) == 0
+    again = pd.read_parquet(tmp_path / "again" / "episodes.parquet")
+    cert, _ = read_table(outcome.out / "certify_episodes.parquet")
+    cert = cert[(cert["method"] == "recommender") & (cert["train_seed"] == 0)]
+    assert list(again["env_seed"]) == list(cert["env_seed"])
+    # the certification ran the patients in lockstep (one batched forward pass), this run one
+    # at a time: the same decisions, float32 rounding apart
+    assert list(again["deferred_steps"]) == list(cert["deferred_steps"])
+    assert list(again["violation_steps"]) == list(cert["violation_steps"])
+    assert list(again["reward"]) == pytest.approx(list(cert["reward"]), rel=1e-6)
+
+
+def load_checkpoint_of(path: Path):
+    from safe_bc.bc import load_checkpoint
+
+    return load_checkpoint(path)

@@ -41,7 +41,7 @@ from ray.tune.schedulers import FIFOScheduler, TrialScheduler
 from ray.tune.utils import flatten_dict
 
 from safe_bc.atomic import write_json_atomic, write_text_atomic
-from safe_bc.bc import CheckpointError, load_checkpoint
+from safe_bc.bc import BCConfig, CheckpointError, load_checkpoint
 from safe_bc.bc.net import BCNet
 from safe_bc.data.store import (
     DatasetError,
@@ -1188,9 +1188,12 @@ def deliver(
         tables = {"certify": cert.table, "certify_episodes": cert.episodes}
         write_tables_atomic(out, tables, cert_meta)
         certificate = cert.certificate
-    models = {s: final.models[(winner, s)] for s in seeds}
-    if not all(isinstance(m, BCNet) for m, _ in models.values()):
-        print(f"the winner's agents are not BC nets (a stage changed them): no {RECOMMENDER_DIR}/")
+    nets = {s: shippable_net(final.agents.get((winner, s))) for s in seeds}
+    if any(n is None for n in nets.values()):
+        print(
+            f"the winner's agents as evaluated are not plain BC nets (e.g. behind a stage's "
+            f"shield): no {RECOMMENDER_DIR}/, since its weights would not be the certified agents'"
+        )
         return certificate or None
     demos = meta["inputs"]["demos"]
     card = RecommenderCard(
@@ -1214,10 +1217,23 @@ def deliver(
         },
         certificate=certificate,
     )
-    write_recommender(
-        out / RECOMMENDER_DIR, card, {s: (m, run.bc) for s, (m, run) in models.items()}
-    )
+    write_recommender(out / RECOMMENDER_DIR, card, nets)
     return certificate or None
+
+
+def shippable_net(source: Any) -> tuple[BCNet, BCConfig] | None:
+    """The net and config behind an evaluated agent's policy source, when the source is that
+    net alone (a trained or retrained net; a stage's net without a shield): what a recommender
+    ships, so that loading it gives the agent that was evaluated and certified. ``None`` for
+    anything else (a shielded policy, a missing agent)."""
+    from safe_bc.evaluation import NetSource
+    from safe_bc.improve.shield import ImprovedSource
+
+    if isinstance(source, ImprovedSource) and source.imitation is None:
+        source = source.improved
+    if isinstance(source, NetSource):
+        return source.to_model()
+    return None
 
 
 def job_dims(job: TrialJob) -> tuple[str, ...]:
