@@ -725,7 +725,8 @@ def run_study(
         command: the command line, recorded in every table's metadata.
         progress: a line per finished trial and the final phase's progress.
         verbose: Tune's own status table every 30 s instead of the trial lines.
-        callbacks: extra Tune callbacks of a new run (a restored run keeps its own).
+        callbacks: extra Tune callbacks (e.g. a tracker's); a restored run keeps its own and
+            adds those of a kind it lacks.
         trial_fn: the per-trial function ``(config, job)``; tests wrap it to inject faults.
         final: False stops after the trial tables and the time table (no final phase, the
             study is not marked finished): for measuring the tuning loop alone.
@@ -757,7 +758,7 @@ class DriverOptions:
     verbose: bool
     """Tune's own status table instead of the trial lines."""
     callbacks: tuple[Any, ...]
-    """Extra Tune callbacks of a new run."""
+    """Extra Tune callbacks (a restored run adds those of a kind it lacks)."""
     trial_fn: Callable[[dict[str, Any], TrialJob], None]
     """The per-trial function ``(config, job)``."""
 
@@ -935,6 +936,9 @@ def _prepare_outputs(plan: StudyPlan, verbose: bool) -> None:
         )
     if plan.fresh or published:
         delete_storage_tree(plan.exp_path)
+        kept = keep_earlier_run(out) if plan.fresh else None  # published: git keeps it
+        if kept is not None:
+            print(f"the earlier run's outputs: kept in {kept}/")
         for name in ("trials", "history", "final", "final_episodes", "final_paired"):
             (out / f"{name}.parquet").unlink(missing_ok=True)
         (out / FINISHED).unlink(missing_ok=True)  # first: a kill below leaves no claim
@@ -948,6 +952,37 @@ def _prepare_outputs(plan: StudyPlan, verbose: bool) -> None:
                      restoring=restorable, local=plan.local)  # fmt: skip
         if restorable:
             check_optuna_copy(plan, plan.exp_path, finished=False)
+
+
+EARLIER = "earlier"
+"""The folder in ``results/<study>/`` where ``--fresh`` keeps the run it replaces."""
+RUN_OUTPUTS = (
+    "finished.json", "trials.parquet", "history.parquet", "final.parquet",
+    "final_episodes.parquet", "final_paired.parquet", "certify.parquet",
+    "certify_episodes.parquet", "best.json", "pareto.png", "study.json", "optuna.db",
+    "history.jsonl", "timing.parquet", "timing.jsonl", "timing.md", "recommender", "tensorboard",
+)  # fmt: skip
+"""What one run of a study writes into ``results/<study>/`` (the first is its claim to have
+finished: moved first, so that a kill leaves no claim)."""
+
+
+def keep_earlier_run(out: Path) -> Path | None:
+    """Move the outputs of the run in ``out`` (:data:`RUN_OUTPUTS`) into
+    ``out/earlier/<UTC time of its newest output>/`` (``_2``, ... where taken), so that
+    ``out`` is always the latest run and no run is lost; ``None``: nothing to keep."""
+    present = [out / name for name in RUN_OUTPUTS if (out / name).exists()]
+    if not present:
+        return None
+    newest = max(path.stat().st_mtime for path in present)
+    stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime(newest))
+    target, k = out / EARLIER / stamp, 1
+    while target.exists():
+        k += 1
+        target = out / EARLIER / f"{stamp}_{k}"
+    target.mkdir(parents=True)
+    for path in present:
+        os.replace(path, target / path.name)
+    return target
 
 
 def _study_demos(plan: StudyPlan, progress: bool) -> tuple[Any, dict[str, Any]]:
@@ -998,8 +1033,9 @@ def _make_tuner(
                 callback.total = spec.trials
         _save_every_trial(tuner)
         restored = tuner._local_tuner._run_config  # this run's console, not the first run's
-        if not any(isinstance(c, TrialCurves) for c in restored.callbacks or []):
-            restored.callbacks = [*(restored.callbacks or []), trial_curves(plan)]
+        kinds = {type(c) for c in restored.callbacks or []}  # trackers given on a resume
+        added = [c for c in (trial_curves(plan), *options.callbacks) if type(c) not in kinds]
+        restored.callbacks = [*(restored.callbacks or []), *added]
         restored.verbose, restored.progress_reporter = verbose, reporter
         # Tune restores the concurrency limit the study started with (its ConcurrencyLimiter's
         # saved state), whatever the cluster is now

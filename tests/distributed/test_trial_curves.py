@@ -140,3 +140,25 @@ def test_tensorboard_reads_the_board(tmp_path: Path) -> None:
     assert {"bc/train_loss", "bc/val_loss", "eval/reward_mean", "hparams/winner"} <= scalars
     assert [e.step for e in acc.Scalars("eval/reward_mean")] == [1, 2]
     assert acc.PluginTagToContent("hparams")  # the entry: experiment, session start, end
+
+
+def test_fresh_keeps_the_earlier_run_beside_the_latest(tmp_path: Path) -> None:
+    """``--fresh`` moves the run it replaces into ``results/<study>/earlier/<stamp>/``."""
+    from safe_bc.distributed.study import EARLIER, keep_earlier_run
+
+    out = tmp_path / "study"
+    assert keep_earlier_run(out) is None  # nothing yet
+    (out / "recommender").mkdir(parents=True)
+    (out / "recommender" / "card.json").write_text("{}")
+    for name in ("trials.parquet", "finished.json", "best.json"):
+        (out / name).write_text(name)
+    (out / "replicates.md").write_text("not a run's output")
+    first = keep_earlier_run(out)
+    assert first is not None and first.parent == out / EARLIER
+    assert sorted(p.name for p in first.iterdir()) == [
+        "best.json", "finished.json", "recommender", "trials.parquet"
+    ]  # fmt: skip
+    assert sorted(p.name for p in out.iterdir()) == [EARLIER, "replicates.md"]
+    (out / "trials.parquet").write_text("again")
+    second = keep_earlier_run(out)  # the same second: a name of its own
+    assert second is not None and second != first and (second / "trials.parquet").exists()
