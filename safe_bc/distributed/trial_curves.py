@@ -79,14 +79,18 @@ def short(value: Any) -> str:
     return str(value).replace("/", "-").replace(" ", "")
 
 
-def run_name(number: int, params: Mapping[str, Any]) -> str:
+def run_name(number: Any, params: Mapping[str, Any], trial_id: str = "") -> str:
     """``t<number>_<setting><value>…``: the trial's number (3 digits) and its sampled settings
-    by their last name, at most :data:`MAX_NAME` characters.
+    by their last name, at most :data:`MAX_NAME` characters; a trial without a number (a
+    searcher without batches) is ``t_<trial id>…``.
 
     >>> run_name(3, {"selection.eps": 1.23456, "selection.alpha": 0.5, "bc.network.hidden": 64})
     't003_eps1.23_alpha0.5_hidden64'
+    >>> run_name(None, {"selection.alpha": 0.5}, "ab12")
+    't_ab12_alpha0.5'
     """
-    name = f"t{int(number):03d}"
+    known = number is not None and not _missing(number)
+    name = f"t{int(number):03d}" if known else f"t_{trial_id}"
     for key, value in params.items():
         part = f"_{key.rsplit('.', 1)[-1]}{short(value)}"
         if len(name) + len(part) > MAX_NAME:
@@ -96,13 +100,11 @@ def run_name(number: int, params: Mapping[str, Any]) -> str:
 
 
 def run_names(trials: pd.DataFrame, params: Sequence[str]) -> dict[str, str]:
-    """Trial id -> run name, for every row of the trial table (its ``trial_number``, else its
-    position)."""
+    """Trial id -> run name (:func:`run_name`), for every row of the trial table."""
     out = {}
-    for i, row in enumerate(trials.to_dict(orient="records")):
-        number = row.get(NUMBER)
-        number = i if number is None or _missing(number) else int(number)
-        out[str(row["trial_id"])] = run_name(number, {k: row.get(k) for k in params})
+    for row in trials.to_dict(orient="records"):
+        tid = str(row["trial_id"])
+        out[tid] = run_name(row.get(NUMBER), {k: row.get(k) for k in params}, tid)
     return out
 
 
@@ -332,8 +334,8 @@ class TrialCurves(tune.Callback):
         rows = self.__dict__.setdefault("_reports", {}).setdefault(trial.trial_id, [])
         rows.append({k: result.get(k) for k in (ROUND, *EVAL_METRICS)})
         config = trial.config or {}
-        number = config.get(NUMBER, result.get(NUMBER, 0))
-        name = run_name(0 if number is None else number, {k: config.get(k) for k in self.params})
+        params = {k: config.get(k) for k in self.params}
+        name = run_name(config.get(NUMBER), params, trial.trial_id)
         path = getattr(trial, "path", None)
         folder = Path(path) if path and "://" not in str(path) else None
         with contextlib.suppress(OSError, ValueError):
