@@ -7,6 +7,7 @@ from __future__ import annotations
 import fnmatch
 import json
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -429,10 +430,13 @@ def compare(job: CompareJob) -> Done:
     return Done(f"wrote {comparison.out / (comparison.name + '.parquet')} and .md", comparison)
 
 
-def tune(job: TuneJob, *, command: str = "") -> Done:
+def tune(job: TuneJob, *, command: str = "", callbacks: Sequence[Any] = ()) -> Done:
     """Run (or resume) the study of ``job.study`` with ``job``'s overrides (or its
     ``replicates``); the value is the study outcome; its code is the outcome's ``exit_code``
     (1 without a winner, 130 for an incomplete study).
+
+    ``callbacks``: Ray Tune callbacks (``ray.tune.Callback``) that join the study's Tune run
+    beside ``job.tracker``'s (e.g. a tracker of your own; docs/curves.md).
 
     Raises:
         StudyStopped: Ctrl-C or SIGTERM stopped the study (a ``KeyboardInterrupt`` whose
@@ -453,6 +457,11 @@ def tune(job: TuneJob, *, command: str = "") -> Done:
         except ValueError as e:
             raise ValueError(f"--set {path}={value}: {e}") from None
     spec = replace(spec, trials=spec.trials + job.more_trials)
+    from safe_bc.distributed.trackers import check_tracker, tracker_callbacks
+
+    check_tracker(job.tracker)  # a missing package: one line before anything starts
+    if job.replicates is not None and (job.tracker != "none" or callbacks):
+        raise ValueError("--tracker and callbacks apply to one study run, not to --replicates")
     if job.replicates is not None:  # it prints its table and verdict itself
         from safe_bc.distributed.replicates import tune_replicates
 
@@ -464,8 +473,12 @@ def tune(job: TuneJob, *, command: str = "") -> Done:
     outputs = [(spec.results / spec.name, "--results")]
     if "://" not in storage:
         outputs.append((Path(experiment), "--storage"))
+    trackers = tracker_callbacks(job.tracker, spec.name, spec.results / spec.name)
     with output_locks(outputs), one_line_warnings():
-        outcome = run_study(spec, fresh=job.fresh, command=command, verbose=job.verbose)
+        outcome = run_study(
+            spec, fresh=job.fresh, command=command, verbose=job.verbose,
+            callbacks=[*trackers, *callbacks],
+        )  # fmt: skip
     if outcome.stopped_by:  # what finished is written; the stop is one line, not a summary
         from safe_bc.distributed.stop import StudyStopped
 

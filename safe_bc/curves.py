@@ -37,26 +37,50 @@ def scalar_columns(table: pd.DataFrame, step: str) -> list[str]:
     ]
 
 
-def write_events(logdir: str | Path, table: pd.DataFrame, step: str, prefix: str) -> Path:
-    """Write ``table``'s scalar columns as TensorBoard scalars ``prefix/column`` at the steps of
-    column ``step`` (NaN values left out) into one event file in ``logdir``, replacing the
-    event files there. The new file is written in a temporary folder inside ``logdir`` and
-    moved in before the old ones are removed. Returns the file's path."""
+def table_scalars(table: pd.DataFrame, step: str, prefix: str) -> pd.DataFrame:
+    """``table``'s scalar columns as rows ``tag`` (``prefix/column``), ``step`` (column
+    ``step``), ``value``, in row order, NaN values left out.
+
+    >>> t = pd.DataFrame({"batch": [1, 2], "loss": [0.5, float("nan")]})
+    >>> table_scalars(t, "batch", "bc").values.tolist()
+    [['bc/loss', 1, 0.5]]
+    """
+    columns = scalar_columns(table, step)
+    rows = []
+    for values in table.to_dict(orient="records"):  # any column name, "lambda" too
+        at = int(values[step])
+        for c in columns:
+            v = float(values[c])
+            if math.isfinite(v):
+                rows.append((f"{prefix}/{c}", at, v))
+    return pd.DataFrame(rows, columns=["tag", "step", "value"])
+
+
+def write_scalars(
+    logdir: str | Path,
+    scalars: pd.DataFrame,
+    hparams: tuple[dict[str, Any], dict[str, float]] | None = None,
+) -> Path:
+    """Write the rows ``tag``, ``step``, ``value`` of ``scalars`` as TensorBoard scalars (and,
+    with ``hparams`` ``(settings, metrics)``, one entry of TensorBoard's HParams view; the
+    metrics must be among the scalars) into one event file in ``logdir``, replacing the event
+    files there. The new file is written in a temporary folder inside ``logdir`` and moved in
+    before the old ones are removed. Returns the file's path."""
     from tensorboardX import SummaryWriter
 
     logdir = Path(logdir)
     logdir.mkdir(parents=True, exist_ok=True)
     old = sorted(logdir.glob(EVENTS_GLOB))
-    columns = scalar_columns(table, step)
     with tempfile.TemporaryDirectory(dir=logdir, prefix=".events-") as tmp:
         writer = SummaryWriter(logdir=tmp, flush_secs=3600)
         try:
-            for values in table.to_dict(orient="records"):  # any column name, "lambda" too
-                at = int(values[step])
-                for c in columns:
-                    v = float(values[c])
-                    if math.isfinite(v):
-                        writer.add_scalar(f"{prefix}/{c}", v, global_step=at)
+            if hparams is not None:
+                from tensorboardX.summary import hparams as hparams_summaries
+
+                for summary in hparams_summaries(*hparams):  # experiment, session start, end
+                    writer.file_writer.add_summary(summary)
+            for tag, at, v in scalars[["tag", "step", "value"]].itertuples(index=False):
+                writer.add_scalar(str(tag), float(v), global_step=int(at))
         finally:
             writer.close()
         (written,) = Path(tmp).glob(EVENTS_GLOB)
@@ -70,6 +94,13 @@ def write_events(logdir: str | Path, table: pd.DataFrame, step: str, prefix: str
         if path != target:
             path.unlink(missing_ok=True)
     return target
+
+
+def write_events(logdir: str | Path, table: pd.DataFrame, step: str, prefix: str) -> Path:
+    """Write ``table``'s scalar columns as TensorBoard scalars ``prefix/column`` at the steps of
+    column ``step`` (NaN values left out) into one event file in ``logdir``, replacing the
+    event files there (:func:`write_scalars`). Returns the file's path."""
+    return write_scalars(logdir, table_scalars(table, step, prefix))
 
 
 def write_curve(
@@ -126,3 +157,24 @@ def read_events(logdir: str | Path) -> pd.DataFrame:
                     scalar = value.tensor.float_val[0]
                 rows.append((value.tag, int(event.step), float(scalar)))
     return pd.DataFrame(rows, columns=["tag", "step", "value"])
+
+
+def read_hparams(logdir: str | Path) -> dict[str, Any]:
+    """The settings of the HParams entry in the event files directly in ``logdir`` (TensorBoard's
+    session start info: name -> bool, number or text; ``{}``: none), without TensorBoard."""
+    from tensorboardX.proto.event_pb2 import Event
+    from tensorboardX.proto.plugin_hparams_pb2 import HParamsPluginData
+
+    out: dict[str, Any] = {}
+    for path in sorted(Path(logdir).glob(EVENTS_GLOB)):
+        for record in _records(path):
+            for value in Event.FromString(record).summary.value:
+                if value.metadata.plugin_data.plugin_name != "hparams":
+                    continue
+                data = HParamsPluginData.FromString(value.metadata.plugin_data.content)
+                if not data.HasField("session_start_info"):
+                    continue
+                for name, v in data.session_start_info.hparams.items():
+                    kind = v.WhichOneof("kind")
+                    out[name] = getattr(v, kind) if kind else None
+    return out

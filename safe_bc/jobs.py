@@ -249,6 +249,9 @@ class TuneJob:
     """Discard a previous run of the study."""
     verbose: bool = False
     """Ray Tune's status table every 30 s instead of one line per finished trial."""
+    tracker: Literal["none", "wandb", "mlflow"] = "none"
+    """Send every trial's reports to W&B or MLflow too (Ray Tune's own integrations; pip
+    install 'safe_bc[wandb]' or 'safe_bc[mlflow]'; where they write: docs/curves.md)."""
     replicates: int | None = None
     """Run N replicates (the study with its seeds shifted) into RESULTS/<study>/replicates/r<k>/
     and write the winners' table RESULTS/<study>/replicates.parquet, .md."""

@@ -145,6 +145,7 @@ def final_phase(
     *,
     progress: bool = True,
     store: FinalStore | None = None,
+    on_curve: Callable[[str, int, pd.DataFrame], None] | None = None,
 ) -> FinalOutcome:
     """Retrain ``candidates`` (rows of the trial table) with ``final_train_seeds`` seeds each,
     train plain BC with the same seeds, evaluate all of them and the expert on fresh tracks,
@@ -155,6 +156,8 @@ def final_phase(
             one is retrained for that seed too.
         store: where finished agents and evaluations are kept as they finish; those already
             there (an interrupted earlier run) are taken from it, not redone.
+        on_curve: ``(method, seed, learning curve)`` of each agent this run retrains, as it
+            finishes (the study's TensorBoard runs).
     """
     workers = final_workers(spec)
     threads = trial_threads(spec)
@@ -194,6 +197,8 @@ def final_phase(
         if store is not None:
             run = todo[i][2]
             store.save_agent(agent_key(run, job.demos), result.model, run)
+        if on_curve is not None:
+            on_curve(todo[i][0], todo[i][1], result.curve())
         stop_point()  # Ctrl-C / SIGTERM: stop now that this agent is kept
 
     runs = [r for *_, r in todo]

@@ -100,6 +100,14 @@ from safe_bc.distributed.trial import (
     run_trial,
     stored_checkpoint,
 )
+from safe_bc.distributed.trial_curves import (
+    BOARD,
+    TrialCurves,
+    final_run_name,
+    run_names,
+    write_board,
+    write_final_curve,
+)
 from safe_bc.envs.config import EnvConfig
 from safe_bc.plots import plot_pareto
 from safe_bc.provenance import (
@@ -717,7 +725,8 @@ def run_study(
         command: the command line, recorded in every table's metadata.
         progress: a line per finished trial and the final phase's progress.
         verbose: Tune's own status table every 30 s instead of the trial lines.
-        callbacks: extra Tune callbacks of a new run (a restored run keeps its own).
+        callbacks: extra Tune callbacks (e.g. a tracker's); a restored run keeps its own and
+            adds those of a kind it lacks.
         trial_fn: the per-trial function ``(config, job)``; tests wrap it to inject faults.
         final: False stops after the trial tables and the time table (no final phase, the
             study is not marked finished): for measuring the tuning loop alone.
@@ -749,7 +758,7 @@ class DriverOptions:
     verbose: bool
     """Tune's own status table instead of the trial lines."""
     callbacks: tuple[Any, ...]
-    """Extra Tune callbacks of a new run."""
+    """Extra Tune callbacks (a restored run adds those of a kind it lacks)."""
     trial_fn: Callable[[dict[str, Any], TrialJob], None]
     """The per-trial function ``(config, job)``."""
 
@@ -795,6 +804,8 @@ class TrialReport:
     """The final phase's candidates (:func:`safe_bc.study.choose_candidates`)."""
     title: str
     """``pareto.png``'s title."""
+    history: pd.DataFrame = dataclasses.field(default_factory=pd.DataFrame)
+    """The report history (``history.parquet``)."""
 
 
 def _run_study(plan: StudyPlan, options: DriverOptions) -> StudyOutcome:
@@ -925,6 +936,9 @@ def _prepare_outputs(plan: StudyPlan, verbose: bool) -> None:
         )
     if plan.fresh or published:
         delete_storage_tree(plan.exp_path)
+        kept = keep_earlier_run(out) if plan.fresh else None  # published: git keeps it
+        if kept is not None:
+            print(f"the earlier run's outputs: kept in {kept}/")
         for name in ("trials", "history", "final", "final_episodes", "final_paired"):
             (out / f"{name}.parquet").unlink(missing_ok=True)
         (out / FINISHED).unlink(missing_ok=True)  # first: a kill below leaves no claim
@@ -932,11 +946,43 @@ def _prepare_outputs(plan: StudyPlan, verbose: bool) -> None:
                      TIMING_LOG, "timing.md"):  # fmt: skip
             (out / name).unlink(missing_ok=True)
         shutil.rmtree(out / STORE, ignore_errors=True)
+        shutil.rmtree(out / BOARD, ignore_errors=True)
     else:  # the study's own records decide what may be resumed, before Ray starts
         check_resume(out, settings=plan.settings, exp_path=plan.exp_path,
                      restoring=restorable, local=plan.local)  # fmt: skip
         if restorable:
             check_optuna_copy(plan, plan.exp_path, finished=False)
+
+
+EARLIER = "earlier"
+"""The folder in ``results/<study>/`` where ``--fresh`` keeps the run it replaces."""
+RUN_OUTPUTS = (
+    "finished.json", "trials.parquet", "history.parquet", "final.parquet",
+    "final_episodes.parquet", "final_paired.parquet", "certify.parquet",
+    "certify_episodes.parquet", "best.json", "pareto.png", "study.json", "optuna.db",
+    "history.jsonl", "timing.parquet", "timing.jsonl", "timing.md", "recommender", "tensorboard",
+)  # fmt: skip
+"""What one run of a study writes into ``results/<study>/`` (the first is its claim to have
+finished: moved first, so that a kill leaves no claim)."""
+
+
+def keep_earlier_run(out: Path) -> Path | None:
+    """Move the outputs of the run in ``out`` (:data:`RUN_OUTPUTS`) into
+    ``out/earlier/<UTC time of its newest output>/`` (``_2``, ... where taken), so that
+    ``out`` is always the latest run and no run is lost; ``None``: nothing to keep."""
+    present = [out / name for name in RUN_OUTPUTS if (out / name).exists()]
+    if not present:
+        return None
+    newest = max(path.stat().st_mtime for path in present)
+    stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime(newest))
+    target, k = out / EARLIER / stamp, 1
+    while target.exists():
+        k += 1
+        target = out / EARLIER / f"{stamp}_{k}"
+    target.mkdir(parents=True)
+    for path in present:
+        os.replace(path, target / path.name)
+    return target
 
 
 def _study_demos(plan: StudyPlan, progress: bool) -> tuple[Any, dict[str, Any]]:
@@ -987,6 +1033,9 @@ def _make_tuner(
                 callback.total = spec.trials
         _save_every_trial(tuner)
         restored = tuner._local_tuner._run_config  # this run's console, not the first run's
+        kinds = {type(c) for c in restored.callbacks or []}  # trackers given on a resume
+        added = [c for c in (trial_curves(plan), *options.callbacks) if type(c) not in kinds]
+        restored.callbacks = [*(restored.callbacks or []), *added]
         restored.verbose, restored.progress_reporter = verbose, reporter
         # Tune restores the concurrency limit the study started with (its ConcurrencyLimiter's
         # saved state), whatever the cluster is now
@@ -1017,6 +1066,7 @@ def _make_tuner(
                 TBXLoggerCallback(),  # every report of a trial, per round, in TensorBoard
                 HistoryRecorder(str((plan.out / HISTORY).resolve())),
                 RunningMeter(),
+                trial_curves(plan),
                 *lines,
                 *options.callbacks,
             ],
@@ -1025,6 +1075,12 @@ def _make_tuner(
         ),
     )
     return tuner, concurrent
+
+
+def trial_curves(plan: StudyPlan) -> TrialCurves:
+    """The live writer of the trials' TensorBoard runs (:class:`TrialCurves`)."""
+    stages = [name for name, _ in plan.spec.stages()]
+    return TrialCurves(str((plan.out / BOARD).resolve()), plan.spec.params, stages)
 
 
 def _fit(
@@ -1069,7 +1125,7 @@ def _final_and_certificate(
     store = FinalStore(plan.out / STORE)
     final = final_phase(
         spec, start.job, candidates, checkpoints, start.demos, progress=options.progress,
-        store=store,
+        store=store, on_curve=_final_curve_writer(plan, report.trials),
     )  # fmt: skip
     final_s = time.perf_counter() - t0
     parts = {f"final_{k}": v for k, v in final.seconds.items()}
@@ -1081,6 +1137,9 @@ def _final_and_certificate(
     _write_final(plan, final, candidates, meta)
     check_optuna_copy(plan, plan.exp_path)  # a missing copy is written again from the searcher
     mark_final_winner(plan.optuna_url, spec.name, final.winner, final.feasible)
+    write_study_board(
+        plan, report.trials, report.history, winner=final.winner if final.feasible else None
+    )
     plot_pareto(
         report.trials,
         start.threshold,
@@ -1119,7 +1178,38 @@ def _report_trials(plan: StudyPlan, start: StudyStart, grid: Any) -> TrialReport
     title = f"{spec.name}: {finished}/{spec.trials} trials"
     plot_pareto(trials, start.threshold, out / "pareto.png", title=title, **plan.pareto_axes)
     write_tables_atomic(out, {"trials": trials, "history": history}, meta)
-    return TrialReport(trials, meta, complete, errors, winner, candidates, title)
+    write_study_board(plan, trials, history, winner=None)
+    return TrialReport(trials, meta, complete, errors, winner, candidates, title, history)
+
+
+def write_study_board(
+    plan: StudyPlan, trials: pd.DataFrame, history: pd.DataFrame, winner: str | None
+) -> None:
+    """Every trial's TensorBoard run with its HParams entry in ``results/<study>/tensorboard/``
+    (:mod:`safe_bc.distributed.trial_curves`); a write that fails is named in one line, the
+    study goes on (its tables are the record)."""
+    spec = plan.spec
+    try:
+        write_board(
+            plan.out, trials, history, params=spec.params, objective=spec.objective,
+            stages=[name for name, _ in spec.stages()],
+            exp_path=plan.exp_path if plan.local else None, winner=winner,
+        )  # fmt: skip
+    except OSError as e:
+        print(f"warning: the study's TensorBoard runs in {plan.out / BOARD} not written ({e})")
+
+
+def _final_curve_writer(plan: StudyPlan, trials: pd.DataFrame) -> Any:
+    """``on_curve`` of the final phase: each retrained agent's curve as a run of the board."""
+    names = run_names(trials, plan.spec.params)
+
+    def write(method: str, seed: int, curve: pd.DataFrame) -> None:
+        try:
+            write_final_curve(plan.out / BOARD, final_run_name(method, seed, names), curve)
+        except OSError as e:
+            print(f"warning: the final phase's curve of {method} (seed {seed}) not written ({e})")
+
+    return write
 
 
 def _trial_rows(plan: StudyPlan, grid: Any) -> tuple[pd.DataFrame, pd.DataFrame, list[str]]:

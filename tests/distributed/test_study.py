@@ -21,7 +21,7 @@ from optuna.trial import TrialState
 from ray import tune
 
 from safe_bc.cli import main
-from safe_bc.curves import read_events
+from safe_bc.curves import read_events, read_hparams
 from safe_bc.data.store import load_demonstrations, read_table
 from safe_bc.distributed.search import WINNER
 from safe_bc.distributed.study import (
@@ -33,6 +33,7 @@ from safe_bc.distributed.study import (
     run_study,
     run_trial,
 )
+from safe_bc.distributed.trial_curves import final_run_name, run_names
 from safe_bc.metrics import combined
 from safe_bc.seeds import heldout_seeds
 from safe_bc.study import TRIAL_INFO, TRIAL_METRICS, Choice, Float, load_study
@@ -232,6 +233,26 @@ def test_cli_study_end_to_end(tiny_demos: Path, tmp_path: Path, capsys) -> None:
         steps = tune_events.groupby("tag")["step"].apply(list)
         assert steps["ray/tune/train_loss"][:2] == [1, 2]  # trained, screened (, evaluated)
         assert steps["ray/tune/reward_mean"][0] == 2  # the first round's evaluation
+
+    # the study's board: a run per trial named for a person (BC losses per logged batch,
+    # evaluation per round, HParams entry with the winner), the final phase's agents beside
+    board = out / "tensorboard"
+    names = run_names(trials, spec.params)
+    for row in trials.itertuples():
+        run = board / names[row.trial_id]
+        assert names[row.trial_id].startswith(f"t{int(row.trial_number):03d}_")
+        steps = read_events(run).groupby("tag")["step"].apply(list).to_dict()
+        assert steps["bc/train_loss"] == steps["bc/val_loss"] and steps["bc/val_loss"][-1] == 30
+        rounds = [1, 2] if row.status == "done" else [1]
+        for tag in ("reward_mean", "any_violation", "deferred_share", "constraint"):
+            assert steps[f"eval/{tag}"] == rounds, tag
+        hp = read_hparams(run)
+        assert hp["feasible"] == bool(row.feasible) and hp["status"] == row.status
+        assert hp["winner"] == (row.trial_id == best["trial_id"] and best["feasible"])
+    finals = {p.name for p in board.glob("final_*")}
+    first, second = spec.trial_seeds()[0], spec.trial_seeds()[0] + 1
+    assert {final_run_name(c, second, names) for c in cands} <= finals
+    assert {f"final_plain_bc_seed{first}", f"final_plain_bc_seed{second}"} <= finals
 
     # a finished study's rerun only reprints (the time lines too): no table is rewritten
     before = {p.name: p.stat().st_mtime_ns for p in out.iterdir() if p.is_file()}
