@@ -226,6 +226,7 @@ def evaluate(
 
 def _markdown(table, record, plan, spec, per_peer, recommender) -> str:
     n, seeds = record["patients"], len(record["train_seeds"])
+    train_s = sum(p["seconds"] for p in per_peer.values())
     d_s = ", ".join(f"{d} {v:.3f}" for d, v in record["d_s"].items())
     lines = [
         f"# OSRL's own code beside safe_bc's methods: {record['task']}",
@@ -256,8 +257,9 @@ def _markdown(table, record, plan, spec, per_peer, recommender) -> str:
         f"- {CDT_NOTE}",
         f"- Licence: {OSRL_LICENCE}",
         "",
-        f"Run: `make peers` ({record['git_revision'][:12]}), {record['evaluate_seconds']:.0f} s "
-        "for safe_bc's training and the evaluation.",
+        f"Run: `make peers` ({record['git_revision'][:12]}, {record.get('cpu_model', 'CPU')}, "
+        f"{record['cpus']} CPUs): the peers' training {train_s / 60:.1f} min, safe_bc's training "
+        f"and the evaluation {record['evaluate_seconds'] / 60:.1f} min.",
         "",
     ]
     return "\n".join(lines)
