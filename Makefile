@@ -11,7 +11,7 @@ ARGS ?=
 DESCRIBE ?= runs/demos_describe
 STAMP := $(VENV)/.installed
 
-.PHONY: install test test-slow lint format bench tune reproduce demos expert ablation renderer beyond-car clean
+.PHONY: install test test-slow lint format bench tune reproduce demos expert ablation renderer beyond-car peers peers-env clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -78,10 +78,40 @@ beyond-car: $(STAMP)
 		$(BIN)/safe-bc compare tune_jobs/compare/selfimprove.py --name $$name $(ARGS) || exit 1; \
 	done
 
+# OSRL's own code beside safe_bc's methods (docs/peers.md). osrl-lib 0.1.0 pins torch~=1.13 and
+# dsrl pulls pygame 2.1 built from source, so `pip install osrl-lib dsrl` fails on Python 3.11:
+# the peers get an environment of their own, with the package's torch and OSRL's packages without
+# their pins (only what their algorithms and fsrl's loggers import). That environment never
+# imports safe_bc: it reads the demonstrations as DSRL's dataset dict (an .npz written by
+# safe_bc) and writes each learned actor as TorchScript, which safe_bc evaluates.
+PEERS_VENV ?= .venv-peers
+PEERS_STAMP := $(PEERS_VENV)/.installed
+PEERS_TASK ?= rehab
+PEERS_OUT ?= results/peers
+PEERS_RUNS ?= runs/peers
+
+$(PEERS_STAMP):
+	test -x $(PEERS_VENV)/bin/python || $(PY) -m venv $(PEERS_VENV)
+	$(PEERS_VENV)/bin/pip install -q --upgrade pip
+	$(PEERS_VENV)/bin/pip install -q torch==2.13.0
+	$(PEERS_VENV)/bin/pip install -q --no-deps osrl-lib==0.1.0 fast-safe-rl==0.1.0 dsrl==0.1.0
+	$(PEERS_VENV)/bin/pip install -q numpy scipy tqdm pyyaml gymnasium tensorboard wandb
+	$(PEERS_VENV)/bin/python -c "from osrl.algorithms import BC, BCTrainer, COptiDICE, COptiDICETrainer, CPQ, CPQTrainer"
+	touch $(PEERS_STAMP)
+
+peers-env: $(PEERS_STAMP)
+
+# Train OSRL's BC-All, BC-Safe, COptiDICE and CPQ on the task's demonstrations and evaluate them
+# beside safe_bc's methods on fresh patients: results/peers/ (ARGS go to the evaluation).
+peers: $(STAMP) $(PEERS_STAMP)
+	$(BIN)/python -m safe_bc.peers prepare --task $(PEERS_TASK) --runs $(PEERS_RUNS)
+	OMP_NUM_THREADS=1 $(PEERS_VENV)/bin/python peers/osrl_train.py --runs $(PEERS_RUNS)
+	$(BIN)/python -m safe_bc.peers evaluate --task $(PEERS_TASK) --runs $(PEERS_RUNS) --out $(PEERS_OUT) $(ARGS)
+
 # TRIALS=n is another study than the file's: its own results and Tune experiment under
 # runs/trials<n>/ (untracked), never over the committed results/<STUDY>/ (docs/cli.md)
 tune: $(STAMP)
 	$(BIN)/safe-bc tune tune_jobs/$(STUDY).py $(if $(TRIALS),--trials $(TRIALS) --results runs/trials$(TRIALS) --storage runs/trials$(TRIALS)/ray,) $(ARGS)
 
 clean:
-	rm -rf $(VENV) .pytest_cache .ruff_cache
+	rm -rf $(VENV) $(PEERS_VENV) .pytest_cache .ruff_cache

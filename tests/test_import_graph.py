@@ -48,7 +48,8 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("tasks", ("safe_bc.tasks", "safe_bc.tasks.*", "safe_bc.envs", "safe_bc.envs.*")),
     ("work", ("safe_bc.*",)),
     ("distributed", ("safe_bc.distributed", "safe_bc.distributed.*")),
-    ("entry", ("safe_bc", "safe_bc.api", "safe_bc.cli", "safe_bc.jobs", "safe_bc.reproduce")),
+    ("entry", ("safe_bc", "safe_bc.api", "safe_bc.cli", "safe_bc.jobs", "safe_bc.reproduce",
+               "safe_bc.peers.run", "safe_bc.peers.__main__")),
 )  # fmt: skip
 """Layer name -> module patterns (``fnmatch``), bottom to top. A module is in the layer of its
 longest matching pattern (a name beats ``safe_bc.distributed.*``, which beats ``safe_bc.*``),
