@@ -105,7 +105,7 @@ class Row:
                 out[k] = dataclasses.asdict(own[k]) if dataclasses.is_dataclass(own[k]) else own[k]
         handover = vars(self).get("handover")
         if handover is not None and (
-            handover.widths or handover.fallback != "expert" or handover.stall
+            handover.widths or handover.fallback != "expert" or handover.stall or handover.pace
         ):
             out["handover"] = handover.to_dict()  # settings the flat fields cannot spell
         return out

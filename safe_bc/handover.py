@@ -8,7 +8,9 @@ some dimension, and for ``hold`` more steps after a zone step of the ``hold_on``
 With ``fallback="cap"`` the expert's action does not replace the agent's but bounds it: each
 action component goes no further than the expert's in the direction that raises the costs; with
 ``fallback="safest"`` the zone's action is the task's safest one (each component at its bound in
-the safer direction), whatever the agent or the expert would do.
+the safer direction), whatever the agent or the expert would do. Two restarts act wherever the
+cost is: ``stall`` (the costs stood still, a car at rest) and ``pace`` (the car's speed stayed
+below a threshold, a car crawling), each for its own number of expert steps.
 :class:`safe_bc.queries.defer.DeferringPolicy` carries it out.
 """
 
@@ -50,16 +52,30 @@ class HandoverConfig:
     and the expert takes over for :attr:`stall_hold` steps, wherever the cost is; 0: off."""
     stall_hold: int = 0
     """Steps the expert acts after a stall (with :attr:`stall`)."""
+    pace: float = 0.0
+    """A speed (the car's, in the simulator's units: privileged, as the scripted expert is)
+    below which the agent counts as falling behind: after :attr:`pace_steps` steps in a row
+    below it (outside warm-up) the expert takes over for :attr:`pace_hold` steps, wherever the
+    cost is (a car crawling after a corner, braking lightly without gas, long before it stands
+    still); 0: off. Read by :func:`safe_bc.queries.defer.pace_decision`."""
+    pace_steps: int = 0
+    """Steps in a row below :attr:`pace` that start the expert (with :attr:`pace`)."""
+    pace_hold: int = 0
+    """Steps the expert acts after the car fell below :attr:`pace` (with :attr:`pace`)."""
 
     def __post_init__(self) -> None:
         if not (isinstance(self.width, int | float) and math.isfinite(self.width)):
             raise ValueError(f"handover width must be a finite number, got {self.width!r}")
         if self.width < 0:
             raise ValueError(f"handover width must be >= 0, got {self.width}")
-        for name in ("lookahead", "hold", "stall", "stall_hold"):
+        for name in ("lookahead", "hold", "stall", "stall_hold", "pace_steps", "pace_hold"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 0:
                 raise ValueError(f"handover {name} must be an integer >= 0 steps, got {value!r}")
+        if not (isinstance(self.pace, int | float) and math.isfinite(self.pace) and self.pace >= 0):
+            raise ValueError(f"handover pace must be a finite speed >= 0, got {self.pace!r}")
+        if self.pace and not (self.pace_steps and self.pace_hold):
+            raise ValueError("a handover pace needs pace_steps and pace_hold > 0")
         object.__setattr__(self, "hold_on", tuple(str(d) for d in self.hold_on))
         pairs = tuple((str(d), float(w)) for d, w in dict(self.widths).items())
         for d, w in pairs:
@@ -112,13 +128,17 @@ class HandoverConfig:
             out += ", capping the agent's action"
         if self.stall:
             out += f"; {self.stall_hold} steps after {self.stall} still steps"
+        if self.pace:
+            out += (
+                f"; {self.pace_hold} steps after {self.pace_steps} steps below speed {self.pace:g}"
+            )
         return out
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-able fields; ``widths``, ``fallback`` and the stall restart only where set (a
-        handover without them keeps the identity it always had)."""
+        """JSON-able fields; ``widths``, ``fallback``, the stall restart and the pace rule only
+        where set (a handover without them keeps the identity it always had)."""
         out = {**asdict(self), "hold_on": list(self.hold_on)}
-        for key in ("widths", "fallback", "stall", "stall_hold"):
+        for key in ("widths", "fallback", "stall", "stall_hold", "pace", "pace_steps", "pace_hold"):
             out.pop(key)
         if self.widths:
             out["widths"] = dict(self.widths)
@@ -126,6 +146,8 @@ class HandoverConfig:
             out["fallback"] = self.fallback
         if self.stall:
             out.update(stall=self.stall, stall_hold=self.stall_hold)
+        if self.pace:
+            out.update(pace=self.pace, pace_steps=self.pace_steps, pace_hold=self.pace_hold)
         return out
 
     @classmethod
@@ -140,4 +162,7 @@ class HandoverConfig:
             fallback=data.get("fallback", "expert"),
             stall=int(data.get("stall", 0)),
             stall_hold=int(data.get("stall_hold", 0)),
+            pace=float(data.get("pace", 0.0)),
+            pace_steps=int(data.get("pace_steps", 0)),
+            pace_hold=int(data.get("pace_hold", 0)),
         )

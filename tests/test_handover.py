@@ -123,12 +123,13 @@ def test_the_safest_handover_prescribes_the_lightest_session_in_the_zone_only() 
 def test_policy_args_carry_the_widths_and_the_safer_direction() -> None:
     rehab = task_defaults("rehab")
     h = HandoverConfig(0.2, widths=(("heart_rate", 0.1),), fallback="cap")
-    zone, hold, lookahead, hold_on, safer, safest, stall = handover_source(
+    zone, hold, lookahead, hold_on, safer, safest, stall, pace = handover_source(
         None, h, rehab.expert, (0.8, 0.8, 2.0), rehab.safety_dims
     ).policy_args()
     flags = zone.per_dim(np.array([[0.71, 0.61, 1.79], [0.69, 0.59, 1.81]]))
     assert flags.tolist() == [[True, True, False], [False, False, True]]
     assert (hold, lookahead, hold_on, safer, safest, stall) == (0, 0, None, (-1, -1), False, (0, 0))
+    assert pace == (0.0, 0, 0)
 
 
 def test_a_handover_read_back_from_sorted_json_equals_the_one_written() -> None:
@@ -182,3 +183,65 @@ def test_the_expert_restarts_an_agent_whose_costs_stand_still() -> None:
     assert run((3, 2), False) == [0, 0, 0, 1, 1, 0, 0, 0]
     assert run((3, 2), True) == [0] * 8
     assert run((0, 0), False) == [0] * 8
+
+
+def test_a_pace_rule_enters_the_identity_only_where_set() -> None:
+    import json
+
+    plain = HandoverConfig(2.0, lookahead=6, hold=6, hold_on=("front",), stall=20, stall_hold=100)
+    assert "pace" not in plain.to_dict()  # the second design's rows keep their identity
+    paced = HandoverConfig(
+        2.0, lookahead=6, hold=6, hold_on=("front",), stall=20, stall_hold=100,
+        pace=30.0, pace_steps=10, pace_hold=50,
+    )  # fmt: skip
+    d = paced.to_dict()
+    assert (d["pace"], d["pace_steps"], d["pace_hold"]) == (30.0, 10, 50)
+    back = HandoverConfig.from_dict(json.loads(json.dumps(d, sort_keys=True)))
+    assert back == paced != plain and hash(back) == hash(paced)
+    assert "50 steps after 10 steps below speed 30" in paced.label(" px")
+    source = handover_source(None, paced, task_defaults("carracing").expert, (40, 50, 40),
+                             task_defaults("carracing").safety_dims)  # fmt: skip
+    assert source.policy_args()[-1] == (30.0, 10, 50)
+    for bad in ({"pace": -1.0, "pace_steps": 1, "pace_hold": 1}, {"pace": 30.0},
+                {"pace": float("nan"), "pace_steps": 1, "pace_hold": 1}):  # fmt: skip
+        with pytest.raises(ValueError, match="pace"):
+            HandoverConfig(2.0, **bad)
+
+
+def test_the_expert_drives_a_car_that_falls_below_pace() -> None:
+    """A car crawling outside the zone: after ``pace_steps`` steps below ``pace`` the expert
+    acts for ``pace_hold`` steps; never in warm-up; off without ``pace``; the speed is the
+    car's hull velocity."""
+    from types import SimpleNamespace
+
+    from safe_bc.queries.defer import DeferringPolicy
+    from safe_bc.selection import CriticalZone
+
+    class Const:
+        def __init__(self, a: float) -> None:
+            self.a = np.array([a], np.float32)
+
+        def reset(self, env=None, rng=None) -> None:
+            pass
+
+        def act(self, obs, env=None):
+            return self.a
+
+    hull = SimpleNamespace(linearVelocity=(0.0, 0.0))
+    env = SimpleNamespace(unwrapped=SimpleNamespace(car=SimpleNamespace(hull=hull)))
+
+    def run(pace: tuple[float, int, int], warmup: bool) -> list[float]:
+        policy = DeferringPolicy(
+            Const(0.0), Const(1.0), CriticalZone((10.0,), 1.0, "any"), pace=pace
+        )
+        policy.reset(None, None)
+        out = []
+        for t, v in enumerate((50, 40, 20, 18, 15, 30, 60, 60, 60)):
+            hull.linearVelocity = (0.6 * v, 0.8 * v)
+            policy.see({"cost": [2.0 + 0.1 * t], "warmup": warmup})
+            out.append(float(policy.act(np.zeros(1), env)[0]))
+        return out
+
+    assert run((25.0, 3, 2), False) == [0, 0, 0, 0, 1, 1, 0, 0, 0]
+    assert run((25.0, 3, 2), True) == [0] * 9
+    assert run((0.0, 0, 0), False) == [0] * 9

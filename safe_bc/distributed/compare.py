@@ -208,6 +208,8 @@ def cell_stamp(comparison: Comparison, method: Row, seed: int, thresholds: Any) 
                 run["fallback"] = h.fallback
             if h.stall:
                 run.update(stall=h.stall, stall_hold=h.stall_hold)
+            if h.pace:
+                run.update(pace=h.pace, pace_steps=h.pace_steps, pace_hold=h.pace_hold)
     elif isinstance(method, View):
         of = cell_stamp(comparison, comparison.method(method.of), seed, thresholds)["run"]
         if method.masked:

@@ -146,11 +146,12 @@ def _recommender_sources(path: Path, task: str, demos: Path, out: Sources) -> No
     from safe_bc.recommender import load_recommender
 
     rec = load_recommender(path, task=task, demos=demos)
+    name = "safe_bc recommender (as loaded)"
     for s in rec.card.seeds:
-        out.sources[policy_key("safe_bc recommender", s)] = rec.source(s)
-    out.rows["safe_bc recommender"] = {
-        "source": f"safe_bc ({path})",
-        "budget": f"study {rec.card.source.get('study', '?')}, retrained per seed",
+        out.sources[policy_key(name, s)] = rec.source(s)
+    out.rows[name] = {
+        "source": f"safe_bc ({path}: load_recommender, its agents and handover)",
+        "budget": f"study {rec.card.source.get('study', '?')}",
     }
 
 

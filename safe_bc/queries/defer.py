@@ -29,6 +29,10 @@ class HandoverState:
     """Steps in a row with that cost."""
     restart: int = 0
     """Steps the expert still acts after a stall."""
+    slow: int = 0
+    """Steps in a row below the pace (with a pace rule)."""
+    rush: int = 0
+    """Steps the expert still acts after the car fell below the pace."""
 
 
 def stall_decision(
@@ -51,6 +55,39 @@ def stall_decision(
         state.restart -= 1
         return True
     return False
+
+
+def pace_decision(
+    state: HandoverState, speed: float, warmup: bool, pace: float, steps: int, hold: int
+) -> bool:
+    """Whether the expert acts for an agent falling behind (updating ``state``): after
+    ``steps`` steps in a row with ``speed`` below ``pace`` outside warm-up, for ``hold`` steps
+    (the count starts again after them).
+
+    >>> s = HandoverState()
+    >>> [pace_decision(s, v, False, 30.0, 2, 2) for v in (40, 20, 20, 50, 50, 50, 20)]
+    [False, False, True, True, False, False, False]
+    >>> s = HandoverState()
+    >>> [pace_decision(s, v, w, 30.0, 2, 2) for v, w in ((5, True), (5, True), (5, False))]
+    [False, False, False]
+    """
+    state.slow = state.slow + 1 if (not warmup and speed < pace) else 0
+    if state.slow >= steps:
+        state.rush, state.slow = hold, 0
+    if state.rush > 0:
+        state.rush -= 1
+        return True
+    return False
+
+
+def car_speed(env: gym.Env) -> float:
+    """The car's speed (the hull's linear velocity's norm, privileged simulator state, as the
+    scripted expert reads it) in CarRacing ``env``."""
+    car = getattr(env.unwrapped, "car", None)
+    if car is None:
+        raise ValueError("a handover pace needs a car: the env has none (CarRacing only)")
+    v = car.hull.linearVelocity
+    return float(np.hypot(v[0], v[1]))
 
 
 def handover_decision(
@@ -116,6 +153,7 @@ class DeferringPolicy:
         safer: tuple[int, ...] | None = None,
         safest: bool = False,
         stall: tuple[int, int] = (0, 0),
+        pace: tuple[float, int, int] = (0.0, 0, 0),
     ) -> None:
         if hold < 0 or lookahead < 0:
             raise ValueError(f"hold and lookahead must be >= 0 steps, got {hold}, {lookahead}")
@@ -130,6 +168,7 @@ class DeferringPolicy:
             raise ValueError("the safest action needs the task's safer direction (safer=)")
         self.safest = bool(safest)
         self.stall = (int(stall[0]), int(stall[1]))
+        self.pace = (float(pace[0]), int(pace[1]), int(pace[2]))
         self.state = HandoverState()
         self._info: dict[str, Any] = {}
 
@@ -148,7 +187,7 @@ class DeferringPolicy:
 
     def act(self, obs: np.ndarray, env: gym.Env) -> np.ndarray:
         own = self.agent.act(obs, env)
-        defer = self._decide(self.state, self._info)
+        defer = self._decide(self.state, self._info, env)
         return self._fallback(own, obs, env, self.expert) if defer else own
 
     def _fallback(self, own: Any, obs: np.ndarray, env: gym.Env, expert: Policy) -> np.ndarray:
@@ -163,9 +202,16 @@ class DeferringPolicy:
             return action
         return cap_action(np.asarray(own, np.float32), action, self.safer)
 
-    def _decide(self, state: HandoverState, info: dict[str, Any]) -> bool:
+    def _decide(self, state: HandoverState, info: dict[str, Any], env: gym.Env | None) -> bool:
         defer = handover_decision(state, info, self.zone, self.hold, self.lookahead, self.hold_on)
         if self.stall[0] and stall_decision(state, info["cost"], bool(info["warmup"]), *self.stall):
+            defer = state.flags[-1] = True
+        if self.pace[0] and pace_decision(
+            state,
+            car_speed(env),
+            bool(info["warmup"]),
+            *self.pace,  # type: ignore[arg-type]
+        ):
             defer = state.flags[-1] = True
         return defer
 
@@ -193,8 +239,11 @@ class LockstepDeferringPolicy(DeferringPolicy):
         safer: tuple[int, ...] | None = None,
         safest: bool = False,
         stall: tuple[int, int] = (0, 0),
+        pace: tuple[float, int, int] = (0.0, 0, 0),
     ) -> None:
-        super().__init__(agent, make_expert(), zone, hold, lookahead, hold_on, safer, safest, stall)
+        super().__init__(
+            agent, make_expert(), zone, hold, lookahead, hold_on, safer, safest, stall, pace
+        )
         self.make_expert = make_expert
         self._envs: list[gym.Env] = []
         self._experts: list[Policy] = []
@@ -221,7 +270,7 @@ class LockstepDeferringPolicy(DeferringPolicy):
     def act_slots(self, obs: np.ndarray, slots: np.ndarray, forward: Any = "rows") -> np.ndarray:
         actions = np.array(self.agent.act_slots(obs, slots, forward), np.float32)
         for i, s in enumerate(int(x) for x in slots):
-            if self._decide(self._states[s], self._infos[s]):
+            if self._decide(self._states[s], self._infos[s], self._envs[s] if self._envs else None):
                 actions[i] = self._fallback(actions[i], obs[i], self._envs[s], self._experts[s])
         return actions
 
@@ -294,6 +343,9 @@ class DeferralSource:
     """The zone's action is the safest one (:func:`safest_action`; needs ``safer``)."""
     stall: tuple[int, int] = (0, 0)
     """``(still steps, expert steps)`` of the stall restart (:func:`stall_decision`; 0: off)."""
+    pace: tuple[float, int, int] = (0.0, 0, 0)
+    """``(speed, steps below it, expert steps)`` of the pace rule (:func:`pace_decision`; 0:
+    off)."""
 
     def build(self) -> DeferringPolicy:
         """The deferring policy; a :class:`LockstepDeferringPolicy` when the agent acts for
@@ -306,14 +358,20 @@ class DeferralSource:
 
     def policy_args(
         self,
-    ) -> tuple[CriticalZone, int, int, tuple[int, ...] | None, Any, bool, tuple[int, int]]:
-        """The zone, hold, lookahead, hold dimensions, safer direction, safest switch and stall
-        restart a :class:`DeferringPolicy` takes after its agent and expert."""
+    ) -> tuple[
+        CriticalZone, int, int, tuple[int, ...] | None, Any, bool, tuple[int, int],
+        tuple[float, int, int],
+    ]:  # fmt: skip
+        """The zone, hold, lookahead, hold dimensions, safer direction, safest switch, stall
+        restart and pace rule a :class:`DeferringPolicy` takes after its agent and expert."""
         zone = CriticalZone(self.limits, self.width, self.combine)  # type: ignore[arg-type]
         if self.widths is not None:  # c >= d - w per dimension: the zone at d - w, width 0
             shifted = tuple(d - w for d, w in zip(self.limits, self.widths, strict=True))
             zone = CriticalZone(shifted, 0.0, self.combine)  # type: ignore[arg-type]
-        return zone, self.hold, self.lookahead, self.hold_on, self.safer, self.safest, self.stall
+        return (
+            zone, self.hold, self.lookahead, self.hold_on, self.safer, self.safest, self.stall,
+            self.pace,
+        )  # fmt: skip
 
 
 def handover_source(
@@ -339,4 +397,5 @@ def handover_source(
         int(handover.hold), int(handover.lookahead), dimension_indices(handover.hold_on, dims),
         widths, safer, handover.fallback == "safest",
         (int(handover.stall), int(handover.stall_hold)),
+        (float(handover.pace), int(handover.pace_steps), int(handover.pace_hold)),
     )  # fmt: skip

@@ -47,6 +47,12 @@ Beyond the expert, planned before it runs (docs/improvement.md):
   ``beyond_stall_replication`` (90): the car's second design, written after the first's pick
   missed on block 26, where every agent stopped on one track: D's agents with the corner
   handover and the expert restarting a car that stood still 20 steps (for 50 or 100 steps).
+* ``beyond_pace_selection`` (3 x 50 tracks of block 94), ``beyond_pace`` (95),
+  ``beyond_pace_replication`` (96): the car's third design, written after the second's pick
+  was level with the expert on blocks 89 and 90, where on one long track a block the agent
+  crawled after a corner (light brake, no gas) and lost 130-190 points to the time limit:
+  the second design's pick with the expert driving 50 steps where the car's speed stayed
+  below 30 (or 20) for 10 steps (``HandoverConfig.pace``, privileged like the expert).
 * ``beyond_selection_rehab`` (3 x 200 patients of block 63), ``beyond_rehab`` (block 64),
   ``beyond_replication_rehab`` (block 65): the same design in the clinic (A the clinic's
   defaults; B kept only above the guideline's run; C B under the clinic's handover; D C with
@@ -359,6 +365,52 @@ handover plus the expert restarting a car whose costs stood still for 20 steps, 
 steps; the same rule as the first design."""
 
 
+def pace_rule(speed: float) -> HandoverConfig:
+    """The second design's pick (corner handover, the stall restart (20, 100)) with the expert
+    driving 50 steps where the car's speed stayed below ``speed`` for 10 steps."""
+    return replace(stall_restart(100), pace=speed, pace_steps=10, pace_hold=50)
+
+
+BEYOND_PACE = {
+    "beyond_pace_selection": replace(
+        beyond_selection(
+            CAR, car_rows({}),
+            {"si_explore_best2": ("D: C keeping the best 2 pushed runs per track",
+                                  replace(BEYOND_C, keep_best=2))},
+            {"corner_stall100_pace30": ("corner handover, stall restart, the expert below "
+                                        "speed 30", pace_rule(30.0)),
+             "corner_stall100_pace20": ("corner handover, stall restart, the expert below "
+                                        "speed 20", pace_rule(20.0))},
+            94,
+            "Beyond the expert, third design: D with the expert driving where the car falls "
+            "below pace, selection tracks (CarRacing)",
+            "Selection tracks (block 94): the rule picks one handover row for the fresh blocks "
+            f"(95, 96). {PAIRED_EXPERT.format('expert', 'tracks')} steps deferred: the mean "
+            "share of an episode's steps on which the expert acted.",
+        ),
+        name="beyond_pace_selection",
+        figures=(),
+    ),
+    **beyond_fresh(
+        "beyond_pace_selection", CAR_RULE, (95, 96), "tracks",
+        ("Beyond the expert, third design: fresh tracks (CarRacing)",
+         "Beyond the expert, third design: a second fresh block (CarRacing)"),
+        BEYOND_STALL_NOTE.replace("block 88", "block 94"), stem="beyond_pace", suffix="",
+    ),
+}  # fmt: skip
+"""The car's third beyond design, written after the second's pick (D + corner handover + stall
+restart (20, 100)) was level with the expert on blocks 89 and 90 (+0.4 [-3.8, 2.5], +0.5
+[-5.4, 3.3], 2/3 seeds above each): one long track a block where seed 0 covered 82% of the
+tiles in the 1000 steps. Replayed (D seed 0, track 1082741827 of block 90 and 1082641835 of
+block 89) the agent keeps the expert's pace for 600-800 steps, then after a corner brakes
+lightly (0.1) without gas for 100-150 steps, its speed falling from about 35 to 0 while the
+corner handover fires only briefly; the stall restart acts only once the car stands still.
+The expert never drives below speed 41 after warm-up on those tracks, D elsewhere not below
+33. The same agents (D's runs) with the second design's pick plus a pace rule
+(``HandoverConfig.pace``): where the car's speed (privileged, as the expert's own reading)
+stayed below 30 or 20 for 10 steps outside warm-up, the expert drives 50 steps; the same
+rule as the first two designs."""
+
 CLINIC_RULE = Rule(
     "best_lower_bound", {"burden": 0.10, "beyond": "total_any_violating_session"},
     note="no selection programme beyond d_s, under 10% of sessions deferred, the highest "
@@ -586,4 +638,5 @@ COMPARISONS = {
     **BEYOND_CLINIC_MID,
     **BEYOND_CLINIC_EARLY,
     **BEYOND_STALL,
+    **BEYOND_PACE,
 }
