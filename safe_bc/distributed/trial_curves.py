@@ -155,12 +155,15 @@ def hparams_entry(
     params: Sequence[str],
     objective: str,
     winner: str | None,
+    final: Mapping[str, Any] | None = None,
 ) -> tuple[dict[str, Any], dict[str, float]]:
     """The HParams entry of one trial (its row of the trial table): ``(settings, metrics)``.
     Settings: the sampled parameters (tuples as text), ``trial`` (its number), ``status``,
     ``feasible`` and ``winner``; metrics ``hparams/<objective>``, ``hparams/constraint`` and
     each constraint (``<= 0``: met), ``hparams/feasible`` and ``hparams/winner`` (1 or 0),
-    those without a finite value left out.
+    those without a finite value left out; with ``final`` (the trial's row of the final
+    phase's table, a candidate) also ``hparams/final_reward`` and ``hparams/final_constraint``
+    on the fresh tracks.
 
     >>> hp, m = hparams_entry({"trial_id": "a1", "trial_number": 2, "status": "done",
     ...     "selection.alpha": 0.5, "feasible": True, "reward_lcb": 880.0, "constraint": -0.1},
@@ -197,6 +200,10 @@ def hparams_entry(
             metrics[f"hparams/{key}"] = v
     metrics["hparams/feasible"] = float(feasible)
     metrics["hparams/winner"] = float(is_winner)
+    for key in ("reward", "constraint") if final is not None else ():
+        v = _number(final.get(key))
+        if v is not None:
+            metrics[f"hparams/final_{key}"] = v
     return settings, metrics
 
 
@@ -279,10 +286,12 @@ def write_board(
     stages: Sequence[str] = (),
     exp_path: str | None = None,
     winner: str | None = None,
+    final: pd.DataFrame | None = None,
 ) -> Path:
     """Every trial's run in ``out/tensorboard/`` with its HParams entry (``winner``: the trial
     id the study chose, ``None`` while it has none); ``exp_path``: the Tune experiment's local
-    folder holding the trials' folders (``None``: a remote storage, no ``bc/*`` curves).
+    folder holding the trials' folders (``None``: a remote storage, no ``bc/*`` curves);
+    ``final``: the final phase's table (its candidates' values on the fresh tracks).
     Returns the board's folder."""
     board = Path(out) / BOARD
     names = run_names(trials, params)
@@ -291,11 +300,16 @@ def write_board(
         if len(history) and "trial_id" in history
         else {}
     )
+    finals = (
+        {str(r["method"]): r for r in final.to_dict(orient="records")}
+        if final is not None and "method" in final
+        else {}
+    )
     for row in trials.to_dict(orient="records"):
         tid = str(row["trial_id"])
         folder = None if exp_path is None else Path(exp_path) / f"trial_{tid}"
         reports = by_trial.get(tid, pd.DataFrame())
-        entry = hparams_entry(row, params, objective, winner)
+        entry = hparams_entry(row, params, objective, winner, finals.get(tid))
         write_trial_run(board, names[tid], folder, reports, stages, entry)
     return board
 

@@ -107,8 +107,13 @@ def test_board_runs_read_back(tmp_path: Path) -> None:
                   "feasible": True, "winner": False}  # fmt: skip
 
     # the winner known: the entries are rewritten (one event file per run, no step twice)
-    write_board(out, trials, history, winner="a", **kw)
+    final = pd.DataFrame({"method": ["a", "plain_bc"], "reward": [870.0, 860.0],
+                          "constraint": [-0.02, -0.01]})  # fmt: skip
+    write_board(out, trials, history, winner="a", final=final, **kw)
     assert read_hparams(board / names["a"])["winner"] is True
+    hp_values = read_events(board / names["a"]).set_index("tag")["value"]
+    assert hp_values["hparams/final_reward"] == 870.0
+    assert "hparams/final_reward" not in set(read_events(board / names["b"])["tag"])
     assert read_hparams(board / names["b"])["winner"] is False
     again = read_events(board / names["a"])
     assert not again.duplicated(["tag", "step"]).any()
