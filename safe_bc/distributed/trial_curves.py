@@ -35,6 +35,7 @@ import pandas as pd
 from ray import tune
 
 from safe_bc.curves import table_scalars, write_scalars
+from safe_bc.rounds import ROUND_CURVE
 
 BOARD = "tensorboard"
 """The folder in ``results/<study>/`` that ``tensorboard --logdir`` is pointed at."""
@@ -230,8 +231,9 @@ def _read(path: Path) -> pd.DataFrame | None:
 
 def folder_scalars(folder: Path | None, stages: Sequence[str] = ()) -> pd.DataFrame:
     """The curves a trial wrote into its folder: ``bc/*`` (``bc_seed_<s>/*``) at each logged
-    batch and ``<stage>/*`` at each iteration of each stage of ``stages`` (its
-    ``curve.parquet``, else ``history.parquet``); empty without a folder."""
+    batch, ``<stage>/*`` at each iteration of each stage of ``stages`` (its
+    ``curve.parquet``, else ``history.parquet``) and ``<stage>/round_<r>/bc/*`` at each logged
+    batch of a round's retraining; empty without a folder."""
     parts = []
     if folder is not None and folder.is_dir():
         from safe_bc.bc.checkpoint import CURVE
@@ -247,6 +249,11 @@ def folder_scalars(folder: Path | None, stages: Sequence[str] = ()) -> pd.DataFr
                 if table is not None and "iteration" in table:
                     parts.append(table_scalars(table, "iteration", name))
                     break
+            for path in sorted((folder / name).glob(f"round_*/{ROUND_CURVE}")):
+                table = _read(path)  # a round's retraining (self-imitation, queries)
+                if table is not None and "batch" in table:
+                    round_name = path.relative_to(folder / name).parts[0]
+                    parts.append(table_scalars(table, "batch", f"{name}/{round_name}/bc"))
     parts = [p for p in parts if len(p)]
     if not parts:
         return pd.DataFrame(columns=["tag", "step", "value"])

@@ -72,6 +72,8 @@ def _study(tmp_path: Path) -> tuple[pd.DataFrame, pd.DataFrame, Path]:
     write_curve(exp / "trial_a" / "bc_seed_1" / "curve.parquet", _curve(val=False), "batch", "bc")
     stage = pd.DataFrame({"iteration": [0, 1, 2], "val_reward": [700.0, 720.0, 710.0]})
     write_curve(exp / "trial_a" / "selfimprove" / "curve.parquet", stage, "iteration", "x")
+    retrained = exp / "trial_a" / "selfimprove" / "round_1" / "bc" / "curve.parquet"
+    write_curve(retrained, _curve(3), "batch", "bc")  # a round's retraining
     return trials, history, exp
 
 
@@ -92,6 +94,7 @@ def test_board_runs_read_back(tmp_path: Path) -> None:
     assert steps["bc_seed_1/train_loss"] == [10, 20, 30, 40, 50]
     assert "bc_seed_1/val_loss" not in steps  # NaN: no validation set for that seed
     assert steps["selfimprove/val_reward"] == [0, 1, 2]
+    assert steps["selfimprove/round_1/bc/train_loss"] == [10, 20, 30]
     assert steps["eval/reward_mean"] == [1, 2] and steps["eval/deferred_share"] == [1, 2]
     value = a.set_index(["tag", "step"])["value"]
     assert value[("eval/any_violation", 2)] == pytest.approx(0.1)
