@@ -267,9 +267,12 @@ def write_trial_run(
     reports: pd.DataFrame,
     stages: Sequence[str] = (),
     hparams: tuple[dict[str, Any], dict[str, float]] | None = None,
+    metric_names: Sequence[str] = (),
 ) -> Path:
     """Write one trial's run ``board/name``: its folder's curves, its evaluation rounds and,
-    with ``hparams``, its HParams entry. Returns the run's folder."""
+    with ``hparams``, its HParams entry (whose column list names ``metric_names``, else the
+    entry's own metrics: TensorBoard takes the columns of one run for all). Returns the run's
+    folder."""
     parts = [folder_scalars(folder, stages), eval_scalars(reports)]
     if hparams is not None:
         parts.append(hparams_scalars(hparams[1]))
@@ -279,7 +282,10 @@ def write_trial_run(
         if parts
         else pd.DataFrame(columns=["tag", "step", "value"])
     )
-    write_scalars(board / name, scalars, hparams)
+    summary = None
+    if hparams is not None:
+        summary = (hparams[0], {k: 0.0 for k in (metric_names or hparams[1])})
+    write_scalars(board / name, scalars, summary)
     return board / name
 
 
@@ -312,12 +318,18 @@ def write_board(
         if final is not None and "method" in final
         else {}
     )
-    for row in trials.to_dict(orient="records"):
-        tid = str(row["trial_id"])
+    rows = trials.to_dict(orient="records")
+    entries = {
+        str(row["trial_id"]): hparams_entry(
+            row, params, objective, winner, finals.get(str(row["trial_id"]))
+        )
+        for row in rows
+    }
+    columns = list(dict.fromkeys(k for _, metrics in entries.values() for k in metrics))
+    for tid, entry in entries.items():
         folder = None if exp_path is None else Path(exp_path) / f"trial_{tid}"
         reports = by_trial.get(tid, pd.DataFrame())
-        entry = hparams_entry(row, params, objective, winner, finals.get(tid))
-        write_trial_run(board, names[tid], folder, reports, stages, entry)
+        write_trial_run(board, names[tid], folder, reports, stages, entry, columns)
     return board
 
 

@@ -117,10 +117,30 @@ def test_board_runs_read_back(tmp_path: Path) -> None:
     hp_values = read_events(board / names["a"]).set_index("tag")["value"]
     assert hp_values["hparams/final_reward"] == 870.0
     assert "hparams/final_reward" not in set(read_events(board / names["b"])["tag"])
+    # every run's entry names the same columns (TensorBoard takes one run's list for all)
+    assert _hparams_columns(board / names["b"]) == _hparams_columns(board / names["a"])
+    assert "hparams/final_reward" in _hparams_columns(board / names["b"])
     assert read_hparams(board / names["b"])["winner"] is False
     again = read_events(board / names["a"])
     assert not again.duplicated(["tag", "step"]).any()
     assert len(list((board / names["a"]).glob("events.out.tfevents.*"))) == 1
+
+
+def _hparams_columns(run: Path) -> list[str]:
+    """The metric columns of the HParams experiment summary in ``run``'s event file."""
+    from tensorboardX.proto.event_pb2 import Event
+    from tensorboardX.proto.plugin_hparams_pb2 import HParamsPluginData
+
+    from safe_bc.curves import _records
+
+    (path,) = run.glob("events.out.tfevents.*")
+    for record in _records(path):
+        for value in Event.FromString(record).summary.value:
+            if value.metadata.plugin_data.plugin_name == "hparams":
+                data = HParamsPluginData.FromString(value.metadata.plugin_data.content)
+                if data.HasField("experiment"):
+                    return [m.name.tag for m in data.experiment.metric_infos]
+    return []
 
 
 def test_final_phase_curve_run(tmp_path: Path) -> None:
