@@ -31,7 +31,13 @@ class TrainJob:
     selection: Selection
     run_config: RunConfig
     action_bounds: tuple[Any, Any] | None = None
+    curve: Path | None = None
+    """Where :func:`train_local` writes the retraining's learning curve (``curve.parquet``
+    and its TensorBoard events ``bc/*`` beside it); ``None``: nowhere. It changes no weight."""
 
+
+ROUND_CURVE = Path("bc") / "curve.parquet"
+"""A round's retraining curve, in the round's folder (a study's TensorBoard run shows it)."""
 
 TrainFn = Callable[[TrainJob], NetSource]
 
@@ -73,6 +79,10 @@ def train_local(job: TrainJob) -> NetSource:
         cfg.bc.train,
         action_bounds=job.action_bounds,
     )
+    if job.curve is not None:
+        from safe_bc.curves import write_curve
+
+        write_curve(job.curve, result.curve(), "batch", "bc")
     return NetSource.from_model(result.model, result.config)
 
 

@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 
 from safe_bc.curves import read_events
 from safe_bc.data.store import read_table
+from safe_bc.rounds import ROUND_CURVE
 from safe_bc.selfimprove.config import CURVE, DONE, KEPT, POLICY, SelfImproveConfig, round_dir
 from safe_bc.selfimprove.logic import kept_steps, push_action, window_sums
 
@@ -194,6 +195,9 @@ def test_two_runs_keep_the_same_data_and_train_the_same_weights(
             _weights(tmp_path / "b" / round_dir(r) / POLICY),
         )
         assert _same(wa, wb)
+        # each round's retraining wrote its learning curve (a study's TensorBoard run shows it)
+        curve, _ = read_table(tmp_path / "a" / round_dir(r) / ROUND_CURVE)
+        assert curve["batch"].is_monotonic_increasing and np.isfinite(curve["train_loss"]).all()
     assert a.kept_steps > 0  # the runs compared kept something
 
 

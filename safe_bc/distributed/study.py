@@ -1137,9 +1137,8 @@ def _final_and_certificate(
     _write_final(plan, final, candidates, meta)
     check_optuna_copy(plan, plan.exp_path)  # a missing copy is written again from the searcher
     mark_final_winner(plan.optuna_url, spec.name, final.winner, final.feasible)
-    write_study_board(
-        plan, report.trials, report.history, winner=final.winner if final.feasible else None
-    )
+    winner = final.winner if final.feasible else None
+    write_study_board(plan, report.trials, report.history, winner, final.table)
     plot_pareto(
         report.trials,
         start.threshold,
@@ -1183,7 +1182,11 @@ def _report_trials(plan: StudyPlan, start: StudyStart, grid: Any) -> TrialReport
 
 
 def write_study_board(
-    plan: StudyPlan, trials: pd.DataFrame, history: pd.DataFrame, winner: str | None
+    plan: StudyPlan,
+    trials: pd.DataFrame,
+    history: pd.DataFrame,
+    winner: str | None,
+    final: pd.DataFrame | None = None,
 ) -> None:
     """Every trial's TensorBoard run with its HParams entry in ``results/<study>/tensorboard/``
     (:mod:`safe_bc.distributed.trial_curves`); a write that fails is named in one line, the
@@ -1193,7 +1196,7 @@ def write_study_board(
         write_board(
             plan.out, trials, history, params=spec.params, objective=spec.objective,
             stages=[name for name, _ in spec.stages()],
-            exp_path=plan.exp_path if plan.local else None, winner=winner,
+            exp_path=plan.exp_path if plan.local else None, winner=winner, final=final,
         )  # fmt: skip
     except OSError as e:
         print(f"warning: the study's TensorBoard runs in {plan.out / BOARD} not written ({e})")

@@ -35,6 +35,7 @@ import pandas as pd
 from ray import tune
 
 from safe_bc.curves import table_scalars, write_scalars
+from safe_bc.rounds import ROUND_CURVE
 
 BOARD = "tensorboard"
 """The folder in ``results/<study>/`` that ``tensorboard --logdir`` is pointed at."""
@@ -155,12 +156,15 @@ def hparams_entry(
     params: Sequence[str],
     objective: str,
     winner: str | None,
+    final: Mapping[str, Any] | None = None,
 ) -> tuple[dict[str, Any], dict[str, float]]:
     """The HParams entry of one trial (its row of the trial table): ``(settings, metrics)``.
     Settings: the sampled parameters (tuples as text), ``trial`` (its number), ``status``,
     ``feasible`` and ``winner``; metrics ``hparams/<objective>``, ``hparams/constraint`` and
     each constraint (``<= 0``: met), ``hparams/feasible`` and ``hparams/winner`` (1 or 0),
-    those without a finite value left out.
+    those without a finite value left out; with ``final`` (the trial's row of the final
+    phase's table, a candidate) also ``hparams/final_reward`` and ``hparams/final_constraint``
+    on the fresh tracks.
 
     >>> hp, m = hparams_entry({"trial_id": "a1", "trial_number": 2, "status": "done",
     ...     "selection.alpha": 0.5, "feasible": True, "reward_lcb": 880.0, "constraint": -0.1},
@@ -197,6 +201,10 @@ def hparams_entry(
             metrics[f"hparams/{key}"] = v
     metrics["hparams/feasible"] = float(feasible)
     metrics["hparams/winner"] = float(is_winner)
+    for key in ("reward", "constraint") if final is not None else ():
+        v = _number(final.get(key))
+        if v is not None:
+            metrics[f"hparams/final_{key}"] = v
     return settings, metrics
 
 
@@ -223,8 +231,9 @@ def _read(path: Path) -> pd.DataFrame | None:
 
 def folder_scalars(folder: Path | None, stages: Sequence[str] = ()) -> pd.DataFrame:
     """The curves a trial wrote into its folder: ``bc/*`` (``bc_seed_<s>/*``) at each logged
-    batch and ``<stage>/*`` at each iteration of each stage of ``stages`` (its
-    ``curve.parquet``, else ``history.parquet``); empty without a folder."""
+    batch, ``<stage>/*`` at each iteration of each stage of ``stages`` (its
+    ``curve.parquet``, else ``history.parquet``) and ``<stage>/round_<r>/bc/*`` at each logged
+    batch of a round's retraining; empty without a folder."""
     parts = []
     if folder is not None and folder.is_dir():
         from safe_bc.bc.checkpoint import CURVE
@@ -240,6 +249,11 @@ def folder_scalars(folder: Path | None, stages: Sequence[str] = ()) -> pd.DataFr
                 if table is not None and "iteration" in table:
                     parts.append(table_scalars(table, "iteration", name))
                     break
+            for path in sorted((folder / name).glob(f"round_*/{ROUND_CURVE}")):
+                table = _read(path)  # a round's retraining (self-imitation, queries)
+                if table is not None and "batch" in table:
+                    round_name = path.relative_to(folder / name).parts[0]
+                    parts.append(table_scalars(table, "batch", f"{name}/{round_name}/bc"))
     parts = [p for p in parts if len(p)]
     if not parts:
         return pd.DataFrame(columns=["tag", "step", "value"])
@@ -253,9 +267,12 @@ def write_trial_run(
     reports: pd.DataFrame,
     stages: Sequence[str] = (),
     hparams: tuple[dict[str, Any], dict[str, float]] | None = None,
+    metric_names: Sequence[str] = (),
 ) -> Path:
     """Write one trial's run ``board/name``: its folder's curves, its evaluation rounds and,
-    with ``hparams``, its HParams entry. Returns the run's folder."""
+    with ``hparams``, its HParams entry (whose column list names ``metric_names``, else the
+    entry's own metrics: TensorBoard takes the columns of one run for all). Returns the run's
+    folder."""
     parts = [folder_scalars(folder, stages), eval_scalars(reports)]
     if hparams is not None:
         parts.append(hparams_scalars(hparams[1]))
@@ -265,7 +282,10 @@ def write_trial_run(
         if parts
         else pd.DataFrame(columns=["tag", "step", "value"])
     )
-    write_scalars(board / name, scalars, hparams)
+    summary = None
+    if hparams is not None:
+        summary = (hparams[0], {k: 0.0 for k in (metric_names or hparams[1])})
+    write_scalars(board / name, scalars, summary)
     return board / name
 
 
@@ -279,10 +299,12 @@ def write_board(
     stages: Sequence[str] = (),
     exp_path: str | None = None,
     winner: str | None = None,
+    final: pd.DataFrame | None = None,
 ) -> Path:
     """Every trial's run in ``out/tensorboard/`` with its HParams entry (``winner``: the trial
     id the study chose, ``None`` while it has none); ``exp_path``: the Tune experiment's local
-    folder holding the trials' folders (``None``: a remote storage, no ``bc/*`` curves).
+    folder holding the trials' folders (``None``: a remote storage, no ``bc/*`` curves);
+    ``final``: the final phase's table (its candidates' values on the fresh tracks).
     Returns the board's folder."""
     board = Path(out) / BOARD
     names = run_names(trials, params)
@@ -291,12 +313,23 @@ def write_board(
         if len(history) and "trial_id" in history
         else {}
     )
-    for row in trials.to_dict(orient="records"):
-        tid = str(row["trial_id"])
+    finals = (
+        {str(r["method"]): r for r in final.to_dict(orient="records")}
+        if final is not None and "method" in final
+        else {}
+    )
+    rows = trials.to_dict(orient="records")
+    entries = {
+        str(row["trial_id"]): hparams_entry(
+            row, params, objective, winner, finals.get(str(row["trial_id"]))
+        )
+        for row in rows
+    }
+    columns = list(dict.fromkeys(k for _, metrics in entries.values() for k in metrics))
+    for tid, entry in entries.items():
         folder = None if exp_path is None else Path(exp_path) / f"trial_{tid}"
         reports = by_trial.get(tid, pd.DataFrame())
-        entry = hparams_entry(row, params, objective, winner)
-        write_trial_run(board, names[tid], folder, reports, stages, entry)
+        write_trial_run(board, names[tid], folder, reports, stages, entry, columns)
     return board
 
 

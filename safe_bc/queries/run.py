@@ -38,6 +38,7 @@ from safe_bc.queries.data import load_round, save_round
 from safe_bc.queries.logic import aggregate_selection
 from safe_bc.queries.rollout import EpisodeQueries, QueryJob, apply_budget, query_tracks
 from safe_bc.rounds import (
+    ROUND_CURVE,
     TrainFn,
     TrainJob,
     aggregate_rows,
@@ -239,7 +240,7 @@ def _query_round(
     selection = aggregate_selection(
         data.costs, data.scored, queried, retrain.selection, plan.base.thresholds, config.mode
     )
-    source = train(TrainJob(data, selection, retrain, action_bounds))
+    source = train(TrainJob(data, selection, retrain, action_bounds, curve=here / ROUND_CURVE))
     save_round_net(
         here / POLICY,
         source,

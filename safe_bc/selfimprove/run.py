@@ -36,6 +36,7 @@ from safe_bc.evaluation import NetSource
 from safe_bc.improve.config import VALIDATION_SEED_BASE
 from safe_bc.queries.config import track_seeds
 from safe_bc.rounds import (
+    ROUND_CURVE,
     TrainFn,
     TrainJob,
     aggregate_rows,
@@ -526,7 +527,9 @@ def _retrain(
         data.costs, data.scored, kept, retrain.selection, plan.base.thresholds, config.kept_in
     )
     try:
-        source = train(TrainJob(data, selection, retrain, plan.action_bounds))
+        source = train(
+            TrainJob(data, selection, retrain, plan.action_bounds, curve=here / ROUND_CURVE)
+        )
     finally:
         if frames is not None:
             frames.close()

@@ -72,6 +72,8 @@ def _study(tmp_path: Path) -> tuple[pd.DataFrame, pd.DataFrame, Path]:
     write_curve(exp / "trial_a" / "bc_seed_1" / "curve.parquet", _curve(val=False), "batch", "bc")
     stage = pd.DataFrame({"iteration": [0, 1, 2], "val_reward": [700.0, 720.0, 710.0]})
     write_curve(exp / "trial_a" / "selfimprove" / "curve.parquet", stage, "iteration", "x")
+    retrained = exp / "trial_a" / "selfimprove" / "round_1" / "bc" / "curve.parquet"
+    write_curve(retrained, _curve(3), "batch", "bc")  # a round's retraining
     return trials, history, exp
 
 
@@ -92,6 +94,7 @@ def test_board_runs_read_back(tmp_path: Path) -> None:
     assert steps["bc_seed_1/train_loss"] == [10, 20, 30, 40, 50]
     assert "bc_seed_1/val_loss" not in steps  # NaN: no validation set for that seed
     assert steps["selfimprove/val_reward"] == [0, 1, 2]
+    assert steps["selfimprove/round_1/bc/train_loss"] == [10, 20, 30]
     assert steps["eval/reward_mean"] == [1, 2] and steps["eval/deferred_share"] == [1, 2]
     value = a.set_index(["tag", "step"])["value"]
     assert value[("eval/any_violation", 2)] == pytest.approx(0.1)
@@ -107,12 +110,37 @@ def test_board_runs_read_back(tmp_path: Path) -> None:
                   "feasible": True, "winner": False}  # fmt: skip
 
     # the winner known: the entries are rewritten (one event file per run, no step twice)
-    write_board(out, trials, history, winner="a", **kw)
+    final = pd.DataFrame({"method": ["a", "plain_bc"], "reward": [870.0, 860.0],
+                          "constraint": [-0.02, -0.01]})  # fmt: skip
+    write_board(out, trials, history, winner="a", final=final, **kw)
     assert read_hparams(board / names["a"])["winner"] is True
+    hp_values = read_events(board / names["a"]).set_index("tag")["value"]
+    assert hp_values["hparams/final_reward"] == 870.0
+    assert "hparams/final_reward" not in set(read_events(board / names["b"])["tag"])
+    # every run's entry names the same columns (TensorBoard takes one run's list for all)
+    assert _hparams_columns(board / names["b"]) == _hparams_columns(board / names["a"])
+    assert "hparams/final_reward" in _hparams_columns(board / names["b"])
     assert read_hparams(board / names["b"])["winner"] is False
     again = read_events(board / names["a"])
     assert not again.duplicated(["tag", "step"]).any()
     assert len(list((board / names["a"]).glob("events.out.tfevents.*"))) == 1
+
+
+def _hparams_columns(run: Path) -> list[str]:
+    """The metric columns of the HParams experiment summary in ``run``'s event file."""
+    from tensorboardX.proto.event_pb2 import Event
+    from tensorboardX.proto.plugin_hparams_pb2 import HParamsPluginData
+
+    from safe_bc.curves import _records
+
+    (path,) = run.glob("events.out.tfevents.*")
+    for record in _records(path):
+        for value in Event.FromString(record).summary.value:
+            if value.metadata.plugin_data.plugin_name == "hparams":
+                data = HParamsPluginData.FromString(value.metadata.plugin_data.content)
+                if data.HasField("experiment"):
+                    return [m.name.tag for m in data.experiment.metric_infos]
+    return []
 
 
 def test_final_phase_curve_run(tmp_path: Path) -> None:
