@@ -135,3 +135,24 @@ def test_make_peers_prepares_trains_in_its_own_env_then_evaluates() -> None:
         "prepare", "runs/peers", "evaluate",
     ]  # fmt: skip
     assert ".venv-peers/bin/python peers/osrl_train.py" in steps[1]
+
+
+def test_the_peers_block_is_new_to_every_table_and_study() -> None:
+    """The committed table's patients (block 95) are no comparison's and no study's."""
+    from pathlib import Path
+
+    from safe_bc.families import load_comparisons
+    from safe_bc.peers.run import BLOCK
+    from safe_bc.study import load_study
+
+    root = Path(__file__).resolve().parents[2]
+    with pytest.MonkeyPatch.context() as mp:
+        mp.chdir(root)
+        tables = {
+            c.eval_seed
+            for f in sorted((root / "tune_jobs/compare").glob("*.py"))
+            for c in load_comparisons(f, planned=True).values()
+        }
+    studies = [load_study(p) for p in sorted((root / "tune_jobs").glob("*.py"))]
+    used = tables | {b for s in studies for b in (s.eval_seed, s.final_seed, s.certify_seed)}
+    assert BLOCK not in used
