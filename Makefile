@@ -89,6 +89,7 @@ PEERS_STAMP := $(PEERS_VENV)/.installed
 PEERS_TASK ?= rehab
 PEERS_OUT ?= results/peers
 PEERS_RUNS ?= runs/peers
+PEERS_DEMOS ?= data/$(PEERS_TASK)_demos
 
 $(PEERS_STAMP):
 	test -x $(PEERS_VENV)/bin/python || $(PY) -m venv $(PEERS_VENV)
@@ -102,11 +103,14 @@ $(PEERS_STAMP):
 peers-env: $(PEERS_STAMP)
 
 # Train OSRL's BC-All, BC-Safe, COptiDICE and CPQ on the task's demonstrations and evaluate them
-# beside safe_bc's methods on fresh patients: results/peers/ (ARGS go to the evaluation).
+# beside safe_bc's methods on fresh patients: results/peers/ (ARGS go to the evaluation); the
+# demonstrations (PEERS_DEMOS) are collected with the task's defaults if absent.
 peers: $(STAMP) $(PEERS_STAMP)
-	$(BIN)/python -m safe_bc.peers prepare --task $(PEERS_TASK) --runs $(PEERS_RUNS)
+	mkdir -p $(dir $(PEERS_DEMOS))
+	test -d $(PEERS_DEMOS) || $(BIN)/safe-bc collect --env $(PEERS_TASK) --out $(PEERS_DEMOS)
+	$(BIN)/python -m safe_bc.peers prepare --task $(PEERS_TASK) --demos $(PEERS_DEMOS) --runs $(PEERS_RUNS)
 	OMP_NUM_THREADS=1 $(PEERS_VENV)/bin/python peers/osrl_train.py --runs $(PEERS_RUNS)
-	$(BIN)/python -m safe_bc.peers evaluate --task $(PEERS_TASK) --runs $(PEERS_RUNS) --out $(PEERS_OUT) $(ARGS)
+	$(BIN)/python -m safe_bc.peers evaluate --task $(PEERS_TASK) --demos $(PEERS_DEMOS) --runs $(PEERS_RUNS) --out $(PEERS_OUT) $(ARGS)
 
 # TRIALS=n is another study than the file's: its own results and Tune experiment under
 # runs/trials<n>/ (untracked), never over the committed results/<STUDY>/ (docs/cli.md)

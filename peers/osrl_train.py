@@ -14,7 +14,8 @@ and writes, per peer and seed, ``RUNS/actors/<peer>_seed<k>.pt``: the determinis
 TorchScript (observation -> action in [-1, 1]; safe_bc maps it back to the action bounds),
 with the plan's entry and the measured time in the file's ``safe_bc.json``; then
 ``RUNS/train.json``, what each peer got (updates, seconds per update, the episodes BC-Safe
-kept). A finished actor is not trained again (delete it to retrain).
+kept). An actor trained from the same plan entry and data is kept; one from another (a changed
+budget or dataset) is trained again.
 
 Each update draws a batch of transitions uniformly with replacement, as OSRL's loaders do one
 transition at a time (here vectorised: the same distribution, far faster). OSRL's trainers are
@@ -151,6 +152,13 @@ def train_cpq(data, plan, p, seed):
 TRAIN = {"BC": train_bc, "COptiDICE": train_coptidice, "CPQ": train_cpq}
 
 
+def plan_key(plan: dict, p: dict) -> str:
+    """What an actor was trained from: the peer's entry, the budget, the data's digest."""
+    made = {k: plan.get(k) for k in ("cost_limit", "episode_len", "action_low", "action_high")}
+    made["digest"] = (plan.get("dataset") or {}).get("digest")
+    return json.dumps({**made, "peer": p}, sort_keys=True)
+
+
 def actor_path(runs: Path, name: str, seed: int) -> Path:
     return runs / "actors" / f"{name}_seed{seed}.pt"
 
@@ -174,7 +182,8 @@ def main(argv: list[str] | None = None) -> int:
         for seed in plan["seeds"]:
             out = actor_path(args.runs, p["name"], seed)
             key = f"{p['name']}_seed{seed}"
-            if out.exists() and key in record:
+            made_by = plan_key(plan, p)
+            if out.exists() and record.get(key, {}).get("plan") == made_by:
                 continue
             torch.manual_seed(seed)
             np.random.seed(seed)
@@ -193,7 +202,8 @@ def main(argv: list[str] | None = None) -> int:
             tmp.replace(out)
             record[key] = {"peer": p["name"], "seed": seed, "updates": p["updates"],
                            "osrl_updates": p["osrl_updates"], "seconds": seconds,
-                           "seconds_per_update": seconds / p["updates"], **info}  # fmt: skip
+                           "seconds_per_update": seconds / p["updates"], "plan": made_by,
+                           **info}  # fmt: skip
             record_path.write_text(json.dumps(record, indent=1, sort_keys=True) + "\n")
             each = seconds / p["updates"] * 1000
             print(

@@ -135,3 +135,44 @@ def test_make_peers_prepares_trains_in_its_own_env_then_evaluates() -> None:
         "prepare", "runs/peers", "evaluate",
     ]  # fmt: skip
     assert ".venv-peers/bin/python peers/osrl_train.py" in steps[1]
+
+
+def test_the_peers_block_is_new_to_every_table_and_study() -> None:
+    """The committed table's patients (block 95) are no comparison's and no study's."""
+    from pathlib import Path
+
+    from safe_bc.families import load_comparisons
+    from safe_bc.peers.run import BLOCK
+    from safe_bc.study import load_study
+
+    root = Path(__file__).resolve().parents[2]
+    with pytest.MonkeyPatch.context() as mp:
+        mp.chdir(root)
+        tables = {
+            c.eval_seed
+            for f in sorted((root / "tune_jobs/compare").glob("*.py"))
+            for c in load_comparisons(f, planned=True).values()
+        }
+    studies = [load_study(p) for p in sorted((root / "tune_jobs").glob("*.py"))]
+    used = tables | {b for s in studies for b in (s.eval_seed, s.final_seed, s.certify_seed)}
+    assert BLOCK not in used
+
+
+def test_a_plugin_vector_task_gives_dsrls_dict_and_frames_are_refused(
+    tmp_path, monkeypatch
+) -> None:
+    """Any task with vector observations: a plug-in task's demonstrations give the dict; a set
+    of frames is refused in one line naming why."""
+    from dataclasses import replace
+
+    import safe_bc.peers.data as peers_data
+    from safe_bc.data.store import DatasetError
+    from tests.test_task_plugin import _collect_in_process
+
+    demos = _collect_in_process(tmp_path / "demos", episodes=2)
+    data, info = dsrl_from_demos(demos)
+    assert info["episodes"] == 2 and len(data["costs"]) == info["transitions"] > 0
+    frames = replace(read_meta(demos), obs_encoding="png", obs_shape=(96, 96, 3))
+    monkeypatch.setattr(peers_data, "read_dataset_meta", lambda root: frames)
+    with pytest.raises(DatasetError, match=r"vector observations .* frozen encoder"):
+        dsrl_from_demos(demos)
