@@ -436,7 +436,7 @@ def bench_env(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
 
 
 def _collect_config(workers: int, sizes: Sizes, seed: int) -> Any:
-    from safe_bc.collection import CollectConfig
+    from safe_bc.rollout.collect import CollectConfig
 
     return CollectConfig(
         episodes=sizes.collect_episodes, workers=workers, seed=seed, max_steps=sizes.collect_steps
@@ -549,7 +549,7 @@ def bench_collect(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]
 
 def synthetic_demos(n: int, seed: int = 0, episode_len: int = 250) -> Any:
     """``n`` random ``96x96x3 uint8`` frames with random in-bounds actions and costs."""
-    from safe_bc.demos import Demonstrations
+    from safe_bc.data.demos import Demonstrations
 
     rng = np.random.default_rng(seed)
     actions = np.stack(
@@ -573,7 +573,7 @@ def synthetic_demos(n: int, seed: int = 0, episode_len: int = 250) -> Any:
 
 def _run_config(batches: int, seed: int) -> Any:
     from safe_bc.bc import BCConfig, TrainConfig
-    from safe_bc.experiment import RunConfig
+    from safe_bc.methods.experiment import RunConfig
     from safe_bc.selection import DEFAULT_EPS, SelectionConfig
 
     train = TrainConfig(batches=batches, batch_size=BATCH_SIZE, seed=seed, num_threads=1)
@@ -583,7 +583,7 @@ def _run_config(batches: int, seed: int) -> Any:
 def _prebuilt_batches(demos: Any, config: Any, n: int) -> list[tuple[Any, Any]]:
     """``n`` preprocessed ``(inputs, targets)`` batches drawn by the run's own sampler."""
     from safe_bc.bc import BatchBuilder, sampler_for
-    from safe_bc.experiment import select_for
+    from safe_bc.methods.experiment import select_for
 
     sampler = sampler_for(select_for(demos, config.selection), config.bc.train)
     builder = BatchBuilder(demos, config.bc.preprocess)
@@ -624,7 +624,7 @@ def _bare_loop(demos: Any, config: Any, batches: list[tuple[Any, Any]]) -> float
 
 def bench_train(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
     """``train_bc`` (sampler + preprocessing + gather) vs a bare loop on pre-built batches."""
-    from safe_bc.experiment import train_run
+    from safe_bc.methods.experiment import train_run
 
     demos = synthetic_demos(sizes.train_frames, seed)
     config = _run_config(sizes.train_batches, seed)
@@ -685,7 +685,7 @@ def bench_train(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
 def _synthetic_store(root: Path, episodes: int, steps: int, seed: int) -> Path:
     """``episodes`` CarRacing-shaped episodes of ``steps`` random frames, PNG-encoded."""
     from safe_bc.data.store import DatasetMeta, init_dataset, write_episode
-    from safe_bc.episode import SAFETY_DIMS, Episode
+    from safe_bc.data.episode import SAFETY_DIMS, Episode
 
     meta = init_dataset(
         root,
@@ -754,7 +754,7 @@ def _stream_run(root: str, frames: str, batches: int, seed: int, conn: Any) -> N
     import hashlib
 
     from safe_bc.data.store import load_demonstrations
-    from safe_bc.experiment import train_run
+    from safe_bc.methods.experiment import train_run
 
     start = time.perf_counter()
     demos = load_demonstrations(Path(root), frames)  # type: ignore[arg-type]
@@ -868,7 +868,7 @@ def _untrained_source(seed: int) -> Any:
     import torch
 
     from safe_bc.bc import BCConfig, BCNet, ModelSpec
-    from safe_bc.evaluation import NetSource
+    from safe_bc.rollout.evaluate import NetSource
 
     cfg = BCConfig()
     torch.manual_seed(seed)
@@ -904,7 +904,7 @@ def _time_step_parts(net: Any, steps: int, seed: int) -> dict[str, float]:
     frame) ``BCPolicy.act_batch`` and ``act_slots`` (both lockstep forwards) on
     ``BATCHED_ENVS`` copies of the frame, on one expert-driven trajectory (the net acts on the
     same frames; its actions are discarded)."""
-    from safe_bc.envs import EnvConfig
+    from safe_bc.tasks.env_config import EnvConfig
     from safe_bc.seeds import heldout_seed
     from safe_bc.tasks import make_env
     from safe_bc.tasks.carracing.expert import CarRacingExpert, ExpertConfig
@@ -951,12 +951,12 @@ def bench_eval(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
     """``evaluate_policies`` episodes/min (net vs expert) and inference vs env step cost."""
     import torch
 
-    from safe_bc.evaluation import EvalConfig, ExpertSource
+    from safe_bc.rollout.evaluate import EvalConfig, ExpertSource
     from safe_bc.tasks.carracing.expert import ExpertConfig
 
     torch.set_num_threads(1)  # what a 1-CPU Ray evaluation actor gets (OMP_NUM_THREADS=1)
     sources = {"expert": ExpertSource(ExpertConfig()), "BC net": _untrained_source(seed)}
-    from safe_bc.envs.config import EnvConfig
+    from safe_bc.tasks.env_config import EnvConfig
 
     config = EvalConfig(  # the exact renderer: the one-env path every ratio is taken against
         episodes=sizes.eval_episodes,
@@ -1172,7 +1172,7 @@ class _TrialClock:
 
 def _bench_collect(seed: int) -> Any:
     """The study cases' collection: two short real CarRacing episodes."""
-    from safe_bc.collection import CollectConfig
+    from safe_bc.rollout.collect import CollectConfig
 
     return CollectConfig(episodes=2, workers=2, max_steps=150, seed=seed)
 
@@ -1189,7 +1189,7 @@ def _bench_demos(root: Path, seed: int) -> Path:
 def _tiny_study(root: Path, demos: Path, sizes: Sizes, concurrent: int, seed: int) -> Any:
     from dataclasses import replace
 
-    from safe_bc.study import load_study
+    from safe_bc.study.spec import load_study
 
     repo = Path(__file__).resolve().parents[1]
     smoke = load_study(repo / "tune_jobs" / "smoke.py")
@@ -1217,7 +1217,7 @@ def _tiny_study(root: Path, demos: Path, sizes: Sizes, concurrent: int, seed: in
 def bench_study(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
     """Trials/min of the study's tuning loop (a tiny study) at 1 vs 2 concurrent trials."""
     from safe_bc.distributed.runtime import ensure_ray
-    from safe_bc.distributed.study import run_study
+    from safe_bc.study.run import run_study
 
     ensure_ray()
     rates: dict[int, list[float]] = {1: [], 2: []}
@@ -1252,7 +1252,7 @@ def bench_final(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
     """Episodes/min of the final phase's evaluation: one actor per CPU vs one actor."""
     from safe_bc.distributed.evaluate import evaluate
     from safe_bc.distributed.runtime import cluster_cpus, ensure_ray
-    from safe_bc.evaluation import EvalConfig
+    from safe_bc.rollout.evaluate import EvalConfig
 
     ensure_ray()
     cpus = max(1, int(cluster_cpus()))
@@ -1297,13 +1297,13 @@ def bench_improve(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]
     """Env steps/s of an improvement run's lockstep rollout: envs on Ray actors vs in-process.
 
     The loop is the learner's: one batched forward pass of a BC net for the live envs, then
-    the env group steps them (:class:`safe_bc.improve.LocalEnvs` or
+    the env group steps them (:class:`safe_bc.methods.improve.LocalEnvs` or
     :class:`safe_bc.distributed.envs.RayEnvs`). Actor start-up and the tracks' generation
     (the reset) are outside the clock.
     """
     from safe_bc.distributed.envs import RayEnvs
     from safe_bc.distributed.runtime import cluster_cpus, ensure_ray
-    from safe_bc.improve import LocalEnvs
+    from safe_bc.methods.improve import LocalEnvs
 
     ensure_ray()
     n = IMPROVE_ENVS
@@ -1350,8 +1350,8 @@ def bench_selfimprove(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, A
 
     import torch
 
-    from safe_bc.selfimprove.config import LOOP_PUSHES
-    from safe_bc.selfimprove.rollout import ExploreJob, ValidateJob, explore_track
+    from safe_bc.methods.selfimprove.config import LOOP_PUSHES
+    from safe_bc.methods.selfimprove.rollout import ExploreJob, ValidateJob, explore_track
     from safe_bc.tasks import make_env, task_defaults
 
     torch.set_num_threads(1)
@@ -1416,10 +1416,10 @@ HELP_TARGET_S = 0.5
 
 def _cli_commands() -> dict[str, list[str]]:
     """The ``cli`` case's commands: an empty interpreter start (the baseline), then the
-    installed ``safe-bc`` script beside this interpreter (or ``python -m safe_bc.cli`` where
+    installed ``safe-bc`` script beside this interpreter (or ``python -m safe_bc.cli.commands`` where
     there is none) with the short help of the command list and of ``train``."""
     script = Path(sys.executable).with_name("safe-bc")
-    cli = [str(script)] if script.exists() else [sys.executable, "-m", "safe_bc.cli"]
+    cli = [str(script)] if script.exists() else [sys.executable, "-m", "safe_bc.cli.commands"]
     return {
         "python -c pass": [sys.executable, "-c", "pass"],
         "safe-bc --help": [*cli, "--help"],
@@ -1612,7 +1612,7 @@ def write_results(
     import pandas as pd
 
     from safe_bc.data.store import write_table_atomic
-    from safe_bc.provenance import provenance
+    from safe_bc.data.provenance import provenance
 
     frame = pd.DataFrame(list(rows), columns=list(COLUMNS))
     metadata = {
@@ -1697,7 +1697,7 @@ def _run_all(args: argparse.Namespace, sizes: Sizes, repeats: int) -> int:
         "inputs": bench_inputs(args.cases, sizes),
     }
     if rows:
-        from safe_bc.provenance import DirtyTreeError
+        from safe_bc.data.provenance import DirtyTreeError
 
         print(format_table(rows))
         try:
@@ -1720,7 +1720,7 @@ def main(argv: list[str] | None = None) -> int:
         _parser().error(f"--repeats must be >= 1, got {repeats}")
     if args.case is not None:
         return _run_one(args, sizes, repeats)
-    from safe_bc.provenance import DirtyTreeError, check_result_write
+    from safe_bc.data.provenance import DirtyTreeError, check_result_write
 
     try:  # a dirty tree fails now, not after minutes of measuring
         check_result_write(args.out)

@@ -9,7 +9,7 @@ With ``fallback="cap"`` the expert's action does not replace the agent's but bou
 action component goes no further than the expert's in the direction that raises the costs; with
 ``fallback="safest"`` the zone's action is the task's safest one (each component at its bound in
 the safer direction), whatever the agent or the expert would do.
-:class:`safe_bc.queries.defer.DeferringPolicy` carries it out.
+:class:`safe_bc.methods.queries.defer.DeferringPolicy` carries it out.
 """
 
 from __future__ import annotations

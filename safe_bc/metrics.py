@@ -10,7 +10,7 @@ from functools import cached_property
 import numpy as np
 import pandas as pd
 
-from safe_bc.episode import Episode
+from safe_bc.data.episode import Episode
 from safe_bc.selection import DEFAULT_EPS, Combine, critical_mask
 
 

@@ -134,7 +134,7 @@ def test_quick_eval_case_times_the_batched_forward_against_the_exact_one_env_pat
 def test_a_dirty_tree_fails_before_measuring(monkeypatch, capsys):
     """make bench writes under results/: with uncommitted code it stops at once (one line),
     not after minutes of measuring."""
-    import safe_bc.provenance as provenance
+    import safe_bc.data.provenance as provenance
 
     monkeypatch.setattr(provenance, "_changed_files", lambda: ["safe_bc/some_module.py"])
     monkeypatch.delenv(provenance.ALLOW_DIRTY, raising=False)

@@ -8,7 +8,7 @@ import numpy as np
 import pandas as pd
 
 from safe_bc.handover import HandoverConfig
-from safe_bc.handover_choice import (
+from safe_bc.compare.handover_choice import (
     EXPERT,
     HandoverChoice,
     candidate_label,

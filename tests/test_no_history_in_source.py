@@ -29,7 +29,7 @@ ALLOWED: dict[str, set[str]] = {
     # notes of make bench's rows in results/bench.parquet
     "benchmarks/bench.py": {"issue 33"},
     # example trial ids in a doctest, an example agent digest in a test
-    "safe_bc/distributed/final.py": {"3f2a9c01", "77aa0b12"},
+    "safe_bc/study/final.py": {"3f2a9c01", "77aa0b12"},
     "tests/scripts/test_study_rerun.py": {"ab12cd34"},
 }
 """File -> the matches it may hold (data, listed in ``docs/history.md``)."""

@@ -11,9 +11,9 @@ import pytest
 
 from safe_bc.bc import BCConfig, NetworkConfig, TrainConfig
 from safe_bc.data.store import data_digest, dataset_record, load_demonstrations, read_meta
-from safe_bc.experiment import RunConfig, train_run
+from safe_bc.methods.experiment import RunConfig, train_run
 from safe_bc.handover import HandoverConfig
-from safe_bc.recommender import (
+from safe_bc.study.recommender import (
     CARD,
     RecommenderCard,
     RecommenderError,
@@ -148,7 +148,7 @@ def test_a_recommender_refuses_an_env_of_another_task(agents, tiny_demos: Path, 
 def test_every_committed_card_is_sealed() -> None:
     """Committed recommenders load without allow_unsealed: every card is format /2 and
     matches its seal."""
-    from safe_bc.recommender import FORMAT, read_card
+    from safe_bc.study.recommender import FORMAT, read_card
 
     root = Path(__file__).resolve().parents[1]
     cards = sorted(root.glob("results/**/recommender/recommender.json"))

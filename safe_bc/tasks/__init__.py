@@ -11,6 +11,7 @@ perturbations) is re-exported for tasks defined elsewhere.
 
 from safe_bc.tasks import carracing, rehab
 from safe_bc.tasks.carracing.perturb import PerturbationConfig
+from safe_bc.tasks.env_config import EnvConfig
 from safe_bc.tasks.factory import make_env
 from safe_bc.tasks.lookup import (
     action_bounds,
@@ -50,6 +51,7 @@ ENV_IDS: tuple[str, ...] = tuple(g.id for spec in TASKS.values() for g in spec.g
 built-in tasks' (a task registered later registers its own)."""
 
 __all__ = [
+    "EnvConfig",
     "DEFAULT_TASK",
     "ENTRY_POINTS",
     "ENV_IDS",

@@ -25,7 +25,7 @@ from safe_bc.data.store import (
     write_episode,
     write_table_atomic,
 )
-from safe_bc.episode import SAFETY_DIMS, Episode
+from safe_bc.data.episode import SAFETY_DIMS, Episode
 
 
 def make_episode(episode_id: int, n: int = 12, seed: int = 0) -> Episode:

@@ -6,8 +6,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from safe_bc.distributed.final import EXPERT, PLAIN_BC, final_paired, final_summaries
-from safe_bc.experiment import RunConfig
+from safe_bc.study.final import EXPERT, PLAIN_BC, final_paired, final_summaries
+from safe_bc.methods.experiment import RunConfig
 from safe_bc.selection import SelectionConfig
 
 

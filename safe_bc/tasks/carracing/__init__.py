@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import gymnasium as gym
 
-from safe_bc.envs.config import EnvConfig, Renderer
+from safe_bc.tasks.env_config import EnvConfig, Renderer
 from safe_bc.handover import HandoverConfig
 from safe_bc.selection import DEFAULT_EPS
 from safe_bc.tasks.carracing.costs import SAFETY_DIMS, frame_costs

@@ -10,7 +10,7 @@ and no action perturbation (``PerturbationConfig(mode="none")``).
 
 from __future__ import annotations
 
-from safe_bc.envs.config import EnvConfig
+from safe_bc.tasks.env_config import EnvConfig
 from safe_bc.handover import HandoverConfig
 from safe_bc.tasks.carracing.perturb import PerturbationConfig
 from safe_bc.tasks.registry import GymEnv, TaskSpec

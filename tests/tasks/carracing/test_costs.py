@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from safe_bc.envs import EnvConfig
+from safe_bc.tasks.env_config import EnvConfig
 from safe_bc.metrics import combined
 from safe_bc.tasks import make_env
 from safe_bc.tasks.carracing.costs import (

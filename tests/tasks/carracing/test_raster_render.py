@@ -6,7 +6,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from safe_bc.envs import EnvConfig
+from safe_bc.tasks.env_config import EnvConfig
 from safe_bc.tasks import make_env
 from safe_bc.tasks.carracing import RASTER_CARRACING_ID
 from safe_bc.tasks.carracing.raster_render import RasterCarRacing

@@ -12,9 +12,9 @@ import pandas as pd
 import pytest
 
 from safe_bc.data.store import read_table
-from safe_bc.episode import Episode
+from safe_bc.data.episode import Episode
 from safe_bc.tasks.carracing.perturb import PerturbationConfig
-from safe_bc.tasks.carracing.release_sweep import (
+from safe_bc.rollout.release_sweep import (
     DEFAULT_FILE,
     ReleaseSweep,
     collect_release,
@@ -111,15 +111,15 @@ def test_committed_table_recollects_exactly(tmp_path: Path) -> None:
 
 
 def test_module_entry_point_loads_the_sweep_file(monkeypatch) -> None:
-    """``python -m safe_bc.tasks.carracing.release_sweep FILE`` reads the file's SWEEP (the
+    """``python -m safe_bc.rollout.release_sweep FILE`` reads the file's SWEEP (the
     module runs as ``__main__`` there, a second copy of the ReleaseSweep class)."""
     import runpy
 
-    import safe_bc.tasks.carracing.release_sweep as module
+    import safe_bc.rollout.release_sweep as module
 
     seen = []
     monkeypatch.setattr(module, "run_sweep", seen.append)
     monkeypatch.setattr("sys.argv", ["release_sweep", str(ROOT / DEFAULT_FILE)])
     with pytest.raises(SystemExit) as done:
-        runpy.run_module("safe_bc.tasks.carracing.release_sweep", run_name="__main__")
+        runpy.run_module("safe_bc.rollout.release_sweep", run_name="__main__")
     assert done.value.code == 0 and seen == [load_sweep(ROOT / DEFAULT_FILE)]
