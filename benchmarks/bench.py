@@ -684,8 +684,8 @@ def bench_train(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
 
 def _synthetic_store(root: Path, episodes: int, steps: int, seed: int) -> Path:
     """``episodes`` CarRacing-shaped episodes of ``steps`` random frames, PNG-encoded."""
-    from safe_bc.data.store import DatasetMeta, init_dataset, write_episode
     from safe_bc.data.episode import SAFETY_DIMS, Episode
+    from safe_bc.data.store import DatasetMeta, init_dataset, write_episode
 
     meta = init_dataset(
         root,
@@ -904,10 +904,10 @@ def _time_step_parts(net: Any, steps: int, seed: int) -> dict[str, float]:
     frame) ``BCPolicy.act_batch`` and ``act_slots`` (both lockstep forwards) on
     ``BATCHED_ENVS`` copies of the frame, on one expert-driven trajectory (the net acts on the
     same frames; its actions are discarded)."""
-    from safe_bc.tasks.env_config import EnvConfig
     from safe_bc.seeds import heldout_seed
     from safe_bc.tasks import make_env
     from safe_bc.tasks.carracing.expert import CarRacingExpert, ExpertConfig
+    from safe_bc.tasks.env_config import EnvConfig
 
     env = make_env(EnvConfig(renderer="fast"))
     expert, policy = CarRacingExpert(ExpertConfig()), net.build()
@@ -1416,7 +1416,8 @@ HELP_TARGET_S = 0.5
 
 def _cli_commands() -> dict[str, list[str]]:
     """The ``cli`` case's commands: an empty interpreter start (the baseline), then the
-    installed ``safe-bc`` script beside this interpreter (or ``python -m safe_bc.cli.commands`` where
+    installed ``safe-bc`` script beside this interpreter (or ``python -m safe_bc.cli.commands``
+    where
     there is none) with the short help of the command list and of ``train``."""
     script = Path(sys.executable).with_name("safe-bc")
     cli = [str(script)] if script.exists() else [sys.executable, "-m", "safe_bc.cli.commands"]
@@ -1611,8 +1612,8 @@ def write_results(
     """Write the table to ``out`` (Parquet) with machine info and provenance as metadata."""
     import pandas as pd
 
-    from safe_bc.data.store import write_table_atomic
     from safe_bc.data.provenance import provenance
+    from safe_bc.data.store import write_table_atomic
 
     frame = pd.DataFrame(list(rows), columns=list(COLUMNS))
     metadata = {

@@ -72,9 +72,9 @@ def study_for(args: argparse.Namespace, root: Path) -> Any:
 
 def measure(args: argparse.Namespace) -> dict[str, Any]:
     """Run the study on a fresh local Ray of ``args.cpus`` CPUs; its row."""
+    from safe_bc.data.provenance import provenance
     from safe_bc.distributed.runtime import start_local_ray
     from safe_bc.study.run import run_study
-    from safe_bc.data.provenance import provenance
 
     os.environ.setdefault("RAY_DEDUP_LOGS", "0")
     if os.environ.pop("RAY_ADDRESS", None):

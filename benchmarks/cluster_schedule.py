@@ -31,9 +31,9 @@ import numpy as np
 import pandas as pd
 
 from safe_bc.data.atomic import write_text_atomic
+from safe_bc.data.provenance import run_metadata
 from safe_bc.data.store import read_table, write_table_atomic
 from safe_bc.study.search import halving_decision
-from safe_bc.data.provenance import run_metadata
 from safe_bc.study.spec import schedule_seconds
 
 BATCHES = (2, 4, 8, 16)

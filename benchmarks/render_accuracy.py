@@ -43,13 +43,13 @@ import numpy as np
 import pandas as pd
 
 from safe_bc.data.atomic import write_text_atomic
-from safe_bc.data.store import load_demonstrations, write_table_atomic
-from safe_bc.tasks.env_config import EnvConfig
 from safe_bc.data.provenance import run_metadata
+from safe_bc.data.store import load_demonstrations, write_table_atomic
 from safe_bc.selection import DEFAULT_EPS
 from safe_bc.tasks import make_env
 from safe_bc.tasks.carracing.raster_render import DEFAULT_SUPERSAMPLE
 from safe_bc.tasks.carracing.wrapper import ZOOM_END_T
+from safe_bc.tasks.env_config import EnvConfig
 
 FACTORS = (1, 2, 4, 8)
 """Supersample factors compared."""

@@ -25,10 +25,10 @@ from pathlib import Path
 
 import pandas as pd
 
-from safe_bc.compare.spec import Comparison
-from safe_bc.data.store import read_table, write_table_atomic
 from safe_bc.compare.families import load_comparison
+from safe_bc.compare.spec import Comparison
 from safe_bc.data.provenance import run_metadata
+from safe_bc.data.store import read_table, write_table_atomic
 
 ROWS = (("alpha=0 (rest=all)", 0), ("alpha=0.5 (rest=all)", 1), ("BC-Safe (K=20)", 2))
 """(method, training seed) rows checked by default: the mix at two alphas and a peer rule."""
@@ -40,8 +40,8 @@ def retrain(
 ) -> pd.DataFrame:
     """Retrain ``rows`` of ``comparison``; one row each against the committed ``training``."""
     from safe_bc.cli.api import train
-    from safe_bc.compare.run import run_config
     from safe_bc.cli.jobs import TrainJob
+    from safe_bc.compare.run import run_config
 
     out = []
     for method, seed in rows:

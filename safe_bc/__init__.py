@@ -30,7 +30,8 @@ __all__ = ["ENV_IDS", "__version__", "load_recommender", "register_envs"]
 
 
 def __getattr__(name: str):
-    """``safe_bc.load_recommender`` (:func:`safe_bc.study.recommender.load_recommender`), imported on
+    """``safe_bc.load_recommender`` (:func:`safe_bc.study.recommender.load_recommender`), imported
+    on
     first use."""
     if name == "load_recommender":
         from safe_bc.study.recommender import load_recommender

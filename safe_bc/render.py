@@ -32,12 +32,12 @@ import cv2
 import gymnasium as gym
 import numpy as np
 
-from safe_bc.tasks.env_config import DEFAULT_RENDERER
 from safe_bc.data.episode import Episode
 from safe_bc.policy import Policy
 from safe_bc.progress import progress_bar
 from safe_bc.rollout.episode import run_episode
 from safe_bc.selection import DEFAULT_EPS, CriticalZone
+from safe_bc.tasks.env_config import DEFAULT_RENDERER
 from safe_bc.tasks.registry import DEFAULT_TASK, Drawing, Task, TaskSpec, spec_of, task_defaults
 
 FPS = 50
@@ -447,8 +447,8 @@ def render_command(
     (default: the task's); without either the readings are drawn without states. ``paths`` draws the
     track map instead: the expert beside the agent (the expert alone without a checkpoint).
     """
-    from safe_bc.rollout.collect import build_expert, stored_expert_config
     from safe_bc.data.store import read_meta
+    from safe_bc.rollout.collect import build_expert, stored_expert_config
 
     if checkpoint is None and not (expert or paths):
         raise ValueError("render needs --checkpoint DIR (the agent) or --expert")

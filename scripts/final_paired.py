@@ -22,10 +22,10 @@ from pathlib import Path
 
 import pandas as pd
 
-from safe_bc.data.store import read_table, write_table_atomic
-from safe_bc.study.final import PLAIN_BC, final_summaries
 from safe_bc.data.provenance import run_metadata
+from safe_bc.data.store import read_table, write_table_atomic
 from safe_bc.report import fmt_ci
+from safe_bc.study.final import PLAIN_BC, final_summaries
 
 
 def markdown(paired: pd.DataFrame) -> str:

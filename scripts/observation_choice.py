@@ -310,8 +310,8 @@ def _file_digests(*paths: Path) -> dict[str, str]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from safe_bc.data.store import read_table, write_table_atomic, write_text_atomic
     from safe_bc.data.provenance import run_metadata
+    from safe_bc.data.store import read_table, write_table_atomic, write_text_atomic
 
     out = Path("results/ablation/observation")
     p = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])

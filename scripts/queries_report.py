@@ -14,13 +14,13 @@ from typing import Any
 
 import pandas as pd
 
-from safe_bc.data.atomic import write_text_atomic
-from safe_bc.compare.spec import Comparison
-from safe_bc.compare.rows import Handover
-from safe_bc.data.store import read_table, write_table_atomic
 from safe_bc.compare.families import family, load_comparison
 from safe_bc.compare.protocol import Fresh, candidates
+from safe_bc.compare.rows import Handover
+from safe_bc.compare.spec import Comparison
+from safe_bc.data.atomic import write_text_atomic
 from safe_bc.data.provenance import run_metadata
+from safe_bc.data.store import read_table, write_table_atomic
 from safe_bc.methods.queries.summary import (
     CROSSING,
     DEFERRAL,

@@ -60,9 +60,9 @@ def rehab_collect():
 def rehab_demos(tmp_path_factory):
     """8 guideline rehab programmes, collected in-process (no Ray): the improvement tests'
     demonstrations."""
-    from safe_bc.rollout.collect import EpisodeMaker
     from safe_bc.data.store import init_dataset, write_episode
     from safe_bc.distributed.collect import dataset_meta
+    from safe_bc.rollout.collect import EpisodeMaker
 
     root = tmp_path_factory.mktemp("rehab") / "demos"
     cfg = rehab_collect()

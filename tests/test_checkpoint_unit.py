@@ -13,8 +13,6 @@ import pandas as pd
 import pytest
 import torch
 
-from safe_bc.data import atomic
-from safe_bc.data.atomic import recover_dir
 from safe_bc.bc import BCConfig, BCNet, CheckpointError, ModelSpec, load_checkpoint, save_checkpoint
 from safe_bc.bc.checkpoint import (
     EVALUATED_WEIGHTS,
@@ -23,6 +21,8 @@ from safe_bc.bc.checkpoint import (
     checkpoint_unit,
 )
 from safe_bc.cli.commands import main
+from safe_bc.data import atomic
+from safe_bc.data.atomic import recover_dir
 from safe_bc.data.store import read_table, write_table_atomic
 
 from .bc.synth import TINY_MLP

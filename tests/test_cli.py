@@ -37,7 +37,16 @@ def test_unreachable_ray_address_fails_fast_and_writes_nothing(tmp_path: Path) -
     with sock:
         start = time.perf_counter()
         proc = subprocess.run(
-            [sys.executable, "-m", "safe_bc.cli.commands", "collect", "--episodes", "1", "--out", str(out)],
+            [
+                sys.executable,
+                "-m",
+                "safe_bc.cli.commands",
+                "collect",
+                "--episodes",
+                "1",
+                "--out",
+                str(out),
+            ],
             env={**os.environ, "RAY_ADDRESS": address},
             capture_output=True,
             text=True,
@@ -202,10 +211,10 @@ def test_top_level_help_lists_every_command(capsys: pytest.CaptureFixture) -> No
 
 def test_default_records_are_the_configs_defaults() -> None:
     """The same command line builds the same configs: nothing given, the dataclass defaults."""
-    from safe_bc.rollout.evaluate import EvalConfig
-    from safe_bc.methods.improve import ImproveConfig
     from safe_bc.cli.jobs import CollectJob, DescribeJob, ExpertJob, TrainJob
     from safe_bc.compare.reproduce import ReproduceConfig
+    from safe_bc.methods.improve import ImproveConfig
+    from safe_bc.rollout.evaluate import EvalConfig
     from safe_bc.run_config import RunConfig
 
     assert parse(["train", "--out", "x"])[1] == TrainJob(Path("x"))

@@ -11,9 +11,9 @@ import pandas as pd
 import pytest
 
 from safe_bc.bc import BCConfig
+from safe_bc.compare.families import load_comparison
 from safe_bc.compare.spec import Comparison, Method, build_table, render_markdown
 from safe_bc.data.store import read_table
-from safe_bc.compare.families import load_comparison
 from safe_bc.methods.improve.config import ImproveConfig
 from safe_bc.selection import SelectionConfig
 
@@ -255,8 +255,8 @@ def test_agents_trained_on_other_demonstrations_are_trained_again(
     digest it was trained on: the same path holding other content trains it again."""
     import safe_bc.compare.run as runner
     from safe_bc.bc import NetworkConfig, TrainConfig, read_checkpoint_meta
-    from safe_bc.rollout.collect import CollectConfig
     from safe_bc.data.store import data_digest
+    from safe_bc.rollout.collect import CollectConfig
     from safe_bc.tasks import task_defaults
 
     comp = Comparison(

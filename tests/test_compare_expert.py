@@ -10,9 +10,9 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
+from safe_bc.compare.families import load_comparison
 from safe_bc.compare.spec import Comparison, Method
 from safe_bc.data.store import read_table
-from safe_bc.compare.families import load_comparison
 from safe_bc.selection import SelectionConfig
 from safe_bc.tasks.carracing.expert import ExpertConfig
 from safe_bc.tasks.rehab.expert import GuidelineConfig

@@ -13,6 +13,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from safe_bc.compare.families import load_comparison
 from safe_bc.compare.spec import (
     Comparison,
     Method,
@@ -23,7 +24,6 @@ from safe_bc.compare.spec import (
     render_markdown,
 )
 from safe_bc.data.store import read_table
-from safe_bc.compare.families import load_comparison
 from safe_bc.methods.improve import ImproveConfig
 from safe_bc.selection import SelectionConfig
 from tests.conftest import rehab_collect, tiny_collect
@@ -232,8 +232,8 @@ def test_tiny_fallback_rows_share_the_runs_of_another_comparison(rehab_demos, tm
     from dataclasses import replace
 
     from safe_bc.bc import BCConfig, NetworkConfig, TrainConfig
-    from safe_bc.compare.run import run_comparison
     from safe_bc.compare.eval_store import FOLDER
+    from safe_bc.compare.run import run_comparison
     from tests.test_compare import TINY, stored_evaluations
 
     base = Comparison(

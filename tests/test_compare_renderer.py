@@ -11,9 +11,9 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
+from safe_bc.compare.families import load_comparison
 from safe_bc.compare.spec import Comparison, Method, build_table, label_episodes
 from safe_bc.data.store import read_table
-from safe_bc.compare.families import load_comparison
 from safe_bc.selection import SelectionConfig
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -92,9 +92,9 @@ def test_tiny_exact_row_raster_view_and_raster_pipeline(ray_session, tmp_path):
     raster pipeline trains on its own demonstrations and counts against their d_s; a rerun
     reuses every cell."""
     from safe_bc.bc import BCConfig, NetworkConfig, TrainConfig
-    from safe_bc.rollout.collect import CollectConfig
-    from safe_bc.distributed.collect import collect
     from safe_bc.compare.run import run_comparison
+    from safe_bc.distributed.collect import collect
+    from safe_bc.rollout.collect import CollectConfig
     from safe_bc.tasks.env_config import EnvConfig
 
     raster_demos, exact_demos = tmp_path / "demos_raster", tmp_path / "demos_exact"

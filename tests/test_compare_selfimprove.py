@@ -12,11 +12,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from safe_bc.compare.spec import Comparison, Method
 from safe_bc.compare.families import load_comparison, load_comparisons
+from safe_bc.compare.spec import Comparison, Method
 from safe_bc.methods.improve import ImproveConfig
-from safe_bc.selection import SelectionConfig
 from safe_bc.methods.selfimprove.config import SelfImproveConfig
+from safe_bc.selection import SelectionConfig
 from tests.conftest import rehab_collect
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -66,11 +66,11 @@ TINY_SELF = SelfImproveConfig(
 
 def test_tiny_rehab_comparison_with_a_selfimitation_row(rehab_demos, tmp_path, monkeypatch):
     from safe_bc.bc import BCConfig, NetworkConfig, TrainConfig, load_checkpoint
-    from safe_bc.data.store import read_table
     from safe_bc.compare.run import eval_config, run_comparison, track_seeds
+    from safe_bc.data.store import read_table
     from safe_bc.distributed.evaluate import LOCKSTEP_ENVS, evaluate_policies
-    from safe_bc.rollout.evaluate import NetSource
     from safe_bc.methods.selfimprove.config import DONE, POLICY, round_dir
+    from safe_bc.rollout.evaluate import NetSource
     from tests.test_compare import TINY
 
     comp = Comparison(

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from safe_bc.config_file import run_config_file
 from safe_bc.compare.families import family
+from safe_bc.config_file import run_config_file
 
 
 def _run(path: Path):

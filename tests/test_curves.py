@@ -97,9 +97,9 @@ def test_train_without_held_out_episodes_trains_on_every_episode(
 def test_a_studys_validation_set_must_be_another_set_of_the_task(
     rehab_demos: Path, tmp_path: Path
 ) -> None:
-    from safe_bc.rollout.collect import CollectConfig
     from safe_bc.data.store import init_dataset, read_meta
     from safe_bc.distributed.collect import dataset_meta
+    from safe_bc.rollout.collect import CollectConfig
     from safe_bc.study.run import _check_validation_demos
 
     meta = read_meta(rehab_demos)

@@ -59,8 +59,8 @@ def install(root: Path, module: bool = True) -> Path:
 def cli(args: list[str], cwd: Path, site: Path, **env: str) -> subprocess.CompletedProcess:
     environ = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), str(site)]), **env}
     environ.pop("RAY_ADDRESS", None)
-    return subprocess.run([sys.executable, "-m", "safe_bc.cli.commands", *args], cwd=cwd, env=environ,
-                          capture_output=True, text=True, timeout=900)  # fmt: skip
+    return subprocess.run([sys.executable, "-m", "safe_bc.cli.commands", *args], cwd=cwd,
+                          env=environ, capture_output=True, text=True, timeout=900)  # fmt: skip
 
 
 def test_the_page_has_the_example_files_and_commands() -> None:

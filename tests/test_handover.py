@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from safe_bc.rollout.collect import build_expert
 from safe_bc.handover import HandoverConfig
 from safe_bc.methods.queries.defer import cap_action, handover_source
+from safe_bc.rollout.collect import build_expert
 from safe_bc.tasks import make_env, task_defaults
 
 

@@ -107,10 +107,10 @@ def test_the_toy_method_is_registered_through_the_public_api(nudge) -> None:
 
 
 def test_the_toy_method_runs_as_a_study_stage(nudge, rehab_demos, rehab_start, tmp_path) -> None:
-    from safe_bc.study.final import _run_stages
-    from safe_bc.study.trial import TrialJob
     from safe_bc.methods.start import start_from_checkpoint
+    from safe_bc.study.final import _run_stages
     from safe_bc.study.spec import Float, StudySpec
+    from safe_bc.study.trial import TrialJob
     from safe_bc.tasks import task_defaults
 
     env = task_defaults("rehab").env
@@ -148,13 +148,13 @@ def test_the_toy_method_runs_as_a_study_stage(nudge, rehab_demos, rehab_start, t
 
 def test_the_toy_method_is_a_comparison_row(nudge, rehab_demos, tmp_path) -> None:
     from safe_bc.bc import BCConfig, NetworkConfig, TrainConfig, load_checkpoint
+    from safe_bc.compare.eval_store import FOLDER
+    from safe_bc.compare.run import eval_config, run_comparison, track_seeds
     from safe_bc.compare.spec import Agent, Comparison, FromStart, Handover
     from safe_bc.data.store import read_table
-    from safe_bc.compare.run import eval_config, run_comparison, track_seeds
     from safe_bc.distributed.evaluate import LOCKSTEP_ENVS, evaluate_policies
-    from safe_bc.compare.eval_store import FOLDER
-    from safe_bc.rollout.evaluate import NetSource
     from safe_bc.handover import HandoverConfig
+    from safe_bc.rollout.evaluate import NetSource
     from safe_bc.selection import SelectionConfig
     from tests.conftest import rehab_collect
     from tests.test_compare import stored_evaluations

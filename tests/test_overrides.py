@@ -11,11 +11,11 @@ import pytest
 
 from safe_bc.cli import api
 from safe_bc.cli.commands import main, parse
-from safe_bc.tasks.env_config import EnvConfig
 from safe_bc.methods.improve.config import ImproveConfig
 from safe_bc.overrides import apply_overrides, parse_override
 from safe_bc.study.spec import StudySpec, load_study
 from safe_bc.tasks import task_defaults
+from safe_bc.tasks.env_config import EnvConfig
 
 REPO = Path(__file__).resolve().parents[1]
 SMOKE = REPO / "tune_jobs" / "smoke.py"

@@ -5,10 +5,10 @@ from __future__ import annotations
 import pandas as pd
 import pytest
 
-from safe_bc.compare.spec import Agent, Comparison, Expert, Handover
 from safe_bc.compare.families import load_comparison
-from safe_bc.handover import HandoverConfig
 from safe_bc.compare.protocol import Fresh, Rule, resolve, track_clashes
+from safe_bc.compare.spec import Agent, Comparison, Expert, Handover
+from safe_bc.handover import HandoverConfig
 from safe_bc.selection import SelectionConfig
 
 

@@ -112,5 +112,7 @@ def test_a_result_records_its_command_with_paths_relative_to_the_repository(monk
     argv = [str(repo / ".venv/bin/safe-bc"), "train", "--out", str(repo / "runs/a"), "--seed", "1"]
     monkeypatch.setattr("sys.argv", argv)
     assert run_metadata()["command"] == "safe-bc train --out runs/a --seed 1"
-    monkeypatch.setattr("sys.argv", [str(repo / "safe_bc/cli/commands.py"), "describe", "--out=/tmp/d"])
+    monkeypatch.setattr(
+        "sys.argv", [str(repo / "safe_bc/cli/commands.py"), "describe", "--out=/tmp/d"]
+    )
     assert run_metadata()["command"] == "safe-bc describe --out=/tmp/d"  # elsewhere: as given

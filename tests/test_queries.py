@@ -212,9 +212,9 @@ def _limits(rehab_agent) -> tuple[float, ...]:
 def test_queries_in_the_zone_are_every_zone_step_of_the_rollout(rehab_agent, rehab_demos) -> None:
     """The counted queries are exactly the rollout's scored steps in the zone (re-run the
     same episode without asking and count them)."""
-    from safe_bc.rollout.evaluate import NetSource
     from safe_bc.methods.queries.rollout import QueryJob, query_episode
     from safe_bc.rollout.episode import run_episode
+    from safe_bc.rollout.evaluate import NetSource
     from safe_bc.tasks import make_env, task_defaults
     from safe_bc.tasks.rehab.expert import GuidelineExpert
 
@@ -263,8 +263,8 @@ def test_full_mode_with_a_budget_keeps_the_first_queries(rehab_agent, rehab_demo
 
 
 def test_evaluation_reports_the_deferred_share(rehab_agent, rehab_demos) -> None:
-    from safe_bc.rollout.evaluate import NetSource, evaluate_episode
     from safe_bc.methods.queries.defer import DeferralSource
+    from safe_bc.rollout.evaluate import NetSource, evaluate_episode
     from safe_bc.tasks import make_env, task_defaults
 
     model, cfg, _ = rehab_agent
@@ -287,11 +287,11 @@ def test_a_handover_in_lockstep_gives_the_one_env_episodes(
     """Envs stepped in lockstep with the agent's forward per row give, per episode, the one-env
     path's rows, flags and counts (held, extrapolated, on real CarRacing and the clinic)."""
     from safe_bc.bc.config import BCConfig, NetworkConfig, TrainConfig
-    from safe_bc.rollout.collect import stored_expert_config
     from safe_bc.data.store import load_demonstrations
-    from safe_bc.rollout.evaluate import NetSource, evaluate_episodes
     from safe_bc.methods.experiment import train_run
     from safe_bc.methods.queries.defer import DeferralSource, LockstepDeferringPolicy
+    from safe_bc.rollout.collect import stored_expert_config
+    from safe_bc.rollout.evaluate import NetSource, evaluate_episodes
     from safe_bc.run_config import RunConfig
     from safe_bc.selection import SelectionConfig
     from safe_bc.tasks import make_env, task_defaults
@@ -333,9 +333,9 @@ def test_the_stage_runs_end_to_end_with_ray_actors(ray_session, tiny_demos, tmp_
     from safe_bc.data.store import load_demonstrations
     from safe_bc.distributed.rollouts import ChunkedRayRollouts
     from safe_bc.methods.experiment import train_run
+    from safe_bc.methods.stages import STAGES
     from safe_bc.run_config import RunConfig
     from safe_bc.selection import SelectionConfig
-    from safe_bc.methods.stages import STAGES
 
     cfg = RunConfig(SelectionConfig(eps=2.0, alpha=0.5), BCConfig(train=TrainConfig(batches=10)))
     result, _ = train_run(load_demonstrations(tiny_demos), cfg)

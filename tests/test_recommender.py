@@ -11,8 +11,9 @@ import pytest
 
 from safe_bc.bc import BCConfig, NetworkConfig, TrainConfig
 from safe_bc.data.store import data_digest, dataset_record, load_demonstrations, read_meta
-from safe_bc.methods.experiment import RunConfig, train_run
 from safe_bc.handover import HandoverConfig
+from safe_bc.methods.experiment import RunConfig, train_run
+from safe_bc.selection import SelectionConfig
 from safe_bc.study.recommender import (
     CARD,
     RecommenderCard,
@@ -21,7 +22,6 @@ from safe_bc.study.recommender import (
     load_recommender,
     write_recommender,
 )
-from safe_bc.selection import SelectionConfig
 from safe_bc.tasks import make_env, task_defaults
 
 

@@ -8,7 +8,6 @@ import imageio.v2 as imageio
 import numpy as np
 import pytest
 
-from safe_bc.rollout.collect import build_expert
 from safe_bc.render import (
     HEADER,
     CriticalZone,
@@ -19,6 +18,7 @@ from safe_bc.render import (
     record,
     render_episode,
 )
+from safe_bc.rollout.collect import build_expert
 from safe_bc.tasks.carracing.expert import ExpertConfig
 
 STEPS = 60

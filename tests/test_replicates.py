@@ -10,6 +10,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
+from safe_bc.seeds import heldout_seeds
 from safe_bc.study.replicates import (
     REPLICATE_STRIDE,
     ReplicateResult,
@@ -19,7 +20,6 @@ from safe_bc.study.replicates import (
     replicates_markdown,
     replicates_summary,
 )
-from safe_bc.seeds import heldout_seeds
 from safe_bc.study.spec import load_study
 
 REPO = Path(__file__).resolve().parents[1]

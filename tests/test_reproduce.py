@@ -11,9 +11,9 @@ import pandas as pd
 import pytest
 
 from safe_bc.bc import BCConfig, NetworkConfig, TrainConfig
+from safe_bc.compare.reproduce import PLAIN_BC, ReproduceConfig, run_reproduce, table1
 from safe_bc.compare.spec import render_markdown as _render
 from safe_bc.data.store import read_table
-from safe_bc.compare.reproduce import PLAIN_BC, ReproduceConfig, run_reproduce, table1
 from tests.conftest import tiny_collect
 
 META = {"git_revision": "abc", "command": "safe-bc reproduce"}

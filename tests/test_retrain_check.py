@@ -11,9 +11,9 @@ from pathlib import Path
 import pytest
 
 from benchmarks.retrain_check import ROWS, TABLE1, retrain
-from safe_bc.data.store import read_table
-from safe_bc.compare.run import run_config
 from safe_bc.compare.families import load_comparison
+from safe_bc.compare.run import run_config
+from safe_bc.data.store import read_table
 from safe_bc.run_config import RunConfig
 from safe_bc.selection import RULES, SelectionConfig
 

@@ -14,7 +14,14 @@ from hypothesis import strategies as st
 
 from safe_bc.data.curves import read_events
 from safe_bc.data.store import read_table
-from safe_bc.methods.selfimprove.config import CURVE, DONE, KEPT, POLICY, SelfImproveConfig, round_dir
+from safe_bc.methods.selfimprove.config import (
+    CURVE,
+    DONE,
+    KEPT,
+    POLICY,
+    SelfImproveConfig,
+    round_dir,
+)
 from safe_bc.methods.selfimprove.logic import kept_steps, push_action, window_sums
 
 # --- the keep filter (pure) ----------------------------------------------------------------
@@ -81,8 +88,8 @@ def test_a_safe_better_episode_is_kept_and_one_step_past_the_margin_drops_it() -
 def test_pushes_back_off_in_the_zone_and_record_the_agents_own_action() -> None:
     """On rehab: where the state is in the back-off zone the agent's action is executed,
     elsewhere the pushed one; the recorded action is always the agent's."""
-    from safe_bc.rollout.episode import run_episode
     from safe_bc.methods.selfimprove.rollout import Push, ZoneWatch
+    from safe_bc.rollout.episode import run_episode
     from safe_bc.tasks import make_env, task_defaults
 
     class _Fixed:
@@ -325,11 +332,11 @@ def test_the_stage_runs_on_carracing_with_60_step_episodes(tiny_demos, tmp_path)
     from safe_bc.bc.config import BCConfig, TrainConfig
     from safe_bc.data.store import load_demonstrations
     from safe_bc.methods.experiment import train_run
-    from safe_bc.run_config import RunConfig
-    from safe_bc.selection import SelectionConfig
     from safe_bc.methods.selfimprove.config import TASK_DEFAULTS
     from safe_bc.methods.selfimprove.data import load_round
     from safe_bc.methods.stages import STAGES
+    from safe_bc.run_config import RunConfig
+    from safe_bc.selection import SelectionConfig
 
     cfg = RunConfig(SelectionConfig(eps=2.0, alpha=0.5), BCConfig(train=TrainConfig(batches=10)))
     result, _ = train_run(load_demonstrations(tiny_demos), cfg)
@@ -356,11 +363,11 @@ def test_car_frames_read_from_disk_train_the_weights_of_frames_in_memory(
     from safe_bc.data.frames import checksum_path
     from safe_bc.data.store import load_demonstrations
     from safe_bc.methods.experiment import train_run
-    from safe_bc.run_config import RunConfig
-    from safe_bc.selection import SelectionConfig
     from safe_bc.methods.selfimprove.config import FRAMES
     from safe_bc.methods.selfimprove.rollout import ValidateJob, local_rollouts
     from safe_bc.methods.selfimprove.stage import selfimprove_run
+    from safe_bc.run_config import RunConfig
+    from safe_bc.selection import SelectionConfig
 
     cfg = RunConfig(SelectionConfig(eps=2.0, alpha=0.5), BCConfig(train=TrainConfig(batches=200)))
     result, _ = train_run(load_demonstrations(tiny_demos), cfg)
@@ -425,8 +432,8 @@ def test_under_the_handover_the_expert_acts_unpushed_and_the_agent_is_pushed() -
     """On rehab: where the handover defers, the expert's action is executed and recorded;
     elsewhere the agent's pushed action is executed."""
     from safe_bc.handover import HandoverConfig
-    from safe_bc.rollout.episode import run_episode
     from safe_bc.methods.selfimprove.rollout import ExploreJob, Push
+    from safe_bc.rollout.episode import run_episode
     from safe_bc.tasks import make_env, task_defaults
 
     class _Fixed:
@@ -494,7 +501,7 @@ def test_a_tasks_record_carries_its_self_imitation_defaults() -> None:
     them at None takes them, a task without any is refused naming what to set."""
     from dataclasses import replace
 
-    from safe_bc.methods.selfimprove.config import LOOP_PUSHES, TASK_DEFAULTS
+    from safe_bc.methods.selfimprove.config import LOOP_PUSHES
     from safe_bc.tasks import register_task, task_defaults, task_of
     from safe_bc.tasks.registry import TASKS
 
@@ -511,7 +518,6 @@ def test_a_tasks_record_carries_its_self_imitation_defaults() -> None:
         assert (resolved.rounds, resolved.pushes, resolved.kept_in) == (7, ("0+0.1",), "zone")
     finally:
         TASKS.pop("rehab_twin", None)
-        TASK_DEFAULTS.pop("rehab_twin", None)
         task_defaults.cache_clear()
         task_of.cache_clear()
     with pytest.raises(ValueError, match="no self-imitation defaults"):
@@ -560,11 +566,11 @@ def test_lockstep_runs_are_the_one_env_runs_bit_for_bit(
     the expert's bar, the best 2 runs kept and, in one case, the handover."""
     from dataclasses import replace
 
-    from safe_bc.rollout.collect import build_expert, stored_expert_config
     from safe_bc.data.store import load_demonstrations
-    from safe_bc.rollout.evaluate import NetSource
     from safe_bc.methods.experiment import select_for
     from safe_bc.methods.selfimprove.rollout import explore_track
+    from safe_bc.rollout.collect import build_expert, stored_expert_config
+    from safe_bc.rollout.evaluate import NetSource
     from safe_bc.tasks import make_env, task_defaults
 
     model, cfg = rehab_agent
@@ -597,11 +603,11 @@ def test_car_lockstep_runs_are_the_one_env_runs_bit_for_bit(tiny_demos) -> None:
 
     from safe_bc.bc.config import BCConfig, TrainConfig
     from safe_bc.data.store import load_demonstrations
-    from safe_bc.rollout.evaluate import NetSource
     from safe_bc.methods.experiment import train_run
+    from safe_bc.methods.selfimprove.rollout import explore_track
+    from safe_bc.rollout.evaluate import NetSource
     from safe_bc.run_config import RunConfig
     from safe_bc.selection import SelectionConfig
-    from safe_bc.methods.selfimprove.rollout import explore_track
     from safe_bc.tasks import make_env, task_defaults
 
     cfg = RunConfig(SelectionConfig(eps=2.0, alpha=0.5), BCConfig(train=TrainConfig(batches=10)))

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from safe_bc.cli.commands import main
-from safe_bc.rollout.collect import CollectConfig
 from safe_bc.data.store import read_episodes, read_table
 from safe_bc.distributed.collect import collect
+from safe_bc.rollout.collect import CollectConfig
 from tests.conftest import TINY_COLLECT
 
 pytestmark = pytest.mark.slow

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from safe_bc.rollout.collect import CollectConfig
 from safe_bc.methods.improve import ImproveConfig, ImprovedSource, improve_from_net
+from safe_bc.rollout.collect import CollectConfig
 from safe_bc.run_config import RunConfig
 from safe_bc.study.spec import Choice, Float, StudySpec, load_study, split_params
 from safe_bc.tasks import task_defaults

@@ -10,8 +10,8 @@ import pandas as pd
 import pytest
 
 from safe_bc.handover import HandoverConfig
-from safe_bc.study.spec import Float, StudySpec
 from safe_bc.study.plan import constraint_bars, plan_study, run_identity, trials_meta
+from safe_bc.study.spec import Float, StudySpec
 
 
 def _spec(tmp_path: Path, **kw) -> StudySpec:

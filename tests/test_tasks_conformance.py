@@ -24,9 +24,9 @@ from safe_bc.rollout.collect import (
     config_dict,
     expert_config_from_dict,
 )
-from safe_bc.tasks.info import INFO_KEYS, InfoContract, StepInfo, check_info
 from safe_bc.tasks import TASKS, TaskSpec, register_task, task_defaults, task_of
 from safe_bc.tasks.factory import make_env
+from safe_bc.tasks.info import INFO_KEYS, InfoContract, StepInfo, check_info
 
 STEPS = 6
 DOC_TASK = "lane"
@@ -94,8 +94,8 @@ def test_task_meets_the_contract(task):
 def test_the_tasks_defaults_reach_a_study_a_training_run_and_a_comparison(task):
     """Where a study, a training run or a comparison leaves the critical-zone width and the
     handover unset, they are the task's (``TaskSpec.eps``, ``TaskSpec.handover``)."""
-    from safe_bc.compare.spec import Comparison
     from safe_bc.compare.rows import Agent
+    from safe_bc.compare.spec import Comparison
     from safe_bc.run_config import RunConfig
     from safe_bc.selection import SelectionConfig
     from safe_bc.study.spec import StudySpec
@@ -118,9 +118,9 @@ def test_the_tasks_words_and_metrics(task):
     """An episode of the task is scored with the general metrics and the task's own
     (``TaskSpec.metrics``) only: another task's (CarRacing's steering follow-through) are NaN,
     so no table or console shows them; its episodes have a name of their own."""
-    from safe_bc.rollout.evaluate import score_episode
     from safe_bc.metrics import REGISTRY
     from safe_bc.rollout.episode import run_episode
+    from safe_bc.rollout.evaluate import score_episode
 
     spec = spec_named(task)
     assert spec.episode_name.strip() and spec.episodes_name == f"{spec.episode_name}s"

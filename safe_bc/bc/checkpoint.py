@@ -29,9 +29,9 @@ from typing import Any
 
 import torch
 
-from safe_bc.data.atomic import atomic_dir, atomic_write, write_json_atomic
 from safe_bc.bc.config import BCConfig
 from safe_bc.bc.net import BCNet, ModelSpec
+from safe_bc.data.atomic import atomic_dir, atomic_write, write_json_atomic
 from safe_bc.data.curves import EVENTS_GLOB
 
 WEIGHTS = "weights.pt"

@@ -43,8 +43,8 @@ class Done:
 
 def collect(job: CollectJob) -> Done:
     """Collect (or complete) a demonstration set; the value is the collection report."""
-    from safe_bc.rollout.collect import CollectConfig
     from safe_bc.distributed.collect import collect as run_collect
+    from safe_bc.rollout.collect import CollectConfig
     from safe_bc.tasks import task_defaults
 
     task = task_defaults(job.env, renderer=job.renderer)
@@ -65,11 +65,11 @@ def collect(job: CollectJob) -> Done:
 def describe(job: DescribeJob) -> Done:
     """Cost histograms and ``summary.json`` of a demonstration set (the value)."""
     from safe_bc.data.atomic import write_json_atomic
+    from safe_bc.data.provenance import command_line, provenance
     from safe_bc.data.store import data_digest, load_demonstrations, read_episodes, read_meta
     from safe_bc.methods.experiment import select_for
     from safe_bc.metrics import combined
     from safe_bc.plots import plot_cost_histograms
-    from safe_bc.data.provenance import command_line, provenance
     from safe_bc.selection import SelectionConfig
     from safe_bc.tasks import task_defaults, task_of
 
@@ -144,10 +144,10 @@ def train(job: TrainJob) -> Done:
 def _train(job: TrainJob) -> Done:
     from safe_bc.bc.checkpoint import checkpoint_unit
     from safe_bc.data.curves import EVENTS_GLOB
-    from safe_bc.data.store import check_dataset, load_demonstrations, read_meta
     from safe_bc.data.demos import hold_out_episodes
-    from safe_bc.methods.experiment import save_curve, save_selection, train_run
     from safe_bc.data.provenance import run_metadata
+    from safe_bc.data.store import check_dataset, load_demonstrations, read_meta
+    from safe_bc.methods.experiment import save_curve, save_selection, train_run
     from safe_bc.tasks import dataset_action_bounds, with_task_eps
 
     check_dataset(job.demos)  # a damaged set is refused before its frame cache is made
@@ -195,12 +195,12 @@ def _evaluate(job: EvaluateJob) -> Done:
 
     from safe_bc.bc import load_checkpoint, read_checkpoint_meta
     from safe_bc.bc.checkpoint import EVALUATED_WEIGHTS
+    from safe_bc.data.provenance import run_metadata
     from safe_bc.data.store import read_table, write_table_atomic
     from safe_bc.distributed.evaluate import evaluate as run_evaluate
-    from safe_bc.rollout.evaluate import EvalConfig, NetSource
     from safe_bc.metrics import METRICS
-    from safe_bc.data.provenance import run_metadata
     from safe_bc.report import estimate_lines
+    from safe_bc.rollout.evaluate import EvalConfig, NetSource
     from safe_bc.tasks import check_net_fits_task, task_defaults, task_of
 
     if job.recommender is not None:
@@ -276,11 +276,11 @@ def evaluate_recommender(job: EvaluateJob) -> Done:
     design), at the recommender's own ``d_s``."""
     import numpy as np
 
+    from safe_bc.data.provenance import run_metadata
     from safe_bc.data.store import write_table_atomic
     from safe_bc.distributed.evaluate import evaluate as run_evaluate
-    from safe_bc.rollout.evaluate import EvalConfig
     from safe_bc.metrics import certified_share, episodes_beyond
-    from safe_bc.data.provenance import run_metadata
+    from safe_bc.rollout.evaluate import EvalConfig
     from safe_bc.study.recommender import load_recommender
     from safe_bc.tasks import task_defaults
 
@@ -331,14 +331,14 @@ def evaluate_recommender(job: EvaluateJob) -> Done:
 def expert(job: ExpertJob) -> Done:
     """Measure the task's expert on held-out episodes (``expert.md``, the message)."""
     from safe_bc.data.atomic import write_text_atomic
-    from safe_bc.rollout.collect import CollectConfig
+    from safe_bc.data.provenance import run_metadata
     from safe_bc.data.store import read_demonstrations, write_table_atomic
     from safe_bc.distributed.collect import ensure_demos
     from safe_bc.distributed.evaluate import evaluate as run_evaluate
-    from safe_bc.rollout.evaluate import EvalConfig, ExpertSource
     from safe_bc.metrics import METRICS
-    from safe_bc.data.provenance import run_metadata
     from safe_bc.report import MIN_EPISODES_FOR_INTERVAL, markdown_table
+    from safe_bc.rollout.collect import CollectConfig
+    from safe_bc.rollout.evaluate import EvalConfig, ExpertSource
     from safe_bc.tasks import task_defaults
 
     check_output_folder(job.out)
@@ -412,8 +412,8 @@ def reproduce(job: ReproduceJob) -> Done:
 def compare(job: CompareJob) -> Done:
     """Run (or resume, or ``render_only`` rebuild) the comparison ``job.name`` of the family
     file ``job.comparison``."""
-    from safe_bc.compare.run import rerender, run_cell, run_comparison
     from safe_bc.compare.families import load_comparison
+    from safe_bc.compare.run import rerender, run_cell, run_comparison
 
     comparison = load_comparison(job.comparison, job.name)
     check_output_folder(comparison.out)
@@ -440,11 +440,11 @@ def tune(job: TuneJob, *, command: str = "") -> Done:
     """
     import shlex
 
-    from safe_bc.study.console import one_line_warnings
-    from safe_bc.study.run import format_outcome, run_study
     from safe_bc.overrides import apply_overrides
-    from safe_bc.study.spec import load_study
+    from safe_bc.study.console import one_line_warnings
     from safe_bc.study.plan import experiment_location
+    from safe_bc.study.run import format_outcome, run_study
+    from safe_bc.study.spec import load_study
 
     spec = replace(load_study(job.study), **job.overrides())
     for path, value in job.spec_overrides():

@@ -1,6 +1,7 @@
 """What each ``safe-bc`` command takes: one frozen record per command, paths plus the configs.
 
-The command line is generated from these records (``safe_bc.cli.commands``, tyro): a field is a flag,
+The command line is generated from these records (``safe_bc.cli.commands``, tyro): a field is a
+flag,
 its docstring the flag's help, a nested config's fields dotted flags (``--selection.eps``,
 ``--bc.train.lr``: the names a study's search space uses). Range checks live in the configs'
 ``__post_init__``. ``None`` defaults mean "the task's" or "the config's own default", so no
@@ -16,15 +17,15 @@ from typing import Annotated, Any, Literal
 
 import tyro
 
+from safe_bc.compare.reproduce import ReproduceConfig
 from safe_bc.data.codec import Encoding
-from safe_bc.tasks.env_config import DEFAULT_RENDERER, Renderer
-from safe_bc.rollout.config import EvalConfig
 from safe_bc.methods.improve.config import ImproveConfig
 from safe_bc.methods.queries.config import QueryConfig
-from safe_bc.compare.reproduce import ReproduceConfig
-from safe_bc.run_config import RunConfig
 from safe_bc.methods.selfimprove.config import SelfImproveConfig
+from safe_bc.rollout.config import EvalConfig
+from safe_bc.run_config import RunConfig
 from safe_bc.tasks import DEFAULT_TASK, Task
+from safe_bc.tasks.env_config import DEFAULT_RENDERER, Renderer
 
 Flat = tyro.conf.arg(name="")
 """A nested config whose fields are flags without its own prefix (``--selection.eps``, not
@@ -279,10 +280,10 @@ class TuneJob:
         """
         if not self.set:
             return []
-        from safe_bc.tasks.env_config import EnvConfig
         from safe_bc.overrides import parse_override
         from safe_bc.study.spec import StudySpec
         from safe_bc.tasks import task_defaults
+        from safe_bc.tasks.env_config import EnvConfig
 
         whole = {EnvConfig: lambda name: task_defaults(name).env}
         return [parse_override(StudySpec, item, whole) for item in self.set]

@@ -12,9 +12,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from safe_bc.compare.protocol import Fresh, resolve
 from safe_bc.compare.spec import Comparison
 from safe_bc.config_file import run_config_file
-from safe_bc.compare.protocol import Fresh, resolve
 
 FAMILY = "COMPARISONS"
 """The name a family file gives its comparisons: a tuple of :class:`Comparison` and

@@ -23,8 +23,8 @@ from typing import Any
 
 import pandas as pd
 
-from safe_bc.compare.spec import Comparison
 from safe_bc.compare.rows import Handover
+from safe_bc.compare.spec import Comparison
 
 RuleFn = Callable[..., list[Handover]]
 

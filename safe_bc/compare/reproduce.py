@@ -29,9 +29,9 @@ from typing import TYPE_CHECKING, Annotated, Any, get_args
 import tyro
 
 from safe_bc.bc import BCConfig
-from safe_bc.tasks.env_config import EnvConfig
 from safe_bc.selection import RULES, Baseline, Rest, SelectionConfig
 from safe_bc.tasks import Task, task_defaults, task_of
+from safe_bc.tasks.env_config import EnvConfig
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -248,8 +248,8 @@ def rerender(config: ReproduceConfig) -> pd.DataFrame:
     Nothing is trained or evaluated again; rows and their order come from the stored
     configuration (runs before the peer baselines had none).
     """
-    from safe_bc.data.store import read_table_metadata
     from safe_bc.compare.run import rerender as rerender_comparison
+    from safe_bc.data.store import read_table_metadata
 
     stored = read_table_metadata(config.out / "table1_episodes.parquet").get("config", {})
     if "alphas" not in stored:  # a comparison's run: the rows are the given config's

@@ -26,12 +26,12 @@ from pathlib import Path
 from typing import Any
 
 from safe_bc.bc.config import BCConfig
-from safe_bc.tasks.env_config import Renderer, canonical_renderer
 from safe_bc.handover import HandoverConfig
-from safe_bc.methods.improve.config import ImproveConfig
 from safe_bc.methods import METHODS, method_of, method_of_config
-from safe_bc.selection import SelectionConfig
+from safe_bc.methods.improve.config import ImproveConfig
 from safe_bc.methods.selfimprove.config import SelfImproveConfig
+from safe_bc.selection import SelectionConfig
+from safe_bc.tasks.env_config import Renderer, canonical_renderer
 
 FLAT_FIELDS: dict[str, Any] = {
     "name": "",

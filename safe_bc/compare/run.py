@@ -35,8 +35,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from safe_bc.data.atomic import write_text_atomic
-from safe_bc.rollout.collect import CollectConfig
+from safe_bc.compare.eval_store import episodes_path, steps_path
 from safe_bc.compare.spec import (
     EXPERT,
     PAPER_TABLE1,
@@ -52,20 +51,21 @@ from safe_bc.compare.spec import (
     render_markdown,
     run_slug,
 )
+from safe_bc.data.atomic import write_text_atomic
+from safe_bc.data.provenance import file_digest, run_metadata
 from safe_bc.data.store import (
     read_demonstrations,
     read_meta,
     read_table,
     write_table_atomic,
 )
-from safe_bc.tasks.env_config import DEFAULT_RENDERER
-from safe_bc.compare.eval_store import episodes_path, steps_path
-from safe_bc.rollout.evaluate import EvalConfig, ExpertSource, MaskedSource, NetSource
 from safe_bc.methods.experiment import RunConfig, save_curve, save_selection, select_for
 from safe_bc.metrics import combined
-from safe_bc.data.provenance import file_digest, run_metadata
+from safe_bc.rollout.collect import CollectConfig
+from safe_bc.rollout.evaluate import EvalConfig, ExpertSource, MaskedSource, NetSource
 from safe_bc.selection import SelectionConfig
 from safe_bc.tasks import check_frames_renderer, dataset_action_bounds, task_defaults
+from safe_bc.tasks.env_config import DEFAULT_RENDERER
 
 
 def _json(x: Any) -> Any:
@@ -386,9 +386,9 @@ def _fallback_source(
     net without its own shield, from ``improved``) with the scripted expert in the critical
     states (:class:`~safe_bc.compare.rows.Handover`)."""
     from safe_bc.bc import load_checkpoint
-    from safe_bc.rollout.collect import stored_expert_config
     from safe_bc.methods.improve import ImprovedSource
     from safe_bc.methods.improve.shield import Shield
+    from safe_bc.rollout.collect import stored_expert_config
     from safe_bc.selection import CriticalZone
 
     c = comparison

@@ -51,9 +51,9 @@ import pyarrow.parquet as pq
 
 from safe_bc.data.atomic import atomic_write, write_text_atomic
 from safe_bc.data.codec import Encoding, decode_frames, encode_frames
-from safe_bc.data.frames import FrameFile, FrameFileError, checksum_path, write_frame_file
 from safe_bc.data.demos import Demonstrations
 from safe_bc.data.episode import Episode
+from safe_bc.data.frames import FrameFile, FrameFileError, checksum_path, write_frame_file
 
 META_FILE = "dataset.json"
 EPISODE_DIR = "episodes"

@@ -134,7 +134,8 @@ class RayEnvs:
 
 
 def ray_envs(workers: int, actor_cpus: float | None = None) -> EnvGroupFactory:
-    """An :data:`~safe_bc.methods.improve.EnvGroupFactory` for :func:`safe_bc.methods.improve.improve`:
+    """An :data:`~safe_bc.methods.improve.EnvGroupFactory` for
+    :func:`safe_bc.methods.improve.improve`:
     its envs on ``workers`` Ray actors."""
     return partial(RayEnvs, workers=workers, actor_cpus=actor_cpus)
 

@@ -17,12 +17,12 @@ import numpy as np
 import pandas as pd
 
 from safe_bc.distributed.runtime import cpus_per_actor, ensure_ray
-from safe_bc.tasks.env_config import EnvConfig
-from safe_bc.rollout.evaluate import EvalConfig, evaluate_episodes
 from safe_bc.metrics import summarize_policies
 from safe_bc.policy import LockstepForward, Policy
 from safe_bc.progress import progress_bar
+from safe_bc.rollout.evaluate import EvalConfig, evaluate_episodes
 from safe_bc.tasks import make_env
+from safe_bc.tasks.env_config import EnvConfig
 
 PolicySource = Any
 """Anything with ``build() -> Policy`` that pickles (``ExpertSource``, ``NetSource``)."""

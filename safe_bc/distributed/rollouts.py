@@ -9,7 +9,8 @@ from typing import Any
 
 Rollout = Callable[[Any, Sequence[int]], list[Any]]
 """Runs a job on tracks in this process, results in track order:
-:func:`safe_bc.methods.queries.rollout.query_tracks`, :func:`safe_bc.methods.selfimprove.rollout.local_rollouts`."""
+:func:`safe_bc.methods.queries.rollout.query_tracks`,
+:func:`safe_bc.methods.selfimprove.rollout.local_rollouts`."""
 
 
 class _Roller:

@@ -61,6 +61,7 @@ from typing import Any
 
 import numpy as np
 
+from safe_bc.data.episode import Episode
 from safe_bc.data.store import (
     DatasetError,
     DatasetMeta,
@@ -69,7 +70,6 @@ from safe_bc.data.store import (
     read_episode,
     read_meta,
 )
-from safe_bc.data.episode import Episode
 from safe_bc.export.limits import (
     COSTS,
     DEFAULT_COST_RULE,
@@ -173,8 +173,8 @@ def _episodes(root: Path, meta: DatasetMeta) -> Iterator[Episode]:
 
 
 def _env_for(meta: DatasetMeta) -> Any:
-    from safe_bc.tasks.env_config import EnvConfig
     from safe_bc.tasks import make_env
+    from safe_bc.tasks.env_config import EnvConfig
 
     return make_env(EnvConfig(env_id=meta.env_id, max_episode_steps=meta.max_steps))
 

@@ -6,6 +6,7 @@ here, one line each, in the order study stages run; their runners live beside th
 from __future__ import annotations
 
 from safe_bc.methods.improve.config import ImproveConfig
+from safe_bc.methods.queries.config import QueryConfig
 from safe_bc.methods.registry import (
     METHODS,
     Improved,
@@ -16,7 +17,6 @@ from safe_bc.methods.registry import (
     method_of_config,
     register_method,
 )
-from safe_bc.methods.queries.config import QueryConfig
 from safe_bc.methods.selfimprove.config import SelfImproveConfig
 
 __all__ = [

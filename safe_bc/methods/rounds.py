@@ -1,5 +1,6 @@
 """What the rounds of an interactive-training run share (critical-zone queries,
-:mod:`safe_bc.methods.queries.run`; self-imitation, :mod:`safe_bc.methods.selfimprove.run`): the run folder's
+:mod:`safe_bc.methods.queries.run`; self-imitation, :mod:`safe_bc.methods.selfimprove.run`): the run
+folder's
 identity and done records, the retraining (:class:`TrainJob`, in this process or elsewhere)
 and the training data (demonstrations plus each round's new rows). No Ray."""
 
@@ -14,9 +15,9 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from safe_bc.data.atomic import write_json_atomic
 from safe_bc.bc.checkpoint import checkpoint_unit, load_checkpoint, save_checkpoint
 from safe_bc.bc.net import BCNet
+from safe_bc.data.atomic import write_json_atomic
 from safe_bc.data.demos import Demonstrations
 from safe_bc.rollout.evaluate import NetSource
 from safe_bc.run_config import RunConfig

@@ -12,7 +12,8 @@ agent so far into the agent that is evaluated, in registry order. Every register
   folder, parallel=parallel)`` and returning ``(policy_source, report_values)``: ``config`` is
   the stage's config with the trial's parameters and ``seed`` = the training seed, ``agent``
   the trained :class:`~safe_bc.bc.BCNet`, ``folder`` the stage's own resumable folder,
-  ``parallel`` how the stage may spread rollouts over workers (:data:`safe_bc.methods.rounds.Parallel`;
+  ``parallel`` how the stage may spread rollouts over workers
+  (:data:`safe_bc.methods.rounds.Parallel`;
   the distributed layer passes its Ray actors, so that a runner names no Ray). It runs the
   method's runner from a :class:`~safe_bc.methods.Start` (:func:`run_stage`).
 * ``metrics``: the keys of ``report_values`` (trial table columns); ``summed`` of them add up

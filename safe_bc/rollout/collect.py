@@ -9,13 +9,13 @@ from typing import Any
 import gymnasium as gym
 
 from safe_bc.data.codec import Encoding
-from safe_bc.tasks.env_config import EnvConfig
 from safe_bc.data.episode import Episode
 from safe_bc.policy import Policy
 from safe_bc.rollout.episode import run_episode
 from safe_bc.seeds import demo_seed, episode_rng
 from safe_bc.tasks.carracing.expert import ExpertConfig
 from safe_bc.tasks.carracing.perturb import Perturbation, PerturbationConfig
+from safe_bc.tasks.env_config import EnvConfig
 from safe_bc.tasks.factory import make_env
 from safe_bc.tasks.registry import DEFAULT_TASK, TaskSpec, spec_of, spec_of_expert, task_defaults
 

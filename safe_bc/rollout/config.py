@@ -5,10 +5,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from safe_bc.tasks.env_config import EnvConfig
 from safe_bc.policy import LockstepForward, check_lockstep_forward
 from safe_bc.seeds import heldout_seed
 from safe_bc.selection import DEFAULT_EPS, Combine
+from safe_bc.tasks.env_config import EnvConfig
 
 
 @dataclass(frozen=True)

@@ -13,11 +13,11 @@ import torch
 from safe_bc.bc.config import BCConfig
 from safe_bc.bc.net import BCNet, ModelSpec
 from safe_bc.bc.policy import BCPolicy
-from safe_bc.rollout.collect import build_expert
 from safe_bc.data.episode import Episode
-from safe_bc.rollout.config import EvalConfig as EvalConfig  # also named here (callers, pickles)
 from safe_bc.metrics import combined, critical_zone, episode_metrics, violations
 from safe_bc.policy import BatchPolicy, LockstepForward, Policy, check_lockstep_forward
+from safe_bc.rollout.collect import build_expert
+from safe_bc.rollout.config import EvalConfig as EvalConfig  # also named here (callers, pickles)
 from safe_bc.rollout.episode import run_episode, run_episodes_lockstep
 from safe_bc.selection import Combine
 from safe_bc.tasks import spec_of_env

@@ -29,9 +29,9 @@ import gymnasium as gym
 import numpy as np
 import pandas as pd
 
-from safe_bc.tasks.env_config import DEFAULT_RENDERER, Renderer
 from safe_bc.data.episode import Episode
 from safe_bc.report import markdown_table
+from safe_bc.tasks.env_config import DEFAULT_RENDERER, Renderer
 
 DEFAULT_FILE = Path("tune_jobs/sweeps/drift_release.py")
 """The committed sweep's settings."""
@@ -144,8 +144,8 @@ def collect_release(
 
 def run_sweep(sweep: ReleaseSweep, *, progress: bool = True) -> pd.DataFrame:
     """Collect every row, write ``OUT/release_sweep.parquet`` and ``.md``; the table."""
-    from safe_bc.data.store import write_table_atomic, write_text_atomic
     from safe_bc.data.provenance import run_metadata
+    from safe_bc.data.store import write_table_atomic, write_text_atomic
 
     rows = []
     for release in sweep.releases:

@@ -19,7 +19,9 @@ import numpy as np
 import pandas as pd
 import torch
 
+from safe_bc.metrics import clopper_pearson_upper, episodes_beyond, summarize_policies
 from safe_bc.rollout.collect import stored_expert_config
+from safe_bc.rollout.evaluate import ExpertSource
 from safe_bc.study.final import (
     block_config,
     evaluate_block,
@@ -27,10 +29,8 @@ from safe_bc.study.final import (
     stored_evaluations,
 )
 from safe_bc.study.final_store import FinalStore, key_of
-from safe_bc.study.trial import TrialJob, trial_threads, with_handover
-from safe_bc.rollout.evaluate import ExpertSource
-from safe_bc.metrics import clopper_pearson_upper, episodes_beyond, summarize_policies
 from safe_bc.study.spec import StudySpec
+from safe_bc.study.trial import TrialJob, trial_threads, with_handover
 
 RECOMMENDER = "recommender"
 """Method label of the winner with its handover."""

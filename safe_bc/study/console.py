@@ -13,8 +13,8 @@ from typing import Any
 
 from ray import tune
 
-from safe_bc.study.stop import stopping, tune_caught_signal
 from safe_bc.study.spec import OBJECTIVE, StudySpec, missed
+from safe_bc.study.stop import stopping, tune_caught_signal
 
 
 class StudyReporter(tune.CLIReporter):

@@ -32,22 +32,11 @@ import pandas as pd
 import torch
 
 from safe_bc.bc.net import BCNet
-from safe_bc.rollout.collect import stored_expert_config
 from safe_bc.data.demos import Demonstrations
 from safe_bc.distributed.evaluate import LOCKSTEP_ENVS, evaluate_policies
-from safe_bc.study.final_store import FinalStore, agent_key, key_of
 from safe_bc.distributed.rollouts import ChunkedRayRollouts
 from safe_bc.distributed.runtime import cluster_cpus, ensure_ray
-from safe_bc.study.stop import deferred_stop, stop_point
 from safe_bc.distributed.train import train_many
-from safe_bc.study.trial import (
-    TrialJob,
-    bounds_for,
-    trial_threads,
-    with_handover,
-    with_seed,
-)
-from safe_bc.rollout.evaluate import EvalConfig, ExpertSource, NetSource
 from safe_bc.methods.experiment import RunConfig, train_run
 from safe_bc.metrics import (
     certified_share,
@@ -55,7 +44,18 @@ from safe_bc.metrics import (
     paired_differences,
     summarize_policies,
 )
+from safe_bc.rollout.collect import stored_expert_config
+from safe_bc.rollout.evaluate import EvalConfig, ExpertSource, NetSource
+from safe_bc.study.final_store import FinalStore, agent_key, key_of
 from safe_bc.study.spec import StudySpec, constraints, missed
+from safe_bc.study.stop import deferred_stop, stop_point
+from safe_bc.study.trial import (
+    TrialJob,
+    bounds_for,
+    trial_threads,
+    with_handover,
+    with_seed,
+)
 from safe_bc.tasks import Bounds
 
 PLAIN_BC = "plain_bc"

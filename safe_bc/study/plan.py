@@ -18,8 +18,8 @@ from typing import Any
 
 import pandas as pd
 
-from safe_bc.rollout.collect import CollectConfig
 from safe_bc.data.provenance import repo_relative
+from safe_bc.rollout.collect import CollectConfig
 from safe_bc.study.spec import ConstraintBars, StudySpec, settings_of
 from safe_bc.tasks import TaskSpec, task_defaults, task_of
 

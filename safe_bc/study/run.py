@@ -40,9 +40,15 @@ from ray.tune.logger import CSVLoggerCallback, JsonLoggerCallback, TBXLoggerCall
 from ray.tune.schedulers import FIFOScheduler, TrialScheduler
 from ray.tune.utils import flatten_dict
 
-from safe_bc.data.atomic import write_json_atomic, write_text_atomic
 from safe_bc.bc import CheckpointError, load_checkpoint
 from safe_bc.bc.net import BCNet
+from safe_bc.data.atomic import write_json_atomic, write_text_atomic
+from safe_bc.data.provenance import (
+    check_result_write,
+    committed_unchanged,
+    provenance,
+    repo_relative,
+)
 from safe_bc.data.store import (
     DatasetError,
     DatasetMeta,
@@ -54,6 +60,8 @@ from safe_bc.data.store import (
     write_table_atomic,
     write_tables_atomic,
 )
+from safe_bc.distributed.runtime import cluster_cpus, ensure_ray
+from safe_bc.plots import plot_pareto
 from safe_bc.study.console import (
     FULL_DISK,
     TrialLines,
@@ -65,6 +73,14 @@ from safe_bc.study.console import (
 )
 from safe_bc.study.final import FinalOutcome, final_phase
 from safe_bc.study.final_store import STORE, FinalStore
+from safe_bc.study.plan import (
+    StudyPlan,
+    constraint_bars,
+    is_uri,
+    plan_study,
+    run_identity,
+    trials_meta,
+)
 from safe_bc.study.resume import (
     ResumeRefused,
     check_published,
@@ -76,7 +92,6 @@ from safe_bc.study.resume import (
     take_failed_copy,
     with_more_trials,
 )
-from safe_bc.distributed.runtime import cluster_cpus, ensure_ray
 from safe_bc.study.search import (
     NUMBER,
     ConstrainedOptunaSearch,
@@ -88,25 +103,6 @@ from safe_bc.study.search import (
     mark_final_winner,
     raise_trial_count,
     take_copy_seconds,
-)
-from safe_bc.study.stop import (
-    _fit_stopped,
-    _reinstall_signals,
-    _stop_signals,
-)
-from safe_bc.study.trial import (
-    TrialJob,
-    checkpoint_problem,
-    run_trial,
-    stored_checkpoint,
-)
-from safe_bc.tasks.env_config import EnvConfig
-from safe_bc.plots import plot_pareto
-from safe_bc.data.provenance import (
-    check_result_write,
-    committed_unchanged,
-    provenance,
-    repo_relative,
 )
 from safe_bc.study.spec import (
     TRIAL_METRICS,
@@ -120,16 +116,20 @@ from safe_bc.study.spec import (
     summary_lines,
     trial_table,
 )
-from safe_bc.study.plan import (
-    StudyPlan,
-    constraint_bars,
-    is_uri,
-    plan_study,
-    run_identity,
-    trials_meta,
+from safe_bc.study.stop import (
+    _fit_stopped,
+    _reinstall_signals,
+    _stop_signals,
+)
+from safe_bc.study.timing import COPY, TOTAL, timing_lines, timing_markdown, timing_table
+from safe_bc.study.trial import (
+    TrialJob,
+    checkpoint_problem,
+    run_trial,
+    stored_checkpoint,
 )
 from safe_bc.tasks import check_frames_renderer, frames_renderer, task_defaults, task_of
-from safe_bc.study.timing import COPY, TOTAL, timing_lines, timing_markdown, timing_table
+from safe_bc.tasks.env_config import EnvConfig
 
 __all__ = [
     "ConstrainedOptunaSearch",
@@ -461,7 +461,8 @@ def read_history(path: Path) -> pd.DataFrame:
 TIMING_LOG = "timing.jsonl"
 """The driver's timed pieces, every run of the study (``timing.parquet`` is made from it)."""
 TIMING = "timing.parquet"
-"""Where the study's time went (:func:`safe_bc.study.timing.timing_table`); ``timing.md`` beside it."""
+"""Where the study's time went (:func:`safe_bc.study.timing.timing_table`); ``timing.md`` beside
+it."""
 
 
 class RunningMeter(tune.Callback):

@@ -3,7 +3,8 @@ study with its seeds shifted (:func:`safe_bc.study.replicates.replicate_spec`), 
 resumable study in ``<results>/<study>/replicates/r<k>/``, one after the other (each study
 already uses every CPU). A replicate whose final phase is written for the same settings is
 skipped; an interrupted one resumes. Once all are done, ``<results>/<study>/replicates.parquet``
-and ``replicates.md`` hold the table of the winners (:func:`safe_bc.study.replicates.replicate_table`),
+and ``replicates.md`` hold the table of the winners
+(:func:`safe_bc.study.replicates.replicate_table`),
 built from what each final phase wrote (nothing is evaluated again).
 """
 
@@ -19,11 +20,10 @@ from typing import Any
 import pandas as pd
 
 from safe_bc.data.atomic import write_text_atomic
-from safe_bc.data.store import read_table, read_table_metadata, write_table_atomic
-from safe_bc.study.run import format_outcome, run_study
-from safe_bc.study.trial import TrialJob, run_trial
 from safe_bc.data.locks import output_locks
 from safe_bc.data.provenance import check_result_write, provenance
+from safe_bc.data.store import read_table, read_table_metadata, write_table_atomic
+from safe_bc.study.plan import experiment_location
 from safe_bc.study.replicates import (
     REPLICATE_STRIDE,
     REPLICATES,
@@ -34,8 +34,9 @@ from safe_bc.study.replicates import (
     replicates_markdown,
     replicates_summary,
 )
+from safe_bc.study.run import format_outcome, run_study
 from safe_bc.study.spec import StudySpec
-from safe_bc.study.plan import experiment_location
+from safe_bc.study.trial import TrialJob, run_trial
 
 TABLE = f"{REPLICATES}.parquet"
 """The replicate table, in the study's folder."""

@@ -35,8 +35,8 @@ from optuna.samplers import TPESampler
 from ray.tune.schedulers import AsyncHyperBandScheduler, FIFOScheduler, TrialScheduler
 from ray.tune.search.optuna import OptunaSearch
 
-from safe_bc.study.spec import CONSTRAINTS, Choice, Float, Int, Param, StudySpec
 from safe_bc.study.plan import StudyPlan, is_uri
+from safe_bc.study.spec import CONSTRAINTS, Choice, Float, Int, Param, StudySpec
 
 SCORE = "score"
 """Result key of the screening score the halving compares: the reward, minus :data:`SCREEN_PENALTY`

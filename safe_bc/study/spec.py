@@ -34,13 +34,13 @@ import numpy as np
 import pandas as pd
 
 from safe_bc.config_file import run_config_file
-from safe_bc.tasks.env_config import EnvConfig
 from safe_bc.handover import HandoverConfig
 from safe_bc.methods.improve.config import ImproveConfig
 from safe_bc.methods.queries.config import QueryConfig
-from safe_bc.run_config import RunConfig
 from safe_bc.methods.selfimprove.config import SelfImproveConfig
 from safe_bc.methods.stages import STAGE_METRICS, STAGES, Stage, stage_of
+from safe_bc.run_config import RunConfig
+from safe_bc.tasks.env_config import EnvConfig
 
 if TYPE_CHECKING:
     from safe_bc.tasks import TaskSpec
@@ -416,7 +416,8 @@ class StudySpec:
     startup_trials: int = 8
     """Random trials before TPE starts modelling."""
     improve: ImproveConfig | None = None
-    """Optional improvement stage (:mod:`safe_bc.methods.improve`, constrained RL beyond the expert):
+    """Optional improvement stage (:mod:`safe_bc.methods.improve`, constrained RL beyond the
+    expert):
     with a config, every trial, after its BC training, improves its agent from there (the
     trained net is the start; ``seed`` is replaced by the training seed) and the *improved*
     agent is what the trial's evaluation, constraints and objective measure, and what the
@@ -1085,21 +1086,6 @@ def is_missing(v: Any) -> bool:
 
 def _row(s: pd.Series) -> dict[str, Any]:
     return {k: (v.item() if isinstance(v, np.generic) else v) for k, v in s.items()}
-
-
-def pareto_mask(reward: np.ndarray, safety: np.ndarray) -> np.ndarray:
-    """``(N,) bool``: points no other point beats in both reward and safety (higher is better).
-
-    >>> pareto_mask(np.array([1.0, 2.0, 3.0, 1.0]), np.array([3.0, 2.0, 1.0, 1.0])).tolist()
-    [True, True, True, False]
-    """
-    r, s = np.asarray(reward, float), np.asarray(safety, float)
-    ok = np.isfinite(r) & np.isfinite(s)
-    out = np.zeros(len(r), bool)
-    for i in np.flatnonzero(ok):
-        dominated = ok & (r >= r[i]) & (s >= s[i]) & ((r > r[i]) | (s > s[i]))
-        out[i] = not dominated.any()
-    return out
 
 
 def summary_lines(trials: pd.DataFrame, params: Sequence[str], top: int = 10) -> str:

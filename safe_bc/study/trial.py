@@ -7,8 +7,8 @@ survives, evaluated on the rest of its ``eval_episodes`` tracks. Every report ca
 key of ``TRIAL_METRICS``.
 
 Between the training and the evaluation, every stage the study sets
-(:data:`safe_bc.methods.stages.STAGES`, e.g. ``StudySpec.improve``: constrained RL beyond the expert)
-turns each seed's agent into the one the rounds evaluate, in the trial's folder (resumable).
+(:data:`safe_bc.methods.stages.STAGES`, e.g. ``StudySpec.improve``: constrained RL beyond the
+expert) turns each seed's agent into the one the rounds evaluate, in the trial's folder (resumable).
 """
 
 from __future__ import annotations
@@ -32,6 +32,7 @@ from ray import tune
 from safe_bc.bc import CheckpointError, load_checkpoint, read_checkpoint_meta
 from safe_bc.bc.net import BCNet
 from safe_bc.bc.train import TrainResult, training_threads
+from safe_bc.data.demos import Demonstrations
 from safe_bc.data.store import (
     DatasetError,
     is_local_filesystem,
@@ -40,16 +41,21 @@ from safe_bc.data.store import (
     subfolders,
     write_table_atomic,
 )
-from safe_bc.data.demos import Demonstrations
-from safe_bc.study.console import quiet_logs
 from safe_bc.distributed.evaluate import evaluate_policies
 from safe_bc.distributed.rollouts import ChunkedRayRollouts
-from safe_bc.study.search import ROUND, SCORE, SCREENED, screen_score
-from safe_bc.rollout.evaluate import EvalConfig, NetSource
 from safe_bc.methods.experiment import RunConfig, save_curve, train_run
 from safe_bc.metrics import cell_table, lower_bound_crossed, mean_metrics
+from safe_bc.rollout.evaluate import EvalConfig, NetSource
 from safe_bc.selection import SelectionError
-from safe_bc.study.spec import TRIAL_METRICS, ConstraintBars, StudySpec, constraints, episode_share_bound
+from safe_bc.study.console import quiet_logs
+from safe_bc.study.search import ROUND, SCORE, SCREENED, screen_score
+from safe_bc.study.spec import (
+    TRIAL_METRICS,
+    ConstraintBars,
+    StudySpec,
+    constraints,
+    episode_share_bound,
+)
 from safe_bc.tasks import Bounds, dataset_action_bounds
 
 
@@ -349,8 +355,8 @@ def stored_round(path: Path) -> tuple[pd.DataFrame, float] | None:
 def with_handover(source: Any, job: TrialJob) -> Any:
     """``source`` (an agent) with the study's handover to the demonstrations' expert at their
     ``d_s``: the recommender the study evaluates."""
-    from safe_bc.rollout.collect import stored_expert_config
     from safe_bc.methods.queries.defer import handover_source
+    from safe_bc.rollout.collect import stored_expert_config
     from safe_bc.tasks import task_defaults, task_of
 
     dims = task_defaults(task_of(job.spec.env.env_id)).safety_dims

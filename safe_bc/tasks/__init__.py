@@ -51,7 +51,6 @@ ENV_IDS: tuple[str, ...] = tuple(g.id for spec in TASKS.values() for g in spec.g
 built-in tasks' (a task registered later registers its own)."""
 
 __all__ = [
-    "EnvConfig",
     "DEFAULT_TASK",
     "ENTRY_POINTS",
     "ENV_IDS",
@@ -59,6 +58,7 @@ __all__ = [
     "TASKS",
     "Bounds",
     "Drawing",
+    "EnvConfig",
     "GymEnv",
     "PerturbationConfig",
     "Task",

@@ -232,10 +232,6 @@ def register_task(spec: TaskSpec) -> TaskSpec:
     for entry in spec.gym_envs:
         entry.register()
     TASKS[spec.name] = spec
-    if spec.selfimprove:
-        from safe_bc.methods.selfimprove.config import TASK_DEFAULTS
-
-        TASK_DEFAULTS[spec.name] = dict(spec.selfimprove)
     task_defaults.cache_clear()
     task_of.cache_clear()
     return spec

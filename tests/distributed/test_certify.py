@@ -6,6 +6,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from safe_bc.handover import HandoverConfig
 from safe_bc.study.certify import (
     AGENT_ALONE,
     EXPERT,
@@ -14,7 +15,6 @@ from safe_bc.study.certify import (
     crossed,
     summarize_certification,
 )
-from safe_bc.handover import HandoverConfig
 from safe_bc.study.spec import StudySpec
 
 

@@ -13,9 +13,9 @@ import psutil
 import pytest
 
 from safe_bc.cli.commands import main
-from safe_bc.rollout.collect import CollectConfig
 from safe_bc.data.store import read_episodes
 from safe_bc.distributed.collect import collect
+from safe_bc.rollout.collect import CollectConfig
 
 STEPS = 70
 

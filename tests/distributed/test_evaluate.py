@@ -9,8 +9,8 @@ import pytest
 from safe_bc.bc import BCConfig, NetworkConfig, TrainConfig
 from safe_bc.data.store import load_demonstrations
 from safe_bc.distributed.evaluate import evaluate_policies
-from safe_bc.rollout.evaluate import EvalConfig, ExpertSource, NetSource
 from safe_bc.methods.experiment import RunConfig, train_run
+from safe_bc.rollout.evaluate import EvalConfig, ExpertSource, NetSource
 from safe_bc.selection import SelectionConfig
 from safe_bc.tasks.carracing.expert import ExpertConfig
 
@@ -139,9 +139,9 @@ def test_a_trial_evaluates_its_tracks_in_lockstep_groups_of_trial_envs(
     from dataclasses import replace
 
     import safe_bc.study.trial as trial_mod
-    from safe_bc.study.trial import TrialJob, evaluate_source
     from safe_bc.methods.experiment import RunConfig
     from safe_bc.study.spec import ConstraintBars, StudySpec
+    from safe_bc.study.trial import TrialJob, evaluate_source
 
     sources, thresholds, _ = bc_and_expert
     limits = ConstraintBars(7.0, (7.0, 7.0, 7.0), 0.0)

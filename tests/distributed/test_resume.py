@@ -13,6 +13,7 @@ from types import SimpleNamespace
 
 import pytest
 
+from safe_bc.study.plan import settings_of
 from safe_bc.study.resume import (
     OWNER,
     ResumeRefused,
@@ -24,7 +25,6 @@ from safe_bc.study.resume import (
     install_atomic_upload,
     tune_state,
 )
-from safe_bc.study.plan import settings_of
 
 SETTINGS = {"trials": 2, "max_steps": 100, "base": {"bc": {"lr": 0.001}}}
 

@@ -23,7 +23,8 @@ from ray import tune
 from safe_bc.cli.commands import main
 from safe_bc.data.curves import read_events
 from safe_bc.data.store import load_demonstrations, read_table
-from safe_bc.study.search import WINNER
+from safe_bc.metrics import combined
+from safe_bc.seeds import heldout_seeds
 from safe_bc.study.run import (
     ConstrainedOptunaSearch,
     SpaceSampler,
@@ -33,8 +34,7 @@ from safe_bc.study.run import (
     run_study,
     run_trial,
 )
-from safe_bc.metrics import combined
-from safe_bc.seeds import heldout_seeds
+from safe_bc.study.search import WINNER
 from safe_bc.study.spec import TRIAL_INFO, TRIAL_METRICS, Choice, Float, load_study
 from safe_bc.study.timing import PHASES
 from tests.conftest import TINY_COLLECT, tiny_collect
@@ -361,8 +361,8 @@ def test_a_study_with_a_handover_delivers_a_certified_recommender(
     tiny_demos: Path, tmp_path: Path
 ) -> None:
     from safe_bc.data.store import data_digest
-    from safe_bc.study.certify import summarize_certification
     from safe_bc.handover import HandoverConfig
+    from safe_bc.study.certify import summarize_certification
     from safe_bc.study.recommender import RecommenderError, load_recommender
 
     handover = HandoverConfig(2.0, lookahead=6, hold=6, hold_on=("front",))

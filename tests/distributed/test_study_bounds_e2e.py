@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 import torch
 
-from safe_bc.rollout.collect import CollectConfig
 from safe_bc.metrics import clopper_pearson_upper
+from safe_bc.rollout.collect import CollectConfig
 from safe_bc.study.spec import load_study
 from safe_bc.tasks import task_defaults
 

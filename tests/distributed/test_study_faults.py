@@ -627,9 +627,9 @@ def test_an_os_error_inside_tune_is_one_line_saying_what_a_rerun_does(
 def test_a_finished_studys_optuna_copy_must_be_whole_and_its_own(tmp_path: Path) -> None:
     import optuna
 
+    from safe_bc.study.plan import plan_study
     from safe_bc.study.search import check_optuna_copy
     from safe_bc.study.spec import StudySpec
-    from safe_bc.study.plan import plan_study
 
     spec = StudySpec("mine", {"selection.alpha": Float(0.0, 1.0)}, trials=2, results=tmp_path)
     plan = plan_study(spec, fresh=False, command="", final=True)

@@ -13,10 +13,10 @@ import pytest
 from safe_bc.bc import BCConfig, NetworkConfig
 from safe_bc.bc.net import BCNet, ModelSpec
 from safe_bc.data.store import write_tables_atomic
-from safe_bc.study.run import FINISHED, finished_outcome
-from safe_bc.study.recommender import RecommenderCard, write_recommender
-from safe_bc.study.spec import Float, StudySpec, trial_table
 from safe_bc.study.plan import StudyPlan, plan_study
+from safe_bc.study.recommender import RecommenderCard, write_recommender
+from safe_bc.study.run import FINISHED, finished_outcome
+from safe_bc.study.spec import Float, StudySpec, trial_table
 
 
 def _optuna_copy(path: Path, name: str, trials: int) -> None:

@@ -7,10 +7,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from safe_bc.rollout.collect import CollectConfig, EpisodeMaker, config_dict
 from safe_bc.data.store import DatasetMeta, init_dataset, read_episodes, write_episode
-from safe_bc.tasks.env_config import EnvConfig
+from safe_bc.rollout.collect import CollectConfig, EpisodeMaker, config_dict
 from safe_bc.tasks.carracing.perturb import PerturbationConfig
+from safe_bc.tasks.env_config import EnvConfig
 
 minari = pytest.importorskip("minari")
 

@@ -17,9 +17,9 @@ import scripts.observation_choice as ablation
 from safe_bc.bc.config import PreprocessConfig
 from safe_bc.bc.preprocess import STEERING_INDICATOR, preprocess_frames
 from safe_bc.data.store import read_table
-from safe_bc.tasks.env_config import EnvConfig
 from safe_bc.rollout.evaluate import MaskedSteering
 from safe_bc.tasks import make_env
+from safe_bc.tasks.env_config import EnvConfig
 
 ROOT = Path(__file__).resolve().parents[2]
 _spec = importlib.util.spec_from_file_location(
@@ -204,8 +204,8 @@ def test_evaluation_path_steering_metrics_match_the_committed_episodes() -> None
     table's for the expert on its first two selection tracks (needs the default
     demonstrations: their expert and limits). The table was made on AMD EPYC; the check was
     shown there (the scripted expert runs no learned net; other machine types not tried)."""
-    from safe_bc.rollout.collect import stored_expert_config
     from safe_bc.distributed.evaluate import evaluate_policies
+    from safe_bc.rollout.collect import stored_expert_config
     from safe_bc.rollout.evaluate import EvalConfig, ExpertSource
     from safe_bc.tasks import task_defaults
 

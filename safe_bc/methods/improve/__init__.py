@@ -91,7 +91,12 @@ if TYPE_CHECKING:
     )
     from safe_bc.methods.improve.nets import GaussianActor, gae, make_critic, multiplier_update
     from safe_bc.methods.improve.run import ImproveResult, improve, improve_from_net
-    from safe_bc.methods.improve.shield import ImprovedSource, Shield, ShieldedPolicy, observed_costs
+    from safe_bc.methods.improve.shield import (
+        ImprovedSource,
+        Shield,
+        ShieldedPolicy,
+        observed_costs,
+    )
 
 _LAZY = {
     "shield": ("ImprovedSource", "Shield", "ShieldedPolicy", "observed_costs"),

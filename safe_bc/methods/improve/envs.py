@@ -8,7 +8,11 @@ from typing import Protocol
 
 import numpy as np
 
-from safe_bc.methods.improve.config import _TRAIN_SEEDS_PER_RUN, TRAIN_SEED_BASE, VALIDATION_SEED_BASE
+from safe_bc.methods.improve.config import (
+    _TRAIN_SEEDS_PER_RUN,
+    TRAIN_SEED_BASE,
+    VALIDATION_SEED_BASE,
+)
 from safe_bc.seeds import HELDOUT_OFFSET
 
 
@@ -83,8 +87,8 @@ class LocalEnvs:
     """``n`` envs in this process (:func:`safe_bc.tasks.make_env`)."""
 
     def __init__(self, env_id: str, n: int) -> None:
-        from safe_bc.tasks.env_config import EnvConfig
         from safe_bc.tasks import make_env
+        from safe_bc.tasks.env_config import EnvConfig
 
         self.envs = [make_env(EnvConfig(env_id)) for _ in range(n)]
 

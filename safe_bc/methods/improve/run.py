@@ -13,7 +13,6 @@ from typing import Any
 import pandas as pd
 import torch
 
-from safe_bc.data.atomic import atomic_write
 from safe_bc.bc.checkpoint import (
     SELECTION,
     CheckpointError,
@@ -25,6 +24,7 @@ from safe_bc.bc.checkpoint import (
 from safe_bc.bc.config import BCConfig
 from safe_bc.bc.net import BCNet
 from safe_bc.bc.train import torch_settings
+from safe_bc.data.atomic import atomic_write
 from safe_bc.methods.improve.config import FORMAT, HISTORY, POLICY, STATE, ImproveConfig
 from safe_bc.methods.improve.engine import Improver, _check_start_fits, _load_start, _start_meta
 from safe_bc.methods.improve.envs import EnvGroupFactory, LocalEnvs
@@ -106,8 +106,8 @@ def improve(
             The run is bit-identical either way, so a run may resume on another group.
     """
     from safe_bc.data.curves import write_events
-    from safe_bc.data.store import write_table_atomic
     from safe_bc.data.provenance import run_metadata
+    from safe_bc.data.store import write_table_atomic
 
     start, out = Path(start), Path(out)
     t0 = time.perf_counter()

@@ -10,8 +10,8 @@ import numpy as np
 
 from safe_bc.bc.checkpoint import load_checkpoint, read_checkpoint_meta
 from safe_bc.bc.policy import BCPolicy
-from safe_bc.rollout.evaluate import NetSource
 from safe_bc.methods.improve.config import POLICY
+from safe_bc.rollout.evaluate import NetSource
 from safe_bc.selection import CriticalZone
 from safe_bc.tasks.rehab import REHAB_ID
 

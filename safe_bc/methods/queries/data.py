@@ -1,5 +1,6 @@
 """Round files (``queries.npz``, written atomically; numpy only, no torch). The training data
-(demonstrations plus every queried episode's rows) is :func:`safe_bc.methods.rounds.aggregate_rows`'s."""
+(demonstrations plus every queried episode's rows) is
+:func:`safe_bc.methods.rounds.aggregate_rows`'s."""
 
 from __future__ import annotations
 

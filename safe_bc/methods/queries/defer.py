@@ -10,9 +10,9 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from safe_bc.rollout.collect import build_expert
-from safe_bc.policy import BatchPolicy, Policy
 from safe_bc.methods.queries.logic import ask_expert
+from safe_bc.policy import BatchPolicy, Policy
+from safe_bc.rollout.collect import build_expert
 from safe_bc.selection import CriticalZone
 
 

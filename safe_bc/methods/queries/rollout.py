@@ -11,10 +11,10 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from safe_bc.rollout.collect import build_expert
-from safe_bc.policy import Policy
 from safe_bc.methods.queries.config import QueryMode
 from safe_bc.methods.queries.logic import ask_expert, budget_keep, context_rows
+from safe_bc.policy import Policy
+from safe_bc.rollout.collect import build_expert
 from safe_bc.rollout.episode import run_episode
 from safe_bc.selection import CriticalZone
 

@@ -19,11 +19,10 @@ from typing import Any
 
 import numpy as np
 
-from safe_bc.data.atomic import write_json_atomic
 from safe_bc.bc.checkpoint import checkpoint_unit, save_checkpoint
 from safe_bc.bc.net import BCNet
+from safe_bc.data.atomic import write_json_atomic
 from safe_bc.data.demos import Demonstrations
-from safe_bc.rollout.evaluate import NetSource
 from safe_bc.methods.queries.config import (
     DONE,
     FORMAT,
@@ -49,6 +48,7 @@ from safe_bc.methods.rounds import (
     weights_digest,
     with_batches,
 )
+from safe_bc.rollout.evaluate import NetSource
 from safe_bc.run_config import RunConfig
 from safe_bc.selection import CriticalZone, Selection
 

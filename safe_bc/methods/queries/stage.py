@@ -10,11 +10,11 @@ from typing import TYPE_CHECKING, Any
 import pandas as pd
 
 from safe_bc.bc.net import BCNet
-from safe_bc.tasks.env_config import EnvConfig
-from safe_bc.methods.registry import Improved, Start
 from safe_bc.methods.queries.config import QueryConfig
 from safe_bc.methods.queries.run import QueryResult, run_queries
+from safe_bc.methods.registry import Improved, Start
 from safe_bc.run_config import RunConfig
+from safe_bc.tasks.env_config import EnvConfig
 
 if TYPE_CHECKING:
     from safe_bc.methods.rounds import Parallel

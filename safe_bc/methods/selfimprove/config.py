@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 import re
+from collections.abc import Iterator, Mapping
 from dataclasses import asdict, dataclass, replace
 from typing import Any, Literal, get_args
 
@@ -38,9 +39,29 @@ LOOP_PUSHES: dict[str, tuple[str, ...]] = {
 +0.03 / +0.05, brake x0.9 / x0.8 / x0.5 (the loop a user measured by hand); rehab:
 intensity and duration +-0.05."""
 
-TASK_DEFAULTS: dict[str, dict[str, Any]] = {}
+
+class _TaskDefaults(Mapping[str, dict[str, Any]]):
+    """Read-only: each registered task's ``TaskSpec.selfimprove``, read from its record."""
+
+    @staticmethod
+    def _table() -> dict[str, dict[str, Any]]:
+        from safe_bc.tasks.registry import TASKS
+
+        return {name: dict(spec.selfimprove) for name, spec in TASKS.items() if spec.selfimprove}
+
+    def __getitem__(self, task: str) -> dict[str, Any]:
+        return self._table()[task]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._table())
+
+    def __len__(self) -> int:
+        return len(self._table())
+
+
+TASK_DEFAULTS: Mapping[str, dict[str, Any]] = _TaskDefaults()
 """Each registered task's values for the fields a :class:`SelfImproveConfig` leaves at
-``None`` (its ``TaskSpec.selfimprove``, filled in when the task is registered), each chosen by
+``None`` (its ``TaskSpec.selfimprove``, read from the task's record), each chosen by
 its selection table (3 training seeds x 50 selection tracks or 200 selection
 patients; ``scripts/selfimprove_choice.py``'s rule: among the rows with a reliable reward gain
 over the start, the fewest episodes beyond d_s). CarRacing: 4 rounds of the loop's pushes at

@@ -1,7 +1,8 @@
 """The training tracks of a self-imitation round stepped in lockstep: every unperturbed and
 pushed run of the round's tracks through a pool of envs, the agent's net called once per step
 for every running run (``BatchPolicy.act_slots``). Each run keeps the driver the one-env path
-gives it (:meth:`~safe_bc.methods.selfimprove.rollout.ExploreJob.driver`: the push behind its back-off
+gives it (:meth:`~safe_bc.methods.selfimprove.rollout.ExploreJob.driver`: the push behind its
+back-off
 zone, or the handover to the expert) with the net's action handed in; the expert's own run
 stays one env at a time (a scripted expert has no net to batch).
 

@@ -7,9 +7,9 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from safe_bc.methods.selfimprove.config import KeepUnit, KeptIn
 from safe_bc.metrics import clopper_pearson_upper
 from safe_bc.selection import Selection, SelectionConfig, select_with_added
-from safe_bc.methods.selfimprove.config import KeepUnit, KeptIn
 
 Terms = Sequence[tuple[int, str, float]]
 

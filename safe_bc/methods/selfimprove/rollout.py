@@ -12,11 +12,11 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from safe_bc.policy import BatchPolicy, LockstepForward, Policy
 from safe_bc.methods.queries.logic import context_rows
-from safe_bc.rollout.episode import run_episode
 from safe_bc.methods.selfimprove.config import KeepUnit, parse_push
 from safe_bc.methods.selfimprove.logic import best_runs, kept_steps, push_action, push_allowed
+from safe_bc.policy import BatchPolicy, LockstepForward, Policy
+from safe_bc.rollout.episode import run_episode
 
 
 class Push:

@@ -26,13 +26,12 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from safe_bc.data.atomic import write_json_atomic
 from safe_bc.bc.checkpoint import checkpoint_unit, save_checkpoint
 from safe_bc.bc.net import BCNet
+from safe_bc.data.atomic import write_json_atomic
 from safe_bc.data.curves import write_curve
-from safe_bc.data.frames import FrameFile, checksum_path, write_frame_file
 from safe_bc.data.demos import Demonstrations
-from safe_bc.rollout.evaluate import NetSource
+from safe_bc.data.frames import FrameFile, checksum_path, write_frame_file
 from safe_bc.methods.improve.config import VALIDATION_SEED_BASE
 from safe_bc.methods.queries.config import track_seeds
 from safe_bc.methods.rounds import (
@@ -47,8 +46,6 @@ from safe_bc.methods.rounds import (
     weights_digest,
     with_batches,
 )
-from safe_bc.run_config import RunConfig
-from safe_bc.selection import Selection
 from safe_bc.methods.selfimprove.config import (
     CURVE,
     DONE,
@@ -70,6 +67,9 @@ from safe_bc.methods.selfimprove.rollout import (
     ValidateJob,
     local_rollouts,
 )
+from safe_bc.rollout.evaluate import NetSource
+from safe_bc.run_config import RunConfig
+from safe_bc.selection import Selection
 
 RolloutFn = Callable[[Any, Sequence[int]], list[Any]]
 """Runs a job (:class:`ExploreJob` or :class:`ValidateJob`) on tracks, results in track order

@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import gymnasium as gym
 
-from safe_bc.tasks.env_config import EnvConfig, Renderer
 from safe_bc.handover import HandoverConfig
 from safe_bc.selection import DEFAULT_EPS
 from safe_bc.tasks.carracing.costs import SAFETY_DIMS, frame_costs
@@ -30,6 +29,7 @@ from safe_bc.tasks.carracing.draw import DRAWING
 from safe_bc.tasks.carracing.expert import CarRacingExpert, ExpertConfig
 from safe_bc.tasks.carracing.perturb import PerturbationConfig
 from safe_bc.tasks.carracing.wrapper import CarRacingSafety
+from safe_bc.tasks.env_config import EnvConfig, Renderer
 from safe_bc.tasks.registry import GymEnv, TaskSpec
 
 CARRACING_ID = "CarRacing-v3"

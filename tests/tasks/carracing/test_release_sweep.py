@@ -11,9 +11,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from safe_bc.data.store import read_table
 from safe_bc.data.episode import Episode
-from safe_bc.tasks.carracing.perturb import PerturbationConfig
+from safe_bc.data.store import read_table
 from safe_bc.rollout.release_sweep import (
     DEFAULT_FILE,
     ReleaseSweep,
@@ -23,6 +22,7 @@ from safe_bc.rollout.release_sweep import (
     render_markdown,
     run_sweep,
 )
+from safe_bc.tasks.carracing.perturb import PerturbationConfig
 
 ROOT = Path(__file__).resolve().parents[3]
 COMMITTED = ROOT / "results/demos/release_sweep"
