@@ -39,6 +39,7 @@ from safe_bc.methods.improve.config import ImproveConfig
 from safe_bc.methods.queries.config import QueryConfig
 from safe_bc.methods.selfimprove.config import SelfImproveConfig
 from safe_bc.methods.stages import STAGE_METRICS, STAGES, Stage, stage_of
+from safe_bc.metrics import pareto_mask  # noqa: F401 (named here before)
 from safe_bc.run_config import RunConfig
 from safe_bc.tasks.env_config import EnvConfig
 
