@@ -1,15 +1,15 @@
 """Where should a drift stop? Demonstrations collected at several release distances.
 
-The drift perturbation (:mod:`.perturb`) pushes the car towards one edge and releases it once
-the frame's distance to the grass on that side falls to ``PerturbationConfig.
-release_distance`` px. A :class:`ReleaseSweep` collects ``episodes`` default demonstration
-episodes (the task's default collection, its tracks and noise) per release distance and keeps,
-per distance: the closest approach to the grass per safety dimension over the scored steps,
-the fewest wheels on the road, the off-road frames and the mean reward: the measurements
-behind the default of 6 px (``results/demos/release_sweep.md``, cited by
-``docs/defaults.md``).
+The drift perturbation (:mod:`safe_bc.tasks.carracing.perturb`) pushes the car towards one edge
+and releases it once the frame's distance to the grass on that side falls to
+``PerturbationConfig.release_distance`` px. A :class:`ReleaseSweep` collects ``episodes``
+default demonstration episodes (the task's default collection, its tracks and noise) per
+release distance and keeps, per distance: the closest approach to the grass per safety
+dimension over the scored steps, the fewest wheels on the road, the off-road frames and the
+mean reward: the measurements behind the default of 6 px (``results/demos/release_sweep.md``,
+cited by ``docs/defaults.md``).
 
-Run: ``python -m safe_bc.rollout.release_sweep [FILE]`` (``FILE`` defines ``SWEEP =
+Run: ``python -m scripts.release_sweep [FILE]`` (``FILE`` defines ``SWEEP =
 ReleaseSweep(...)``; default ``tune_jobs/sweeps/drift_release.py``). Writes
 ``OUT/release_sweep.parquet`` (with provenance) and ``release_sweep.md``, a function of the
 parquet alone (:func:`render_markdown`).
@@ -17,7 +17,6 @@ parquet alone (:func:`render_markdown`).
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import runpy
 from collections.abc import Sequence
@@ -174,19 +173,3 @@ def load_sweep(path: str | Path) -> ReleaseSweep:
     if not isinstance(sweep, ReleaseSweep):
         raise ValueError(f"{path}: defines no SWEEP = ReleaseSweep(...)")
     return sweep
-
-
-def main(argv: list[str] | None = None) -> int:
-    """``python -m safe_bc.rollout.release_sweep [FILE]``."""
-    parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
-    parser.add_argument("file", nargs="?", type=Path, default=DEFAULT_FILE)
-    args = parser.parse_args(argv)
-    run_sweep(load_sweep(args.file))
-    return 0
-
-
-if __name__ == "__main__":  # run the imported module's main, so that a sweep file's
-    # ReleaseSweep (imported by its module name) is the class load_sweep checks against
-    from safe_bc.rollout.release_sweep import main as _main
-
-    raise SystemExit(_main())

@@ -14,7 +14,6 @@ Everything CarRacing-specific lives in this folder:
   offsets from the track), :mod:`.perturb` (drift / DART perturbations of the executed
   action);
 * the pictures: :mod:`.draw` (the safety rays drawn over a frame, the track map);
-* :mod:`.release_sweep`: the experiment behind the drift's release distance;
 * :data:`SPEC`, its registry entry.
 """
 
