@@ -417,7 +417,7 @@ def install_atomic_upload() -> None:
     if original is None:
         raise RuntimeError(
             "ray.train._internal.storage has no _upload_to_fs_path; safe_bc's atomic copy of "
-            "Tune's experiment state (distributed/resume.py) needs updating for this Ray version"
+            "Tune's experiment state (study/resume.py) needs updating for this Ray version"
         )
     if getattr(original, "_safe_bc_atomic", False):
         return

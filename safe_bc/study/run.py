@@ -10,8 +10,8 @@ check), :func:`_tune` (the Tuner, new or restored, and its fit), then
 final phase's ``final.parquet``, ``final_episodes.parquet``, ``final_paired.parquet`` and
 ``best.json`` (:func:`_write_final`), the certificate and recommender (:func:`deliver`), the
 time table and the finished mark. The pieces live in their own modules: the searcher,
-scheduler and Optuna copy (``distributed/search.py``), one trial (``distributed/trial.py``)
-and the final phase (``distributed/final.py``).
+scheduler and Optuna copy (``study/search.py``), one trial (``study/trial.py``)
+and the final phase (``study/final.py``).
 """
 
 from __future__ import annotations
@@ -685,7 +685,7 @@ def check_persistence_api() -> None:
     if missing:
         raise RuntimeError(
             f"ray.tune no longer has {', '.join(missing)}; safe_bc's saving of the experiment "
-            "state after every trial (distributed/study.py) needs updating for this Ray version"
+            "state after every trial (study/run.py) needs updating for this Ray version"
         )
 
 

@@ -1,4 +1,4 @@
-"""The final phase's paired table (pure pieces of distributed/final.py)."""
+"""The final phase's paired table (pure pieces of study/final.py)."""
 
 from __future__ import annotations
 
