@@ -53,7 +53,7 @@ def test_tables_elsewhere_and_clean_trees_are_not_checked(results, tmp_path, mon
 
 
 def test_the_real_results_folder_is_the_checkouts() -> None:
-    assert Path(provenance.__file__).resolve().parents[1] / "results" == provenance.RESULTS
+    assert Path(provenance.__file__).resolve().parents[2] / "results" == provenance.RESULTS
 
 
 REPO = Path(__file__).resolve().parents[1]

@@ -303,16 +303,25 @@ def repo_relative(path: str | Path, root: str | Path = _REPO) -> str:
     return text if relative.startswith("..") else Path(relative).as_posix()
 
 
+ENTRY_PROGRAMS = (
+    "/safe-bc",
+    "safe_bc/cli/__main__.py",
+    "safe_bc/cli/commands.py",
+    "safe_bc/cli/commands.py",  # the module's path before the cli package
+)
+"""How ``argv[0]`` ends when the command line's entry point runs (recorded as ``safe-bc``)."""
+
+
 def command_line(argv: Sequence[str] | None = None, root: str | Path = _REPO) -> str:
     """The command line ``argv`` (default ``sys.argv``) as a result records it: the program as
     ``safe-bc`` when it is the command line's entry point (``.../bin/safe-bc``,
-    ``.../safe_bc/cli.py``), else by its path in the repository ``root`` or, outside it, its
-    name; and every absolute path inside ``root`` (a word, or the value of ``--flag=value``)
+    ``python -m`` of ``safe_bc/cli/``), else by its path in the repository ``root`` or, outside
+    it, its name; and every absolute path inside ``root`` (a word, or the value of ``--flag=value``)
     relative to it.
 
     >>> command_line(["/r/.venv/bin/safe-bc", "describe", "--out", "/r/res", "--x=/r/a"], "/r")
     'safe-bc describe --out res --x=a'
-    >>> command_line(["/r/safe_bc/cli.py", "compare", "--out", "/tmp/o"], "/r")
+    >>> command_line(["/r/safe_bc/cli/__main__.py", "compare", "--out", "/tmp/o"], "/r")
     'safe-bc compare --out /tmp/o'
     >>> command_line(["/usr/bin/pytest", "-q"], "/r"), command_line(["/r/scripts/s.py"], "/r")
     ('pytest -q', 'scripts/s.py')
@@ -321,7 +330,7 @@ def command_line(argv: Sequence[str] | None = None, root: str | Path = _REPO) ->
     if not words:
         return ""
     program = words[0].replace(os.sep, "/")
-    if program.endswith(("/safe-bc", "safe_bc/cli/commands.py")) or program == "safe-bc":
+    if program.endswith(ENTRY_PROGRAMS) or program == "safe-bc":
         program = "safe-bc"
     else:
         program = repo_relative(words[0], root)
