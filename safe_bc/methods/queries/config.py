@@ -7,6 +7,8 @@ import math
 from dataclasses import asdict, dataclass, replace
 from typing import Any, Literal, get_args
 
+from safe_bc.methods.layout import DONE, IDENTITY, POLICY, round_dir  # noqa: F401 (the run folder)
+
 QueryMode = Literal["critical", "full"]
 
 QUERY_SEED_BASE = (1 << 29) + (1 << 28)
@@ -17,15 +19,7 @@ QUERY_SEED_BASE = (1 << 29) + (1 << 28)
 _PER_SEED = 1_000_000
 _PER_ROUND = 10_000
 FORMAT = "safe_bc.queries/1"
-IDENTITY = "identity.json"
 QUERIES = "queries.npz"
-POLICY = "policy"
-DONE = "done.json"
-
-
-def round_dir(r: int) -> str:
-    """Folder name of round ``r`` (``round_000``)."""
-    return f"round_{r:03d}"
 
 
 def track_seeds(seed: int, r: int, n: int) -> list[int]:

@@ -10,6 +10,7 @@ from dataclasses import asdict, dataclass, replace
 from typing import Any, Literal, get_args
 
 from safe_bc.handover import HandoverConfig
+from safe_bc.methods.layout import DONE, IDENTITY, POLICY, round_dir  # noqa: F401 (the run folder)
 
 KeepUnit = Literal["episode", "segment"]
 KeptIn = Literal["rest", "zone", "critical"]
@@ -20,12 +21,9 @@ Forward = Literal["rows", "batched"]
 
 FORMAT = "safe_bc.selfimprove/2"
 """Run-folder format (2: rounds and the start's validation record their env steps)."""
-IDENTITY = "identity.json"
 KEPT = "kept.npz"
 FRAMES = "frames.npy"
 """A round's training frames while it trains (``frames_on_disk``; deleted after)."""
-POLICY = "policy"
-DONE = "done.json"
 START_VALIDATION = "start_validation.json"
 CURVE = "curve.parquet"
 """A run's learning curve (``SelfImproveResult.history``, one row per round after the start's),
@@ -92,11 +90,6 @@ def parse_push(spec: str) -> tuple[tuple[int, str, float], ...]:
         dim, op = int(m.group(1)), m.group(2)
         terms.append((dim, "+", -value) if op == "-" else (dim, op, value))
     return tuple(terms)
-
-
-def round_dir(r: int) -> str:
-    """Folder name of round ``r`` (``round_000``)."""
-    return f"round_{r:03d}"
 
 
 @dataclass(frozen=True)
