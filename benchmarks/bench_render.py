@@ -28,8 +28,8 @@ __all__ = ["bench_render"]
 def _make_env(renderer: str) -> Any:
     """``safe_bc.tasks.make_env`` with this renderer: the env safe_bc steps, safety costs in
     ``info`` (``CarRacingSafety``) and gymnasium's wrappers included."""
-    from safe_bc.envs import EnvConfig
     from safe_bc.tasks import make_env
+    from safe_bc.tasks.env_config import EnvConfig
 
     return make_env(EnvConfig(renderer=renderer))  # type: ignore[arg-type]
 
@@ -193,8 +193,8 @@ def step_breakdown(steps: int = 300, seed: int = 0) -> dict[str, float]:
     import cProfile
     import pstats
 
-    from safe_bc.envs import EnvConfig
     from safe_bc.tasks import make_env
+    from safe_bc.tasks.env_config import EnvConfig
 
     env = make_env(EnvConfig(renderer="exact"))
     try:

@@ -14,7 +14,7 @@ to ``--out`` (a table written with :func:`safe_bc.data.store.write_table_atomic`
 run appends to it): CPUs, trials, the tuning loop's wall seconds (``timing.parquet``'s
 ``tuning`` phase: Tune's ``fit``, every trial, Optuna, the halving), trials per minute, the
 concurrency resolved from the CPUs and the most trials seen running at once, the trials' mean
-duration, and the machine (:func:`safe_bc.provenance.provenance`). ``--report`` writes the
+duration, and the machine (:func:`safe_bc.data.provenance.provenance`). ``--report`` writes the
 Markdown beside the table, each row's trials per minute against the row with the fewest CPUs.
 
 The demonstrations are ``--demos`` (default ``data/demos``); when absent the study collects the
@@ -37,7 +37,7 @@ from typing import Any
 
 import pandas as pd
 
-from safe_bc.atomic import write_text_atomic
+from safe_bc.data.atomic import write_text_atomic
 from safe_bc.data.store import read_table, write_table_atomic
 
 DEFAULT_STUDY = Path("tune_jobs/default.py")
@@ -52,7 +52,7 @@ COLUMNS = (
 def study_for(args: argparse.Namespace, root: Path) -> Any:
     """The study to measure: the study file with the command line's overrides, writing under
     ``root``."""
-    from safe_bc.study import load_study
+    from safe_bc.study.spec import load_study
 
     spec = load_study(args.study)
     fit = max(1, math.floor(args.cpus / spec.trial_cpus + 1e-9))
@@ -72,9 +72,9 @@ def study_for(args: argparse.Namespace, root: Path) -> Any:
 
 def measure(args: argparse.Namespace) -> dict[str, Any]:
     """Run the study on a fresh local Ray of ``args.cpus`` CPUs; its row."""
+    from safe_bc.data.provenance import provenance
     from safe_bc.distributed.runtime import start_local_ray
-    from safe_bc.distributed.study import run_study
-    from safe_bc.provenance import provenance
+    from safe_bc.study.run import run_study
 
     os.environ.setdefault("RAY_DEDUP_LOGS", "0")
     if os.environ.pop("RAY_ADDRESS", None):
@@ -122,7 +122,7 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
 
 def append_row(path: Path, row: dict[str, Any]) -> pd.DataFrame:
     """Add ``row`` to the table at ``path`` (made if absent); the whole table."""
-    from safe_bc.provenance import provenance
+    from safe_bc.data.provenance import provenance
 
     rows, meta = read_table(path) if path.exists() else (pd.DataFrame(), {})
     table = pd.concat([rows, pd.DataFrame([row], columns=list(COLUMNS))], ignore_index=True)

@@ -8,9 +8,9 @@ Usage::
 For each committed run of ``tune_jobs/default.py`` (``results/default`` and its replicates
 ``results/default/replicates/r*``: 16 trials in batches of 2, 1 CPU each) the trials'
 durations are replayed at other batch sizes on 2 and 16 slots
-(:func:`safe_bc.study.schedule_seconds`: a batch starts when the previous one has finished;
+(:func:`safe_bc.study.spec.schedule_seconds`: a batch starts when the previous one has finished;
 Ray's start-up and overhead left out). The batch size also changes which trials the halving
-stops (:class:`safe_bc.distributed.search.BatchHalving`: a trial is compared with the earlier
+stops (:class:`safe_bc.study.search.BatchHalving`: a trial is compared with the earlier
 batches only, the first batch never stopped), so it is replayed on the committed screening
 scores: a stopped trial lasts its screened duration, a continued one its full duration (for a
 trial stopped in the committed run, its screened duration plus its screening's evaluation
@@ -30,11 +30,11 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from safe_bc.atomic import write_text_atomic
+from safe_bc.data.atomic import write_text_atomic
+from safe_bc.data.provenance import run_metadata
 from safe_bc.data.store import read_table, write_table_atomic
-from safe_bc.distributed.search import halving_decision
-from safe_bc.provenance import run_metadata
-from safe_bc.study import schedule_seconds
+from safe_bc.study.search import halving_decision
+from safe_bc.study.spec import schedule_seconds
 
 BATCHES = (2, 4, 8, 16)
 """Batch sizes replayed."""

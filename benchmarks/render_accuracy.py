@@ -42,14 +42,14 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from safe_bc.atomic import write_text_atomic
+from safe_bc.data.atomic import write_text_atomic
+from safe_bc.data.provenance import run_metadata
 from safe_bc.data.store import load_demonstrations, write_table_atomic
-from safe_bc.envs import EnvConfig
-from safe_bc.provenance import run_metadata
 from safe_bc.selection import DEFAULT_EPS
 from safe_bc.tasks import make_env
 from safe_bc.tasks.carracing.raster_render import DEFAULT_SUPERSAMPLE
 from safe_bc.tasks.carracing.wrapper import ZOOM_END_T
+from safe_bc.tasks.env_config import EnvConfig
 
 FACTORS = (1, 2, 4, 8)
 """Supersample factors compared."""
@@ -76,7 +76,7 @@ def frame_errors(
     tracks: list[int], factors: tuple[int, ...], steps: int, limits: np.ndarray
 ) -> tuple[pd.DataFrame, dict[int, list[np.ndarray]]]:
     """Per (factor, track) error statistics along the expert's drive; also its actions."""
-    from safe_bc.collection import build_expert
+    from safe_bc.rollout.collect import build_expert
     from safe_bc.tasks import task_defaults
 
     expert_cfg = task_defaults("carracing").expert
@@ -163,7 +163,7 @@ def choose_factor(frames: pd.DataFrame, eps: float = DEFAULT_EPS) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from safe_bc.evaluation import EvalConfig
+    from safe_bc.rollout.evaluate import EvalConfig
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--tracks", type=int, default=4, help="expert drives for the frame errors")

@@ -4,9 +4,9 @@ Usage::
 
     python -m benchmarks.retrain_check      # 3 rows: plain BC, alpha 0.5, BC-Safe
 
-Each (method, training seed) row is retrained with ``safe_bc.api.train`` (``safe-bc train``)
+Each (method, training seed) row is retrained with ``safe_bc.cli.api.train`` (``safe-bc train``)
 with the settings the Table 1 comparison (``tune_jobs/compare/table1.py``) gives that row and
-seed (:func:`safe_bc.distributed.compare.run_config`) on its demonstrations, into a scratch
+seed (:func:`safe_bc.compare.run.run_config`) on its demonstrations, into a scratch
 folder; its final training loss is compared with the committed one of
 ``results/table1_training.parquet`` to the last digit: refactors that must not change results
 are checked on real training, not only on unit tests. Writes
@@ -25,10 +25,10 @@ from pathlib import Path
 
 import pandas as pd
 
-from safe_bc.compare import Comparison
+from safe_bc.compare.families import load_comparison
+from safe_bc.compare.spec import Comparison
+from safe_bc.data.provenance import run_metadata
 from safe_bc.data.store import read_table, write_table_atomic
-from safe_bc.families import load_comparison
-from safe_bc.provenance import run_metadata
 
 ROWS = (("alpha=0 (rest=all)", 0), ("alpha=0.5 (rest=all)", 1), ("BC-Safe (K=20)", 2))
 """(method, training seed) rows checked by default: the mix at two alphas and a peer rule."""
@@ -39,9 +39,9 @@ def retrain(
     comparison: Comparison, rows: tuple[tuple[str, int], ...], training: pd.DataFrame, revision: str
 ) -> pd.DataFrame:
     """Retrain ``rows`` of ``comparison``; one row each against the committed ``training``."""
-    from safe_bc.api import train
-    from safe_bc.distributed.compare import run_config
-    from safe_bc.jobs import TrainJob
+    from safe_bc.cli.api import train
+    from safe_bc.cli.jobs import TrainJob
+    from safe_bc.compare.run import run_config
 
     out = []
     for method, seed in rows:

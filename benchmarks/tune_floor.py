@@ -30,7 +30,7 @@ from typing import Any
 
 import pandas as pd
 
-from safe_bc.atomic import write_text_atomic
+from safe_bc.data.atomic import write_text_atomic
 from safe_bc.data.store import read_table
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -41,7 +41,7 @@ def floor(runs: Path = RUNS) -> dict[str, Any]:
     """The floor's pieces (seconds) from the ``new`` run's tables, and its ratio to ``old``'s
     wall-clock."""
     from benchmarks.tune_side_by_side import run_row
-    from safe_bc.study import load_study
+    from safe_bc.study.spec import load_study
 
     spec = load_study(ROOT / "tune_jobs/default_two_seeds.py")  # the design it was made for
     timing, meta = read_table(runs / "new/timing.parquet")

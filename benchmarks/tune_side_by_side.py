@@ -23,7 +23,7 @@ from typing import Any
 
 import pandas as pd
 
-from safe_bc.atomic import write_text_atomic
+from safe_bc.data.atomic import write_text_atomic
 from safe_bc.data.store import dataset_record, read_table, write_table_atomic
 
 TABLES = (

@@ -19,19 +19,22 @@ it in :class:`safe_bc.tasks.carracing.wrapper.CarRacingSafety`, or use
 (no torch, no Ray).
 """
 
+from safe_bc.moved import install as _install_moved
 from safe_bc.tasks import ENV_IDS, register_envs
 from safe_bc.version import __version__
 
+_install_moved()
 register_envs()
 
 __all__ = ["ENV_IDS", "__version__", "load_recommender", "register_envs"]
 
 
 def __getattr__(name: str):
-    """``safe_bc.load_recommender`` (:func:`safe_bc.recommender.load_recommender`), imported on
+    """``safe_bc.load_recommender`` (:func:`safe_bc.study.recommender.load_recommender`), imported
+    on
     first use."""
     if name == "load_recommender":
-        from safe_bc.recommender import load_recommender
+        from safe_bc.study.recommender import load_recommender
 
         return load_recommender
     raise AttributeError(f"module 'safe_bc' has no attribute {name!r}")

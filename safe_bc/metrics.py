@@ -10,7 +10,7 @@ from functools import cached_property
 import numpy as np
 import pandas as pd
 
-from safe_bc.episode import Episode
+from safe_bc.data.episode import Episode
 from safe_bc.selection import DEFAULT_EPS, Combine, critical_mask
 
 
@@ -818,3 +818,18 @@ class VarianceComponents:
         """
         var = self.seed / seeds + self.track / tracks + self.residual / (seeds * tracks)
         return z * math.sqrt(var)
+
+
+def pareto_mask(reward: np.ndarray, safety: np.ndarray) -> np.ndarray:
+    """``(N,) bool``: points no other point beats in both reward and safety (higher is better).
+
+    >>> pareto_mask(np.array([1.0, 2.0, 3.0, 1.0]), np.array([3.0, 2.0, 1.0, 1.0])).tolist()
+    [True, True, True, False]
+    """
+    r, s = np.asarray(reward, float), np.asarray(safety, float)
+    ok = np.isfinite(r) & np.isfinite(s)
+    out = np.zeros(len(r), bool)
+    for i in np.flatnonzero(ok):
+        dominated = ok & (r >= r[i]) & (s >= s[i]) & ((r > r[i]) | (s > s[i]))
+        out[i] = not dominated.any()
+    return out

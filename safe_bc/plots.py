@@ -14,10 +14,10 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 
-from safe_bc.atomic import atomic_write
-from safe_bc.demos import Demonstrations
+from safe_bc.data.atomic import atomic_write
+from safe_bc.data.demos import Demonstrations
+from safe_bc.metrics import pareto_mask
 from safe_bc.selection import DEFAULT_EPS
-from safe_bc.study import pareto_mask
 
 
 def save_figure(fig: Any, path: Path) -> Path:
@@ -226,8 +226,9 @@ def plot_learning_curves(
     env steps: colour = method, line style = training seed; dashed lines: ``refs`` (e.g. the
     expert's and the starts' mean held-out reward) on the validation-reward panel.
 
-    ``history`` holds :data:`safe_bc.improve.HISTORY` rows (or self-imitation rounds,
-    :meth:`safe_bc.selfimprove.run.SelfImproveResult.history`: no multiplier) with ``method``
+    ``history`` holds :data:`safe_bc.methods.improve.HISTORY` rows (or self-imitation rounds,
+    :meth:`safe_bc.methods.selfimprove.run.SelfImproveResult.history`: no multiplier) with
+    ``method``
     and ``train_seed``; ``labels`` names methods in the legend."""
     from matplotlib.lines import Line2D
 

@@ -32,12 +32,12 @@ import cv2
 import gymnasium as gym
 import numpy as np
 
-from safe_bc.envs.config import DEFAULT_RENDERER
-from safe_bc.episode import Episode
+from safe_bc.data.episode import Episode
 from safe_bc.policy import Policy
 from safe_bc.progress import progress_bar
-from safe_bc.rollout import run_episode
+from safe_bc.rollout.episode import run_episode
 from safe_bc.selection import DEFAULT_EPS, CriticalZone
+from safe_bc.tasks.env_config import DEFAULT_RENDERER
 from safe_bc.tasks.registry import DEFAULT_TASK, Drawing, Task, TaskSpec, spec_of, task_defaults
 
 FPS = 50
@@ -261,7 +261,7 @@ def render_episode(
 ) -> Trace:
     """Roll ``policy`` out on ``task``'s track ``seed`` and write the annotated episode to
     ``out`` (one frame per step: the observation each action was chosen in); a policy that
-    reports its handover (``flags``, :class:`safe_bc.queries.defer.DeferringPolicy`) has the
+    reports its handover (``flags``, :class:`safe_bc.methods.queries.defer.DeferringPolicy`) has the
     expert's steps marked. ``progress``: bars over the steps, frames and encoding."""
     trace = record(policy, seed, label=label, max_steps=max_steps, task=task, progress=progress)
     flags = getattr(policy, "flags", None)
@@ -286,7 +286,7 @@ def render_recommender(
     agent of ``agent_seed``, default the first, with its handover) on track ``seed``, the
     critical zone drawn at ``d_s`` and the handover's width, the expert's steps marked;
     returns the line it prints."""
-    from safe_bc.recommender import load_recommender
+    from safe_bc.study.recommender import load_recommender
 
     rec = load_recommender(recommender)
     spec = task_defaults(rec.card.task)
@@ -447,8 +447,8 @@ def render_command(
     (default: the task's); without either the readings are drawn without states. ``paths`` draws the
     track map instead: the expert beside the agent (the expert alone without a checkpoint).
     """
-    from safe_bc.collection import build_expert, stored_expert_config
     from safe_bc.data.store import read_meta
+    from safe_bc.rollout.collect import build_expert, stored_expert_config
 
     if checkpoint is None and not (expert or paths):
         raise ValueError("render needs --checkpoint DIR (the agent) or --expert")

@@ -75,7 +75,7 @@ class SelectionConfig:
     (``TaskSpec.eps``: 2 px for CarRacing, 0.05 for rehab). A row is critical in dimension
     ``s`` when ``c_s >= d_s - eps``; ``eps = 0`` keeps only the rows at the threshold itself.
     An unset width is set by :meth:`with_eps` where the task is known (a study, ``safe-bc
-    train`` and :func:`safe_bc.api.train`, a comparison: :func:`safe_bc.tasks.with_task_eps`);
+    train`` and :func:`safe_bc.cli.api.train`, a comparison: :func:`safe_bc.tasks.with_task_eps`);
     selecting with it unset is an error. CarRacing's 2 px puts ~9% of the default
     demonstrations in T_eps (the paper's 5 px was on another scale; here 5 px from the
     expert's closest approach reaches the road's centre)."""
@@ -333,7 +333,7 @@ def segment_ids(episode_ids: np.ndarray, valid: np.ndarray, segment_steps: int) 
     Each episode's valid rows, in row order, are cut into windows of ``segment_steps``
     consecutive rows (the last window of an episode may be shorter); segments are numbered
     ``0..n-1`` by episode id, then time. Rows need not be grouped by episode, but within an
-    episode row order must be time order (as in :class:`safe_bc.demos.Demonstrations`).
+    episode row order must be time order (as in :class:`safe_bc.data.demos.Demonstrations`).
 
     >>> segment_ids(np.array([0, 0, 0, 1, 1]), np.array([False, True, True, True, True]), 1)
     array([-1,  0,  1,  2,  3])
@@ -595,7 +595,7 @@ def select(
     """Thresholds and ``T_eps`` for ``costs (N, S)`` under ``config``; ``valid (N,) bool``.
 
     Typical use: ``select(demos.costs, cfg, demos.scored, demos.safety_dims, demos.episode_ids)``
-    (:func:`safe_bc.experiment.select_for`). ``episode_ids (N,)`` cut BC-Safe's segments at
+    (:func:`safe_bc.methods.experiment.select_for`). ``episode_ids (N,)`` cut BC-Safe's segments at
     episode boundaries; ``None`` treats all rows as one episode.
 
     Raises:

@@ -7,7 +7,7 @@ Usage::
 Reads ``trials.parquet`` (``duration_s`` in suggestion order, ``trial_number``, and the study
 spec it records: ``max_concurrent``, ``batch_size``; ``--slots`` for a study that ran as many
 trials at once as the CPUs allowed, ``max_concurrent=None``) and prints the trial phase's wall-clock
-replayed on that many slots in batches (:func:`safe_bc.study.schedule_seconds`) against the
+replayed on that many slots in batches (:func:`safe_bc.study.spec.schedule_seconds`) against the
 same trials started as slots free up (no batches). Nothing is written: the inputs are
 committed tables.
 """
@@ -19,7 +19,7 @@ import sys
 from pathlib import Path
 
 from safe_bc.data.store import read_table
-from safe_bc.study import schedule_seconds
+from safe_bc.study.spec import schedule_seconds
 
 
 def main(argv: list[str] | None = None) -> int:

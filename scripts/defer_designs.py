@@ -145,7 +145,7 @@ def figure(table: pd.DataFrame, path: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from safe_bc.atomic import write_text_atomic
+    from safe_bc.data.atomic import write_text_atomic
 
     parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     parser.parse_args(argv)

@@ -33,11 +33,11 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from safe_bc.atomic import write_text_atomic
+from safe_bc.data.atomic import write_text_atomic
+from safe_bc.data.provenance import run_metadata
 from safe_bc.data.store import read_table, write_table_atomic
 from safe_bc.metrics import bootstrap_means, clopper_pearson_upper
-from safe_bc.provenance import run_metadata
-from safe_bc.replicates import direction
+from safe_bc.study.replicates import direction
 
 BOOT = 4000
 """Bootstrap resamples."""

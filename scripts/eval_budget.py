@@ -30,9 +30,9 @@ import numpy as np
 import pandas as pd
 
 from safe_bc.bc.config import TrainConfig
+from safe_bc.data.provenance import run_metadata
 from safe_bc.data.store import read_table, write_table_atomic
 from safe_bc.metrics import VarianceComponents, cell_table
-from safe_bc.provenance import run_metadata
 
 TRACKS = (2, 5, 10, 20, 40, 80)
 """Tracks per training seed of the predicted designs."""

@@ -7,7 +7,7 @@ Usage::
 For each study folder: reads ``final_episodes.parquet`` (the final phase's episodes) and
 writes ``final_paired.parquet`` beside it: every method against the expert and every
 candidate against plain BC on the same (training seed, track) pairs, two-level bootstrap
-(:func:`safe_bc.distributed.final.final_summaries`, bootstrap seed = the study's
+(:func:`safe_bc.study.final.final_summaries`, bootstrap seed = the study's
 ``final_seed``, the candidates' streams keyed by their stored configurations). Studies run
 with the current code write this table themselves; this
 command derives it for studies finished before, without rerunning anything. Prints a
@@ -22,10 +22,10 @@ from pathlib import Path
 
 import pandas as pd
 
+from safe_bc.data.provenance import run_metadata
 from safe_bc.data.store import read_table, write_table_atomic
-from safe_bc.distributed.final import PLAIN_BC, final_summaries
-from safe_bc.provenance import run_metadata
 from safe_bc.report import fmt_ci
+from safe_bc.study.final import PLAIN_BC, final_summaries
 
 
 def markdown(paired: pd.DataFrame) -> str:

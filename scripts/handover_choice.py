@@ -1,4 +1,5 @@
-"""Run a handover measurement (:class:`safe_bc.handover_choice.HandoverChoice`, a file such as
+"""Run a handover measurement (:class:`safe_bc.compare.handover_choice.HandoverChoice`, a file such
+as
 ``tune_jobs/handover/rehab.py`` defining ``CHOICE``): every candidate handover over the
 recommender's agents, and the expert, on the same selection episodes; writes
 ``episodes.parquet``, ``choice.parquet`` (one row per candidate) and ``choice.md`` with the
@@ -22,13 +23,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from safe_bc.atomic import write_text_atomic
-from safe_bc.collection import expert_config_from_dict
-from safe_bc.data.store import read_table, write_table_atomic
-from safe_bc.distributed.evaluate import evaluate_policies
-from safe_bc.eval_config import EvalConfig
-from safe_bc.evaluation import ExpertSource, NetSource
-from safe_bc.handover_choice import (
+from safe_bc.compare.handover_choice import (
     EXPERT,
     RULE_TEXT,
     HandoverChoice,
@@ -36,10 +31,16 @@ from safe_bc.handover_choice import (
     choice_table,
     choose,
 )
-from safe_bc.provenance import run_metadata
-from safe_bc.queries.defer import handover_source
-from safe_bc.recommender import load_recommender
+from safe_bc.data.atomic import write_text_atomic
+from safe_bc.data.provenance import run_metadata
+from safe_bc.data.store import read_table, write_table_atomic
+from safe_bc.distributed.evaluate import evaluate_policies
+from safe_bc.methods.queries.defer import handover_source
 from safe_bc.report import markdown_table
+from safe_bc.rollout.collect import expert_config_from_dict
+from safe_bc.rollout.config import EvalConfig
+from safe_bc.rollout.evaluate import ExpertSource, NetSource
+from safe_bc.study.recommender import load_recommender
 from safe_bc.tasks import task_defaults
 
 

@@ -163,8 +163,8 @@ def train_seeds(episodes: pd.DataFrame) -> list[int]:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from safe_bc.data.provenance import run_metadata
     from safe_bc.data.store import read_table, write_table_atomic, write_text_atomic
-    from safe_bc.provenance import run_metadata
 
     sweep_dir = Path("results/improve/rehab/sweep")
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])

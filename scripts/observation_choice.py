@@ -304,14 +304,14 @@ def _describe(episodes: pd.DataFrame, meta: dict[str, Any]) -> dict[str, Any]:
 
 def _file_digests(*paths: Path) -> dict[str, str]:
     """``{path: "sha256:..."}`` of the tables the analysis read (those that exist)."""
-    from safe_bc.provenance import file_digest
+    from safe_bc.data.provenance import file_digest
 
     return {str(p): file_digest(p) for p in paths if p.exists()}
 
 
 def main(argv: list[str] | None = None) -> int:
+    from safe_bc.data.provenance import run_metadata
     from safe_bc.data.store import read_table, write_table_atomic, write_text_atomic
-    from safe_bc.provenance import run_metadata
 
     out = Path("results/ablation/observation")
     p = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])

@@ -24,9 +24,9 @@ from pathlib import Path
 
 import pandas as pd
 
+from safe_bc.data.provenance import file_digest, run_metadata
 from safe_bc.data.store import read_table, write_table_atomic
 from safe_bc.metrics import paired_to_reference
-from safe_bc.provenance import file_digest, run_metadata
 from safe_bc.report import fmt_ci
 
 METRICS = ("reward", "violation_steps", "any_violation", "violating_sessions")

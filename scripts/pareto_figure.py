@@ -13,7 +13,7 @@ from pathlib import Path
 
 from safe_bc.data.store import read_table
 from safe_bc.plots import plot_pareto
-from safe_bc.study_plan import safety_axis_label
+from safe_bc.study.plan import safety_axis_label
 
 FINISHED = ("done", "stopped", "invalid", "error")
 """Trial states the study counts as finished in the figure's title."""

@@ -3,7 +3,7 @@
 ``python -m scripts.queries_report tune_jobs/compare/queries.py --name rehab``: the fresh
 comparison ``rehab`` and the selection comparison it follows (both run by ``safe-bc compare``
 first) give ``OUT/summary.parquet``, ``summary.md`` and ``widths.parquet``
-(:mod:`safe_bc.queries.summary`). Nothing is trained or evaluated.
+(:mod:`safe_bc.methods.queries.summary`). Nothing is trained or evaluated.
 """
 
 from __future__ import annotations
@@ -14,14 +14,14 @@ from typing import Any
 
 import pandas as pd
 
-from safe_bc.atomic import write_text_atomic
-from safe_bc.compare import Comparison
-from safe_bc.compare_rows import Handover
+from safe_bc.compare.families import family, load_comparison
+from safe_bc.compare.protocol import Fresh, candidates
+from safe_bc.compare.rows import Handover
+from safe_bc.compare.spec import Comparison
+from safe_bc.data.atomic import write_text_atomic
+from safe_bc.data.provenance import run_metadata
 from safe_bc.data.store import read_table, write_table_atomic
-from safe_bc.families import family, load_comparison
-from safe_bc.protocol import Fresh, candidates
-from safe_bc.provenance import run_metadata
-from safe_bc.queries.summary import (
+from safe_bc.methods.queries.summary import (
     CROSSING,
     DEFERRAL,
     block_episodes,

@@ -143,7 +143,7 @@ def choice_path(table: Path) -> Path:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from safe_bc.atomic import write_text_atomic
+    from safe_bc.data.atomic import write_text_atomic
     from safe_bc.data.store import read_table
 
     parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])

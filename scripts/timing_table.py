@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from safe_bc.data.store import read_table
-from safe_bc.distributed.study import write_timing
+from safe_bc.study.run import write_timing
 
 
 def main(argv: list[str] | None = None) -> int:

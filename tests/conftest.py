@@ -33,7 +33,7 @@ reads the set must expect it: ``StudySpec(collect=...)``)."""
 
 def tiny_collect():
     """:data:`TINY_COLLECT` as a config."""
-    from safe_bc.collection import CollectConfig
+    from safe_bc.rollout.collect import CollectConfig
 
     return eval(TINY_COLLECT, {"CollectConfig": CollectConfig})
 
@@ -50,7 +50,7 @@ def tiny_demos(ray_session, tmp_path_factory):
 
 def rehab_collect():
     """The collection of :func:`rehab_demos` (a study or comparison reading it expects it)."""
-    from safe_bc.collection import CollectConfig
+    from safe_bc.rollout.collect import CollectConfig
     from safe_bc.tasks import task_defaults
 
     return CollectConfig.for_task(task_defaults("rehab"), episodes=8, workers=1)
@@ -60,9 +60,9 @@ def rehab_collect():
 def rehab_demos(tmp_path_factory):
     """8 guideline rehab programmes, collected in-process (no Ray): the improvement tests'
     demonstrations."""
-    from safe_bc.collection import EpisodeMaker
     from safe_bc.data.store import init_dataset, write_episode
     from safe_bc.distributed.collect import dataset_meta
+    from safe_bc.rollout.collect import EpisodeMaker
 
     root = tmp_path_factory.mktemp("rehab") / "demos"
     cfg = rehab_collect()
@@ -78,7 +78,7 @@ def rehab_demos(tmp_path_factory):
 def rehab_start(rehab_demos, tmp_path_factory):
     """A tiny safety-imitation start for improvement tests: the 8 guideline programmes, 50 BC
     batches, 16 hidden units."""
-    from safe_bc.cli import main
+    from safe_bc.cli.commands import main
 
     ckpt = tmp_path_factory.mktemp("improve") / "start"
     argv = ["train", "--demos", str(rehab_demos), "--out", str(ckpt), "--bc.train.batches", "50",

@@ -13,7 +13,7 @@ import torch
 
 from safe_bc.bc import BCConfig, BCNet, CheckpointError, ModelSpec, load_checkpoint, save_checkpoint
 from safe_bc.bc.checkpoint import UnsafeCheckpointError, with_meta_sha256
-from safe_bc.cli import main
+from safe_bc.cli.commands import main
 from safe_bc.data.store import (
     DatasetError,
     completed_episodes,
@@ -267,7 +267,7 @@ def test_improve_rejects_non_finite_settings_upfront(
 
 @pytest.mark.parametrize("name", ["cost_budget", "lambda_lr", "anchor_coef", "lambda_max"])
 def test_improve_config_rejects_infinity(name: str) -> None:
-    from safe_bc.improve import ImproveConfig
+    from safe_bc.methods.improve import ImproveConfig
 
     with pytest.raises(ValueError, match=f"{name} must be finite"):
         ImproveConfig(**{name: float("inf")})
@@ -298,9 +298,9 @@ def test_read_only_output_is_refused_before_work(
 ) -> None:
     """As root (tests in a container) permissions do not stop a write, so the read-only mount
     is what os.access reports there."""
-    import safe_bc.locks
+    import safe_bc.data.locks
 
-    monkeypatch.setattr(safe_bc.locks.os, "access", lambda path, mode: False)
+    monkeypatch.setattr(safe_bc.data.locks.os, "access", lambda path, mode: False)
     code = main(["train", "--demos", str(tmp_path / "none"), "--out", str(tmp_path / "c")])
     _one_line(capsys, code, "train", "not writable")
 
@@ -310,7 +310,7 @@ def test_an_os_error_while_writing_is_one_line_and_keeps_the_old_checkpoint(
 ) -> None:
     import errno
 
-    import safe_bc.experiment
+    import safe_bc.methods.experiment
 
     ckpt = tmp_path / "ckpt"
     argv = ["train", "--demos", str(rehab_demos), "--out", str(ckpt), "--bc.train.batches", "5",
@@ -322,7 +322,7 @@ def test_an_os_error_while_writing_is_one_line_and_keeps_the_old_checkpoint(
     def full(directory, *args, **kw):
         raise OSError(errno.ENOSPC, "No space left on device", str(directory / "x.parquet"))
 
-    monkeypatch.setattr(safe_bc.experiment, "save_selection", full)
+    monkeypatch.setattr(safe_bc.methods.experiment, "save_selection", full)
     _one_line(capsys, main([*argv, "--seed", "1"]), "train", "No space left on device")
     assert (ckpt / "weights.pt").read_bytes() == weights
     load_checkpoint(ckpt)

@@ -1,4 +1,4 @@
-"""safe_bc.atomic: whole new file or the old one, never a partial file or a stray temp file."""
+"""safe_bc.data.atomic: whole new file or the old one, never a partial file or a stray temp file."""
 
 from __future__ import annotations
 
@@ -7,7 +7,12 @@ import stat
 
 import pytest
 
-from safe_bc.atomic import atomic_write, write_bytes_atomic, write_json_atomic, write_text_atomic
+from safe_bc.data.atomic import (
+    atomic_write,
+    write_bytes_atomic,
+    write_json_atomic,
+    write_text_atomic,
+)
 
 
 def test_error_mid_write_keeps_the_old_file_and_no_temp_file(tmp_path):

@@ -11,6 +11,8 @@ import math
 import pytest
 
 from benchmarks import bench
+from benchmarks.cases import env as bench_env
+from benchmarks.cases import eval as bench_eval
 from safe_bc.data.store import read_table
 
 
@@ -50,7 +52,7 @@ def test_env_step_breakdown_adds_up(quick_table):
 
     frame, _ = quick_table
     parts = frame[frame["variant"].str.startswith("step part: ")]
-    total = frame.loc[frame["variant"] == bench.PROFILED, "value"].item()
+    total = frame.loc[frame["variant"] == bench_env.PROFILED, "value"].item()
     assert len(parts) == len(STEP_PARTS) + 1
     assert math.isclose(parts["value"].sum(), total, rel_tol=1e-9)
     assert math.isclose(parts["ratio"].sum(), 1.0, rel_tol=1e-9)
@@ -122,7 +124,7 @@ def test_quick_eval_case_times_the_batched_forward_against_the_exact_one_env_pat
     by = {r["variant"]: r for r in rows}
     base = by["BC net, exact renderer, 1 env, per core"]
     assert base["unit"] == "episodes/min" and base["value"] > 0
-    for envs in (bench.BATCHED_ENVS, bench.WIDE_BATCHED_ENVS):
+    for envs in (bench_eval.BATCHED_ENVS, bench_eval.WIDE_BATCHED_ENVS):
         row = by[
             f"BC net, raster renderer, {envs} envs in lockstep with one batched forward, per core"
         ]
@@ -134,7 +136,7 @@ def test_quick_eval_case_times_the_batched_forward_against_the_exact_one_env_pat
 def test_a_dirty_tree_fails_before_measuring(monkeypatch, capsys):
     """make bench writes under results/: with uncommitted code it stops at once (one line),
     not after minutes of measuring."""
-    import safe_bc.provenance as provenance
+    import safe_bc.data.provenance as provenance
 
     monkeypatch.setattr(provenance, "_changed_files", lambda: ["safe_bc/some_module.py"])
     monkeypatch.delenv(provenance.ALLOW_DIRTY, raising=False)

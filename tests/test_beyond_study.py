@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from safe_bc.families import load_comparisons
-from safe_bc.study import load_study
+from safe_bc.compare.families import load_comparisons
+from safe_bc.study.spec import load_study
 from safe_bc.tasks import task_defaults
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -13,8 +13,6 @@ import pandas as pd
 import pytest
 import torch
 
-from safe_bc import atomic
-from safe_bc.atomic import recover_dir
 from safe_bc.bc import BCConfig, BCNet, CheckpointError, ModelSpec, load_checkpoint, save_checkpoint
 from safe_bc.bc.checkpoint import (
     EVALUATED_WEIGHTS,
@@ -22,7 +20,9 @@ from safe_bc.bc.checkpoint import (
     check_checkpoint_files,
     checkpoint_unit,
 )
-from safe_bc.cli import main
+from safe_bc.cli.commands import main
+from safe_bc.data import atomic
+from safe_bc.data.atomic import recover_dir
 from safe_bc.data.store import read_table, write_table_atomic
 
 from .bc.synth import TINY_MLP
@@ -154,7 +154,7 @@ def test_checkpoints_without_files_sha256_still_load(tmp_path: Path) -> None:
 def test_cli_train_killed_before_the_selection_keeps_the_old_checkpoint(
     rehab_demos: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    import safe_bc.experiment
+    import safe_bc.methods.experiment
 
     ckpt = tmp_path / "ckpt"
     argv = ["train", "--demos", str(rehab_demos), "--out", str(ckpt), "--bc.train.batches", "5",
@@ -165,7 +165,7 @@ def test_cli_train_killed_before_the_selection_keeps_the_old_checkpoint(
     def killed(*args, **kw):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(safe_bc.experiment, "save_selection", killed)
+    monkeypatch.setattr(safe_bc.methods.experiment, "save_selection", killed)
     assert main([*argv, "--selection.eps", "0.5", "--seed", "1"]) == 130
     monkeypatch.undo()
     assert (ckpt / "weights.pt").read_bytes() == weights
@@ -178,7 +178,7 @@ def test_cli_train_killed_before_the_selection_keeps_the_old_checkpoint(
 def test_improve_rewrites_a_policy_missing_its_selection(rehab_start: Path, tmp_path: Path) -> None:
     """A policy folder without selection.parquet is not a finished run: the rerun writes the
     whole unit again from state.pt, with the same weights."""
-    from safe_bc.improve import ImprovedSource, improve
+    from safe_bc.methods.improve import ImprovedSource, improve
 
     from .test_improve import TINY
 

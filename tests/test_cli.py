@@ -19,10 +19,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from safe_bc.cli import COMMANDS, main, parse
+from safe_bc.cli.commands import COMMANDS, main, parse
 from safe_bc.data.store import init_dataset, read_table, write_episode
 from safe_bc.selection import SelectionConfig
-from safe_bc.study import load_study, trial_table
+from safe_bc.study.spec import load_study, trial_table
 
 from .data.test_store import make_episode, make_meta
 from .distributed.test_runtime import refused_address
@@ -37,7 +37,16 @@ def test_unreachable_ray_address_fails_fast_and_writes_nothing(tmp_path: Path) -
     with sock:
         start = time.perf_counter()
         proc = subprocess.run(
-            [sys.executable, "-m", "safe_bc.cli", "collect", "--episodes", "1", "--out", str(out)],
+            [
+                sys.executable,
+                "-m",
+                "safe_bc.cli.commands",
+                "collect",
+                "--episodes",
+                "1",
+                "--out",
+                str(out),
+            ],
             env={**os.environ, "RAY_ADDRESS": address},
             capture_output=True,
             text=True,
@@ -73,7 +82,7 @@ def test_unreachable_ray_address_stops_tune_before_it_starts(
             "ModuleNotFoundError: No module named 'safe_bc.no_such_module'",
         ),
         (
-            "from safe_bc.study import Float, StudySpec\n\n"
+            "from safe_bc.study.spec import Float, StudySpec\n\n"
             'STUDY = StudySpec("x", {"selection.eps": Float(2.0, 1.0)})\n',
             3,
             "ValueError: Float needs finite low <= high",
@@ -177,7 +186,7 @@ def test_bad_input_of_other_commands_is_one_line_exit_2(
 
 @pytest.mark.parametrize("command", list(COMMANDS))
 def test_help_of_every_command_lists_its_fields_each_with_help(command: str) -> None:
-    from safe_bc import jobs
+    from safe_bc.cli import jobs
 
     text = _help(command)
     cls = getattr(jobs, COMMANDS[command][0])
@@ -202,10 +211,10 @@ def test_top_level_help_lists_every_command(capsys: pytest.CaptureFixture) -> No
 
 def test_default_records_are_the_configs_defaults() -> None:
     """The same command line builds the same configs: nothing given, the dataclass defaults."""
-    from safe_bc.evaluation import EvalConfig
-    from safe_bc.improve import ImproveConfig
-    from safe_bc.jobs import CollectJob, DescribeJob, ExpertJob, TrainJob
-    from safe_bc.reproduce import ReproduceConfig
+    from safe_bc.cli.jobs import CollectJob, DescribeJob, ExpertJob, TrainJob
+    from safe_bc.compare.reproduce import ReproduceConfig
+    from safe_bc.methods.improve import ImproveConfig
+    from safe_bc.rollout.evaluate import EvalConfig
     from safe_bc.run_config import RunConfig
 
     assert parse(["train", "--out", "x"])[1] == TrainJob(Path("x"))
@@ -276,7 +285,7 @@ def test_train_records_quantile_and_combine(tmp_path: Path, capsys: pytest.Captu
 
 
 def _invalid_outcome(tmp_path: Path):
-    from safe_bc.distributed.study import StudyOutcome
+    from safe_bc.study.run import StudyOutcome
 
     errors = [
         "alpha=0.63 < 1 but the rest pool is empty (critical=74)",
@@ -294,7 +303,7 @@ def _invalid_outcome(tmp_path: Path):
 def test_study_without_a_finished_trial_says_why_and_fails(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture
 ) -> None:
-    import safe_bc.distributed.study as study
+    import safe_bc.study.run as study
 
     outcome = _invalid_outcome(tmp_path)
     text = study.format_outcome(outcome, ["selection.eps"])
@@ -313,7 +322,7 @@ def test_study_without_a_finished_trial_says_why_and_fails(
 
 
 def test_study_summary_without_errors_says_so(tmp_path: Path) -> None:
-    from safe_bc.distributed.study import format_outcome
+    from safe_bc.study.run import format_outcome
 
     outcome = _invalid_outcome(tmp_path)
     trials = outcome.trials.assign(error="")
@@ -326,8 +335,8 @@ def test_the_study_summary_names_episodes_in_the_tasks_words(tmp_path: Path) -> 
     (``StudyOutcome.unit``, the task's ``episodes_name``): no "tracks" for another task."""
     import pandas as pd
 
-    from safe_bc.distributed.final import FinalOutcome
-    from safe_bc.distributed.study import format_outcome
+    from safe_bc.study.final import FinalOutcome
+    from safe_bc.study.run import format_outcome
 
     table = pd.DataFrame(
         {
@@ -421,7 +430,7 @@ def test_expert_from_few_episodes_reports_means_without_an_interval(
 def test_describe_names_the_set_by_its_content_digest(tiny_demos, tmp_path) -> None:
     import json
 
-    from safe_bc.cli import main
+    from safe_bc.cli.commands import main
     from safe_bc.data.store import data_digest
 
     assert main(["describe", "--demos", str(tiny_demos), "--out", str(tmp_path / "d")]) == 0

@@ -11,8 +11,8 @@ import sys
 
 import pytest
 
-from safe_bc.cli import COMMANDS, main, parse
-from safe_bc.cli_help import first_sentence, plain
+from safe_bc.cli.commands import COMMANDS, main, parse
+from safe_bc.cli.help import first_sentence, plain
 
 
 def _out(argv: list[str]) -> str:
@@ -72,7 +72,7 @@ def test_first_sentence_and_plain() -> None:
 
 def test_help_imports_neither_torch_nor_ray() -> None:
     code = (
-        "import sys; from safe_bc.cli import main\n"
+        "import sys; from safe_bc.cli.commands import main\n"
         "try:\n    main(['train', '--help'])\nexcept SystemExit:\n    pass\n"
         "print(sorted(m for m in ('torch', 'ray', 'pandas', 'pyarrow') if m in sys.modules))"
     )

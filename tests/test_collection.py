@@ -8,8 +8,8 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from safe_bc.collection import CollectConfig, EpisodeMaker
-from safe_bc.demos import Demonstrations
+from safe_bc.data.demos import Demonstrations
+from safe_bc.rollout.collect import CollectConfig, EpisodeMaker
 from safe_bc.tasks import task_defaults
 from safe_bc.tasks.carracing.costs import MAX_RANGE
 

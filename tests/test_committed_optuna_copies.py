@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from safe_bc.data.store import read_table
-from safe_bc.distributed.search import WINNER
+from safe_bc.study.search import WINNER
 
 ROOT = Path(__file__).resolve().parents[1]
 COPIES = sorted(

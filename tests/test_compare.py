@@ -11,10 +11,10 @@ import pandas as pd
 import pytest
 
 from safe_bc.bc import BCConfig
-from safe_bc.compare import Comparison, Method, build_table, render_markdown
+from safe_bc.compare.families import load_comparison
+from safe_bc.compare.spec import Comparison, Method, build_table, render_markdown
 from safe_bc.data.store import read_table
-from safe_bc.families import load_comparison
-from safe_bc.improve.config import ImproveConfig
+from safe_bc.methods.improve.config import ImproveConfig
 from safe_bc.selection import SelectionConfig
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -141,7 +141,7 @@ def test_committed_table1_rederives_exactly_from_its_episodes() -> None:
 def stored_evaluations(out: Path) -> dict[str, str]:
     """The stored evaluations' episode files under a comparison's ``out`` (named by what made
     them, not by row): file name -> the policy it holds."""
-    from safe_bc.eval_store import FOLDER
+    from safe_bc.compare.eval_store import FOLDER
 
     found = {}
     for path in sorted((out / FOLDER).glob("*.parquet")):
@@ -168,14 +168,14 @@ TINY = ImproveConfig(
 def test_tiny_comparison_with_an_improvement_row_resumes(rehab_demos, tmp_path: Path) -> None:
     """BC start, its improvement and the expert on rehab, 2 seeds x 3 patients; a rerun
     trains, improves and evaluates nothing and gives the same table; the CLI verb runs it."""
-    from safe_bc.cli import main
+    from safe_bc.cli.commands import main
 
     file = tmp_path / "tiny.py"
     file.write_text(
         f"""from pathlib import Path
 from safe_bc.bc import BCConfig, NetworkConfig, TrainConfig
-from safe_bc.compare import Comparison, Method
-from safe_bc.collection import CollectConfig
+from safe_bc.compare.spec import Comparison, Method
+from safe_bc.rollout.collect import CollectConfig
 from safe_bc.selection import SelectionConfig
 from safe_bc.tasks import task_defaults
 from tests.test_compare import TINY
@@ -217,7 +217,7 @@ COMPARISONS = (TINY_COMPARISON,)
     md = (tmp_path / "tiny.md").read_text()
     assert "seeds better than start" in md and meta["git_revision"] in md
 
-    from safe_bc.distributed.compare import run_comparison
+    from safe_bc.compare.run import run_comparison
 
     weights = tmp_path / "tiny_runs" / "start" / "seed1" / "agent" / "config.json"
 
@@ -253,10 +253,10 @@ def test_agents_trained_on_other_demonstrations_are_trained_again(
 ) -> None:
     """A stored agent is reused only when the set at its demonstrations' path has the content
     digest it was trained on: the same path holding other content trains it again."""
-    import safe_bc.distributed.compare as runner
+    import safe_bc.compare.run as runner
     from safe_bc.bc import NetworkConfig, TrainConfig, read_checkpoint_meta
-    from safe_bc.collection import CollectConfig
     from safe_bc.data.store import data_digest
+    from safe_bc.rollout.collect import CollectConfig
     from safe_bc.tasks import task_defaults
 
     comp = Comparison(
@@ -314,7 +314,7 @@ def test_with_deferral_replaces_the_deferral_rows_and_keeps_the_others_in_order(
 def test_cli_lists_a_familys_names_when_the_name_is_missing_or_wrong(
     args: list[str], capsys: pytest.CaptureFixture
 ) -> None:
-    from safe_bc.cli import main
+    from safe_bc.cli.commands import main
 
     family = ROOT / "tune_jobs/compare/margin_sweep.py"
     code = main(["compare", str(family), *args])

@@ -10,9 +10,9 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from safe_bc.compare import Comparison, Method
+from safe_bc.compare.families import load_comparison
+from safe_bc.compare.spec import Comparison, Method
 from safe_bc.data.store import read_table
-from safe_bc.families import load_comparison
 from safe_bc.selection import SelectionConfig
 from safe_bc.tasks.carracing.expert import ExpertConfig
 from safe_bc.tasks.rehab.expert import GuidelineConfig
@@ -52,9 +52,9 @@ def test_expert_settings_compared_on_the_same_patients(rehab_demos, tmp_path: Pa
     """The default guideline and a bolder one on the same 3 patients: the bold row's episodes
     are the evaluation path's for its config (not the default's), paired against the default
     expert; a rerun evaluates nothing, a changed setting re-evaluates that row only."""
-    from safe_bc.distributed.compare import run_comparison
+    from safe_bc.compare.run import run_comparison
     from safe_bc.distributed.evaluate import evaluate
-    from safe_bc.evaluation import EvalConfig, ExpertSource
+    from safe_bc.rollout.evaluate import EvalConfig, ExpertSource
     from safe_bc.tasks import task_defaults
 
     comp = Comparison(
@@ -86,7 +86,7 @@ def test_expert_settings_compared_on_the_same_patients(rehab_demos, tmp_path: Pa
     assert row["n_pairs"] == 3
     assert row["d_reward"] == pytest.approx((bold["reward"] - default["reward"]).mean())
 
-    from safe_bc.eval_store import FOLDER
+    from safe_bc.compare.eval_store import FOLDER
     from tests.test_compare import stored_evaluations
 
     def mtimes() -> dict[str, int]:

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from safe_bc.families import family
+from safe_bc.compare.families import family
 
 ROOT = Path(__file__).resolve().parents[1]
 FAMILIES = sorted((ROOT / "tune_jobs/compare").glob("*.py"))

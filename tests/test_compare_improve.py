@@ -13,7 +13,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from safe_bc.compare import (
+from safe_bc.compare.families import load_comparison
+from safe_bc.compare.spec import (
     Comparison,
     Method,
     build_table,
@@ -23,8 +24,7 @@ from safe_bc.compare import (
     render_markdown,
 )
 from safe_bc.data.store import read_table
-from safe_bc.families import load_comparison
-from safe_bc.improve import ImproveConfig
+from safe_bc.methods.improve import ImproveConfig
 from safe_bc.selection import SelectionConfig
 from tests.conftest import rehab_collect, tiny_collect
 
@@ -154,7 +154,7 @@ def test_evaluation_path_counts_sessions_beyond_like_the_replay() -> None:
     patients (the start has last sessions beyond d_s, which ``violation_steps`` misses)."""
     from safe_bc.bc import load_checkpoint
     from safe_bc.distributed.evaluate import evaluate_policies
-    from safe_bc.evaluation import EvalConfig, ExpertSource, NetSource
+    from safe_bc.rollout.evaluate import EvalConfig, ExpertSource, NetSource
     from safe_bc.tasks import task_defaults
 
     committed, meta = read_table(ROOT / "results/improve/rehab/episodes.parquet")
@@ -191,8 +191,8 @@ def test_new_spec_fields_one_line(kw, match) -> None:
 
 
 def test_validation_tracks_are_the_runs_validation_patients() -> None:
-    from safe_bc.distributed.compare import track_seeds
-    from safe_bc.improve import validation_seeds
+    from safe_bc.compare.run import track_seeds
+    from safe_bc.methods.improve import validation_seeds
 
     comp = load_comparison(COMPARE / "margin_sweep.py", "sweep_selection")
     assert track_seeds(comp) == validation_seeds(1024 + 512)[1024:]
@@ -232,8 +232,8 @@ def test_tiny_fallback_rows_share_the_runs_of_another_comparison(rehab_demos, tm
     from dataclasses import replace
 
     from safe_bc.bc import BCConfig, NetworkConfig, TrainConfig
-    from safe_bc.distributed.compare import run_comparison
-    from safe_bc.eval_store import FOLDER
+    from safe_bc.compare.eval_store import FOLDER
+    from safe_bc.compare.run import run_comparison
     from tests.test_compare import TINY, stored_evaluations
 
     base = Comparison(
@@ -336,7 +336,7 @@ def test_tiny_masked_row_evaluates_the_same_agent_with_the_indicator_black(
     the row's agent on the same tracks, and the evaluation path records the steering-follow
     metrics; the runner's rows read back as (cell, view) for scripts/observation_choice."""
     from safe_bc.bc import BCConfig, NetworkConfig, PreprocessConfig, TrainConfig
-    from safe_bc.distributed.compare import run_comparison
+    from safe_bc.compare.run import run_comparison
     from scripts.observation_choice import cells_and_views
 
     pre = PreprocessConfig(crop_bar=False, mask_steering=False)

@@ -9,10 +9,10 @@ from pathlib import Path
 
 import pytest
 
-from safe_bc.compare import Comparison
-from safe_bc.distributed.compare import track_seeds
-from safe_bc.families import family, load_comparisons
-from safe_bc.protocol import Fresh, track_clashes
+from safe_bc.compare.families import family, load_comparisons
+from safe_bc.compare.protocol import Fresh, track_clashes
+from safe_bc.compare.run import track_seeds
+from safe_bc.compare.spec import Comparison
 
 ROOT = Path(__file__).resolve().parents[1]
 FAMILIES = sorted((ROOT / "tune_jobs/compare").glob("*.py"))

@@ -11,9 +11,9 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from safe_bc.compare import Comparison, Method, build_table, label_episodes
+from safe_bc.compare.families import load_comparison
+from safe_bc.compare.spec import Comparison, Method, build_table, label_episodes
 from safe_bc.data.store import read_table
-from safe_bc.families import load_comparison
 from safe_bc.selection import SelectionConfig
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -40,7 +40,7 @@ def test_new_method_fields_one_line(make, match) -> None:
 
 
 def test_rows_run_in_their_renderer_on_their_own_demos() -> None:
-    from safe_bc.distributed.compare import demos_of, eval_config, own_demos
+    from safe_bc.compare.run import demos_of, eval_config, own_demos
 
     comp = load_comparison(COMPARE / "renderer.py", "pipeline")
     exact, raster = comp.methods
@@ -92,10 +92,10 @@ def test_tiny_exact_row_raster_view_and_raster_pipeline(ray_session, tmp_path):
     raster pipeline trains on its own demonstrations and counts against their d_s; a rerun
     reuses every cell."""
     from safe_bc.bc import BCConfig, NetworkConfig, TrainConfig
-    from safe_bc.collection import CollectConfig
+    from safe_bc.compare.run import run_comparison
     from safe_bc.distributed.collect import collect
-    from safe_bc.distributed.compare import run_comparison
-    from safe_bc.envs import EnvConfig
+    from safe_bc.rollout.collect import CollectConfig
+    from safe_bc.tasks.env_config import EnvConfig
 
     raster_demos, exact_demos = tmp_path / "demos_raster", tmp_path / "demos_exact"
     for renderer, path in (("raster", raster_demos), ("exact", exact_demos)):

@@ -8,13 +8,13 @@ from pathlib import Path
 
 import pytest
 
-from safe_bc.compare import Agent, Comparison, Expert, FromStart, Handover, Method, View
-from safe_bc.compare_rows import FLAT_FIELDS, KINDS
-from safe_bc.families import family, load_comparison, load_comparisons
+from safe_bc.compare.families import family, load_comparison, load_comparisons
+from safe_bc.compare.rows import FLAT_FIELDS, KINDS
+from safe_bc.compare.spec import Agent, Comparison, Expert, FromStart, Handover, Method, View
 from safe_bc.handover import HandoverConfig
-from safe_bc.improve.config import ImproveConfig
+from safe_bc.methods.improve.config import ImproveConfig
+from safe_bc.methods.selfimprove.config import SelfImproveConfig
 from safe_bc.selection import SelectionConfig
-from safe_bc.selfimprove.config import SelfImproveConfig
 
 ROOT = Path(__file__).parents[1]
 FILES = sorted((ROOT / "tune_jobs/compare").glob("*.py"))
@@ -27,9 +27,9 @@ def test_every_stored_evaluation_keeps_its_stamp(monkeypatch) -> None:
     runner finds for some comparison cell now: the key of the stamp it computes for that cell
     (with the thresholds of the set it was made from) names the file, and the file records
     that stamp; stored evaluations stay reused."""
+    from safe_bc.compare.eval_store import FOLDER, episodes_path
+    from safe_bc.compare.run import cell_stamp
     from safe_bc.data.store import read_table_metadata
-    from safe_bc.distributed.compare import cell_stamp
-    from safe_bc.eval_store import FOLDER, episodes_path
 
     monkeypatch.chdir(ROOT)
     committed = {
@@ -65,8 +65,8 @@ def test_every_stored_evaluation_keeps_its_stamp(monkeypatch) -> None:
 def test_runs_folder_sharers_share_an_evaluation_only_when_the_same_one() -> None:
     """Two comparisons sharing a runs folder: the same settings give every cell the same
     stored evaluation, other settings (here the tracks, or one row's alpha) other ones."""
-    from safe_bc.distributed.compare import plan_evaluations
-    from safe_bc.eval_store import episodes_path
+    from safe_bc.compare.eval_store import episodes_path
+    from safe_bc.compare.run import plan_evaluations
 
     a = Comparison(
         "a",
@@ -162,10 +162,10 @@ def test_comparisons_re_derive_their_tables_from_the_stored_evaluations(monkeypa
     them), and its table from that (with its committed training and history tables)."""
     import pandas as pd
 
-    from safe_bc.compare import build_table
+    from safe_bc.compare.eval_store import FOLDER, episodes_path
+    from safe_bc.compare.run import EXPERT, Cell, cell_stamp, episodes_table
+    from safe_bc.compare.spec import build_table
     from safe_bc.data.store import read_table
-    from safe_bc.distributed.compare import EXPERT, Cell, cell_stamp, episodes_table
-    from safe_bc.eval_store import FOLDER, episodes_path
 
     monkeypatch.chdir(ROOT)
     committed = {p.resolve(): p for p in Path("results").rglob(f"{FOLDER}/*.parquet")}

@@ -12,11 +12,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from safe_bc.compare import Comparison, Method
-from safe_bc.families import load_comparison, load_comparisons
-from safe_bc.improve import ImproveConfig
+from safe_bc.compare.families import load_comparison, load_comparisons
+from safe_bc.compare.spec import Comparison, Method
+from safe_bc.methods.improve import ImproveConfig
+from safe_bc.methods.selfimprove.config import SelfImproveConfig
 from safe_bc.selection import SelectionConfig
-from safe_bc.selfimprove.config import SelfImproveConfig
 from tests.conftest import rehab_collect
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -66,11 +66,11 @@ TINY_SELF = SelfImproveConfig(
 
 def test_tiny_rehab_comparison_with_a_selfimitation_row(rehab_demos, tmp_path, monkeypatch):
     from safe_bc.bc import BCConfig, NetworkConfig, TrainConfig, load_checkpoint
+    from safe_bc.compare.run import eval_config, run_comparison, track_seeds
     from safe_bc.data.store import read_table
-    from safe_bc.distributed.compare import eval_config, run_comparison, track_seeds
     from safe_bc.distributed.evaluate import LOCKSTEP_ENVS, evaluate_policies
-    from safe_bc.evaluation import NetSource
-    from safe_bc.selfimprove.config import DONE, POLICY, round_dir
+    from safe_bc.methods.selfimprove.config import DONE, POLICY, round_dir
+    from safe_bc.rollout.evaluate import NetSource
     from tests.test_compare import TINY
 
     comp = Comparison(
@@ -91,7 +91,7 @@ def test_tiny_rehab_comparison_with_a_selfimitation_row(rehab_demos, tmp_path, m
         figures=(("learning_curves", "curves.png"),),
         bc=BCConfig(network=NetworkConfig(hidden=16), train=TrainConfig(batches=5, batch_size=8)),
     )
-    import safe_bc.selfimprove.run as si_run
+    import safe_bc.methods.selfimprove.run as si_run
 
     # every round kept (tiny retrainings rarely beat their start): the final agent is the last
     # round's, not the start's, so the row's episodes show which agent was evaluated
@@ -144,7 +144,7 @@ def test_tiny_rehab_comparison_with_a_selfimitation_row(rehab_demos, tmp_path, m
     before = stamps()
     import safe_bc.bc.train
     import safe_bc.distributed.evaluate
-    from safe_bc.selfimprove.rollout import ExploreJob, ValidateJob
+    from safe_bc.methods.selfimprove.rollout import ExploreJob, ValidateJob
 
     def no_work(*a, **k):
         raise AssertionError("a rerun did work")
@@ -180,7 +180,7 @@ def _load(short: str) -> Comparison:
 def test_the_issue_31_files_load_on_blocks_no_other_comparison_uses(monkeypatch) -> None:
     """The selection tracks and each testbed's fresh tracks are seed blocks of their own (the
     vs-expert files share their base file's runs and tracks)."""
-    from safe_bc.distributed.compare import selfimprove_identity
+    from safe_bc.compare.run import selfimprove_identity
 
     monkeypatch.chdir(ROOT)
     loaded = {f: _load(f) for f in FILES}
@@ -256,7 +256,7 @@ def test_both_improvements_get_the_same_env_step_budget(file: str, steps: int) -
 
 
 def test_a_budget_that_does_not_split_is_refused() -> None:
-    from safe_bc.selfimprove.sizing import ppo_at_budget
+    from safe_bc.methods.selfimprove.sizing import ppo_at_budget
 
     assert ppo_at_budget(ImproveConfig(), 24, 4, 8, 2).iterations == 6
     with pytest.raises(ValueError, match="do not split into 4 validations"):
@@ -268,8 +268,8 @@ def test_cells_run_alone_then_the_comparison_reuses_them(rehab_demos, tmp_path, 
     nothing else; the comparison then reuses both, and its table equals a comparison run in
     one go (both in this process: it holds on any machine that runs it; shown on AMD EPYC)."""
     from safe_bc.bc import BCConfig, NetworkConfig, TrainConfig
-    from safe_bc.distributed.compare import run_cell, run_comparison
-    from safe_bc.selfimprove.rollout import ExploreJob
+    from safe_bc.compare.run import run_cell, run_comparison
+    from safe_bc.methods.selfimprove.rollout import ExploreJob
 
     def tiny(out: Path) -> Comparison:
         return Comparison(
@@ -310,9 +310,9 @@ def test_a_longer_run_starts_from_a_shorter_rows_rounds(rehab_demos, tmp_path, m
     from dataclasses import replace
 
     from safe_bc.bc import BCConfig, NetworkConfig, TrainConfig
-    from safe_bc.distributed.compare import run_cell
-    from safe_bc.selfimprove.config import DONE, round_dir
-    from safe_bc.selfimprove.rollout import ExploreJob
+    from safe_bc.compare.run import run_cell
+    from safe_bc.methods.selfimprove.config import DONE, round_dir
+    from safe_bc.methods.selfimprove.rollout import ExploreJob
 
     longer = Method("longer", selfimprove=TINY_SELF, start="start")  # 2 rounds
     other = Method("other", selfimprove=replace(TINY_SELF, margin=0.01), start="start")
@@ -363,7 +363,7 @@ def test_each_tasks_defaults_are_the_row_its_selection_table_chose(task, files, 
     committed choice file names, so a default moves only with a measurement."""
     import re
 
-    from safe_bc.distributed.compare import selfimprove_identity
+    from safe_bc.compare.run import selfimprove_identity
 
     text = (ROOT / "results/selfimprove" / choice).read_text()
     (chosen,) = re.findall(r"\*\*Chosen: (\w+)\*\*", text)

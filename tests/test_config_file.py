@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
+from safe_bc.compare.families import family
 from safe_bc.config_file import run_config_file
-from safe_bc.families import family
 
 
 def _run(path: Path):
@@ -49,6 +49,6 @@ def test_a_missing_or_non_python_file_is_named(tmp_path: Path) -> None:
 
 def test_a_family_file_reports_its_failing_line(tmp_path: Path) -> None:
     f = tmp_path / "fam.py"
-    f.write_text("from safe_bc.compare import Comparison\n\nCOMPARISONS = (Comparison(),)\n")
+    f.write_text("from safe_bc.compare.spec import Comparison\n\nCOMPARISONS = (Comparison(),)\n")
     with pytest.raises(ValueError, match=r"fam\.py:3: "):
         family(f)

@@ -10,11 +10,11 @@ import pandas as pd
 import pytest
 
 from safe_bc.bc.checkpoint import check_checkpoint_files, load_checkpoint, read_checkpoint_meta
-from safe_bc.cli import main
-from safe_bc.curves import EVENTS_GLOB, read_events, write_curve, write_events
+from safe_bc.cli.commands import main
+from safe_bc.data.curves import EVENTS_GLOB, read_events, write_curve, write_events
 from safe_bc.data.store import load_demonstrations, read_table
-from safe_bc.experiment import RunConfig, train_run
-from safe_bc.rounds import weights_digest
+from safe_bc.methods.experiment import RunConfig, train_run
+from safe_bc.methods.rounds import weights_digest
 from safe_bc.selection import SelectionConfig
 from safe_bc.tasks import dataset_action_bounds
 
@@ -97,10 +97,10 @@ def test_train_without_held_out_episodes_trains_on_every_episode(
 def test_a_studys_validation_set_must_be_another_set_of_the_task(
     rehab_demos: Path, tmp_path: Path
 ) -> None:
-    from safe_bc.collection import CollectConfig
     from safe_bc.data.store import init_dataset, read_meta
     from safe_bc.distributed.collect import dataset_meta
-    from safe_bc.distributed.study import _check_validation_demos
+    from safe_bc.rollout.collect import CollectConfig
+    from safe_bc.study.run import _check_validation_demos
 
     meta = read_meta(rehab_demos)
     with pytest.raises(ValueError, match="no demonstration set there"):

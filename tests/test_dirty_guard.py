@@ -7,7 +7,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from safe_bc import provenance
+from safe_bc.data import provenance
 from safe_bc.data.store import read_table, read_table_metadata, write_table_atomic
 
 
@@ -15,7 +15,7 @@ from safe_bc.data.store import read_table, read_table_metadata, write_table_atom
 def results(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
     """A stand-in for the checkout's results/ with a dirty tree."""
     monkeypatch.setattr(provenance, "RESULTS", tmp_path / "results")
-    monkeypatch.setattr(provenance, "_changed_files", lambda: ["safe_bc/study.py"])
+    monkeypatch.setattr(provenance, "_changed_files", lambda: ["safe_bc/study/spec.py"])
     monkeypatch.delenv(provenance.ALLOW_DIRTY, raising=False)
     return tmp_path / "results"
 
@@ -41,7 +41,7 @@ def test_an_explicit_allowance_writes_and_records_it(results: Path, monkeypatch)
     _, meta = read_table(target)
     assert meta["command"] == "x"
     assert meta["dirty_tree"] == {"allowed_by": "SAFE_BC_ALLOW_DIRTY", "reason": "draft rerun",
-                                  "changed_files": ["safe_bc/study.py"]}  # fmt: skip
+                                  "changed_files": ["safe_bc/study/spec.py"]}  # fmt: skip
 
 
 def test_tables_elsewhere_and_clean_trees_are_not_checked(results, tmp_path, monkeypatch) -> None:
@@ -53,7 +53,7 @@ def test_tables_elsewhere_and_clean_trees_are_not_checked(results, tmp_path, mon
 
 
 def test_the_real_results_folder_is_the_checkouts() -> None:
-    assert Path(provenance.__file__).resolve().parents[1] / "results" == provenance.RESULTS
+    assert Path(provenance.__file__).resolve().parents[2] / "results" == provenance.RESULTS
 
 
 REPO = Path(__file__).resolve().parents[1]

@@ -59,8 +59,8 @@ def install(root: Path, module: bool = True) -> Path:
 def cli(args: list[str], cwd: Path, site: Path, **env: str) -> subprocess.CompletedProcess:
     environ = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), str(site)]), **env}
     environ.pop("RAY_ADDRESS", None)
-    return subprocess.run([sys.executable, "-m", "safe_bc.cli", *args], cwd=cwd, env=environ,
-                          capture_output=True, text=True, timeout=900)  # fmt: skip
+    return subprocess.run([sys.executable, "-m", "safe_bc.cli.commands", *args], cwd=cwd,
+                          env=environ, capture_output=True, text=True, timeout=900)  # fmt: skip
 
 
 def test_the_page_has_the_example_files_and_commands() -> None:
@@ -72,7 +72,7 @@ def test_the_page_has_the_example_files_and_commands() -> None:
 def test_the_example_task_registers_through_its_entry_point(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    from safe_bc.study import load_study
+    from safe_bc.study.spec import load_study
     from safe_bc.tasks import TASKS, task_defaults, task_of
 
     site = install(tmp_path)
@@ -83,7 +83,7 @@ def test_the_example_task_registers_through_its_entry_point(
     assert task_of("lane_task/Lane-v0") == "lane"
     study = load_study(tmp_path / "source" / "lane_study.py")
     assert study.env == spec.env and study.critical_eps == spec.eps
-    from safe_bc.collection import CollectConfig
+    from safe_bc.rollout.collect import CollectConfig
 
     assert study.collect == CollectConfig.for_task(spec)
 

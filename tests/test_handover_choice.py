@@ -7,8 +7,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from safe_bc.handover import HandoverConfig
-from safe_bc.handover_choice import (
+from safe_bc.compare.handover_choice import (
     EXPERT,
     HandoverChoice,
     candidate_label,
@@ -16,6 +15,7 @@ from safe_bc.handover_choice import (
     choose,
     handover_grid,
 )
+from safe_bc.handover import HandoverConfig
 
 
 def _choice(candidates: tuple[HandoverConfig, ...], limit: float = 0.1) -> HandoverChoice:

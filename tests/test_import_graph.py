@@ -33,33 +33,44 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     (
         "core",
         (
-            "safe_bc.version", "safe_bc.selection", "safe_bc.metrics",
-            "safe_bc.report", "safe_bc.handover", "safe_bc.seeds",
-            "safe_bc.episode", "safe_bc.policy", "safe_bc.demos", "safe_bc.run_config",
-            "safe_bc.envs.config", "safe_bc.data.codec",
-            "safe_bc.*.config", "safe_bc.*.logic", "safe_bc.methods", "safe_bc.methods.registry",
+            "safe_bc.version", "safe_bc.moved", "safe_bc.selection", "safe_bc.report",
+            "safe_bc.handover", "safe_bc.seeds", "safe_bc.policy", "safe_bc.progress",
+            "safe_bc.overrides", "safe_bc.config_file",
         ),
     ),
-    (
-        "storage",
-        ("safe_bc.atomic", "safe_bc.locks", "safe_bc.provenance", "safe_bc.data",
-         "safe_bc.data.store", "safe_bc.data.frames"),
-    ),
-    ("tasks", ("safe_bc.tasks", "safe_bc.tasks.*", "safe_bc.envs", "safe_bc.envs.*")),
-    ("work", ("safe_bc.*",)),
+    ("data", ("safe_bc.data", "safe_bc.data.*", "safe_bc.metrics", "safe_bc.plots")),
+    ("bc", ("safe_bc.bc", "safe_bc.bc.*", "safe_bc.run_config")),
+    ("tasks", ("safe_bc.tasks", "safe_bc.tasks.*")),
+    ("rollout", ("safe_bc.rollout", "safe_bc.rollout.*", "safe_bc.export", "safe_bc.export.*")),
+    ("methods", ("safe_bc.methods", "safe_bc.methods.*")),
     ("distributed", ("safe_bc.distributed", "safe_bc.distributed.*")),
-    ("entry", ("safe_bc", "safe_bc.api", "safe_bc.cli", "safe_bc.jobs", "safe_bc.reproduce",
+    ("study", ("safe_bc.study", "safe_bc.study.*")),
+    ("compare", ("safe_bc.compare", "safe_bc.compare.*")),
+    ("peers", ("safe_bc.peers", "safe_bc.peers.*")),
+    ("entry", ("safe_bc", "safe_bc.cli", "safe_bc.cli.*", "safe_bc.render",
                "safe_bc.peers.run", "safe_bc.peers.__main__")),
 )  # fmt: skip
-"""Layer name -> module patterns (``fnmatch``), bottom to top. A module is in the layer of its
-longest matching pattern (a name beats ``safe_bc.distributed.*``, which beats ``safe_bc.*``),
-unless :data:`PLACED` names it."""
+"""Layer name -> module patterns (``fnmatch``), bottom to top: the feature packages of
+``docs/design.md``. A module is in the layer of its longest matching pattern."""
 
-PLACED: dict[str, str] = {
-    # the drift's release-distance sweep: an experiment over collections, kept with its task
-    "safe_bc.tasks.carracing.release_sweep": "work",
-}
-"""Modules whose layer is not their folder's, with the reason."""
+PURE: tuple[str, ...] = (
+    "safe_bc.version", "safe_bc.moved", "safe_bc.selection", "safe_bc.metrics",
+    "safe_bc.report", "safe_bc.handover", "safe_bc.seeds", "safe_bc.policy",
+    "safe_bc.run_config", "safe_bc.data.codec", "safe_bc.data.episode", "safe_bc.data.demos",
+    "safe_bc.tasks.env_config", "safe_bc.*.config", "safe_bc.*.logic", "safe_bc.methods",
+    "safe_bc.methods.registry", "safe_bc.methods.layout",
+)  # fmt: skip
+"""Pure logic and configs, free of I/O, Ray and torch (checked per file, whatever its
+folder): such a module imports only pure modules, at module level or inside a function."""
+
+PURE_READS: dict[tuple[str, str], str] = {
+    ("safe_bc.methods.selfimprove.config", "safe_bc.tasks.registry"):
+        "a method reads its per-task defaults from the task's record, when asked",
+}  # fmt: skip
+"""Imports of a pure module that are not pure, with the reason (each inside a function)."""
+
+RAY: tuple[str, ...] = ("safe_bc.distributed.*", "safe_bc.study.*")
+"""Where ``ray`` may be imported: the modules that run work on it (checked per file)."""
 
 
 def module_names() -> dict[str, Path]:
@@ -145,8 +156,6 @@ def edges() -> tuple[dict[str, set[str]], dict[tuple[str, str], str]]:
 
 def layer_of(name: str) -> str:
     """The layer of module ``name`` (see :data:`LAYERS`)."""
-    if name in PLACED:
-        return PLACED[name]
     matches = [(len(p), layer) for layer, patterns in LAYERS for p in patterns
                if fnmatch.fnmatchcase(name, p)]  # fmt: skip
     if not matches:
@@ -214,18 +223,54 @@ def test_the_collection_and_the_task_registry_are_not_a_cycle():
     """The cycle once hidden by function-local imports: collection -> envs.factory ->
     tasks.carracing -> tasks.registry -> collection."""
     full, _ = edges()
-    assert "safe_bc.tasks.registry" in _reach(full, "safe_bc.collection")
-    assert "safe_bc.collection" not in _reach(full, "safe_bc.tasks.registry")
+    assert "safe_bc.tasks.registry" in _reach(full, "safe_bc.rollout.collect")
+    assert "safe_bc.rollout.collect" not in _reach(full, "safe_bc.tasks.registry")
+
+
+def test_no_task_writes_into_a_method():
+    """A method reads its per-task defaults from the task's record; the registry names none."""
+    full, _ = edges()
+    assert not any(m.startswith("safe_bc.methods") for m in _reach(full, "safe_bc.tasks"))
+
+
+def is_pure(name: str) -> bool:
+    return any(fnmatch.fnmatchcase(name, p) for p in PURE)
+
+
+def test_pure_modules_import_only_pure_ones():
+    """The per-file rule: pure logic is free of I/O and Ray whatever folder it sits in."""
+    full, where = edges()
+    bad = [f"{a} imports {b} ({where[a, b]})" for a in sorted(full) if is_pure(a)
+           for b in sorted(full[a]) if not is_pure(b) and (a, b) not in PURE_READS]  # fmt: skip
+    assert bad == []
+    assert all(where[k] != "module level" for k in PURE_READS)
+
+
+def _third_party(path: Path) -> set[str]:
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            found |= {a.name.split(".")[0] for a in node.names}
+        elif isinstance(node, ast.ImportFrom) and not node.level and node.module:
+            found.add(node.module.split(".")[0])
+    return found
+
+
+def test_ray_only_where_it_runs_work():
+    users = [n for n, p in module_names().items() if "ray" in _third_party(p)]
+    assert users and all(any(fnmatch.fnmatchcase(n, p) for p in RAY) for n in users), users
+    assert not [n for n, p in module_names().items() if is_pure(n) and
+                {"ray", "torch", "pyarrow"} & _third_party(p)]  # fmt: skip
 
 
 def test_every_module_has_a_layer():
     for name in module_names():
         assert layer_of(name) in dict(LAYERS)
-    assert layer_of("safe_bc.distributed.study") == "distributed"
-    assert layer_of("safe_bc.bc.config") == "core" and layer_of("safe_bc.bc.net") == "work"
-    assert layer_of("safe_bc") == "entry" and layer_of("safe_bc.data.store") == "storage"
+    assert layer_of("safe_bc.study.run") == "study"
+    assert layer_of("safe_bc.bc.config") == "bc" and is_pure("safe_bc.bc.config")
+    assert not is_pure("safe_bc.bc.net")
+    assert layer_of("safe_bc") == "entry" and layer_of("safe_bc.data.store") == "data"
     assert layer_of("safe_bc.tasks.carracing.costs") == "tasks"
-    assert set(PLACED) <= set(module_names())
 
 
 def test_no_import_climbs_a_layer():
@@ -248,7 +293,7 @@ def test_the_checks_catch_cycles_and_climbs():
     assert module_cycles(top)[0] == ["a", "b", "c", "a"]
     top = {"a": {"b"}, "b": {"c"}, "c": set()}
     assert module_cycles(top) == []
-    layers = {"a": "entry", "b": "work", "c": "core"}
+    layers = {"a": "entry", "b": "methods", "c": "core"}
     assert upward_imports(top, layers.__getitem__) == []
     top["c"].add("a")
     assert upward_imports(top, layers.__getitem__) == [("c", "a")]

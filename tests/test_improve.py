@@ -1,4 +1,4 @@
-"""Constrained improvement (safe_bc.improve): shield, multiplier, determinism, resume."""
+"""Constrained improvement (safe_bc.methods.improve): shield, multiplier, determinism, resume."""
 
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ import pandas as pd
 import pytest
 import torch
 
-from safe_bc.curves import read_events
-from safe_bc.improve import (
+from safe_bc.data.curves import read_events
+from safe_bc.methods.improve import (
     ImproveConfig,
     ImprovedSource,
     Improver,
@@ -94,7 +94,7 @@ def test_observed_costs_match_the_env_without_noise():
 def test_shield_gives_critical_states_the_imitation_action(start):
     """Evaluation policy and training rollouts: every critical state gets the start's action."""
     from safe_bc.bc import BCPolicy
-    from safe_bc.evaluation import NetSource
+    from safe_bc.rollout.evaluate import NetSource
 
     s, demos = _load_start(start, None)
     shield = Shield(CriticalZone(tuple(s.limits), eps=0.15, combine="any"), env_id=REHAB)
@@ -158,10 +158,10 @@ def test_interrupted_run_resumes_to_the_same_weights(start, tmp_path):
 
 
 def test_cli_and_evaluation_of_a_run(start, tmp_path, capsys):
-    from safe_bc.cli import main
+    from safe_bc.cli.commands import main
     from safe_bc.distributed.evaluate import evaluate
-    from safe_bc.envs import EnvConfig
-    from safe_bc.evaluation import EvalConfig
+    from safe_bc.rollout.evaluate import EvalConfig
+    from safe_bc.tasks.env_config import EnvConfig
 
     out = tmp_path / "run"
     argv = ["improve", "--start", str(start), "--out", str(out), "--iterations", "2",
@@ -199,10 +199,10 @@ def test_carracing_zoom_in_frames_carry_no_cost() -> None:
     it): a LocalEnvs step reports zero costs while ``info["warmup"]``, the env's costs after."""
     import numpy as np
 
-    from safe_bc.envs import EnvConfig
-    from safe_bc.improve import LocalEnvs
+    from safe_bc.methods.improve import LocalEnvs
     from safe_bc.tasks import make_env
     from safe_bc.tasks.carracing import CARRACING_ID
+    from safe_bc.tasks.env_config import EnvConfig
 
     group, plain = LocalEnvs(CARRACING_ID, 1), make_env(EnvConfig(CARRACING_ID))
     try:
@@ -221,8 +221,8 @@ def test_carracing_zoom_in_frames_carry_no_cost() -> None:
 
 
 def test_the_lagrangian_margin_is_the_tasks_unless_set() -> None:
-    from safe_bc.improve.config import ImproveConfig
     from safe_bc.methods import METHODS
+    from safe_bc.methods.improve.config import ImproveConfig
     from safe_bc.tasks import task_defaults
 
     assert ImproveConfig().cost_margin is None

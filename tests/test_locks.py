@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from safe_bc.cli import main
-from safe_bc.locks import OutputLockedError, lock_path, output_lock
+from safe_bc.cli.commands import main
+from safe_bc.data.locks import OutputLockedError, lock_path, output_lock
 
 REPO = Path(__file__).resolve().parents[1]
 SMOKE = REPO / "tune_jobs" / "smoke.py"
@@ -42,7 +42,7 @@ def test_a_killed_holder_releases_the_lock(tmp_path: Path) -> None:
     holder = textwrap.dedent(
         f"""
         import sys, time
-        from safe_bc.locks import output_lock
+        from safe_bc.data.locks import output_lock
         with output_lock({str(out)!r}):
             print("held", flush=True)
             time.sleep(120)
@@ -130,7 +130,7 @@ def test_two_collections_into_one_folder_never_mix(tmp_path: Path) -> None:
         out = tmp_path / f"r{k}"
 
         def run(seed: int, episodes: int, out: Path = out) -> subprocess.Popen:
-            argv = [sys.executable, "-m", "safe_bc.cli", "collect", "--env", "rehab",
+            argv = [sys.executable, "-m", "safe_bc.cli.commands", "collect", "--env", "rehab",
                     "--episodes", str(episodes), "--workers", "1", "--seed", str(seed),
                     "--out", str(out), "--quiet"]  # fmt: skip
             return subprocess.Popen(argv, env=env, stderr=subprocess.PIPE, text=True)

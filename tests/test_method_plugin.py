@@ -43,7 +43,7 @@ def run(
     import torch
 
     from safe_bc.bc.checkpoint import checkpoint_unit, load_checkpoint, save_checkpoint
-    from safe_bc.evaluation import NetSource
+    from safe_bc.rollout.evaluate import NetSource
 
     policy = folder / "policy"
     fresh = not (policy / "config.json").is_file()
@@ -94,7 +94,7 @@ def nudge():
 def test_the_toy_method_is_registered_through_the_public_api(nudge) -> None:
     from dataclasses import replace
 
-    from safe_bc.stages import STAGES, stage_of
+    from safe_bc.methods.stages import STAGES, stage_of
 
     assert METHODS[NAME] is SPEC and list(METHODS)[:3] == ["improve", "queries", "selfimprove"]
     assert register_method(SPEC) is SPEC  # the same spec again: nothing changes
@@ -107,10 +107,10 @@ def test_the_toy_method_is_registered_through_the_public_api(nudge) -> None:
 
 
 def test_the_toy_method_runs_as_a_study_stage(nudge, rehab_demos, rehab_start, tmp_path) -> None:
-    from safe_bc.distributed.final import _run_stages
-    from safe_bc.distributed.trial import TrialJob
     from safe_bc.methods.start import start_from_checkpoint
-    from safe_bc.study import Float, StudySpec
+    from safe_bc.study.final import _run_stages
+    from safe_bc.study.spec import Float, StudySpec
+    from safe_bc.study.trial import TrialJob
     from safe_bc.tasks import task_defaults
 
     env = task_defaults("rehab").env
@@ -148,13 +148,13 @@ def test_the_toy_method_runs_as_a_study_stage(nudge, rehab_demos, rehab_start, t
 
 def test_the_toy_method_is_a_comparison_row(nudge, rehab_demos, tmp_path) -> None:
     from safe_bc.bc import BCConfig, NetworkConfig, TrainConfig, load_checkpoint
-    from safe_bc.compare import Agent, Comparison, FromStart, Handover
+    from safe_bc.compare.eval_store import FOLDER
+    from safe_bc.compare.run import eval_config, run_comparison, track_seeds
+    from safe_bc.compare.spec import Agent, Comparison, FromStart, Handover
     from safe_bc.data.store import read_table
-    from safe_bc.distributed.compare import eval_config, run_comparison, track_seeds
     from safe_bc.distributed.evaluate import LOCKSTEP_ENVS, evaluate_policies
-    from safe_bc.eval_store import FOLDER
-    from safe_bc.evaluation import NetSource
     from safe_bc.handover import HandoverConfig
+    from safe_bc.rollout.evaluate import NetSource
     from safe_bc.selection import SelectionConfig
     from tests.conftest import rehab_collect
     from tests.test_compare import stored_evaluations
@@ -207,7 +207,7 @@ def test_the_toy_method_is_a_comparison_row(nudge, rehab_demos, tmp_path) -> Non
 
 def test_the_toy_method_is_a_command(nudge, rehab_start, tmp_path, capsys) -> None:
     from safe_bc.bc import load_checkpoint
-    from safe_bc.cli import main
+    from safe_bc.cli.commands import main
 
     out = tmp_path / "nudged"
     argv = ["method", "--name", NAME, "--start", str(rehab_start), "--out", str(out),

@@ -30,8 +30,8 @@ def test_metrics_of_methods_are_distinct() -> None:
 
 
 def test_a_method_spec_is_checked() -> None:
-    from safe_bc.improve.config import ImproveConfig
     from safe_bc.methods import MethodSpec, method_of
+    from safe_bc.methods.improve.config import ImproveConfig
 
     with pytest.raises(ValueError, match="identifier"):
         MethodSpec("two words", ImproveConfig, "m:f")

@@ -151,7 +151,7 @@ def test_seeds_better_counts_seed_means() -> None:
 
 
 def _episode(seed: int = 0, T: int = 30):
-    from safe_bc.episode import Episode
+    from safe_bc.data.episode import Episode
 
     rng = np.random.default_rng(seed)
     return Episode(
@@ -169,7 +169,7 @@ def test_outcome_violations_count_the_state_each_step_led_to() -> None:
     last step; the zoom-in's outcomes are left out; NaN without a ``final_cost``."""
     from dataclasses import replace
 
-    from safe_bc.episode import Episode
+    from safe_bc.data.episode import Episode
     from safe_bc.metrics import episode_metrics
 
     T = 4
@@ -193,7 +193,7 @@ def test_an_episode_that_ends_by_crossing_d_s_counts_as_beyond() -> None:
     """An episode whose last step crosses ``d_s`` (a plug-in's lane ends at the edge) reached a
     state beyond it: ``any_violation`` counts it beside ``any_violating_session``, though no
     step started beyond ``d_s`` (``violation_steps`` 0)."""
-    from safe_bc.episode import Episode
+    from safe_bc.data.episode import Episode
     from safe_bc.metrics import episode_metrics, episodes_beyond
 
     T = 3

@@ -27,9 +27,9 @@ ALLOWED: dict[str, set[str]] = {
     # the heading of results/selfimprove/carracing/defer_designs.md
     "scripts/defer_designs.py": {"issue 35"},
     # notes of make bench's rows in results/bench.parquet
-    "benchmarks/bench.py": {"issue 33"},
+    "benchmarks/cases/env.py": {"issue 33"},
     # example trial ids in a doctest, an example agent digest in a test
-    "safe_bc/distributed/final.py": {"3f2a9c01", "77aa0b12"},
+    "safe_bc/study/final.py": {"3f2a9c01", "77aa0b12"},
     "tests/scripts/test_study_rerun.py": {"ab12cd34"},
 }
 """File -> the matches it may hold (data, listed in ``docs/history.md``)."""

@@ -9,13 +9,13 @@ from pathlib import Path
 
 import pytest
 
-from safe_bc import api
-from safe_bc.cli import main, parse
-from safe_bc.envs.config import EnvConfig
-from safe_bc.improve.config import ImproveConfig
+from safe_bc.cli import api
+from safe_bc.cli.commands import main, parse
+from safe_bc.methods.improve.config import ImproveConfig
 from safe_bc.overrides import apply_overrides, parse_override
-from safe_bc.study import StudySpec, load_study
+from safe_bc.study.spec import StudySpec, load_study
 from safe_bc.tasks import task_defaults
+from safe_bc.tasks.env_config import EnvConfig
 
 REPO = Path(__file__).resolve().parents[1]
 SMOKE = REPO / "tune_jobs" / "smoke.py"
@@ -77,7 +77,7 @@ def test_overrides_reach_the_spec_the_study_runs_with(monkeypatch: pytest.Monkey
         seen["spec"] = spec
         raise KeyboardInterrupt("stopped by the test")
 
-    monkeypatch.setattr("safe_bc.distributed.study.run_study", fake_run_study)
+    monkeypatch.setattr("safe_bc.study.run.run_study", fake_run_study)
     sets = ["batches=40", "sampler_seed=7", "env=rehab", "env.max_episode_steps=30",
             "base.bc.train.lr=0.002", "improve.iterations=3", "name=smoke2"]  # fmt: skip
     _, job = parse(["tune", str(SMOKE), "--trials", "5", "--more-trials", "2", "--set", *sets])

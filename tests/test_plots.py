@@ -37,7 +37,7 @@ def test_traces_draw_each_dimensions_distance_at_d_s(tmp_path, monkeypatch) -> N
 
 
 def test_the_distance_at_d_s_is_the_closest_scored_approach() -> None:
-    from safe_bc.distributed.compare import limit_distances
+    from safe_bc.compare.run import limit_distances
 
     demos = SimpleNamespace(
         safety=np.array([[3.0, 9.0], [1.0, 8.0], [4.0, 2.5]]),
@@ -93,7 +93,7 @@ def _overlapping_text(fig) -> list[tuple[str, str]]:
 def test_histograms_name_the_unit_draw_a_labelled_d_s_and_count_the_episodes(
     tmp_path, monkeypatch
 ) -> None:
-    from safe_bc.demos import Demonstrations
+    from safe_bc.data.demos import Demonstrations
     from safe_bc.plots import plot_cost_histograms
 
     figures = _drawn(monkeypatch)

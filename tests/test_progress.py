@@ -46,8 +46,8 @@ def test_a_log_gets_plain_lines_as_time_passes_and_no_carriage_returns(monkeypat
 def test_render_draws_its_progress_on_a_terminal(tmp_path: Path, monkeypatch) -> None:
     import sys
 
-    from safe_bc.collection import build_expert
     from safe_bc.render import render_episode
+    from safe_bc.rollout.collect import build_expert
     from safe_bc.tasks.carracing.expert import ExpertConfig
 
     err = Terminal()

@@ -5,10 +5,10 @@ from __future__ import annotations
 import pandas as pd
 import pytest
 
-from safe_bc.compare import Agent, Comparison, Expert, Handover
-from safe_bc.families import load_comparison
+from safe_bc.compare.families import load_comparison
+from safe_bc.compare.protocol import Fresh, Rule, resolve, track_clashes
+from safe_bc.compare.spec import Agent, Comparison, Expert, Handover
 from safe_bc.handover import HandoverConfig
-from safe_bc.protocol import Fresh, Rule, resolve, track_clashes
 from safe_bc.selection import SelectionConfig
 
 
@@ -97,9 +97,9 @@ def test_a_rule_is_named_and_the_table_has_the_candidates() -> None:
 def test_a_fresh_comparison_reads_its_selection_table_when_loaded(tmp_path, monkeypatch) -> None:
     monkeypatch.chdir(tmp_path)
     (tmp_path / "fam.py").write_text(
-        "from safe_bc.compare import Agent, Comparison, Handover\n"
+        "from safe_bc.compare.spec import Agent, Comparison, Handover\n"
         "from safe_bc.handover import HandoverConfig\n"
-        "from safe_bc.protocol import Fresh, Rule\n"
+        "from safe_bc.compare.protocol import Fresh, Rule\n"
         "from safe_bc.selection import SelectionConfig\n"
         "COMPARISONS = (\n"
         "    Comparison('sel', (Agent('a', SelectionConfig()),\n"

@@ -9,7 +9,7 @@ import pandas as pd
 import pytest
 import torch
 
-from safe_bc import provenance
+from safe_bc.data import provenance
 from safe_bc.data.store import read_table_metadata, write_table_atomic
 
 CPU_FIELDS = ("cpu_model", "cpu_vendor", "cpu_simd", "torch_version", "torch_cpu_capability")
@@ -81,7 +81,7 @@ def test_without_proc_cpuinfo_the_fields_fall_back(monkeypatch) -> None:
 def test_a_committed_unchanged_folder_is_a_published_result(tmp_path: Path) -> None:
     import subprocess
 
-    from safe_bc.provenance import committed_unchanged
+    from safe_bc.data.provenance import committed_unchanged
 
     def git(*args: str) -> None:
         subprocess.run(["git", *args], cwd=tmp_path, check=True, capture_output=True)
@@ -106,11 +106,13 @@ def test_a_committed_unchanged_folder_is_a_published_result(tmp_path: Path) -> N
 
 
 def test_a_result_records_its_command_with_paths_relative_to_the_repository(monkeypatch) -> None:
-    from safe_bc.provenance import RESULTS, run_metadata
+    from safe_bc.data.provenance import RESULTS, run_metadata
 
     repo = RESULTS.parent
     argv = [str(repo / ".venv/bin/safe-bc"), "train", "--out", str(repo / "runs/a"), "--seed", "1"]
     monkeypatch.setattr("sys.argv", argv)
     assert run_metadata()["command"] == "safe-bc train --out runs/a --seed 1"
-    monkeypatch.setattr("sys.argv", [str(repo / "safe_bc/cli.py"), "describe", "--out=/tmp/d"])
+    monkeypatch.setattr(
+        "sys.argv", [str(repo / "safe_bc/cli/commands.py"), "describe", "--out=/tmp/d"]
+    )
     assert run_metadata()["command"] == "safe-bc describe --out=/tmp/d"  # elsewhere: as given

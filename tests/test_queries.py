@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from safe_bc.queries.config import DONE, POLICY, QUERIES, QueryConfig, round_dir
-from safe_bc.queries.defer import DeferringPolicy
-from safe_bc.queries.logic import deferred_steps, query_mask
-from safe_bc.queries.rollout import AskingPolicy
+from safe_bc.methods.queries.config import DONE, POLICY, QUERIES, QueryConfig, round_dir
+from safe_bc.methods.queries.defer import DeferringPolicy
+from safe_bc.methods.queries.logic import deferred_steps, query_mask
+from safe_bc.methods.queries.rollout import AskingPolicy
 from safe_bc.selection import CriticalZone
 
 ZONE = CriticalZone((10.0, 5.0), eps=2.0)
@@ -130,7 +130,7 @@ def test_a_hold_started_only_by_the_named_dimensions() -> None:
 
 
 def test_dimension_names_map_to_indices_with_one_line_errors() -> None:
-    from safe_bc.queries.defer import dimension_indices
+    from safe_bc.methods.queries.defer import dimension_indices
 
     assert dimension_indices(("right", "front"), ("left", "front", "right")) == (2, 1)
     assert dimension_indices((), ("left",)) is None
@@ -145,7 +145,7 @@ def test_dimension_names_map_to_indices_with_one_line_errors() -> None:
 def rehab_agent(rehab_demos):
     from safe_bc.bc.config import BCConfig, NetworkConfig, TrainConfig
     from safe_bc.data.store import load_demonstrations
-    from safe_bc.experiment import train_run
+    from safe_bc.methods.experiment import train_run
     from safe_bc.run_config import RunConfig
     from safe_bc.selection import SelectionConfig
     from safe_bc.tasks import dataset_action_bounds
@@ -166,7 +166,7 @@ def _env_id() -> str:
 
 
 def _query(rehab_agent, rehab_demos, folder, rollouts=None, **kw):
-    from safe_bc.queries.stage import query_run
+    from safe_bc.methods.queries.stage import query_run
 
     model, cfg, _ = rehab_agent
     config = QueryConfig(**{"rounds": 2, "episodes_per_round": 3, "batches": 20, "eps": 0.3, **kw})
@@ -183,7 +183,7 @@ def _weights(path: Path) -> dict:
 def test_query_counts_match_the_zone_on_the_rollouts_and_runs_are_deterministic(
     rehab_agent, rehab_demos, tmp_path
 ) -> None:
-    from safe_bc.queries.data import load_round
+    from safe_bc.methods.queries.data import load_round
 
     a = _query(rehab_agent, rehab_demos, tmp_path / "a")
     b = _query(rehab_agent, rehab_demos, tmp_path / "b")
@@ -203,7 +203,7 @@ def test_query_counts_match_the_zone_on_the_rollouts_and_runs_are_deterministic(
 
 
 def _limits(rehab_agent) -> tuple[float, ...]:
-    from safe_bc.experiment import select_for
+    from safe_bc.methods.experiment import select_for
 
     _, cfg, demos = rehab_agent
     return tuple(select_for(demos, cfg.selection).thresholds)
@@ -212,9 +212,9 @@ def _limits(rehab_agent) -> tuple[float, ...]:
 def test_queries_in_the_zone_are_every_zone_step_of_the_rollout(rehab_agent, rehab_demos) -> None:
     """The counted queries are exactly the rollout's scored steps in the zone (re-run the
     same episode without asking and count them)."""
-    from safe_bc.evaluation import NetSource
-    from safe_bc.queries.rollout import QueryJob, query_episode
-    from safe_bc.rollout import run_episode
+    from safe_bc.methods.queries.rollout import QueryJob, query_episode
+    from safe_bc.rollout.episode import run_episode
+    from safe_bc.rollout.evaluate import NetSource
     from safe_bc.tasks import make_env, task_defaults
     from safe_bc.tasks.rehab.expert import GuidelineExpert
 
@@ -231,7 +231,7 @@ def test_queries_in_the_zone_are_every_zone_step_of_the_rollout(rehab_agent, reh
 
 
 def test_a_killed_round_reruns_only_what_did_not_finish(rehab_agent, rehab_demos, tmp_path):
-    from safe_bc.queries.rollout import query_tracks
+    from safe_bc.methods.queries.rollout import query_tracks
 
     calls: list[int] = []
 
@@ -263,8 +263,8 @@ def test_full_mode_with_a_budget_keeps_the_first_queries(rehab_agent, rehab_demo
 
 
 def test_evaluation_reports_the_deferred_share(rehab_agent, rehab_demos) -> None:
-    from safe_bc.evaluation import NetSource, evaluate_episode
-    from safe_bc.queries.defer import DeferralSource
+    from safe_bc.methods.queries.defer import DeferralSource
+    from safe_bc.rollout.evaluate import NetSource, evaluate_episode
     from safe_bc.tasks import make_env, task_defaults
 
     model, cfg, _ = rehab_agent
@@ -287,11 +287,11 @@ def test_a_handover_in_lockstep_gives_the_one_env_episodes(
     """Envs stepped in lockstep with the agent's forward per row give, per episode, the one-env
     path's rows, flags and counts (held, extrapolated, on real CarRacing and the clinic)."""
     from safe_bc.bc.config import BCConfig, NetworkConfig, TrainConfig
-    from safe_bc.collection import stored_expert_config
     from safe_bc.data.store import load_demonstrations
-    from safe_bc.evaluation import NetSource, evaluate_episodes
-    from safe_bc.experiment import train_run
-    from safe_bc.queries.defer import DeferralSource, LockstepDeferringPolicy
+    from safe_bc.methods.experiment import train_run
+    from safe_bc.methods.queries.defer import DeferralSource, LockstepDeferringPolicy
+    from safe_bc.rollout.collect import stored_expert_config
+    from safe_bc.rollout.evaluate import NetSource, evaluate_episodes
     from safe_bc.run_config import RunConfig
     from safe_bc.selection import SelectionConfig
     from safe_bc.tasks import make_env, task_defaults
@@ -332,10 +332,10 @@ def test_the_stage_runs_end_to_end_with_ray_actors(ray_session, tiny_demos, tmp_
     from safe_bc.bc.config import BCConfig, TrainConfig
     from safe_bc.data.store import load_demonstrations
     from safe_bc.distributed.rollouts import ChunkedRayRollouts
-    from safe_bc.experiment import train_run
+    from safe_bc.methods.experiment import train_run
+    from safe_bc.methods.stages import STAGES
     from safe_bc.run_config import RunConfig
     from safe_bc.selection import SelectionConfig
-    from safe_bc.stages import STAGES
 
     cfg = RunConfig(SelectionConfig(eps=2.0, alpha=0.5), BCConfig(train=TrainConfig(batches=10)))
     result, _ = train_run(load_demonstrations(tiny_demos), cfg)
@@ -352,7 +352,7 @@ def test_the_stage_runs_end_to_end_with_ray_actors(ray_session, tiny_demos, tmp_
 
 
 def test_the_query_verb_runs_from_a_checkpoint(rehab_start, rehab_demos, tmp_path) -> None:
-    from safe_bc.cli import main
+    from safe_bc.cli.commands import main
 
     argv = [
         "query",
@@ -379,10 +379,10 @@ def test_evaluate_defers_to_the_expert_near_the_limit(rehab_start, tmp_path, cap
     width 0 defers only at or beyond d_s; a negative width is one clear line."""
     import pandas as pd
 
-    from safe_bc.cli import main
+    from safe_bc.cli.commands import main
     from safe_bc.data.store import read_table
     from safe_bc.distributed.evaluate import evaluate as run_evaluate
-    from safe_bc.evaluation import EvalConfig, ExpertSource
+    from safe_bc.rollout.evaluate import EvalConfig, ExpertSource
     from safe_bc.tasks import task_defaults
 
     def run(name: str, *extra: str) -> pd.DataFrame:

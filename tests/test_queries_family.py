@@ -10,11 +10,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from safe_bc.compare import Agent, Comparison, Expert, FromStart, Handover
+from safe_bc.compare.spec import Agent, Comparison, Expert, FromStart, Handover
 from safe_bc.handover import HandoverConfig
 from safe_bc.methods import Improved
-from safe_bc.queries.config import QueryConfig
-from safe_bc.queries.summary import block_episodes, queries_per_episode, widths_table
+from safe_bc.methods.queries.config import QueryConfig
+from safe_bc.methods.queries.summary import block_episodes, queries_per_episode, widths_table
 from safe_bc.selection import SelectionConfig
 
 
@@ -31,7 +31,7 @@ def _comparison(**changes) -> Comparison:
 
 
 def test_dagger_gets_the_critical_runs_queries_per_round() -> None:
-    from safe_bc.distributed.compare import method_config, method_identity
+    from safe_bc.compare.run import method_config, method_identity
 
     c = _comparison()
     full = c.method("full")
@@ -54,7 +54,7 @@ def test_budget_of_names_an_earlier_run_of_the_method_from_the_same_start() -> N
 
 
 def test_the_evaluation_runs_one_env_at_a_time_when_asked() -> None:
-    from safe_bc.distributed.compare import cell_stamp, eval_config
+    from safe_bc.compare.run import cell_stamp, eval_config
 
     rows = _comparison(lockstep_forward="rows")
     assert eval_config(rows).lockstep_forward == "rows"

@@ -11,9 +11,10 @@ import pytest
 
 from safe_bc.bc import BCConfig, NetworkConfig, TrainConfig
 from safe_bc.data.store import data_digest, dataset_record, load_demonstrations, read_meta
-from safe_bc.experiment import RunConfig, train_run
 from safe_bc.handover import HandoverConfig
-from safe_bc.recommender import (
+from safe_bc.methods.experiment import RunConfig, train_run
+from safe_bc.selection import SelectionConfig
+from safe_bc.study.recommender import (
     CARD,
     RecommenderCard,
     RecommenderError,
@@ -21,7 +22,6 @@ from safe_bc.recommender import (
     load_recommender,
     write_recommender,
 )
-from safe_bc.selection import SelectionConfig
 from safe_bc.tasks import make_env, task_defaults
 
 REPO = Path(__file__).resolve().parents[1]
@@ -150,7 +150,7 @@ def test_a_recommender_refuses_an_env_of_another_task(agents, tiny_demos: Path, 
 def test_every_committed_card_is_sealed() -> None:
     """Committed recommenders load without allow_unsealed: every card is format /2 and
     matches its seal."""
-    from safe_bc.recommender import FORMAT, read_card
+    from safe_bc.study.recommender import FORMAT, read_card
 
     root = Path(__file__).resolve().parents[1]
     cards = sorted(root.glob("results/**/recommender/recommender.json"))
@@ -181,8 +181,8 @@ def test_every_committed_recommender_gives_its_certified_episodes(study: str) ->
     training seed: the weights shipped are the agents the certificate describes."""
     from safe_bc.data.store import read_table
     from safe_bc.distributed.evaluate import evaluate_policies
-    from safe_bc.distributed.final import block_config
-    from safe_bc.study import load_study
+    from safe_bc.study.final import block_config
+    from safe_bc.study.spec import load_study
 
     episodes = REPO / "results" / study / "certify_episodes.parquet"
     if not episodes.exists():

@@ -8,7 +8,6 @@ import imageio.v2 as imageio
 import numpy as np
 import pytest
 
-from safe_bc.collection import build_expert
 from safe_bc.render import (
     HEADER,
     CriticalZone,
@@ -19,6 +18,7 @@ from safe_bc.render import (
     record,
     render_episode,
 )
+from safe_bc.rollout.collect import build_expert
 from safe_bc.tasks.carracing.expert import ExpertConfig
 
 STEPS = 60
@@ -85,7 +85,7 @@ def test_paths_png(expert_trace, tmp_path: Path) -> None:
 
 
 def test_cli_render_expert_gif(tmp_path: Path, monkeypatch, capsys) -> None:
-    from safe_bc.cli import main
+    from safe_bc.cli.commands import main
 
     monkeypatch.chdir(tmp_path)  # no data/demos here: rays without critical-zone states
     code = main(["render", "--expert", "--seed", "3", "--out", "e.gif", "--max-steps", "30"])
@@ -97,7 +97,7 @@ def test_cli_render_expert_gif(tmp_path: Path, monkeypatch, capsys) -> None:
 
 
 def test_a_task_without_a_drawing_cannot_be_rendered(rehab_demos, tmp_path: Path, capsys) -> None:
-    from safe_bc.cli import main
+    from safe_bc.cli.commands import main
     from safe_bc.render import drawing_of
     from safe_bc.tasks import task_defaults
 

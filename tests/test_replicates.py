@@ -10,7 +10,8 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from safe_bc.replicates import (
+from safe_bc.seeds import heldout_seeds
+from safe_bc.study.replicates import (
     REPLICATE_STRIDE,
     ReplicateResult,
     replicate_seeds,
@@ -19,8 +20,7 @@ from safe_bc.replicates import (
     replicates_markdown,
     replicates_summary,
 )
-from safe_bc.seeds import heldout_seeds
-from safe_bc.study import load_study
+from safe_bc.study.spec import load_study
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT = load_study(REPO / "tune_jobs" / "default.py")
@@ -238,7 +238,7 @@ def test_a_replicate_finished_before_a_field_was_added_counts_as_finished(tmp_pa
     import json as _json
 
     from safe_bc.data.store import write_table_atomic
-    from safe_bc.distributed.replicates import finished, replicate_inputs
+    from safe_bc.study.run_replicates import finished, replicate_inputs
 
     spec = replicate_spec(replace(DEFAULT, results=tmp_path), 1)
     folder = spec.results / spec.name

@@ -11,9 +11,9 @@ import pandas as pd
 import pytest
 
 from safe_bc.bc import BCConfig, NetworkConfig, TrainConfig
-from safe_bc.compare import render_markdown as _render
+from safe_bc.compare.reproduce import PLAIN_BC, ReproduceConfig, run_reproduce, table1
+from safe_bc.compare.spec import render_markdown as _render
 from safe_bc.data.store import read_table
-from safe_bc.reproduce import PLAIN_BC, ReproduceConfig, run_reproduce, table1
 from tests.conftest import tiny_collect
 
 META = {"git_revision": "abc", "command": "safe-bc reproduce"}
@@ -159,7 +159,7 @@ def test_table1_without_violation_columns() -> None:
 
 
 def test_cli_arguments_shrink_and_extend_the_table() -> None:
-    from safe_bc.cli import parse
+    from safe_bc.cli.commands import parse
 
     _, job = parse(
         ["reproduce", "--train-seeds", "0", "1", "--episodes", "3", "--readings", "all",
@@ -236,7 +236,7 @@ def test_tiny_rerun_writes_table_figures_and_provenance(tiny_demos, tmp_path: Pa
     assert len(stored) == 11  # 5 agents x 2 seeds and the expert, one stored evaluation each
 
     # re-rendering from the stored episodes gives the same table and records itself
-    from safe_bc.reproduce import rerender
+    from safe_bc.compare.reproduce import rerender
 
     again = rerender(cfg)
     back, meta2 = read_table(tmp_path / "table1.parquet")

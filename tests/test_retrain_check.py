@@ -11,9 +11,9 @@ from pathlib import Path
 import pytest
 
 from benchmarks.retrain_check import ROWS, TABLE1, retrain
+from safe_bc.compare.families import load_comparison
+from safe_bc.compare.run import run_config
 from safe_bc.data.store import read_table
-from safe_bc.distributed.compare import run_config
-from safe_bc.families import load_comparison
 from safe_bc.run_config import RunConfig
 from safe_bc.selection import RULES, SelectionConfig
 
@@ -55,7 +55,7 @@ def test_rows_train_as_the_committed_check_trained_them() -> None:
 def _same_machine_type(meta: dict) -> bool:
     """Whether this machine is the type that trained a committed table (its CPU and torch's
     kernel level as recorded; tables from before the CPU was recorded count as another)."""
-    from safe_bc.provenance import machine_info
+    from safe_bc.data.provenance import machine_info
 
     recorded = meta.get("provenance", meta)
     here = machine_info()

@@ -15,7 +15,7 @@ from safe_bc.bc import (
     NetworkConfig,
     PreprocessConfig,
 )
-from safe_bc.rollout import run_episode, run_episodes_lockstep
+from safe_bc.rollout.episode import run_episode, run_episodes_lockstep
 from safe_bc.tasks import make_env
 
 
@@ -68,7 +68,7 @@ def test_batched_lockstep_gives_the_same_episodes_again_on_this_machine():
 
 
 def test_a_bad_lockstep_forward_is_one_clear_line():
-    from safe_bc.evaluation import EvalConfig
+    from safe_bc.rollout.evaluate import EvalConfig
 
     torch.manual_seed(0)
     spec = ModelSpec.for_data((96, 96, 3), 3, CAR_RACING_BOUNDS)

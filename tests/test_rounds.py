@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from safe_bc.rounds import spread
+from safe_bc.methods.rounds import spread
 
 
 def _double(job: int, seeds: list[int]) -> list[int]:

@@ -446,8 +446,8 @@ def test_weighted_sampler_errors():
 
 
 def test_a_study_can_search_the_mode():
-    from safe_bc.experiment import RunConfig
-    from safe_bc.study import apply_params
+    from safe_bc.methods.experiment import RunConfig
+    from safe_bc.study.spec import apply_params
 
     cfg = apply_params(
         RunConfig(),

@@ -12,11 +12,18 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from safe_bc.curves import read_events
+from safe_bc.data.curves import read_events
 from safe_bc.data.store import read_table
-from safe_bc.rounds import ROUND_CURVE
-from safe_bc.selfimprove.config import CURVE, DONE, KEPT, POLICY, SelfImproveConfig, round_dir
-from safe_bc.selfimprove.logic import kept_steps, push_action, window_sums
+from safe_bc.methods.rounds import ROUND_CURVE
+from safe_bc.methods.selfimprove.config import (
+    CURVE,
+    DONE,
+    KEPT,
+    POLICY,
+    SelfImproveConfig,
+    round_dir,
+)
+from safe_bc.methods.selfimprove.logic import kept_steps, push_action, window_sums
 
 # --- the keep filter (pure) ----------------------------------------------------------------
 
@@ -82,8 +89,8 @@ def test_a_safe_better_episode_is_kept_and_one_step_past_the_margin_drops_it() -
 def test_pushes_back_off_in_the_zone_and_record_the_agents_own_action() -> None:
     """On rehab: where the state is in the back-off zone the agent's action is executed,
     elsewhere the pushed one; the recorded action is always the agent's."""
-    from safe_bc.rollout import run_episode
-    from safe_bc.selfimprove.rollout import Push, ZoneWatch
+    from safe_bc.methods.selfimprove.rollout import Push, ZoneWatch
+    from safe_bc.rollout.episode import run_episode
     from safe_bc.tasks import make_env, task_defaults
 
     class _Fixed:
@@ -125,7 +132,7 @@ def test_the_config_checks_its_fields() -> None:
 def rehab_agent(rehab_demos):
     from safe_bc.bc.config import BCConfig, NetworkConfig, TrainConfig
     from safe_bc.data.store import load_demonstrations
-    from safe_bc.experiment import train_run
+    from safe_bc.methods.experiment import train_run
     from safe_bc.run_config import RunConfig
     from safe_bc.selection import SelectionConfig
     from safe_bc.tasks import dataset_action_bounds
@@ -150,7 +157,7 @@ TINY = {
 
 
 def _run(rehab_agent, rehab_demos, folder, rollouts=None, train=None, **kw):
-    from safe_bc.selfimprove.stage import selfimprove_run
+    from safe_bc.methods.selfimprove.stage import selfimprove_run
     from safe_bc.tasks import task_defaults
 
     model, cfg = rehab_agent
@@ -175,7 +182,7 @@ def _same(a: dict, b: dict) -> bool:
 def test_two_runs_keep_the_same_data_and_train_the_same_weights(
     rehab_agent, rehab_demos, tmp_path
 ) -> None:
-    from safe_bc.selfimprove.data import load_round
+    from safe_bc.methods.selfimprove.data import load_round
 
     a = _run(rehab_agent, rehab_demos, tmp_path / "a")
     b = _run(rehab_agent, rehab_demos, tmp_path / "b")
@@ -209,7 +216,7 @@ def _no_seconds(x: list[dict], y: list[dict]) -> bool:
 
 
 def test_a_killed_round_reruns_only_what_did_not_finish(rehab_agent, rehab_demos, tmp_path):
-    from safe_bc.selfimprove.rollout import ExploreJob, local_rollouts
+    from safe_bc.methods.selfimprove.rollout import ExploreJob, local_rollouts
 
     explored: list[int] = []
 
@@ -248,7 +255,7 @@ def test_alpha_sets_the_retrainings_mix_and_leaves_older_identities_alone(
 ) -> None:
     """``alpha`` replaces the start's alpha in every retraining (the start's ``T_eps``
     stays); left at ``None`` the identity is the one runs had before the field existed."""
-    from safe_bc.rounds import train_local
+    from safe_bc.methods.rounds import train_local
 
     seen: list[float] = []
 
@@ -279,7 +286,7 @@ def test_a_round_failing_the_keep_rule_is_discarded(rehab_agent, rehab_demos, tm
 def test_the_stage_runs_end_to_end_with_ray_actors(ray_session, rehab_agent, rehab_demos, tmp_path):
     """The registered runner on 2 Ray actors gives the in-process run's agent."""
     from safe_bc.distributed.rollouts import ChunkedRayRollouts
-    from safe_bc.stages import STAGES
+    from safe_bc.methods.stages import STAGES
     from safe_bc.tasks import task_defaults
 
     model, cfg = rehab_agent
@@ -298,7 +305,7 @@ def test_the_stage_runs_end_to_end_with_ray_actors(ray_session, rehab_agent, reh
 def test_the_improve_verb_runs_selfimitation_from_a_checkpoint(
     rehab_start, rehab_demos, tmp_path
 ) -> None:
-    from safe_bc.cli import main
+    from safe_bc.cli.commands import main
 
     argv = ["improve", "--method", "selfimitation", "--start", str(rehab_start), "--out",
             str(tmp_path / "si"), "--selfimitation.rounds", "1", "--selfimitation.tracks-per-round",
@@ -309,8 +316,8 @@ def test_the_improve_verb_runs_selfimitation_from_a_checkpoint(
 
 
 def test_study_keys_set_the_stage_config_and_the_verb_parses_pushes() -> None:
-    from safe_bc.cli import parse
-    from safe_bc.study import Float, StudySpec
+    from safe_bc.cli.commands import parse
+    from safe_bc.study.spec import Float, StudySpec
 
     spec = StudySpec(
         "s", {"selfimprove.margin": Float(0.0, 2.0)}, selfimprove=SelfImproveConfig(rounds=3)
@@ -328,12 +335,12 @@ def test_the_stage_runs_on_carracing_with_60_step_episodes(tiny_demos, tmp_path)
     """CarRacing, 60-step episodes, 1 track, the task's pushes (gas, brake), 10 batches."""
     from safe_bc.bc.config import BCConfig, TrainConfig
     from safe_bc.data.store import load_demonstrations
-    from safe_bc.experiment import train_run
+    from safe_bc.methods.experiment import train_run
+    from safe_bc.methods.selfimprove.config import TASK_DEFAULTS
+    from safe_bc.methods.selfimprove.data import load_round
+    from safe_bc.methods.stages import STAGES
     from safe_bc.run_config import RunConfig
     from safe_bc.selection import SelectionConfig
-    from safe_bc.selfimprove.config import TASK_DEFAULTS
-    from safe_bc.selfimprove.data import load_round
-    from safe_bc.stages import STAGES
 
     cfg = RunConfig(SelectionConfig(eps=2.0, alpha=0.5), BCConfig(train=TrainConfig(batches=10)))
     result, _ = train_run(load_demonstrations(tiny_demos), cfg)
@@ -359,12 +366,12 @@ def test_car_frames_read_from_disk_train_the_weights_of_frames_in_memory(
     from safe_bc.bc.config import BCConfig, TrainConfig
     from safe_bc.data.frames import checksum_path
     from safe_bc.data.store import load_demonstrations
-    from safe_bc.experiment import train_run
+    from safe_bc.methods.experiment import train_run
+    from safe_bc.methods.selfimprove.config import FRAMES
+    from safe_bc.methods.selfimprove.rollout import ValidateJob, local_rollouts
+    from safe_bc.methods.selfimprove.stage import selfimprove_run
     from safe_bc.run_config import RunConfig
     from safe_bc.selection import SelectionConfig
-    from safe_bc.selfimprove.config import FRAMES
-    from safe_bc.selfimprove.rollout import ValidateJob, local_rollouts
-    from safe_bc.selfimprove.stage import selfimprove_run
 
     cfg = RunConfig(SelectionConfig(eps=2.0, alpha=0.5), BCConfig(train=TrainConfig(batches=200)))
     result, _ = train_run(load_demonstrations(tiny_demos), cfg)
@@ -429,8 +436,8 @@ def test_under_the_handover_the_expert_acts_unpushed_and_the_agent_is_pushed() -
     """On rehab: where the handover defers, the expert's action is executed and recorded;
     elsewhere the agent's pushed action is executed."""
     from safe_bc.handover import HandoverConfig
-    from safe_bc.rollout import run_episode
-    from safe_bc.selfimprove.rollout import ExploreJob, Push
+    from safe_bc.methods.selfimprove.rollout import ExploreJob, Push
+    from safe_bc.rollout.episode import run_episode
     from safe_bc.tasks import make_env, task_defaults
 
     class _Fixed:
@@ -470,7 +477,7 @@ def test_a_run_against_the_expert_keeps_only_runs_that_beat_it(
 ) -> None:
     """The bar is the expert's run on the same track, at most one pushed run per track is
     kept, the runs drive under the task's handover, and the round records all of it."""
-    from safe_bc.selfimprove.data import load_round
+    from safe_bc.methods.selfimprove.data import load_round
     from safe_bc.tasks import task_defaults
 
     handover = task_defaults("rehab").handover
@@ -498,7 +505,7 @@ def test_a_tasks_record_carries_its_self_imitation_defaults() -> None:
     them at None takes them, a task without any is refused naming what to set."""
     from dataclasses import replace
 
-    from safe_bc.selfimprove.config import LOOP_PUSHES, TASK_DEFAULTS
+    from safe_bc.methods.selfimprove.config import LOOP_PUSHES
     from safe_bc.tasks import register_task, task_defaults, task_of
     from safe_bc.tasks.registry import TASKS
 
@@ -515,7 +522,6 @@ def test_a_tasks_record_carries_its_self_imitation_defaults() -> None:
         assert (resolved.rounds, resolved.pushes, resolved.kept_in) == (7, ("0+0.1",), "zone")
     finally:
         TASKS.pop("rehab_twin", None)
-        TASK_DEFAULTS.pop("rehab_twin", None)
         task_defaults.cache_clear()
         task_of.cache_clear()
     with pytest.raises(ValueError, match="no self-imitation defaults"):
@@ -547,7 +553,7 @@ def _same_tracks(a: list, b: list) -> bool:
 
 
 def _explore_job(task: str, source, limits, **kw):
-    from safe_bc.selfimprove.rollout import ExploreJob
+    from safe_bc.methods.selfimprove.rollout import ExploreJob
     from safe_bc.tasks import task_defaults
 
     spec = task_defaults(task)
@@ -564,11 +570,11 @@ def test_lockstep_runs_are_the_one_env_runs_bit_for_bit(
     the expert's bar, the best 2 runs kept and, in one case, the handover."""
     from dataclasses import replace
 
-    from safe_bc.collection import build_expert, stored_expert_config
     from safe_bc.data.store import load_demonstrations
-    from safe_bc.evaluation import NetSource
-    from safe_bc.experiment import select_for
-    from safe_bc.selfimprove.rollout import explore_track
+    from safe_bc.methods.experiment import select_for
+    from safe_bc.methods.selfimprove.rollout import explore_track
+    from safe_bc.rollout.collect import build_expert, stored_expert_config
+    from safe_bc.rollout.evaluate import NetSource
     from safe_bc.tasks import make_env, task_defaults
 
     model, cfg = rehab_agent
@@ -601,11 +607,11 @@ def test_car_lockstep_runs_are_the_one_env_runs_bit_for_bit(tiny_demos) -> None:
 
     from safe_bc.bc.config import BCConfig, TrainConfig
     from safe_bc.data.store import load_demonstrations
-    from safe_bc.evaluation import NetSource
-    from safe_bc.experiment import train_run
+    from safe_bc.methods.experiment import train_run
+    from safe_bc.methods.selfimprove.rollout import explore_track
+    from safe_bc.rollout.evaluate import NetSource
     from safe_bc.run_config import RunConfig
     from safe_bc.selection import SelectionConfig
-    from safe_bc.selfimprove.rollout import explore_track
     from safe_bc.tasks import make_env, task_defaults
 
     cfg = RunConfig(SelectionConfig(eps=2.0, alpha=0.5), BCConfig(train=TrainConfig(batches=10)))

@@ -7,10 +7,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from safe_bc.cli import main
-from safe_bc.collection import CollectConfig
+from safe_bc.cli.commands import main
 from safe_bc.data.store import read_episodes, read_table
 from safe_bc.distributed.collect import collect
+from safe_bc.rollout.collect import CollectConfig
 from tests.conftest import TINY_COLLECT
 
 pytestmark = pytest.mark.slow
@@ -34,8 +34,8 @@ def test_smoke_study_through_the_cli(ray_session, tiny_demos, tmp_path: Path) ->
     study = tmp_path / "smoke.py"  # the smoke study, expecting the tiny set's collection
     study.write_text(
         "from dataclasses import replace\n"
-        "from safe_bc.collection import CollectConfig\n"
-        "from safe_bc.study import load_study\n"
+        "from safe_bc.rollout.collect import CollectConfig\n"
+        "from safe_bc.study.spec import load_study\n"
         f"STUDY = replace(load_study({str(REPO / 'tune_jobs' / 'smoke.py')!r}), "
         f"collect={TINY_COLLECT})\n"
     )

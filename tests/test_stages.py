@@ -7,8 +7,8 @@ from dataclasses import fields
 
 import pytest
 
-from safe_bc.stages import STAGE_METRICS, STAGES, stage_of
-from safe_bc.study import TRIAL_METRICS, StudySpec
+from safe_bc.methods.stages import STAGE_METRICS, STAGES, stage_of
+from safe_bc.study.spec import TRIAL_METRICS, StudySpec
 
 
 @pytest.mark.parametrize("name", list(STAGES))
@@ -41,9 +41,9 @@ def test_reading_study_files_imports_no_torch_and_no_runner() -> None:
 
     jobs = sorted(str(p) for p in (Path(__file__).parents[1] / "tune_jobs").glob("*.py"))
     code = (
-        "import sys; from safe_bc.study import load_study; "
+        "import sys; from safe_bc.study.spec import load_study; "
         f"[load_study(f) for f in {jobs!r}]; "
-        "print('torch' in sys.modules, any(m.startswith('safe_bc.improve.stage') for m in "
+        "print('torch' in sys.modules, any(m.startswith('safe_bc.methods.improve.stage') for m in "
         "sys.modules))"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)

@@ -14,7 +14,7 @@ import pytest
 
 from safe_bc.plots import plot_pareto
 from safe_bc.run_config import RunConfig
-from safe_bc.study import (
+from safe_bc.study.spec import (
     TRIAL_INFO,
     TRIAL_METRICS,
     Choice,
@@ -215,7 +215,7 @@ def test_pareto_mask_summary_and_figure(tmp_path: Path) -> None:
         axes.extend([fig.axes[0].get_xlabel(), fig.axes[0].get_ylabel()])
         return real_save(fig, *args, **kwargs)
 
-    from safe_bc.study_plan import safety_axis_label
+    from safe_bc.study.plan import safety_axis_label
     from safe_bc.tasks import task_defaults
 
     t["reward_lcb"] = t["reward_mean"] - 10.0
@@ -281,7 +281,7 @@ def test_spec_summary_is_json_able() -> None:
 
 
 def test_constraints_cover_safety_per_dimension_and_violations() -> None:
-    from safe_bc.study import ConstraintBars, constraints
+    from safe_bc.study.spec import ConstraintBars, constraints
 
     lim = ConstraintBars(6.0, {"left": 7.0, "right": 7.0}, 0.0, "per_dim")
     ok = {"safety_mean": 6.5, "safety_left_mean": 7.2, "safety_right_mean": 7.1}
@@ -304,7 +304,7 @@ def test_constraints_cover_safety_per_dimension_and_violations() -> None:
 
 
 def test_candidates_are_fully_evaluated_feasible_first() -> None:
-    from safe_bc.study import choose_candidates
+    from safe_bc.study.spec import choose_candidates
 
     t = pd.DataFrame(
         {
@@ -346,10 +346,10 @@ def test_a_space_of_the_wrong_type_for_its_field_is_one_line_before_ray(
     ((name, param),) = space.items()
     study = tmp_path / "bad.py"
     study.write_text(
-        "from safe_bc.study import Choice, Float, Int, StudySpec\n"
+        "from safe_bc.study.spec import Choice, Float, Int, StudySpec\n"
         f"STUDY = StudySpec('s', {{{name!r}: {param!r}}})\n"
     )
-    from safe_bc.cli import main
+    from safe_bc.cli.commands import main
 
     assert main(["tune", str(study), "--results", str(tmp_path / "r")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
@@ -411,7 +411,7 @@ def test_a_study_takes_its_tasks_handover_unless_told() -> None:
 def test_a_study_whose_eps_makes_t_eps_everything_says_so(rehab_demos) -> None:
     from safe_bc.data.store import load_demonstrations
     from safe_bc.selection import SelectionConfig
-    from safe_bc.study import subset_warnings
+    from safe_bc.study.spec import subset_warnings
     from safe_bc.tasks import task_defaults
 
     demos = load_demonstrations(rehab_demos)

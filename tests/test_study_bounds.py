@@ -9,9 +9,9 @@ import pandas as pd
 import pytest
 from scipy.stats import binom
 
-from safe_bc.distributed.trial import trial_values
 from safe_bc.metrics import clopper_pearson_upper, lower_bound_crossed
-from safe_bc.study import ConstraintBars, Float, StudySpec, choose_candidates, constraints
+from safe_bc.study.spec import ConstraintBars, Float, StudySpec, choose_candidates, constraints
+from safe_bc.study.trial import trial_values
 
 SPACE = {"selection.alpha": Float(0.0, 1.0)}
 

@@ -8,10 +8,10 @@ from pathlib import Path
 
 import pytest
 
-from safe_bc.collection import CollectConfig
-from safe_bc.improve import ImproveConfig, ImprovedSource, improve_from_net
+from safe_bc.methods.improve import ImproveConfig, ImprovedSource, improve_from_net
+from safe_bc.rollout.collect import CollectConfig
 from safe_bc.run_config import RunConfig
-from safe_bc.study import Choice, Float, StudySpec, load_study, split_params
+from safe_bc.study.spec import Choice, Float, StudySpec, load_study, split_params
 from safe_bc.tasks import task_defaults
 
 REPO = Path(__file__).resolve().parents[1]
@@ -69,7 +69,7 @@ def test_rehab_improve_study_file_loads_with_its_stage():
 
 def test_improve_from_net_writes_a_start_improves_and_resumes(rehab_demos: Path, tmp_path: Path):
     from safe_bc.data.store import load_demonstrations
-    from safe_bc.experiment import train_run
+    from safe_bc.methods.experiment import train_run
     from safe_bc.tasks import action_bounds, task_defaults
 
     env = task_defaults("rehab").env
@@ -90,7 +90,7 @@ def test_improve_from_net_writes_a_start_improves_and_resumes(rehab_demos: Path,
 
 @pytest.mark.slow
 def test_tiny_study_with_improvement_end_to_end(ray_session, rehab_demos: Path, tmp_path: Path):
-    from safe_bc.distributed.study import run_study
+    from safe_bc.study.run import run_study
 
     spec = replace(
         load_study(REPO / "tune_jobs" / "rehab_improve.py"),
@@ -125,10 +125,10 @@ def test_a_studys_recommender_is_the_improved_agent_it_certified(
     gives the certificate's episodes."""
     import pandas as pd
 
-    from safe_bc.cli import main
+    from safe_bc.cli.commands import main
     from safe_bc.data.store import read_table
-    from safe_bc.distributed.study import run_study
-    from safe_bc.rounds import weights_digest
+    from safe_bc.methods.rounds import weights_digest
+    from safe_bc.study.run import run_study
 
     spec = replace(
         load_study(REPO / "tune_jobs" / "beyond_rehab.py"),

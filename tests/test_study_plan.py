@@ -1,4 +1,4 @@
-"""A study run's plan (``safe_bc.study_plan``) is made from the spec alone, without Ray or a
+"""A study run's plan (``safe_bc.study.plan``) is made from the spec alone, without Ray or a
 file, and holds what the driver's phases read."""
 
 from __future__ import annotations
@@ -10,8 +10,8 @@ import pandas as pd
 import pytest
 
 from safe_bc.handover import HandoverConfig
-from safe_bc.study import Float, StudySpec
-from safe_bc.study_plan import constraint_bars, plan_study, run_identity, trials_meta
+from safe_bc.study.plan import constraint_bars, plan_study, run_identity, trials_meta
+from safe_bc.study.spec import Float, StudySpec
 
 
 def _spec(tmp_path: Path, **kw) -> StudySpec:
@@ -78,7 +78,7 @@ def test_a_committed_studys_settings_re_derive_from_its_study_file(name: str) ->
     compares) is what its study file gives now: the task defaults a file leaves unset (the
     base's eps, the handover) resolve to the values it ran with."""
     from safe_bc.data.store import read_table
-    from safe_bc.study import load_study, settings_of
+    from safe_bc.study.spec import load_study, settings_of
 
     repo = Path(__file__).resolve().parents[1]
     _, meta = read_table(repo / "results" / name / "trials.parquet")
@@ -91,7 +91,7 @@ def test_a_committed_studys_settings_re_derive_from_its_study_file(name: str) ->
 def test_the_study_record_names_a_storage_inside_the_repository_relative_to_it(
     tmp_path: Path,
 ) -> None:
-    from safe_bc.provenance import RESULTS
+    from safe_bc.data.provenance import RESULTS
 
     inside = plan_study(
         replace(_spec(tmp_path), storage=str(RESULTS / "ray")), fresh=False, command="", final=True

@@ -14,8 +14,7 @@ import numpy as np
 import pytest
 from gymnasium import spaces
 
-from safe_bc.collection import CollectConfig
-from safe_bc.envs.config import EnvConfig
+from safe_bc.rollout.collect import CollectConfig
 from safe_bc.tasks import (
     PLUGINS_VAR,
     TASKS,
@@ -24,6 +23,7 @@ from safe_bc.tasks import (
     TaskSpec,
     register_task,
 )
+from safe_bc.tasks.env_config import EnvConfig
 
 TOY_ID = "safe_bc_tests/ToyLane-v0"
 TOY_STEPS = 40
@@ -118,9 +118,9 @@ if __name__ not in os.environ.get(PLUGINS_VAR, "").split(","):
 
 
 def _collect_in_process(root: Path, episodes: int = 6) -> Path:
-    from safe_bc.collection import EpisodeMaker
     from safe_bc.data.store import init_dataset, write_episode
     from safe_bc.distributed.collect import dataset_meta
+    from safe_bc.rollout.collect import EpisodeMaker
 
     cfg = CollectConfig.for_task(TOY, episodes=episodes, workers=1)
     meta = init_dataset(root, dataset_meta(cfg))
@@ -134,7 +134,7 @@ def _collect_in_process(root: Path, episodes: int = 6) -> Path:
 
 
 def test_toy_task_is_registered_through_the_public_api():
-    from safe_bc.collection import build_expert, expert_config_from_dict
+    from safe_bc.rollout.collect import build_expert, expert_config_from_dict
     from safe_bc.tasks import task_defaults, task_of
     from safe_bc.tasks.factory import make_env
 
@@ -157,10 +157,10 @@ def test_toy_task_is_registered_through_the_public_api():
 
 def test_collect_train_evaluate_on_the_toy_task(tmp_path: Path):
     from safe_bc.bc import load_checkpoint, read_checkpoint_meta
-    from safe_bc.cli import main
+    from safe_bc.cli.commands import main
     from safe_bc.data.store import load_demonstrations, read_meta, read_table
     from safe_bc.distributed.evaluate import evaluate
-    from safe_bc.evaluation import EvalConfig, ExpertSource, NetSource
+    from safe_bc.rollout.evaluate import EvalConfig, ExpertSource, NetSource
 
     demos = _collect_in_process(tmp_path / "demos")
     meta = read_meta(demos)
@@ -205,9 +205,9 @@ def test_collect_train_evaluate_on_the_toy_task(tmp_path: Path):
 def test_tiny_study_on_the_toy_task(ray_session, tmp_path: Path):
     from safe_bc.bc import BCConfig, NetworkConfig
     from safe_bc.distributed.collect import collect
-    from safe_bc.distributed.study import run_study
     from safe_bc.run_config import RunConfig
-    from safe_bc.study import Choice, Float, StudySpec
+    from safe_bc.study.run import run_study
+    from safe_bc.study.spec import Choice, Float, StudySpec
 
     demos = tmp_path / "demos"
     report = collect(CollectConfig.for_task(TOY, episodes=6, workers=2), demos, progress=False)
@@ -248,15 +248,15 @@ def test_the_tasks_eps_reaches_the_study_the_api_and_the_cli(tmp_path: Path):
     """A plug-in task's eps (0.1 here; CarRacing's 2 px would put every row in T_eps) is the
     width of a study whose base leaves it unset (docs/tasks.md's pattern), of
     ``api.train(TrainJob(...))`` and of ``safe-bc train``: the same T_eps rows on each path."""
-    from safe_bc import api
     from safe_bc.bc import BCConfig, NetworkConfig, TrainConfig
-    from safe_bc.cli import main
+    from safe_bc.cli import api
+    from safe_bc.cli.commands import main
+    from safe_bc.cli.jobs import TrainJob
     from safe_bc.data.store import load_demonstrations, read_table
-    from safe_bc.experiment import select_for
-    from safe_bc.jobs import TrainJob
+    from safe_bc.methods.experiment import select_for
     from safe_bc.run_config import RunConfig
     from safe_bc.selection import DEFAULT_EPS, SelectionConfig
-    from safe_bc.study import StudySpec
+    from safe_bc.study.spec import StudySpec
 
     demos = _collect_in_process(tmp_path / "demos")
     bc = BCConfig(network=NetworkConfig(hidden=16), train=TrainConfig(batches=20))

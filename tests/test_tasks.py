@@ -9,9 +9,9 @@ from pathlib import Path
 import pytest
 
 from safe_bc.bc import CAR_RACING_BOUNDS
-from safe_bc.collection import CollectConfig, env_facts
 from safe_bc.data.store import META_FILE, DatasetMeta, init_dataset, read_meta
 from safe_bc.distributed.collect import dataset_meta
+from safe_bc.rollout.collect import CollectConfig, env_facts
 from safe_bc.tasks import TASKS, action_bounds, dataset_action_bounds, task_defaults, task_of
 
 

@@ -18,15 +18,15 @@ import numpy as np
 import pytest
 
 import tests.test_task_plugin  # noqa: F401  (registers the toy task)
-from safe_bc.collection import (
+from safe_bc.rollout.collect import (
     CollectConfig,
     build_expert,
     config_dict,
     expert_config_from_dict,
 )
-from safe_bc.envs.info import INFO_KEYS, InfoContract, StepInfo, check_info
 from safe_bc.tasks import TASKS, TaskSpec, register_task, task_defaults, task_of
 from safe_bc.tasks.factory import make_env
+from safe_bc.tasks.info import INFO_KEYS, InfoContract, StepInfo, check_info
 
 STEPS = 6
 DOC_TASK = "lane"
@@ -94,11 +94,11 @@ def test_task_meets_the_contract(task):
 def test_the_tasks_defaults_reach_a_study_a_training_run_and_a_comparison(task):
     """Where a study, a training run or a comparison leaves the critical-zone width and the
     handover unset, they are the task's (``TaskSpec.eps``, ``TaskSpec.handover``)."""
-    from safe_bc.compare import Comparison
-    from safe_bc.compare_rows import Agent
+    from safe_bc.compare.rows import Agent
+    from safe_bc.compare.spec import Comparison
     from safe_bc.run_config import RunConfig
     from safe_bc.selection import SelectionConfig
-    from safe_bc.study import StudySpec
+    from safe_bc.study.spec import StudySpec
     from safe_bc.tasks import with_task_eps
 
     spec = spec_named(task)
@@ -118,9 +118,9 @@ def test_the_tasks_words_and_metrics(task):
     """An episode of the task is scored with the general metrics and the task's own
     (``TaskSpec.metrics``) only: another task's (CarRacing's steering follow-through) are NaN,
     so no table or console shows them; its episodes have a name of their own."""
-    from safe_bc.evaluation import score_episode
     from safe_bc.metrics import REGISTRY
-    from safe_bc.rollout import run_episode
+    from safe_bc.rollout.episode import run_episode
+    from safe_bc.rollout.evaluate import score_episode
 
     spec = spec_named(task)
     assert spec.episode_name.strip() and spec.episodes_name == f"{spec.episode_name}s"

@@ -1,4 +1,4 @@
-"""The study's time table (``safe_bc.timing``) from synthetic records: shares, the tuning
+"""The study's time table (``safe_bc.study.timing``) from synthetic records: shares, the tuning
 loop's idle slots and overhead, runs killed before their total."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import math
 import pandas as pd
 import pytest
 
-from safe_bc.timing import PHASES, TRIAL_PARTS, timing_lines, timing_markdown, timing_table
+from safe_bc.study.timing import PHASES, TRIAL_PARTS, timing_lines, timing_markdown, timing_table
 
 SLOT_ROWS = [*TRIAL_PARTS, "trial_other", "idle_and_overhead"]
 

@@ -30,10 +30,10 @@ from dataclasses import replace
 from pathlib import Path
 
 from safe_bc.bc import BCConfig
+from safe_bc.methods.selfimprove.config import LOOP_PUSHES, SelfImproveConfig
 from safe_bc.run_config import RunConfig
 from safe_bc.selection import SelectionConfig
-from safe_bc.selfimprove.config import LOOP_PUSHES, SelfImproveConfig
-from safe_bc.study import load_study
+from safe_bc.study.spec import load_study
 from safe_bc.tasks import task_defaults
 
 CORNER = task_defaults("carracing").handover

@@ -32,10 +32,10 @@ from pathlib import Path
 
 from safe_bc.bc import BCConfig
 from safe_bc.handover import HandoverConfig
-from safe_bc.improve.config import ImproveConfig
+from safe_bc.methods.improve.config import ImproveConfig
 from safe_bc.run_config import RunConfig
 from safe_bc.selection import SelectionConfig
-from safe_bc.study import load_study
+from safe_bc.study.spec import load_study
 
 CAP = HandoverConfig(
     0.2, widths=(("heart_rate", 0.1), ("fatigue", 0.2), ("blood_pressure", 0.2)), fallback="cap"

@@ -47,7 +47,7 @@ and the expert on the same tracks.
 Run: ``make tune`` (or ``safe-bc tune tune_jobs/default.py``); rerun to resume.
 """
 
-from safe_bc.study import Choice, Float, StudySpec
+from safe_bc.study.spec import Choice, Float, StudySpec
 from safe_bc.tasks import task_defaults
 
 STUDY = StudySpec(

@@ -13,7 +13,7 @@ Run: ``safe-bc tune tune_jobs/default_one_seed.py`` (results in ``results/defaul
 from dataclasses import replace
 from pathlib import Path
 
-from safe_bc.study import load_study
+from safe_bc.study.spec import load_study
 
 STUDY = replace(
     load_study(Path(__file__).with_name("default_two_seeds.py")),

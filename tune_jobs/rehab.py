@@ -25,7 +25,7 @@ from pathlib import Path
 from safe_bc.bc import BCConfig, NetworkConfig
 from safe_bc.run_config import RunConfig
 from safe_bc.selection import SelectionConfig
-from safe_bc.study import Choice, Float, StudySpec
+from safe_bc.study.spec import Choice, Float, StudySpec
 from safe_bc.tasks import task_defaults
 
 REHAB = task_defaults("rehab")

@@ -2,7 +2,7 @@
 
 Every trial trains the safety-imitation agent of ``improve_rehab`` in
 ``tune_jobs/compare/improve.py`` (alpha 0.5, eps 0.05, 2000 batches), improves it by
-constrained RL (``safe_bc.improve``, a
+constrained RL (``safe_bc.methods.improve``, a
 short run: 100 iterations of 32 patients, half the patients per iteration of that comparison
 and half its iterations) and is evaluated as an improved agent under the study's usual
 constraints (safety mean at least the guideline clinician's, no session beyond ``d_s``).
@@ -22,10 +22,10 @@ from dataclasses import replace
 from pathlib import Path
 
 from safe_bc.bc import BCConfig
-from safe_bc.improve import ImproveConfig
+from safe_bc.methods.improve import ImproveConfig
 from safe_bc.run_config import RunConfig
 from safe_bc.selection import SelectionConfig
-from safe_bc.study import Choice, Float, load_study
+from safe_bc.study.spec import Choice, Float, load_study
 from safe_bc.tasks import task_defaults
 
 # the rehab study's environment, demonstrations and evaluation budget; its own search space,

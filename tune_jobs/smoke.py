@@ -7,7 +7,7 @@ the demonstrations).
 
 from safe_bc.bc import BCConfig, NetworkConfig
 from safe_bc.run_config import RunConfig
-from safe_bc.study import Choice, Float, StudySpec
+from safe_bc.study.spec import Choice, Float, StudySpec
 
 STUDY = StudySpec(
     name="smoke",

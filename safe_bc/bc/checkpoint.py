@@ -5,7 +5,7 @@ whose two files do not belong together (a crash between the two writes) is detec
 
 A checkpoint folder is one unit: :func:`checkpoint_unit` writes it (weights, config, and the
 ``selection.parquet`` and ``curve.parquet`` beside them) into a temporary folder that replaces
-the old one whole (:func:`safe_bc.atomic.atomic_dir`), and seals it: ``config.json`` then
+the old one whole (:func:`safe_bc.data.atomic.atomic_dir`), and seals it: ``config.json`` then
 also records the SHA-256 of every other file of the unit (``files_sha256``), which
 :func:`load_checkpoint` and :func:`check_checkpoint_files` verify. Checkpoints written
 before ``files_sha256`` existed have only ``weights_sha256``; they load as before.
@@ -29,10 +29,10 @@ from typing import Any
 
 import torch
 
-from safe_bc.atomic import atomic_dir, atomic_write, write_json_atomic
 from safe_bc.bc.config import BCConfig
 from safe_bc.bc.net import BCNet, ModelSpec
-from safe_bc.curves import EVENTS_GLOB
+from safe_bc.data.atomic import atomic_dir, atomic_write, write_json_atomic
+from safe_bc.data.curves import EVENTS_GLOB
 
 WEIGHTS = "weights.pt"
 CONFIG = "config.json"
@@ -195,7 +195,7 @@ def evaluated_weights(entry: Path, checkpoint: Path, weights: str | None) -> str
 
 def keeps_entry(entry: Path, old: Path, new: Path) -> bool:
     """Whether ``entry`` of the replaced checkpoint folder ``old`` moves into the new unit
-    ``new`` (:func:`safe_bc.atomic.atomic_dir`'s ``keep``): everything but an evaluation of
+    ``new`` (:func:`safe_bc.data.atomic.atomic_dir`'s ``keep``): everything but an evaluation of
     the replaced weights (:func:`evaluated_weights`) when the new weights differ from them,
     and the replaced unit's TensorBoard event files (its curve's). What cannot be told apart
     (no recorded weights, an unreadable table, not an evaluation) is kept."""

@@ -25,7 +25,7 @@ from safe_bc.bc.preprocess import (
     stack,
     standardization_stats,
 )
-from safe_bc.demos import Demonstrations
+from safe_bc.data.demos import Demonstrations
 from safe_bc.progress import progress_bar
 from safe_bc.selection import BatchSampler, Selection, warn_if_improper_subset
 

@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from safe_bc.atomic import atomic_write, write_text_atomic
+from safe_bc.data.atomic import atomic_write, write_text_atomic
 
 
 class FrameFileError(ValueError):

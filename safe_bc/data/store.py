@@ -49,11 +49,11 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from safe_bc.atomic import atomic_write, write_text_atomic
+from safe_bc.data.atomic import atomic_write, write_text_atomic
 from safe_bc.data.codec import Encoding, decode_frames, encode_frames
+from safe_bc.data.demos import Demonstrations
+from safe_bc.data.episode import Episode
 from safe_bc.data.frames import FrameFile, FrameFileError, checksum_path, write_frame_file
-from safe_bc.demos import Demonstrations
-from safe_bc.episode import Episode
 
 META_FILE = "dataset.json"
 EPISODE_DIR = "episodes"
@@ -161,10 +161,10 @@ def write_table_atomic(path: Path, frame: Any, metadata: dict[str, Any] | None =
     the command, seeds and code revision that made it. A table under the checkout's
     ``results/`` is refused from a dirty git tree unless ``$SAFE_BC_ALLOW_DIRTY`` gives a
     reason, which is then recorded under ``"dirty_tree"``
-    (:func:`safe_bc.provenance.check_result_write`). Metadata that records no provenance gets
-    this run's (:func:`safe_bc.provenance.with_provenance`: revision, CPU, torch's kernels).
+    (:func:`safe_bc.data.provenance.check_result_write`). Metadata that records no provenance gets
+    this run's (:func:`safe_bc.data.provenance.with_provenance`: revision, CPU, torch's kernels).
     """
-    from safe_bc.provenance import result_metadata
+    from safe_bc.data.provenance import result_metadata
     from safe_bc.report import units_of
 
     metadata = result_metadata(path, metadata)

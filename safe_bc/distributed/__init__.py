@@ -1,1 +1,3 @@
-"""The distributed layer: everything that talks to Ray lives here (and in tune_jobs/)."""
+"""Ray plumbing only: start-up, actor pools for collection, evaluation, training and rollouts,
+and rollout envs on actors. The study (``safe_bc/study/``) and the comparison runner
+(``safe_bc/compare/``) run their work through it."""

@@ -15,7 +15,9 @@ from pathlib import Path
 
 import ray
 
-from safe_bc.collection import CollectConfig, EpisodeMaker, config_dict, env_facts
+from safe_bc.data.episode import Episode
+from safe_bc.data.locks import output_lock
+from safe_bc.data.provenance import provenance
 from safe_bc.data.store import (
     META_FILE,
     DatasetError,
@@ -28,10 +30,8 @@ from safe_bc.data.store import (
 )
 from safe_bc.distributed.pool import run_on_actors
 from safe_bc.distributed.runtime import cpus_per_actor, ensure_ray
-from safe_bc.episode import Episode
-from safe_bc.locks import output_lock
 from safe_bc.progress import progress_bar
-from safe_bc.provenance import provenance
+from safe_bc.rollout.collect import CollectConfig, EpisodeMaker, config_dict, env_facts
 from safe_bc.tasks import frames_renderer
 
 
@@ -93,7 +93,7 @@ def collect(
 ) -> CollectReport:
     """Collect ``config.episodes`` expert episodes into the dataset at ``out``.
 
-    The dataset folder is locked for the whole call (:func:`safe_bc.locks.output_lock`): a
+    The dataset folder is locked for the whole call (:func:`safe_bc.data.locks.output_lock`): a
     second collection into the same folder is refused before it writes anything.
 
     Raises:

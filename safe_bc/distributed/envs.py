@@ -1,15 +1,15 @@
 """An improvement run's rollout envs on persistent Ray actors (:class:`RayEnvs`).
 
-The learner (:class:`safe_bc.improve.Improver`) keeps every decision: it picks the actions
+The learner (:class:`safe_bc.methods.improve.Improver`) keeps every decision: it picks the actions
 of all live envs in one batched forward pass, with its own noise and shield, and sends each
 actor the actions of its envs; the actors step their envs in parallel and send back the next
 observations, rewards and costs. So the run is bit-identical to one with in-process envs
-(:class:`safe_bc.improve.LocalEnvs`), whatever the number of actors, and worth it where a
+(:class:`safe_bc.methods.improve.LocalEnvs`), whatever the number of actors, and worth it where a
 step costs milliseconds (CarRacing renders every frame) rather than microseconds (the
 rehabilitation env, where the round trip dominates: keep that in-process).
 
 An actor that dies mid-episode loses its envs' episodes: :meth:`RayEnvs.step` then raises
-:class:`safe_bc.improve.EnvsLostError`, the learner calls :meth:`RayEnvs.restart` (fresh
+:class:`safe_bc.methods.improve.EnvsLostError`, the learner calls :meth:`RayEnvs.restart` (fresh
 actors for the dead ones) and runs the whole rollout again from the same noise state.
 """
 
@@ -23,7 +23,7 @@ import numpy as np
 import ray
 
 from safe_bc.distributed.runtime import cpus_per_actor, ensure_ray
-from safe_bc.improve import EnvGroupFactory, EnvsLostError, LocalEnvs, StepOut
+from safe_bc.methods.improve import EnvGroupFactory, EnvsLostError, LocalEnvs, StepOut
 
 
 @ray.remote(max_restarts=0)
@@ -134,7 +134,8 @@ class RayEnvs:
 
 
 def ray_envs(workers: int, actor_cpus: float | None = None) -> EnvGroupFactory:
-    """An :data:`~safe_bc.improve.EnvGroupFactory` for :func:`safe_bc.improve.improve`:
+    """An :data:`~safe_bc.methods.improve.EnvGroupFactory` for
+    :func:`safe_bc.methods.improve.improve`:
     its envs on ``workers`` Ray actors."""
     return partial(RayEnvs, workers=workers, actor_cpus=actor_cpus)
 

@@ -17,12 +17,12 @@ import numpy as np
 import pandas as pd
 
 from safe_bc.distributed.runtime import cpus_per_actor, ensure_ray
-from safe_bc.envs import EnvConfig
-from safe_bc.evaluation import EvalConfig, evaluate_episodes
 from safe_bc.metrics import summarize_policies
 from safe_bc.policy import LockstepForward, Policy
 from safe_bc.progress import progress_bar
+from safe_bc.rollout.evaluate import EvalConfig, evaluate_episodes
 from safe_bc.tasks import make_env
+from safe_bc.tasks.env_config import EnvConfig
 
 PolicySource = Any
 """Anything with ``build() -> Policy`` that pickles (``ExpertSource``, ``NetSource``)."""
@@ -95,7 +95,7 @@ def evaluate_policies(
     (at most 1 each). Inside a Tune trial pass the size of the trial's worker bundles: actors
     asking for more than the trial reserved wait forever. ``envs_per_worker`` > 1: each
     worker (or this process) steps that many episodes of a BC policy in lockstep with one
-    ``act_slots`` call per step (:func:`safe_bc.evaluation.evaluate_episodes`): with
+    ``act_slots`` call per step (:func:`safe_bc.rollout.evaluate.evaluate_episodes`): with
     ``config.lockstep_forward="rows"`` the same rows as 1 on any CPU; with ``"batched"`` (the
     default) one forward pass over the envs, faster, the same rows again only for the same
     ``envs_per_worker`` on the same machine type (:attr:`EvalConfig.lockstep_forward`).

@@ -9,7 +9,8 @@ from typing import Any
 
 Rollout = Callable[[Any, Sequence[int]], list[Any]]
 """Runs a job on tracks in this process, results in track order:
-:func:`safe_bc.queries.rollout.query_tracks`, :func:`safe_bc.selfimprove.rollout.local_rollouts`."""
+:func:`safe_bc.methods.queries.rollout.query_tracks`,
+:func:`safe_bc.methods.selfimprove.rollout.local_rollouts`."""
 
 
 class _Roller:
@@ -24,7 +25,7 @@ class _Roller:
 class ChunkedRayRollouts:
     """``rollout`` on ``workers`` Ray actors: the tracks in ``workers`` contiguous chunks,
     results in track order (the same as ``rollout`` in-process). A ``RolloutFn`` of
-    :mod:`safe_bc.queries.run` and :mod:`safe_bc.selfimprove.run`."""
+    :mod:`safe_bc.methods.queries.run` and :mod:`safe_bc.methods.selfimprove.run`."""
 
     def __init__(self, rollout: Rollout, workers: int, actor_cpus: float | None = None) -> None:
         if workers < 1:

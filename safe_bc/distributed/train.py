@@ -9,9 +9,9 @@ from typing import Any
 import ray
 
 from safe_bc.bc import TrainResult
-from safe_bc.demos import Demonstrations
+from safe_bc.data.demos import Demonstrations
 from safe_bc.distributed.runtime import cpus_per_actor, ensure_ray
-from safe_bc.experiment import RunConfig, train_run
+from safe_bc.methods.experiment import RunConfig, train_run
 from safe_bc.progress import progress_bar
 from safe_bc.selection import Selection
 

@@ -61,6 +61,7 @@ from typing import Any
 
 import numpy as np
 
+from safe_bc.data.episode import Episode
 from safe_bc.data.store import (
     DatasetError,
     DatasetMeta,
@@ -69,7 +70,6 @@ from safe_bc.data.store import (
     read_episode,
     read_meta,
 )
-from safe_bc.episode import Episode
 from safe_bc.export.limits import (
     COSTS,
     DEFAULT_COST_RULE,
@@ -119,7 +119,7 @@ def episode_buffer_fields(
     ``zone`` (``d_s`` per dimension and eps) and ``cost`` (the rule) give the scalar
     ``costs`` (no zone: all 0.0).
 
-    >>> from safe_bc.episode import Episode
+    >>> from safe_bc.data.episode import Episode
     >>> n = 2
     >>> ep = Episode(0, 7, np.zeros((n, 4), np.float32), np.ones((n, 2), np.float32),
     ...              np.ones((n, 2), np.float32), np.zeros(n, np.float32), np.array([0, 1], bool),
@@ -173,8 +173,8 @@ def _episodes(root: Path, meta: DatasetMeta) -> Iterator[Episode]:
 
 
 def _env_for(meta: DatasetMeta) -> Any:
-    from safe_bc.envs import EnvConfig
     from safe_bc.tasks import make_env
+    from safe_bc.tasks.env_config import EnvConfig
 
     return make_env(EnvConfig(env_id=meta.env_id, max_episode_steps=meta.max_steps))
 

@@ -5,7 +5,8 @@ here, one line each, in the order study stages run; their runners live beside th
 
 from __future__ import annotations
 
-from safe_bc.improve.config import ImproveConfig
+from safe_bc.methods.improve.config import ImproveConfig
+from safe_bc.methods.queries.config import QueryConfig
 from safe_bc.methods.registry import (
     METHODS,
     Improved,
@@ -16,8 +17,7 @@ from safe_bc.methods.registry import (
     method_of_config,
     register_method,
 )
-from safe_bc.queries.config import QueryConfig
-from safe_bc.selfimprove.config import SelfImproveConfig
+from safe_bc.methods.selfimprove.config import SelfImproveConfig
 
 __all__ = [
     "METHODS",
@@ -34,8 +34,8 @@ register_method(
     MethodSpec(
         name="improve",
         config=ImproveConfig,
-        runner="safe_bc.improve.stage:run",
-        identity="safe_bc.improve.stage:identity",
+        runner="safe_bc.methods.improve.stage:run",
+        identity="safe_bc.methods.improve.stage:identity",
         metrics=("improve_seconds", "improve_kept_iteration"),
         summed=("improve_seconds",),
         label="improving",
@@ -45,7 +45,7 @@ register_method(
     MethodSpec(
         name="queries",
         config=QueryConfig,
-        runner="safe_bc.queries.stage:run",
+        runner="safe_bc.methods.queries.stage:run",
         metrics=("queries_total", "queries_per_episode", "queries_seconds"),
         summed=("queries_total", "queries_seconds"),
         label="querying the expert",
@@ -55,11 +55,11 @@ register_method(
     MethodSpec(
         name="selfimprove",
         config=SelfImproveConfig,
-        runner="safe_bc.selfimprove.stage:run",
+        runner="safe_bc.methods.selfimprove.stage:run",
         metrics=("selfimprove_accepted_rounds", "selfimprove_kept_steps", "selfimprove_seconds"),
         summed=("selfimprove_kept_steps", "selfimprove_seconds"),
         label="self-imitating",
-        identity="safe_bc.selfimprove.stage:identity",
+        identity="safe_bc.methods.selfimprove.stage:identity",
         start_modes=("mix",),
         shares_rounds=True,
     )

@@ -9,11 +9,11 @@ record (a dataclass with a ``seed`` field and ``to_dict``) that is also its iden
 
 One entry serves every place that runs methods:
 
-* the study: every registered method is a stage (:data:`safe_bc.stages.STAGES`), on when the
-  study sets its config (:meth:`safe_bc.study.StudySpec.stage_base`), searchable as
+* the study: every registered method is a stage (:data:`safe_bc.methods.stages.STAGES`), on when the
+  study sets its config (:meth:`safe_bc.study.spec.StudySpec.stage_base`), searchable as
   ``<name>.<field>`` keys;
 * the comparison runner: a row ``FromStart(name, start=..., config=...)`` of
-  :mod:`safe_bc.compare` improves every training seed's agent of its start row;
+  :mod:`safe_bc.compare.spec` improves every training seed's agent of its start row;
 * the command line: ``safe-bc method NAME --start CKPT --out DIR --config.<field> ...``.
 
 Adding a method is one module holding its runner (``run(config, start, folder, *,
@@ -45,7 +45,7 @@ class Start:
     demos: str | Path
     """The demonstration set it was trained on (its limits ``d_s`` are the run's)."""
     env: Any
-    """The env it runs in (a :class:`safe_bc.envs.EnvConfig`)."""
+    """The env it runs in (a :class:`safe_bc.tasks.env_config.EnvConfig`)."""
     checkpoint: Path | None = None
     """Its ``safe-bc train`` checkpoint, where it is one (a comparison's ``agent/``, the
     command line's ``--start``); ``None``: only in memory (a study trial's net)."""
@@ -53,7 +53,7 @@ class Start:
     """``demos`` loaded (:class:`safe_bc.data.store.Demonstrations`); ``None``: the runner
     loads them."""
     parallel: Any = None
-    """How a run with ``workers`` > 0 spreads its rollouts (:data:`safe_bc.rounds.Parallel`,
+    """How a run with ``workers`` > 0 spreads its rollouts (:data:`safe_bc.methods.rounds.Parallel`,
     e.g. the distributed layer's Ray actors); ``None``: a run asking for workers is refused."""
     on_round: Any = None
     """Called with each finished round's or iteration's summary (a progress bar); ``None``:
@@ -65,7 +65,7 @@ class Improved:
     """What an improver returns."""
 
     policy: Any
-    """The improved agent as it is evaluated (a policy source of :mod:`safe_bc.evaluation`,
+    """The improved agent as it is evaluated (a policy source of :mod:`safe_bc.rollout.evaluate`,
     e.g. behind its own shield)."""
     net: Any
     """The improved agent alone (a policy source without any shield): what a handover row of

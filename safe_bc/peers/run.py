@@ -126,8 +126,8 @@ def _safe_bc_sources(demos: Path, eps: float, seeds: list[int], out: Sources) ->
 
     from safe_bc.bc import BCConfig
     from safe_bc.data.store import load_demonstrations
-    from safe_bc.evaluation import NetSource
-    from safe_bc.experiment import train_run
+    from safe_bc.methods.experiment import train_run
+    from safe_bc.rollout.evaluate import NetSource
     from safe_bc.run_config import RunConfig
     from safe_bc.tasks import dataset_action_bounds
 
@@ -143,7 +143,7 @@ def _safe_bc_sources(demos: Path, eps: float, seeds: list[int], out: Sources) ->
 
 
 def _recommender_sources(path: Path, task: str, demos: Path, out: Sources) -> None:
-    from safe_bc.recommender import load_recommender
+    from safe_bc.study.recommender import load_recommender
 
     rec = load_recommender(path, task=task, demos=demos)
     name = "safe_bc recommender (as loaded)"
@@ -168,12 +168,12 @@ def evaluate(
 ) -> str:
     """Evaluate every row on ``patients`` fresh patients of ``block`` and write ``out``'s
     ``table.parquet``, ``episodes.parquet`` and ``table.md``; the value: the Markdown."""
+    from safe_bc.data.provenance import run_metadata
     from safe_bc.data.store import read_meta, write_table_atomic
     from safe_bc.distributed.evaluate import evaluate as run_evaluate
-    from safe_bc.evaluation import EvalConfig, ExpertSource
     from safe_bc.export.limits import dataset_zone
-    from safe_bc.provenance import run_metadata
-    from safe_bc.queries.stage import expert_for
+    from safe_bc.methods.queries.stage import expert_for
+    from safe_bc.rollout.evaluate import EvalConfig, ExpertSource
     from safe_bc.tasks import task_defaults
 
     start = time.perf_counter()

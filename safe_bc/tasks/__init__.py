@@ -11,6 +11,7 @@ perturbations) is re-exported for tasks defined elsewhere.
 
 from safe_bc.tasks import carracing, rehab
 from safe_bc.tasks.carracing.perturb import PerturbationConfig
+from safe_bc.tasks.env_config import EnvConfig
 from safe_bc.tasks.factory import make_env
 from safe_bc.tasks.lookup import (
     action_bounds,
@@ -57,6 +58,7 @@ __all__ = [
     "TASKS",
     "Bounds",
     "Drawing",
+    "EnvConfig",
     "GymEnv",
     "PerturbationConfig",
     "Task",

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import gymnasium as gym
 
-from safe_bc.envs.config import EnvConfig
-from safe_bc.envs.info import InfoContract
+from safe_bc.tasks.env_config import EnvConfig
+from safe_bc.tasks.info import InfoContract
 from safe_bc.tasks.registry import register_envs, spec_of
 
 

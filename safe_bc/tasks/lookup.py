@@ -7,7 +7,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from safe_bc.envs.config import RENDERER_ALIASES, EnvConfig
+from safe_bc.tasks.env_config import RENDERER_ALIASES, EnvConfig
 from safe_bc.tasks.registry import Bounds, task_defaults, task_of
 
 if TYPE_CHECKING:

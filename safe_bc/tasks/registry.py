@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING, Any
 import gymnasium as gym
 import numpy as np
 
-from safe_bc.envs.config import DEFAULT_RENDERER, EnvConfig, Renderer, canonical_renderer
+from safe_bc.tasks.env_config import DEFAULT_RENDERER, EnvConfig, Renderer, canonical_renderer
 
 if TYPE_CHECKING:
     from safe_bc.data.codec import Encoding
@@ -153,7 +153,7 @@ class TaskSpec:
     """How ``safe-bc render`` draws its episodes; ``None``: it cannot be rendered."""
     selfimprove: tuple[tuple[str, Any], ...] = ()
     """The self-imitation settings this task's measurements chose (``(field, value)`` pairs of
-    :class:`safe_bc.selfimprove.config.SelfImproveConfig`: ``rounds``, ``pushes``,
+    :class:`safe_bc.methods.selfimprove.config.SelfImproveConfig`: ``rounds``, ``pushes``,
     ``kept_in``), taken where a config leaves them at ``None``; empty: none measured (such a
     config must set them)."""
     cost_margin: float = 0.0
@@ -232,10 +232,6 @@ def register_task(spec: TaskSpec) -> TaskSpec:
     for entry in spec.gym_envs:
         entry.register()
     TASKS[spec.name] = spec
-    if spec.selfimprove:
-        from safe_bc.selfimprove.config import TASK_DEFAULTS
-
-        TASK_DEFAULTS[spec.name] = dict(spec.selfimprove)
     task_defaults.cache_clear()
     task_of.cache_clear()
     return spec

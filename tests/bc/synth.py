@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from safe_bc.bc import NetworkConfig, PreprocessConfig, TrainConfig
-from safe_bc.demos import Demonstrations
+from safe_bc.data.demos import Demonstrations
 
 TINY_CNN = NetworkConfig(channels=(4, 8), kernel_sizes=(4, 3), strides=(4, 2), hidden=16)
 TINY_MLP = NetworkConfig(hidden=32, mlp_layers=1)

@@ -208,7 +208,7 @@ def test_frame_cache_leaves_the_weights_unchanged(case, monkeypatch):
 def test_training_warns_when_every_scored_row_is_critical():
     """The run still trains (alpha has no effect then), but says so once, with eps."""
     from safe_bc.bc import BCConfig
-    from safe_bc.experiment import RunConfig, train_run
+    from safe_bc.methods.experiment import RunConfig, train_run
 
     demos = vector_demos(n=60)  # costs in [0, 40)
     bc = BCConfig(PreprocessConfig(), TINY_MLP, small_train(batches=2))
@@ -221,7 +221,7 @@ def test_training_warns_when_every_scored_row_is_critical():
 def test_validation_loss_is_recorded_and_changes_no_weight():
     """The validation pass reads no random number and touches no weight: the same weights and
     training losses with and without it; its loss is finite at every log point."""
-    from safe_bc.demos import hold_out_episodes
+    from safe_bc.data.demos import hold_out_episodes
 
     train, held = hold_out_episodes(frame_demos(n=150), 1)  # episodes of 50 steps
     assert len(train) == 100 and set(held.episode_ids.tolist()) == {2}
@@ -261,7 +261,7 @@ def test_curve_table_has_one_row_per_log_point():
 
 
 def test_hold_out_needs_an_episode_left_for_training():
-    from safe_bc.demos import hold_out_episodes
+    from safe_bc.data.demos import hold_out_episodes
 
     demos = frame_demos(n=100)  # two episodes
     with pytest.raises(ValueError, match="at least one must stay for training"):

@@ -11,6 +11,7 @@ import pandas as pd
 import pyarrow as pa
 import pytest
 
+from safe_bc.data.episode import SAFETY_DIMS, Episode
 from safe_bc.data.store import (
     DatasetError,
     DatasetMeta,
@@ -25,7 +26,6 @@ from safe_bc.data.store import (
     write_episode,
     write_table_atomic,
 )
-from safe_bc.episode import SAFETY_DIMS, Episode
 
 
 def make_episode(episode_id: int, n: int = 12, seed: int = 0) -> Episode:

@@ -6,7 +6,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from safe_bc.distributed.certify import (
+from safe_bc.handover import HandoverConfig
+from safe_bc.study.certify import (
     AGENT_ALONE,
     EXPERT,
     RECOMMENDER,
@@ -14,8 +15,7 @@ from safe_bc.distributed.certify import (
     crossed,
     summarize_certification,
 )
-from safe_bc.handover import HandoverConfig
-from safe_bc.study import StudySpec
+from safe_bc.study.spec import StudySpec
 
 
 def episodes(recommender_gap: float, crossings: int) -> pd.DataFrame:
@@ -75,7 +75,7 @@ def test_the_committed_certificates_re_derive_from_their_episodes(study: str) ->
     from pathlib import Path
 
     from safe_bc.data.store import read_table
-    from safe_bc.study import load_study
+    from safe_bc.study.spec import load_study
 
     root = Path(__file__).resolve().parents[2]
     spec = load_study(root / "tune_jobs" / f"{study}.py")

@@ -12,10 +12,10 @@ import numpy as np
 import psutil
 import pytest
 
-from safe_bc.cli import main
-from safe_bc.collection import CollectConfig
+from safe_bc.cli.commands import main
 from safe_bc.data.store import read_episodes
 from safe_bc.distributed.collect import collect
+from safe_bc.rollout.collect import CollectConfig
 
 STEPS = 70
 
@@ -146,7 +146,7 @@ def test_a_full_disk_while_collecting_is_one_line_and_the_rerun_resumes(
 ) -> None:
     import errno
 
-    import safe_bc.atomic as atomic
+    import safe_bc.data.atomic as atomic
 
     out = tmp_path / "d"
     argv = ["collect", "--episodes", "2", "--workers", "1", "--max-steps", "30", "--out",

@@ -12,7 +12,7 @@ import ray
 import torch
 
 from safe_bc.distributed.envs import RayEnvs, ray_envs, split_envs
-from safe_bc.improve import LocalEnvs, improve
+from safe_bc.methods.improve import LocalEnvs, improve
 from tests.test_improve import TINY
 
 
@@ -87,7 +87,7 @@ def test_improvement_on_ray_envs_is_bit_identical_and_survives_a_dead_actor(
 
 
 def test_cli_rollout_workers_gives_the_in_process_run(rehab_start: Path, tmp_path: Path, capsys):
-    from safe_bc.cli import main
+    from safe_bc.cli.commands import main
 
     base = ["improve", "--start", str(rehab_start), "--iterations", "2",
             "--episodes-per-iter", "4", "--quiet"]  # fmt: skip

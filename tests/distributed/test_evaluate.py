@@ -9,8 +9,8 @@ import pytest
 from safe_bc.bc import BCConfig, NetworkConfig, TrainConfig
 from safe_bc.data.store import load_demonstrations
 from safe_bc.distributed.evaluate import evaluate_policies
-from safe_bc.evaluation import EvalConfig, ExpertSource, NetSource
-from safe_bc.experiment import RunConfig, train_run
+from safe_bc.methods.experiment import RunConfig, train_run
+from safe_bc.rollout.evaluate import EvalConfig, ExpertSource, NetSource
 from safe_bc.selection import SelectionConfig
 from safe_bc.tasks.carracing.expert import ExpertConfig
 
@@ -72,7 +72,7 @@ def test_actors_match_in_process_and_seeds_are_held_out(bc_and_expert) -> None:
 
 
 def test_train_then_evaluate_commands(tiny_demos, tmp_path, capsys) -> None:
-    from safe_bc.cli import main
+    from safe_bc.cli.commands import main
 
     ckpt = tmp_path / "agent"
     args = ["train", "--demos", str(tiny_demos), "--out", str(ckpt), "--selection.eps", "3"]
@@ -90,7 +90,7 @@ def test_train_then_evaluate_commands(tiny_demos, tmp_path, capsys) -> None:
 
 
 def test_bad_alpha_and_missing_dataset_are_one_line_errors(tmp_path, capsys) -> None:
-    from safe_bc.cli import main
+    from safe_bc.cli.commands import main
 
     assert main(["train", "--selection.alpha", "1.5", "--out", str(tmp_path / "x")]) == 2
     assert "--selection.alpha: alpha must be in [0, 1], got alpha=1.5" in capsys.readouterr().err
@@ -138,10 +138,10 @@ def test_a_trial_evaluates_its_tracks_in_lockstep_groups_of_trial_envs(
     1 gives the one-env rows. Checked against the call itself, on the trial's own tracks."""
     from dataclasses import replace
 
-    import safe_bc.distributed.trial as trial_mod
-    from safe_bc.distributed.trial import TrialJob, evaluate_source
-    from safe_bc.experiment import RunConfig
-    from safe_bc.study import ConstraintBars, StudySpec
+    import safe_bc.study.trial as trial_mod
+    from safe_bc.methods.experiment import RunConfig
+    from safe_bc.study.spec import ConstraintBars, StudySpec
+    from safe_bc.study.trial import TrialJob, evaluate_source
 
     sources, thresholds, _ = bc_and_expert
     limits = ConstraintBars(7.0, (7.0, 7.0, 7.0), 0.0)

@@ -1,4 +1,4 @@
-"""The final phase's paired table (pure pieces of distributed/final.py)."""
+"""The final phase's paired table (pure pieces of study/final.py)."""
 
 from __future__ import annotations
 
@@ -6,9 +6,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from safe_bc.distributed.final import EXPERT, PLAIN_BC, final_paired, final_summaries
-from safe_bc.experiment import RunConfig
+from safe_bc.methods.experiment import RunConfig
 from safe_bc.selection import SelectionConfig
+from safe_bc.study.final import EXPERT, PLAIN_BC, final_paired, final_summaries
 
 
 def episodes() -> pd.DataFrame:

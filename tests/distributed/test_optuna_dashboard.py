@@ -28,8 +28,8 @@ def _study(url: str) -> None:
     objective (like trial 1 of the default study)."""
     from optuna.samplers import TPESampler
 
-    from safe_bc.distributed.search import ConstrainedOptunaSearch, SpaceSampler
-    from safe_bc.study import Float
+    from safe_bc.study.search import ConstrainedOptunaSearch, SpaceSampler
+    from safe_bc.study.spec import Float
 
     s = ConstrainedOptunaSearch(
         space=SpaceSampler({"a": Float(0.0, 1.0)}),

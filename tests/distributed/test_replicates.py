@@ -7,10 +7,10 @@ from pathlib import Path
 
 import pytest
 
-from safe_bc.cli import main
+from safe_bc.cli.commands import main
 from safe_bc.data.store import read_table
-from safe_bc.replicates import CERT_COLUMNS, ROW_COLUMNS
-from safe_bc.study import load_study
+from safe_bc.study.replicates import CERT_COLUMNS, ROW_COLUMNS
+from safe_bc.study.spec import load_study
 from tests.conftest import TINY_COLLECT
 
 REPO = Path(__file__).resolve().parents[2]
@@ -25,8 +25,8 @@ def test_replicates_end_to_end_and_rerun_skips_them(tiny_demos: Path, tmp_path: 
     study_file.write_text(
         "from dataclasses import replace\n"
         "from pathlib import Path\n"
-        "from safe_bc.study import load_study\n"
-        "from safe_bc.collection import CollectConfig\n"
+        "from safe_bc.study.spec import load_study\n"
+        "from safe_bc.rollout.collect import CollectConfig\n"
         f"STUDY = replace(load_study({str(SMOKE)!r}), demos=Path({str(tiny_demos)!r}),\n"
         f"    collect={TINY_COLLECT},\n"
         f"    results=Path({str(tmp_path / 'results')!r}), trials=2, batches=30, max_steps=60,\n"

@@ -1,6 +1,6 @@
 """A study's rerun resumes only what its own records say it may: Tune's saved state, the
 storage, the study file and the Optuna copy are checked against them before anything runs
-(``safe_bc/distributed/resume.py``), and the files involved are written whole or not at all."""
+(``safe_bc/study/resume.py``), and the files involved are written whole or not at all."""
 
 from __future__ import annotations
 
@@ -13,7 +13,8 @@ from types import SimpleNamespace
 
 import pytest
 
-from safe_bc.distributed.resume import (
+from safe_bc.study.plan import settings_of
+from safe_bc.study.resume import (
     OWNER,
     ResumeRefused,
     check_resume,
@@ -24,7 +25,6 @@ from safe_bc.distributed.resume import (
     install_atomic_upload,
     tune_state,
 )
-from safe_bc.study_plan import settings_of
 
 SETTINGS = {"trials": 2, "max_steps": 100, "base": {"bc": {"lr": 0.001}}}
 
@@ -41,7 +41,7 @@ def test_differences_name_each_changed_field_old_and_new() -> None:
 
 
 def test_settings_leave_out_where_and_how_fast_only() -> None:
-    from safe_bc.study import Float, StudySpec
+    from safe_bc.study.spec import Float, StudySpec
 
     spec = StudySpec("s", {"selection.alpha": Float(0.0, 1.0)}, trials=2, max_steps=100)
     fast = StudySpec(
@@ -203,7 +203,7 @@ def _refused_without_fresh(out: Path, exp: Path, **kw) -> str:
 
 
 def test_a_record_of_the_experiment_relative_to_the_repository_resumes_it(tmp_path: Path) -> None:
-    from safe_bc.provenance import RESULTS
+    from safe_bc.data.provenance import RESULTS
 
     out = tmp_path / "results" / "s"
     out.mkdir(parents=True)
@@ -237,7 +237,7 @@ def test_tunes_copy_to_a_local_storage_is_whole_or_the_old_file(
     import pyarrow.fs as pafs
     from ray.train._internal import storage
 
-    import safe_bc.distributed.resume as resume
+    import safe_bc.study.resume as resume
 
     install_atomic_upload()
     install_atomic_upload()  # idempotent
@@ -278,7 +278,7 @@ def _tiny_study(tmp_path: Path, extra: str = "") -> Path:
     study_file.write_text(
         "from dataclasses import replace\n"
         "from pathlib import Path\n"
-        "from safe_bc.study import load_study\n"
+        "from safe_bc.study.spec import load_study\n"
         f"STUDY = replace(load_study({str(smoke)!r}), demos=Path({str(tmp_path / 'demos')!r}),\n"
         f"    {extra}storage={str(tmp_path / 'ray')!r})\n"
     )
@@ -288,7 +288,7 @@ def _tiny_study(tmp_path: Path, extra: str = "") -> Path:
 def test_a_refused_resume_at_the_cli_is_one_line_exit_2_before_ray_starts(
     tmp_path: Path, capsys
 ) -> None:
-    from safe_bc.cli import main
+    from safe_bc.cli.commands import main
 
     study_file = _tiny_study(tmp_path, f"results=Path({str(tmp_path / 'results')!r}), ")
     out, exp = tmp_path / "results" / "smoke", tmp_path / "ray" / "smoke"
@@ -310,7 +310,7 @@ def test_a_refused_resume_at_the_cli_is_one_line_exit_2_before_ray_starts(
 def test_another_results_folder_on_the_same_storage_is_refused_at_the_cli(
     tmp_path: Path, capsys
 ) -> None:
-    from safe_bc.cli import main
+    from safe_bc.cli.commands import main
 
     study_file = _tiny_study(tmp_path)
     first, exp = tmp_path / "first" / "smoke", tmp_path / "ray" / "smoke"
@@ -329,7 +329,7 @@ def test_another_results_folder_on_the_same_storage_is_refused_at_the_cli(
 
 
 def test_the_os_error_of_a_stopped_study_says_what_a_rerun_does_once() -> None:
-    from safe_bc.distributed.study import _os_error_in
+    from safe_bc.study.run import _os_error_in
 
     inner = OSError(errno.ENOSPC, "No space left on device", "/full/history.jsonl")
     once = _os_error_in(RuntimeError("wrapped").with_traceback(None))
@@ -349,7 +349,7 @@ def test_a_damaged_candidate_checkpoint_is_named_and_left_for_the_final_phase_to
     from ray import tune
 
     from safe_bc.bc import BCConfig, BCNet, ModelSpec, PreprocessConfig, save_checkpoint
-    from safe_bc.distributed.study import _checkpoints
+    from safe_bc.study.run import _checkpoints
     from tests.bc.synth import TINY_MLP
 
     spec = ModelSpec.for_data((4,), 2)
@@ -382,7 +382,7 @@ def test_a_checkpoint_on_a_full_disk_is_an_os_error_naming_the_file_and_leaves_n
 ) -> None:
     import io
 
-    import safe_bc.atomic as atomic
+    import safe_bc.data.atomic as atomic
     from safe_bc.bc import BCConfig, BCNet, ModelSpec, PreprocessConfig, save_checkpoint
     from tests.bc.synth import TINY_MLP
 
@@ -407,8 +407,8 @@ def test_a_checkpoint_on_a_full_disk_is_an_os_error_naming_the_file_and_leaves_n
 def test_a_trial_resumed_from_an_unrecorded_checkpoint_reports_its_trained_row_again(
     monkeypatch: pytest.MonkeyPatch, recorded: bool
 ) -> None:
-    import safe_bc.distributed.trial as trial
-    from safe_bc.study import ConstraintBars, Float, StudySpec
+    import safe_bc.study.trial as trial
+    from safe_bc.study.spec import ConstraintBars, Float, StudySpec
 
     class Reached(Exception):
         pass
@@ -459,8 +459,8 @@ def test_a_real_study_keeps_its_trials_through_a_damaged_state_and_refuses_other
 ) -> None:
     from dataclasses import replace
 
-    from safe_bc.distributed.study import FINISHED, run_study
-    from safe_bc.study import load_study
+    from safe_bc.study.run import FINISHED, run_study
+    from safe_bc.study.spec import load_study
     from tests.conftest import tiny_collect
     from tests.distributed.test_study_faults import SMOKE
 
@@ -520,7 +520,7 @@ def test_a_real_study_keeps_its_trials_through_a_damaged_state_and_refuses_other
 
 
 def test_other_demonstrations_are_refused_naming_their_digests(tmp_path: Path) -> None:
-    from safe_bc.distributed.study import _check_resume
+    from safe_bc.study.run import _check_resume
 
     identity = {"trials": 2, "threshold": 1.0, "demos_digest": "sha256:aaa", "settings": {}}
     _check_resume(

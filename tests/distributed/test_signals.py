@@ -160,15 +160,15 @@ def test_every_phase_stops_in_one_line_on_either_signal_and_the_rerun_resumes(
     study_file.write_text(
         "from dataclasses import replace\n"
         "from pathlib import Path\n"
-        "from safe_bc.study import load_study\n"
-        "from safe_bc.collection import CollectConfig\n"
+        "from safe_bc.study.spec import load_study\n"
+        "from safe_bc.rollout.collect import CollectConfig\n"
         f"STUDY = replace(load_study({str(SMOKE)!r}), demos=Path({str(tiny_demos)!r}),\n"
         f"    collect={TINY_COLLECT},\n"
         f"    results=Path({str(tmp_path / 'results')!r}), storage={str(tmp_path / 'ray')!r},\n"
         "    trials=5, max_concurrent=2, cpus_per_trial=1.0, batches=30, max_steps=80,\n"
         "    final_candidates=1, final_episodes=1, final_workers=0, certify_episodes=1)\n"
     )
-    command = [sys.executable, "-m", "safe_bc.cli", "tune", str(study_file)]
+    command = [sys.executable, "-m", "safe_bc.cli.commands", "tune", str(study_file)]
     out = tmp_path / "results" / "smoke"
     ended_before: set[str] = set()
     measured = []

@@ -20,11 +20,12 @@ import pytest
 from optuna.trial import TrialState
 from ray import tune
 
-from safe_bc.cli import main
-from safe_bc.curves import read_events, read_hparams
+from safe_bc.cli.commands import main
+from safe_bc.data.curves import read_events, read_hparams
 from safe_bc.data.store import load_demonstrations, read_table
-from safe_bc.distributed.search import WINNER
-from safe_bc.distributed.study import (
+from safe_bc.metrics import combined
+from safe_bc.seeds import heldout_seeds
+from safe_bc.study.run import (
     ConstrainedOptunaSearch,
     SpaceSampler,
     TrialJob,
@@ -33,11 +34,10 @@ from safe_bc.distributed.study import (
     run_study,
     run_trial,
 )
-from safe_bc.distributed.trial_curves import final_run_name, run_names
-from safe_bc.metrics import combined
-from safe_bc.seeds import heldout_seeds
-from safe_bc.study import TRIAL_INFO, TRIAL_METRICS, Choice, Float, load_study
-from safe_bc.timing import PHASES
+from safe_bc.study.search import WINNER
+from safe_bc.study.spec import TRIAL_INFO, TRIAL_METRICS, Choice, Float, load_study
+from safe_bc.study.timing import PHASES
+from safe_bc.study.trial_curves import final_run_name, run_names
 from tests.conftest import TINY_COLLECT, tiny_collect
 
 REPO = Path(__file__).resolve().parents[2]
@@ -104,8 +104,8 @@ def test_cli_study_end_to_end(tiny_demos: Path, tmp_path: Path, capsys) -> None:
     study_file.write_text(
         "from dataclasses import replace\n"
         "from pathlib import Path\n"
-        "from safe_bc.study import load_study\n"
-        "from safe_bc.collection import CollectConfig\n"
+        "from safe_bc.study.spec import load_study\n"
+        "from safe_bc.rollout.collect import CollectConfig\n"
         f"STUDY = replace(load_study({str(SMOKE)!r}), demos=Path({str(tiny_demos)!r}),\n"
         f"    collect={TINY_COLLECT},\n"
         f"    results=Path({str(tmp_path / 'results')!r}), batches=30, max_steps=80,\n"
@@ -276,7 +276,7 @@ class InterruptOnce(tune.Callback):
 
 def flaky_trial(config: dict, job: TrialJob, marker: str) -> None:
     """``run_trial`` whose first evaluation in the whole study fails (after training)."""
-    import safe_bc.distributed.trial as mod
+    import safe_bc.study.trial as mod
 
     original = mod.evaluate_source
     if not os.path.exists(marker):
@@ -382,9 +382,9 @@ def test_a_study_with_a_handover_delivers_a_certified_recommender(
     tiny_demos: Path, tmp_path: Path
 ) -> None:
     from safe_bc.data.store import data_digest
-    from safe_bc.distributed.certify import summarize_certification
     from safe_bc.handover import HandoverConfig
-    from safe_bc.recommender import RecommenderError, load_recommender
+    from safe_bc.study.certify import summarize_certification
+    from safe_bc.study.recommender import RecommenderError, load_recommender
 
     handover = HandoverConfig(2.0, lookahead=6, hold=6, hold_on=("front",))
     spec = small(

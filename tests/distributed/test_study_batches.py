@@ -12,13 +12,13 @@ import pandas as pd
 import pytest
 from ray.tune.schedulers import TrialScheduler
 
-from safe_bc.distributed.search import (
+from safe_bc.study.search import (
     NUMBER,
     ConstrainedOptunaSearch,
     SpaceSampler,
     halving_decision,
 )
-from safe_bc.study import Float, load_study
+from safe_bc.study.spec import Float, load_study
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -102,7 +102,7 @@ def test_searcher_copies_its_study_to_an_optuna_storage_that_optuna_loads(tmp_pa
 def test_constraint_list_follows_the_given_names_and_leaves_other_trials_alone() -> None:
     import optuna
 
-    from safe_bc.distributed.search import with_constraint_list
+    from safe_bc.study.search import with_constraint_list
 
     named = optuna.trial.create_trial(value=1.0, constraints={"violations": 0.2, "safety": -1.0})
     out = with_constraint_list(named, ["safety", "violations"])
@@ -129,7 +129,7 @@ def test_a_copy_to_a_full_disk_warns_in_one_line(
 
     import sqlalchemy.exc
 
-    import safe_bc.distributed.search as search
+    import safe_bc.study.search as search
 
     def full(*args, **kwargs):  # what SQLAlchemy raises when SQLite finds the disk full
         raise sqlalchemy.exc.OperationalError(
@@ -152,7 +152,7 @@ def test_a_copy_to_a_full_disk_warns_in_one_line(
 def test_a_studys_warnings_print_as_one_line() -> None:
     import warnings
 
-    from safe_bc.distributed.console import one_line_warnings
+    from safe_bc.study.console import one_line_warnings
 
     before = warnings.formatwarning
     message = "could not copy: (sqlite3.OperationalError) full\n  [SQL: ...]"
@@ -178,8 +178,8 @@ def _table(out: Path) -> pd.DataFrame:
 STUDY_FILE = """from dataclasses import replace
 from pathlib import Path
 
-from safe_bc.collection import CollectConfig
-from safe_bc.study import load_study
+from safe_bc.rollout.collect import CollectConfig
+from safe_bc.study.spec import load_study
 from safe_bc.tasks import task_defaults
 
 STUDY = replace(
@@ -204,7 +204,7 @@ def test_same_study_same_trials_at_one_two_and_four_trials_at_once(
 
     import optuna
 
-    from safe_bc.distributed.study import run_study
+    from safe_bc.study.run import run_study
 
     study = tmp_path / "study.py"
     study.write_text(STUDY_FILE.format(rehab=str(REPO / "tune_jobs" / "rehab.py"),
@@ -262,7 +262,7 @@ def test_same_study_same_trials_at_one_two_and_four_trials_at_once(
 def test_copy_stores_screened_trials_pruned_and_marks_the_final_winner(tmp_path) -> None:
     import optuna
 
-    from safe_bc.distributed.search import WINNER, export_study, mark_final_winner
+    from safe_bc.study.search import WINNER, export_study, mark_final_winner
 
     url = f"sqlite:///{tmp_path / 'optuna.db'}"
     s = _searcher(batch_size=None)

@@ -9,9 +9,9 @@ from pathlib import Path
 import pytest
 import torch
 
-from safe_bc.collection import CollectConfig
 from safe_bc.metrics import clopper_pearson_upper
-from safe_bc.study import load_study
+from safe_bc.rollout.collect import CollectConfig
+from safe_bc.study.spec import load_study
 from safe_bc.tasks import task_defaults
 
 REPO = Path(__file__).resolve().parents[2]
@@ -24,8 +24,8 @@ def test_bound_constraints_and_two_seed_objective_end_to_end(
     import optuna
     import pyarrow.fs as pafs
 
-    from safe_bc.distributed.study import run_study
-    from safe_bc.distributed.trial import stored_checkpoint
+    from safe_bc.study.run import run_study
+    from safe_bc.study.trial import stored_checkpoint
 
     spec = replace(
         load_study(REPO / "tune_jobs" / "rehab.py"),

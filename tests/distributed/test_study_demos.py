@@ -7,13 +7,13 @@ from pathlib import Path
 
 import pytest
 
-from safe_bc.collection import CollectConfig
 from safe_bc.data.store import dataset_record, load_demonstrations, read_demonstrations
-from safe_bc.distributed.study import _study_demos
-from safe_bc.envs.config import EnvConfig
-from safe_bc.study import Float, StudySpec
-from safe_bc.study_plan import plan_study
+from safe_bc.rollout.collect import CollectConfig
+from safe_bc.study.plan import plan_study
+from safe_bc.study.run import _study_demos
+from safe_bc.study.spec import Float, StudySpec
 from safe_bc.tasks import task_defaults
+from safe_bc.tasks.env_config import EnvConfig
 
 
 def _plan(tmp_path: Path, **kw):

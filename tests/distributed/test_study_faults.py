@@ -19,13 +19,13 @@ import pytest
 from optuna.trial import TrialState
 
 from safe_bc.data.store import read_table
-from safe_bc.distributed.search import (
+from safe_bc.study.search import (
     PRIVATE_API,
     ConstrainedOptunaSearch,
     SpaceSampler,
     check_private_api,
 )
-from safe_bc.study import Float
+from safe_bc.study.spec import Float
 from tests.conftest import TINY_COLLECT, tiny_collect
 
 REPO = Path(__file__).resolve().parents[2]
@@ -49,7 +49,7 @@ def test_private_api_of_the_pinned_ray_is_there_and_a_missing_attribute_is_named
 
 
 def test_experiment_state_persistence_hooks_of_the_pinned_ray_are_there() -> None:
-    from safe_bc.distributed.study import check_persistence_api
+    from safe_bc.study.run import check_persistence_api
 
     check_persistence_api()
 
@@ -58,7 +58,7 @@ def test_a_trial_end_forces_the_save_at_the_end_of_tunes_step() -> None:
     from ray.tune.execution.experiment_state import _ExperimentCheckpointManager
     from ray.tune.schedulers import AsyncHyperBandScheduler, TrialScheduler
 
-    from safe_bc.distributed.study import SaveOnTrialEnd
+    from safe_bc.study.run import SaveOnTrialEnd
 
     manager = _ExperimentCheckpointManager(storage=None, checkpoint_period="auto")
     controller = SimpleNamespace(_checkpoint_manager=manager)
@@ -92,7 +92,7 @@ def test_a_trial_end_forces_the_save_at_the_end_of_tunes_step() -> None:
 
 
 def test_history_keeps_the_trials_tune_knows_and_names_the_lost_ones(tmp_path: Path) -> None:
-    from safe_bc.distributed.study import (
+    from safe_bc.study.run import (
         HistoryRecorder,
         _remove_orphan_trial_dirs,
         _study_history,
@@ -206,15 +206,15 @@ def test_sigkilled_driver_loses_at_most_the_trials_in_flight(
     study_file.write_text(
         "from dataclasses import replace\n"
         "from pathlib import Path\n"
-        "from safe_bc.study import load_study\n"
-        "from safe_bc.collection import CollectConfig\n"
+        "from safe_bc.study.spec import load_study\n"
+        "from safe_bc.rollout.collect import CollectConfig\n"
         f"STUDY = replace(load_study({str(SMOKE)!r}), demos=Path({str(tiny_demos)!r}),\n"
         f"    collect={TINY_COLLECT},\n"
         f"    results=Path({str(tmp_path / 'results')!r}), storage={str(tmp_path / 'ray')!r},\n"
         "    trials=6, max_concurrent=2, cpus_per_trial=1.0, batches=30, max_steps=80,\n"
         "    final_episodes=1, final_workers=0)\n"
     )
-    command = [sys.executable, "-m", "safe_bc.cli", "tune", str(study_file)]
+    command = [sys.executable, "-m", "safe_bc.cli.commands", "tune", str(study_file)]
     env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}
     env["RAY_AUTH_MODE"] = "disabled"
     out = tmp_path / "results" / "smoke"
@@ -272,7 +272,7 @@ def test_sigkilled_driver_loses_at_most_the_trials_in_flight(
     exp = Path(meta["experiment_path"])
     folders = {p.name.removeprefix("trial_") for p in exp.glob("trial_*")}
     assert folders == set(trials["trial_id"])
-    from safe_bc.distributed.study import load_searcher
+    from safe_bc.study.run import load_searcher
 
     searcher = load_searcher(exp)
     assert set(searcher.constraints_by_trial()) == set(trials["trial_id"])
@@ -288,7 +288,7 @@ def crash_after_evaluation(config: dict, job, marker: str, log: str) -> None:
     """``run_trial`` that counts its evaluations (one line per call in ``log``) and, the first
     time in the study, dies after its last report (as when the driver is killed before Tune has
     saved that the trial ended: the trial runs again)."""
-    import safe_bc.distributed.trial as mod
+    import safe_bc.study.trial as mod
 
     original = mod.evaluate_source
 
@@ -313,8 +313,8 @@ def test_a_trial_run_again_after_its_evaluation_reports_it_without_evaluating_ag
     import functools
     from dataclasses import replace
 
-    from safe_bc.distributed.study import run_study
-    from safe_bc.study import load_study
+    from safe_bc.study.run import run_study
+    from safe_bc.study.spec import load_study
 
     spec = replace(
         load_study(SMOKE), demos=tiny_demos, collect=tiny_collect(), storage=str(tmp_path / "ray"),
@@ -341,17 +341,17 @@ def test_final_phase_resumes_per_agent_and_evaluation_and_a_finished_study_only_
 ) -> None:
     from dataclasses import replace
 
-    from safe_bc.distributed.final_store import STORE
-    from safe_bc.distributed.study import FINISHED, format_outcome, run_study
-    from safe_bc.study import load_study
+    from safe_bc.study.final_store import STORE
+    from safe_bc.study.run import FINISHED, format_outcome, run_study
+    from safe_bc.study.spec import load_study
 
     spec = replace(
         load_study(SMOKE), demos=tiny_demos, collect=tiny_collect(), storage=str(tmp_path / "ray"),
         results=tmp_path / "results", batches=30, max_steps=60, trials=2, final_candidates=1,
         final_episodes=2, final_train_seeds=2, final_workers=0, screen_episodes=0,
     )  # fmt: skip
-    import safe_bc.distributed.final as final_mod
-    from safe_bc.distributed.stop import StudyStopped
+    import safe_bc.study.final as final_mod
+    from safe_bc.study.stop import StudyStopped
 
     evaluate_policies = final_mod.evaluate_policies
 
@@ -405,7 +405,7 @@ def test_final_phase_resumes_per_agent_and_evaluation_and_a_finished_study_only_
     assert format_outcome(again, spec.params) == format_outcome(first, spec.params)
     (out / "optuna.db").unlink()  # the copy for Optuna's tools is written again from Tune's
     run_study(spec, progress=False)
-    from safe_bc.distributed.search import optuna_copy_problem
+    from safe_bc.study.search import optuna_copy_problem
 
     assert optuna_copy_problem(out / "optuna.db", spec.name, spec.trials) == ""
     (out / "optuna.db").write_bytes(b"SQLite format 3\0" + b"\0" * 100)  # cut short
@@ -449,13 +449,13 @@ def test_final_phase_resumes_per_agent_and_evaluation_and_a_finished_study_only_
 
 
 def test_ctrl_c_and_sigterm_outside_fit_stop_the_study_with_their_exit_codes() -> None:
-    from safe_bc.distributed.stop import StudyStopped, _stop_signals
+    from safe_bc.study.stop import StudyStopped, _stop_signals
 
     before = signal.getsignal(signal.SIGINT)  # SIG_IGN where the suite runs in the background
     for signum, code in ((signal.SIGINT, 130), (signal.SIGTERM, 143)):
         with _stop_signals() as stop:
             signal.signal(signal.SIGTERM, lambda *a: None)  # as ray.init replaces it
-            from safe_bc.distributed.stop import _reinstall_signals
+            from safe_bc.study.stop import _reinstall_signals
 
             _reinstall_signals()
             with pytest.raises(StudyStopped) as e:
@@ -466,7 +466,7 @@ def test_ctrl_c_and_sigterm_outside_fit_stop_the_study_with_their_exit_codes() -
 
 
 def test_sigterm_during_fit_goes_to_tunes_handler_and_is_reported_after_it() -> None:
-    from safe_bc.distributed.stop import _fit_stopped, _stop_signals
+    from safe_bc.study.stop import _fit_stopped, _stop_signals
 
     with _stop_signals() as stop:
         ours = signal.getsignal(signal.SIGINT)
@@ -493,8 +493,8 @@ def test_sigterm_during_fit_goes_to_tunes_handler_and_is_reported_after_it() -> 
 def test_stopping_is_seen_in_fit_and_silences_tunes_stop_lines_and_status_table() -> None:
     import logging
 
-    from safe_bc.distributed.console import StudyReporter, quiet_stop
-    from safe_bc.distributed.stop import _stop_signals, stopping
+    from safe_bc.study.console import StudyReporter, quiet_stop
+    from safe_bc.study.stop import _stop_signals, stopping
 
     quiet_stop()
     quiet_stop()  # idempotent
@@ -533,7 +533,7 @@ def test_stopping_is_seen_in_fit_and_silences_tunes_stop_lines_and_status_table(
 
 
 def test_a_trial_stopped_right_after_its_suggestion_has_no_config_and_still_gets_a_row() -> None:
-    from safe_bc.distributed.study import _records
+    from safe_bc.study.run import _records
 
     result = SimpleNamespace(metrics=None, config=None, error=None, path=None)
     done = SimpleNamespace(
@@ -546,7 +546,7 @@ def test_a_trial_stopped_right_after_its_suggestion_has_no_config_and_still_gets
 
 
 def test_exit_codes_of_an_outcome() -> None:
-    from safe_bc.distributed.study import StudyOutcome
+    from safe_bc.study.run import StudyOutcome
 
     base = StudyOutcome(True, pd.DataFrame(), object(), None, 0.0, Path("."), "", 0)
     assert base.exit_code == 0
@@ -569,7 +569,7 @@ def test_history_append_on_a_full_disk_leaves_no_half_line(
 ) -> None:
     import errno
 
-    from safe_bc.distributed.study import HistoryRecorder, read_history
+    from safe_bc.study.run import HistoryRecorder, read_history
 
     path = tmp_path / "history.jsonl"
     rec = HistoryRecorder(str(path))
@@ -610,8 +610,8 @@ def test_an_os_error_inside_tune_is_one_line_saying_what_a_rerun_does(
 ) -> None:
     from dataclasses import replace
 
-    from safe_bc.distributed.study import run_study
-    from safe_bc.study import load_study
+    from safe_bc.study.run import run_study
+    from safe_bc.study.spec import load_study
 
     spec = replace(
         load_study(SMOKE), demos=tiny_demos, collect=tiny_collect(), storage=str(tmp_path / "ray"),
@@ -627,9 +627,9 @@ def test_an_os_error_inside_tune_is_one_line_saying_what_a_rerun_does(
 def test_a_finished_studys_optuna_copy_must_be_whole_and_its_own(tmp_path: Path) -> None:
     import optuna
 
-    from safe_bc.distributed.search import check_optuna_copy
-    from safe_bc.study import StudySpec
-    from safe_bc.study_plan import plan_study
+    from safe_bc.study.plan import plan_study
+    from safe_bc.study.search import check_optuna_copy
+    from safe_bc.study.spec import StudySpec
 
     spec = StudySpec("mine", {"selection.alpha": Float(0.0, 1.0)}, trials=2, results=tmp_path)
     plan = plan_study(spec, fresh=False, command="", final=True)
@@ -675,15 +675,15 @@ def test_sigterm_and_ctrl_c_in_the_final_phase_stop_in_one_line_and_the_rerun_re
     study_file.write_text(
         "from dataclasses import replace\n"
         "from pathlib import Path\n"
-        "from safe_bc.study import load_study\n"
-        "from safe_bc.collection import CollectConfig\n"
+        "from safe_bc.study.spec import load_study\n"
+        "from safe_bc.rollout.collect import CollectConfig\n"
         f"STUDY = replace(load_study({str(SMOKE)!r}), demos=Path({str(tiny_demos)!r}),\n"
         f"    collect={TINY_COLLECT},\n"
         f"    results=Path({str(tmp_path / 'results')!r}), storage={str(tmp_path / 'ray')!r},\n"
         "    trials=2, max_concurrent=1, batches=30, max_steps=60, screen_episodes=0,\n"
         "    final_candidates=1, final_train_seeds=3, final_episodes=3, final_workers=0)\n"
     )
-    command = [sys.executable, "-m", "safe_bc.cli", "tune", str(study_file)]
+    command = [sys.executable, "-m", "safe_bc.cli.commands", "tune", str(study_file)]
     env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}
     env["RAY_AUTH_MODE"] = "disabled"
     out = tmp_path / "results" / "smoke"
@@ -720,8 +720,8 @@ def test_sigterm_and_ctrl_c_in_the_final_phase_stop_in_one_line_and_the_rerun_re
 def test_a_deferred_signal_stops_after_the_grace_period_and_prints_nothing(
     monkeypatch: pytest.MonkeyPatch, capsys
 ) -> None:
-    import safe_bc.distributed.stop as stop_mod
-    from safe_bc.distributed.stop import StudyStopped, _stop_signals, deferred_stop
+    import safe_bc.study.stop as stop_mod
+    from safe_bc.study.stop import StudyStopped, _stop_signals, deferred_stop
 
     monkeypatch.setattr(stop_mod, "STOP_GRACE_S", 0.2)
     for signum, code in ((signal.SIGTERM, 143), (signal.SIGINT, 130)):
@@ -740,7 +740,7 @@ def test_a_deferred_signal_stops_after_the_grace_period_and_prints_nothing(
 
 
 def test_a_signal_in_a_deferred_block_stops_at_the_next_stop_point_with_its_own_code() -> None:
-    from safe_bc.distributed.stop import StudyStopped, _stop_signals, deferred_stop, stop_point
+    from safe_bc.study.stop import StudyStopped, _stop_signals, deferred_stop, stop_point
 
     for signum, code in ((signal.SIGTERM, 143), (signal.SIGINT, 130)):
         with _stop_signals(), pytest.raises(StudyStopped) as e, deferred_stop():

@@ -9,7 +9,7 @@ from pathlib import Path
 import optuna
 import pytest
 
-from safe_bc.cli import main
+from safe_bc.cli.commands import main
 from safe_bc.data.store import read_table
 
 from ..conftest import TINY_COLLECT
@@ -25,8 +25,8 @@ def test_a_finished_study_takes_more_trials(tiny_demos: Path, tmp_path: Path, ca
     study_file.write_text(
         "from dataclasses import replace\n"
         "from pathlib import Path\n"
-        "from safe_bc.study import load_study\n"
-        "from safe_bc.collection import CollectConfig\n"
+        "from safe_bc.study.spec import load_study\n"
+        "from safe_bc.rollout.collect import CollectConfig\n"
         f"STUDY = replace(load_study({str(SMOKE)!r}), demos=Path({str(tiny_demos)!r}),\n"
         f"    collect={TINY_COLLECT}, trials=2, results=Path({str(tmp_path / 'results')!r}),\n"
         "    batches=20, max_steps=60, final_episodes=1, final_workers=0, final_candidates=1,\n"

@@ -13,10 +13,10 @@ import pytest
 from safe_bc.bc import BCConfig, NetworkConfig
 from safe_bc.bc.net import BCNet, ModelSpec
 from safe_bc.data.store import write_tables_atomic
-from safe_bc.distributed.study import FINISHED, finished_outcome
-from safe_bc.recommender import RecommenderCard, write_recommender
-from safe_bc.study import Float, StudySpec, trial_table
-from safe_bc.study_plan import StudyPlan, plan_study
+from safe_bc.study.plan import StudyPlan, plan_study
+from safe_bc.study.recommender import RecommenderCard, write_recommender
+from safe_bc.study.run import FINISHED, finished_outcome
+from safe_bc.study.spec import Float, StudySpec, trial_table
 
 
 def _optuna_copy(path: Path, name: str, trials: int) -> None:
@@ -112,12 +112,12 @@ def _committed(tmp_path: Path) -> Path:
     study = tmp_path / "mine.py"
     study.write_text(
         "from pathlib import Path\n"
-        "from safe_bc.study import Float, StudySpec\n"
+        "from safe_bc.study.spec import Float, StudySpec\n"
         "STUDY = StudySpec('mine', {'selection.alpha': Float(0.0, 1.0)}, trials=3,\n"
         f"    results=Path({str(tmp_path / 'results')!r}), storage={str(tmp_path / 'ray')!r},\n"
         f"    demos=Path({str(tmp_path / 'demos')!r}))\n"
     )
-    from safe_bc.study import load_study
+    from safe_bc.study.spec import load_study
 
     spec = load_study(study)
     out = spec.results / spec.name
@@ -145,7 +145,7 @@ def test_another_study_over_a_committed_one_is_refused_in_one_line_naming_the_wa
 ) -> None:
     import ray
 
-    from safe_bc.cli import main
+    from safe_bc.cli.commands import main
 
     study = _committed(tmp_path)
     out = tmp_path / "results" / "mine"
@@ -160,8 +160,8 @@ def test_another_study_over_a_committed_one_is_refused_in_one_line_naming_the_wa
 
 
 def test_the_committed_studys_own_settings_may_run_it_again(tmp_path: Path) -> None:
-    from safe_bc.distributed.resume import check_published
-    from safe_bc.study import load_study
+    from safe_bc.study.resume import check_published
+    from safe_bc.study.spec import load_study
 
     spec = load_study(_committed(tmp_path))
     plan = plan_study(spec, fresh=False, command="", final=True)

@@ -26,8 +26,8 @@ def _study_file(tmp_path: Path, demos: Path, storage: Path, **fields: object) ->
     study.write_text(
         "from dataclasses import replace\n"
         "from pathlib import Path\n"
-        "from safe_bc.study import load_study\n"
-        "from safe_bc.collection import CollectConfig\n"
+        "from safe_bc.study.spec import load_study\n"
+        "from safe_bc.rollout.collect import CollectConfig\n"
         f"STUDY = replace(load_study({str(SMOKE)!r}), demos=Path({str(demos)!r}),\n"
         f"    collect={TINY_COLLECT},\n"
         f"    results=Path({str(tmp_path / 'results')!r}), storage={str(storage)!r},\n"
@@ -45,7 +45,7 @@ def _env() -> dict[str, str]:
 
 
 def _tune(study: Path) -> subprocess.CompletedProcess:
-    command = [sys.executable, "-m", "safe_bc.cli", "tune", str(study)]
+    command = [sys.executable, "-m", "safe_bc.cli.commands", "tune", str(study)]
     return subprocess.run(
         command, cwd=REPO, env=_env(), capture_output=True, text=True, timeout=900
     )
@@ -117,7 +117,7 @@ def test_a_damaged_checkpoint_of_a_trial_in_flight_is_named_and_the_trial_traine
     study = _study_file(tmp_path, tiny_demos, tmp_path / "ray", trials=2, max_steps=300,
                         eval_episodes=4, screen_episodes=0)  # fmt: skip
     out, exp = tmp_path / "results" / "smoke", tmp_path / "ray" / "smoke"
-    command = [sys.executable, "-m", "safe_bc.cli", "tune", str(study)]
+    command = [sys.executable, "-m", "safe_bc.cli.commands", "tune", str(study)]
     with open(tmp_path / "first.log", "w") as sink:
         driver = subprocess.Popen(command, cwd=REPO, env=_env(), stdout=sink,
                                   stderr=subprocess.STDOUT, start_new_session=True)  # fmt: skip

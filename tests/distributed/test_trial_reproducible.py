@@ -18,9 +18,9 @@ from ray import tune
 
 from safe_bc.bc import load_checkpoint, read_checkpoint_meta
 from safe_bc.data.store import load_demonstrations
-from safe_bc.distributed.trial import TrialJob, run_trial
-from safe_bc.experiment import train_run
-from safe_bc.study import ConstraintBars, load_study
+from safe_bc.methods.experiment import train_run
+from safe_bc.study.spec import ConstraintBars, load_study
+from safe_bc.study.trial import TrialJob, run_trial
 from tests.conftest import tiny_collect
 
 REPO = Path(__file__).resolve().parents[2]

@@ -7,10 +7,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from safe_bc.collection import CollectConfig, EpisodeMaker, config_dict
 from safe_bc.data.store import DatasetMeta, init_dataset, read_episodes, write_episode
-from safe_bc.envs import EnvConfig
+from safe_bc.rollout.collect import CollectConfig, EpisodeMaker, config_dict
 from safe_bc.tasks.carracing.perturb import PerturbationConfig
+from safe_bc.tasks.env_config import EnvConfig
 
 minari = pytest.importorskip("minari")
 
@@ -108,7 +108,7 @@ def test_carracing_round_trip(carracing_demos, tmp_path, monkeypatch) -> None:
 
 
 def test_cli_rehab_round_trip(rehab_demos, tmp_path, monkeypatch, capsys) -> None:
-    from safe_bc.cli import main
+    from safe_bc.cli.commands import main
 
     monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path / "minari"))
     argv = ["export", "--demos", str(rehab_demos), "--format", "minari"]
@@ -125,7 +125,7 @@ def test_cli_rehab_round_trip(rehab_demos, tmp_path, monkeypatch, capsys) -> Non
 def test_a_bad_dataset_id_is_one_line_before_anything_is_created(
     dataset_id, rehab_demos, tmp_path, monkeypatch, capsys
 ) -> None:
-    from safe_bc.cli import main
+    from safe_bc.cli.commands import main
 
     root = tmp_path / "minari"
     monkeypatch.setenv("MINARI_DATASETS_PATH", str(root))
@@ -189,7 +189,7 @@ def test_osrls_dataset_dict_from_an_export_has_cost_steps(
     """The dict OSRL's learners read (DSRL's ``get_dataset()``: observations, actions,
     rewards, costs, terminals, timeouts, next_observations), built from ``safe-bc export``'s
     dataset with the default scalar, has aligned rows and steps with cost 1."""
-    from safe_bc.cli import main
+    from safe_bc.cli.commands import main
     from safe_bc.export.minari_export import DSRL_KEYS, dsrl_dataset
 
     monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path / "minari"))
@@ -244,7 +244,7 @@ def test_a_callable_without_an_import_path_is_refused_in_one_line(
 
     import gymnasium as gym
 
-    from safe_bc.cli import main
+    from safe_bc.cli.commands import main
     from tests.test_task_plugin import TOY_ID, ToyLane, _collect_in_process
 
     demos = _collect_in_process(tmp_path / "demos", episodes=1)

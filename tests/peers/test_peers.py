@@ -141,9 +141,9 @@ def test_the_peers_block_is_new_to_every_table_and_study() -> None:
     """The committed table's patients (block 95) are no comparison's and no study's."""
     from pathlib import Path
 
-    from safe_bc.families import load_comparisons
+    from safe_bc.compare.families import load_comparisons
     from safe_bc.peers.run import BLOCK
-    from safe_bc.study import load_study
+    from safe_bc.study.spec import load_study
 
     root = Path(__file__).resolve().parents[2]
     with pytest.MonkeyPatch.context() as mp:

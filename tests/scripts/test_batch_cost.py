@@ -8,7 +8,7 @@ import pandas as pd
 import pytest
 
 from safe_bc.data.store import write_table_atomic
-from safe_bc.study import schedule_seconds
+from safe_bc.study.spec import schedule_seconds
 from scripts.batch_cost import main
 
 

@@ -1,5 +1,5 @@
 """The observation ablation: the steering-indicator region the evaluation path masks
-(safe_bc.evaluation.MaskedSteering), the comparison file's cells, the analysis that stays in
+(safe_bc.rollout.evaluate.MaskedSteering), the comparison file's cells, the analysis that stays in
 scripts/ (scripts/observation_choice.py) on a small synthetic episode table, and the committed
 ablation tables (observation, budget, network) re-derived exactly from their committed
 episodes through it."""
@@ -17,9 +17,9 @@ import scripts.observation_choice as ablation
 from safe_bc.bc.config import PreprocessConfig
 from safe_bc.bc.preprocess import STEERING_INDICATOR, preprocess_frames
 from safe_bc.data.store import read_table
-from safe_bc.envs import EnvConfig
-from safe_bc.evaluation import MaskedSteering
+from safe_bc.rollout.evaluate import MaskedSteering
 from safe_bc.tasks import make_env
+from safe_bc.tasks.env_config import EnvConfig
 
 ROOT = Path(__file__).resolve().parents[2]
 _spec = importlib.util.spec_from_file_location(
@@ -180,7 +180,7 @@ def test_comparison_file_rows_are_the_committed_cells() -> None:
     bootstrap), with the committed seeds, and masks exactly the bar-kept cells; the runner's
     row names read back as (cell, view)."""
     raw, _ = _committed_episodes("observation")
-    from safe_bc.families import load_comparison
+    from safe_bc.compare.families import load_comparison
 
     comp = load_comparison(ROOT / "tune_jobs/compare/observation.py", "observation")
     got = {(m.name, comp.seeds_of(m)) for m in comp.methods}
@@ -204,9 +204,9 @@ def test_evaluation_path_steering_metrics_match_the_committed_episodes() -> None
     table's for the expert on its first two selection tracks (needs the default
     demonstrations: their expert and limits). The table was made on AMD EPYC; the check was
     shown there (the scripted expert runs no learned net; other machine types not tried)."""
-    from safe_bc.collection import stored_expert_config
     from safe_bc.distributed.evaluate import evaluate_policies
-    from safe_bc.evaluation import EvalConfig, ExpertSource
+    from safe_bc.rollout.collect import stored_expert_config
+    from safe_bc.rollout.evaluate import EvalConfig, ExpertSource
     from safe_bc.tasks import task_defaults
 
     raw, _ = read_table(ROOT / "results/ablation/observation/observation_episodes.parquet")

@@ -23,8 +23,8 @@ def test_the_committed_summary_re_derives_from_the_comparisons(
     The car's query runs were not kept (its episodes were adopted as stored evaluations, its
     agents not retrained), so its queries per episode, counted in those runs, are not
     re-derived; every other value is."""
+    from safe_bc.compare.families import load_comparison
     from safe_bc.data.store import read_table
-    from safe_bc.families import load_comparison
     from scripts.queries_report import summary
 
     monkeypatch.chdir(ROOT)

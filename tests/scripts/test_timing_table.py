@@ -8,8 +8,8 @@ from pathlib import Path
 import pandas as pd
 
 from safe_bc.data.store import read_table
-from safe_bc.distributed.study import read_timing_log
-from safe_bc.timing import timing_table
+from safe_bc.study.run import read_timing_log
+from safe_bc.study.timing import timing_table
 
 STUDY = Path(__file__).resolve().parents[2] / "results" / "default"
 

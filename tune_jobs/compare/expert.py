@@ -7,7 +7,7 @@ on straights. Every row runs through the one evaluation path (unperturbed, as ag
 the same 20 held-out tracks of block 0 (the defaults were tuned on demonstration tracks
 only), violations counted against the default demonstrations' d_s; paired columns: each
 setting minus the default on the same tracks. The expert under the collection's drift
-perturbation is the release sweep's (``python -m safe_bc.tasks.carracing.release_sweep``).
+perturbation is the release sweep's (``python -m safe_bc.rollout.release_sweep``).
 
 Run: ``safe-bc compare tune_jobs/compare/expert.py``. Writes
 ``results/expert/expert_settings*.parquet`` and ``expert_settings.md``.
@@ -15,7 +15,7 @@ Run: ``safe-bc compare tune_jobs/compare/expert.py``. Writes
 
 from pathlib import Path
 
-from safe_bc.compare import Comparison, Expert
+from safe_bc.compare.spec import Comparison, Expert
 from safe_bc.tasks.carracing.expert import ExpertConfig
 
 COMPARISONS = (

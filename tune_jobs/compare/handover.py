@@ -37,13 +37,13 @@ tune_jobs/compare/handover.py --name NAME``. Writes ``results/selfimprove/carrac
 from dataclasses import replace
 from pathlib import Path
 
-from safe_bc.compare import Agent, Comparison, Expert, FromStart, Handover
+from safe_bc.compare.protocol import Fresh, Rule
+from safe_bc.compare.spec import Agent, Comparison, Expert, FromStart, Handover
 from safe_bc.handover import HandoverConfig
-from safe_bc.improve.config import ImproveConfig
-from safe_bc.protocol import Fresh, Rule
+from safe_bc.methods.improve.config import ImproveConfig
+from safe_bc.methods.selfimprove.config import SelfImproveConfig
+from safe_bc.methods.selfimprove.sizing import ppo_at_budget, rollout_episodes, validation_budget
 from safe_bc.selection import SelectionConfig
-from safe_bc.selfimprove.config import SelfImproveConfig
-from safe_bc.selfimprove.sizing import ppo_at_budget, rollout_episodes, validation_budget
 
 SELF = SelfImproveConfig()
 """The self-imitation row of the comparison (the package's defaults)."""

@@ -2,7 +2,7 @@
 
 * ``improve_carracing``: the expert; the safety-imitation start (BC with alpha 0.1, eps 2 px,
   the default network and budget; the paired columns' reference); one
-  :func:`safe_bc.improve.improve` run per mode from each seed's start (``ppo``: neither
+  :func:`safe_bc.methods.improve.improve` run per mode from each seed's start (``ppo``: neither
   mechanism, ``shield``, ``lagrangian``, ``both``), sized for pixels on small machines
   (:data:`CARRACING`: 4 complete 1000-step episodes per PPO iteration, 20 iterations,
   validation on 4 tracks every 5 iterations, a cost margin of 1 px inside d_s). 3 training
@@ -30,8 +30,8 @@ diagnostic) under each comparison's folder.
 from dataclasses import replace
 from pathlib import Path
 
-from safe_bc.compare import Agent, Comparison, Expert, FromStart, Handover, Row
-from safe_bc.improve.config import ImproveConfig
+from safe_bc.compare.spec import Agent, Comparison, Expert, FromStart, Handover, Row
+from safe_bc.methods.improve.config import ImproveConfig
 from safe_bc.selection import SelectionConfig
 
 CARRACING = ImproveConfig(

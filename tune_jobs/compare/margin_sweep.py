@@ -26,8 +26,8 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from safe_bc.compare import Agent, Comparison, Expert, FromStart, Row
-from safe_bc.improve.config import ImproveConfig
+from safe_bc.compare.spec import Agent, Comparison, Expert, FromStart, Row
+from safe_bc.methods.improve.config import ImproveConfig
 from safe_bc.selection import SelectionConfig
 
 CANDIDATES: dict[str, dict[str, Any]] = {

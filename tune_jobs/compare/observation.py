@@ -27,7 +27,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from safe_bc.bc.config import BCConfig, NetworkConfig, PreprocessConfig, TrainConfig
-from safe_bc.compare import Agent, Comparison, Expert, Row, View
+from safe_bc.compare.spec import Agent, Comparison, Expert, Row, View
 from safe_bc.selection import SelectionConfig
 
 MASKED = "/steer_masked"

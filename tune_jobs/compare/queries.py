@@ -28,10 +28,10 @@ from dataclasses import replace
 from pathlib import Path
 
 from safe_bc.bc.config import BCConfig, TrainConfig
-from safe_bc.compare import Agent, Comparison, Expert, FromStart, Handover
+from safe_bc.compare.protocol import Fresh, Rule
+from safe_bc.compare.spec import Agent, Comparison, Expert, FromStart, Handover
 from safe_bc.handover import HandoverConfig
-from safe_bc.protocol import Fresh, Rule
-from safe_bc.queries.config import QueryConfig
+from safe_bc.methods.queries.config import QueryConfig
 from safe_bc.selection import SelectionConfig
 
 

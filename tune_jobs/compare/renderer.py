@@ -25,8 +25,8 @@ from pathlib import Path
 from typing import Any
 
 from safe_bc.bc.config import BCConfig
-from safe_bc.compare import Agent, Comparison, View
-from safe_bc.reproduce import ReproduceConfig
+from safe_bc.compare.reproduce import ReproduceConfig
+from safe_bc.compare.spec import Agent, Comparison, View
 from safe_bc.selection import SelectionConfig
 
 EXACT_DEMOS = Path("data/demos_exact")

@@ -8,9 +8,9 @@ Fresh tracks, equal env-step budgets:
   PPO-Lagrangian + shield and self-imitation (the package's defaults, which the selection
   tables chose), each from every seed's start. Self-imitation rolls out ``rounds x
   tracks_per_round x (1 + pushes)`` training episodes
-  (:func:`safe_bc.selfimprove.sizing.rollout_episodes`: 576 on CarRacing, episodes of at most
-  1000 steps; 240 on rehab, episodes of 30 sessions); the PPO row runs as many, and as many
-  validation episodes (:func:`~safe_bc.selfimprove.sizing.ppo_at_budget`). Both run in the
+  (:func:`safe_bc.methods.selfimprove.sizing.rollout_episodes`: 576 on CarRacing, episodes of at
+  most 1000 steps; 240 on rehab, episodes of 30 sessions); the PPO row runs as many, and as many
+  validation episodes (:func:`~safe_bc.methods.selfimprove.sizing.ppo_at_budget`). Both run in the
   driver process, rollouts in-process, so wall times compare. The table records each run's
   env steps (training rollouts; validation) and minutes, ``compare_history.parquet`` the
   learning curves.
@@ -87,13 +87,18 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from safe_bc.compare import Agent, Comparison, Expert, FromStart, Handover, Row
+from safe_bc.compare.protocol import Fresh, Rule
+from safe_bc.compare.spec import Agent, Comparison, Expert, FromStart, Handover, Row
 from safe_bc.handover import HandoverConfig
-from safe_bc.improve.config import ImproveConfig
-from safe_bc.protocol import Fresh, Rule
+from safe_bc.methods.improve.config import ImproveConfig
+from safe_bc.methods.selfimprove.config import LOOP_PUSHES, SelfImproveConfig
+from safe_bc.methods.selfimprove.sizing import (
+    half,
+    ppo_at_budget,
+    rollout_episodes,
+    validation_budget,
+)
 from safe_bc.selection import SelectionConfig
-from safe_bc.selfimprove.config import LOOP_PUSHES, SelfImproveConfig
-from safe_bc.selfimprove.sizing import half, ppo_at_budget, rollout_episodes, validation_budget
 from safe_bc.tasks import task_defaults
 
 SELF = SelfImproveConfig()

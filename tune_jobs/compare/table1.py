@@ -11,6 +11,6 @@ resumes per method and seed). Writes ``results/table1*.parquet``, ``results/tabl
 ``results/fig4_alpha.png``, ``results/fig5_6_traces.png``.
 """
 
-from safe_bc.reproduce import ReproduceConfig
+from safe_bc.compare.reproduce import ReproduceConfig
 
 COMPARISONS = (ReproduceConfig().comparison(),)

@@ -19,7 +19,7 @@ Run: ``python -m scripts.handover_choice tune_jobs/handover/rehab.py``; writes
 
 from pathlib import Path
 
-from safe_bc.handover_choice import HandoverChoice, handover_grid
+from safe_bc.compare.handover_choice import HandoverChoice, handover_grid
 
 CHOICE = HandoverChoice(
     name="rehab",

@@ -23,7 +23,7 @@ Run: ``python -m scripts.handover_choice tune_jobs/handover/rehab_cap.py``; writ
 
 from pathlib import Path
 
-from safe_bc.handover_choice import HandoverChoice, handover_grid
+from safe_bc.compare.handover_choice import HandoverChoice, handover_grid
 
 CHOICE = HandoverChoice(
     name="rehab_cap",

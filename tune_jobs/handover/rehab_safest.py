@@ -25,8 +25,8 @@ Run: ``python -m scripts.handover_choice tune_jobs/handover/rehab_safest.py``; w
 
 from pathlib import Path
 
+from safe_bc.compare.handover_choice import HandoverChoice, handover_grid
 from safe_bc.handover import HandoverConfig
-from safe_bc.handover_choice import HandoverChoice, handover_grid
 
 CHOSEN_CAP = HandoverConfig(
     0.2, widths=(("heart_rate", 0.1), ("fatigue", 0.2), ("blood_pressure", 0.2)), fallback="cap"

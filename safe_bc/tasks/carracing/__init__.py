@@ -14,7 +14,6 @@ Everything CarRacing-specific lives in this folder:
   offsets from the track), :mod:`.perturb` (drift / DART perturbations of the executed
   action);
 * the pictures: :mod:`.draw` (the safety rays drawn over a frame, the track map);
-* :mod:`.release_sweep`: the experiment behind the drift's release distance;
 * :data:`SPEC`, its registry entry.
 """
 
@@ -22,7 +21,6 @@ from __future__ import annotations
 
 import gymnasium as gym
 
-from safe_bc.envs.config import EnvConfig, Renderer
 from safe_bc.handover import HandoverConfig
 from safe_bc.selection import DEFAULT_EPS
 from safe_bc.tasks.carracing.costs import SAFETY_DIMS, frame_costs
@@ -30,6 +28,7 @@ from safe_bc.tasks.carracing.draw import DRAWING
 from safe_bc.tasks.carracing.expert import CarRacingExpert, ExpertConfig
 from safe_bc.tasks.carracing.perturb import PerturbationConfig
 from safe_bc.tasks.carracing.wrapper import CarRacingSafety
+from safe_bc.tasks.env_config import EnvConfig, Renderer
 from safe_bc.tasks.registry import GymEnv, TaskSpec
 
 CARRACING_ID = "CarRacing-v3"

@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from safe_bc.episode import SAFETY_DIMS
+from safe_bc.data.episode import SAFETY_DIMS
 
 __all__ = ["MAX_RANGE", "SAFETY_DIMS", "costs_from_distances", "greenness", "pixel_distances"]
 

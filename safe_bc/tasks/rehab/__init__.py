@@ -10,9 +10,9 @@ and no action perturbation (``PerturbationConfig(mode="none")``).
 
 from __future__ import annotations
 
-from safe_bc.envs.config import EnvConfig
 from safe_bc.handover import HandoverConfig
 from safe_bc.tasks.carracing.perturb import PerturbationConfig
+from safe_bc.tasks.env_config import EnvConfig
 from safe_bc.tasks.registry import GymEnv, TaskSpec
 from safe_bc.tasks.rehab.env import DEFAULT_N_SESSIONS, REHAB_SAFETY_DIMS, observed_costs
 from safe_bc.tasks.rehab.expert import GuidelineConfig, GuidelineExpert

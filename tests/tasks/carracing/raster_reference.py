@@ -299,7 +299,7 @@ class ReferenceCarRacingSafety(CarRacingSafety):
 def make_reference_env(max_episode_steps: int | None = None) -> gym.Env:
     """What ``make_env(EnvConfig(renderer="raster"))`` built before the optimisation: the
     reference renderer through ``gym.make``'s wrappers, with the reference costs."""
-    from safe_bc.envs.info import InfoContract
+    from safe_bc.tasks.info import InfoContract
 
     if REFERENCE_RASTER_ID not in gym.registry:
         gym.register(

@@ -5,7 +5,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from safe_bc.envs import EnvConfig
 from safe_bc.metrics import combined
 from safe_bc.tasks import make_env
 from safe_bc.tasks.carracing.costs import (
@@ -15,6 +14,7 @@ from safe_bc.tasks.carracing.costs import (
 )
 from safe_bc.tasks.carracing.expert import CarRacingExpert, ExpertConfig
 from safe_bc.tasks.carracing.geometry import lateral_offset
+from safe_bc.tasks.env_config import EnvConfig
 
 
 def _road_frame(left_edge: int, right_edge: int) -> np.ndarray:

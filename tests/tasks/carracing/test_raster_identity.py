@@ -16,11 +16,11 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from safe_bc.envs import EnvConfig
 from safe_bc.tasks import make_env
 from safe_bc.tasks.carracing import RASTER_CARRACING_ID, costs
 from safe_bc.tasks.carracing.costs import pixel_distances
 from safe_bc.tasks.carracing.raster_render import RasterCarRacing
+from safe_bc.tasks.env_config import EnvConfig
 from tests.tasks.carracing.raster_reference import (
     REFERENCE_RASTER_ID,
     make_reference_env,

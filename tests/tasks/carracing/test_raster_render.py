@@ -6,10 +6,10 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from safe_bc.envs import EnvConfig
 from safe_bc.tasks import make_env
 from safe_bc.tasks.carracing import RASTER_CARRACING_ID
 from safe_bc.tasks.carracing.raster_render import RasterCarRacing
+from safe_bc.tasks.env_config import EnvConfig
 
 STEPS = 90  # the zoom-in ends at step 50; the rest is scored
 

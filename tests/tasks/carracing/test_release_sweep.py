@@ -11,10 +11,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from safe_bc.data.episode import Episode
 from safe_bc.data.store import read_table
-from safe_bc.episode import Episode
-from safe_bc.tasks.carracing.perturb import PerturbationConfig
-from safe_bc.tasks.carracing.release_sweep import (
+from safe_bc.rollout.release_sweep import (
     DEFAULT_FILE,
     ReleaseSweep,
     collect_release,
@@ -23,6 +22,7 @@ from safe_bc.tasks.carracing.release_sweep import (
     render_markdown,
     run_sweep,
 )
+from safe_bc.tasks.carracing.perturb import PerturbationConfig
 
 ROOT = Path(__file__).resolve().parents[3]
 COMMITTED = ROOT / "results/demos/release_sweep"
@@ -110,16 +110,11 @@ def test_committed_table_recollects_exactly(tmp_path: Path) -> None:
     assert (tmp_path / "release_sweep.md").read_text().split("\n\n")[0] == head
 
 
-def test_module_entry_point_loads_the_sweep_file(monkeypatch) -> None:
-    """``python -m safe_bc.tasks.carracing.release_sweep FILE`` reads the file's SWEEP (the
-    module runs as ``__main__`` there, a second copy of the ReleaseSweep class)."""
-    import runpy
-
-    import safe_bc.tasks.carracing.release_sweep as module
+def test_the_script_loads_the_sweep_file(monkeypatch) -> None:
+    """``python -m scripts.release_sweep FILE`` reads the file's SWEEP and runs it."""
+    import scripts.release_sweep as script
 
     seen = []
-    monkeypatch.setattr(module, "run_sweep", seen.append)
-    monkeypatch.setattr("sys.argv", ["release_sweep", str(ROOT / DEFAULT_FILE)])
-    with pytest.raises(SystemExit) as done:
-        runpy.run_module("safe_bc.tasks.carracing.release_sweep", run_name="__main__")
-    assert done.value.code == 0 and seen == [load_sweep(ROOT / DEFAULT_FILE)]
+    monkeypatch.setattr(script, "run_sweep", seen.append)
+    assert script.main([str(ROOT / DEFAULT_FILE)]) == 0
+    assert seen == [load_sweep(ROOT / DEFAULT_FILE)]

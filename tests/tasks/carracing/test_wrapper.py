@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
 
-from safe_bc.envs import EnvConfig
 from safe_bc.tasks import make_env
 from safe_bc.tasks.carracing.wrapper import CarRacingSafety, DomainRandomizationError
+from safe_bc.tasks.env_config import EnvConfig
 
 
 @pytest.mark.filterwarnings("ignore:.*is different from the unwrapped version")

@@ -173,7 +173,7 @@ def test_guideline_is_not_optimal() -> None:
 
 
 def test_rollout_records_a_safe_episode() -> None:
-    rollout = pytest.importorskip("safe_bc.rollout")
+    rollout = pytest.importorskip("safe_bc.rollout.episode")
     register_envs()
     env = gym.make(REHAB_ID)
     episode = rollout.run_episode(env, GuidelineExpert(), seed=3, rng=np.random.default_rng(0))

@@ -1,0 +1,5 @@
+"""``python -m safe_bc.cli``: the ``safe-bc`` command."""
+
+from safe_bc.cli.commands import main
+
+main()

@@ -1,0 +1,423 @@
+"""The rows of a comparison: a small closed set of kinds, one frozen record each.
+
+* :class:`Agent`: a behaviour-cloning agent per training seed (a selection rule and,
+  optionally, its own network, budget, demonstrations and renderer);
+* :class:`Expert`: the task's expert (evaluated once), optionally with its own settings;
+* :class:`FromStart`: a registered method (:data:`safe_bc.methods.METHODS`) run from each
+  training seed's agent of an :class:`Agent` row;
+* :class:`Handover`: the agents of another row with the scripted expert acting in their
+  critical states (the comparison's zone, or a :class:`~safe_bc.handover.HandoverConfig`);
+* :class:`View`: the agents of an :class:`Agent` row evaluated another way (another renderer,
+  or CarRacing's steering indicator masked).
+
+Every row also reads as the flat record comparisons were first written with
+(:data:`FLAT_FIELDS`: ``selection``, ``expert``, ``improve``, ``fallback_of``, ``defer_width``,
+...; :meth:`Row.flat`): a comparison's recorded configuration and its cells' identities are
+written from that view, so they stay what they were. :func:`Method` builds a row from that
+flat spelling.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from safe_bc.bc.config import BCConfig
+from safe_bc.handover import HandoverConfig
+from safe_bc.methods import METHODS, method_of, method_of_config
+from safe_bc.methods.improve.config import ImproveConfig
+from safe_bc.methods.selfimprove.config import SelfImproveConfig
+from safe_bc.selection import SelectionConfig
+from safe_bc.tasks.env_config import Renderer, canonical_renderer
+
+FLAT_FIELDS: dict[str, Any] = {
+    "name": "",
+    "selection": None,
+    "bc": None,
+    "expert": False,
+    "expert_config": None,
+    "improve": None,
+    "selfimprove": None,
+    "start": "",
+    "fallback_of": "",
+    "defer_width": None,
+    "defer_hold": 0,
+    "defer_lookahead": 0,
+    "defer_hold_on": (),
+    "seeds": (),
+    "masked_of": "",
+    "label": "",
+    "agents_of": "",
+    "renderer": None,
+    "demos": None,
+}
+"""The flat record's fields, in its order, with their values on a row that does not set them."""
+
+FLAT_METHODS = ("improve", "selfimprove")
+"""Methods the flat record has a field of its own for (other methods: ``method``, ``config``)."""
+
+
+def _renderer(name: str, renderer: Renderer | None) -> Renderer | None:
+    if renderer is None:
+        return None
+    try:
+        return canonical_renderer(renderer)
+    except ValueError as e:
+        raise ValueError(f"method {name!r}: {e}") from None
+
+
+@dataclass(frozen=True)
+class Row:
+    """What every row has: a name and a label; the flat view (:meth:`flat`)."""
+
+    @property
+    def shown(self) -> str:
+        """``label``, or ``name``."""
+        return self.label or self.name  # type: ignore[attr-defined]
+
+    @property
+    def source(self) -> str:
+        """The row whose agents this row uses (``""``: its own)."""
+        return ""
+
+    def _flat(self) -> dict[str, Any]:
+        """This row's values of :data:`FLAT_FIELDS` that differ from the defaults."""
+        raise NotImplementedError
+
+    def __getattr__(self, name: str) -> Any:
+        if name in FLAT_FIELDS and "name" in vars(self):
+            return self._flat().get(name, FLAT_FIELDS[name])
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+
+    def flat(self) -> dict[str, Any]:
+        """The flat record as ``dataclasses.asdict`` wrote it: every field of
+        :data:`FLAT_FIELDS` in order, configs as dicts (then, for a method without a flat
+        field, ``method`` and ``config``; for a handover with per-dimension widths or a cap,
+        ``handover``)."""
+        own = self._flat()
+        out = {k: dataclasses.asdict(v) if dataclasses.is_dataclass(v) else v
+               for k, v in ({**FLAT_FIELDS, **own}).items() if k in FLAT_FIELDS}  # fmt: skip
+        for k in ("method", "config"):
+            if k in own:
+                out[k] = dataclasses.asdict(own[k]) if dataclasses.is_dataclass(own[k]) else own[k]
+        handover = vars(self).get("handover")
+        if handover is not None and (
+            handover.widths or handover.fallback != "expert" or handover.stall or handover.pace
+        ):
+            out["handover"] = handover.to_dict()  # settings the flat fields cannot spell
+        return out
+
+    @property
+    def labels(self) -> dict[str, Any]:
+        """Columns that identify the row in the episodes table."""
+        return {"method": self.name, "mode": self.kind, "alpha": float("nan"), "rest": ""}  # type: ignore[attr-defined]
+
+
+@dataclass(frozen=True)
+class Agent(Row):
+    """A behaviour-cloning agent per training seed."""
+
+    name: str
+    """Row label (unique in the comparison), e.g. ``alpha=0.5 (rest=all)``."""
+    selection: SelectionConfig
+    """``T_eps`` and the training rule of its agents (``eps`` unset: the comparison's width,
+    :attr:`safe_bc.compare.spec.Comparison.eps`, else the task's)."""
+    bc: BCConfig | None = None
+    """Its network, preprocessing and budget; ``None``: the comparison's ``bc``."""
+    seeds: tuple[int, ...] = ()
+    """Its training seeds, a subset of the comparison's (``()``: all of them)."""
+    label: str = ""
+    """How the Markdown names the row (``""``: ``name``); ``name`` stays the table's key and
+    seeds the row's bootstrap draws (:func:`safe_bc.metrics.keyed_rng`)."""
+    renderer: Renderer | None = None
+    """How its evaluation env draws (``None``: the default, ``raster``); with its own
+    ``demos`` it also collects them with it. Ignored by tasks without renderers."""
+    demos: Path | None = None
+    """Its own demonstration set (``None``: the comparison's), built with the task's default
+    collection drawn by ``renderer`` if absent; its limits d_s are the row's (and its views')
+    evaluation thresholds."""
+
+    kind = "bc"
+
+    def __post_init__(self) -> None:
+        if not self.name:
+            raise ValueError("a method needs a name")
+        if not isinstance(self.selection, SelectionConfig):
+            raise ValueError(f"method {self.name!r}: selection must be a SelectionConfig")
+        object.__setattr__(self, "renderer", _renderer(self.name, self.renderer))
+
+    def _flat(self) -> dict[str, Any]:
+        return {"name": self.name, "selection": self.selection, "bc": self.bc,
+                "seeds": self.seeds, "label": self.label, "renderer": self.renderer,
+                "demos": self.demos}  # fmt: skip
+
+    @property
+    def labels(self) -> dict[str, Any]:
+        mix = self.selection.mode == "mix"
+        return {
+            "method": self.name,
+            "mode": self.selection.mode,
+            "alpha": self.selection.alpha if mix else float("nan"),
+            "rest": self.selection.rest if mix else "",
+        }
+
+
+@dataclass(frozen=True)
+class Expert(Row):
+    """The task's expert: evaluated once (``train_seed`` 0)."""
+
+    name: str = "expert"
+    """Row label (unique in the comparison)."""
+    config: Any = None
+    """Its own configuration (the task's expert config type); ``None``: the one recorded in
+    the comparison's demonstrations. Rows of several settings compare them on one set of
+    tracks."""
+    label: str = ""
+    """How the Markdown names the row (``""``: ``name``)."""
+    renderer: Renderer | None = None
+    """How its evaluation env draws (``None``: the default)."""
+
+    kind = "expert"
+
+    def __post_init__(self) -> None:
+        if not self.name:
+            raise ValueError("a method needs a name")
+        if self.config is not None and not dataclasses.is_dataclass(self.config):
+            raise ValueError(
+                f"method {self.name!r}: expert_config must be an expert config (a dataclass), "
+                f"got {type(self.config).__name__}"
+            )
+        object.__setattr__(self, "renderer", _renderer(self.name, self.renderer))
+
+    def _flat(self) -> dict[str, Any]:
+        return {"name": self.name, "expert": True, "expert_config": self.config,
+                "label": self.label, "renderer": self.renderer}  # fmt: skip
+
+
+@dataclass(frozen=True)
+class FromStart(Row):
+    """A registered method run from each training seed's agent of an :class:`Agent` row (its
+    config's ``seed`` set to the training seed)."""
+
+    name: str
+    """Row label (unique in the comparison)."""
+    start: str
+    """The :class:`Agent` row whose agents it starts from."""
+    config: Any
+    """The method's config record (:attr:`safe_bc.methods.MethodSpec.config`)."""
+    method: str = ""
+    """The registered method (``""``: the one whose config type :attr:`config` is)."""
+    label: str = ""
+    """How the Markdown names the row (``""``: ``name``)."""
+    renderer: Renderer | None = None
+    """How its evaluation env draws (``None``: the default)."""
+
+    def __post_init__(self) -> None:
+        if not self.name:
+            raise ValueError("a method needs a name")
+        if not self.start:
+            raise ValueError(f"method {self.name!r}: start= names the row it improves")
+        spec = method_of(self.method) if self.method else method_of_config(self.config)
+        try:
+            spec.check(self.config)
+        except ValueError as e:
+            raise ValueError(f"method {self.name!r}: {e}") from None
+        object.__setattr__(self, "method", spec.name)
+        object.__setattr__(self, "renderer", _renderer(self.name, self.renderer))
+
+    @property
+    def kind(self) -> str:  # type: ignore[override]
+        """The method's name."""
+        return self.method
+
+    @property
+    def spec(self) -> Any:
+        """The registered method (:class:`safe_bc.methods.MethodSpec`)."""
+        return METHODS[self.method]
+
+    @property
+    def source(self) -> str:
+        return self.start
+
+    def _flat(self) -> dict[str, Any]:
+        own = {"name": self.name, "start": self.start, "label": self.label,
+               "renderer": self.renderer}  # fmt: skip
+        if self.method in FLAT_METHODS:
+            return {**own, self.method: self.config}
+        return {**own, "method": self.method, "config": self.config}
+
+
+@dataclass(frozen=True)
+class Handover(Row):
+    """The agents of another row (an :class:`Agent` or :class:`FromStart` row; no training of
+    their own) with the scripted expert acting in their critical states. The expert is
+    privileged (it reads the track): this bounds what a safe fallback would give."""
+
+    name: str
+    """Row label (unique in the comparison)."""
+    of: str
+    """The row whose agents act outside the zone."""
+    handover: HandoverConfig | None = None
+    """Where the expert acts: the env's measured cost within ``width`` of d_s
+    (:class:`safe_bc.methods.queries.defer.DeferralSource`; the episodes record the share of steps
+    deferred); ``None``: the shield's zone (the comparison's eps, costs read off the
+    observation)."""
+    label: str = ""
+    """How the Markdown names the row (``""``: ``name``)."""
+    renderer: Renderer | None = None
+    """How its evaluation env draws (``None``: the default)."""
+
+    kind = "fallback"
+
+    def __post_init__(self) -> None:
+        if not self.name:
+            raise ValueError("a method needs a name")
+        if self.handover is not None and not isinstance(self.handover, HandoverConfig):
+            raise ValueError(f"method {self.name!r}: handover must be a HandoverConfig")
+        object.__setattr__(self, "renderer", _renderer(self.name, self.renderer))
+
+    @property
+    def source(self) -> str:
+        return self.of
+
+    def _flat(self) -> dict[str, Any]:
+        own = {"name": self.name, "fallback_of": self.of, "label": self.label,
+               "renderer": self.renderer}  # fmt: skip
+        h = self.handover
+        if h is not None:
+            own.update(defer_width=h.width, defer_hold=h.hold, defer_lookahead=h.lookahead,
+                       defer_hold_on=h.hold_on)  # fmt: skip
+        return own
+
+
+@dataclass(frozen=True)
+class View(Row):
+    """The agents of an :class:`Agent` row (no training of their own) evaluated as they are
+    in another env (``renderer``: agents trained on exact frames driving on approximate
+    ones), or with CarRacing's steering indicator painted black (``masked``: the copycat
+    check, :class:`safe_bc.rollout.evaluate.MaskedSteering`)."""
+
+    name: str
+    """Row label (unique in the comparison)."""
+    of: str
+    """The :class:`Agent` row whose agents it evaluates."""
+    masked: bool = False
+    """Paint the steering indicator black."""
+    renderer: Renderer | None = None
+    """How its evaluation env draws (``None``: the default)."""
+    label: str = ""
+    """How the Markdown names the row (``""``: ``name``)."""
+
+    def __post_init__(self) -> None:
+        if not self.name:
+            raise ValueError("a method needs a name")
+        object.__setattr__(self, "renderer", _renderer(self.name, self.renderer))
+
+    @property
+    def kind(self) -> str:  # type: ignore[override]
+        """``masked`` or ``view``."""
+        return "masked" if self.masked else "view"
+
+    @property
+    def source(self) -> str:
+        return self.of
+
+    def _flat(self) -> dict[str, Any]:
+        key = "masked_of" if self.masked else "agents_of"
+        return {"name": self.name, key: self.of, "label": self.label, "renderer": self.renderer}
+
+
+KINDS = (Agent, Expert, FromStart, Handover, View)
+"""Every kind of row."""
+
+
+def Method(
+    name: str,
+    selection: SelectionConfig | None = None,
+    bc: BCConfig | None = None,
+    expert: bool = False,
+    expert_config: Any = None,
+    improve: ImproveConfig | None = None,
+    selfimprove: SelfImproveConfig | None = None,
+    start: str = "",
+    fallback_of: str = "",
+    defer_width: float | None = None,
+    defer_hold: int = 0,
+    defer_lookahead: int = 0,
+    defer_hold_on: tuple[str, ...] = (),
+    seeds: tuple[int, ...] = (),
+    masked_of: str = "",
+    label: str = "",
+    agents_of: str = "",
+    renderer: Renderer | None = None,
+    demos: Path | None = None,
+) -> Row:
+    """The row that the flat spelling describes (its fields: :data:`FLAT_FIELDS`; exactly one
+    of ``selection``, ``expert=True``, ``improve``, ``selfimprove``, ``fallback_of``,
+    ``masked_of``, ``agents_of``), checked as it always was."""
+    kinds = [selection is not None, expert, improve is not None, selfimprove is not None,
+             bool(fallback_of), bool(masked_of), bool(agents_of)]  # fmt: skip
+    if sum(kinds) != 1:
+        raise ValueError(
+            f"method {name!r}: give exactly one of selection, expert=True, improve, "
+            "selfimprove, fallback_of, masked_of, agents_of"
+        )
+    if not name:
+        raise ValueError("a method needs a name")
+    improves = improve is not None or selfimprove is not None
+    if improves != bool(start):
+        raise ValueError(
+            f"method {name!r}: start= goes with improve= or selfimprove= (and only with them)"
+        )
+    for given, kind in ((selfimprove, SelfImproveConfig), (improve, ImproveConfig)):
+        if given is not None and not isinstance(given, kind):
+            field, article = (
+                ("selfimprove", "a") if kind is SelfImproveConfig else ("improve", "an")
+            )
+            raise ValueError(
+                f"method {name!r}: {field} must be {article} {kind.__name__}, got "
+                f"{type(given).__name__}"
+            )
+    if bc is not None and selection is None:
+        raise ValueError(f"method {name!r}: bc= is for BC rows (with selection=)")
+    renderer = _renderer(name, renderer)
+    if demos is not None and selection is None:
+        raise ValueError(f"method {name!r}: demos= is for BC rows (with selection=)")
+    if defer_width is not None and not (
+        fallback_of and math.isfinite(defer_width) and defer_width >= 0
+    ):
+        raise ValueError(
+            f"method {name!r}: defer_width= is a finite width >= 0 for fallback rows "
+            f"(with fallback_of=), got {defer_width}"
+        )
+    for field, steps in (("defer_hold", defer_hold), ("defer_lookahead", defer_lookahead)):
+        if steps and (defer_width is None or steps < 0):
+            raise ValueError(
+                f"method {name!r}: {field}= is a number of steps >= 0 for deferral "
+                f"rows (with defer_width=), got {steps}"
+            )
+    if defer_hold_on and not defer_hold:
+        raise ValueError(
+            f"method {name!r}: defer_hold_on= names the dimensions that start a hold "
+            f"(with defer_hold=), got {defer_hold_on} without a hold"
+        )
+    if expert_config is not None and not expert:
+        raise ValueError(f"method {name!r}: expert_config= is for expert rows")
+    if seeds and selection is None:
+        raise ValueError(f"method {name!r}: seeds= is for BC rows (with selection=)")
+    if selection is not None:
+        return Agent(name, selection, bc, tuple(seeds), label, renderer, demos)
+    if expert:
+        return Expert(name, expert_config, label, renderer)
+    if improves:
+        return FromStart(name, start, improve if improve is not None else selfimprove,
+                         label=label, renderer=renderer)  # fmt: skip
+    if fallback_of:
+        handover = None
+        if defer_width is not None:
+            handover = HandoverConfig(defer_width, defer_lookahead, defer_hold, defer_hold_on)
+        return Handover(name, fallback_of, handover, label, renderer)
+    return View(name, masked_of or agents_of, bool(masked_of), renderer, label)
