@@ -32,8 +32,8 @@ from safe_bc.peers.plan import (
 from safe_bc.peers.table import markdown_table, peers_table, policy_key, split_policies
 
 BLOCK = 95
-"""The fresh block of held-out patients the committed table runs on (new to every table of the
-clinic: the ledger's blocks end at 90)."""
+"""The fresh block of held-out patients the committed table runs on (new to every table and
+study of the clinic; the car's third design drives tracks of block 95, other envs)."""
 COST_LIMIT = 1.0
 """The peers' cost budget per episode, in critical-zone transitions: the clinic's programmes
 have 0 (122 of 150) to 5; BC-Safe keeps the 136 within 1."""
@@ -233,8 +233,8 @@ def _markdown(table, record, plan, spec, per_peer, recommender) -> str:
         f"# OSRL's own code beside safe_bc's methods: {record['task']}",
         "",
         f"Every row on the same {n} fresh {spec.episodes_name} (held-out block {record['block']}, "
-        f"new to every table), {seeds} training seeds each (the expert once), evaluated by "
-        "safe_bc's one evaluation path at the demonstrations' own limits "
+        f"new to every table of the task), {seeds} training seeds each (the expert once), "
+        "evaluated by safe_bc's one evaluation path at the demonstrations' own limits "
         f"d_s ({d_s}). Reward: mean with a 95% crossed bootstrap CI over training seeds x "
         f"{spec.episodes_name}; the difference to the {REFERENCE} is paired on the same "
         f"{spec.episodes_name}. Beyond d_s: {spec.episodes_name} that reached a state beyond "
