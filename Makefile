@@ -10,13 +10,15 @@ ARGS ?=
 # refreshes those on purpose)
 DESCRIBE ?= runs/demos_describe
 STAMP := $(VENV)/.installed
+# the exact torch both environments install first (the package itself declares a range)
+TORCH := torch==2.13.0
 
 .PHONY: install test test-slow lint format bench tune reproduce demos expert ablation renderer beyond-car peers peers-env clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip
-	$(BIN)/pip install -q torch==2.13.0
+	$(BIN)/pip install -q $(TORCH)
 	$(BIN)/pip install -q -e '.[dev,minari]'
 	touch $(STAMP)
 
@@ -94,7 +96,7 @@ PEERS_DEMOS ?= data/$(PEERS_TASK)_demos
 $(PEERS_STAMP):
 	test -x $(PEERS_VENV)/bin/python || $(PY) -m venv $(PEERS_VENV)
 	$(PEERS_VENV)/bin/pip install -q --upgrade pip
-	$(PEERS_VENV)/bin/pip install -q torch==2.13.0
+	$(PEERS_VENV)/bin/pip install -q $(TORCH)
 	$(PEERS_VENV)/bin/pip install -q --no-deps osrl-lib==0.1.0 fast-safe-rl==0.1.0 dsrl==0.1.0
 	$(PEERS_VENV)/bin/pip install -q numpy scipy tqdm pyyaml gymnasium tensorboard wandb
 	$(PEERS_VENV)/bin/python -c "from osrl.algorithms import BC, BCTrainer, COptiDICE, COptiDICETrainer, CPQ, CPQTrainer"

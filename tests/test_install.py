@@ -20,9 +20,12 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def makefile_torch() -> str:
-    """The ``torch==X`` requirement the Makefile installs first."""
-    found = re.findall(r"pip install -q (torch==[\w.+]+)", (ROOT / "Makefile").read_text())
+    """The ``torch==X`` requirement the Makefile installs first (``TORCH``, written once and
+    installed first by every environment it builds)."""
+    text = (ROOT / "Makefile").read_text()
+    found = re.findall(r"^TORCH := (torch==[\w.+]+)$", text, re.M)
     assert len(found) == 1, found
+    assert not re.findall(r"pip install -q torch==", text)  # no second spelling of the pin
     return found[0]
 
 
