@@ -53,6 +53,8 @@ Beyond the expert, planned before it runs (docs/improvement.md):
   crawled after a corner (light brake, no gas) and lost 130-190 points to the time limit:
   the second design's pick with the expert driving 50 steps where the car's speed stayed
   below 30 (or 20) for 10 steps (``HandoverConfig.pace``, privileged like the expert).
+  ``beyond_pace_deferral`` (block 95): a diagnostic after them, the second design's pick on
+  block 95, to read the pace rule's share of the deferred steps.
 * ``beyond_selection_rehab`` (3 x 200 patients of block 63), ``beyond_rehab`` (block 64),
   ``beyond_replication_rehab`` (block 65): the same design in the clinic (A the clinic's
   defaults; B kept only above the guideline's run; C B under the clinic's handover; D C with
@@ -416,6 +418,26 @@ The expert never drives below speed 41 after warm-up on those tracks, D elsewher
 stayed below 30 or 20 for 10 steps outside warm-up, the expert drives 50 steps; the same
 rule as the first two designs."""
 
+STALL_ON_95 = replace(
+    BEYOND_STALL["beyond_stall_selection"],
+    name="beyond_pace_deferral",
+    methods=tuple(
+        m for m in BEYOND_STALL["beyond_stall_selection"].methods
+        if m.name != "si_explore_best2+corner_stall50"
+    ),
+    eval_seed=95,
+    title="Beyond the expert, third design: the second design's pick on the third's first "
+    "fresh block (CarRacing)",
+    note="A diagnostic, run after the third design's tables: the second design's pick (corner "
+    "handover, stall restart (20, 100), no pace rule) on block 95, where the third's pick "
+    "deferred 5.3% of steps; the expert, the start and D alone are the stored evaluations of "
+    f"beyond_pace. {PAIRED_EXPERT.format('expert', 'tracks')} steps deferred: the mean share "
+    "of an episode's steps on which the expert acted.",
+)  # fmt: skip
+"""The second design's pick on block 95, beside the third's (``beyond_pace``): how much of the
+third's deferral the pace rule adds (a diagnostic on a block already used; it chooses
+nothing)."""
+
 CLINIC_RULE = Rule(
     "best_lower_bound", {"burden": 0.10, "beyond": "total_any_violating_session"},
     note="no selection programme beyond d_s, under 10% of sessions deferred, the highest "
@@ -644,4 +666,5 @@ COMPARISONS = {
     **BEYOND_CLINIC_EARLY,
     **BEYOND_STALL,
     **BEYOND_PACE,
+    "beyond_pace_deferral": STALL_ON_95,
 }
