@@ -88,26 +88,31 @@ def test_improve_from_net_writes_a_start_improves_and_resumes(rehab_demos: Path,
     assert shielded.imitation is not None and other.resumed_at == 0  # other settings: new run
 
 
-@pytest.mark.slow
-def test_tiny_study_with_improvement_end_to_end(ray_session, rehab_demos: Path, tmp_path: Path):
-    from safe_bc.study.run import run_study
-
-    spec = replace(
-        load_study(REPO / "tune_jobs" / "rehab_improve.py"),
-        demos=rehab_demos,
+def tiny_study(file: str, demos: Path, tmp_path: Path, **kw) -> StudySpec:
+    """The study file ``file`` of tune_jobs/ shrunk to the 8 programmes of ``demos`` and
+    :data:`TINY`'s improvement, writing under ``tmp_path``; ``kw`` overrides."""
+    return replace(
+        load_study(REPO / "tune_jobs" / file),
+        demos=demos,
         collect=CollectConfig.for_task(task_defaults("rehab"), episodes=8, workers=1),
         storage=str(tmp_path / "ray"),
         results=tmp_path / "results",
         improve=TINY,
-        trials=2,
         batches=20,
         eval_episodes=2,
-        screen_episodes=0,
         final_episodes=2,
-        final_candidates=1,
-        final_train_seeds=2,
-        startup_trials=2,
+        **kw,
     )
+
+
+@pytest.mark.slow
+def test_tiny_study_with_improvement_end_to_end(ray_session, rehab_demos: Path, tmp_path: Path):
+    from safe_bc.study.run import run_study
+
+    spec = tiny_study(
+        "rehab_improve.py", rehab_demos, tmp_path, trials=2, screen_episodes=0,
+        final_candidates=1, final_train_seeds=2, startup_trials=2,
+    )  # fmt: skip
     outcome = run_study(spec, progress=False)
     t = outcome.trials
     assert outcome.complete and outcome.errors == 0, t[["status", "error"]]
@@ -130,24 +135,12 @@ def test_a_studys_recommender_is_the_improved_agent_it_certified(
     from safe_bc.methods.rounds import weights_digest
     from safe_bc.study.run import run_study
 
-    spec = replace(
-        load_study(REPO / "tune_jobs" / "beyond_rehab.py"),
-        demos=rehab_demos,
-        collect=CollectConfig.for_task(task_defaults("rehab"), episodes=8, workers=1),
-        storage=str(tmp_path / "ray"),
-        results=tmp_path / "results",
-        improve=TINY,
-        batches=20,
-        eval_episodes=2,
-        final_episodes=2,
-        final_train_seeds=1,
-        certify_episodes=3,
+    spec = tiny_study(
+        "beyond_rehab.py", rehab_demos, tmp_path, final_train_seeds=1, certify_episodes=3,
         final_workers=0,
         threshold=-1e9,  # constraints every agent meets: the recommender is certified
-        violation_bound=None,
-        violation_tolerance=1.0,
-        deferred_share_limit=1.0,
-    )
+        violation_bound=None, violation_tolerance=1.0, deferred_share_limit=1.0,
+    )  # fmt: skip
     outcome = run_study(spec, progress=False)
     assert outcome.certificate is not None
     rec = outcome.out / "recommender"
