@@ -15,6 +15,7 @@ import pandas as pd
 import pytest
 
 from safe_bc.methods import METHODS, Improved, MethodSpec, Start, register_method
+from safe_bc.study.spec import METRICS_AFTER_STAGES as METRICS_AFTER
 
 NAME = "nudge"
 
@@ -104,6 +105,17 @@ def test_the_toy_method_is_registered_through_the_public_api(nudge) -> None:
         SPEC.check(object())
     assert list(STAGES)[-1] == NAME and stage_of("nudge.scale") == NAME
     assert STAGES[NAME].metrics == ("nudge_scale",) and STAGES[NAME].label == "nudging"
+
+
+def test_a_plugin_methods_report_reaches_the_trial_table(nudge) -> None:
+    """Registered after the package was imported, its report keys are columns of the trial
+    table, with the values a trial reported."""
+    from safe_bc.study.spec import trial_metrics, trial_table
+
+    assert trial_metrics()[-len(METRICS_AFTER) - 1] == "nudge_scale"
+    record = {"trial_id": "a", "constraint": -1.0, "reward_mean": 1.0, "nudge_scale": 0.25}
+    table = trial_table([record], params=[])
+    assert table.loc[0, "nudge_scale"] == 0.25
 
 
 def test_the_toy_method_runs_as_a_study_stage(nudge, rehab_demos, rehab_start, tmp_path) -> None:

@@ -126,8 +126,17 @@ class _Stages(Mapping[str, Stage]):
 STAGES: Mapping[str, Stage] = _Stages()
 """Stage name -> :class:`Stage`, in the order stages run."""
 
-STAGE_METRICS: tuple[str, ...] = tuple(k for s in STAGES.values() for k in s.metrics)
-"""The built-in stages' report keys, in registry order (columns of the trial table)."""
+
+def stage_metrics() -> tuple[str, ...]:
+    """Every registered stage's report keys, in registry order (columns of the trial table),
+    read when asked: a method registered after this module was imported is counted."""
+    return tuple(k for s in STAGES.values() for k in s.metrics)
+
+
+def __getattr__(name: str) -> Any:
+    if name == "STAGE_METRICS":  # the name earlier code imports: the live list
+        return stage_metrics()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def stage_of(key: str) -> str | None:

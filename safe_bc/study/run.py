@@ -105,7 +105,6 @@ from safe_bc.study.search import (
     take_copy_seconds,
 )
 from safe_bc.study.spec import (
-    TRIAL_METRICS,
     ConstraintBars,
     StudySpec,
     Winner,
@@ -114,6 +113,7 @@ from safe_bc.study.spec import (
     is_missing,
     subset_warnings,
     summary_lines,
+    trial_metrics,
     trial_table,
 )
 from safe_bc.study.stop import (
@@ -312,7 +312,7 @@ def _records(grid: Any, params: Sequence[str]) -> list[dict[str, Any]]:
                 phase, "unfinished"
             )
         )
-        rec = {k: m.get(k, math.nan) for k in TRIAL_METRICS}
+        rec = {k: m.get(k, math.nan) for k in trial_metrics()}
         rec.update({k: config.get(k) for k in params})
         rec.update(
             trial_id=str(m.get("trial_id") or Path(r.path or "").name.removeprefix("trial_")),
@@ -1483,7 +1483,7 @@ def _write_final(
         "violation_tolerance": meta["violation_tolerance"],
         "cost_limits": meta["cost_limits"],
         "params": {k: row.get(k) for k in spec.params},
-        "trial_metrics": {k: row.get(k) for k in TRIAL_METRICS},
+        "trial_metrics": {k: row.get(k) for k in trial_metrics()},
         "run_config": final.configs.get(final.winner or "", {}),
         "candidates": list(candidates["trial_id"]),
         "baseline": spec.baseline,

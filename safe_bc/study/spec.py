@@ -38,7 +38,7 @@ from safe_bc.handover import HandoverConfig
 from safe_bc.methods.improve.config import ImproveConfig
 from safe_bc.methods.queries.config import QueryConfig
 from safe_bc.methods.selfimprove.config import SelfImproveConfig
-from safe_bc.methods.stages import STAGE_METRICS, STAGES, Stage, stage_of
+from safe_bc.methods.stages import STAGES, Stage, stage_metrics, stage_of
 from safe_bc.metrics import pareto_mask  # noqa: F401 (named here before)
 from safe_bc.run_config import RunConfig
 from safe_bc.tasks.env_config import EnvConfig
@@ -848,7 +848,7 @@ def missed(row: Mapping[str, Any]) -> list[str]:
 OBJECTIVE = "reward_mean"
 """The maximised metric."""
 
-TRIAL_METRICS = (
+METRICS_BEFORE_STAGES: tuple[str, ...] = (
     "reward_mean",
     "reward_std",
     "reward_lcb",
@@ -874,7 +874,9 @@ TRIAL_METRICS = (
     "deferred_share",
     "train_loss",
     "train_seconds",
-    *STAGE_METRICS,
+)
+"""The trial table's metric columns before the stages' (evaluation, constraints, training)."""
+METRICS_AFTER_STAGES: tuple[str, ...] = (
     "eval_seconds",
     "round_eval_seconds",
     "store_seconds",
@@ -888,7 +890,21 @@ TRIAL_METRICS = (
     "phase",
     "error",
 )
-"""What every trial reports (each report carries all keys; NaN where not known yet)."""
+"""The trial table's metric columns after the stages' (timings, the training seed)."""
+
+
+def trial_metrics() -> tuple[str, ...]:
+    """What every trial reports (each report carries all keys; NaN where not known yet): the
+    trial table's metric columns, the registered stages' report keys among them, read when the
+    study runs (a plug-in method registered after import is counted)."""
+    return (*METRICS_BEFORE_STAGES, *stage_metrics(), *METRICS_AFTER_STAGES)
+
+
+def __getattr__(name: str) -> Any:
+    if name == "TRIAL_METRICS":  # the name earlier code imports: the live list
+        return trial_metrics()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 TRIAL_INFO = ("trial_id", "trial_number", "status", "iterations")
 """Bookkeeping columns in front of the table (``trial_number``: the suggestion order, also the
@@ -997,7 +1013,7 @@ def trial_table(records: Sequence[Mapping[str, Any]], params: Sequence[str]) -> 
     (missing keys become NaN: e.g. a trial that errored before reporting). ``feasible`` is
     recomputed from ``constraint`` so that NaN counts as infeasible.
     """
-    cols = [*TRIAL_INFO, *params, *TRIAL_METRICS]
+    cols = [*TRIAL_INFO, *params, *trial_metrics()]
     frame = pd.DataFrame([{c: r.get(c, np.nan) for c in cols} for r in records], columns=cols)
     for c in ("constraint", *CONSTRAINTS.values()):
         frame[c] = pd.to_numeric(frame[c], errors="coerce").astype(float)

@@ -35,7 +35,7 @@ from typing import Any
 
 import pandas as pd
 
-from safe_bc.methods.stages import STAGE_METRICS
+from safe_bc.methods.stages import stage_metrics
 
 PHASES: dict[str, str] = {
     "ray_start": "starting or joining Ray",
@@ -53,18 +53,23 @@ PHASES: dict[str, str] = {
 }
 """The driver's phases, in order, and what each covers."""
 
-STAGE_SECONDS = tuple(k for k in STAGE_METRICS if k.endswith("_seconds"))
-"""The stages' seconds in a trial's report (:data:`safe_bc.methods.stages.STAGE_METRICS`)."""
+
+def stage_seconds() -> tuple[str, ...]:
+    """The registered stages' seconds in a trial's report
+    (:func:`safe_bc.methods.stages.stage_metrics`)."""
+    return tuple(k for k in stage_metrics() if k.endswith("_seconds"))
+
 
 TRIAL_PARTS: dict[str, tuple[tuple[str, ...], str]] = {
     "trial_train": (("train_seconds",), "trials: the training loops"),
-    "trial_stages": (STAGE_SECONDS, "trials: the study's stages"),
+    "trial_stages": ((), "trials: the study's stages"),  # the columns: stage_seconds()
     "trial_evaluation": (("eval_seconds",), "trials: evaluation rounds"),
     "trial_storage": (("store_seconds",), "trials: checkpoints and stored rounds"),
 }
-"""Busy parts of the trials: row -> (the trial report's columns summed, what it is). The
-rest of the trials' ``duration_s`` is ``trial_other`` (demonstrations, selection, frame
-preprocessing, set-up)."""
+"""Busy parts of the trials: row -> (the trial report's columns summed, what it is; the
+stages' columns are :func:`stage_seconds`, read when the table is made). The rest of the
+trials' ``duration_s`` is ``trial_other`` (demonstrations, selection, frame preprocessing,
+set-up)."""
 
 TOTAL = "total"
 """Phase name of a run's whole wall-clock record."""
@@ -127,7 +132,8 @@ def timing_table(records: Sequence[Mapping[str, Any]], trials: pd.DataFrame) -> 
         for p, s in phase_s.items()
     ]  # fmt: skip
     n = len(trials)
-    parts = {name: _sum(trials, cols) for name, (cols, _) in TRIAL_PARTS.items()}
+    columns = {**{n: cols for n, (cols, _) in TRIAL_PARTS.items()}, "trial_stages": stage_seconds()}
+    parts = {name: _sum(trials, cols) for name, cols in columns.items()}
     duration = _sum(trials, ["duration_s"])
     parts["trial_other"] = max(duration - sum(parts.values()), 0.0)
     busy = sum(parts.values())

@@ -4,7 +4,7 @@ A trial trains once (the first report carries the weights as a checkpoint, so a 
 resumed study never retrains: :func:`resume_point`), is screened on the first
 ``screen_episodes`` held-out tracks (successive halving may stop it there) and, if it
 survives, evaluated on the rest of its ``eval_episodes`` tracks. Every report carries every
-key of ``TRIAL_METRICS``.
+key of :func:`~safe_bc.study.spec.trial_metrics`.
 
 Between the training and the evaluation, every stage the study sets
 (:data:`safe_bc.methods.stages.STAGES`, e.g. ``StudySpec.improve``: constrained RL beyond the
@@ -50,11 +50,11 @@ from safe_bc.selection import SelectionError
 from safe_bc.study.console import quiet_logs
 from safe_bc.study.search import ROUND, SCORE, SCREENED, screen_score
 from safe_bc.study.spec import (
-    TRIAL_METRICS,
     ConstraintBars,
     StudySpec,
     constraints,
     episode_share_bound,
+    trial_metrics,
 )
 from safe_bc.tasks import Bounds, dataset_action_bounds
 
@@ -156,10 +156,11 @@ def eval_rounds(spec: StudySpec) -> list[tuple[int, int]]:
 
 
 def blank_metrics(job: TrialJob) -> dict[str, Any]:
-    """A report with every key of ``TRIAL_METRICS`` (NaN where not known yet)."""
+    """A report with every key of :func:`~safe_bc.study.spec.trial_metrics` (NaN where not
+    known yet)."""
     spec = job.spec
     seeds = EvalConfig(episodes=spec.eval_episodes, seed=spec.eval_seed).seeds()
-    out: dict[str, Any] = {k: math.nan for k in TRIAL_METRICS}
+    out: dict[str, Any] = {k: math.nan for k in trial_metrics()}
     out.update(
         threshold=job.threshold,
         feasible=False,

@@ -35,7 +35,7 @@ from safe_bc.study.run import (
     run_trial,
 )
 from safe_bc.study.search import WINNER
-from safe_bc.study.spec import TRIAL_INFO, TRIAL_METRICS, Choice, Float, load_study
+from safe_bc.study.spec import TRIAL_INFO, Choice, Float, load_study, trial_metrics
 from safe_bc.study.timing import PHASES
 from safe_bc.study.trial_curves import final_run_name, run_names
 from tests.conftest import TINY_COLLECT, tiny_collect
@@ -127,7 +127,7 @@ def test_cli_study_end_to_end(tiny_demos: Path, tmp_path: Path, capsys) -> None:
     spec = load_study(study_file)
 
     trials, meta = read_table(out / "trials.parquet")
-    assert list(trials.columns) == [*TRIAL_INFO, *spec.params, *TRIAL_METRICS]
+    assert list(trials.columns) == [*TRIAL_INFO, *spec.params, *trial_metrics()]
     assert len(trials) == 3 and trials["trial_id"].is_unique
     # screened on 1 track; successive halving may stop a trial there
     assert trials["status"].isin(["done", "stopped"]).all() and (trials["status"] == "done").any()
