@@ -336,33 +336,52 @@ BEYOND_STALL_NOTE = (
     "the handover row was chosen on 3 x 50 selection tracks of block 88 by the rule fixed "
     "before the run ({rule}). Paired rows: each agent against the expert on the same tracks."
 )
-BEYOND_STALL = {
-    "beyond_stall_selection": replace(
-        beyond_selection(
-            CAR, car_rows({}),
-            {"si_explore_best2": ("D: C keeping the best 2 pushed runs per track",
-                                  replace(BEYOND_C, keep_best=2))},
-            {"corner_stall50": ("corner handover, a stalled car restarted for 50 steps",
-                                stall_restart(50)),
-             "corner_stall100": ("corner handover, a stalled car restarted for 100 steps",
-                                 stall_restart(100))},
-            88,
-            "Beyond the expert, second design: D with a stalled car restarted by the expert, "
-            "selection tracks (CarRacing)",
-            "Selection tracks (block 88): the rule picks one handover row for the fresh blocks "
-            f"(89, 90). {PAIRED_EXPERT.format('expert', 'tracks')} steps deferred: the mean "
-            "share of an episode's steps on which the expert acted.",
+BEYOND_D = ("D: C keeping the best 2 pushed runs per track", replace(BEYOND_C, keep_best=2))
+"""Candidate D of the first design (its pick), the agents the later car designs hand over."""
+
+
+def handover_design(
+    ordinal: str,
+    what: str,
+    stem: str,
+    handovers: dict[str, tuple[str, HandoverConfig]],
+    blocks: tuple[int, int, int],
+) -> dict[str, Comparison | Fresh]:
+    """A later car design over D's agents: its selection table (D alone and under each of
+    ``handovers`` on block ``blocks[0]``) and the two fresh tables the car's rule picks for
+    (blocks ``blocks[1]``, ``blocks[2]``), named ``<stem>_selection``, ``<stem>``,
+    ``<stem>_replication``; ``what``: the title's words for the handovers."""
+    selection, first, second = blocks
+    return {
+        f"{stem}_selection": replace(
+            beyond_selection(
+                CAR, car_rows({}), {"si_explore_best2": BEYOND_D}, handovers, selection,
+                f"Beyond the expert, {ordinal} design: D {what}, selection tracks (CarRacing)",
+                f"Selection tracks (block {selection}): the rule picks one handover row for "
+                f"the fresh blocks ({first}, {second}). "
+                f"{PAIRED_EXPERT.format('expert', 'tracks')} steps deferred: the mean share of "
+                "an episode's steps on which the expert acted.",
+            ),
+            name=f"{stem}_selection",
+            figures=(),
         ),
-        name="beyond_stall_selection",
-        figures=(),
-    ),
-    **beyond_fresh(
-        "beyond_stall_selection", CAR_RULE, (89, 90), "tracks",
-        ("Beyond the expert, second design: fresh tracks (CarRacing)",
-         "Beyond the expert, second design: a second fresh block (CarRacing)"),
-        BEYOND_STALL_NOTE, stem="beyond_stall", suffix="",
-    ),
-}  # fmt: skip
+        **beyond_fresh(
+            f"{stem}_selection", CAR_RULE, (first, second), "tracks",
+            (f"Beyond the expert, {ordinal} design: fresh tracks (CarRacing)",
+             f"Beyond the expert, {ordinal} design: a second fresh block (CarRacing)"),
+            BEYOND_STALL_NOTE.replace("block 88", f"block {selection}"), stem=stem, suffix="",
+        ),
+    }  # fmt: skip
+
+
+BEYOND_STALL = handover_design(
+    "second", "with a stalled car restarted by the expert", "beyond_stall",
+    {"corner_stall50": ("corner handover, a stalled car restarted for 50 steps",
+                        stall_restart(50)),
+     "corner_stall100": ("corner handover, a stalled car restarted for 100 steps",
+                         stall_restart(100))},
+    (88, 89, 90),
+)  # fmt: skip
 """The car's second beyond design, written after the first's pick (D + corner handover) met the
 goal on block 25 (+1.3 [0.4, 2.3]) and missed it on block 26 (-4.2 [-20.8, 1.8], 1/3 seeds
 above): every BC agent of the table, the start and each candidate alone or with the handover,
@@ -378,33 +397,14 @@ def pace_rule(speed: float) -> HandoverConfig:
     return replace(stall_restart(100), pace=speed, pace_steps=10, pace_hold=50)
 
 
-BEYOND_PACE = {
-    "beyond_pace_selection": replace(
-        beyond_selection(
-            CAR, car_rows({}),
-            {"si_explore_best2": ("D: C keeping the best 2 pushed runs per track",
-                                  replace(BEYOND_C, keep_best=2))},
-            {"corner_stall100_pace30": ("corner handover, stall restart, the expert below "
-                                        "speed 30", pace_rule(30.0)),
-             "corner_stall100_pace20": ("corner handover, stall restart, the expert below "
-                                        "speed 20", pace_rule(20.0))},
-            94,
-            "Beyond the expert, third design: D with the expert driving where the car falls "
-            "below pace, selection tracks (CarRacing)",
-            "Selection tracks (block 94): the rule picks one handover row for the fresh blocks "
-            f"(95, 96). {PAIRED_EXPERT.format('expert', 'tracks')} steps deferred: the mean "
-            "share of an episode's steps on which the expert acted.",
-        ),
-        name="beyond_pace_selection",
-        figures=(),
-    ),
-    **beyond_fresh(
-        "beyond_pace_selection", CAR_RULE, (95, 96), "tracks",
-        ("Beyond the expert, third design: fresh tracks (CarRacing)",
-         "Beyond the expert, third design: a second fresh block (CarRacing)"),
-        BEYOND_STALL_NOTE.replace("block 88", "block 94"), stem="beyond_pace", suffix="",
-    ),
-}  # fmt: skip
+BEYOND_PACE = handover_design(
+    "third", "with the expert driving where the car falls below pace", "beyond_pace",
+    {"corner_stall100_pace30": ("corner handover, stall restart, the expert below speed 30",
+                                pace_rule(30.0)),
+     "corner_stall100_pace20": ("corner handover, stall restart, the expert below speed 20",
+                                pace_rule(20.0))},
+    (94, 95, 96),
+)  # fmt: skip
 """The car's third beyond design, written after the second's pick (D + corner handover + stall
 restart (20, 100)) was level with the expert on blocks 89 and 90 (+0.4 [-3.8, 2.5], +0.5
 [-5.4, 3.3], 2/3 seeds above each): one long track a block where seed 0 covered 82% of the
