@@ -8,9 +8,9 @@ import math
 import pandas as pd
 import pytest
 
-from safe_bc.study.timing import PHASES, TRIAL_PARTS, timing_lines, timing_markdown, timing_table
+from safe_bc.study.timing import PHASES, timing_lines, timing_markdown, timing_table, trial_parts
 
-SLOT_ROWS = [*TRIAL_PARTS, "trial_other", "idle_and_overhead"]
+SLOT_ROWS = [*trial_parts(), "trial_other", "idle_and_overhead"]
 
 
 def _trials() -> pd.DataFrame:

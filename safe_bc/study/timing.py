@@ -7,7 +7,7 @@ also ``"slots"``, the trials that may run at once, resolved from the cluster's C
 ends; every driver run of the study (a resumed study has several) adds its own. A run's
 ``"total"`` record is its wall-clock from start to end; a run killed before writing it
 counts the sum of its pieces. :func:`timing_table` adds them up with the trials' own
-seconds (their last reports: :data:`TRIAL_PARTS`).
+seconds (their last reports: :func:`trial_parts`).
 
 Two views in one table (column ``part_of``):
 
@@ -60,16 +60,18 @@ def stage_seconds() -> tuple[str, ...]:
     return tuple(k for k in stage_metrics() if k.endswith("_seconds"))
 
 
-TRIAL_PARTS: dict[str, tuple[tuple[str, ...], str]] = {
-    "trial_train": (("train_seconds",), "trials: the training loops"),
-    "trial_stages": ((), "trials: the study's stages"),  # the columns: stage_seconds()
-    "trial_evaluation": (("eval_seconds",), "trials: evaluation rounds"),
-    "trial_storage": (("store_seconds",), "trials: checkpoints and stored rounds"),
-}
-"""Busy parts of the trials: row -> (the trial report's columns summed, what it is; the
-stages' columns are :func:`stage_seconds`, read when the table is made). The rest of the
-trials' ``duration_s`` is ``trial_other`` (demonstrations, selection, frame preprocessing,
-set-up)."""
+def trial_parts() -> dict[str, tuple[tuple[str, ...], str]]:
+    """Busy parts of the trials: row -> (the trial report's columns summed, what it is), the
+    stages' columns read from the registry when the table is made. The rest of the trials'
+    ``duration_s`` is ``trial_other`` (demonstrations, selection, frame preprocessing,
+    set-up)."""
+    return {
+        "trial_train": (("train_seconds",), "trials: the training loops"),
+        "trial_stages": (stage_seconds(), "trials: the study's stages"),
+        "trial_evaluation": (("eval_seconds",), "trials: evaluation rounds"),
+        "trial_storage": (("store_seconds",), "trials: checkpoints and stored rounds"),
+    }
+
 
 TOTAL = "total"
 """Phase name of a run's whole wall-clock record."""
@@ -132,14 +134,14 @@ def timing_table(records: Sequence[Mapping[str, Any]], trials: pd.DataFrame) -> 
         for p, s in phase_s.items()
     ]  # fmt: skip
     n = len(trials)
-    columns = {**{n: cols for n, (cols, _) in TRIAL_PARTS.items()}, "trial_stages": stage_seconds()}
-    parts = {name: _sum(trials, cols) for name, cols in columns.items()}
+    busy_parts = trial_parts()
+    parts = {name: _sum(trials, cols) for name, (cols, _) in busy_parts.items()}
     duration = _sum(trials, ["duration_s"])
     parts["trial_other"] = max(duration - sum(parts.values()), 0.0)
     busy = sum(parts.values())
     parts["idle_and_overhead"] = max(capacity - busy, 0.0)
     whole = max(capacity, busy)
-    what = {name: text for name, (_, text) in TRIAL_PARTS.items()}
+    what = {name: text for name, (_, text) in busy_parts.items()}
     what["trial_other"] = "trials: the rest (data, selection, set-up, reports)"
     what["idle_and_overhead"] = "empty slots and Ray's overhead: wall x slots - busy"
     for name, s in parts.items():
