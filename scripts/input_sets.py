@@ -95,7 +95,10 @@ def names_demos_only(path: Path, meta: dict[str, Any] | None = None) -> bool:
     (``meta``, read from ``path`` when not given) has ``demos`` but no limits, no
     ``demos_digest`` and no ``inputs`` record. Tables inside an agent's or a run's folder are
     left to that agent's record (its ``config.json``)."""
-    if any(part == "agent" or part.endswith("runs") for part in path.parts):
+    parts = path.parts
+    if "results" in parts:  # only the folders below results/: not where the checkout lives
+        parts = parts[len(parts) - parts[::-1].index("results") :]
+    if any(part == "agent" or part.endswith("runs") for part in parts):
         return False
     meta = table_meta(path) if meta is None else meta
     return "demos" in meta and not ({"demos_digest", "inputs"} & meta.keys())

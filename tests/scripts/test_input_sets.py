@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import shutil
+
 from scripts.input_sets import OUT, input_sets, recorded_limits, set_names
 
 
@@ -50,6 +52,11 @@ def test_a_table_naming_its_demonstrations_by_path_alone_is_listed_as_unrecorded
     assert names_demos_only(tmp_path / "results/ablation/old/episodes.parquet")
     assert not names_demos_only(tmp_path / "results/ablation/new/episodes.parquet")
     assert not names_demos_only(tmp_path / "results/ablation/new/runs/agent/curve.parquet")
+    # a checkout inside a folder named like a run's (e.g. /work/runs/clone) reads the same
+    moved = tmp_path / "runs" / "results/ablation/old/episodes.parquet"
+    moved.parent.mkdir(parents=True)
+    shutil.copy(tmp_path / "results/ablation/old/episodes.parquet", moved)
+    assert names_demos_only(moved)
     report = input_sets(tmp_path)
     assert "results/ablation/old" in report and "results/ablation/new" not in report
     assert _status("results/ablation/old", UNRECORDED) in report
