@@ -178,7 +178,10 @@ def test_an_uncertified_recommender_loads_only_when_asked(agents, tiny_demos: Pa
 )
 def test_every_committed_recommender_gives_its_certified_episodes(study: str) -> None:
     """Each committed recommender, loaded, replays the first certified episode of every
-    training seed: the weights shipped are the agents the certificate describes."""
+    training seed: the weights shipped are the agents the certificate describes. Shown on an
+    AMD EPYC, the machine type the committed certificates were made on; on another CPU the
+    replay differs by float32 rounding only (a clinic episode has 30 decisions, and a rounding
+    that moved a session across a handover width would show here as a failure to look at)."""
     from safe_bc.data.store import read_table
     from safe_bc.distributed.evaluate import evaluate_policies
     from safe_bc.study.final import block_config
