@@ -422,6 +422,7 @@ The expert never drives below speed 41 after warm-up on those tracks, D elsewher
 stayed below 30 or 20 for 10 steps outside warm-up, the expert drives 50 steps; the same
 rule as the first two designs."""
 
+
 def pace30(**changes: Any) -> HandoverConfig:
     """The third design's pick (corner handover, stall restart (20, 100), the expert below speed
     30) with the corner zone's ``changes``."""
