@@ -65,6 +65,15 @@ MOVED: dict[str, str] = {
 }
 """Old module -> new module; an old package's submodules follow it by prefix."""
 
+NAMES: dict[str, str] = {
+    "safe_bc.methods.stages.STAGES": "safe_bc.methods.METHODS",
+}
+"""Old public names of a module that stayed -> their new home (``module.name``): read from the
+old module (:func:`names`), each warns once and answers the new object. ``STAGES`` (stage name
+-> the method seen as a stage) is the registry itself now: its entries are the
+:class:`safe_bc.methods.MethodSpec` records (``.name``, ``.prefix``, ``.metrics``,
+``.reduce``), run as a stage by :func:`safe_bc.methods.stages.run_stage`."""
+
 _warned: set[str] = set()
 
 
@@ -133,5 +142,20 @@ def forward(package: str, home: str) -> Callable[[str], Any]:
             raise AttributeError(f"module {package!r} has no attribute {name!r}")
         _warn(f"{package}.{name}", f"{home}.{name}")
         return getattr(module, name)
+
+    return __getattr__
+
+
+def names(module: str) -> Callable[[str], Any]:
+    """A module ``__getattr__`` for ``module``: its old names of :data:`NAMES` are read from
+    their new home (warning once); anything else is no attribute."""
+
+    def __getattr__(name: str) -> Any:
+        new = NAMES.get(f"{module}.{name}")
+        if new is None:
+            raise AttributeError(f"module {module!r} has no attribute {name!r}")
+        home, _, attr = new.rpartition(".")
+        _warn(f"{module}.{name}", new)
+        return getattr(importlib.import_module(home), attr)
 
     return __getattr__

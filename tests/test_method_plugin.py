@@ -95,7 +95,7 @@ def nudge():
 def test_the_toy_method_is_registered_through_the_public_api(nudge) -> None:
     from dataclasses import replace
 
-    from safe_bc.methods.stages import STAGES, stage_of
+    from safe_bc.methods.stages import stage_of
 
     assert METHODS[NAME] is SPEC and list(METHODS)[:3] == ["improve", "queries", "selfimprove"]
     assert register_method(SPEC) is SPEC  # the same spec again: nothing changes
@@ -103,8 +103,8 @@ def test_the_toy_method_is_registered_through_the_public_api(nudge) -> None:
         register_method(replace(SPEC, label="other"))
     with pytest.raises(ValueError, match="takes a config of type NudgeConfig"):
         SPEC.check(object())
-    assert list(STAGES)[-1] == NAME and stage_of("nudge.scale") == NAME
-    assert STAGES[NAME].metrics == ("nudge_scale",) and STAGES[NAME].label == "nudging"
+    assert list(METHODS)[-1] == NAME and stage_of("nudge.scale") == NAME
+    assert SPEC.prefix == "nudge." and SPEC.reduce([{"nudge_scale": 0.5}]) == {"nudge_scale": 0.5}
 
 
 def test_a_plugin_methods_report_reaches_the_trial_table(nudge) -> None:
@@ -119,6 +119,7 @@ def test_a_plugin_methods_report_reaches_the_trial_table(nudge) -> None:
 
 
 def test_the_toy_method_runs_as_a_study_stage(nudge, rehab_demos, rehab_start, tmp_path) -> None:
+    from safe_bc.methods.stages import run_stage
     from safe_bc.methods.start import start_from_checkpoint
     from safe_bc.study.final import _run_stages
     from safe_bc.study.spec import Float, StudySpec
@@ -136,17 +137,18 @@ def test_the_toy_method_runs_as_a_study_stage(nudge, rehab_demos, rehab_start, t
     spec = StudySpec(
         "toy", space, env=env, stage_configs={NAME: NudgeConfig()}, results=tmp_path / "results"
     )
-    assert [name for name, _ in spec.stages()] == [NAME]
+    assert [stage.name for stage in spec.stages()] == [NAME]
     assert spec.stage_config(NAME, {"nudge.scale": 0.25}, seed=3) == NudgeConfig(0.25, 3)
     assert spec.summary()[NAME] == {"scale": 0.5, "seed": 0}
     assert "stage_configs" not in spec.summary()
 
     start = start_from_checkpoint(rehab_start)
     # the stage runner as a trial calls it
-    ((name, stage),) = spec.stages()
-    source, report = stage.load()(
-        spec.stage_config(name, {"nudge.scale": 0.25}, seed=0), start.agent, start.run_config,
-        str(rehab_demos), env.env_id, tmp_path / "trial" / name,
+    (stage,) = spec.stages()
+    name = stage.name
+    source, report = run_stage(
+        stage, spec.stage_config(name, {"nudge.scale": 0.25}, seed=0), start.agent,
+        start.run_config, str(rehab_demos), env.env_id, tmp_path / "trial" / name,
     )  # fmt: skip
     assert report == {"nudge_scale": 0.25} and stage.reduce([report, report]) == report
     _assert_scaled(source.state, start.agent, 0.25)

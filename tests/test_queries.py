@@ -332,8 +332,9 @@ def test_the_stage_runs_end_to_end_with_ray_actors(ray_session, tiny_demos, tmp_
     from safe_bc.bc.config import BCConfig, TrainConfig
     from safe_bc.data.store import load_demonstrations
     from safe_bc.distributed.rollouts import ChunkedRayRollouts
+    from safe_bc.methods import METHODS
     from safe_bc.methods.experiment import train_run
-    from safe_bc.methods.stages import STAGES
+    from safe_bc.methods.stages import run_stage
     from safe_bc.run_config import RunConfig
     from safe_bc.selection import SelectionConfig
 
@@ -342,9 +343,9 @@ def test_the_stage_runs_end_to_end_with_ray_actors(ray_session, tiny_demos, tmp_
     config = QueryConfig(
         rounds=1, episodes_per_round=2, batches=10, max_steps=150, workers=2, eps=40.0
     )
-    source, report = STAGES["queries"].load()(
-        config, result.model, cfg, str(tiny_demos), "CarRacing-v3", tmp_path / "stage",
-        parallel=ChunkedRayRollouts,
+    source, report = run_stage(
+        METHODS["queries"], config, result.model, cfg, str(tiny_demos), "CarRacing-v3",
+        tmp_path / "stage", parallel=ChunkedRayRollouts,
     )  # fmt: skip
     assert report["queries_total"] > 0
     assert report["queries_per_episode"] == report["queries_total"] / 2

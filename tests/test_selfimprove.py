@@ -286,17 +286,18 @@ def test_a_round_failing_the_keep_rule_is_discarded(rehab_agent, rehab_demos, tm
 def test_the_stage_runs_end_to_end_with_ray_actors(ray_session, rehab_agent, rehab_demos, tmp_path):
     """The registered runner on 2 Ray actors gives the in-process run's agent."""
     from safe_bc.distributed.rollouts import ChunkedRayRollouts
-    from safe_bc.methods.stages import STAGES
+    from safe_bc.methods import METHODS
+    from safe_bc.methods.stages import run_stage
     from safe_bc.tasks import task_defaults
 
     model, cfg = rehab_agent
     config = SelfImproveConfig(**{**TINY, "rounds": 1, "workers": 2})
     env_id = task_defaults("rehab").env.env_id
-    source, report = STAGES["selfimprove"].load()(
-        config, model, cfg, str(rehab_demos), env_id, tmp_path / "stage",
+    source, report = run_stage(
+        METHODS["selfimprove"], config, model, cfg, str(rehab_demos), env_id, tmp_path / "stage",
         parallel=ChunkedRayRollouts,
     )  # fmt: skip
-    assert set(report) == set(STAGES["selfimprove"].metrics)
+    assert set(report) == set(METHODS["selfimprove"].metrics)
     assert report["selfimprove_kept_steps"] > 0
     local = _run(rehab_agent, rehab_demos, tmp_path / "local", rounds=1)
     assert _same({k: v.numpy() for k, v in source.state.items()}, _weights(local.policy))
@@ -322,7 +323,7 @@ def test_study_keys_set_the_stage_config_and_the_verb_parses_pushes() -> None:
     spec = StudySpec(
         "s", {"selfimprove.margin": Float(0.0, 2.0)}, selfimprove=SelfImproveConfig(rounds=3)
     )
-    assert [name for name, _ in spec.stages()] == ["selfimprove"]
+    assert [stage.name for stage in spec.stages()] == ["selfimprove"]
     cfg = spec.stage_config("selfimprove", {"selfimprove.margin": 1.0}, seed=4)
     assert (cfg.margin, cfg.seed, cfg.rounds) == (1.0, 4, 3)
     job = parse(["improve", "--start", "a", "--out", "b", "--method", "selfimitation",
@@ -335,10 +336,11 @@ def test_the_stage_runs_on_carracing_with_60_step_episodes(tiny_demos, tmp_path)
     """CarRacing, 60-step episodes, 1 track, the task's pushes (gas, brake), 10 batches."""
     from safe_bc.bc.config import BCConfig, TrainConfig
     from safe_bc.data.store import load_demonstrations
+    from safe_bc.methods import METHODS
     from safe_bc.methods.experiment import train_run
     from safe_bc.methods.selfimprove.config import TASK_DEFAULTS
     from safe_bc.methods.selfimprove.data import load_round
-    from safe_bc.methods.stages import STAGES
+    from safe_bc.methods.stages import run_stage
     from safe_bc.run_config import RunConfig
     from safe_bc.selection import SelectionConfig
 
@@ -348,8 +350,8 @@ def test_the_stage_runs_on_carracing_with_60_step_episodes(tiny_demos, tmp_path)
         rounds=1, tracks_per_round=1, validation_episodes=1, batches=10, max_steps=60
     )
     folder = tmp_path / "stage"
-    source, report = STAGES["selfimprove"].load()(
-        config, result.model, cfg, str(tiny_demos), "CarRacing-v3", folder
+    source, report = run_stage(
+        METHODS["selfimprove"], config, result.model, cfg, str(tiny_demos), "CarRacing-v3", folder
     )
     (track,) = load_round(folder / round_dir(0) / KEPT)
     assert len(track.push_rewards) == len(TASK_DEFAULTS["carracing"]["pushes"])

@@ -1,4 +1,5 @@
-"""The study stage registry: every entry is complete, and the trial table has its metrics."""
+"""The study's stages are the registered methods: every entry is complete, and the trial
+table has its metrics; the old ``STAGES`` name answers the registry with a warning."""
 
 from __future__ import annotations
 
@@ -7,25 +8,44 @@ from dataclasses import fields
 
 import pytest
 
-from safe_bc.methods.stages import STAGES, stage_metrics, stage_of
+from safe_bc.methods import METHODS
+from safe_bc.methods.stages import run_stage, stage_metrics, stage_of
 from safe_bc.study.spec import StudySpec, trial_metrics
 
 
-@pytest.mark.parametrize("name", list(STAGES))
+def test_the_stage_runner_signature() -> None:
+    params = list(inspect.signature(run_stage).parameters)
+    assert params == [
+        "method", "config", "agent", "run_config", "demos", "env_id", "folder", "parallel"
+    ]  # fmt: skip
+    assert (
+        inspect.signature(run_stage).parameters["parallel"].kind is inspect.Parameter.KEYWORD_ONLY
+    )
+
+
+@pytest.mark.parametrize("name", list(METHODS))
 def test_registry_entries_are_complete(name: str) -> None:
-    """A stage names a ``StudySpec`` field (off by default), a runner with the stage
-    signature, and the metrics its runner reports, which the trial table carries."""
-    stage = STAGES[name]
+    """A built-in method names a ``StudySpec`` field (off by default), a runner, and the
+    metrics its runner reports, which the trial table carries."""
+    method = METHODS[name]
     spec_fields = {f.name: f for f in fields(StudySpec)}
-    assert stage.field in spec_fields, f"stage {name!r}: StudySpec has no field {stage.field!r}"
-    assert spec_fields[stage.field].default is None, "a stage must be off unless a study sets it"
-    runner = stage.load()
-    params = list(inspect.signature(runner).parameters)
-    assert params == ["config", "agent", "run_config", "demos", "env_id", "folder", "parallel"]
-    assert inspect.signature(runner).parameters["parallel"].kind is inspect.Parameter.KEYWORD_ONLY
-    assert stage.metrics and set(stage.summed) <= set(stage.metrics)
-    assert set(stage.metrics) <= set(trial_metrics())
-    assert stage_of(f"{stage.prefix}anything") == name
+    assert name in spec_fields, f"stage {name!r}: StudySpec has no field {name!r}"
+    assert spec_fields[name].default is None, "a stage must be off unless a study sets it"
+    assert callable(method.load())
+    assert method.metrics and set(method.summed) <= set(method.metrics)
+    assert set(method.metrics) <= set(trial_metrics())
+    assert stage_of(f"{method.prefix}anything") == name
+
+
+def test_the_old_stages_name_is_the_registry_with_a_warning() -> None:
+    import safe_bc.methods.stages as stages
+    from safe_bc import moved
+
+    moved._warned.discard("safe_bc.methods.stages.STAGES")
+    with pytest.warns(FutureWarning, match="STAGES moved to safe_bc.methods.METHODS"):
+        assert stages.STAGES is METHODS
+    with pytest.raises(AttributeError):
+        stages.NOT_A_NAME  # noqa: B018
 
 
 def test_stage_metrics_are_distinct_and_not_core_metrics() -> None:

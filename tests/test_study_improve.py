@@ -42,7 +42,7 @@ def test_improve_keys_set_the_improvement_config_and_leave_the_run_config_alone(
     assert split_params(params) == ({"selection.alpha": 0.3},
                                     {"improve": {"cost_margin": 0.1, "shield": True}})  # fmt: skip
     assert spec.run_config(params).selection.alpha == 0.3
-    assert [name for name, _ in spec.stages()] == ["improve"]
+    assert [stage.name for stage in spec.stages()] == ["improve"]
     icfg = spec.stage_config("improve", params, seed=4)
     assert (icfg.cost_margin, icfg.shield, icfg.iterations, icfg.seed) == (0.1, True, 7, 4)
     assert spec.summary()["improve"]["iterations"] == 7

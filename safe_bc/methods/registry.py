@@ -9,9 +9,9 @@ record (a dataclass with a ``seed`` field and ``to_dict``) that is also its iden
 
 One entry serves every place that runs methods:
 
-* the study: every registered method is a stage (:data:`safe_bc.methods.stages.STAGES`), on when the
+* the study: every registered method is a stage (:mod:`safe_bc.methods.stages`), on when the
   study sets its config (:meth:`safe_bc.study.spec.StudySpec.stage_base`), searchable as
-  ``<name>.<field>`` keys;
+  ``<name>.<field>`` keys (:attr:`MethodSpec.prefix`);
 * the comparison runner: a row ``FromStart(name, start=..., config=...)`` of
   :mod:`safe_bc.compare.spec` improves every training seed's agent of its start row;
 * the command line: ``safe-bc method NAME --start CKPT --out DIR --config.<field> ...``.
@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -135,6 +135,24 @@ class MethodSpec:
     def subfolder(self) -> str:
         """The run's subfolder of a comparison cell."""
         return self.folder or self.name
+
+    @property
+    def prefix(self) -> str:
+        """A study's search keys of this method start with it (``"improve."``)."""
+        return f"{self.name}."
+
+    def reduce(self, per_seed: Sequence[Mapping[str, float]]) -> dict[str, float]:
+        """One report from every training seed's report values: :attr:`summed` keys added up,
+        the others the first seed's.
+
+        >>> METHODS["improve"].reduce([{"improve_seconds": 2.0, "improve_kept_iteration": 5},
+        ...                            {"improve_seconds": 3.0, "improve_kept_iteration": 7}])
+        {'improve_seconds': 5.0, 'improve_kept_iteration': 5}
+        """
+        out = dict(per_seed[0])
+        for key in self.summed:
+            out[key] = sum(v[key] for v in per_seed)
+        return out
 
     def load(self) -> Runner:
         """The runner function (imports its module)."""

@@ -9,7 +9,7 @@ track blocks, so the two-level bootstrap (seeds, then tracks within a seed) fits
 for the same number of episodes it covers 3x the tracks of evaluating every seed on every
 track, and an episode costs the same either way.
 
-With stages (:data:`safe_bc.methods.stages.STAGES`, e.g. ``StudySpec.improve``), every candidate's
+With stages (:meth:`StudySpec.stages`, e.g. ``StudySpec.improve``), every candidate's
 net of every seed goes through them (its own ``<stage>.*`` settings, ``seed`` = the training
 seed; in the driver, one run after the other, resumable under
 ``results/<study>/final_<stage>/``) and those agents are evaluated; plain BC and the expert
@@ -38,6 +38,7 @@ from safe_bc.distributed.rollouts import ChunkedRayRollouts
 from safe_bc.distributed.runtime import cluster_cpus, ensure_ray
 from safe_bc.distributed.train import train_many
 from safe_bc.methods.experiment import RunConfig, train_run
+from safe_bc.methods.stages import run_stage
 from safe_bc.metrics import (
     certified_share,
     clopper_pearson_upper,
@@ -386,8 +387,8 @@ def _agent_identity(
         row = candidates[candidates["trial_id"].astype(str) == method].iloc[0]
         params = {k: row[k] for k in spec.params}
         stages = [
-            (name, dataclasses.asdict(spec.stage_config(name, params, seed=seed)))
-            for name, _ in spec.stages()
+            (stage.name, dataclasses.asdict(spec.stage_config(stage.name, params, seed=seed)))
+            for stage in spec.stages()
         ]
     what: tuple[Any, ...] = ("agent", with_seed(cfg, seed).to_dict(), str(job.demos), stages)
     if spec.handover is not None and method != PLAIN_BC:
@@ -479,14 +480,15 @@ def _run_stages(
         return {}
     params = {str(r["trial_id"]): {k: r[k] for k in spec.params} for _, r in candidates.iterrows()}
     agents: dict[tuple[str, int], Any] = {k: m for k, (m, _) in models.items() if k[0] in params}
-    for name, stage in stages:
-        run_stage = stage.load()
+    for stage in stages:
+        name = stage.name
         root = spec.results / spec.name / f"final_{name}"
         for (method, s), agent in agents.items():
             if progress:
                 print(f"final phase: {stage.label or name} {method} seed {s}")
             agents[(method, s)], _ = run_stage(
-                spec.stage_config(name, params[method], seed=s), agent, models[(method, s)][1],
+                stage, spec.stage_config(name, params[method], seed=s), agent,
+                models[(method, s)][1],
                 job.demos, spec.env.env_id, root / method / f"seed{s}",
                 parallel=ChunkedRayRollouts,
             )  # fmt: skip

@@ -1080,7 +1080,7 @@ def _make_tuner(
 
 def trial_curves(plan: StudyPlan) -> TrialCurves:
     """The live writer of the trials' TensorBoard runs (:class:`TrialCurves`)."""
-    stages = [name for name, _ in plan.spec.stages()]
+    stages = [stage.name for stage in plan.spec.stages()]
     return TrialCurves(str((plan.out / BOARD).resolve()), plan.spec.params, stages)
 
 
@@ -1196,7 +1196,7 @@ def write_study_board(
     try:
         write_board(
             plan.out, trials, history, params=spec.params, objective=spec.objective,
-            stages=[name for name, _ in spec.stages()],
+            stages=[stage.name for stage in spec.stages()],
             exp_path=plan.exp_path if plan.local else None, winner=winner, final=final,
         )  # fmt: skip
     except OSError as e:

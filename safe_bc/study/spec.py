@@ -35,10 +35,11 @@ import pandas as pd
 
 from safe_bc.config_file import run_config_file
 from safe_bc.handover import HandoverConfig
+from safe_bc.methods import METHODS, MethodSpec
 from safe_bc.methods.improve.config import ImproveConfig
 from safe_bc.methods.queries.config import QueryConfig
 from safe_bc.methods.selfimprove.config import SelfImproveConfig
-from safe_bc.methods.stages import STAGES, Stage, stage_metrics, stage_of
+from safe_bc.methods.stages import stage_metrics, stage_of
 from safe_bc.metrics import pareto_mask  # noqa: F401 (named here before)
 from safe_bc.run_config import RunConfig
 from safe_bc.tasks.env_config import EnvConfig
@@ -230,7 +231,7 @@ def _replace_path(obj: Any, parts: Sequence[str], value: Any, name: str) -> Any:
 
 def split_params(params: Mapping[str, Any]) -> tuple[dict[str, Any], dict[str, dict[str, Any]]]:
     """``(run_params, {stage: stage_params})``: the ``RunConfig`` keys, and each stage's keys
-    (:data:`safe_bc.methods.stages.STAGES`) with its prefix removed.
+    (:data:`safe_bc.methods.METHODS`) with its prefix removed.
 
     >>> split_params({"selection.alpha": 0.5, "improve.cost_margin": 0.1})
     ({'selection.alpha': 0.5}, {'improve': {'cost_margin': 0.1}})
@@ -242,7 +243,7 @@ def split_params(params: Mapping[str, Any]) -> tuple[dict[str, Any], dict[str, d
         if name is None:
             run[key] = value
         else:
-            stages.setdefault(name, {})[key.removeprefix(STAGES[name].prefix)] = value
+            stages.setdefault(name, {})[key.removeprefix(METHODS[name].prefix)] = value
     return run, stages
 
 
@@ -474,13 +475,13 @@ class StudySpec:
         object.__setattr__(self, "space", dict(self.space))
         object.__setattr__(self, "stage_configs", dict(self.stage_configs))
         for name, config in self.stage_configs.items():
-            if name not in STAGES or name in {f.name for f in fields(self)}:
-                own = name in STAGES
+            if name not in METHODS or name in {f.name for f in fields(self)}:
+                own = name in METHODS
                 raise ValueError(
                     f"stage_configs[{name!r}]: "
                     + (f"set StudySpec({name}=...)" if own else f"no method {name!r} is registered")
                 )
-            STAGES[name].method.check(config)
+            METHODS[name].check(config)
         object.__setattr__(self, "demos", Path(self.demos))
         object.__setattr__(self, "results", Path(self.results))
         object.__setattr__(self, "storage", str(self.storage))
@@ -601,16 +602,15 @@ class StudySpec:
                 raise ValueError(f"space[{name!r}] must be Float, Int or Choice, got {param!r}")
             stage = stage_of(name)
             if stage is not None and self.stage_base(stage) is None:
-                field_ = STAGES[stage].field
                 raise ValueError(
                     f"space[{name!r}] searches the {stage} stage, but the study has none: "
-                    f"set StudySpec({field_}=...)"
+                    f"set StudySpec({stage}=...)"
                 )
             if stage is None:
                 owner, path = self.base, name
             else:
                 owner = self.stage_base(stage)
-                path = name.removeprefix(STAGES[stage].prefix)
+                path = name.removeprefix(METHODS[stage].prefix)
             check_param_type(name, param, _field_value(owner, path.split("."), name))
             for value in param.bounds():  # every option / bound builds a valid config
                 if stage is None:
@@ -679,10 +679,10 @@ class StudySpec:
         train = replace(cfg.bc.train, batches=self.batches, num_threads=num_threads)
         return replace(cfg, bc=replace(cfg.bc, train=train))
 
-    def stages(self) -> list[tuple[str, Stage]]:
-        """The stages this study runs after training (:data:`safe_bc.methods.stages.STAGES` entries
-        whose config field is set), in registry order."""
-        return [(n, st) for n, st in STAGES.items() if self.stage_base(n) is not None]
+    def stages(self) -> list[MethodSpec]:
+        """The stages this study runs after training (the registered methods,
+        :data:`safe_bc.methods.METHODS`, whose config it sets), in registry order."""
+        return [m for n, m in METHODS.items() if self.stage_base(n) is not None]
 
     def stage_base(self, stage: str) -> Any:
         """The study's config of ``stage`` before any search parameter (its own field for the
@@ -694,12 +694,11 @@ class StudySpec:
     def stage_config(self, stage: str, params: Mapping[str, Any], seed: int) -> Any:
         """The trial's settings of ``stage``: its config field + the sampled ``<stage>.*``
         ``params``, with ``seed`` (the BC training seed); ``None`` when the study has none."""
-        entry = STAGES[stage]
         base = self.stage_base(stage)
         if base is None:
             return None
         own = split_params(params)[1].get(stage, {})
-        return replace(apply_stage_params(base, entry.prefix, own), seed=seed)
+        return replace(apply_stage_params(base, METHODS[stage].prefix, own), seed=seed)
 
     def baseline_config(self, winner: RunConfig) -> RunConfig:
         """The alpha = 0 baseline (plain BC: ``rest="all"``) for the re-evaluation."""
@@ -721,7 +720,7 @@ class StudySpec:
         out["space"] = space
         out["handover"] = None if self.handover is None else self.handover.to_dict()
         out["collect"] = None if self.collect is None else _config_json(self.collect)
-        for name in STAGES:
+        for name in METHODS:
             config = self.stage_base(name)
             if name in out or config is not None:  # (further methods only when set)
                 out[name] = None if config is None else config.to_dict()

@@ -7,7 +7,7 @@ survives, evaluated on the rest of its ``eval_episodes`` tracks. Every report ca
 key of :func:`~safe_bc.study.spec.trial_metrics`.
 
 Between the training and the evaluation, every stage the study sets
-(:data:`safe_bc.methods.stages.STAGES`, e.g. ``StudySpec.improve``: constrained RL beyond the
+(:meth:`StudySpec.stages`, e.g. ``StudySpec.improve``: constrained RL beyond the
 expert) turns each seed's agent into the one the rounds evaluate, in the trial's folder (resumable).
 """
 
@@ -44,6 +44,7 @@ from safe_bc.data.store import (
 from safe_bc.distributed.evaluate import evaluate_policies
 from safe_bc.distributed.rollouts import ChunkedRayRollouts
 from safe_bc.methods.experiment import RunConfig, save_curve, train_run
+from safe_bc.methods.stages import run_stage
 from safe_bc.metrics import cell_table, lower_bound_crossed, mean_metrics
 from safe_bc.rollout.evaluate import EvalConfig, NetSource
 from safe_bc.selection import SelectionError
@@ -334,7 +335,7 @@ def round_file(run_cfg: RunConfig, spec: StudySpec, seeds: list[int], first: int
         "env": str(spec.env),
         "max_steps": spec.max_steps,
         "eps": spec.critical_eps,
-        "stages": [name for name, _ in spec.stages()],
+        "stages": [stage.name for stage in spec.stages()],
     }
     if spec.handover is not None:
         key["handover"] = {**spec.handover.to_dict(), "evaluation": "lockstep"}
@@ -487,13 +488,14 @@ def _run_stages(
     spec, seeds, run_cfg = job.spec, plan.seeds, plan.run_cfg
     sources: list[Any] = [NetSource.from_model(m, run_cfg.bc) for m in models]
     agents: list[Any] = list(models)
-    for name, stage in spec.stages():
-        run_stage, per_seed = stage.load(), []
+    for stage in spec.stages():
+        name, per_seed = stage.name, []
         for j, s in enumerate(seeds):
             folder = trial_folder() / (name if j == 0 else f"{name}_seed_{s}")
             agents[j], values = run_stage(
-                spec.stage_config(name, plan.params, seed=s), agents[j], with_seed(run_cfg, s),
-                job.demos, spec.env.env_id, folder, parallel=ChunkedRayRollouts,
+                stage, spec.stage_config(name, plan.params, seed=s), agents[j],
+                with_seed(run_cfg, s), job.demos, spec.env.env_id, folder,
+                parallel=ChunkedRayRollouts,
             )  # fmt: skip
             sources[j] = agents[j]
             per_seed.append(values)
