@@ -181,6 +181,9 @@ def test_bad_input_of_other_commands_is_one_line_exit_2(
 ) -> None:
     assert main(argv) == 2
     err = capsys.readouterr().err
+    if argv[:1] == ["improve"]:  # an old command's name: the new form's line first
+        assert err.startswith("`safe-bc improve` is `safe-bc method improve` now\n"), err
+        err = err.partition("\n")[2]
     assert err.count("\n") == 1 and message in err, err
 
 
@@ -199,6 +202,46 @@ def test_help_of_every_command_lists_its_fields_each_with_help(command: str) -> 
         if row.startswith("--") and not row.startswith("--help"):  # the help beside or below
             doc = (re.split(r" {2,}", row, maxsplit=1)[1:] or [below])[0]
             assert doc and not doc.startswith("(default"), f"{command} {row} has no help"
+
+
+@pytest.mark.parametrize(
+    ("argv", "new"),
+    [
+        (["query"], "`safe-bc query` is `safe-bc method queries` now"),
+        (["improve"], "`safe-bc improve` is `safe-bc method improve` now"),
+        (
+            ["improve", "--method", "selfimitation"],
+            "`safe-bc improve` is `safe-bc method selfimprove` now",
+        ),
+        (
+            ["improve", "--method=selfimitation"],
+            "`safe-bc improve` is `safe-bc method selfimprove` now",
+        ),
+    ],
+)
+def test_the_old_method_commands_name_the_new_form_and_still_run(
+    capsys: pytest.CaptureFixture, argv: list[str], new: str
+) -> None:
+    """``query`` and ``improve`` print one line to stderr giving ``safe-bc method NAME``, then
+    work as before (their help; their own flags parse to their records)."""
+    with pytest.raises(SystemExit) as info:
+        parse([*argv, "--help"])
+    assert info.value.code == 0
+    captured = capsys.readouterr()
+    assert captured.err == new + "\n" and f"safe-bc {argv[0]}" in captured.out
+    job = parse([argv[0], "--checkpoint" if argv[0] == "query" else "--start", "a", "--out", "b",
+                 *argv[1:], *(["--demos", "d"] if argv[0] == "query" else [])])[1]  # fmt: skip
+    assert capsys.readouterr().err == new + "\n"
+    assert type(job).__name__ == COMMANDS[argv[0]][0]
+
+
+def test_method_takes_its_name_first(capsys: pytest.CaptureFixture) -> None:
+    """``safe-bc method NAME ...`` (``--name NAME`` too), no line about an old name."""
+    first = parse(["method", "queries", "--start", "a", "--out", "b", "--config.rounds", "3"])[1]
+    named = parse(["method", "--name", "queries", "--start", "a", "--out", "b",
+                   "--config.rounds", "3"])[1]  # fmt: skip
+    assert first == named and first.name == "queries" and first.config.rounds == 3
+    assert capsys.readouterr().err == ""
 
 
 def test_top_level_help_lists_every_command(capsys: pytest.CaptureFixture) -> None:

@@ -224,7 +224,7 @@ def test_the_toy_method_is_a_command(nudge, rehab_start, tmp_path, capsys) -> No
     from safe_bc.cli.commands import main
 
     out = tmp_path / "nudged"
-    argv = ["method", "--name", NAME, "--start", str(rehab_start), "--out", str(out),
+    argv = ["method", NAME, "--start", str(rehab_start), "--out", str(out),
             "--config.scale", "0.25"]  # fmt: skip
     assert main(argv) == 0
     assert "nudge_scale 0.25" in capsys.readouterr().out

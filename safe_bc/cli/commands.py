@@ -29,13 +29,22 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "reproduce": ("ReproduceJob", "reproduce"),
     "compare": ("CompareJob", "compare"),
     "tune": ("TuneJob", "tune"),
+    "method": ("MethodJob", "method"),
     "query": ("QueryJob", "query"),
     "improve": ("ImproveJob", "improve"),
-    "method": ("MethodJob", "method"),
     "export": ("ExportJob", "export"),
     "render": ("RenderJob", "render"),
 }
 """Command -> (its record in :mod:`safe_bc.cli.jobs`, its function in :mod:`safe_bc.cli.api`)."""
+
+OLD_COMMANDS: dict[str, dict[str | None, str]] = {
+    "query": {None: "config"},
+    "improve": {"ppo_lagrangian": "config", "selfimitation": "selfimitation"},
+}
+"""Commands that are ``safe-bc method NAME`` now -> their ``--method`` value (``None``: no
+such flag; the first entry: its default) -> the field of their record holding the method's
+config. They run as before, after one line to stderr naming the new form
+(:func:`_new_form`; the method: the registered one taking that config)."""
 
 RAY_COMMANDS = frozenset({"collect", "compare", "evaluate", "expert", "reproduce", "tune"})
 """Commands that may start or join Ray: with ``RAY_ADDRESS`` set they join the cluster before
@@ -181,6 +190,9 @@ def parse(argv: Sequence[str]) -> tuple[str, Any]:
     if command not in COMMANDS:
         raise UsageError(f"unknown command {command!r}: choose {', '.join(COMMANDS)}")
     rest = _unalias(command, argv[1:])
+    new = _new_form(command, rest)
+    if new:
+        print(f"`safe-bc {command}` is `{new}` now", file=sys.stderr)
     if command == "method":
         return command, _parse_method(rest)
     cls = getattr(jobs, COMMANDS[command][0])
@@ -206,10 +218,37 @@ def parse(argv: Sequence[str]) -> tuple[str, Any]:
     return command, _task_defaults(command, job, given(rest))
 
 
+def _new_form(command: str, argv: Sequence[str]) -> str | None:
+    """The ``safe-bc method NAME`` form of an old command (``None``: ``command`` is not one),
+    its method the registered one taking the config the old command runs.
+
+    >>> _new_form("query", []), _new_form("train", [])
+    ('safe-bc method queries', None)
+    >>> _new_form("improve", ["--out", "o", "--method=selfimitation"])
+    'safe-bc method selfimprove'
+    """
+    import dataclasses
+
+    from safe_bc.cli import jobs
+    from safe_bc.methods import method_of_config
+
+    modes = OLD_COMMANDS.get(command)
+    if modes is None:
+        return None
+    chosen = next(iter(modes))
+    for before, a in itertools.pairwise(["", *argv]):
+        chosen = a.partition("=")[2] if a.startswith("--method=") else chosen
+        chosen = a if before == "--method" else chosen
+    record = getattr(jobs, COMMANDS[command][0])
+    field = next(f for f in dataclasses.fields(record) if f.name == modes.get(chosen, "config"))
+    return f"safe-bc method {method_of_config(field.default_factory()).name}"  # type: ignore[misc]
+
+
 def _parse_method(argv: Sequence[str]) -> Any:
-    """``safe-bc method --name NAME ...``: the :class:`~safe_bc.cli.jobs.MethodJob` of the
-    registered method ``NAME``, its other flags those of :func:`safe_bc.cli.jobs.method_job`
-    (``--config.FIELD``: the method's config record)."""
+    """``safe-bc method NAME ...`` (or ``--name NAME``): the
+    :class:`~safe_bc.cli.jobs.MethodJob` of the registered method ``NAME``, its other flags
+    those of :func:`safe_bc.cli.jobs.method_job` (``--config.FIELD``: the method's config
+    record)."""
     import tyro
 
     from safe_bc.cli import jobs
@@ -217,6 +256,8 @@ def _parse_method(argv: Sequence[str]) -> Any:
 
     names = ",".join(METHODS)
     name, rest, args = None, [], iter(argv)
+    if argv and not argv[0].startswith("-"):
+        name, args = argv[0], iter(argv[1:])
     for a in args:
         if a == "--name":
             name = next(args, None)
@@ -226,7 +267,7 @@ def _parse_method(argv: Sequence[str]) -> Any:
             rest.append(a)
     if name is None:
         if {"-h", "--help", "--help-full"} & set(rest):
-            print("usage: safe-bc method --name NAME --start PATH --out PATH [...]")
+            print("usage: safe-bc method NAME --start PATH --out PATH [...]")
             print(f"(NAME: {names.replace(',', ', ')})\n")
             import shutil
             import textwrap
@@ -237,9 +278,9 @@ def _parse_method(argv: Sequence[str]) -> Any:
             for f in ("name", "start", "out", "demos"):
                 doc = " ".join(inspect.cleandoc(_field_doc(jobs.MethodJob, f)).split())
                 print(textwrap.fill(f"  --{f:<8} {doc}", width, subsequent_indent=" " * 13))
-            print("  --config.FIELD  The method's settings (safe-bc method --name NAME --help).\n")
+            print("  --config.FIELD  The method's settings (safe-bc method NAME --help).\n")
             raise SystemExit(0)
-        raise UsageError(f"name a method: --name {{{names}}}")
+        raise UsageError(f"name a method: safe-bc method {{{names}}} ...")
     if name not in METHODS:
         raise UsageError(f"unknown method {name!r}: choose {names.replace(',', ', ')}")
     argv = [name, *rest]
