@@ -502,7 +502,7 @@ def query(job: QueryJob) -> Done:
     from dataclasses import replace
 
     from safe_bc.distributed.rollouts import ChunkedRayRollouts
-    from safe_bc.methods import METHODS
+    from safe_bc.methods import method_of_config
     from safe_bc.methods.start import start_from_checkpoint
     from safe_bc.progress import progress_bar
 
@@ -515,7 +515,7 @@ def query(job: QueryJob) -> Done:
             bar.set_postfix(queries=int(summary["queries"]))
 
         start = replace(start, parallel=ChunkedRayRollouts, on_round=show)
-        result = METHODS["queries"].run(job.config, start, job.out).result
+        result = method_of_config(job.config).run(job.config, start, job.out).result
     return Done(
         f"{result.total_queries} queries in {result.total_episodes} episodes; "
         f"agent: {result.policy}",
@@ -584,7 +584,7 @@ def _selfimitate(job: ImproveJob) -> Done:
     from dataclasses import replace
 
     from safe_bc.distributed.rollouts import ChunkedRayRollouts
-    from safe_bc.methods import METHODS
+    from safe_bc.methods import method_of_config
     from safe_bc.methods.start import start_from_checkpoint
     from safe_bc.progress import progress_bar
     from safe_bc.tasks import task_of
@@ -605,7 +605,8 @@ def _selfimitate(job: ImproveJob) -> Done:
                 )
 
             start = replace(start, parallel=ChunkedRayRollouts, on_round=show)
-            result = METHODS["selfimprove"].run(job.selfimitation, start, job.out).result
+            done = method_of_config(job.selfimitation).run(job.selfimitation, start, job.out)
+    result = done.result
     last = result.rounds[-1]
     return Done(
         f"{job.out}: selfimitation, {len(result.rounds)} rounds ({result.resumed_rounds} "
