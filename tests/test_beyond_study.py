@@ -1,6 +1,6 @@
 """The car's beyond-the-expert study (tune_jobs/beyond.py) retrains exactly what its design
-picked: the same start and self-imitation settings as the comparison's row, the task's
-handover, nothing searched, and a certification block no table runs on."""
+picked: the same start and self-imitation settings as the comparison's row, the handover the
+fourth design's rule picked, nothing searched, and a certification block no table runs on."""
 
 from __future__ import annotations
 
@@ -39,8 +39,15 @@ def test_the_study_runs_the_designs_pick_from_the_designs_start(study, selection
     assert study.batches == selection.bc.train.batches
 
 
-def test_the_recommender_is_the_agent_with_the_tasks_handover(study, selection) -> None:
-    assert study.handover == task_defaults("carracing").handover
+def test_the_recommender_is_the_agent_with_the_picked_handover(study) -> None:
+    """The handover of the row the fourth design's rule picked on its selection tracks (the
+    fresh table's handover row, resolved from the committed selection table)."""
+    with pytest.MonkeyPatch.context() as mp:
+        mp.chdir(ROOT)
+        fresh = load_comparisons(ROOT / "tune_jobs/compare/selfimprove.py")["beyond_lean"]
+    (picked,) = [m for m in fresh.methods if m.name.startswith("si_explore_best2+")]
+    assert picked.handover == study.handover != task_defaults("carracing").handover
+    assert study.selfimprove.handover == task_defaults("carracing").handover
     assert dict(study.space) == {}
     assert study.trials == 1 and study.final_candidates == 1
     assert study.certify_episodes == 150 and study.final_train_seeds == 3

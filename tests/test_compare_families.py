@@ -43,4 +43,4 @@ def test_declaring_the_families_reads_no_table(tmp_path: Path, monkeypatch) -> N
     monkeypatch.setattr(store, "read_table", no_read)
     monkeypatch.chdir(tmp_path)
     declared = {p.stem: family(p) for p in FAMILIES}
-    assert sum(len(d) for d in declared.values()) == 69  # all made but the fourth car design's 3
+    assert sum(len(d) for d in declared.values()) == 69  # every one made

@@ -30,7 +30,7 @@ def tables() -> dict[tuple[str, str], Comparison]:
 
 
 def test_no_two_tables_share_tracks_undeclared(tables) -> None:
-    # every table made but the fourth car design's three (planned)
+    # every table made, none planned
     assert len(tables) == 69
     assert track_clashes(tables.values(), track_seeds) == []
 
