@@ -130,6 +130,11 @@ class Sizes:
     CarRacing push: 6 runs a track)."""
     selfimprove_steps: int = 200
     """``max_steps`` of every run of the ``selfimprove`` case."""
+    selfimprove_kept: int = 1500
+    """Car frames each round of the ``selfimprove`` case's kept-frame timing keeps (a full run's
+    rounds keep ~80k; the demonstrations are as many)."""
+    selfimprove_rounds: int = 4
+    """Rounds (all accepted) of the ``selfimprove`` case's kept-frame timing."""
     stream_episodes: tuple[int, ...] = (5, 100)
     """Dataset sizes (episodes) of the ``stream`` case: the source's episodes recoded (new
     episode ids and env seeds) into a temporary store, as many as each entry says."""
@@ -176,6 +181,8 @@ QUICK = Sizes(
     improve_steps=20,
     selfimprove_tracks=1,
     selfimprove_steps=20,
+    selfimprove_kept=30,
+    selfimprove_rounds=2,
     stream_episodes=(1, 3),
     stream_batches=3,
     stream_source="",

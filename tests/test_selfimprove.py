@@ -4,6 +4,7 @@ Ray actors and the ``safe-bc improve --method selfimitation`` verb (rehab: fast)
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -363,8 +364,9 @@ def test_car_frames_read_from_disk_train_the_weights_of_frames_in_memory(
     tiny_demos, tmp_path
 ) -> None:
     """Two accepted CarRacing rounds (validation rewards made to rise, so both are kept and
-    round 1 retrains on round 0's rows too): reading the training frames from one frame file
-    per round gives the weights of holding them in memory, and the file is gone after."""
+    round 1 retrains on round 0's rows too): reading the training frames from the run's
+    kept-frame store gives the weights of holding them in memory (no frame file is left); a
+    round killed after appending its frames reruns to the same net."""
     from safe_bc.bc.config import BCConfig, TrainConfig
     from safe_bc.data.frames import checksum_path
     from safe_bc.data.store import load_demonstrations
@@ -372,6 +374,7 @@ def test_car_frames_read_from_disk_train_the_weights_of_frames_in_memory(
     from safe_bc.methods.selfimprove.config import FRAMES
     from safe_bc.methods.selfimprove.rollout import ValidateJob, local_rollouts
     from safe_bc.methods.selfimprove.stage import selfimprove_run
+    from safe_bc.methods.selfimprove.store import KeptFrameStore
     from safe_bc.run_config import RunConfig
     from safe_bc.selection import SelectionConfig
 
@@ -383,11 +386,13 @@ def test_car_frames_read_from_disk_train_the_weights_of_frames_in_memory(
         margin=0.0, beyond_limit=1.0, pushes=("1+0.3", "1+0.5"),
     )  # fmt: skip
 
-    def run(folder: Path, on_disk: bool):
-        calls = []
+    def run(folder: Path, on_disk: bool, validated: int = 0, explored: list | None = None):
+        calls = [1] * validated
 
         def rising(job, seeds):
             rows = local_rollouts(job, seeds)
+            if explored is not None and not isinstance(job, ValidateJob):
+                explored.append(job)
             if isinstance(job, ValidateJob):
                 calls.append(1)
                 rows = [{**m, "reward": 1000.0 * len(calls), "any_violation": 0} for m in rows]
@@ -409,8 +414,31 @@ def test_car_frames_read_from_disk_train_the_weights_of_frames_in_memory(
             _weights(tmp_path / "disk" / round_dir(r) / POLICY),
             _weights(tmp_path / "memory" / round_dir(r) / POLICY),
         )
-    # round 1 trained on round 0's kept rows read back from round 0's file: a dropped or
-    # misordered frame would change its weights (or the row count aggregate_rows checks)
+    # round 1 trained on round 0's kept rows read back from the run's kept-frame store: a
+    # dropped or misordered frame would change its weights (or the row count aggregate_rows
+    # checks)
+    store = KeptFrameStore(tmp_path / "disk", (96, 96, 3))
+    assert [(e["round"], e["accepted"]) for e in store.rounds] == [(0, True), (1, True)]
+    rows, before = store.rows, _weights(tmp_path / "disk" / round_dir(1) / POLICY)
+    # killed after round 1 appended its frames and wrote its round file, with a torn append
+    # after them: the rerun explores nothing, cuts the torn rows and trains the same net
+    last = tmp_path / "disk" / round_dir(1)
+    (last / DONE).unlink()
+    with open(store.path, "ab") as f:
+        f.write(b"\x01" * store.row_bytes * 5)
+    explored: list = []
+    rerun = run(tmp_path / "disk", True, validated=2, explored=explored)
+    assert not explored and _no_seconds(rerun.rounds, disk.rounds)
+    assert _same(before, _weights(last / POLICY))
+    assert KeptFrameStore(tmp_path / "disk", (96, 96, 3)).rows == rows
+    assert store.path.stat().st_size == rows * store.row_bytes
+    # killed after the append, before its round file: the rows are rolled back, explored again
+    (last / DONE).unlink()
+    (last / KEPT).unlink()
+    rerun = run(tmp_path / "disk", True, validated=2, explored=explored)
+    assert len(explored) == 1 and _no_seconds(rerun.rounds, disk.rounds)
+    assert _same(before, _weights(last / POLICY))
+    assert store.path.stat().st_size == rows * store.row_bytes
 
 
 # --- keeping only what beats the expert, exploring under the handover ----------------------
@@ -630,3 +658,128 @@ def test_car_lockstep_runs_are_the_one_env_runs_bit_for_bit(tiny_demos) -> None:
     pooled = replace(job, lockstep_envs=3).run(seeds)
     assert _same_tracks(one, pooled)
     assert sum(len(t.pieces) for t in one) > 0  # frames were kept and compared
+
+
+# --- the kept-frame store -------------------------------------------------------------------
+
+
+def _synthetic_round(rng, seeds, frame=(6, 5, 3)):
+    """TrackResults with random kept frames (a piece without rows among them)."""
+    from safe_bc.methods.selfimprove.rollout import KeptPiece, TrackResult
+
+    tracks = []
+    for seed in seeds:
+        pieces = []
+        for push, rows in enumerate(rng.integers(0, 7, 2) * (seed != 20)):  # 20: no rows
+            pieces.append(
+                KeptPiece(
+                    seed=seed, push=push, steps=np.arange(rows, dtype=np.int64),
+                    trained=rng.random(rows) < 0.7,
+                    observations=rng.integers(0, 256, (rows, *frame), dtype=np.uint8),
+                    actions=rng.random((rows, 3), dtype=np.float32),
+                    costs=rng.random((rows, 2), dtype=np.float32),
+                )
+            )  # fmt: skip
+        tracks.append(
+            TrackResult(seed, 1.0, 0, (1.0, 2.0), (0, 0), (1, 1), 10, (10, 10), tuple(pieces))
+        )
+    return tracks
+
+
+def test_the_kept_frame_store_gives_the_frame_file_each_round_rebuilt(tmp_path) -> None:
+    """Demonstrations plus accepted rounds plus this round's rows: read through the store and
+    the demonstrations' frames, the same array (and any rows asked) as the frame file the
+    retraining rebuilt before from the compressed round files; a rejected round's rows are cut
+    off and round files written beside the store hold no frames but read back the same."""
+    from safe_bc.data.frames import FrameFile, write_frame_file
+    from safe_bc.methods.selfimprove.data import (
+        frame_chunks,
+        holds_frames,
+        load_round,
+        round_frames,
+        save_round,
+    )
+    from safe_bc.methods.selfimprove.store import ConcatFrames, KeptFrameStore
+
+    rng = np.random.default_rng(3)
+    frame = (6, 5, 3)
+    demos = rng.integers(0, 256, (9, *frame), dtype=np.uint8)
+    store = KeptFrameStore(tmp_path, frame)
+    files, accepted = [], []
+    for r, ok in enumerate([True, False, False, True, True]):
+        tracks = _synthetic_round(rng, [10 * r, 10 * r + 1] if r != 2 else [20], frame)
+        old, new = tmp_path / f"old{r}.npz", tmp_path / f"new{r}.npz"
+        save_round(old, tracks)
+        store.append(r, round_frames(tracks))
+        save_round(new, tracks, frames=False)
+        assert holds_frames(old) and not holds_frames(new)
+        a, b = load_round(old), load_round(new)
+        assert [len(p.steps) for t in a for p in t.pieces] == [p.observations.shape[0] for t in b
+                                                               for p in t.pieces]  # fmt: skip
+        assert _same_tracks([replace(t, pieces=()) for t in a], [replace(t, pieces=()) for t in b])
+        mine = [p for t in tracks for p in t.pieces]
+        n = len(demos) + sum(len(p.steps) for f in files for t in load_round(f) for p in t.pieces)
+        n += sum(len(p.steps) for p in mine)
+        chunks = frame_chunks(demos, files, mine)
+        rebuilt = FrameFile(write_frame_file(tmp_path / "f.npy", (n, *frame), chunks), (n, *frame))
+        read = ConcatFrames([demos, store.frames()])
+        assert read.shape == rebuilt.shape
+        assert np.array_equal(np.asarray(read), np.asarray(rebuilt))
+        rows = rng.integers(0, n, 50)
+        assert np.array_equal(read[rows], rebuilt[rows]) and np.array_equal(read[-1], rebuilt[-1])
+        rebuilt.close()
+        read.close()
+        store.settle(r, ok)
+        if ok:
+            files.append(old)
+            accepted.append((r, sum(len(p.steps) for p in mine)))
+    assert [e["round"] for e in store.rounds] == [0, 3, 4]
+    assert store.path.stat().st_size == store.rows * store.row_bytes
+    assert store.rows == sum(n for _, n in accepted)
+
+
+def test_an_interrupted_rounds_appended_frames_are_rolled_back_on_resume(tmp_path) -> None:
+    """Rows appended by a round killed before it was settled are cut when the run resumes
+    (unless they are the rerun round's own, its round file written); accepted rounds stay;
+    a run folder from before the store gets its accepted rounds' frames from their files."""
+    from safe_bc.methods.selfimprove.data import round_frames, save_round
+    from safe_bc.methods.selfimprove.run import _sync_store
+    from safe_bc.methods.selfimprove.store import KeptFrameStore
+
+    rng = np.random.default_rng(5)
+    frame = (4, 4, 3)
+    rounds = [_synthetic_round(rng, [r], frame) for r in range(3)]
+    frames = [np.concatenate(list(round_frames(t))) for t in rounds]
+    store = KeptFrameStore(tmp_path, frame)
+    store.append(0, round_frames(rounds[0]))
+    store.settle(0, True)
+    store.append(1, round_frames(rounds[1]))  # killed here: appended, never settled
+    n0 = len(frames[0])
+    save_round(tmp_path / "k0.npz", rounds[0], frames=False)
+    kept = [(0, n0, tmp_path / "k0.npz")]
+    again = KeptFrameStore(tmp_path, frame)  # the resumed run
+    _sync_store(again, kept, 1, tmp_path / "r1.npz")  # no round file of round 1
+    assert again.rows == n0 and [e["round"] for e in again.rounds] == [0]
+    assert again.path.stat().st_size == n0 * again.row_bytes
+    assert np.array_equal(np.asarray(again.frames()), frames[0])
+    assert KeptFrameStore(tmp_path, frame).rows == n0  # the index says so too
+    # its round file written (frames in the store): the rerun keeps its rows, cuts the rest
+    again.append(1, round_frames(rounds[1]))
+    with open(again.path, "ab") as f:
+        f.write(b"\x07" * again.row_bytes * 2)  # a torn later append
+    save_round(tmp_path / "r1.npz", rounds[1], frames=False)
+    third = KeptFrameStore(tmp_path, frame)
+    _sync_store(third, kept, 1, tmp_path / "r1.npz")
+    assert third.pending(1) and (tmp_path / "r1.npz").is_file()
+    assert np.array_equal(np.asarray(third.frames()), np.concatenate(frames[:2]))
+    # an accepted round's record lost, its rows gone: the rerun's round file is dropped
+    third._cut(0)
+    with pytest.raises(ValueError, match="lost them"):
+        _sync_store(KeptFrameStore(tmp_path, frame), kept, 1, tmp_path / "r1.npz")
+    # a folder from before the store: the accepted rounds' files hold their frames
+    save_round(tmp_path / "r0.npz", rounds[0])
+    old = KeptFrameStore(tmp_path, frame)
+    _sync_store(old, [(0, n0, tmp_path / "r0.npz")], 1, tmp_path / "r1.npz")
+    assert not (tmp_path / "r1.npz").exists()  # its frames were lost: it explores again
+    assert np.array_equal(np.asarray(old.frames()), frames[0])
+    assert old.rounds == [{"round": 0, "start": 0, "stop": n0, "accepted": True}]

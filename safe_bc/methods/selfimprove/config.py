@@ -23,7 +23,8 @@ FORMAT = "safe_bc.selfimprove/2"
 """Run-folder format (2: rounds and the start's validation record their env steps)."""
 KEPT = "kept.npz"
 FRAMES = "frames.npy"
-"""A round's training frames while it trains (``frames_on_disk``; deleted after)."""
+"""A round's training frames while it trained (``frames_on_disk``, deleted after), before
+the kept-frame store (:mod:`safe_bc.methods.selfimprove.store`): no longer written."""
 START_VALIDATION = "start_validation.json"
 CURVE = "curve.parquet"
 """A run's learning curve (``SelfImproveResult.history``, one row per round after the start's),

@@ -18,10 +18,14 @@ from safe_bc.methods.selfimprove.rollout import KeptPiece, TrackResult
 _ROW_FIELDS = ("steps", "trained", "observations", "actions", "costs")
 
 
-def save_round(path: Path, tracks: Sequence[TrackResult]) -> None:
+def save_round(path: Path, tracks: Sequence[TrackResult], frames: bool = True) -> None:
     """One round's track results to ``path`` (``.npz``, deflated at
     :data:`ROUND_COMPRESSLEVEL`: a CarRacing round keeps ~80k frames, ~2 GB raw), atomically:
-    a killed write leaves none."""
+    a killed write leaves none. ``frames=False``: the pieces' observations are left out (the
+    run's :class:`~safe_bc.methods.selfimprove.store.KeptFrameStore` holds them, in
+    :func:`round_frames`' order) and the file says so (:func:`holds_frames`)."""
+    if not frames:
+        tracks = [replace(t, pieces=tuple(frameless(p) for p in t.pieces)) for t in tracks]
     pieces = [p for t in tracks for p in t.pieces]
     arrays: dict[str, np.ndarray] = {
         "seed": np.asarray([t.seed for t in tracks], np.int64),
@@ -41,11 +45,29 @@ def save_round(path: Path, tracks: Sequence[TrackResult]) -> None:
         "piece_push": np.asarray([p.push for p in pieces], np.int64),
         "piece_rows": np.asarray([len(p.steps) for p in pieces], np.int64),
     }
+    if not frames:
+        arrays[FRAMES_ELSEWHERE] = np.asarray(True)
     for name in _ROW_FIELDS:
         parts = [getattr(p, name) for p in pieces]
         arrays[name] = np.concatenate(parts) if parts else np.empty((0,), np.float32)
     with atomic_write(path) as f:
         _savez_fast(f, arrays)
+
+
+FRAMES_ELSEWHERE = "frames_in_store"
+"""Array name marking a round file whose pieces' frames are in the run's kept-frame store."""
+
+
+def holds_frames(path: Path) -> bool:
+    """The round file ``path`` holds its pieces' frames (written before the kept-frame store,
+    or by a run whose frames stay in memory)."""
+    with zipfile.ZipFile(path) as z:
+        return f"{FRAMES_ELSEWHERE}.npy" not in z.namelist()
+
+
+def round_frames(tracks: Sequence[TrackResult]) -> Iterator[np.ndarray]:
+    """The frames of a round's pieces with rows, in the order training aggregates them."""
+    return (p.observations for t in tracks for p in t.pieces if len(p.steps))
 
 
 ROUND_COMPRESSLEVEL = 1
@@ -71,7 +93,7 @@ def load_round(path: Path, frames: bool = True) -> list[TrackResult]:
     CarRacing round's are ~2 GB: :func:`frame_chunks` streams them one round at a time)."""
     with np.load(path) as z:
         a = {k: z[k] for k in z.files if frames or k != "observations"}
-    if not frames:
+    if not frames or FRAMES_ELSEWHERE in a:
         a["observations"] = np.empty((int(a["piece_rows"].sum()), 0), np.uint8)
     bounds = np.r_[0, np.cumsum(a["piece_rows"])]
     pieces: list[list[KeptPiece]] = [[] for _ in a["seed"]]
@@ -120,10 +142,10 @@ def frame_chunks(
     """The frames of the demonstrations (``block`` rows at a time), then of the pieces with
     rows in each of ``kept_files`` (one file decompressed at a time), then of ``pieces``: the
     row order of :func:`safe_bc.methods.rounds.aggregate_rows` over those pieces, for
-    :func:`safe_bc.data.frames.write_frame_file`."""
+    :func:`safe_bc.data.frames.write_frame_file`. (How each retraining's frame file was
+    built before the kept-frame store; ``benchmarks/cases/selfimprove.py`` times it.)"""
     for i in range(0, len(demos_frames), block):
         yield np.asarray(demos_frames[i : i + block])
     for f in kept_files:
-        for t in load_round(f):
-            yield from (p.observations for p in t.pieces if len(p.steps))
+        yield from round_frames(load_round(f))
     yield from (p.observations for p in pieces if len(p.steps))

@@ -4,15 +4,16 @@ Round ``r`` rolls the current agent (the start, then the last accepted round's) 
 ``tracks_per_round`` training tracks, unperturbed and once per push, keeps the pushed steps
 that stay inside ``d_s - margin`` and beat the unperturbed run
 (:func:`~safe_bc.methods.selfimprove.logic.kept_steps`), writes them (``round_r/kept.npz``,
-atomically), retrains BC from scratch on the demonstrations plus the kept rows of every
-accepted round and this one (labels: the executed actions; ``d_s`` and ``T_eps`` stay the
-demonstrations' unless ``kept_in`` says otherwise), writes the net (``round_r/policy``, one
-checkpoint unit), validates it and applies the keep rule
-(:func:`~safe_bc.methods.selfimprove.logic.accept_round`) and then writes ``round_r/done.json``. A
-rejected round's agent and kept rows are dropped: the next round starts from the previous
-agent. A rerun skips the done rounds, reuses a written ``kept.npz`` and redoes the rest,
-bit-identically. The run's curve (``curve.parquet``, TensorBoard event files beside it) is
-rewritten after every round.
+atomically; with ``frames_on_disk`` their frames go to the run's append-only kept-frame
+store instead, :mod:`~safe_bc.methods.selfimprove.store`), retrains BC from scratch on the
+demonstrations plus the kept rows of every accepted round and this one (labels: the
+executed actions; ``d_s`` and ``T_eps`` stay the demonstrations' unless ``kept_in`` says
+otherwise), writes the net (``round_r/policy``, one checkpoint unit), validates it and applies
+the keep rule (:func:`~safe_bc.methods.selfimprove.logic.accept_round`) and then writes
+``round_r/done.json``. A rejected round's agent and kept rows are dropped: the next round
+starts from the previous agent. A rerun skips the done rounds, reuses a written ``kept.npz``
+and redoes the rest, bit-identically. The run's curve (``curve.parquet``, TensorBoard event
+files beside it) is rewritten after every round.
 """
 
 from __future__ import annotations
@@ -31,7 +32,6 @@ from safe_bc.bc.net import BCNet
 from safe_bc.data.atomic import write_json_atomic
 from safe_bc.data.curves import write_curve
 from safe_bc.data.demos import Demonstrations
-from safe_bc.data.frames import FrameFile, checksum_path, write_frame_file
 from safe_bc.methods.improve.config import VALIDATION_SEED_BASE
 from safe_bc.methods.queries.config import track_seeds
 from safe_bc.methods.rounds import (
@@ -51,7 +51,6 @@ from safe_bc.methods.selfimprove.config import (
     CURVE,
     DONE,
     FORMAT,
-    FRAMES,
     IDENTITY,
     KEPT,
     POLICY,
@@ -59,7 +58,13 @@ from safe_bc.methods.selfimprove.config import (
     SelfImproveConfig,
     round_dir,
 )
-from safe_bc.methods.selfimprove.data import frame_chunks, frameless, load_round, save_round
+from safe_bc.methods.selfimprove.data import (
+    frameless,
+    holds_frames,
+    load_round,
+    round_frames,
+    save_round,
+)
 from safe_bc.methods.selfimprove.logic import accept_round, kept_selection
 from safe_bc.methods.selfimprove.rollout import (
     ExploreJob,
@@ -68,6 +73,7 @@ from safe_bc.methods.selfimprove.rollout import (
     ValidateJob,
     local_rollouts,
 )
+from safe_bc.methods.selfimprove.store import ConcatFrames, KeptFrameStore
 from safe_bc.rollout.evaluate import NetSource
 from safe_bc.run_config import RunConfig
 from safe_bc.selection import Selection
@@ -333,10 +339,12 @@ class _Progress:
     """The current agent's validation reward (a round must beat it)."""
     kept_so_far: list[KeptPiece] = field(default_factory=list)
     """Accepted rows read so far (frame-less placeholders when the frames stay on disk)."""
-    kept_sources: list[Path] = field(default_factory=list)
-    """The round files of :attr:`kept_so_far`, in order."""
-    kept_files: list[Path] = field(default_factory=list)
-    """Accepted done rounds' kept rows, read when a round must run."""
+    kept_sources: list[tuple[int, int, Path]] = field(default_factory=list)
+    """The rounds of :attr:`kept_so_far`, in order: ``(round, rows, round file)``."""
+    kept_files: list[tuple[int, Path]] = field(default_factory=list)
+    """Accepted done rounds' kept rows, read when a round must run: ``(round, round file)``."""
+    store: KeptFrameStore | None = None
+    """The run's kept frames (``frames_on_disk``)."""
     rounds: list[dict[str, Any]] = field(default_factory=list)
     """Each round's ``done.json``."""
     resumed: int = 0
@@ -380,9 +388,10 @@ def run_selfimprove(
     its pushes, rounds and where kept rows go are set). A folder of another
     start, run config, demonstrations or config raises ``ValueError``.
 
-    ``frames_on_disk`` (``None``: when the observations are ``uint8`` frames): each retraining
-    reads the frames of the demonstrations and of every kept row from one frame file
-    (``round_r/frames.npy``, written a round file at a time and deleted after the training)
+    ``frames_on_disk`` (``None``: when the observations are ``uint8`` frames): the kept frames
+    go raw into the run's append-only store (``kept_frames.bin``,
+    :class:`~safe_bc.methods.selfimprove.store.KeptFrameStore`; the round files hold the rest)
+    and each retraining reads the frames of the demonstrations and of every kept row from disk
     instead of holding them in memory: a CarRacing round keeps ~80k frames (~2 GB), so four
     accepted rounds held in memory and concatenated peaked near 19 GB. The same rows, batches
     and weights either way.
@@ -407,6 +416,8 @@ def run_selfimprove(
         write_json_atomic(folder / START_VALIDATION, start_val)
     expert_side = _expert_side(config, demos_path, env_config)
     state = _Progress(plan.start, "start", float(start_val["validation_reward"]))
+    if plan.frames_on_disk:
+        state.store = KeptFrameStore(folder, tuple(demos.observations.shape[1:]))
 
     def write_curve_so_far() -> None:
         rows = SelfImproveResult(
@@ -424,12 +435,14 @@ def run_selfimprove(
             state.rounds.append(done)
             state.resumed += 1 if state.resumed == r else 0
             if done["accepted"]:
-                state.kept_files.append(here / KEPT)
+                state.kept_files.append((r, here / KEPT))
                 state.agent, state.agent_name = policy_source(here / POLICY), round_dir(r)
                 state.reward_now = float(done["validation_reward"])
             continue
         summary = _self_round(plan, here, r, state, demos, expert_side, rollouts, train)
         write_json_atomic(here / DONE, summary)
+        if state.store is not None:
+            state.store.settle(r, bool(summary["accepted"]))
         state.rounds.append(summary)
         write_curve_so_far()
         if on_round is not None:
@@ -453,14 +466,18 @@ def _self_round(
     retrain on the kept rows so far plus this round's, write the net, validate it and apply
     the keep rule (``state`` moves on when accepted); the round's ``done.json``."""
     config, frames_on_disk = plan.config, plan.frames_on_disk
-    state.kept_so_far += [
-        p for f in state.kept_files for t in load_round(f, not frames_on_disk) for p in t.pieces
-    ]
-    state.kept_sources += state.kept_files
+    for done_r, f in state.kept_files:
+        pieces = [p for t in load_round(f, not frames_on_disk) for p in t.pieces]
+        state.kept_so_far += pieces
+        state.kept_sources.append((done_r, sum(len(p.steps) for p in pieces), f))
     state.kept_files = []
+    if state.store is not None:
+        _sync_store(state.store, state.kept_sources, r, here / KEPT)
     t0 = time.perf_counter()
     if (here / KEPT).is_file():
         tracks: list[TrackResult] = load_round(here / KEPT)
+        if state.store is not None and holds_frames(here / KEPT):  # written before the store
+            state.store.append(r, round_frames(tracks))
     else:
         job = ExploreJob(
             plan.env_config, state.agent, plan.pushes, plan.action_bounds, plan.limits,
@@ -469,7 +486,11 @@ def _self_round(
             config.keep_best, *expert_side, config.lockstep_envs, config.lockstep_forward,
         )  # fmt: skip
         tracks = rollouts(job, track_seeds(config.seed, r, config.tracks_per_round))
-        save_round(here / KEPT, tracks)
+        if state.store is not None:  # frames first: a round file without them needs them there
+            state.store.append(r, round_frames(tracks))
+        save_round(here / KEPT, tracks, frames=state.store is None)
+    if state.store is not None:  # the frames are in the store: read from disk when training
+        tracks = [replace(t, pieces=tuple(frameless(p) for p in t.pieces)) for t in tracks]
     t_roll = time.perf_counter() - t0
     mine = [p for t in tracks for p in t.pieces]
     selection, source = _retrain(plan, here, r, state, demos, mine, train)
@@ -492,11 +513,8 @@ def _self_round(
     if accepted:
         state.agent, state.agent_name = source, round_dir(r)
         state.reward_now = val["validation_reward"]
-        if frames_on_disk:  # the frames stay in this round's file
-            state.kept_so_far += [frameless(p) for p in mine]
-            state.kept_sources.append(here / KEPT)
-        else:
-            state.kept_so_far += mine
+        state.kept_so_far += mine  # frame-less when the frames are in the store
+        state.kept_sources.append((r, sum(len(p.steps) for p in mine), here / KEPT))
     summary["agent"] = state.agent_name
     return summary
 
@@ -511,16 +529,13 @@ def _retrain(
     train: TrainFn,
 ) -> tuple[Any, Any]:
     """BC retrained from scratch on the demonstrations, the kept rows so far and ``mine``
-    (frames from one frame file when they stay on disk), its net written:
-    ``(selection, source)``."""
+    (frames read from the demonstrations and the kept-frame store when they stay on disk), its
+    net written: ``(selection, source)``."""
     config, retrain = plan.config, plan.retrain
     pieces = state.kept_so_far + mine
     frames = None
-    if plan.frames_on_disk:
-        n = len(demos) + sum(len(p.steps) for p in pieces)
-        shape = (n, *demos.observations.shape[1:])
-        chunks = frame_chunks(demos.observations, state.kept_sources, mine)
-        frames = FrameFile(write_frame_file(here / FRAMES, shape, chunks), shape)
+    if state.store is not None:
+        frames = ConcatFrames([demos.observations, state.store.frames()])
     data, kept = aggregate_rows(demos, pieces, [p.trained for p in pieces], frames)
     assert config.kept_in is not None
     selection = kept_selection(
@@ -533,8 +548,6 @@ def _retrain(
     finally:
         if frames is not None:
             frames.close()
-            (here / FRAMES).unlink(missing_ok=True)
-            checksum_path(here / FRAMES).unlink(missing_ok=True)
     save_round_net(
         here / POLICY,
         source,
@@ -546,3 +559,27 @@ def _retrain(
         plan.demos_path,
     )
     return selection, source
+
+
+def _sync_store(
+    store: KeptFrameStore, accepted: Sequence[tuple[int, int, Path]], r: int, kept: Path
+) -> None:
+    """Before round ``r`` runs: the store holds the frames of the ``accepted`` done rounds
+    (``(round, rows, round file)``, in order) and, when round ``r``'s round file ``kept`` was
+    written without its frames, that round's pending rows; anything else appended is cut (a
+    round killed before it was settled). Accepted rounds whose round files hold their frames
+    (a run folder from before the store) are appended from them. A round file of ``r``
+    without frames whose rows the store lost is deleted: the round explores again (the same
+    rows: rollouts are deterministic)."""
+    pending = r if kept.is_file() and not holds_frames(kept) else None
+    missing = store.reconcile([(a, n) for a, n, _ in accepted], pending)
+    for a, _, f in accepted[len(accepted) - len(missing) :]:
+        if not holds_frames(f):
+            raise ValueError(
+                f"{f}: its frames are in {store.path}, which lost them; delete the round "
+                f"folders from round {a} on to rerun them"
+            )
+        store.append(a, round_frames(load_round(f)))
+        store.settle(a, True)
+    if pending is not None and not store.pending(r):
+        kept.unlink()
