@@ -408,6 +408,16 @@ class FromStart(Row):
     def curve_refs(self) -> tuple[str, ...]:
         return (self.start,)
 
+    def siblings(self, c: Any) -> list[FromStart]:
+        """The other rows of ``c`` of the same method from the same start."""
+        return [
+            x
+            for x in c.methods
+            if isinstance(x, FromStart)
+            and (x.method, x.start) == (self.method, self.start)
+            and x.name != self.name
+        ]
+
     def config_for(self, c: Any, seed: int, improved: dict | None = None) -> Any:
         """Its run config for training seed ``seed`` (its ``seed`` set); a config whose
         ``budget_of`` names another row resolved from that row's run of the seed in

@@ -252,15 +252,11 @@ def _copy_shared_rounds(c: Comparison, method: FromStart, seed: int, folder: Pat
 
     mine = method.identity(c, seed)
     best: tuple[int, Path] | None = None
-    for other in c.methods:  # rows of the same method (kind) from the same start
-        if other.kind != method.kind or other.source != method.source:
-            continue
-        if other.name == method.name:
-            continue
-        theirs = other.identity(c, seed)  # type: ignore[attr-defined]
+    for other in method.siblings(c):
+        theirs = other.identity(c, seed)
         if theirs["rounds"] >= mine["rounds"] or {**theirs, "rounds": 0} != {**mine, "rounds": 0}:
             continue
-        source = _folder(c, other, seed) / other.spec.subfolder  # type: ignore[attr-defined]
+        source = _folder(c, other, seed) / other.spec.subfolder
         done = sum((source / round_dir(r) / DONE).is_file() for r in range(theirs["rounds"]))
         if done and (best is None or done > best[0]):
             best = (done, source)
