@@ -205,3 +205,21 @@ def test_comparisons_re_derive_their_tables_from_the_stored_evaluations(monkeypa
         )
         derived += 1
     assert derived >= 7
+
+
+def test_the_runner_asks_no_row_its_kind() -> None:
+    """``safe_bc/compare/run.py`` calls the row interface (:class:`safe_bc.compare.rows.Row`):
+    no ``isinstance`` or ``type(...) is`` test names a kind of row."""
+    import ast
+
+    source = (ROOT / "safe_bc/compare/run.py").read_text()
+    kinds = {k.__name__ for k in KINDS}
+    named = [
+        ast.unparse(node)
+        for node in ast.walk(ast.parse(source))
+        if isinstance(node, ast.Call)
+        and isinstance(node.func, ast.Name)
+        and node.func.id in ("isinstance", "type")
+        and kinds & {n.id for n in ast.walk(node) if isinstance(n, ast.Name)}
+    ]
+    assert named == []

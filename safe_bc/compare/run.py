@@ -21,7 +21,10 @@ policy goes through the one evaluation path
 (:func:`safe_bc.distributed.evaluate.evaluate_policies`), all missing ones in one call per env
 and thresholds. The driver is a plan (:func:`plan_evaluations`, pure), the runs
 (:func:`_train_agents`, :func:`_improve_cell`, :func:`_evaluate`) and the report
-(:func:`_report`, :func:`write_outputs`).
+(:func:`_report`, :func:`write_outputs`). What differs between kinds of row (the agent it
+trains, the method it runs, its stamp, its policy) is the row's own
+(:class:`~safe_bc.compare.rows.Row`); the runner calls that interface, supplies the effects
+(:class:`_Runs`) and never asks a row's kind.
 """
 
 from __future__ import annotations
