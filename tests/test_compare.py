@@ -57,7 +57,7 @@ def test_spec_validation_one_line(make, match) -> None:
 def test_load_comparison_files(tmp_path: Path) -> None:
     table1 = load_comparison(ROOT / "tune_jobs/compare/table1.py")
     assert table1.name == "table1" and table1.reference == "alpha=0 (rest=all)"
-    assert table1.methods[-1].expert and len(table1.train_seeds) == 11
+    assert table1.methods[-1].kind == "expert" and len(table1.train_seeds) == 11
     improve = load_comparison(ROOT / "tune_jobs/compare/improve.py", "improve_carracing")
     assert [m.kind for m in improve.methods] == ["expert", "bc"] + ["improve"] * 4
     with pytest.raises(ValueError, match=r"name one comparison \(--name\): improve_carracing, "):

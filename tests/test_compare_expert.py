@@ -1,4 +1,4 @@
-"""Expert rows with their own settings (``Method.expert_config``): validation, a tiny rehab
+"""Expert rows with their own settings (``Expert.config``): validation, a tiny rehab
 comparison of two guideline settings on the same patients through the one evaluation path,
 and the committed comparison file of CarRacing's expert settings."""
 
@@ -11,7 +11,7 @@ import pandas as pd
 import pytest
 
 from safe_bc.compare.families import load_comparison
-from safe_bc.compare.spec import Comparison, Method
+from safe_bc.compare.spec import Comparison, Expert, Method
 from safe_bc.data.store import read_table
 from safe_bc.selection import SelectionConfig
 from safe_bc.tasks.carracing.expert import ExpertConfig
@@ -118,8 +118,10 @@ def test_expert_settings_comparison_file() -> None:
     other rows CarRacing expert settings that differ from it, on the held-out tracks."""
     comp = load_comparison(ROOT / "tune_jobs/compare/expert.py")
     assert comp.task == "carracing" and comp.reference == "expert"
-    assert comp.method("expert").expert_config is None
+    assert comp.method("expert").config is None
     others = [m for m in comp.methods if m.name != "expert"]
-    assert others and all(m.expert and isinstance(m.expert_config, ExpertConfig) for m in others)
-    assert all(m.expert_config != ExpertConfig() for m in others)
-    assert len({m.expert_config for m in others}) == len(others)
+    assert others and all(
+        isinstance(m, Expert) and isinstance(m.config, ExpertConfig) for m in others
+    )
+    assert all(m.config != ExpertConfig() for m in others)
+    assert len({m.config for m in others}) == len(others)

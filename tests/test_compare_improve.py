@@ -140,7 +140,7 @@ def test_rehab_improvement_settings_are_the_sweeps_last_choice() -> None:
     assert ImproveConfig().cost_margin is None
     assert task_defaults("rehab").cost_margin == chosen["cost_margin"]
     assert chosen.get("eps") == improve.SHIELD_EPS
-    both = load_comparison(COMPARE / "improve.py", "improve_rehab").method("both").improve
+    both = load_comparison(COMPARE / "improve.py", "improve_rehab").method("both").config
     assert (both.shield, both.lagrangian, both.eps) == (True, True, chosen["eps"])
     test = load_comparison(COMPARE / "margin_sweep.py", "sweep_test")
     assert [m.name for m in test.methods][2:] == sweep.TESTED

@@ -13,6 +13,7 @@ import pandas as pd
 import pytest
 
 from safe_bc.compare.families import load_comparison, load_comparisons
+from safe_bc.compare.protocol import candidates
 from safe_bc.compare.spec import Comparison, Method
 from safe_bc.methods.improve import ImproveConfig
 from safe_bc.methods.selfimprove.config import SelfImproveConfig
@@ -211,7 +212,7 @@ def test_the_issue_31_files_load_on_blocks_no_other_comparison_uses(monkeypatch)
         for f in ("selection_carracing", "rounds_carracing")
         for sel in [loaded[f]]
         for m in sel.methods
-        if m.selfimprove
+        if m.kind == "selfimprove"
     }
     changed = {
         name: sorted(k for k in row if row[k] != rows["defaults"].get(k))
@@ -224,7 +225,9 @@ def test_the_issue_31_files_load_on_blocks_no_other_comparison_uses(monkeypatch)
         "rounds4_small": ["pushes", "rounds"],
     }  # fmt: skip
     rehab = loaded["selection_rehab"]
-    rows = {m.name: selfimprove_identity(rehab, m, 0) for m in rehab.methods if m.selfimprove}
+    rows = {
+        m.name: selfimprove_identity(rehab, m, 0) for m in rehab.methods if m.kind == "selfimprove"
+    }
     changed = {
         name: sorted(k for k in row if row[k] != rows["defaults"][k]) for name, row in rows.items()
     }
@@ -242,8 +245,8 @@ def test_both_improvements_get_the_same_env_step_budget(file: str, steps: int) -
     validation tracks), episodes of the same length (CarRacing's time limit, rehab's 30
     sessions)."""
     comp = _load(file)
-    ppo = comp.method("ppo_lagrangian").improve
-    si = comp.method("selfimitation").selfimprove
+    ppo = comp.method("ppo_lagrangian").config
+    si = comp.method("selfimitation").config
     assert si == SelfImproveConfig()  # the package's defaults: the selection tables' choices
     si = si.for_task(comp.task)
     assert ppo.shield and ppo.lagrangian
@@ -372,7 +375,7 @@ def test_each_tasks_defaults_are_the_row_its_selection_table_chose(task, files, 
         for f in files
         for c in [_load(f)]
         for m in c.methods
-        if m.selfimprove
+        if m.kind == "selfimprove"
     }
     default = SelfImproveConfig(seed=0).for_task(task)
     assert {**default.identity(), "pushes": list(default.pushes)} == rows[chosen]
@@ -397,10 +400,10 @@ def test_the_deferral_widths_follow_the_committed_selection_table(monkeypatch) -
     table = pd.read_parquet(ROOT / "results/selfimprove/carracing/defer_selection.parquet")
     beyond = table.set_index("method")["episodes_with_violation"]
     for agent in ("ppo_lagrangian", "selfimitation"):
-        (row,) = [m for m in fresh.methods if m.fallback_of == agent]
-        widths = sorted(m.defer_width for m in sel.methods if m.fallback_of == agent)
+        (row,) = [m for m in candidates(fresh) if m.of == agent]
+        widths = sorted(m.handover.width for m in candidates(sel) if m.of == agent)
         safe = [w for w in widths if beyond[f"{agent}+defer{w:g}"] == 0]
-        assert row.defer_width == (safe[0] if safe else widths[-1])
+        assert row.handover.width == (safe[0] if safe else widths[-1])
         assert row.name in {m.name for m in sel.methods}
 
 
@@ -425,7 +428,7 @@ def test_the_trend_rows_follow_the_committed_selection_tables(
     ok = rows[(rows["episodes_with_violation"] == 0) & (rows["deferred_share"] < burden)]
     monkeypatch.chdir(ROOT)
     comp = load_comparison(COMPARE / "handover.py", f"defer_{fresh}")
-    (row,) = [m.name for m in comp.methods if m.defer_width is not None]
+    (row,) = [m.name for m in candidates(comp)]
     assert row == ok["deferred_share"].idxmin()
     if fresh == "lookahead":  # the burden left no row: the file says so in its note
         assert not ((rows["episodes_with_violation"] == 0) & (rows["deferred_share"] < 0.05)).any()

@@ -175,7 +175,7 @@ def test_the_toy_method_is_a_comparison_row(nudge, rehab_demos, tmp_path) -> Non
 
     row = FromStart("nudged", start="start", config=NudgeConfig(0.5))
     assert row.method == NAME and row.kind == NAME
-    assert row.flat()["method"] == NAME and row.flat()["config"] == {"scale": 0.5, "seed": 0}
+    assert row.record()["method"] == NAME and row.record()["config"] == {"scale": 0.5, "seed": 0}
     comp = Comparison(
         "tiny",
         methods=(

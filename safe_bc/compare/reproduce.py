@@ -36,7 +36,7 @@ from safe_bc.tasks.env_config import EnvConfig
 if TYPE_CHECKING:
     import pandas as pd
 
-    from safe_bc.compare.spec import PAPER_TABLE1, Comparison, Method, Row
+    from safe_bc.compare.spec import PAPER_TABLE1, Agent, Comparison, Method
 
 __all__ = ["PAPER_TABLE1", "PLAIN_BC", "Method", "ReproduceConfig", "run_reproduce", "table1"]
 
@@ -145,17 +145,17 @@ class ReproduceConfig:
         """``eps``, or the task's default."""
         return task_defaults(self.task).eps if self.eps is None else self.eps
 
-    def methods(self) -> list[Row]:
+    def methods(self) -> list[Agent]:
         """The trained rows, in table order: the alpha mix per reading, then the baselines.
 
         Raises:
             ValueError: ``segment_steps`` or ``beta`` out of range.
         """
-        from safe_bc.compare.spec import Method
+        from safe_bc.compare.rows import Agent
 
         eps = self.selection_eps
         rows = [
-            Method(method_name(a, r), selection=SelectionConfig(eps=eps, alpha=a, rest=r))
+            Agent(method_name(a, r), SelectionConfig(eps=eps, alpha=a, rest=r))
             for r in self.readings
             for a in self.alphas
             if not (a == 1.0 and r == "noncritical" and "all" in self.readings)
@@ -164,27 +164,26 @@ class ReproduceConfig:
             cfg = SelectionConfig(
                 eps=eps, alpha=0.0, mode=b, segment_steps=self.segment_steps, beta=self.beta
             )
-            rows.append(Method(baseline_name(cfg), selection=cfg))
+            rows.append(Agent(baseline_name(cfg), cfg))
         return rows
 
     def comparison(self) -> Comparison:
         """Table 1 as a :class:`~safe_bc.compare.spec.Comparison`: :meth:`methods`, then the
         expert; paired with plain BC; the alpha-sweep and trace figures; the paper's table
         for CarRacing."""
-        from safe_bc.compare.spec import EXPERT, Comparison, Method
+        from safe_bc.compare.spec import EXPERT, Comparison, Expert
 
         rows = self.methods()
         traces = [
             m.name
             for m in rows
-            if m.selection is not None
-            and m.selection.mode == "mix"
+            if m.selection.mode == "mix"
             and m.selection.rest == "all"
             and m.selection.alpha in (0.0, 0.8)
         ]
         return Comparison(
             name="table1",
-            methods=(*rows, Method(EXPERT, expert=True)),
+            methods=(*rows, Expert(EXPERT)),
             task=self.task,
             demos=self.demos,
             collect=self.collect,

@@ -10,11 +10,18 @@
 * :class:`View`: the agents of an :class:`Agent` row evaluated another way (another renderer,
   or CarRacing's steering indicator masked).
 
-Every row also reads as the flat record comparisons were first written with
-(:data:`FLAT_FIELDS`: ``selection``, ``expert``, ``improve``, ``fallback_of``, ``defer_width``,
-...; :meth:`Row.flat`): a comparison's recorded configuration and its cells' identities are
-written from that view, so they stay what they were. :func:`Method` builds a row from that
-flat spelling.
+Every kind meets one interface, :class:`Row`: its training seeds and cell folders, the
+demonstrations behind it, the BC agent it trains (if any), what its cell needs trained first,
+the ``run`` part of its cells' stamps (:meth:`Row.run_stamp`, what names a stored evaluation)
+and the policy its cell evaluates (:meth:`Row.policy`, made through the runner's
+:class:`Runs`). The runner (:mod:`safe_bc.compare.run`) calls that interface and never asks a
+row's kind. The rows are pure: a comparison is handed in (anything with the
+:class:`~safe_bc.compare.spec.Comparison` attributes they read), and the effects (loading an
+agent, running a method) are the runner's.
+
+A comparison's recorded configuration lists each row as the flat record comparisons were
+first written with (:meth:`Row.record`, fields :data:`FLAT_FIELDS`), so recorded
+configurations stay what they were; :func:`Method` builds a row from that flat spelling.
 """
 
 from __future__ import annotations
@@ -23,15 +30,19 @@ import dataclasses
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 from safe_bc.bc.config import BCConfig
 from safe_bc.handover import HandoverConfig
 from safe_bc.methods import METHODS, method_of, method_of_config
 from safe_bc.methods.improve.config import ImproveConfig
 from safe_bc.methods.selfimprove.config import SelfImproveConfig
+from safe_bc.run_config import RunConfig
 from safe_bc.selection import SelectionConfig
 from safe_bc.tasks.env_config import Renderer, canonical_renderer
+
+EXPERT = "expert"
+"""``mode`` (and default name) of the expert's row; the default expert's policy key."""
 
 FLAT_FIELDS: dict[str, Any] = {
     "name": "",
@@ -69,9 +80,45 @@ def _renderer(name: str, renderer: Renderer | None) -> Renderer | None:
         raise ValueError(f"method {name!r}: {e}") from None
 
 
+def _plain(value: Any) -> Any:
+    return dataclasses.asdict(value) if dataclasses.is_dataclass(value) else value
+
+
+class Runs(Protocol):
+    """What the runner gives a row to make its policy and its run: the effects (files, Ray)
+    stay in the runner, which of them a row needs is the row's."""
+
+    comparison: Any
+    """The comparison being run."""
+
+    def agent(self, row: Agent, seed: int) -> Any:
+        """The trained BC agent of ``row`` for ``seed``, as a policy source."""
+        ...
+
+    def improved(self, row: FromStart, seed: int) -> Any:
+        """The finished run of ``row`` for ``seed`` (:class:`~safe_bc.methods.Improved`)."""
+        ...
+
+    def run_method(self, row: FromStart, seed: int) -> Any:
+        """Run (or resume) ``row``'s method for ``seed``: its :class:`~safe_bc.methods.Improved`."""
+        ...
+
+    def expert(self, config: Any) -> Any:
+        """The task's expert with ``config`` (``None``: the demonstrations' own)."""
+        ...
+
+    def masked(self, source: Any) -> Any:
+        """``source`` with the steering indicator painted black."""
+        ...
+
+    def handover(self, row: Handover, net: Any, seed: int) -> Any:
+        """``net`` with the scripted expert acting where ``row`` hands over."""
+        ...
+
+
 @dataclass(frozen=True)
 class Row:
-    """What every row has: a name and a label; the flat view (:meth:`flat`)."""
+    """The interface every kind of row meets (the module doc); ``c`` is the comparison."""
 
     @property
     def shown(self) -> str:
@@ -83,37 +130,86 @@ class Row:
         """The row whose agents this row uses (``""``: its own)."""
         return ""
 
-    def _flat(self) -> dict[str, Any]:
-        """This row's values of :data:`FLAT_FIELDS` that differ from the defaults."""
-        raise NotImplementedError
-
-    def __getattr__(self, name: str) -> Any:
-        if name in FLAT_FIELDS and "name" in vars(self):
-            return self._flat().get(name, FLAT_FIELDS[name])
-        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
-
-    def flat(self) -> dict[str, Any]:
-        """The flat record as ``dataclasses.asdict`` wrote it: every field of
-        :data:`FLAT_FIELDS` in order, configs as dicts (then, for a method without a flat
-        field, ``method`` and ``config``; for a handover with per-dimension widths or a cap,
-        ``handover``)."""
-        own = self._flat()
-        out = {k: dataclasses.asdict(v) if dataclasses.is_dataclass(v) else v
-               for k, v in ({**FLAT_FIELDS, **own}).items() if k in FLAT_FIELDS}  # fmt: skip
-        for k in ("method", "config"):
-            if k in own:
-                out[k] = dataclasses.asdict(own[k]) if dataclasses.is_dataclass(own[k]) else own[k]
-        handover = vars(self).get("handover")
-        if handover is not None and (
-            handover.widths or handover.fallback != "expert" or handover.stall or handover.pace
-        ):
-            out["handover"] = handover.to_dict()  # settings the flat fields cannot spell
-        return out
-
     @property
     def labels(self) -> dict[str, Any]:
         """Columns that identify the row in the episodes table."""
         return {"method": self.name, "mode": self.kind, "alpha": float("nan"), "rest": ""}  # type: ignore[attr-defined]
+
+    def policy_key(self, seed: int) -> str:
+        """Its cell's policy in the episode tables."""
+        return f"{self.name} seed={seed}"  # type: ignore[attr-defined]
+
+    def seeds_in(self, c: Any) -> tuple[int, ...]:
+        """Its training seeds (a derived row: its source row's)."""
+        return c.seeds_of(c.method(self.source))
+
+    def cell_folder(self, base: Path, seed: int) -> Path:
+        """Its cell's folder for ``seed`` under its own runs folder ``base``."""
+        return base / f"seed{seed}"
+
+    def demos_in(self, c: Any) -> Path:
+        """The demonstrations behind its agents (those of the row it derives from, else the
+        comparison's): its evaluation thresholds are their limits."""
+        return c.method(self.source).demos_in(c) if self.source else c.demos
+
+    def own_set(self) -> Path | None:
+        """A demonstration set of its own, collected if absent (``None``: none)."""
+        return None
+
+    def agent_run(self, c: Any, seed: int) -> RunConfig | None:
+        """The training run of its own BC agent for ``seed`` (``None``: it trains none)."""
+        return None
+
+    def needs(self, c: Any, seed: int) -> tuple[tuple[Row, int], ...]:
+        """The cells whose BC agents its cell ``seed`` needs trained first."""
+        return ()
+
+    @property
+    def budget_of(self) -> str:
+        """The row whose run fixes its run's budget (``""``: none)."""
+        return ""
+
+    def with_workers(self, workers: int) -> Row:
+        """This row with its run's rollout actors set to ``workers``, where it has them."""
+        return self
+
+    def curve_refs(self) -> tuple[str, ...]:
+        """The rows whose held-out reward the learning-curve figure draws beside it."""
+        return ()
+
+    def run_stamp(self, c: Any, seed: int) -> dict[str, Any]:
+        """What makes its cell ``seed``'s policy: the stamp's ``run``
+        (:func:`safe_bc.compare.run.cell_stamp`)."""
+        raise NotImplementedError
+
+    def method_run(self, runs: Runs, seed: int) -> Any:
+        """Run (or resume) its method for ``seed`` (``None``: it runs none)."""
+        return None
+
+    def policy(self, runs: Runs, seed: int) -> Any:
+        """The policy its cell ``seed`` evaluates."""
+        raise NotImplementedError
+
+    def net(self, runs: Runs, seed: int) -> Any:
+        """The net that a handover over this row hands over from."""
+        raise ValueError(f"row {self.name!r} has no agents to hand over")  # type: ignore[attr-defined]
+
+    def spelling(self) -> dict[str, Any]:
+        """This row's values of :data:`FLAT_FIELDS` that differ from the defaults (for a
+        method without a flat field, ``method`` and ``config``): ``Method(**spelling)``
+        builds it back."""
+        raise NotImplementedError
+
+    def record(self) -> dict[str, Any]:
+        """The flat record as ``dataclasses.asdict`` wrote it: every field of
+        :data:`FLAT_FIELDS` in order, configs as dicts (then, for a method without a flat
+        field, ``method`` and ``config``)."""
+        own = self.spelling()
+        out = {k: _plain(own.get(k, v)) for k, v in FLAT_FIELDS.items()}
+        for k in ("method", "config"):
+            if k in own:
+                out[k] = _plain(own[k])
+        return out
 
 
 @dataclass(frozen=True)
@@ -149,7 +245,39 @@ class Agent(Row):
             raise ValueError(f"method {self.name!r}: selection must be a SelectionConfig")
         object.__setattr__(self, "renderer", _renderer(self.name, self.renderer))
 
-    def _flat(self) -> dict[str, Any]:
+    def seeds_in(self, c: Any) -> tuple[int, ...]:
+        return self.seeds or c.train_seeds
+
+    def demos_in(self, c: Any) -> Path:
+        return self.demos or c.demos
+
+    def own_set(self) -> Path | None:
+        return self.demos
+
+    def agent_run(self, c: Any, seed: int) -> RunConfig:
+        """Its agent's run for ``seed``: its selection, its ``bc`` (else the comparison's)
+        with the training seed set."""
+        bc = self.bc or c.bc
+        return RunConfig(
+            self.selection, dataclasses.replace(bc, train=dataclasses.replace(bc.train, seed=seed))
+        )
+
+    def needs(self, c: Any, seed: int) -> tuple[tuple[Row, int], ...]:
+        return ((self, seed),)
+
+    def run_stamp(self, c: Any, seed: int) -> dict[str, Any]:
+        run = self.agent_run(c, seed).to_dict()
+        if self.demos is not None:  # (rows on the comparison's demos keep their stamps)
+            run = {**run, "demos": str(self.demos)}
+        return run
+
+    def policy(self, runs: Runs, seed: int) -> Any:
+        return runs.agent(self, seed)
+
+    def net(self, runs: Runs, seed: int) -> Any:
+        return runs.agent(self, seed)
+
+    def spelling(self) -> dict[str, Any]:
         return {"name": self.name, "selection": self.selection, "bc": self.bc,
                 "seeds": self.seeds, "label": self.label, "renderer": self.renderer,
                 "demos": self.demos}  # fmt: skip
@@ -192,7 +320,29 @@ class Expert(Row):
             )
         object.__setattr__(self, "renderer", _renderer(self.name, self.renderer))
 
-    def _flat(self) -> dict[str, Any]:
+    def policy_key(self, seed: int) -> str:
+        """``"expert"`` for the default expert (its stored evaluations' name), else by row."""
+        return EXPERT if self.config is None else super().policy_key(seed)
+
+    def seeds_in(self, c: Any) -> tuple[int, ...]:
+        return (0,)
+
+    def cell_folder(self, base: Path, seed: int) -> Path:
+        return base
+
+    def curve_refs(self) -> tuple[str, ...]:
+        return (self.name,)
+
+    def run_stamp(self, c: Any, seed: int) -> dict[str, Any]:
+        run: dict[str, Any] = {"expert": str(c.demos)}  # (the default expert's stamp as
+        if self.config is not None:  # before its own settings existed)
+            run["expert_config"] = dataclasses.asdict(self.config)
+        return run
+
+    def policy(self, runs: Runs, seed: int) -> Any:
+        return runs.expert(self.config)
+
+    def spelling(self) -> dict[str, Any]:
         return {"name": self.name, "expert": True, "expert_config": self.config,
                 "label": self.label, "renderer": self.renderer}  # fmt: skip
 
@@ -242,7 +392,66 @@ class FromStart(Row):
     def source(self) -> str:
         return self.start
 
-    def _flat(self) -> dict[str, Any]:
+    def needs(self, c: Any, seed: int) -> tuple[tuple[Row, int], ...]:
+        return ((c.method(self.start), seed),)
+
+    @property
+    def budget_of(self) -> str:
+        """The config's ``budget_of`` (``QueryConfig``: the row whose queries cap its rounds)."""
+        return getattr(self.config, "budget_of", "")
+
+    def with_workers(self, workers: int) -> Row:
+        if "workers" not in {f.name for f in dataclasses.fields(self.config)}:
+            return self
+        return dataclasses.replace(self, config=dataclasses.replace(self.config, workers=workers))
+
+    def curve_refs(self) -> tuple[str, ...]:
+        return (self.start,)
+
+    def siblings(self, c: Any) -> list[FromStart]:
+        """The other rows of ``c`` of the same method from the same start."""
+        return [
+            x
+            for x in c.methods
+            if isinstance(x, FromStart)
+            and (x.method, x.start) == (self.method, self.start)
+            and x.name != self.name
+        ]
+
+    def config_for(self, c: Any, seed: int, improved: dict | None = None) -> Any:
+        """Its run config for training seed ``seed`` (its ``seed`` set); a config whose
+        ``budget_of`` names another row resolved from that row's run of the seed in
+        ``improved`` (its :class:`~safe_bc.methods.Improved`, whose report has
+        ``queries_total``)."""
+        config = dataclasses.replace(self.config, seed=seed)
+        if self.budget_of and improved is not None:
+            config = config.with_budget(int(improved[self.budget_of, seed].report["queries_total"]))
+        return config
+
+    def identity(self, c: Any, seed: int) -> Any:
+        """What makes its run for ``seed`` (the method's identity of its config on the
+        comparison's task, :meth:`safe_bc.methods.MethodSpec.identify`); a ``budget_of`` row's
+        name is replaced by the identity of that row's run, which fixes the budget."""
+        identity = self.spec.identify(self.config_for(c, seed), c.task)
+        of = identity.get("budget_of", "") if isinstance(identity, dict) else ""
+        if of:
+            identity = {**identity, "budget_of": c.method(of).identity(c, seed)}
+        return identity
+
+    def run_stamp(self, c: Any, seed: int) -> dict[str, Any]:
+        start = c.method(self.start).agent_run(c, seed).to_dict()
+        return {"start": start, self.method: self.identity(c, seed)}
+
+    def method_run(self, runs: Runs, seed: int) -> Any:
+        return runs.run_method(self, seed)
+
+    def policy(self, runs: Runs, seed: int) -> Any:
+        return runs.improved(self, seed).policy
+
+    def net(self, runs: Runs, seed: int) -> Any:
+        return runs.improved(self, seed).net
+
+    def spelling(self) -> dict[str, Any]:
         own = {"name": self.name, "start": self.start, "label": self.label,
                "renderer": self.renderer}  # fmt: skip
         if self.method in FLAT_METHODS:
@@ -283,7 +492,32 @@ class Handover(Row):
     def source(self) -> str:
         return self.of
 
-    def _flat(self) -> dict[str, Any]:
+    def run_stamp(self, c: Any, seed: int) -> dict[str, Any]:
+        of = c.method(self.of).run_stamp(c, seed)
+        h = self.handover
+        if h is None:
+            return {"fallback_of": of, "fallback": "expert", "eps": c.width}
+        run: dict[str, Any] = {"fallback_of": of, "deferral": "expert", "width": h.width}
+        if h.hold:  # (rows without a hold keep their stamps)
+            run["hold"] = h.hold
+        if h.lookahead:
+            run["lookahead"] = h.lookahead
+        if h.hold_on:
+            run["hold_on"] = list(h.hold_on)
+        if h.widths:
+            run["widths"] = dict(h.widths)
+        if h.fallback != "expert":
+            run["fallback"] = h.fallback
+        if h.stall:
+            run.update(stall=h.stall, stall_hold=h.stall_hold)
+        if h.pace:
+            run.update(pace=h.pace, pace_steps=h.pace_steps, pace_hold=h.pace_hold)
+        return run
+
+    def policy(self, runs: Runs, seed: int) -> Any:
+        return runs.handover(self, runs.comparison.method(self.of).net(runs, seed), seed)
+
+    def spelling(self) -> dict[str, Any]:
         own = {"name": self.name, "fallback_of": self.of, "label": self.label,
                "renderer": self.renderer}  # fmt: skip
         h = self.handover
@@ -291,6 +525,15 @@ class Handover(Row):
             own.update(defer_width=h.width, defer_hold=h.hold, defer_lookahead=h.lookahead,
                        defer_hold_on=h.hold_on)  # fmt: skip
         return own
+
+    def record(self) -> dict[str, Any]:
+        """The flat record, and ``handover`` where the flat fields cannot spell its settings
+        (per-dimension widths, a fallback other than the expert, a stall or pace cap)."""
+        out = super().record()
+        h = self.handover
+        if h is not None and (h.widths or h.fallback != "expert" or h.stall or h.pace):
+            out["handover"] = h.to_dict()
+        return out
 
 
 @dataclass(frozen=True)
@@ -325,7 +568,17 @@ class View(Row):
     def source(self) -> str:
         return self.of
 
-    def _flat(self) -> dict[str, Any]:
+    def run_stamp(self, c: Any, seed: int) -> dict[str, Any]:
+        of = c.method(self.of).run_stamp(c, seed)
+        if self.masked:
+            return {"masked_of": of, "view": "steering indicator masked"}
+        return {"agents_of": of, "view": "as trained"}
+
+    def policy(self, runs: Runs, seed: int) -> Any:
+        agent = runs.comparison.method(self.of).net(runs, seed)
+        return runs.masked(agent) if self.masked else agent
+
+    def spelling(self) -> dict[str, Any]:
         key = "masked_of" if self.masked else "agents_of"
         return {"name": self.name, key: self.of, "label": self.label, "renderer": self.renderer}
 

@@ -21,7 +21,10 @@ policy goes through the one evaluation path
 (:func:`safe_bc.distributed.evaluate.evaluate_policies`), all missing ones in one call per env
 and thresholds. The driver is a plan (:func:`plan_evaluations`, pure), the runs
 (:func:`_train_agents`, :func:`_improve_cell`, :func:`_evaluate`) and the report
-(:func:`_report`, :func:`write_outputs`).
+(:func:`_report`, :func:`write_outputs`). What differs between kinds of row (the agent it
+trains, the method it runs, its stamp, its policy) is the row's own
+(:class:`~safe_bc.compare.rows.Row`); the runner calls that interface, supplies the effects
+(:class:`_Runs`) and never asks a row's kind.
 """
 
 from __future__ import annotations
@@ -39,13 +42,10 @@ from safe_bc.compare.eval_store import episodes_path, steps_path
 from safe_bc.compare.spec import (
     EXPERT,
     PAPER_TABLE1,
-    Agent,
     Comparison,
-    Expert,
     FromStart,
     Handover,
     Row,
-    View,
     build_table,
     machines,
     render_markdown,
@@ -73,12 +73,11 @@ def _json(x: Any) -> Any:
 
 
 def run_config(comparison: Comparison, method: Row, seed: int) -> RunConfig:
-    """A BC row's training run for ``seed``."""
-    assert isinstance(method, Agent)
-    bc = method.bc or comparison.bc
-    return RunConfig(
-        method.selection, dataclasses.replace(bc, train=dataclasses.replace(bc.train, seed=seed))
-    )
+    """A BC row's training run for ``seed`` (:meth:`~safe_bc.compare.rows.Row.agent_run`)."""
+    run = method.agent_run(comparison, seed)
+    if run is None:
+        raise ValueError(f"row {method.name!r} trains no BC agent of its own")
+    return run
 
 
 def eval_config(comparison: Comparison, method: Row | None = None) -> EvalConfig:
@@ -109,17 +108,14 @@ def track_seeds(comparison: Comparison) -> list[int]:
 
 
 def selection_eps(comparison: Comparison) -> float:
-    """``eps``, or the task's."""
-    return task_defaults(comparison.task).eps if comparison.eps is None else comparison.eps
+    """``eps``, or the task's (:attr:`Comparison.width`)."""
+    return comparison.width
 
 
 def demos_of(comparison: Comparison, method: Row) -> Path:
     """The demonstrations behind ``method``'s agents (its own ``demos``, those of the row it
     derives from, else the comparison's): its evaluation thresholds are their limits."""
-    if method.source:
-        return demos_of(comparison, comparison.method(method.source))
-    own = method.demos if isinstance(method, Agent) else None
-    return own or comparison.demos
+    return method.demos_in(comparison)
 
 
 def own_demos(comparison: Comparison) -> dict[Path, Any]:
@@ -130,13 +126,14 @@ def own_demos(comparison: Comparison) -> dict[Path, Any]:
     task = comparison.task
     out: dict[Path, Any] = {}
     for m in comparison.methods:
-        if isinstance(m, Agent) and m.demos is not None and m.demos not in out:
+        path = m.own_set()
+        if path is not None and path not in out:
             renderer = m.renderer or DEFAULT_RENDERER
             if comparison.collect is None:
-                out[m.demos] = CollectConfig.for_task(task_defaults(task, renderer))
+                out[path] = CollectConfig.for_task(task_defaults(task, renderer))
             else:  # the comparison's collection, drawn by the row's renderer
                 env = dataclasses.replace(comparison.collect.env, renderer=renderer)
-                out[m.demos] = dataclasses.replace(comparison.collect, env=env)
+                out[path] = dataclasses.replace(comparison.collect, env=env)
     own = out.pop(comparison.demos, None)
     first = comparison.collect or own or CollectConfig.for_task(task_defaults(task))
     return {comparison.demos: first, **out}
@@ -167,13 +164,13 @@ def _cells(comparison: Comparison) -> list[tuple[Row, int]]:
 
 def _folder(comparison: Comparison, method: Row, seed: int) -> Path:
     stem = comparison.runs or comparison.name
-    base = comparison.out / f"{stem}_runs" / run_slug(method.name)
-    return base if isinstance(method, Expert) else base / f"seed{seed}"
+    return method.cell_folder(comparison.out / f"{stem}_runs" / run_slug(method.name), seed)
 
 
 def cell_stamp(comparison: Comparison, method: Row, seed: int, thresholds: Any) -> dict[str, Any]:
-    """What made the evaluation of cell ``(method, seed)``: its run (or agent, or expert), the
-    evaluation settings and tracks, the thresholds; its content key names the stored file
+    """What made the evaluation of cell ``(method, seed)``: its run (or agent, or expert: the
+    row's :meth:`~safe_bc.compare.rows.Row.run_stamp`), the evaluation settings and tracks, the
+    thresholds; its content key names the stored file
     (:func:`safe_bc.compare.eval_store.episodes_path`)."""
     settings = dataclasses.asdict(eval_config(comparison, method))
     settings.pop("workers")  # where episodes run changes nothing
@@ -181,49 +178,9 @@ def cell_stamp(comparison: Comparison, method: Row, seed: int, thresholds: Any) 
         settings.pop("lockstep_forward")
     if comparison.tracks != "heldout":
         settings["seeds"] = track_seeds(comparison)
-    run: Any
-    if isinstance(method, Agent):
-        run = run_config(comparison, method, seed).to_dict()
-        if method.demos is not None:  # (rows on the comparison's demos keep their stamps)
-            run = {**run, "demos": str(method.demos)}
-    elif isinstance(method, FromStart):
-        start = run_config(comparison, comparison.method(method.start), seed).to_dict()
-        run = {"start": start, method.method: method_identity(comparison, method, seed)}
-    elif isinstance(method, Handover):
-        of = cell_stamp(comparison, comparison.method(method.of), seed, thresholds)["run"]
-        h = method.handover
-        if h is None:
-            run = {"fallback_of": of, "fallback": "expert", "eps": selection_eps(comparison)}
-        else:
-            run = {"fallback_of": of, "deferral": "expert", "width": h.width}
-            if h.hold:  # (rows without a hold keep their stamps)
-                run["hold"] = h.hold
-            if h.lookahead:
-                run["lookahead"] = h.lookahead
-            if h.hold_on:
-                run["hold_on"] = list(h.hold_on)
-            if h.widths:
-                run["widths"] = dict(h.widths)
-            if h.fallback != "expert":
-                run["fallback"] = h.fallback
-            if h.stall:
-                run.update(stall=h.stall, stall_hold=h.stall_hold)
-            if h.pace:
-                run.update(pace=h.pace, pace_steps=h.pace_steps, pace_hold=h.pace_hold)
-    elif isinstance(method, View):
-        of = cell_stamp(comparison, comparison.method(method.of), seed, thresholds)["run"]
-        if method.masked:
-            run = {"masked_of": of, "view": "steering indicator masked"}
-        else:
-            run = {"agents_of": of, "view": "as trained"}
-    else:  # (the default expert's stamp as before its own settings existed)
-        assert isinstance(method, Expert)
-        run = {"expert": str(comparison.demos)}
-        if method.config is not None:
-            run["expert_config"] = dataclasses.asdict(method.config)
     return _json(
         {
-            "run": run,
+            "run": method.run_stamp(comparison, seed),
             "eval": settings,
             "thresholds": [float(x) for x in thresholds],
             "keep_steps": method.name in comparison.traces and seed == comparison.train_seeds[0],
@@ -262,27 +219,15 @@ def _agent_ok(folder: Path, run: RunConfig, demos: Path, digest: str) -> bool:
 def method_config(
     comparison: Comparison, method: FromStart, seed: int, improved: dict | None = None
 ) -> Any:
-    """A method row's run config for training seed ``seed`` (its ``seed`` set); a config whose
-    ``budget_of`` names another row resolved from that row's run of the seed in ``improved``
-    (its :class:`~safe_bc.methods.Improved`, whose report has ``queries_total``)."""
-    config = dataclasses.replace(method.config, seed=seed)
-    of = getattr(config, "budget_of", "")
-    if of and improved is not None:
-        config = config.with_budget(int(improved[of, seed].report["queries_total"]))
-    return config
+    """A method row's run config for training seed ``seed``
+    (:meth:`~safe_bc.compare.rows.FromStart.config_for`)."""
+    return method.config_for(comparison, seed, improved)
 
 
 def method_identity(comparison: Comparison, method: FromStart, seed: int) -> Any:
-    """What makes a method row's run for ``seed`` (the method's identity of its config on the
-    comparison's task, :meth:`safe_bc.methods.MethodSpec.identify`); a ``budget_of`` row's
-    name is replaced by the identity of that row's run, which fixes the budget."""
-    identity = method.spec.identify(method_config(comparison, method, seed), comparison.task)
-    of = identity.get("budget_of", "") if isinstance(identity, dict) else ""
-    if of:
-        source = comparison.method(of)
-        assert isinstance(source, FromStart)
-        identity = {**identity, "budget_of": method_identity(comparison, source, seed)}
-    return identity
+    """What makes a method row's run for ``seed``
+    (:meth:`~safe_bc.compare.rows.FromStart.identity`)."""
+    return method.identity(comparison, seed)
 
 
 def selfimprove_config(comparison: Comparison, method: FromStart, seed: int) -> Any:
@@ -308,14 +253,10 @@ def _copy_shared_rounds(c: Comparison, method: FromStart, seed: int, folder: Pat
 
     from safe_bc.methods.selfimprove.config import DONE, round_dir
 
-    mine = method_identity(c, method, seed)
+    mine = method.identity(c, seed)
     best: tuple[int, Path] | None = None
-    for other in c.methods:
-        if not isinstance(other, FromStart) or other.method != method.method:
-            continue
-        if other.name == method.name or other.start != method.start:
-            continue
-        theirs = method_identity(c, other, seed)
+    for other in method.siblings(c):
+        theirs = other.identity(c, seed)
         if theirs["rounds"] >= mine["rounds"] or {**theirs, "rounds": 0} != {**mine, "rounds": 0}:
             continue
         source = _folder(c, other, seed) / other.spec.subfolder
@@ -381,32 +322,59 @@ def _run_method(
         return run()
 
 
-def _fallback_source(
-    comparison: Comparison, method: Handover, seed: int, thresholds: Any, improved: dict
-) -> Any:
-    """A handover row's policy: the agent of its ``of`` row (a BC agent, or a method run's
-    net without its own shield, from ``improved``) with the scripted expert in the critical
-    states (:class:`~safe_bc.compare.rows.Handover`)."""
-    from safe_bc.bc import load_checkpoint
-    from safe_bc.methods.improve import ImprovedSource
-    from safe_bc.methods.improve.shield import Shield
-    from safe_bc.rollout.collect import stored_expert_config
-    from safe_bc.selection import CriticalZone
+@dataclasses.dataclass
+class _Runs:
+    """The runner's side of :class:`~safe_bc.compare.rows.Runs`: the effects a row's policy
+    and run are made of (checkpoints read, methods run, the expert and its handovers)."""
 
-    c = comparison
-    of = c.method(method.of)
-    if isinstance(of, Agent):
-        net = NetSource.from_model(*load_checkpoint(_folder(c, of, seed) / "agent"))
-    else:
-        net = improved[of.name, seed].net
-    limits, expert = tuple(float(x) for x in thresholds), stored_expert_config(c.demos)
-    h = method.handover
-    if h is not None:
-        from safe_bc.methods.queries.defer import handover_source
+    comparison: Comparison
+    sets: dict[Path, Any] = dataclasses.field(default_factory=dict)
+    """Each demonstration set, loaded (a method run's training data)."""
+    limits: dict[Path, Any] = dataclasses.field(default_factory=dict)
+    """Each demonstration set's thresholds ``d_s``."""
+    runs: dict | None = None
+    """The method runs done so far, by ``(row, seed)`` (a ``budget_of`` row's source's)."""
+    command: str | None = None
 
-        return handover_source(net, h, expert, limits, task_defaults(c.task).safety_dims)
-    shield = Shield(CriticalZone(limits, selection_eps(c), "any"), task_defaults(c.task).env.env_id)
-    return ImprovedSource(net, ExpertSource(expert), shield)
+    def agent(self, row: Row, seed: int) -> Any:
+        from safe_bc.bc import load_checkpoint
+
+        return NetSource.from_model(*load_checkpoint(_folder(self.comparison, row, seed) / "agent"))
+
+    def improved(self, row: FromStart, seed: int) -> Any:
+        assert self.runs is not None
+        return self.runs[row.name, seed]
+
+    def run_method(self, row: FromStart, seed: int) -> Any:
+        c = self.comparison
+        return _run_method(c, row, seed, self.sets[demos_of(c, row)], self.command, self.runs)
+
+    def expert(self, config: Any) -> Any:
+        from safe_bc.rollout.collect import stored_expert_config
+
+        own = stored_expert_config(self.comparison.demos) if config is None else config
+        return ExpertSource(own)
+
+    def masked(self, source: Any) -> Any:
+        return MaskedSource(source)
+
+    def handover(self, row: Handover, net: Any, seed: int) -> Any:
+        """``net`` (a BC agent, or a method run's net without its own shield) with the scripted
+        expert in the critical states of ``row``, by its evaluation thresholds."""
+        from safe_bc.methods.improve import ImprovedSource
+        from safe_bc.methods.improve.shield import Shield
+        from safe_bc.rollout.collect import stored_expert_config
+        from safe_bc.selection import CriticalZone
+
+        c = self.comparison
+        limits = tuple(float(x) for x in self.limits[demos_of(c, row)])
+        expert, task = stored_expert_config(c.demos), task_defaults(c.task)
+        if row.handover is not None:
+            from safe_bc.methods.queries.defer import handover_source
+
+            return handover_source(net, row.handover, expert, limits, task.safety_dims)
+        shield = Shield(CriticalZone(limits, c.width, "any"), task.env.env_id)
+        return ImprovedSource(net, ExpertSource(expert), shield)
 
 
 def _load_sets(
@@ -422,14 +390,19 @@ def _load_sets(
     for path, collect in own_demos(comparison).items():
         ensure_demos(path, collect, progress=progress)
         sets[path], records[path] = read_demonstrations(path)
-    for m in comparison.methods:  # a BC row trains on frames drawn by the renderer it runs on
-        if isinstance(m, Agent):
-            path = demos_of(comparison, m)
-            env = eval_config(comparison, m).env
-            warning = check_frames_renderer(read_meta(path).renderer, env, path)
-            if warning and progress:
-                print(f"warning: {warning}")
+    for m in _trained_rows(comparison):  # a BC agent trains on frames drawn by its renderer
+        path = demos_of(comparison, m)
+        env = eval_config(comparison, m).env
+        warning = check_frames_renderer(read_meta(path).renderer, env, path)
+        if warning and progress:
+            print(f"warning: {warning}")
     return sets, records
+
+
+def _trained_rows(comparison: Comparison) -> list[Row]:
+    """The rows that train BC agents of their own."""
+    c = comparison
+    return [m for m in c.methods if any(m.agent_run(c, s) is not None for s in c.seeds_of(m))]
 
 
 def _train_agents(
@@ -446,13 +419,12 @@ def _train_agents(
 
     demos = sets[c.demos]
     digests = {path: record["digest"] for path, record in records.items()}
+    runs = [(m, s, m.agent_run(c, s)) for m, s in cells]
     todo = [
-        (m, s, run_config(c, m, s))
-        for m, s in cells
-        if isinstance(m, Agent)
-        and not _agent_ok(
-            _folder(c, m, s) / "agent", run_config(c, m, s), demos_of(c, m), digests[demos_of(c, m)]
-        )
+        (m, s, run)
+        for m, s, run in runs
+        if run is not None
+        and not _agent_ok(_folder(c, m, s) / "agent", run, demos_of(c, m), digests[demos_of(c, m)])
     ]
     for m, _, run in todo:
         select_for(sets[demos_of(c, m)], run.selection).sampler(
@@ -503,13 +475,14 @@ def _improve_cell(
     """Run (or resume) the method run of cell ``(m, s)``: its learning curve, the metadata of
     the machine that ran it and the method's :class:`~safe_bc.methods.Improved`; ``None`` for
     the other rows. ``improved``: the runs done so far (a ``budget_of`` row's source's)."""
-    if not isinstance(m, FromStart):
+    runs = _Runs(c, sets, runs=improved, command=command)
+    done = m.method_run(runs, s)
+    if done is None:
         return None
-    done = _run_method(c, m, s, sets[demos_of(c, m)], command, improved)
     history = done.history.assign(method=m.name, train_seed=s)
     if done.meta is not None:
         return history, done.meta, done
-    where = _folder(c, m, s) / m.spec.subfolder / "run.json"  # the machine that last ran it
+    where = _folder(c, m, s) / m.spec.subfolder / "run.json"  # type: ignore[attr-defined]  # the machine that last ran it
     if done.fresh or not where.is_file():
         write_text_atomic(where, json.dumps(_json(run_metadata())))
     return history, json.loads(where.read_text()), done
@@ -535,20 +508,13 @@ def run_cell(
     m, s = c.method(name), int(seed_text)
     if s not in c.seeds_of(m):
         raise ValueError(f"{name} has training seeds {list(c.seeds_of(m))}, not {s}")
-    has_workers = isinstance(m, FromStart) and "workers" in {
-        f.name for f in dataclasses.fields(m.config)
-    }
-    if workers is not None and has_workers:
-        assert isinstance(m, FromStart)
-        m = dataclasses.replace(m, config=dataclasses.replace(m.config, workers=workers))
+    if workers is not None and m.with_workers(workers) != m:
+        m = m.with_workers(workers)
         c = dataclasses.replace(c, methods=tuple(m if x.name == name else x for x in c.methods))
     sets, records = _load_sets(c, progress)
-    needs = [(m, s)] if isinstance(m, Agent) else []
-    if isinstance(m, FromStart):
-        needs.append((c.method(m.start), s))
-    _train_agents(c, sets, records, needs, progress)
+    _train_agents(c, sets, records, list(m.needs(c, s)), progress)
     command, improved = run_metadata().get("command"), {}
-    of = getattr(m.config, "budget_of", "") if isinstance(m, FromStart) else ""
+    of = m.budget_of
     if of:  # the run that sets the budget first (resumed when done)
         improved[of, s] = _improve_cell(c, c.method(of), s, sets, command)[2]  # type: ignore[index]
     _improve_cell(c, m, s, sets, command, improved)
@@ -574,9 +540,7 @@ def plan_evaluations(comparison: Comparison, limits: dict[Path, Any]) -> dict[st
     c = comparison
     plan: dict[str, Cell] = {}
     for m, s in _cells(c):
-        default_expert = isinstance(m, Expert) and m.config is None
-        key = EXPERT if default_expert else f"{m.name} seed={s}"
-        plan[key] = Cell(m, s, cell_stamp(c, m, s, limits[demos_of(c, m)]))
+        plan[m.policy_key(s)] = Cell(m, s, cell_stamp(c, m, s, limits[demos_of(c, m)]))
     return plan
 
 
@@ -620,7 +584,7 @@ def run_comparison(
             run_metas.append(run_meta)
     # 3. the evaluations not stored, in one call per (env, thresholds); 4. the outputs
     plan = plan_evaluations(c, limits)
-    stored, eval_metas = _evaluate(c, plan, limits, improved, meta, progress)
+    stored, eval_metas = _evaluate(c, plan, _Runs(c, sets, limits, improved), meta, progress)
     meta["seconds"] = round(time.perf_counter() - started, 1)
     meta["inputs"] = {**meta["inputs"], "runs": run_digests(c, plan)}
     meta["demo_safety_mean"] = float(combined(sets[c.demos].safety[sets[c.demos].scored]).mean())
@@ -630,36 +594,17 @@ def run_comparison(
     return _report(c, plan, stored, meta, histories)
 
 
-def _source(c: Comparison, cell: Cell, limits: dict[Path, Any], improved: dict) -> Any:
-    """The policy that cell ``cell`` evaluates."""
-    from safe_bc.bc import load_checkpoint
-    from safe_bc.rollout.collect import stored_expert_config
-
-    m, s = cell.row, cell.seed
-    if isinstance(m, Expert):
-        return ExpertSource(stored_expert_config(c.demos) if m.config is None else m.config)
-    if isinstance(m, Agent):
-        return NetSource.from_model(*load_checkpoint(_folder(c, m, s) / "agent"))
-    if isinstance(m, FromStart):
-        return improved[m.name, s].policy
-    if isinstance(m, View):
-        agent = NetSource.from_model(*load_checkpoint(_folder(c, c.method(m.of), s) / "agent"))
-        return MaskedSource(agent) if m.masked else agent
-    assert isinstance(m, Handover)
-    return _fallback_source(c, m, s, limits[demos_of(c, m)], improved)
-
-
 def _evaluate(
     c: Comparison,
     plan: dict[str, Cell],
-    limits: dict[Path, Any],
-    improved: dict,
+    runs: _Runs,
     meta: dict[str, Any],
     progress: bool,
 ) -> tuple[dict[str, pd.DataFrame], list[dict[str, Any]]]:
     """Every planned cell's episodes (by policy key), read from its stored evaluation or
     evaluated now (all missing ones in one call per env and thresholds, each then stored under
-    its key), and the metadata of each evaluation."""
+    its key), and the metadata of each evaluation; each policy made by its row
+    (:meth:`~safe_bc.compare.rows.Row.policy`) through ``runs``."""
     from safe_bc.distributed.evaluate import LOCKSTEP_ENVS, evaluate_policies
 
     stored: dict[str, pd.DataFrame] = {}
@@ -679,8 +624,8 @@ def _evaluate(
     for keys in groups.values():
         m = plan[keys[0]].row
         episodes, steps = evaluate_policies(
-            {k: _source(c, plan[k], limits, improved) for k in keys}, eval_config(c, m),
-            thresholds=limits[demos_of(c, m)], progress=progress,
+            {k: plan[k].row.policy(runs, plan[k].seed) for k in keys}, eval_config(c, m),
+            thresholds=runs.limits[demos_of(c, m)], progress=progress,
             envs_per_worker=LOCKSTEP_ENVS, seeds=track_seeds(c),
         )  # fmt: skip
         for key in keys:
@@ -727,7 +672,7 @@ def _report(
         if cell.stamp["keep_steps"]:
             st = read_table(steps_path(c.out, cell.stamp))[0]
             traces.append(st.assign(policy=key))
-        if isinstance(m, Agent):
+        if m.agent_run(c, s) is not None:  # its own agent's training row
             extra = read_checkpoint_meta(_folder(c, m, s) / "agent")["extra"]
             train_rows.append({**labels, **extra["train_row"]})
     episodes = episodes_table(plan, stored)
@@ -782,14 +727,11 @@ def write_outputs(
             )  # fmt: skip
         elif figure == "learning_curves" and history is not None and len(history):
             means = episodes.groupby("method")["reward"].mean()
-            refs = {  # the expert's and the starts' held-out mean reward
+            named = {r for m in c.methods for r in m.curve_refs()}  # the expert's, the starts'
+            refs = {  # their held-out mean reward, in table order
                 c.label_of(m.name): float(means[m.name])
                 for m in c.methods
-                if m.name in means
-                and (
-                    isinstance(m, Expert)
-                    or m.name in {x.source for x in c.methods if isinstance(x, FromStart)}
-                )
+                if m.name in named and m.name in means
             }
             labels = {m.name: m.shown for m in c.methods}
             plot_learning_curves(history, refs, c.out / file, labels=labels)

@@ -33,16 +33,23 @@ import numpy as np
 import pandas as pd
 
 from safe_bc.bc.config import BCConfig
-from safe_bc.compare.rows import KINDS, Agent, Expert, FromStart, Handover, Method, Row, View
+from safe_bc.compare.rows import (
+    EXPERT,
+    KINDS,
+    Agent,
+    Expert,
+    FromStart,
+    Handover,
+    Method,
+    Row,
+    View,
+)
 from safe_bc.metrics import METRICS, paired_crossed, summarize_crossed
 from safe_bc.policy import LockstepForward, check_lockstep_forward
 from safe_bc.report import fmt_ci
 from safe_bc.tasks import TASKS, Task, task_defaults
 
 __all__ = ["Agent", "Comparison", "Expert", "FromStart", "Handover", "Method", "Row", "View"]
-
-EXPERT = "expert"
-"""``mode`` (and default name) of the expert's row."""
 
 FIGURES = ("alpha_sweep", "traces", "learning_curves")
 """Figures a comparison can ask for: reward and safety against alpha
@@ -236,9 +243,8 @@ class Comparison:
     def _take_width(self) -> None:
         """BC rows whose ``selection.eps`` is unset take the comparison's width (:attr:`eps`,
         else the task's)."""
-        width = task_defaults(self.task).eps if self.eps is None else self.eps
         rows = tuple(
-            dataclasses.replace(m, selection=m.selection.with_eps(width))
+            dataclasses.replace(m, selection=m.selection.with_eps(self.width))
             if isinstance(m, Agent) and m.selection.eps is None
             else m
             for m in self.methods
@@ -259,19 +265,20 @@ class Comparison:
                 f"from start {m.start!r}"
             )
 
+    @property
+    def width(self) -> float:
+        """The critical-zone width of its evaluation and selection: :attr:`eps`, else the
+        task's."""
+        return task_defaults(self.task).eps if self.eps is None else self.eps
+
     def method(self, name: str) -> Row:
         """The row called ``name``."""
         return next(m for m in self.methods if m.name == name)
 
     def seeds_of(self, method: Row) -> tuple[int, ...]:
         """The training seeds of ``method`` (its own, else the comparison's; derived rows:
-        their source row's; the expert: ``(0,)``)."""
-        if isinstance(method, Expert):
-            return (0,)
-        if method.source:
-            return self.seeds_of(self.method(method.source))
-        assert isinstance(method, Agent)
-        return method.seeds or self.train_seeds
+        their source row's; the expert: ``(0,)``; :meth:`~safe_bc.compare.rows.Row.seeds_in`)."""
+        return method.seeds_in(self)
 
     def with_deferral(self, rows: Iterable[Row], **changes: Any) -> Comparison:
         """This comparison with its deferral rows (handovers with a ``HandoverConfig``)
@@ -292,7 +299,7 @@ class Comparison:
         del out["shares_tracks_with"]
         if self.lockstep_forward == "batched":  # (recorded configs before the field hold)
             del out["lockstep_forward"]
-        out["methods"] = tuple(m.flat() for m in self.methods)
+        out["methods"] = tuple(m.record() for m in self.methods)
         out["demos"], out["out"] = str(self.demos), str(self.out)
         for m in out["methods"]:
             m["demos"] = None if m["demos"] is None else str(m["demos"])
