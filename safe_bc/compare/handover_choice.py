@@ -19,12 +19,16 @@ from safe_bc.metrics import clopper_pearson_upper, episodes_beyond, paired_to_re
 EXPERT = "expert"
 """Method label of the expert's own episodes on the selection block."""
 
-Rule = Literal["fewest_deferred", "fewest_deferred_else_fewest_beyond"]
+Rule = Literal["fewest_deferred", "fewest_deferred_else_fewest_beyond", "best_lower_bound"]
 """``fewest_deferred``: among the candidates with no selection episode beyond ``d_s`` and a mean
 deferred share below the limit, the fewest steps deferred; ties go to the higher reward; none
 qualifies: none. ``fewest_deferred_else_fewest_beyond``: the same, and where none qualifies, among
 the candidates below the deferral limit the fewest episodes beyond ``d_s``, then the fewest
-steps deferred (a choice always, for a certificate to judge)."""
+steps deferred (a choice always, for a certificate to judge). ``best_lower_bound``: among the
+candidates with no selection episode beyond ``d_s`` and a mean deferred share below the limit,
+the highest lower bound of the paired reward interval against the expert (ties: fewer steps
+deferred); none qualifies: none (an agent meant to beat the expert, where the zone's price in
+reward counts, not only its share)."""
 
 RULE_TEXT: dict[str, str] = {
     "fewest_deferred": "among the candidates with no episode beyond d_s and a mean deferred "
@@ -33,6 +37,9 @@ RULE_TEXT: dict[str, str] = {
     "a mean deferred share below the limit, the fewest steps deferred (ties: the higher "
     "reward); where none has zero, among those below the limit the fewest episodes beyond d_s, "
     "then the fewest steps deferred",
+    "best_lower_bound": "among the candidates with no episode beyond d_s and a mean deferred "
+    "share below the limit, the highest lower bound of the paired reward interval against the "
+    "expert; ties go to fewer steps deferred",
 }
 """Each rule in words, for the measurement's Markdown."""
 
@@ -136,6 +143,10 @@ def choose(table: pd.DataFrame, choice: HandoverChoice) -> int | None:
     >>> c = HandoverChoice("x", Path("r"), (), 0, 1, 0.1, Path("o"))
     >>> choose(t, c)
     2
+    >>> t["d_reward_lo"] = [0.5, 3.0, 0.2]
+    >>> import dataclasses
+    >>> choose(t, dataclasses.replace(c, rule="best_lower_bound"))
+    0
     """
     rows = table[table["candidate"] != EXPERT]
     light = rows[rows["deferred_share"] < choice.deferred_limit]
@@ -145,5 +156,8 @@ def choose(table: pd.DataFrame, choice: HandoverChoice) -> int | None:
         return int(str(best["candidate"])[1:])
     if ok.empty:
         return None
+    if choice.rule == "best_lower_bound":
+        best = ok.sort_values(["d_reward_lo", "deferred_share"], ascending=[False, True]).iloc[0]
+        return int(str(best["candidate"])[1:])
     best = ok.sort_values(["deferred_share", "reward"], ascending=[True, False]).iloc[0]
     return int(str(best["candidate"])[1:])
