@@ -16,8 +16,8 @@ Selection: 3 training seeds x 200 patients of held-out block 99 (new: no other t
 the same patients for every candidate. Rule, fixed here before the run: among the candidates
 with no programme beyond d_s and under 10% of sessions deferred, the highest lower bound of the
 paired reward interval against the guideline (ties: fewer sessions deferred); none qualifies:
-none. The chosen row becomes the study's handover; the study then certifies it on fresh patients
-(block 100).
+none. A chosen row would have become the study's handover, certified on fresh patients (block
+100). None qualified (``results/beyond_rehab/handover/choice.md``): the study's handover stays.
 
 Run: ``python -m scripts.handover_choice tune_jobs/handover/beyond_rehab.py``; writes
 ``results/beyond_rehab/handover/``.
