@@ -101,7 +101,7 @@ class Sizes:
     """How much work one repetition of each case does."""
 
     env_steps: int
-    """Env steps per variant per repetition (``bench_render``)."""
+    """Env steps per variant per repetition (the ``env`` case)."""
     collect_episodes: int
     """Episodes per collection run (both worker counts)."""
     collect_steps: int
