@@ -61,7 +61,7 @@ ablation: $(STAMP)
 # The raster renderer against the exact one (results/ablation/renderer/): frames, cost errors
 # and speeds, then exact agents on raster frames, then the whole pipeline on raster frames.
 renderer: $(STAMP)
-	$(BIN)/python -m benchmarks.render_accuracy
+	$(BIN)/python -m scripts.render_accuracy
 	for name in renderer pipeline pipeline_table1 pipeline_table1_alpha0; do \
 		$(BIN)/safe-bc compare tune_jobs/compare/renderer.py --name $$name $(ARGS) || exit 1; \
 	done

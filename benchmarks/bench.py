@@ -36,6 +36,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from types import ModuleType
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -101,7 +102,7 @@ class Sizes:
     """How much work one repetition of each case does."""
 
     env_steps: int
-    """Env steps per variant per repetition (``bench_render``)."""
+    """Env steps per variant per repetition (the ``env`` case)."""
     collect_episodes: int
     """Episodes per collection run (both worker counts)."""
     collect_steps: int
@@ -188,11 +189,6 @@ QUICK = Sizes(
     stream_source="",
     stream_synthetic_steps=20,
 )
-
-BATCH_SIZE = 64
-BARE_DISTINCT_BATCHES = 25
-"""The bare torch loop cycles over this many pre-built batches (200 would hold ~400 MB)."""
-
 
 # --------------------------------------------------------------------------------- helpers
 
@@ -329,49 +325,6 @@ def _maxrss_mb(who: int) -> float:
     return raw / 2**20 if sys.platform == "darwin" else raw / 1024
 
 
-# ------------------------------------------------------------------------------ case: env
-
-
-# -------------------------------------------------------------------------- case: collect
-
-
-# ---------------------------------------------------------------------------- case: train
-
-
-def _run_config(batches: int, seed: int) -> Any:
-    from safe_bc.bc import BCConfig, TrainConfig
-    from safe_bc.methods.experiment import RunConfig
-    from safe_bc.selection import DEFAULT_EPS, SelectionConfig
-
-    train = TrainConfig(batches=batches, batch_size=BATCH_SIZE, seed=seed, num_threads=1)
-    return RunConfig(SelectionConfig(eps=DEFAULT_EPS), BCConfig(train=train))
-
-
-# --------------------------------------------------------------------------- case: stream
-
-
-# ----------------------------------------------------------------------------- case: eval
-
-
-def _untrained_source(seed: int) -> Any:
-    """A default-config ``BCNet`` with seeded random weights, as a ``NetSource``."""
-    import torch
-
-    from safe_bc.bc import BCConfig, BCNet, ModelSpec
-    from safe_bc.rollout.evaluate import NetSource
-
-    cfg = BCConfig()
-    torch.manual_seed(seed)
-    model = BCNet(ModelSpec.for_data((96, 96, 3), 3), cfg.preprocess, cfg.network)
-    return NetSource.from_model(model, cfg)
-
-
-# ------------------------------------------------------------------------- case: study, final
-
-
-# ------------------------------------------------------------------------------ case: cli
-
-
 # ---------------------------------------------------------------------------- running cases
 
 _BENCHES: dict[str, str] = {case: f"benchmarks.cases.{case}:bench_{case}" for case in CASES}
@@ -379,12 +332,16 @@ _BENCHES: dict[str, str] = {case: f"benchmarks.cases.{case}:bench_{case}" for ca
 ``benchmarks/cases/``, each a function ``(sizes, repeats, seed) -> rows``."""
 
 
-def case_function(case: str) -> Callable[[Sizes, int, int], list[dict[str, Any]]]:
-    """The function of ``case`` (imports its file)."""
+def case_module(case: str) -> ModuleType:
+    """The file of ``case``, imported."""
     import importlib
 
-    module, _, name = _BENCHES[case].partition(":")
-    return getattr(importlib.import_module(module), name)
+    return importlib.import_module(_BENCHES[case].partition(":")[0])
+
+
+def case_function(case: str) -> Callable[[Sizes, int, int], list[dict[str, Any]]]:
+    """The function of ``case`` (imports its file)."""
+    return getattr(case_module(case), _BENCHES[case].partition(":")[2])
 
 
 def run_case(case: str, sizes: Sizes, repeats: int, seed: int = 0) -> dict[str, Any]:
@@ -515,15 +472,16 @@ def format_table(rows: Sequence[dict[str, Any]]) -> str:
 
 
 def bench_inputs(cases: Sequence[str], sizes: Sizes) -> dict[str, Any]:
-    """What the run read: the ``stream`` case's source set (its record: path, digest,
-    episodes) when it ran on one; every other case makes its own inputs (synthetic frames,
-    untrained nets seeded by ``--seed``, seeded tracks), so ``demos`` is ``None`` without it."""
-    source = Path(sizes.stream_source) if sizes.stream_source else None
-    if "stream" not in cases or source is None or not source.is_dir():
-        return {"demos": None, "made": "synthetic frames, seeded untrained nets, seeded tracks"}
-    from safe_bc.data.store import dataset_record
-
-    return {"demos": dataset_record(source)}
+    """What the run read: the record (path, digest, episodes) of the demonstration set a case
+    read, from the case file's ``dataset_read(sizes)`` where it has one (the ``stream`` case's
+    source set); the other cases make their own inputs (synthetic frames, untrained nets
+    seeded by ``--seed``, seeded tracks), so ``demos`` is ``None`` when no case read a set."""
+    for case in cases:
+        read = getattr(case_module(case), "dataset_read", None)
+        record = read(sizes) if read is not None else None
+        if record is not None:
+            return {"demos": record}
+    return {"demos": None, "made": "synthetic frames, seeded untrained nets, seeded tracks"}
 
 
 def write_results(

@@ -18,7 +18,7 @@ its network, one step at a time:
   per frame, but a batched pass may round differently from one-row passes (torch, oneDNN and
   MKL pick GEMM/conv kernels by shape and by the CPU's instruction set; on real frames 13-73
   of 360 action elements differed on both AMD and Intel machines:
-  ``results/checks/machine_types.md``, ``benchmarks/batch_rounding.py``), and a different
+  ``results/checks/machine_types.md``, ``scripts/batch_rounding.py``), and a different
   last bit of an action changes the rest of the episode. Claimed only: the same seeds and
   the same number of lockstep envs give the same episodes again on the same machine type and
   torch threads; not the one-env path's episodes, and not another CPU's.

@@ -48,12 +48,10 @@ def test_quick_ratios_finite_and_positive(quick_table):
 
 def test_env_step_breakdown_adds_up(quick_table):
     """The profiled step's parts (drawing, scaling, physics, costs, the rest) sum to it."""
-    from benchmarks.bench_render import STEP_PARTS
-
     frame, _ = quick_table
     parts = frame[frame["variant"].str.startswith("step part: ")]
     total = frame.loc[frame["variant"] == bench_env.PROFILED, "value"].item()
-    assert len(parts) == len(STEP_PARTS) + 1
+    assert len(parts) == len(bench_env.STEP_PARTS) + 1
     assert math.isclose(parts["value"].sum(), total, rel_tol=1e-9)
     assert math.isclose(parts["ratio"].sum(), 1.0, rel_tol=1e-9)
 

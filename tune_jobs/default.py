@@ -20,7 +20,7 @@ Budget: 16 trials (each 1 training seed, 1 CPU), 2000 training batches (the pape
 budget), suggested in 2 batches of 8: a trial's settings depend on the batches before it,
 never on how many trials run at once, which is as many as the cluster's CPUs allow (2 on a
 2-core laptop, 8 on 16 CPUs; ``--max-concurrent`` caps it). Batch 8 was chosen by
-``results/checks/batch_schedule.md`` (``python -m benchmarks.cluster_schedule``, the committed
+``results/checks/batch_schedule.md`` (``python -m scripts.cluster_schedule``, the committed
 runs replayed): +1% wall-clock against batches of 2 on 2 cores, 2.5x the trial rate on 16
 CPUs, TPE still suggests 8 of the 16 trials (batches of 16: a random search without
 screening); how much worse TPE's picks get with 8 instead of ~10 results is not measured.

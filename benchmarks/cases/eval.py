@@ -14,8 +14,21 @@ from benchmarks.bench import (
     _order,
     _row,
     _self_row,
-    _untrained_source,
 )
+
+
+def untrained_source(seed: int) -> Any:
+    """A default-config ``BCNet`` with seeded random weights, as a ``NetSource`` (also the
+    policy of the ``final``, ``improve`` and ``selfimprove`` cases)."""
+    import torch
+
+    from safe_bc.bc import BCConfig, BCNet, ModelSpec
+    from safe_bc.rollout.evaluate import NetSource
+
+    cfg = BCConfig()
+    torch.manual_seed(seed)
+    model = BCNet(ModelSpec.for_data((96, 96, 3), 3), cfg.preprocess, cfg.network)
+    return NetSource.from_model(model, cfg)
 
 
 def _time_evaluation(source: Any, config: Any, envs: int = 1) -> tuple[float, float, float]:
@@ -99,7 +112,7 @@ def bench_eval(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
     from safe_bc.tasks.carracing.expert import ExpertConfig
 
     torch.set_num_threads(1)  # what a 1-CPU Ray evaluation actor gets (OMP_NUM_THREADS=1)
-    sources = {"expert": ExpertSource(ExpertConfig()), "BC net": _untrained_source(seed)}
+    sources = {"expert": ExpertSource(ExpertConfig()), "BC net": untrained_source(seed)}
     from safe_bc.tasks.env_config import EnvConfig
 
     config = EvalConfig(  # the exact renderer: the one-env path every ratio is taken against

@@ -10,8 +10,8 @@ from benchmarks.bench import (
     _order,
     _row,
     _self_row,
-    _untrained_source,
 )
+from benchmarks.cases.eval import untrained_source
 
 
 def bench_final(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
@@ -22,7 +22,7 @@ def bench_final(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
 
     ensure_ray()
     cpus = max(1, int(cluster_cpus()))
-    sources = {"a": _untrained_source(seed), "b": _untrained_source(seed + 1)}
+    sources = {"a": untrained_source(seed), "b": untrained_source(seed + 1)}
     rates: dict[int, list[float]] = {1: [], cpus: []}
     for rep in range(repeats):
         for workers in _order(list(rates), rep):

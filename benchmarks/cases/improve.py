@@ -13,8 +13,8 @@ from benchmarks.bench import (
     _order,
     _row,
     _self_row,
-    _untrained_source,
 )
+from benchmarks.cases.eval import untrained_source
 
 IMPROVE_ENVS = 4
 """Envs of the improvement-rollout case (the episodes per iteration of
@@ -36,7 +36,7 @@ def bench_improve(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]
     ensure_ray()
     n = IMPROVE_ENVS
     workers = max(1, min(n, int(cluster_cpus())))
-    policy = _untrained_source(seed).build()
+    policy = untrained_source(seed).build()
     makers: dict[str, Callable[[], Any]] = {
         "in-process": lambda: LocalEnvs("CarRacing-v3", n),
         f"{workers} Ray actors": lambda: RayEnvs("CarRacing-v3", n, workers),

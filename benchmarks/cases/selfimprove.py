@@ -17,8 +17,8 @@ from benchmarks.bench import (
     _order,
     _row,
     _self_row,
-    _untrained_source,
 )
+from benchmarks.cases.eval import untrained_source
 
 SELFIMPROVE_ENVS = 8
 """The lockstep width the ``selfimprove`` case times (``SelfImproveConfig.lockstep_envs``)."""
@@ -118,7 +118,7 @@ def bench_selfimprove(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, A
 
     torch.set_num_threads(1)
     spec = task_defaults("carracing")
-    source = _untrained_source(seed)
+    source = untrained_source(seed)
     limits = (42.0, 51.0, 42.0)
     bounds = tuple(np.asarray(b, np.float32) for b in spec.action_bounds)
     base = ExploreJob(

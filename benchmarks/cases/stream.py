@@ -13,15 +13,25 @@ from typing import Any
 import numpy as np
 
 from benchmarks.bench import (
-    BATCH_SIZE,
     PAIRED_NOTE,
     Sizes,
     _maxrss_mb,
     _order,
     _row,
-    _run_config,
     _self_row,
 )
+from benchmarks.cases.train import BATCH_SIZE, run_config
+
+
+def dataset_read(sizes: Sizes) -> dict[str, Any] | None:
+    """The record (path, digest, episodes) of the source set this case reads at these sizes;
+    ``None`` when it makes synthetic episodes instead (the harness's ``bench_inputs``)."""
+    source = Path(sizes.stream_source) if sizes.stream_source else None
+    if source is None or not source.is_dir():
+        return None
+    from safe_bc.data.store import dataset_record
+
+    return dataset_record(source)
 
 
 def _synthetic_store(root: Path, episodes: int, steps: int, seed: int) -> Path:
@@ -101,7 +111,7 @@ def _stream_run(root: str, frames: str, batches: int, seed: int, conn: Any) -> N
     start = time.perf_counter()
     demos = load_demonstrations(Path(root), frames)  # type: ignore[arg-type]
     load_s = time.perf_counter() - start
-    result = train_run(demos, _run_config(batches, seed))[0]
+    result = train_run(demos, run_config(batches, seed))[0]
     digest = hashlib.sha256()
     for value in result.model.state_dict().values():
         digest.update(value.numpy().tobytes())

@@ -8,16 +8,29 @@ from typing import Any
 import numpy as np
 
 from benchmarks.bench import (
-    BARE_DISTINCT_BATCHES,
-    BATCH_SIZE,
     PAIRED_NOTE,
     Sizes,
     _order,
     _paired_ratio,
     _row,
-    _run_config,
     _self_row,
 )
+
+BATCH_SIZE = 64
+"""The batch size of the ``train`` and ``stream`` cases' training."""
+BARE_DISTINCT_BATCHES = 25
+"""The bare torch loop cycles over this many pre-built batches (200 would hold ~400 MB)."""
+
+
+def run_config(batches: int, seed: int) -> Any:
+    """The default agent's ``RunConfig`` with ``batches`` batches of :data:`BATCH_SIZE`, one
+    torch thread."""
+    from safe_bc.bc import BCConfig, TrainConfig
+    from safe_bc.methods.experiment import RunConfig
+    from safe_bc.selection import DEFAULT_EPS, SelectionConfig
+
+    train = TrainConfig(batches=batches, batch_size=BATCH_SIZE, seed=seed, num_threads=1)
+    return RunConfig(SelectionConfig(eps=DEFAULT_EPS), BCConfig(train=train))
 
 
 def synthetic_demos(n: int, seed: int = 0, episode_len: int = 250) -> Any:
@@ -91,8 +104,8 @@ def bench_train(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
     from safe_bc.methods.experiment import train_run
 
     demos = synthetic_demos(sizes.train_frames, seed)
-    config = _run_config(sizes.train_batches, seed)
-    train_run(demos, _run_config(2, seed))  # warm-up: the one-off torch._inductor import
+    config = run_config(sizes.train_batches, seed)
+    train_run(demos, run_config(2, seed))  # warm-up: the one-off torch._inductor import
     prebuilt = _prebuilt_batches(demos, config, min(sizes.train_batches, BARE_DISTINCT_BATCHES))
     runs: dict[str, list[float]] = {"bare": [], "pipeline": []}
     with_prepare: list[float] = []  # the same runs, frame preprocessing before the loop included

@@ -197,7 +197,7 @@ def test_same_study_same_trials_at_one_two_and_four_trials_at_once(
 ) -> None:
     """Two batches of 4 (TPE and the halving of the second batch read the first): 1 at a
     time (``max_concurrent=1``), 2 at a time (``None`` resolved from the session's 2 CPUs) and
-    4 at a time (``benchmarks.cluster_scaling --cpus 4``: its own local Ray of 4 logical CPUs
+    4 at a time (``scripts.cluster_scaling --cpus 4``: its own local Ray of 4 logical CPUs
     on this machine, in a subprocess) give the same trials."""
     import subprocess
     import sys
@@ -237,7 +237,7 @@ def test_same_study_same_trials_at_one_two_and_four_trials_at_once(
             assert t.constraints["violations"] == pytest.approx(row.constraint_violation)
 
     out = tmp_path / "scaling.parquet"
-    cmd = [sys.executable, "-m", "benchmarks.cluster_scaling", "--cpus", "4", "--study",
+    cmd = [sys.executable, "-m", "scripts.cluster_scaling", "--cpus", "4", "--study",
            str(study), "--batch-size", "4", "--results", str(tmp_path / "c4"), "--out",
            str(out)]  # fmt: skip
     env = {**os.environ, "PYTHONPATH": str(REPO), "RAY_AUTH_MODE": "disabled"}

@@ -15,7 +15,7 @@
 
 ``renderer`` and ``pipeline`` run on 20 held-out tracks of block 11. Row names are the keys of
 the committed ``results/ablation/renderer/`` tables, which seed the bootstrap. The frames,
-safety-cost errors and speeds of the renderers are ``python -m benchmarks.render_accuracy``.
+safety-cost errors and speeds of the renderers are ``python -m scripts.render_accuracy``.
 
 Run: ``safe-bc compare tune_jobs/compare/renderer.py --name NAME``; writes
 ``results/ablation/renderer/NAME*``.

@@ -169,8 +169,8 @@ class SelfImproveConfig:
     """Rollout actors (Ray); 0 rolls out in this process. Results do not depend on it."""
     lockstep_envs: int = 8
     """Envs each rollout process steps its runs in together (training runs and validation
-    episodes, one ``act_slots`` call per step; ``benchmarks/bench.py``'s self-imitation round
-    row measures it). With ``lockstep_forward="rows"`` results do not depend on it."""
+    episodes, one ``act_slots`` call per step; ``make bench``'s ``selfimprove`` case times it).
+    With ``lockstep_forward="rows"`` results do not depend on it."""
     lockstep_forward: Forward = "rows"
     """``"rows"``: the net computes each lockstep run's row on its own, so every run is the
     one-env run bit for bit on any CPU; ``"batched"``: one forward pass over the running runs

@@ -58,7 +58,7 @@ skid-mark particles), flip, indicators and scaling. After a ``state_pixels`` ren
 Editing ``road_poly`` vertices in place after ``reset()`` is not noticed (appending is).
 
 ``tests/tasks/carracing/test_fast_render.py`` checks frames against stock gymnasium;
-``python -m benchmarks.bench_render`` measures the speed-up.
+``python -m benchmarks.bench --cases env`` measures the speed-up.
 """
 
 from __future__ import annotations

@@ -16,7 +16,7 @@ pixel (its rows differ from stock's by at most 1, from where smoothscale's Y pas
 **Frames are not bit-identical to stock.** Road, grass and car edges differ by the
 anti-aliasing (a box average of ``supersample**2`` samples instead of gfxdraw's anti-aliased
 outline plus smoothscale's fixed-point filter), and so do the safety costs read off the
-frames. ``benchmarks/render_accuracy.py`` and ``tune_jobs/compare/renderer.py`` measure the frame
+frames. ``scripts/render_accuracy.py`` and ``tune_jobs/compare/renderer.py`` measure the frame
 and cost differences and what they do to agents (``results/ablation/renderer/``); no committed
 result uses this renderer. ``rgb_array``/``human`` renders are the exact ones of
 ``FastCarRacing``.
@@ -66,7 +66,7 @@ from safe_bc.tasks.carracing.fast_render import (
 __all__ = ["DEFAULT_SUPERSAMPLE", "RasterCarRacing"]
 
 DEFAULT_SUPERSAMPLE = 2
-"""Canvas side = ``96 * supersample``, chosen by ``benchmarks/render_accuracy.py``: the smallest
+"""Canvas side = ``96 * supersample``, chosen by ``scripts/render_accuracy.py``: the smallest
 (fastest) factor whose safety distances stay within 10% of eps of the exact ones on average
 (``results/ablation/renderer/``)."""
 _PANEL_STATE_ROWS = STATE_H * _PANEL_ROWS // WINDOW_H  # 12: the indicator panel in the state

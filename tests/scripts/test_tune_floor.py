@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from benchmarks.tune_floor import floor, markdown, step_ms
+from scripts.tune_floor import floor, markdown, step_ms
 
 
 def test_the_floor_adds_one_seed_trials_the_final_phase_and_the_fixed_costs() -> None:

@@ -2,7 +2,7 @@
 
 Usage::
 
-    python -m benchmarks.retrain_check      # 3 rows: plain BC, alpha 0.5, BC-Safe
+    python -m scripts.retrain_check      # 3 rows: plain BC, alpha 0.5, BC-Safe
 
 Each (method, training seed) row is retrained with ``safe_bc.cli.api.train`` (``safe-bc train``)
 with the settings the Table 1 comparison (``tune_jobs/compare/table1.py``) gives that row and

@@ -1,4 +1,4 @@
-"""benchmarks/retrain_check.py (formerly scripts/retrain_check.py): the Table 1 comparison
+"""scripts/retrain_check.py: the Table 1 comparison
 gives the checked rows the training settings the old script read from the committed table's
 metadata, the committed check's committed losses are Table 1's, and (slow) one row retrains to
 the committed loss and weights."""
@@ -10,14 +10,14 @@ from pathlib import Path
 
 import pytest
 
-from benchmarks.retrain_check import ROWS, TABLE1, retrain
 from safe_bc.compare.families import load_comparison
 from safe_bc.compare.run import run_config
 from safe_bc.data.store import read_table
 from safe_bc.run_config import RunConfig
 from safe_bc.selection import RULES, SelectionConfig
+from scripts.retrain_check import ROWS, TABLE1, retrain
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 CHECK = ROOT / "results/checks/table1_retrain.parquet"
 
 

@@ -5,10 +5,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from benchmarks.tune_side_by_side import markdown
 from safe_bc.data.store import read_table
+from scripts.tune_side_by_side import markdown
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_the_setting_replaces_the_default_sentence() -> None:

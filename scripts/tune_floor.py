@@ -18,7 +18,7 @@ design now in ``tune_jobs/default_two_seeds.py``.
 and 32 in float32 and under bfloat16 autocast, in one process, one thread (what a trial gets):
 the per-batch cost lower-precision kernels would save, on this CPU only.
 
-    python -m benchmarks.tune_floor [--precision]   # writes results/checks/make_tune/floor.md
+    python -m scripts.tune_floor [--precision]   # writes results/checks/make_tune/floor.md
 """
 
 from __future__ import annotations
@@ -40,8 +40,8 @@ RUNS = ROOT / "results/checks/make_tune"
 def floor(runs: Path = RUNS) -> dict[str, Any]:
     """The floor's pieces (seconds) from the ``new`` run's tables, and its ratio to ``old``'s
     wall-clock."""
-    from benchmarks.tune_side_by_side import run_row
     from safe_bc.study.spec import load_study
+    from scripts.tune_side_by_side import run_row
 
     spec = load_study(ROOT / "tune_jobs/default_two_seeds.py")  # the design it was made for
     timing, meta = read_table(runs / "new/timing.parquet")
@@ -124,7 +124,7 @@ def markdown(f: dict[str, Any], prec: pd.DataFrame | None) -> str:
     lines = [
         "# The least `make tune` can take on 2 cores within the default study's requirements",
         "",
-        "Made by `python -m benchmarks.tune_floor"
+        "Made by `python -m scripts.tune_floor"
         + (" --precision" if prec is not None else "")
         + "` from the side-by-side runs' tables (`old/`, `new/` beside this file; new at "
         f"{f['revision']}); see the module's docstring for what the floor keeps and drops.",

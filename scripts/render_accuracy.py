@@ -3,7 +3,7 @@ each renderer costs per step.
 
 Usage::
 
-    python -m benchmarks.render_accuracy        # results/ablation/renderer/frames.parquet, ...
+    python -m scripts.render_accuracy        # results/ablation/renderer/frames.parquet, ...
 
 The exact renderer (``renderer="exact"``, formerly ``"fast"``) spends most of a step in pygame
 filling and shrinking a 1000x800 surface; ``renderer="raster"``
@@ -174,7 +174,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--demos", type=Path, default=Path("data/demos"))
     p.add_argument("--out", type=Path, default=Path("results/ablation/renderer"))
     args = p.parse_args(argv)
-    command = shlex.join(["python", "-m", "benchmarks.render_accuracy",
+    command = shlex.join(["python", "-m", "scripts.render_accuracy",
                           *(sys.argv[1:] if argv is None else argv)])  # fmt: skip
     limits = load_demonstrations(args.demos).limits
     tracks = EvalConfig(seed=args.eval_seed + 1, episodes=args.tracks).seeds()

@@ -2,7 +2,7 @@
 differently from one-row passes on real CarRacing frames (why ``BCNet.forward_rows`` runs each
 row on its own), with ``forward_rows`` checked against one-row passes.
 
-Run: ``python -m benchmarks.batch_rounding``; ``results/checks/machine_types.md`` holds its
+Run: ``python -m scripts.batch_rounding``; ``results/checks/machine_types.md`` holds its
 output on the machine types it was run on.
 """
 

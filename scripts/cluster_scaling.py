@@ -2,9 +2,9 @@
 
 Usage::
 
-    python -m benchmarks.cluster_scaling --cpus 2 --trials 4 --batch-size 16 --out OUT.parquet
-    python -m benchmarks.cluster_scaling --cpus 16 --trials 16 --batch-size 16 --out OUT.parquet
-    python -m benchmarks.cluster_scaling --report OUT.parquet      # OUT.md: the rows + ratios
+    python -m scripts.cluster_scaling --cpus 2 --trials 4 --batch-size 16 --out OUT.parquet
+    python -m scripts.cluster_scaling --cpus 16 --trials 16 --batch-size 16 --out OUT.parquet
+    python -m scripts.cluster_scaling --report OUT.parquet      # OUT.md: the rows + ratios
 
 A run starts a private local Ray with ``num_cpus=N`` (``RAY_ADDRESS`` is ignored), runs the
 study (default ``tune_jobs/default.py``; ``--trials``, ``--batch-size`` (default: the trials
@@ -86,7 +86,7 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
         try:
             t0 = time.perf_counter()
             outcome = run_study(spec, fresh=True, progress=False, final=False,
-                                command=" ".join(["python -m benchmarks.cluster_scaling",
+                                command=" ".join(["python -m scripts.cluster_scaling",
                                                   *sys.argv[1:]]))  # fmt: skip
             print(f"study run: {time.perf_counter() - t0:.0f} s in all")
         finally:
@@ -129,7 +129,7 @@ def append_row(path: Path, row: dict[str, Any]) -> pd.DataFrame:
     runs = [*meta.get("runs", []), {"command": " ".join(sys.argv), **provenance()}]
     write_table_atomic(path, table, {
         "what": "trials per minute of the study's tuning loop on a local Ray of `cpus` CPUs",
-        "made_by": "python -m benchmarks.cluster_scaling",
+        "made_by": "python -m scripts.cluster_scaling",
         "runs": runs,
         "provenance": runs[-1],
     })  # fmt: skip
@@ -153,7 +153,7 @@ def report(table: pd.DataFrame) -> str:
     return "\n".join([
         "# Trials per minute of the study's tuning loop at N CPUs",
         "",
-        f"Made by `python -m benchmarks.cluster_scaling` (see its docstring); `ratio`: trials "
+        f"Made by `python -m scripts.cluster_scaling` (see its docstring); `ratio`: trials "
         f"per minute against the {int(base['cpus'])}-CPU row. `concurrency`: trials at once "
         "resolved from the CPUs (at most the batch); `concurrency_reached`: the most seen "
         "running at once. The tuning loop only (Tune's fit), not Ray's start, the "

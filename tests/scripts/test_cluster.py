@@ -1,5 +1,5 @@
-"""The cluster benchmarks' pure parts: the batch-size replay on the committed default study
-(``benchmarks.cluster_schedule``) and the scaling table (``benchmarks.cluster_scaling``)."""
+"""The cluster analyses' pure parts: the batch-size replay on the committed default study
+(``scripts.cluster_schedule``) and the scaling table (``scripts.cluster_scaling``)."""
 
 from __future__ import annotations
 
@@ -10,9 +10,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from benchmarks import cluster_scaling, cluster_schedule
+from scripts import cluster_scaling, cluster_schedule
 
-REPO = Path(__file__).resolve().parent.parent
+REPO = Path(__file__).resolve().parents[2]
 
 
 def test_halving_replay_and_tpe_counts() -> None:

@@ -9,8 +9,8 @@ only reads what the two runs wrote (``timing.parquet``, ``final.parquet``,
 paired difference to the expert (95% CI) and its final-phase episodes beyond d_s; then the new
 run's wall-clock as a share of the old one's.
 
-    python -m benchmarks.tune_side_by_side --run old=DIR --run new=DIR --out OUT [--demos old=DEMOS]
-    python -m benchmarks.tune_side_by_side --out OUT   # again, from the copies in OUT
+    python -m scripts.tune_side_by_side --run old=DIR --run new=DIR --out OUT [--demos old=DEMOS]
+    python -m scripts.tune_side_by_side --out OUT   # again, from the copies in OUT
 """
 
 from __future__ import annotations
@@ -73,7 +73,7 @@ def record_inputs(folder: Path, demos: Path) -> None:
     """Add the demonstrations a run read (:func:`safe_bc.data.store.dataset_record` of
     ``demos``) to the metadata of each copied table of ``folder`` that records none (a run
     made before tables recorded them); the rows are left as they are."""
-    record = {"demos": dataset_record(demos), "recorded_by": "benchmarks.tune_side_by_side"}
+    record = {"demos": dataset_record(demos), "recorded_by": "scripts.tune_side_by_side"}
     for path in sorted(folder.glob("*.parquet")):
         table, meta = read_table(path)
         if "inputs" not in meta:
@@ -121,7 +121,7 @@ def markdown(table: pd.DataFrame, meta: dict[str, Any]) -> str:
             f"({base['cpu_model']}), nothing else running"
         )
         + "; made by "
-        "`python -m benchmarks.tune_side_by_side` from the runs' own tables (copied beside "
+        "`python -m scripts.tune_side_by_side` from the runs' own tables (copied beside "
         "this file).\n\n"
         + shown.to_markdown(index=False, floatfmt=".3g")
         + f"\n\n**Wall-clock:** {last['run']} took {ratio['wall_s']:.2f}x {b}'s "

@@ -3,7 +3,7 @@ committed trials.
 
 Usage::
 
-    python -m benchmarks.cluster_schedule      # writes results/checks/batch_schedule.{parquet,md}
+    python -m scripts.cluster_schedule      # writes results/checks/batch_schedule.{parquet,md}
 
 For each committed run of ``tune_jobs/default.py`` (``results/default`` and its replicates
 ``results/default/replicates/r*``: 16 trials in batches of 2, 1 CPU each) the trials'
@@ -168,7 +168,7 @@ def markdown(table: pd.DataFrame, mean: pd.DataFrame, note: str) -> str:
         "# The default study's batch size: its cost on 2 cores, its ceiling on 16",
         "",
         "Replayed from the committed trials of `tune_jobs/default.py` (16 trials, 1 CPU each, "
-        "run in batches of 2 on this 2-core machine) by `python -m benchmarks.cluster_schedule`"
+        "run in batches of 2 on this 2-core machine) by `python -m scripts.cluster_schedule`"
         " (its docstring says how). Wall-clock of the tuning loop's trials on 2 and 16 slots, "
         "Ray's overhead left out: a ceiling, not a measurement. `stopped`: trials the halving "
         "stops after screening at that batch size (the first batch is never stopped), which "
@@ -204,7 +204,7 @@ def main(argv: list[str] | None = None) -> int:
     meta = run_metadata(sources=[str(f) for f in folders], batch_sizes=list(BATCHES),
                         slots=list(SLOTS))  # fmt: skip
     write_table_atomic(args.out, table, meta)
-    note = (f"Made by `python -m benchmarks.cluster_schedule` at revision "
+    note = (f"Made by `python -m scripts.cluster_schedule` at revision "
             f"{meta['git_revision'][:12]} from {', '.join(meta['sources'])}.")  # fmt: skip
     text = markdown(table, mean, note)
     write_text_atomic(args.out.with_suffix(".md"), text)

@@ -1,4 +1,4 @@
-"""benchmarks/render_accuracy.py (formerly the measurement half of scripts/renderer_cost.py):
+"""scripts/render_accuracy.py (formerly the measurement half of scripts/renderer_cost.py):
 the factor rule, the frame comparison, and the committed results/ablation/renderer/ frames and
 speed tables re-deriving the committed report's per-factor table and the chosen factor."""
 
@@ -10,11 +10,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from benchmarks.render_accuracy import choose_factor, frame_errors, per_factor
 from safe_bc.data.store import read_table
 from safe_bc.tasks.carracing.raster_render import DEFAULT_SUPERSAMPLE
+from scripts.render_accuracy import choose_factor, frame_errors, per_factor
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 RENDERER = ROOT / "results/ablation/renderer"
 
 
