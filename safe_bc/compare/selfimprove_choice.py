@@ -92,7 +92,9 @@ def choice_table(
 
 
 def markdown(table: pd.DataFrame, meta: dict[str, Any], source: Path, command: str) -> str:
-    """The choice as Markdown: the rule, each row, the chosen one."""
+    """The choice as Markdown: the rule, each row, the chosen one (the report step,
+    :class:`~safe_bc.compare.spec.Report`): from ``table`` and its provenance ``meta`` as the
+    runner wrote them at ``source``, naming ``command`` as the command that made it."""
     task = meta["config"]["task"]
     beyond = BEYOND[task]
     rows = [m["name"] for m in meta["config"]["methods"] if m.get("selfimprove")]
