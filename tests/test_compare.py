@@ -12,7 +12,7 @@ import pytest
 
 from safe_bc.bc import BCConfig
 from safe_bc.compare.families import load_comparison
-from safe_bc.compare.spec import Comparison, Method, build_table, render_markdown
+from safe_bc.compare.spec import Comparison, Method, Report, build_table, render_markdown
 from safe_bc.data.store import read_table
 from safe_bc.methods.improve.config import ImproveConfig
 from safe_bc.selection import SelectionConfig
@@ -40,6 +40,10 @@ EXPERT = Method("expert", expert=True)
         (lambda: Comparison("t", methods=(BC,), traces=("expert",)), "traces"),
         (lambda: Comparison("t", methods=(BC,), figures=(("pie", "p.png"),)), "figure"),
         (lambda: Comparison("t", methods=(BC,), task="atari"), "task"),
+        (lambda: Report("safe_bc.compare.selfimprove_choice", "c.md"), "module:function"),
+        (lambda: Report("a b:f", "c.md"), "module:function"),
+        (lambda: Report("m:f", "sub/c.md"), "file name"),
+        (lambda: Comparison("t", methods=(BC,), report=Report("m:f", "t.md")), "the table's"),
         (
             lambda: Comparison(
                 "t", methods=(EXPERT, Method("i", improve=ImproveConfig(), start="expert"))
@@ -52,6 +56,18 @@ def test_spec_validation_one_line(make, match) -> None:
     with pytest.raises(ValueError, match=match) as err:
         make()
     assert "\n" not in str(err.value)
+
+
+def methods_report(table: pd.DataFrame, meta: dict, source: Path, command: str) -> str:
+    """A report step for the tiny comparison: its table's rows, the table, the command."""
+    return f"{', '.join(table['method'])} from {source.name} ({meta['git_revision']}); {command}\n"
+
+
+def test_a_report_step_is_no_part_of_the_recorded_config() -> None:
+    step = Report("tests.test_compare:methods_report", "rows.txt")
+    assert Comparison("t", methods=(BC,), report=step).to_dict() == (
+        Comparison("t", methods=(BC,)).to_dict()
+    )
 
 
 def test_load_comparison_files(tmp_path: Path) -> None:
@@ -174,7 +190,7 @@ def test_tiny_comparison_with_an_improvement_row_resumes(rehab_demos, tmp_path: 
     file.write_text(
         f"""from pathlib import Path
 from safe_bc.bc import BCConfig, NetworkConfig, TrainConfig
-from safe_bc.compare.spec import Comparison, Method
+from safe_bc.compare.spec import Comparison, Method, Report
 from safe_bc.rollout.collect import CollectConfig
 from safe_bc.selection import SelectionConfig
 from safe_bc.tasks import task_defaults
@@ -197,6 +213,7 @@ TINY_COMPARISON = Comparison(
     bc=BCConfig(network=NetworkConfig(hidden=16), train=TrainConfig(batches=5, batch_size=8)),
     reference="start",
     traces=("start",),
+    report=Report("tests.test_compare:methods_report", "tiny_rows.txt"),
 )
 COMPARISONS = (TINY_COMPARISON,)
 """
@@ -216,6 +233,9 @@ COMPARISONS = (TINY_COMPARISON,)
     assert set(traces["policy"]) == {"start seed=0"}
     md = (tmp_path / "tiny.md").read_text()
     assert "seeds better than start" in md and meta["git_revision"] in md
+    rows = (tmp_path / "tiny_rows.txt").read_text()  # the report step, after the table
+    assert rows.startswith(f"expert, start, improved from tiny.parquet ({meta['git_revision']}); ")
+    assert rows.endswith(f"; {meta['command']}\n")
 
     from safe_bc.compare.run import run_comparison
 

@@ -411,15 +411,21 @@ def reproduce(job: ReproduceJob) -> Done:
 
 
 def compare(job: CompareJob) -> Done:
-    """Run (or resume, or ``render_only`` rebuild) the comparison ``job.name`` of the family
-    file ``job.comparison``."""
+    """Run (or resume, or ``render_only`` rebuild, or ``report_only`` report) the comparison
+    ``job.name`` of the family file ``job.comparison``."""
     from safe_bc.compare.families import load_comparison
-    from safe_bc.compare.run import rerender, run_cell, run_comparison
+    from safe_bc.compare.run import rerender, run_cell, run_comparison, run_report
 
     comparison = load_comparison(job.comparison, job.name)
     check_output_folder(comparison.out)
     if job.workers is not None and job.cell is None:
         raise ValueError("--workers only applies with --cell")
+    if job.report_only:
+        if job.render_only or job.cell is not None:
+            raise ValueError("--report-only runs the report step alone (no --render-only, --cell)")
+        if comparison.report is None:
+            raise ValueError(f"comparison {comparison.name!r} declares no report step")
+        return Done(f"wrote {run_report(comparison)}", comparison)
     if job.cell is not None:
         folder = run_cell(comparison, job.cell, workers=job.workers, progress=not job.quiet)
         return Done(f"cell {job.cell} done in {folder}", comparison)

@@ -208,7 +208,10 @@ class CompareJob:
     """The comparison of the file (its address; may be left out where the file has one only;
     a missing or unknown name lists the file's)."""
     render_only: bool = False
-    """Rebuild the table from the stored episodes."""
+    """Rebuild the table from the stored episodes (then its report step, if any)."""
+    report_only: bool = False
+    """Only rerun the comparison's report step (e.g. the default its table supports) from its
+    written table."""
     cell: str | None = None
     """Only train or improve this cell, METHOD:SEED (e.g. selfimitation:1; a start it needs is
     trained first): no evaluation, no table. Cells are independent, so a comparison's cells

@@ -21,8 +21,9 @@ policy goes through the one evaluation path
 (:func:`safe_bc.distributed.evaluate.evaluate_policies`), all missing ones in one call per env
 and thresholds. The driver is a plan (:func:`plan_evaluations`, pure), the runs
 (:func:`_train_agents`, :func:`_improve_cell`, :func:`_evaluate`) and the report
-(:func:`_report`, :func:`write_outputs`). What differs between kinds of row (the agent it
-trains, the method it runs, its stamp, its policy) is the row's own
+(:func:`_report`, :func:`write_outputs`, then the comparison's report step,
+:func:`run_report`: e.g. the default its table supports). What differs between kinds of row
+(the agent it trains, the method it runs, its stamp, its policy) is the row's own
 (:class:`~safe_bc.compare.rows.Row`); the runner calls that interface, supplies the effects
 (:class:`_Runs`) and never asks a row's kind.
 """
@@ -30,6 +31,7 @@ trains, the method it runs, its stamp, its policy) is the row's own
 from __future__ import annotations
 
 import dataclasses
+import importlib
 import json
 import time
 from pathlib import Path
@@ -52,7 +54,7 @@ from safe_bc.compare.spec import (
     run_slug,
 )
 from safe_bc.data.atomic import write_text_atomic
-from safe_bc.data.provenance import file_digest, run_metadata
+from safe_bc.data.provenance import command_line, file_digest, run_metadata
 from safe_bc.data.store import (
     read_demonstrations,
     read_meta,
@@ -591,7 +593,9 @@ def run_comparison(
     meta["limit_distances"] = limit_distances(sets[c.demos])
     meta["run_machines"] = machines(run_metas)
     meta["eval_machines"] = machines(eval_metas)
-    return _report(c, plan, stored, meta, histories)
+    table = _report(c, plan, stored, meta, histories)
+    run_report(c, meta["command"])
+    return table
 
 
 def _evaluate(
@@ -759,7 +763,33 @@ def rerender(comparison: Comparison) -> pd.DataFrame:
     if "limit_distances" not in meta:
         found = stored_limit_distances(c)
         meta.update({"limit_distances": found} if found is not None else {})
-    return write_outputs(c, episodes, traces, train_df, meta, history)
+    table = write_outputs(c, episodes, traces, train_df, meta, history)
+    run_report(c, meta["rendered"]["command"])
+    return table
+
+
+def run_report(comparison: Comparison, command: str | None = None) -> Path | None:
+    """The comparison's report step (:attr:`~safe_bc.compare.spec.Comparison.report`) on the
+    table it wrote (``OUT/<name>.parquet``, read back with its provenance): the step's text
+    written to ``OUT/<report.file>``. ``command``: the command the text records (``None``: this
+    process's). ``None`` without a report step.
+
+    Raises:
+        FileNotFoundError: the table has not been written (run the comparison first).
+    """
+    c = comparison
+    if c.report is None:
+        return None
+    source = c.out / f"{c.name}.parquet"
+    if not source.is_file():
+        raise FileNotFoundError(f"{source} is missing: run the comparison {c.name!r} first")
+    table, meta = read_table(source)
+    module, _, function = c.report.step.partition(":")
+    step = getattr(importlib.import_module(module), function)
+    text = step(table, meta, source, command_line() if command is None else command)
+    path = c.out / c.report.file
+    write_text_atomic(path, text)
+    return path
 
 
 def stored_limit_distances(c: Comparison) -> dict[str, float] | None:

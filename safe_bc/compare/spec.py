@@ -49,7 +49,9 @@ from safe_bc.policy import LockstepForward, check_lockstep_forward
 from safe_bc.report import fmt_ci
 from safe_bc.tasks import TASKS, Task, task_defaults
 
-__all__ = ["Agent", "Comparison", "Expert", "FromStart", "Handover", "Method", "Row", "View"]
+__all__ = [
+    "Agent", "Comparison", "Expert", "FromStart", "Handover", "Method", "Report", "Row", "View",
+]  # fmt: skip
 
 FIGURES = ("alpha_sweep", "traces", "learning_curves")
 """Figures a comparison can ask for: reward and safety against alpha
@@ -66,6 +68,31 @@ PAPER_TABLE1 = pd.DataFrame(
     }
 )
 """Boecking & Philipp (2020), Table 1 (2 evaluation episodes, one training run each)."""
+
+
+@dataclass(frozen=True)
+class Report:
+    """A comparison's report step: an analysis of the table the runner wrote, e.g. the default
+    it supports. The runner runs it after writing the table
+    (:func:`safe_bc.compare.run.run_report`); ``safe-bc compare FILE --name NAME --report-only``
+    runs only it, from the table on disk."""
+
+    step: str
+    """``"module:function"``, imported when the step runs: ``function(table, meta, source,
+    command) -> str``, given the table and its provenance as written, the table's path and the
+    command running the step, returns the text of :attr:`file`; pure (the runner reads and
+    writes), e.g. ``"safe_bc.compare.selfimprove_choice:markdown"``."""
+    file: str
+    """The file it writes, beside the table: ``OUT/<file>``."""
+
+    def __post_init__(self) -> None:
+        module, colon, function = self.step.partition(":")
+        if not (
+            colon and all(p.isidentifier() for p in module.split(".")) and function.isidentifier()
+        ):
+            raise ValueError(f"report step must be 'module:function', got {self.step!r}")
+        if not re.fullmatch(r"[A-Za-z0-9_-][A-Za-z0-9_.-]*", self.file):
+            raise ValueError(f"report file must be a file name ([A-Za-z0-9_.-]), got {self.file!r}")
 
 
 @dataclass(frozen=True)
@@ -146,6 +173,10 @@ class Comparison:
     ledger's declared sharing (:func:`safe_bc.compare.protocol.track_clashes`; tables in the same
     runs folder share without saying). Bookkeeping, not part of what the table measures: not
     in :meth:`to_dict`."""
+    report: Report | None = None
+    """The step that reads the written table and writes what it supports (:class:`Report`);
+    ``None``: none. Derived from the table, not part of what it measures: not in
+    :meth:`to_dict`."""
 
     def __post_init__(self) -> None:
         for m in self.methods:
@@ -238,6 +269,13 @@ class Comparison:
                 raise ValueError(f"figure {fig!r}: file must be a .png, got {file!r}")
         if self.task not in TASKS:
             raise ValueError(f"task must be one of {tuple(TASKS)}, got {self.task!r}")
+        if self.report is not None and self.report.file in (
+            f"{self.name}.md",
+            f"{self.name}.parquet",
+        ):
+            raise ValueError(
+                f"comparison {self.name!r}: report file {self.report.file!r} is the table's"
+            )
         self._take_width()
 
     def _take_width(self) -> None:
@@ -296,7 +334,7 @@ class Comparison:
     def to_dict(self) -> dict[str, Any]:
         """JSON-able (the provenance's ``config``)."""
         out = dataclasses.asdict(self)
-        del out["shares_tracks_with"]
+        del out["shares_tracks_with"], out["report"]
         if self.lockstep_forward == "batched":  # (recorded configs before the field hold)
             del out["lockstep_forward"]
         out["methods"] = tuple(m.record() for m in self.methods)

@@ -28,8 +28,9 @@ Selection tracks, which chose the defaults (so the fresh tables report other blo
   64 validation tracks), 4 rounds, 4 rounds of half-size pushes.
 * ``rounds_carracing``: the defaults, 4 rounds, 4 rounds of half-size pushes on CarRacing
   (``selection_carracing``'s runs: a round never depends on how many follow, so the defaults'
-  first two rounds are copied). The rule that turns the selection tables into defaults:
-  ``python -m scripts.selfimprove_choice``.
+  first two rounds are copied). The rule that turns these three tables into defaults is their
+  report step (:data:`CHOICE`, :mod:`safe_bc.compare.selfimprove_choice`): the runner writes
+  ``choice.md`` (``rounds_choice.md``) beside the table; ``--report-only`` reruns only it.
 
 Beyond the expert, planned before it runs (docs/improvement.md):
 
@@ -94,7 +95,7 @@ from pathlib import Path
 from typing import Any
 
 from safe_bc.compare.protocol import Fresh, Rule
-from safe_bc.compare.spec import Agent, Comparison, Expert, FromStart, Handover, Row
+from safe_bc.compare.spec import Agent, Comparison, Expert, FromStart, Handover, Report, Row
 from safe_bc.handover import HandoverConfig
 from safe_bc.methods.improve.config import ImproveConfig
 from safe_bc.methods.selfimprove.config import LOOP_PUSHES, SelfImproveConfig
@@ -181,6 +182,10 @@ def car_rows(choices: dict[str, tuple[str, SelfImproveConfig]]) -> tuple[Row, ..
     )
 
 
+CHOICE = "safe_bc.compare.selfimprove_choice:markdown"
+"""The selection tables' report step: the setting each table supports, by the rule fixed
+before the CarRacing table existed."""
+
 CAR_PAIRED = "Paired rows: each agent against its own seed's start on the same"
 """The CarRacing notes' shared sentence (followed by the tracks' kind)."""
 CAR = Comparison(
@@ -215,6 +220,7 @@ CAR_SELECTION = replace(
     eval_seed=13,
     totals=(),
     figures=(("learning_curves", "selection_learning_curves.png"),),
+    report=Report(CHOICE, "choice.md"),
     title="Self-imitation on CarRacing: the safety choices on selection tracks",
     note="Selection tracks (block 13): these choose the defaults; the fresh-track comparison "
     f"is selfimprove_carracing.py. {CAR_PAIRED} tracks. env steps / run: training rollouts "
@@ -671,6 +677,7 @@ COMPARISONS = {
         methods=car_rows(CAR_ROUNDS),
         figures=(("learning_curves", "rounds_learning_curves.png"),),
         title="Self-imitation on CarRacing: more rounds, and smaller steps, on selection tracks",
+        report=Report(CHOICE, "rounds_choice.md"),
     ),
     "compare_rehab": REHAB,
     "compare_vs_expert_rehab": vs_expert(REHAB),
@@ -683,6 +690,7 @@ COMPARISONS = {
         ),
         eval_seed=16,
         figures=(("learning_curves", "selection_learning_curves.png"),),
+        report=Report(CHOICE, "choice.md"),
         title="Self-imitation on the rehabilitation pathway: the safety choices on selection "
         "patients",
         note="Selection patients (block 16): these choose the defaults; the fresh-patient "

@@ -1,18 +1,16 @@
-"""Which self-imitation setting a selection table supports (an analysis of a
-committed comparison table).
+"""Which self-imitation setting a selection table supports: the report step of the
+self-imitation family's selection tables (pure: the table and its metadata in, Markdown out).
 
-Usage::
-
-    python -m scripts.selfimprove_choice results/selfimprove/carracing/selection.parquet
-    python -m scripts.selfimprove_choice results/selfimprove/rehab/selection.parquet
-
-Reads the table ``safe-bc compare tune_jobs/compare/selfimprove.py --name selection_<task>``
-wrote
-(one row per method, paired columns against the start) and writes ``choice.md`` beside it
-(``<stem>_choice.md`` for another table of the same folder, :func:`choice_path`).
+``tune_jobs/compare/selfimprove.py``'s ``selection_<task>`` and ``rounds_carracing`` declare
+``Report("safe_bc.compare.selfimprove_choice:markdown", ...)``: the runner
+(:func:`safe_bc.compare.run.run_report`) hands :func:`markdown` the table it wrote (one row per
+method, paired columns against the start) and writes the text beside it (``choice.md`` beside
+``selection.parquet``, ``rounds_choice.md`` beside ``rounds.parquet``); ``safe-bc compare
+tune_jobs/compare/selfimprove.py --name selection_<task> --report-only`` reruns only this step
+from the committed table.
 
 The rule (:func:`choose`), written after the rehab table and before the CarRacing table
-existed:
+existed (in ``scripts/selfimprove_choice.py``, the name the Markdown keeps; docs/history.md):
 
 1. candidates are the self-imitation rows whose reward gain over the start is reliable (the
    paired crossed 95% interval lies above 0);
@@ -28,9 +26,6 @@ choices is not measured by this table.
 
 from __future__ import annotations
 
-import argparse
-import shlex
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -97,7 +92,9 @@ def choice_table(
 
 
 def markdown(table: pd.DataFrame, meta: dict[str, Any], source: Path, command: str) -> str:
-    """The choice as Markdown: the rule, each row, the chosen one."""
+    """The choice as Markdown: the rule, each row, the chosen one (the report step,
+    :class:`~safe_bc.compare.spec.Report`): from ``table`` and its provenance ``meta`` as the
+    runner wrote them at ``source``, naming ``command`` as the command that made it."""
     task = meta["config"]["task"]
     beyond = BEYOND[task]
     rows = [m["name"] for m in meta["config"]["methods"] if m.get("selfimprove")]
@@ -134,28 +131,3 @@ def markdown(table: pd.DataFrame, meta: dict[str, Any], source: Path, command: s
         "",
     ]
     return "\n".join(lines)
-
-
-def choice_path(table: Path) -> Path:
-    """Where a table's choice goes: ``choice.md`` beside ``selection.parquet``,
-    ``<stem>_choice.md`` beside any other (the car's ``rounds.parquet``)."""
-    return table.with_name("choice.md" if table.stem == "selection" else f"{table.stem}_choice.md")
-
-
-def main(argv: list[str] | None = None) -> int:
-    from safe_bc.data.atomic import write_text_atomic
-    from safe_bc.data.store import read_table
-
-    parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
-    parser.add_argument("table", type=Path, help="a selection comparison's table (.parquet)")
-    args = parser.parse_args(argv)
-    table, meta = read_table(args.table)
-    command = "python -m scripts.selfimprove_choice " + shlex.join(sys.argv[1:])
-    text = markdown(table, meta, args.table, command)
-    write_text_atomic(choice_path(args.table), text)
-    print(text)
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())
