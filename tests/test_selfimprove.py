@@ -4,6 +4,7 @@ Ray actors and the ``safe-bc improve --method selfimitation`` verb (rehab: fast)
 
 from __future__ import annotations
 
+import json
 from dataclasses import replace
 from pathlib import Path
 
@@ -157,13 +158,15 @@ TINY = {
 }
 
 
-def _run(rehab_agent, rehab_demos, folder, rollouts=None, train=None, **kw):
+def _run(rehab_agent, rehab_demos, folder, rollouts=None, train=None, shared=None, **kw):
     from safe_bc.methods.selfimprove.stage import selfimprove_run
     from safe_bc.tasks import task_defaults
 
     model, cfg = rehab_agent
     config = SelfImproveConfig(**{**TINY, **kw})
-    extra = {} if rollouts is None else {"rollouts": rollouts}
+    extra: dict = {} if rollouts is None else {"rollouts": rollouts}
+    if shared is not None:
+        extra["shared"] = shared
     if train is not None:
         extra["train"] = train
     env_id = task_defaults("rehab").env.env_id
@@ -783,3 +786,150 @@ def test_an_interrupted_rounds_appended_frames_are_rolled_back_on_resume(tmp_pat
     assert not (tmp_path / "r1.npz").exists()  # its frames were lost: it explores again
     assert np.array_equal(np.asarray(old.frames()), frames[0])
     assert old.rounds == [{"round": 0, "start": 0, "stop": n0, "accepted": True}]
+
+
+# --- work shared between the runs of one start (issue 57 item 1 (c)) -----------------------
+
+
+def _counting(jobs: list):
+    """``local_rollouts`` recording each job's type and track count."""
+    from safe_bc.methods.selfimprove.rollout import local_rollouts
+
+    def rollouts(job, seeds):
+        jobs.append((type(job).__name__, len(seeds), job))
+        return local_rollouts(job, seeds)
+
+    return rollouts
+
+
+def _run_files_equal(a: Path, b: Path, rounds: int) -> None:
+    """Two run folders hold the same weights each round, the same round records and start
+    validation (wall times and ``shared_hits`` aside) and the same curve (its seconds aside)."""
+    from safe_bc.methods.rounds import read_json
+
+    drop = ("seconds", "rollout_seconds", "shared_hits")
+
+    def record(path: Path) -> dict:
+        return {k: v for k, v in read_json(path).items() if k not in drop}
+
+    assert record(a / "start_validation.json") == record(b / "start_validation.json")
+    for r in range(rounds):
+        assert record(a / round_dir(r) / DONE) == record(b / round_dir(r) / DONE)
+        assert _same(_weights(a / round_dir(r) / POLICY), _weights(b / round_dir(r) / POLICY))
+    ca, _ = read_table(a / CURVE)
+    cb, _ = read_table(b / CURVE)
+    pd.testing.assert_frame_equal(ca.drop(columns="seconds"), cb.drop(columns="seconds"))
+
+
+def test_runs_of_one_start_share_its_validation_and_the_experts_runs_bit_for_bit(
+    rehab_agent, rehab_demos, tmp_path
+) -> None:
+    """Rehab, candidates B (kept only above the expert's run) and D (B under the handover,
+    the best run per track): B with the shared folder cold runs and stores the start's
+    validation and the expert's runs, the same run as without one; D then reads them all
+    (no validation of the start, no expert run) and is D without one, weights, round records
+    and curve; the env steps recorded are what the run needed, the reads are ``shared_hits``."""
+    from safe_bc.methods import METHODS, Start
+    from safe_bc.methods.selfimprove.shared import SharedResults
+    from safe_bc.tasks import task_defaults
+
+    model, cfg = rehab_agent
+    shared = tmp_path / "_shared"
+    b = {"keep_against": "expert"}
+    d = {**b, "handover": task_defaults("rehab").handover, "keep_best": 1}
+    plain_b = _run(rehab_agent, rehab_demos, tmp_path / "plain_b", **b)
+    plain_d = _run(rehab_agent, rehab_demos, tmp_path / "plain_d", **d)
+    cold_jobs: list = []
+    cold = _run(rehab_agent, rehab_demos, tmp_path / "b", _counting(cold_jobs), shared=shared, **b)
+    tracks = TINY["tracks_per_round"]
+    assert cold.start_validation["shared_hits"] == 0
+    assert [r["shared_hits"] for r in cold.rounds] == [0, 0]
+    assert [j[:2] for j in cold_jobs if j[0] == "ExpertRunsJob"] == [("ExpertRunsJob", tracks)] * 2
+    assert len(list(shared.glob("*.json"))) == 1 + 2 * tracks
+    _run_files_equal(tmp_path / "plain_b", tmp_path / "b", 2)
+    assert cold.env_steps == plain_b.env_steps
+    assert cold.validation_env_steps == plain_b.validation_env_steps
+
+    warm_jobs: list = []
+    warm = _run(rehab_agent, rehab_demos, tmp_path / "d", _counting(warm_jobs), shared=shared, **d)
+    assert warm.start_validation["shared_hits"] == 1
+    assert [r["shared_hits"] for r in warm.rounds] == [tracks, tracks]
+    assert [j[0] for j in warm_jobs] == ["ExploreJob", "ValidateJob"] * 2  # nothing repeated
+    assert all(len(j[2].bars) == tracks for j in warm_jobs if j[0] == "ExploreJob")
+    assert plain_b.kept_steps > 0 and plain_d.kept_steps > 0  # the bars decided something
+    _run_files_equal(tmp_path / "plain_d", tmp_path / "d", 2)
+    assert warm.env_steps == plain_d.env_steps  # the expert's steps counted as before
+    assert warm.validation_env_steps == plain_d.validation_env_steps
+    assert len(list(shared.glob("*.json"))) == 1 + 2 * tracks
+
+    # a comparison's runner hands its runs folder's shared folder on with the start
+    start = Start(model, cfg, str(rehab_demos), task_defaults("rehab").env, shared=shared)
+    config = SelfImproveConfig(**{**TINY, **b})
+    again = METHODS["selfimprove"].run(config, start, tmp_path / "b2").result
+    assert again.start_validation["shared_hits"] == 1
+    assert [r["shared_hits"] for r in again.rounds] == [tracks, tracks]
+    _run_files_equal(tmp_path / "plain_b", tmp_path / "b2", 2)
+
+    # a record is read only for its own ingredients: another start's or a tampered one is not
+    store = SharedResults(shared)
+    (path,) = [p for p in shared.glob("*.json") if "validation" in p.read_text()]
+    record = json.loads(path.read_text())
+    assert store.get(record["ingredients"]) == record["value"]
+    other = {**record["ingredients"], "tracks": [1, 2]}
+    assert store.get(other) is None
+    record["ingredients"]["eps"] = 0.5
+    path.write_text(json.dumps(record))
+    assert store.get({**record["ingredients"], "eps": cfg.selection.eps}) is None
+
+
+def test_an_experts_run_is_stored_exactly() -> None:
+    from safe_bc.methods.selfimprove.shared import expert_run_from_json, expert_run_to_json
+
+    rng = np.random.default_rng(0)
+    for dtype in (np.float32, np.float64):
+        rewards = rng.normal(size=50).astype(dtype) / 7
+        back = expert_run_from_json(json.loads(json.dumps(expert_run_to_json((rewards, 1.5, 50)))))
+        assert back[0].dtype == rewards.dtype and np.array_equal(back[0], rewards)
+        assert back[1:] == (1.5, 50)
+
+
+def test_car_runs_read_the_experts_stored_runs_bit_for_bit() -> None:
+    """CarRacing frames, an untrained net, 60-step runs on 2 tracks against the expert's run:
+    the expert's runs run apart (:class:`ExpertRunsJob`, each in a fresh env and expert) and
+    stored as JSON are the runs the round's job makes in its env after the agent's, reward for
+    reward, and give its tracks (an untrained net's pushed runs never beat the expert here, so
+    nothing is kept: the rehab run above compares kept rows)."""
+    from dataclasses import replace
+
+    import torch
+
+    from safe_bc.bc import BCConfig, BCNet, ModelSpec
+    from safe_bc.methods.selfimprove.rollout import _bar
+    from safe_bc.methods.selfimprove.shared import expert_run_from_json, expert_run_to_json
+    from safe_bc.rollout.episode import run_episode
+    from safe_bc.rollout.evaluate import NetSource
+    from safe_bc.tasks import make_env, task_defaults
+    from safe_bc.tasks.carracing.expert import CarRacingExpert, ExpertConfig
+
+    bc = BCConfig()
+    torch.manual_seed(0)
+    model = BCNet(ModelSpec.for_data((96, 96, 3), 3), bc.preprocess, bc.network)
+    job = _explore_job(
+        "carracing", NetSource.from_model(model, bc), (1e3, 1e3, 1e3),
+        pushes=("1+1,2*0",), max_steps=60, keep_against="expert", expert=ExpertConfig(),
+        lockstep_envs=3,
+    )  # fmt: skip
+    seeds = [5, 6]
+    runs = job.expert_runs().run(seeds)
+    stored = [expert_run_from_json(json.loads(json.dumps(expert_run_to_json(r)))) for r in runs]
+    env = make_env(task_defaults("carracing").env)
+    agent, expert = job.agent.build(), CarRacingExpert(ExpertConfig())
+    for s, (rewards, total, steps) in zip(seeds, stored, strict=True):
+        ref = run_episode(env, agent, s, job.episode_rng(s, 0), keep_observations=False,
+                          max_steps=60)  # fmt: skip
+        bar = _bar(env, job, s, ref, expert)  # as the round's job runs it, after the agent
+        assert bar[0].dtype == rewards.dtype and np.array_equal(bar[0], rewards)
+        assert bar[1:] == (total, steps) == (total, 60)
+    env.close()
+    inline = job.run(seeds)
+    assert _same_tracks(inline, replace(job, bars=dict(zip(seeds, stored, strict=True))).run(seeds))

@@ -169,6 +169,16 @@ def _folder(comparison: Comparison, method: Row, seed: int) -> Path:
     return method.cell_folder(comparison.out / f"{stem}_runs" / run_slug(method.name), seed)
 
 
+def shared_folder(comparison: Comparison) -> Path:
+    """Where the runs of ``comparison``'s runs folder share identical work
+    (``OUT/<runs>_runs/_shared/``: content-keyed results,
+    :mod:`safe_bc.methods.selfimprove.shared`; no method's folder starts with ``_``)."""
+    from safe_bc.methods.selfimprove.shared import SHARED
+
+    stem = comparison.runs or comparison.name
+    return comparison.out / f"{stem}_runs" / SHARED
+
+
 def cell_stamp(comparison: Comparison, method: Row, seed: int, thresholds: Any) -> dict[str, Any]:
     """What made the evaluation of cell ``(method, seed)``: its run (or agent, or expert: the
     row's :meth:`~safe_bc.compare.rows.Row.run_stamp`), the evaluation settings and tracks, the
@@ -303,7 +313,7 @@ def _run_method(
 
     begin = Start(
         model, run_config(c, start, seed), demos_of(c, method), env, agent, data,
-        parallel=ChunkedRayRollouts,
+        parallel=ChunkedRayRollouts, shared=shared_folder(c),
     )  # fmt: skip
     folder = _folder(c, method, seed) / spec.subfolder
     if spec.shares_rounds and not folder.exists():

@@ -58,6 +58,10 @@ class Start:
     on_round: Any = None
     """Called with each finished round's or iteration's summary (a progress bar); ``None``:
     nothing."""
+    shared: Path | None = None
+    """Where runs from this start store and read work they would repeat identically (a
+    comparison's ``<runs folder>/_shared``: the self-imitation runs' start validation and
+    expert runs, content-keyed); ``None``: nothing shared."""
 
 
 @dataclass(frozen=True)

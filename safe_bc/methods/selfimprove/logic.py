@@ -1,9 +1,12 @@
-"""Pushes, which pushed steps are kept, the training selection and the keep rule (pure
-numpy: no I/O, no torch, no Ray)."""
+"""Pushes, which pushed steps are kept, the training selection, the keep rule and the names of
+results shared between runs (pure numpy: no I/O, no torch, no Ray)."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import hashlib
+import json
+from collections.abc import Mapping, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -204,3 +207,16 @@ def accept_round(
     """
     bound = clopper_pearson_upper(int(beyond), int(episodes), confidence)
     return bool(bound < limit and reward >= previous_reward), bound
+
+
+def content_key(ingredients: Mapping[str, Any]) -> str:
+    """SHA-256 of everything that made a result (a JSON-able mapping: its canonical JSON,
+    keys sorted): the name of a result shared between runs (``<runs folder>/_shared/``).
+
+    >>> content_key({"b": [1, 2.5], "a": "x"}) == content_key({"a": "x", "b": [1, 2.5]})
+    True
+    >>> content_key({"a": 1}) == content_key({"a": 1.0}), len(content_key({}))
+    (False, 64)
+    """
+    text = json.dumps(ingredients, sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(text.encode()).hexdigest()

@@ -5,7 +5,7 @@ the kept steps cut out in the worker) and the validation episodes of the keep ru
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -186,6 +186,10 @@ class ExploreJob:
     """How the agent's net sees the lockstep runs (:data:`safe_bc.policy.LockstepForward`):
     ``"rows"`` gives the one-env runs bit for bit; ``"batched"`` is faster and may round
     differently."""
+    bars: Mapping[int, ExpertRun] | None = None
+    """The expert's runs of the tracks, done already (:class:`ExpertRunsJob`, read from the
+    runs folder's shared results): with ``keep_against="expert"`` the bar of track ``seed`` is
+    ``bars[seed]`` instead of a run of the expert here; ``None``: run here."""
 
     def run(self, seeds: Sequence[int]) -> list[TrackResult]:
         """Every track in this process: :func:`explore_tracks` over ``lockstep_envs`` envs
@@ -209,7 +213,14 @@ class ExploreJob:
     def episode_rng(self, seed: int, k: int) -> np.random.Generator:
         """The generator of run ``k`` on track ``seed`` (0: unperturbed, ``1..P``: the pushes,
         ``P + 1``: the expert's own run)."""
-        return np.random.default_rng([self.rng_seed, int(seed), k])
+        return episode_rng(self.rng_seed, seed, k)
+
+    def expert_runs(self) -> ExpertRunsJob:
+        """The job of the expert's own runs (the bars of ``keep_against="expert"``) on this
+        job's tracks, alone: what it gives is what :meth:`run` would run for them."""
+        return ExpertRunsJob(
+            self.env, self.expert, self.rng_seed, len(self.pushes) + 1, self.max_steps
+        )
 
     def driver(self, agent: Policy, expert: Policy | None, push: Push | None) -> Any:
         """The policy a run executes: the agent with the push behind its back-off zone, or,
@@ -302,13 +313,63 @@ def _bar(
     and env steps there (NaN and 0 when the bar is the agent's unperturbed run ``ref``)."""
     if job.keep_against != "expert":
         return ref.rewards, float("nan"), 0
+    if job.bars is not None:
+        return job.bars[int(seed)]
     if expert is None:
         raise ValueError("keep_against='expert' needs the expert's config")
-    ex = run_episode(
-        env, expert, seed, job.episode_rng(seed, len(job.pushes) + 1), keep_observations=False,
-        max_steps=job.max_steps,
-    )  # fmt: skip
+    return expert_run(env, expert, seed, job.episode_rng(seed, len(job.pushes) + 1), job.max_steps)
+
+
+ExpertRun = tuple[np.ndarray, float, int]
+"""The expert's own run on a track: its per-step rewards, total reward and env steps."""
+
+
+def episode_rng(rng_seed: int, seed: int, k: int) -> np.random.Generator:
+    """The generator of run ``k`` on track ``seed`` of a run seeded ``rng_seed``
+    (:meth:`ExploreJob.episode_rng`)."""
+    return np.random.default_rng([rng_seed, int(seed), k])
+
+
+def expert_run(
+    env: gym.Env, expert: Policy, seed: int, rng: np.random.Generator, max_steps: int | None
+) -> ExpertRun:
+    """``expert`` alone on track ``seed``: the bar a pushed run must beat there."""
+    ex = run_episode(env, expert, seed, rng, keep_observations=False, max_steps=max_steps)
     return ex.rewards, ex.total_reward, len(ex.rewards)
+
+
+@dataclass(frozen=True)
+class ExpertRunsJob:
+    """The expert's own runs on training tracks (the bars of ``keep_against="expert"``), run
+    apart from the agent's (:meth:`ExploreJob.expert_runs`) so that a run can read them where
+    another run with the same expert, tracks and settings ran them (pickles cheaply)."""
+
+    env: Any
+    """The env's ``EnvConfig``."""
+    expert: Any
+    """The demonstrations' expert config."""
+    rng_seed: int
+    """The run's seed (:func:`episode_rng`)."""
+    rng_index: int
+    """The expert's run's index among a track's runs (the pushes' count plus one)."""
+    max_steps: int | None = None
+    """Step cap per episode."""
+
+    def run(self, seeds: Sequence[int]) -> list[ExpertRun]:
+        """The expert's run on every track, one env and one expert in this process (the
+        expert is reset at each episode's start, as in :func:`explore_tracks`)."""
+        from safe_bc.rollout.collect import build_expert
+        from safe_bc.tasks import make_env
+
+        env, expert = make_env(self.env), build_expert(self.expert)
+        try:
+            return [
+                expert_run(env, expert, s, episode_rng(self.rng_seed, s, self.rng_index),
+                           self.max_steps)
+                for s in seeds
+            ]  # fmt: skip
+        finally:
+            env.close()
 
 
 @dataclass(frozen=True)
@@ -419,7 +480,9 @@ class ValidateJob:
         return [metrics for metrics, _ in rows]
 
 
-def local_rollouts(job: ExploreJob | ValidateJob, seeds: Sequence[int]) -> list[Any]:
+def local_rollouts(
+    job: ExploreJob | ValidateJob | ExpertRunsJob, seeds: Sequence[int]
+) -> list[Any]:
     """A job's tracks in this process (``job.run``) with one torch thread (restored after), as
     in a Ray actor, so the policy's forward passes are the same wherever the tracks run
     (``safe_bc.distributed.rollouts.ChunkedRayRollouts`` calls this in its actors); a

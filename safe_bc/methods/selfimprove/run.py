@@ -18,6 +18,7 @@ files beside it) is rewritten after every round.
 
 from __future__ import annotations
 
+import logging
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
@@ -67,16 +68,26 @@ from safe_bc.methods.selfimprove.data import (
 )
 from safe_bc.methods.selfimprove.logic import accept_round, kept_selection
 from safe_bc.methods.selfimprove.rollout import (
+    ExpertRun,
+    ExpertRunsJob,
     ExploreJob,
     KeptPiece,
     TrackResult,
     ValidateJob,
     local_rollouts,
 )
+from safe_bc.methods.selfimprove.shared import (
+    SHARED_FORMAT,
+    SharedResults,
+    expert_run_from_json,
+    expert_run_to_json,
+)
 from safe_bc.methods.selfimprove.store import ConcatFrames, KeptFrameStore
 from safe_bc.rollout.evaluate import NetSource
 from safe_bc.run_config import RunConfig
 from safe_bc.selection import Selection
+
+_log = logging.getLogger(__name__)
 
 RolloutFn = Callable[[Any, Sequence[int]], list[Any]]
 """Runs a job (:class:`ExploreJob` or :class:`ValidateJob`) on tracks, results in track order
@@ -366,6 +377,101 @@ def _validate(plan: SelfImprovePlan, rollouts: RolloutFn, agent: NetSource) -> d
     }
 
 
+def validation_ingredients(plan: SelfImprovePlan, agent: NetSource) -> dict[str, Any]:
+    """What makes ``agent``'s validation (:func:`_validate`), as a shared result's key: the
+    agent (weights digest, net and BC configs), the env as the run identity writes it, the
+    validation tracks, ``d_s``, the selection's eps and combine, the step cap and the
+    lockstep settings."""
+    sel, config = plan.selection, plan.config
+    return {
+        "kind": "selfimprove.validation",
+        "format": SHARED_FORMAT,
+        "agent": {
+            "weights_sha256": weights_digest(agent.state),
+            "spec": agent.spec,
+            "bc": agent.config,
+        },
+        "env": str(plan.env_config),
+        "tracks": [int(s) for s in plan.validation_seeds],
+        "limits": [float(x) for x in plan.limits],
+        "eps": float(sel.eps),
+        "combine": str(sel.combine),
+        "max_steps": config.max_steps,
+        "lockstep_envs": int(config.lockstep_envs),
+        "forward": str(config.lockstep_forward),
+    }
+
+
+def expert_run_ingredients(plan: SelfImprovePlan, job: ExpertRunsJob, seed: int) -> dict[str, Any]:
+    """What makes the expert's own run on track ``seed`` (:class:`ExpertRunsJob`), as a shared
+    result's key: the expert's config, the env as the run identity writes it, the track, the
+    episode generator's seeds and the step cap."""
+    from safe_bc.rollout.collect import config_dict
+
+    return {
+        "kind": "selfimprove.expert_run",
+        "format": SHARED_FORMAT,
+        "expert": config_dict(job.expert),
+        "env": str(plan.env_config),
+        "track": int(seed),
+        "rng": [int(job.rng_seed), int(seed), int(job.rng_index)],
+        "max_steps": job.max_steps,
+    }
+
+
+def _start_validation(
+    plan: SelfImprovePlan, rollouts: RolloutFn, shared: SharedResults | None
+) -> dict[str, Any]:
+    """The start's validation record (``start_validation.json``), read from ``shared`` where
+    a run of the same start and validation settings stored it (``shared_hits``: 1), else run
+    (and stored there)."""
+    t0 = time.perf_counter()
+    val, hits = None, 0
+    if shared is not None:
+        key = validation_ingredients(plan, plan.start)
+        val = shared.get(key)
+        if val is not None:
+            hits = 1
+            _log.info("the start's validation read from %s", shared.path(key))
+    if val is None:
+        val = _validate(plan, rollouts, plan.start)
+        if shared is not None:
+            shared.put(key, val)
+    record = {**val, "validation_episodes": len(plan.validation_seeds)}
+    record["seconds"] = time.perf_counter() - t0
+    if shared is not None:
+        record["shared_hits"] = hits
+    return record
+
+
+def _expert_bars(
+    plan: SelfImprovePlan,
+    job: ExploreJob,
+    seeds: Sequence[int],
+    rollouts: RolloutFn,
+    shared: SharedResults,
+) -> tuple[dict[int, ExpertRun], int]:
+    """The expert's own runs on ``seeds`` (the bars of ``keep_against="expert"``): those a run
+    with the same expert, tracks and settings stored in ``shared`` read, the rest run (one
+    :class:`ExpertRunsJob`) and stored; ``(bars by track, runs read)``."""
+    runs_job = job.expert_runs()
+    keys = {int(s): expert_run_ingredients(plan, runs_job, s) for s in seeds}
+    bars: dict[int, ExpertRun] = {}
+    for s, key in keys.items():
+        found = shared.get(key)
+        if found is not None:
+            bars[s] = expert_run_from_json(found)
+    hits = len(bars)
+    missing = [s for s in keys if s not in bars]
+    if missing:
+        for s, run in zip(missing, rollouts(runs_job, missing), strict=True):
+            shared.put(keys[s], expert_run_to_json(run))
+            bars[s] = run
+    if hits:
+        _log.info("%d of the expert's %d runs read from %s", hits, len(keys), shared.folder)
+    return bars, hits
+
+
 def run_selfimprove(
     start: BCNet,
     run_config: RunConfig,
@@ -380,6 +486,7 @@ def run_selfimprove(
     train: TrainFn = train_local,
     on_round: Callable[[dict[str, Any]], None] | None = None,
     frames_on_disk: bool | None = None,
+    shared: str | Path | None = None,
 ) -> SelfImproveResult:
     """Run (or resume) the rounds of ``config`` from the trained net ``start`` in ``folder``.
 
@@ -395,6 +502,13 @@ def run_selfimprove(
     instead of holding them in memory: a CarRacing round keeps ~80k frames (~2 GB), so four
     accepted rounds held in memory and concatenated peaked near 19 GB. The same rows, batches
     and weights either way.
+
+    ``shared`` (a comparison's ``<runs folder>/_shared``; ``None``: nothing shared): the
+    start's validation and, with ``keep_against="expert"``, the expert's runs on the training
+    tracks are read from there where another run stored them (content-keyed,
+    :mod:`~safe_bc.methods.selfimprove.shared`), else run and stored: the same weights and
+    round records (``shared_hits`` aside: what was read, in the start's validation record
+    and each round's), the env steps the run needed counted as before.
     """
     plan = plan_selfimprove(
         start, run_config, demos, demos_path, env_config, config, action_bounds, frames_on_disk
@@ -407,12 +521,10 @@ def run_selfimprove(
                 unit, start, run_config.bc,
                 extra={"env_id": getattr(env_config, "env_id", None), "demos": str(demos_path)},
             )  # fmt: skip
+    cache = None if shared is None else SharedResults(shared)
     start_val = read_json(folder / START_VALIDATION)
     if start_val is None:
-        t0 = time.perf_counter()
-        start_val = _validate(plan, rollouts, plan.start)
-        start_val["validation_episodes"] = len(plan.validation_seeds)
-        start_val["seconds"] = time.perf_counter() - t0
+        start_val = _start_validation(plan, rollouts, cache)
         write_json_atomic(folder / START_VALIDATION, start_val)
     expert_side = _expert_side(config, demos_path, env_config)
     state = _Progress(plan.start, "start", float(start_val["validation_reward"]))
@@ -439,7 +551,7 @@ def run_selfimprove(
                 state.agent, state.agent_name = policy_source(here / POLICY), round_dir(r)
                 state.reward_now = float(done["validation_reward"])
             continue
-        summary = _self_round(plan, here, r, state, demos, expert_side, rollouts, train)
+        summary = _self_round(plan, here, r, state, demos, expert_side, rollouts, train, cache)
         write_json_atomic(here / DONE, summary)
         if state.store is not None:
             state.store.settle(r, bool(summary["accepted"]))
@@ -461,10 +573,12 @@ def _self_round(
     expert_side: tuple[Any, Any, tuple[str, ...]],
     rollouts: RolloutFn,
     train: TrainFn,
+    shared: SharedResults | None = None,
 ) -> dict[str, Any]:
     """Round ``r`` in ``here``: explore from the current agent (or read the rows kept before),
     retrain on the kept rows so far plus this round's, write the net, validate it and apply
-    the keep rule (``state`` moves on when accepted); the round's ``done.json``."""
+    the keep rule (``state`` moves on when accepted); the round's ``done.json`` (with
+    ``shared``: ``shared_hits``, the expert's runs read from it)."""
     config, frames_on_disk = plan.config, plan.frames_on_disk
     for done_r, f in state.kept_files:
         pieces = [p for t in load_round(f, not frames_on_disk) for p in t.pieces]
@@ -474,6 +588,7 @@ def _self_round(
     if state.store is not None:
         _sync_store(state.store, state.kept_sources, r, here / KEPT)
     t0 = time.perf_counter()
+    hits = 0
     if (here / KEPT).is_file():
         tracks: list[TrackResult] = load_round(here / KEPT)
         if state.store is not None and holds_frames(here / KEPT):  # written before the store
@@ -485,7 +600,11 @@ def _self_round(
             plan.frame_stack, config.max_steps, config.seed, config.keep_against,
             config.keep_best, *expert_side, config.lockstep_envs, config.lockstep_forward,
         )  # fmt: skip
-        tracks = rollouts(job, track_seeds(config.seed, r, config.tracks_per_round))
+        seeds = track_seeds(config.seed, r, config.tracks_per_round)
+        if shared is not None and config.keep_against == "expert":
+            bars, hits = _expert_bars(plan, job, seeds, rollouts, shared)
+            job = replace(job, bars=bars)
+        tracks = rollouts(job, seeds)
         if state.store is not None:  # frames first: a round file without them needs them there
             state.store.append(r, round_frames(tracks))
         save_round(here / KEPT, tracks, frames=state.store is None)
@@ -510,6 +629,8 @@ def _self_round(
         "seconds": time.perf_counter() - t0,
         **extras,
     }
+    if shared is not None:
+        summary["shared_hits"] = hits
     if accepted:
         state.agent, state.agent_name = source, round_dir(r)
         state.reward_now = val["validation_reward"]

@@ -71,7 +71,9 @@ def run(
     comparison runner records the machine beside the run)."""
     from safe_bc.methods.rounds import policy_source
 
-    kwargs = {} if start.data is None else {"data": start.data}
+    kwargs: dict[str, Any] = {} if start.data is None else {"data": start.data}
+    if start.shared is not None:
+        kwargs["shared"] = start.shared
     result = selfimprove_run(
         config, start.agent, start.run_config, start.demos, start.env, folder,
         parallel=start.parallel, on_round=start.on_round, **kwargs,
