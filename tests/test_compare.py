@@ -40,7 +40,7 @@ EXPERT = Method("expert", expert=True)
         (lambda: Comparison("t", methods=(BC,), traces=("expert",)), "traces"),
         (lambda: Comparison("t", methods=(BC,), figures=(("pie", "p.png"),)), "figure"),
         (lambda: Comparison("t", methods=(BC,), task="atari"), "task"),
-        (lambda: Report("safe_bc.compare.selfimprove_choice", "c.md"), "module:function"),
+        (lambda: Report("safe_bc.methods.selfimprove.choice", "c.md"), "module:function"),
         (lambda: Report("a b:f", "c.md"), "module:function"),
         (lambda: Report("m:f", "sub/c.md"), "file name"),
         (lambda: Comparison("t", methods=(BC,), report=Report("m:f", "t.md")), "the table's"),

@@ -59,7 +59,7 @@ PURE: tuple[str, ...] = (
     "safe_bc.run_config", "safe_bc.data.codec", "safe_bc.data.episode", "safe_bc.data.demos",
     "safe_bc.tasks.env_config", "safe_bc.*.config", "safe_bc.*.logic", "safe_bc.methods",
     "safe_bc.methods.registry", "safe_bc.methods.layout", "safe_bc.compare.rows",
-    "safe_bc.compare.selfimprove_choice",
+    "safe_bc.methods.selfimprove.choice",
 )  # fmt: skip
 """Pure logic and configs, free of I/O, Ray and torch (checked per file, whatever its
 folder): such a module imports only pure modules, at module level or inside a function."""

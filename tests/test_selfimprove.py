@@ -788,7 +788,7 @@ def test_an_interrupted_rounds_appended_frames_are_rolled_back_on_resume(tmp_pat
     assert old.rounds == [{"round": 0, "start": 0, "stop": n0, "accepted": True}]
 
 
-# --- work shared between the runs of one start (issue 57 item 1 (c)) -----------------------
+# --- work shared between the runs of one start ------------------------------------------------
 
 
 def _counting(jobs: list):

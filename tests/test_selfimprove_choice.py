@@ -14,7 +14,7 @@ import pytest
 
 from safe_bc.compare.families import load_comparisons
 from safe_bc.compare.run import run_report
-from safe_bc.compare.selfimprove_choice import choose
+from safe_bc.methods.selfimprove.choice import choose
 
 ROOT = Path(__file__).resolve().parents[1]
 FAMILY = ROOT / "tune_jobs/compare/selfimprove.py"

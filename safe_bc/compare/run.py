@@ -62,6 +62,7 @@ from safe_bc.data.store import (
     write_table_atomic,
 )
 from safe_bc.methods.experiment import RunConfig, save_curve, save_selection, select_for
+from safe_bc.methods.registry import SHARED
 from safe_bc.metrics import combined
 from safe_bc.rollout.collect import CollectConfig
 from safe_bc.rollout.evaluate import EvalConfig, ExpertSource, MaskedSource, NetSource
@@ -171,10 +172,8 @@ def _folder(comparison: Comparison, method: Row, seed: int) -> Path:
 
 def shared_folder(comparison: Comparison) -> Path:
     """Where the runs of ``comparison``'s runs folder share identical work
-    (``OUT/<runs>_runs/_shared/``: content-keyed results,
-    :mod:`safe_bc.methods.selfimprove.shared`; no method's folder starts with ``_``)."""
-    from safe_bc.methods.selfimprove.shared import SHARED
-
+    (``OUT/<runs>_runs/_shared/``: content-keyed results a method stores there; no method's
+    folder starts with ``_``)."""
     stem = comparison.runs or comparison.name
     return comparison.out / f"{stem}_runs" / SHARED
 

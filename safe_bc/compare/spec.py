@@ -81,7 +81,7 @@ class Report:
     """``"module:function"``, imported when the step runs: ``function(table, meta, source,
     command) -> str``, given the table and its provenance as written, the table's path and the
     command running the step, returns the text of :attr:`file`; pure (the runner reads and
-    writes), e.g. ``"safe_bc.compare.selfimprove_choice:markdown"``."""
+    writes), e.g. ``"safe_bc.methods.selfimprove.choice:markdown"``."""
     file: str
     """The file it writes, beside the table: ``OUT/<file>``."""
 

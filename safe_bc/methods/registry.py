@@ -33,6 +33,10 @@ from typing import Any
 
 from safe_bc.run_config import RunConfig
 
+SHARED = "_shared"
+"""The folder, in a runs folder, of results its runs share (a method's folder name never starts
+with ``_``: :func:`safe_bc.compare.spec.run_slug` strips it)."""
+
 
 @dataclass(frozen=True)
 class Start:
@@ -60,8 +64,8 @@ class Start:
     nothing."""
     shared: Path | None = None
     """Where runs from this start store and read work they would repeat identically (a
-    comparison's ``<runs folder>/_shared``: the self-imitation runs' start validation and
-    expert runs, content-keyed); ``None``: nothing shared."""
+    comparison's ``<runs folder>/``:data:`SHARED`: e.g. the self-imitation runs' start
+    validation and expert runs, content-keyed); ``None``: nothing shared."""
 
 
 @dataclass(frozen=True)

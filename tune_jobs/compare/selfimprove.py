@@ -29,7 +29,7 @@ Selection tracks, which chose the defaults (so the fresh tables report other blo
 * ``rounds_carracing``: the defaults, 4 rounds, 4 rounds of half-size pushes on CarRacing
   (``selection_carracing``'s runs: a round never depends on how many follow, so the defaults'
   first two rounds are copied). The rule that turns these three tables into defaults is their
-  report step (:data:`CHOICE`, :mod:`safe_bc.compare.selfimprove_choice`): the runner writes
+  report step (:data:`CHOICE`, :mod:`safe_bc.methods.selfimprove.choice`): the runner writes
   ``choice.md`` (``rounds_choice.md``) beside the table; ``--report-only`` reruns only it.
 
 Beyond the expert, planned before it runs (docs/improvement.md):
@@ -182,7 +182,7 @@ def car_rows(choices: dict[str, tuple[str, SelfImproveConfig]]) -> tuple[Row, ..
     )
 
 
-CHOICE = "safe_bc.compare.selfimprove_choice:markdown"
+CHOICE = "safe_bc.methods.selfimprove.choice:markdown"
 """The selection tables' report step: the setting each table supports, by the rule fixed
 before the CarRacing table existed."""
 

@@ -62,7 +62,7 @@ TASK_DEFAULTS: Mapping[str, dict[str, Any]] = _TaskDefaults()
 """Each registered task's values for the fields a :class:`SelfImproveConfig` leaves at
 ``None`` (its ``TaskSpec.selfimprove``, read from the task's record), each chosen by
 its selection table (3 training seeds x 50 selection tracks or 200 selection patients; the
-rule of the tables' report step, ``safe_bc/compare/selfimprove_choice.py``: among the rows with
+rule of the tables' report step, ``safe_bc/methods/selfimprove/choice.py``: among the rows with
 a reliable reward gain over the start, the fewest episodes beyond d_s). CarRacing: 4 rounds
 of the loop's pushes at half size (offsets halved, scales halfway to 1;
 ``results/selfimprove/carracing/rounds_choice.md``), kept rows in the rest pool (``choice.md``:

@@ -1,4 +1,4 @@
-"""Results that runs of one runs folder share (issue 57 item 1 (c)): work that candidates of
+"""Results that runs of one runs folder share: work that candidates of
 one training seed would otherwise repeat identically, stored once, content-keyed, in
 ``<runs folder>/_shared/<key>.json`` (written atomically) and read by the next run that needs
 it.
@@ -25,9 +25,6 @@ import numpy as np
 from safe_bc.data.atomic import write_json_atomic
 from safe_bc.methods.selfimprove.logic import content_key
 
-SHARED = "_shared"
-"""The shared results' folder in a runs folder (a method's folder name never starts with
-``_``: :func:`safe_bc.compare.spec.run_slug` strips it)."""
 SHARED_FORMAT = "safe_bc.selfimprove.shared/1"
 """Format of a shared record (an ingredient of every key)."""
 

@@ -1,4 +1,4 @@
-"""A run's kept frames in one append-only file (issue 57 item 1 (b); numpy only, no torch).
+"""A run's kept frames in one append-only file (numpy only, no torch).
 
 Each round's kept frames (``uint8``, the rows of its pieces with data, in the order of its
 round file) are appended raw to ``kept_frames.bin`` in the run folder, and

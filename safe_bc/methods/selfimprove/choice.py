@@ -2,7 +2,7 @@
 self-imitation family's selection tables (pure: the table and its metadata in, Markdown out).
 
 ``tune_jobs/compare/selfimprove.py``'s ``selection_<task>`` and ``rounds_carracing`` declare
-``Report("safe_bc.compare.selfimprove_choice:markdown", ...)``: the runner
+``Report("safe_bc.methods.selfimprove.choice:markdown", ...)``: the runner
 (:func:`safe_bc.compare.run.run_report`) hands :func:`markdown` the table it wrote (one row per
 method, paired columns against the start) and writes the text beside it (``choice.md`` beside
 ``selection.parquet``, ``rounds_choice.md`` beside ``rounds.parquet``); ``safe-bc compare
