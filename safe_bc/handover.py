@@ -11,7 +11,7 @@ action component goes no further than the expert's in the direction that raises 
 the safer direction), whatever the agent or the expert would do. Two restarts act wherever the
 cost is: ``stall`` (the costs stood still, a car at rest) and ``pace`` (the car's speed stayed
 below a threshold, a car crawling), each for its own number of expert steps.
-:class:`safe_bc.methods.queries.defer.DeferringPolicy` carries it out.
+:class:`safe_bc.rollout.handover.DeferringPolicy` carries it out.
 """
 
 from __future__ import annotations
@@ -57,7 +57,7 @@ class HandoverConfig:
     below which the agent counts as falling behind: after :attr:`pace_steps` steps in a row
     below it (outside warm-up) the expert takes over for :attr:`pace_hold` steps, wherever the
     cost is (a car crawling after a corner, braking lightly without gas, long before it stands
-    still); 0: off. Read by :func:`safe_bc.methods.queries.defer.pace_decision`."""
+    still); 0: off. Read by :func:`safe_bc.rollout.handover.pace_decision`."""
     pace_steps: int = 0
     """Steps in a row below :attr:`pace` that start the expert (with :attr:`pace`)."""
     pace_hold: int = 0

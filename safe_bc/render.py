@@ -261,7 +261,7 @@ def render_episode(
 ) -> Trace:
     """Roll ``policy`` out on ``task``'s track ``seed`` and write the annotated episode to
     ``out`` (one frame per step: the observation each action was chosen in); a policy that
-    reports its handover (``flags``, :class:`safe_bc.methods.queries.defer.DeferringPolicy`) has the
+    reports its handover (``flags``, :class:`safe_bc.rollout.handover.DeferringPolicy`) has the
     expert's steps marked. ``progress``: bars over the steps, frames and encoding."""
     trace = record(policy, seed, label=label, max_steps=max_steps, task=task, progress=progress)
     flags = getattr(policy, "flags", None)

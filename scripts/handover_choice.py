@@ -35,11 +35,11 @@ from safe_bc.data.atomic import write_text_atomic
 from safe_bc.data.provenance import run_metadata
 from safe_bc.data.store import read_table, write_table_atomic
 from safe_bc.distributed.evaluate import evaluate_policies
-from safe_bc.methods.queries.defer import handover_source
 from safe_bc.report import markdown_table
 from safe_bc.rollout.collect import expert_config_from_dict
 from safe_bc.rollout.config import EvalConfig
 from safe_bc.rollout.evaluate import ExpertSource, NetSource
+from safe_bc.rollout.handover import handover_source
 from safe_bc.study.recommender import load_recommender
 from safe_bc.tasks import task_defaults
 

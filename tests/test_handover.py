@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from safe_bc.handover import HandoverConfig
-from safe_bc.methods.queries.defer import cap_action, handover_source
 from safe_bc.rollout.collect import build_expert
+from safe_bc.rollout.handover import cap_action, handover_source
 from safe_bc.tasks import make_env, task_defaults
 
 
@@ -155,7 +155,7 @@ def test_a_stall_restart_enters_the_identity_only_where_set() -> None:
 def test_the_expert_restarts_an_agent_whose_costs_stand_still() -> None:
     """An agent that stops outside the zone: after ``stall`` steps of an unchanged cost the
     expert acts for ``stall_hold`` steps; never in warm-up; off without ``stall``."""
-    from safe_bc.methods.queries.defer import DeferringPolicy
+    from safe_bc.rollout.handover import DeferringPolicy
     from safe_bc.selection import CriticalZone
 
     class Const:
@@ -214,7 +214,7 @@ def test_the_expert_drives_a_car_that_falls_below_pace() -> None:
     car's hull velocity."""
     from types import SimpleNamespace
 
-    from safe_bc.methods.queries.defer import DeferringPolicy
+    from safe_bc.rollout.handover import DeferringPolicy
     from safe_bc.selection import CriticalZone
 
     class Const:

@@ -33,8 +33,6 @@ INNARDS = "uses a method's own code beyond the registry's interface (its shield,
 OLD_COMMAND = "the old command `safe-bc improve` / `safe-bc query` (an alias of safe-bc method)"
 
 ALLOWED: dict[tuple[str, str], str] = {
-    ("cli/api.py", "from safe_bc.methods.queries.defer import DeferralSource, dimension_indices"):
-        INNARDS + ": evaluate's handover (deferral) source",
     ("cli/api.py", "from safe_bc.methods.queries.stage import expert_for"): INNARDS,
     ("cli/api.py", 'bar.set_postfix(queries=int(summary["queries"]))'):
         OLD_COMMAND + ": its progress bar reads the query runner's round summary",
@@ -84,14 +82,8 @@ ALLOWED: dict[tuple[str, str], str] = {
         INNARDS + ": a handover row over an improved agent",
     ("compare/run.py", "from safe_bc.methods.improve.shield import Shield"):
         INNARDS + ": a handover row over an improved agent",
-    ("compare/run.py", "from safe_bc.methods.queries.defer import handover_source"):
-        INNARDS + ": the handover (deferral) source",
-    ("study/recommender.py", "from safe_bc.methods.queries.defer import handover_source"):
-        INNARDS + ": the handover (deferral) source",
     ("study/run.py", "from safe_bc.methods.improve.shield import ImprovedSource"):
         INNARDS + ": the recommender of an improved agent",
-    ("study/trial.py", "from safe_bc.methods.queries.defer import handover_source"):
-        INNARDS + ": the handover (deferral) source",
     ("study/spec.py", "from safe_bc.methods.improve.config import ImproveConfig"): IDENTITY,
     ("study/spec.py", "from safe_bc.methods.queries.config import QueryConfig"): IDENTITY,
     ("study/spec.py", "from safe_bc.methods.selfimprove.config import SelfImproveConfig"):

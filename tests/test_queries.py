@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from safe_bc.methods.queries.config import DONE, POLICY, QUERIES, QueryConfig, round_dir
-from safe_bc.methods.queries.defer import DeferringPolicy
 from safe_bc.methods.queries.logic import deferred_steps, query_mask
 from safe_bc.methods.queries.rollout import AskingPolicy
+from safe_bc.rollout.handover import DeferringPolicy
 from safe_bc.selection import CriticalZone
 
 ZONE = CriticalZone((10.0, 5.0), eps=2.0)
@@ -130,7 +130,7 @@ def test_a_hold_started_only_by_the_named_dimensions() -> None:
 
 
 def test_dimension_names_map_to_indices_with_one_line_errors() -> None:
-    from safe_bc.methods.queries.defer import dimension_indices
+    from safe_bc.rollout.handover import dimension_indices
 
     assert dimension_indices(("right", "front"), ("left", "front", "right")) == (2, 1)
     assert dimension_indices((), ("left",)) is None
@@ -263,8 +263,8 @@ def test_full_mode_with_a_budget_keeps_the_first_queries(rehab_agent, rehab_demo
 
 
 def test_evaluation_reports_the_deferred_share(rehab_agent, rehab_demos) -> None:
-    from safe_bc.methods.queries.defer import DeferralSource
     from safe_bc.rollout.evaluate import NetSource, evaluate_episode
+    from safe_bc.rollout.handover import DeferralSource
     from safe_bc.tasks import make_env, task_defaults
 
     model, cfg, _ = rehab_agent
@@ -289,9 +289,9 @@ def test_a_handover_in_lockstep_gives_the_one_env_episodes(
     from safe_bc.bc.config import BCConfig, NetworkConfig, TrainConfig
     from safe_bc.data.store import load_demonstrations
     from safe_bc.methods.experiment import train_run
-    from safe_bc.methods.queries.defer import DeferralSource, LockstepDeferringPolicy
     from safe_bc.rollout.collect import stored_expert_config
     from safe_bc.rollout.evaluate import NetSource, evaluate_episodes
+    from safe_bc.rollout.handover import DeferralSource, LockstepDeferringPolicy
     from safe_bc.run_config import RunConfig
     from safe_bc.selection import SelectionConfig
     from safe_bc.tasks import make_env, task_defaults

@@ -231,8 +231,8 @@ def _evaluate(job: EvaluateJob) -> Done:
     agent: Any = NetSource.from_model(model, bc_cfg)
     h = job.handover  # its own checks ran when the job was made (HandoverFlags)
     if h.width is not None:
-        from safe_bc.methods.queries.defer import DeferralSource, dimension_indices
         from safe_bc.methods.queries.stage import expert_for
+        from safe_bc.rollout.handover import DeferralSource, dimension_indices
 
         hold_on = dimension_indices(h.hold_on, task.safety_dims)
         expert_cfg = expert_for(extra.get("demos", ""), extra["env_id"])

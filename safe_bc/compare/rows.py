@@ -471,7 +471,7 @@ class Handover(Row):
     """The row whose agents act outside the zone."""
     handover: HandoverConfig | None = None
     """Where the expert acts: the env's measured cost within ``width`` of d_s
-    (:class:`safe_bc.methods.queries.defer.DeferralSource`; the episodes record the share of steps
+    (:class:`safe_bc.rollout.handover.DeferralSource`; the episodes record the share of steps
     deferred); ``None``: the shield's zone (the comparison's eps, costs read off the
     observation)."""
     label: str = ""

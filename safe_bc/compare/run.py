@@ -381,7 +381,7 @@ class _Runs:
         limits = tuple(float(x) for x in self.limits[demos_of(c, row)])
         expert, task = stored_expert_config(c.demos), task_defaults(c.task)
         if row.handover is not None:
-            from safe_bc.methods.queries.defer import handover_source
+            from safe_bc.rollout.handover import handover_source
 
             return handover_source(net, row.handover, expert, limits, task.safety_dims)
         shield = Shield(CriticalZone(limits, c.width, "any"), task.env.env_id)

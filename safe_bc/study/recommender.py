@@ -205,9 +205,9 @@ class Recommender:
     def source(self, seed: int | None = None) -> Any:
         """The policy source of seed ``seed``'s recommender (default: the first seed), for
         :func:`safe_bc.distributed.evaluate.evaluate`."""
-        from safe_bc.methods.queries.defer import handover_source
         from safe_bc.rollout.collect import expert_config_from_dict
         from safe_bc.rollout.evaluate import NetSource
+        from safe_bc.rollout.handover import handover_source
 
         seed = self.card.seeds[0] if seed is None else int(seed)
         if seed not in self.agents:

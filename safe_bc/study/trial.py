@@ -357,8 +357,8 @@ def stored_round(path: Path) -> tuple[pd.DataFrame, float] | None:
 def with_handover(source: Any, job: TrialJob) -> Any:
     """``source`` (an agent) with the study's handover to the demonstrations' expert at their
     ``d_s``: the recommender the study evaluates."""
-    from safe_bc.methods.queries.defer import handover_source
     from safe_bc.rollout.collect import stored_expert_config
+    from safe_bc.rollout.handover import handover_source
     from safe_bc.tasks import task_defaults, task_of
 
     dims = task_defaults(task_of(job.spec.env.env_id)).safety_dims

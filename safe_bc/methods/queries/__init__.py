@@ -1,4 +1,5 @@
-"""Critical-zone queries (interactive imitation) and deferral to the expert at use time.
+"""Critical-zone queries (interactive imitation); deferral to the expert at use time is the
+handover (:mod:`safe_bc.rollout.handover`), which the query rounds use too.
 
 * :mod:`~safe_bc.methods.queries.config`: the settings (stdlib only, read by study files and the
 CLI);
@@ -8,7 +9,6 @@ CLI);
 zone;
 * :mod:`~safe_bc.methods.queries.run`: the resumable rounds (roll out, label, retrain);
 * :mod:`~safe_bc.methods.queries.stage`: the method's runner (``METHODS["queries"]``);
-* :mod:`~safe_bc.methods.queries.defer`: the deferral wrapper and the width rule;
 * :mod:`~safe_bc.methods.queries.summary`: the summary of the queries family
   (``tune_jobs/compare/queries.py``, run by the comparison runner; written by
   ``python -m scripts.queries_report``, drawn by ``python -m scripts.queries_figure``).

@@ -229,7 +229,7 @@ class ExploreJob:
             if push is None:
                 return agent
             return ZoneWatch(agent, push, self.limits, self.backoff_eps)
-        from safe_bc.methods.queries.defer import DeferringPolicy, handover_source
+        from safe_bc.rollout.handover import DeferringPolicy, handover_source
 
         if expert is None:
             raise ValueError("a self-imitation run under the handover needs the expert's config")

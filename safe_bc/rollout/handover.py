@@ -1,5 +1,7 @@
-"""Deferral at use time: the agent acts, except where the measured cost is within a width
-``w`` of ``d_s``, where the expert acts ("ask the clinician"). One job: the wrapper."""
+"""The handover at use time (what a recommender does with its agent): the agent acts, except
+where the measured cost is within a width ``w`` of ``d_s`` (or a restart rule fires), where the
+expert acts ("ask the clinician"). One job: the wrapper; its settings are
+:class:`safe_bc.handover.HandoverConfig`."""
 
 from __future__ import annotations
 
@@ -10,7 +12,6 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from safe_bc.methods.queries.logic import ask_expert
 from safe_bc.policy import BatchPolicy, Policy
 from safe_bc.rollout.collect import build_expert
 from safe_bc.selection import CriticalZone
@@ -106,7 +107,8 @@ def handover_decision(
     if lookahead and state.prev is not None:
         seen = cost + lookahead * (cost - state.prev)
     state.prev = cost
-    defer = ask_expert(seen, bool(info["warmup"]), zone, "critical")
+    warmup = bool(info["warmup"])
+    defer = False if warmup else bool(zone.critical(np.asarray(seen, np.float64)[None])[0])
     if defer and (hold_on is None or zone.per_dim(seen[None])[0, hold_on].any()):
         state.left = hold
     elif not defer and state.left > 0:  # (zone steps of other dimensions pause the count)
