@@ -33,7 +33,6 @@ INNARDS = "uses a method's own code beyond the registry's interface (its shield,
 OLD_COMMAND = "the old command `safe-bc improve` / `safe-bc query` (an alias of safe-bc method)"
 
 ALLOWED: dict[tuple[str, str], str] = {
-    ("cli/api.py", "from safe_bc.methods.queries.stage import expert_for"): INNARDS,
     ("cli/api.py", 'bar.set_postfix(queries=int(summary["queries"]))'):
         OLD_COMMAND + ": its progress bar reads the query runner's round summary",
     ("cli/api.py", 'f"{result.total_queries} queries in {result.total_episodes} episodes; "'):

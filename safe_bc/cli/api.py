@@ -231,7 +231,7 @@ def _evaluate(job: EvaluateJob) -> Done:
     agent: Any = NetSource.from_model(model, bc_cfg)
     h = job.handover  # its own checks ran when the job was made (HandoverFlags)
     if h.width is not None:
-        from safe_bc.methods.queries.stage import expert_for
+        from safe_bc.rollout.collect import expert_for
         from safe_bc.rollout.handover import DeferralSource, dimension_indices
 
         hold_on = dimension_indices(h.hold_on, task.safety_dims)

@@ -172,7 +172,7 @@ def evaluate(
     from safe_bc.data.store import read_meta, write_table_atomic
     from safe_bc.distributed.evaluate import evaluate as run_evaluate
     from safe_bc.export.limits import dataset_zone
-    from safe_bc.methods.queries.stage import expert_for
+    from safe_bc.rollout.collect import expert_for
     from safe_bc.rollout.evaluate import EvalConfig, ExpertSource
     from safe_bc.tasks import task_defaults
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -96,6 +96,20 @@ def stored_expert_config(demos: Path) -> Any:
     from safe_bc.data.store import read_meta
 
     return expert_config_from_dict(read_meta(demos).expert)
+
+
+def expert_for(demos: str | Path, env_id: str) -> Any:
+    """The expert config that made ``demos`` (its ``dataset.json``), else the task's default."""
+    from safe_bc.data.store import read_meta
+    from safe_bc.tasks import task_defaults, task_of
+
+    default = task_defaults(task_of(env_id)).expert
+    try:
+        recorded = read_meta(Path(demos)).expert or {}
+    except Exception:  # a dataset without a readable record: the task's expert
+        return default
+    names = {f.name for f in fields(default)}
+    return type(default)(**{k: v for k, v in recorded.items() if k in names})
 
 
 def build_expert(cfg: Any) -> Policy:

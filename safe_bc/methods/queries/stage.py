@@ -3,7 +3,6 @@ agent retrained on critical-zone queries in its folder (resumable per round)."""
 
 from __future__ import annotations
 
-from dataclasses import fields
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -13,25 +12,12 @@ from safe_bc.bc.net import BCNet
 from safe_bc.methods.queries.config import QueryConfig
 from safe_bc.methods.queries.run import QueryResult, run_queries
 from safe_bc.methods.registry import Improved, Start
+from safe_bc.rollout.collect import expert_for
 from safe_bc.run_config import RunConfig
 from safe_bc.tasks.env_config import EnvConfig
 
 if TYPE_CHECKING:
     from safe_bc.methods.rounds import Parallel
-
-
-def expert_for(demos: str | Path, env_id: str) -> Any:
-    """The expert config that made ``demos`` (its ``dataset.json``), else the task's default."""
-    from safe_bc.data.store import read_meta
-    from safe_bc.tasks import task_defaults, task_of
-
-    default = task_defaults(task_of(env_id)).expert
-    try:
-        recorded = read_meta(Path(demos)).expert or {}
-    except Exception:  # a dataset without a readable record: the task's expert
-        return default
-    names = {f.name for f in fields(default)}
-    return type(default)(**{k: v for k, v in recorded.items() if k in names})
 
 
 def query_run(
