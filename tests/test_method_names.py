@@ -75,8 +75,6 @@ ALLOWED: dict[tuple[str, str], str] = {
                         "selfimprove,"): FLAT,
     ("compare/run.py", "from safe_bc.methods.improve import validation_seeds"):
         INNARDS + ": the improvement's validation tracks, kept apart from the comparison's",
-    ("compare/run.py", "from safe_bc.methods.selfimprove.config import DONE, round_dir"):
-        INNARDS + ": seeding a run with a shorter run's rounds (MethodSpec.shares_rounds)",
     ("compare/run.py", "from safe_bc.methods.improve import ImprovedSource"):
         INNARDS + ": a handover row over an improved agent",
     ("compare/run.py", "from safe_bc.methods.improve.shield import Shield"):

@@ -262,7 +262,7 @@ def _copy_shared_rounds(c: Comparison, method: FromStart, seed: int, folder: Pat
     import os
     import shutil
 
-    from safe_bc.methods.selfimprove.config import DONE, round_dir
+    from safe_bc.methods.layout import DONE, round_dir
 
     mine = method.identity(c, seed)
     best: tuple[int, Path] | None = None
