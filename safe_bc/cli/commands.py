@@ -191,8 +191,7 @@ def parse(argv: Sequence[str]) -> tuple[str, Any]:
         raise UsageError(f"unknown command {command!r}: choose {', '.join(COMMANDS)}")
     rest = _unalias(command, argv[1:])
     new = _new_form(command, rest)
-    if new:
-        print(f"`safe-bc {command}` is `{new}` now", file=sys.stderr)
+    notice = f"`safe-bc {command}` is `{new}` now" if new else ""
     if command == "method":
         return command, _parse_method(rest)
     cls = getattr(jobs, COMMANDS[command][0])
@@ -202,6 +201,8 @@ def parse(argv: Sequence[str]) -> tuple[str, Any]:
         from safe_bc.cli.help import render
 
         width = min(max(shutil.get_terminal_size((100, 24)).columns, 80), 120)
+        if notice:
+            print(notice, file=sys.stderr)
         print(render(cls, f"safe-bc {command}", about, width=width))
         raise SystemExit(0)
     rest = ["--help" if a == "--help-full" else a for a in rest]
@@ -417,6 +418,9 @@ def main(argv: Sequence[str] | None = None) -> int:
 
             ensure_ray()
         code = run(command, job, argv)
+        new = _new_form(command, argv[1:])
+        if new:  # an old command's name, told once it ran (bad input keeps its one line)
+            print(f"`safe-bc {command}` is `{new}` now", file=sys.stderr)
         if not argv_given:  # the command is done: a signal no longer interrupts its exit
             _set_signals(signal.SIG_IGN)
             _stop_ray()
