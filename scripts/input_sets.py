@@ -93,12 +93,14 @@ comparison runner)."""
 def names_demos_only(path: Path, meta: dict[str, Any] | None = None) -> bool:
     """Whether a result table names the demonstrations it read only by path: its metadata
     (``meta``, read from ``path`` when not given) has ``demos`` but no limits, no
-    ``demos_digest`` and no ``inputs`` record. Tables inside an agent's or a run's folder are
-    left to that agent's record (its ``config.json``)."""
+    ``demos_digest`` and no ``inputs`` record. Tables inside an agent's or a run's folder (a
+    comparison's ``*runs``, a study's final-phase ``final_*`` folders) are left to that agent's
+    record (its ``config.json``) and the table that names the run."""
     parts = path.parts
     if "results" in parts:  # only the folders below results/: not where the checkout lives
         parts = parts[len(parts) - parts[::-1].index("results") :]
-    if any(part == "agent" or part.endswith("runs") for part in parts):
+    folders = parts[:-1]
+    if any(p == "agent" or p.endswith("runs") or p.startswith("final_") for p in folders):
         return False
     meta = table_meta(path) if meta is None else meta
     return "demos" in meta and not ({"demos_digest", "inputs"} & meta.keys())

@@ -52,6 +52,12 @@ def test_a_table_naming_its_demonstrations_by_path_alone_is_listed_as_unrecorded
     assert names_demos_only(tmp_path / "results/ablation/old/episodes.parquet")
     assert not names_demos_only(tmp_path / "results/ablation/new/episodes.parquet")
     assert not names_demos_only(tmp_path / "results/ablation/new/runs/agent/curve.parquet")
+    # a study's final-phase run (its study's tables name the set), not a table named final_*
+    final_run = tmp_path / "results/study/final_selfimprove/t1/seed0/curve.parquet"
+    table(final_run, {"demos": "data/demos"})
+    assert not names_demos_only(final_run)
+    table(tmp_path / "results/study/final_x.parquet", {"demos": "data/demos"})
+    assert names_demos_only(tmp_path / "results/study/final_x.parquet")
     # a checkout inside a folder named like a run's (e.g. /work/runs/clone) reads the same
     moved = tmp_path / "runs" / "results/ablation/old/episodes.parquet"
     moved.parent.mkdir(parents=True)
@@ -59,6 +65,7 @@ def test_a_table_naming_its_demonstrations_by_path_alone_is_listed_as_unrecorded
     assert names_demos_only(moved)
     report = input_sets(tmp_path)
     assert "results/ablation/old" in report and "results/ablation/new" not in report
+    assert "results/study/final_selfimprove" not in report
     assert _status("results/ablation/old", UNRECORDED) in report
     assert _status("results/ablation/old", UNRECORDED).startswith("to rerun")
 
