@@ -79,6 +79,29 @@ def write_frame_file(path: Path, shape: tuple[int, ...], chunks: Iterable[np.nda
     return path
 
 
+def frame_rows(key: Any, n: int, what: str = "rows") -> tuple[np.ndarray, bool]:
+    """The rows a frame sequence of ``n`` frames is indexed with (an int, a slice, a boolean
+    mask or a 1-d integer index; negative rows count from the end) as non-negative int64 rows,
+    and whether ``key`` asked for one frame (an int).
+
+    >>> frame_rows(-1, 4), frame_rows(slice(1, 3), 4)[0].tolist()
+    ((array([3]), True), [1, 2])
+    """
+    if isinstance(key, (int, np.integer)):
+        return frame_rows(np.asarray([key]), n, what)[0], True
+    if isinstance(key, slice):
+        return np.arange(n)[key].astype(np.int64), False
+    rows = np.asarray(key)
+    if rows.dtype == bool:
+        rows = np.flatnonzero(rows)
+    if rows.ndim != 1 or rows.dtype.kind not in "iu":
+        raise IndexError(f"{what} must be an int, a slice or a 1-d index, got {key!r}")
+    rows = rows.astype(np.int64)
+    if rows.size and (rows.min() < -n or rows.max() >= n):
+        raise IndexError(f"row out of range for {n} frames")
+    return np.where(rows < 0, rows + n, rows), False
+
+
 class FrameFile:
     """``(N, *frame) uint8`` frames in a ``.npy`` file, indexed like an array.
 
@@ -178,23 +201,10 @@ class FrameFile:
         return out if dtype is None else out.astype(dtype, copy=False)
 
     def __getitem__(self, key: Any) -> np.ndarray:
-        if isinstance(key, (int, np.integer)):
-            return self[np.asarray([key])][0]
-        if isinstance(key, slice):
-            return self[np.arange(len(self))[key]]
-        rows = np.asarray(key)
-        if rows.dtype == bool:
-            rows = np.flatnonzero(rows)
-        if rows.ndim != 1 or rows.dtype.kind not in "iu":
-            raise IndexError(f"FrameFile rows must be an int, a slice or a 1-d index, got {key!r}")
-        rows = rows.astype(np.int64)
-        n = len(self)
-        if rows.size and (rows.min() < -n or rows.max() >= n):
-            raise IndexError(f"row out of range for {n} frames")
-        rows = np.where(rows < 0, rows + n, rows)
+        rows, one = frame_rows(key, len(self), "FrameFile rows")
         out = np.empty((len(rows), *self.shape[1:]), np.uint8)
         self._read_into(rows, out)
-        return out
+        return out[0] if one else out
 
     def _read_into(self, rows: np.ndarray, out: np.ndarray) -> None:
         """Fill ``out[i] = frame rows[i]``: one ``pread`` per run of consecutive rows."""

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from safe_bc.data.atomic import write_json_atomic
-from safe_bc.data.frames import FrameFile, FrameFileError
+from safe_bc.data.frames import FrameFile, FrameFileError, frame_rows
 
 STORE = "kept_frames.bin"
 """The run's kept frames, raw ``uint8`` rows, no header (:data:`STORE_INDEX` says the shape)."""
@@ -85,26 +85,13 @@ class ConcatFrames:
         return out if dtype is None else out.astype(dtype, copy=False)
 
     def __getitem__(self, key: Any) -> np.ndarray:
-        if isinstance(key, (int, np.integer)):
-            return self[np.asarray([key])][0]
-        if isinstance(key, slice):
-            return self[np.arange(len(self))[key]]
-        rows = np.asarray(key)
-        if rows.dtype == bool:
-            rows = np.flatnonzero(rows)
-        if rows.ndim != 1 or rows.dtype.kind not in "iu":
-            raise IndexError(f"rows must be an int, a slice or a 1-d index, got {key!r}")
-        rows = rows.astype(np.int64)
-        n = len(self)
-        if rows.size and (rows.min() < -n or rows.max() >= n):
-            raise IndexError(f"row out of range for {n} frames")
-        rows = np.where(rows < 0, rows + n, rows)
+        rows, one = frame_rows(key, len(self))
         out = np.empty((len(rows), *self.shape[1:]), self.dtype)
         part = np.searchsorted(self.bounds, rows, side="right") - 1
         for i in np.unique(part):
             mine = np.flatnonzero(part == i)
             out[mine] = self.parts[i][rows[mine] - self.bounds[i]]
-        return out
+        return out[0] if one else out
 
 
 class KeptFrameStore:
