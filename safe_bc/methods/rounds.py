@@ -19,6 +19,7 @@ from safe_bc.bc.checkpoint import checkpoint_unit, load_checkpoint, save_checkpo
 from safe_bc.bc.net import BCNet
 from safe_bc.data.atomic import write_json_atomic
 from safe_bc.data.demos import Demonstrations
+from safe_bc.data.provenance import repo_relative
 from safe_bc.rollout.evaluate import NetSource
 from safe_bc.run_config import RunConfig
 from safe_bc.selection import Selection
@@ -124,7 +125,7 @@ def save_round_net(
             extra={
                 method: {**identity, "round": round_},
                 "env_id": getattr(env_config, "env_id", None),
-                "demos": demos_path,
+                "demos": repo_relative(demos_path),
             },
         )  # fmt: skip
 

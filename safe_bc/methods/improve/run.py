@@ -25,6 +25,7 @@ from safe_bc.bc.config import BCConfig
 from safe_bc.bc.net import BCNet
 from safe_bc.bc.train import torch_settings
 from safe_bc.data.atomic import atomic_write
+from safe_bc.data.provenance import repo_relative
 from safe_bc.methods.improve.config import FORMAT, HISTORY, POLICY, STATE, ImproveConfig
 from safe_bc.methods.improve.engine import Improver, _check_start_fits, _load_start, _start_meta
 from safe_bc.methods.improve.envs import EnvGroupFactory, LocalEnvs
@@ -59,7 +60,7 @@ def _identity(start: Path, demos: Path | None, config: ImproveConfig) -> dict[st
         "config": config.to_dict(),
         "start": str(start),
         "start_weights_sha256": meta["weights_sha256"],
-        "demos": str(demos_path),
+        "demos": repo_relative(demos_path),
     }
 
 
@@ -198,7 +199,7 @@ def improve_from_net(
     folder = Path(folder)
     start, run = folder / "start", folder / "run"
     data = load_demonstrations(Path(demos))
-    meta = {"env_id": env_id, "demos": str(demos)}
+    meta = {"env_id": env_id, "demos": repo_relative(demos)}
     with checkpoint_unit(start) as unit:
         save_checkpoint(unit, model, bc_config, extra=meta)
         save_selection(unit, data, select_for(data, selection), meta)

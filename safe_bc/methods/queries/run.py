@@ -23,6 +23,7 @@ from safe_bc.bc.checkpoint import checkpoint_unit, save_checkpoint
 from safe_bc.bc.net import BCNet
 from safe_bc.data.atomic import write_json_atomic
 from safe_bc.data.demos import Demonstrations
+from safe_bc.data.provenance import repo_relative
 from safe_bc.methods.queries.config import (
     DONE,
     FORMAT,
@@ -132,7 +133,7 @@ def plan_queries(
         "format": FORMAT,
         "config": config.identity(),
         "run_config": run_config.to_dict(),
-        "demos": str(demos_path),
+        "demos": repo_relative(demos_path),
         "env": str(env_config),
         "expert": str(expert_config),
         "start_weights_sha256": weights_digest(start.state_dict()),

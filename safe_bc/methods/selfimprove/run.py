@@ -33,6 +33,7 @@ from safe_bc.bc.net import BCNet
 from safe_bc.data.atomic import write_json_atomic
 from safe_bc.data.curves import write_curve
 from safe_bc.data.demos import Demonstrations
+from safe_bc.data.provenance import repo_relative
 from safe_bc.methods.improve.config import VALIDATION_SEED_BASE
 from safe_bc.methods.queries.config import track_seeds
 from safe_bc.methods.rounds import (
@@ -308,7 +309,7 @@ def plan_selfimprove(
         "format": FORMAT,
         "config": {**config.identity(), "pushes": list(pushes)},
         "run_config": run_config.to_dict(),
-        "demos": str(demos_path),
+        "demos": repo_relative(demos_path),
         "env": str(env_config),
         "start_weights_sha256": weights_digest(start_src.state),
     }
@@ -519,7 +520,8 @@ def run_selfimprove(
         with checkpoint_unit(folder / "start") as unit:
             save_checkpoint(
                 unit, start, run_config.bc,
-                extra={"env_id": getattr(env_config, "env_id", None), "demos": str(demos_path)},
+                extra={"env_id": getattr(env_config, "env_id", None),
+                       "demos": repo_relative(demos_path)},
             )  # fmt: skip
     cache = None if shared is None else SharedResults(shared)
     start_val = read_json(folder / START_VALIDATION)
