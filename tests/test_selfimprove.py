@@ -212,6 +212,31 @@ def test_two_runs_keep_the_same_data_and_train_the_same_weights(
     assert a.kept_steps > 0  # the runs compared kept something
 
 
+def test_a_run_records_its_demonstrations_relative_to_the_checkout(
+    rehab_agent, rehab_demos, tmp_path, monkeypatch
+) -> None:
+    """Given the demonstrations by an absolute path inside the checkout (a study resolves
+    ``data/demos``), the run's identity and its checkpoints name them relative to it: a
+    committed run folder names no path of the machine that made it."""
+    import functools
+
+    import safe_bc.methods.rounds as rounds
+    import safe_bc.methods.selfimprove.run as run
+    from safe_bc.data.provenance import repo_relative
+
+    checkout = rehab_demos.parent  # stands in for the repository holding data/
+    for module in (run, rounds):
+        monkeypatch.setattr(
+            module, "repo_relative", functools.partial(repo_relative, root=checkout)
+        )
+    _run(rehab_agent, rehab_demos, tmp_path / "a", rounds=1)
+    want = rehab_demos.relative_to(checkout).as_posix()
+    assert json.loads((tmp_path / "a" / "identity.json").read_text())["demos"] == want
+    for unit in ("start", f"{round_dir(0)}/{POLICY}"):
+        config = json.loads((tmp_path / "a" / unit / "config.json").read_text())
+        assert config["extra"]["demos"] == want, unit
+
+
 def _no_seconds(x: list[dict], y: list[dict]) -> bool:
     drop = ("seconds", "rollout_seconds")
     return [{k: v for k, v in r.items() if k not in drop} for r in x] == [
