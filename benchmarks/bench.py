@@ -339,13 +339,14 @@ def case_module(case: str) -> ModuleType:
     return importlib.import_module(_BENCHES[case].partition(":")[0])
 
 
-def case_function(case: str) -> Callable[[Sizes, int, int], list[dict[str, Any]]]:
+def case_function(case: str) -> Callable[[Sizes, int, int], Any]:
     """The function of ``case`` (imports its file)."""
     return getattr(case_module(case), _BENCHES[case].partition(":")[2])
 
 
 def run_case(case: str, sizes: Sizes, repeats: int, seed: int = 0) -> dict[str, Any]:
-    """Run one case in this process: ``{"case", "rows", "seconds", "memory": {...}}``.
+    """Run one case in this process: ``{"case", "rows", "seconds", "memory": {...},
+    "inputs"}`` (``inputs``: the identity of the inputs the case made, where it names them).
 
     The memory figures are this process's (see ``MEMORY_NOTES``); run it in a fresh process
     (``run_case_subprocess``) for them to describe the case alone.
@@ -356,7 +357,9 @@ def run_case(case: str, sizes: Sizes, repeats: int, seed: int = 0) -> dict[str, 
         raise ValueError(f"repeats must be >= 1, got {repeats}")
     start = time.perf_counter()
     with _TreeRSS() as tree:
-        rows = case_function(case)(sizes, repeats, seed)
+        got = case_function(case)(sizes, repeats, seed)
+    # a case that makes its own inputs may name them: {"rows": [...], "inputs": {...}}
+    rows, inputs = (got["rows"], got.get("inputs")) if isinstance(got, dict) else (got, None)
     memory = {
         "peak_mb": _maxrss_mb(resource.RUSAGE_SELF),
         "peak_children_mb": _maxrss_mb(resource.RUSAGE_CHILDREN),
@@ -368,6 +371,7 @@ def run_case(case: str, sizes: Sizes, repeats: int, seed: int = 0) -> dict[str, 
         "rows": rows,
         "seconds": time.perf_counter() - start,
         "memory": memory,
+        "inputs": inputs,
     }
 
 
@@ -471,17 +475,24 @@ def format_table(rows: Sequence[dict[str, Any]]) -> str:
     return "\n".join([fmt_line(header), rule, *(fmt_line(line) for line in lines)])
 
 
-def bench_inputs(cases: Sequence[str], sizes: Sizes) -> dict[str, Any]:
+def bench_inputs(
+    cases: Sequence[str], sizes: Sizes, made: dict[str, Any] | None = None
+) -> dict[str, Any]:
     """What the run read: the record (path, digest, episodes) of the demonstration set a case
     read, from the case file's ``dataset_read(sizes)`` where it has one (the ``stream`` case's
     source set); the other cases make their own inputs (synthetic frames, untrained nets
-    seeded by ``--seed``, seeded tracks), so ``demos`` is ``None`` when no case read a set."""
+    seeded by ``--seed``, seeded tracks), so ``demos`` is ``None`` when no case read a set, and
+    ``made`` holds, per case that names them, the digests of the inputs it made."""
     for case in cases:
         read = getattr(case_module(case), "dataset_read", None)
         record = read(sizes) if read is not None else None
         if record is not None:
             return {"demos": record}
-    return {"demos": None, "made": "synthetic frames, seeded untrained nets, seeded tracks"}
+    out: dict[str, Any] = {"demos": None}
+    out["made"] = "synthetic frames, seeded untrained nets, seeded tracks"
+    if made:
+        out["made_digests"] = made
+    return out
 
 
 def write_results(
@@ -551,6 +562,7 @@ def _run_all(args: argparse.Namespace, sizes: Sizes, repeats: int) -> int:
     """Every selected case in its own subprocess; print and write the table."""
     rows: list[dict[str, Any]] = []
     seconds: dict[str, float] = {}
+    made: dict[str, Any] = {}
     failed: list[str] = []
     start = time.perf_counter()
     for case in args.cases:
@@ -563,6 +575,8 @@ def _run_all(args: argparse.Namespace, sizes: Sizes, repeats: int) -> int:
             continue
         rows += _rows_with_memory(result)
         seconds[case] = result["seconds"]
+        if result.get("inputs"):
+            made[case] = result["inputs"]
     settings = {
         "quick": args.quick,
         "repeats": repeats,
@@ -573,7 +587,7 @@ def _run_all(args: argparse.Namespace, sizes: Sizes, repeats: int) -> int:
         "case_seconds": seconds,
         "total_seconds": time.perf_counter() - start,
         "argv": sys.argv[1:],
-        "inputs": bench_inputs(args.cases, sizes),
+        "inputs": bench_inputs(args.cases, sizes, made),
     }
     if rows:
         from safe_bc.data.provenance import DirtyTreeError

@@ -176,3 +176,19 @@ def test_quick_cli_case_times_the_help_against_a_bare_interpreter():
     assert rows[0]["ratio"] == 1.0
     assert all(r["baseline"] == "python -c pass" and r["ratio"] > 0 for r in rows[1:])
     assert "target: at most 0.5 s" in rows[1]["note"]
+
+
+def test_a_case_that_makes_its_inputs_names_their_digest() -> None:
+    """The self-imitation case reads no dataset: it names the frames it made (their SHA-256,
+    the same frames made again give it) and the harness records them beside ``demos``."""
+    import hashlib
+
+    from benchmarks.cases import selfimprove
+
+    result = bench.run_case("selfimprove", bench.QUICK, repeats=1)
+    made = result["inputs"]
+    frames = selfimprove._car_frames(bench.QUICK.selfimprove_kept, 0)
+    assert made["kept_frames_sha256"] == hashlib.sha256(frames.tobytes()).hexdigest()
+    assert made["kept_frames_shape"] == list(frames.shape) and made["seed"] == 0
+    recorded = bench.bench_inputs(["selfimprove"], bench.QUICK, {"selfimprove": made})
+    assert recorded["demos"] is None and recorded["made_digests"]["selfimprove"] == made

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import shutil
 import tempfile
 import time
@@ -97,7 +98,7 @@ def kept_frames_new(folder: Path, demos: Any, rounds: list[list[Any]]) -> Any:
     return last
 
 
-def bench_selfimprove(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, Any]]:
+def bench_selfimprove(sizes: Sizes, repeats: int, seed: int) -> dict[str, Any]:
     """CPU seconds of a self-imitation round, old against new side by side in one process.
 
     Rollouts (training runs, then as many validation episodes as tracks): one env at a time
@@ -209,33 +210,42 @@ def bench_selfimprove(sizes: Sizes, repeats: int, seed: int) -> list[dict[str, A
     )
     first, *rest = list(variants)
     base_round, *new_rounds = list(per_round)
-    return [
-        _self_row("selfimprove", first, cpu[first], "CPU s", note),
-        *(
-            _row("selfimprove", v, cpu[v], "CPU s", (first, cpu[first]), note, paired=True)
-            for v in rest
-        ),
-        _self_row("selfimprove", old_data, cpu[old_data], "CPU s", data_note),
-        _row(
-            "selfimprove",
-            new_data,
-            cpu[new_data],
-            "CPU s",
-            (old_data, cpu[old_data]),
-            data_note,
-            paired=True,
-        ),
-        _self_row("selfimprove", base_round, cpu[base_round], "CPU s", round_note),
-        *(
+    inputs = {
+        "kept_frames_sha256": hashlib.sha256(frames.tobytes()).hexdigest(),
+        "kept_frames_shape": list(frames.shape),
+        "tracks": [int(s) for s in seeds],
+        "seed": seed,
+    }
+    return {
+        "inputs": inputs,
+        "rows": [
+            _self_row("selfimprove", first, cpu[first], "CPU s", note),
+            *(
+                _row("selfimprove", v, cpu[v], "CPU s", (first, cpu[first]), note, paired=True)
+                for v in rest
+            ),
+            _self_row("selfimprove", old_data, cpu[old_data], "CPU s", data_note),
             _row(
                 "selfimprove",
-                v,
-                cpu[v],
+                new_data,
+                cpu[new_data],
                 "CPU s",
-                (base_round, cpu[base_round]),
-                round_note,
+                (old_data, cpu[old_data]),
+                data_note,
                 paired=True,
-            )
-            for v in new_rounds
-        ),
-    ]
+            ),
+            _self_row("selfimprove", base_round, cpu[base_round], "CPU s", round_note),
+            *(
+                _row(
+                    "selfimprove",
+                    v,
+                    cpu[v],
+                    "CPU s",
+                    (base_round, cpu[base_round]),
+                    round_note,
+                    paired=True,
+                )
+                for v in new_rounds
+            ),
+        ],
+    }
