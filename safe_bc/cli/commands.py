@@ -190,8 +190,6 @@ def parse(argv: Sequence[str]) -> tuple[str, Any]:
     if command not in COMMANDS:
         raise UsageError(f"unknown command {command!r}: choose {', '.join(COMMANDS)}")
     rest = _unalias(command, argv[1:])
-    new = _new_form(command, rest)
-    notice = f"`safe-bc {command}` is `{new}` now" if new else ""
     if command == "method":
         return command, _parse_method(rest)
     cls = getattr(jobs, COMMANDS[command][0])
@@ -201,8 +199,7 @@ def parse(argv: Sequence[str]) -> tuple[str, Any]:
         from safe_bc.cli.help import render
 
         width = min(max(shutil.get_terminal_size((100, 24)).columns, 80), 120)
-        if notice:
-            print(notice, file=sys.stderr)
+        _tell_new_form(command, rest)
         print(render(cls, f"safe-bc {command}", about, width=width))
         raise SystemExit(0)
     rest = ["--help" if a == "--help-full" else a for a in rest]
@@ -217,6 +214,14 @@ def parse(argv: Sequence[str]) -> tuple[str, Any]:
     except ValueError as e:  # a flattened config's __post_init__ (tyro lets it through)
         raise UsageError(_flag_of(str(e), cls)) from None
     return command, _task_defaults(command, job, given(rest))
+
+
+def _tell_new_form(command: str, argv: Sequence[str]) -> None:
+    """One line to stderr giving an old command's ``safe-bc method NAME`` form (nothing for
+    the others)."""
+    new = _new_form(command, argv)
+    if new:
+        print(f"`safe-bc {command}` is `{new}` now", file=sys.stderr)
 
 
 def _new_form(command: str, argv: Sequence[str]) -> str | None:
@@ -418,9 +423,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
             ensure_ray()
         code = run(command, job, argv)
-        new = _new_form(command, argv[1:])
-        if new:  # an old command's name, told once it ran (bad input keeps its one line)
-            print(f"`safe-bc {command}` is `{new}` now", file=sys.stderr)
+        _tell_new_form(command, argv[1:])  # once it ran: bad input keeps its one line
         if not argv_given:  # the command is done: a signal no longer interrupts its exit
             _set_signals(signal.SIG_IGN)
             _stop_ray()
