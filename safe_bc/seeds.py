@@ -12,6 +12,10 @@ SEEDS_PER_RUN = 100_000
 """Width of the seed block owned by one ``--seed`` value."""
 HELDOUT_OFFSET = 1 << 30
 """Evaluation seeds live at and above this value; demonstration seeds below it."""
+VALIDATION_SEED = 10_000
+"""Collection seed of a study's validation set (the episodes its curves' validation loss is
+computed on): demonstration tracks of their own, far from the small collection seeds training
+sets use and below the evaluation seeds."""
 
 
 def demo_seed(seed: int, episode_id: int) -> int:

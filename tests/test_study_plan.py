@@ -10,7 +10,14 @@ import pandas as pd
 import pytest
 
 from safe_bc.handover import HandoverConfig
-from safe_bc.study.plan import constraint_bars, plan_study, run_identity, trials_meta
+from safe_bc.seeds import VALIDATION_SEED
+from safe_bc.study.plan import (
+    constraint_bars,
+    plan_study,
+    run_identity,
+    trials_meta,
+    validation_path,
+)
 from safe_bc.study.spec import Float, StudySpec
 
 
@@ -27,7 +34,7 @@ def test_the_plan_places_every_output_and_touches_no_file(tmp_path: Path) -> Non
     assert plan.out == tmp_path / "results" / "s"
     assert plan.exp_path == f"{tmp_path / 'ray'}/s" and plan.local
     assert plan.optuna_url == f"sqlite:///{plan.out / 'optuna.db'}"
-    assert plan.demos == tmp_path / "demos" and plan.validation is None
+    assert plan.demos == tmp_path / "demos"
     assert (plan.fresh, plan.command, plan.final) == (True, "safe-bc tune s.py", False)
     assert plan.trial_resources == ({"CPU": 1.0}, {"CPU": 1.0}, {"CPU": 1.0})
     assert plan.collect.env == plan.spec.env  # the task's default collection
@@ -103,3 +110,32 @@ def test_the_study_record_names_a_storage_inside_the_repository_relative_to_it(
     assert run_identity(outside, 1.0, [1.0], {"demos": {"digest": "x"}})["experiment_path"] == (
         outside.exp_path
     )
+
+
+def test_the_validation_set_is_the_tasks_size_collected_beside_the_demos_on_tracks_of_its_own(
+    tmp_path: Path,
+) -> None:
+    from safe_bc.tasks import task_defaults
+
+    for task in ("carracing", "rehab"):
+        n = task_defaults(task).validation_episodes
+        spec = _spec(tmp_path, env=task_defaults(task).env, space={}, validation_episodes="task")
+        assert spec.validation_episodes == n >= 1  # "task", resolved when the spec is made
+        plan = plan_study(spec, fresh=True, command="", final=True)
+        assert (
+            plan.validation == validation_path(tmp_path / "demos") == tmp_path / "demos_validation"
+        )
+        made = plan.validation_collect
+        assert made == replace(plan.collect, episodes=n, seed=VALIDATION_SEED) != plan.collect
+        assert plan.summary["validation_episodes"] == n  # recorded with every table
+        assert "validation_episodes" not in plan.settings  # the numbers do not depend on it
+    off = plan_study(_spec(tmp_path, validation_episodes=0), fresh=True, command="", final=True)
+    assert off.validation is None and off.validation_collect is None
+    named = _spec(tmp_path, validation_demos=tmp_path / "other")
+    given = plan_study(named, fresh=True, command="", final=True)
+    assert given.validation == tmp_path / "other" and given.validation_collect is None
+    inputs = {"demos": {"digest": "a"}, "validation": {"digest": "b"}}
+    assert run_identity(plan, 1.0, [1.0], inputs)["validation_digest"] == "b"  # a resume: same set
+    for bad in (-1, 1.5, True, "all"):
+        with pytest.raises(ValueError, match="validation_episodes"):
+            _spec(tmp_path, validation_episodes=bad)

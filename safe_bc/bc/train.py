@@ -187,6 +187,9 @@ class TrainResult:
     without one)."""
     log_seconds: np.ndarray | None = None
     """``(K,) float64`` wall time of the loop at each log point (validation excluded)."""
+    val_seconds: float = 0.0
+    """Wall time of the validation passes at the log points, added up (0 without a
+    validation set): what the validation loss cost on top of :attr:`seconds`."""
 
     @property
     def final_loss(self) -> float:
@@ -391,6 +394,7 @@ def train_bc(
         prepare_seconds=prepare_seconds,
         val_losses=None if validation is None else np.asarray(val_losses, np.float64),
         log_seconds=np.asarray(log_seconds, np.float64),
+        val_seconds=paused,
     )
 
 
@@ -450,6 +454,16 @@ def _new_model(
     )
     model.train()
     return model, optimizer
+
+
+def validation_loss(model: BCNet, demos: Demonstrations, train_cfg: TrainConfig) -> float:
+    """The loss the curve's ``val_loss`` records, over ``demos``' scored rows: the mean over
+    rows of the training loss's weighted squared error (``train_cfg``'s loss weights), in eval
+    mode without gradients."""
+    chunk = train_cfg.batch_size * model.pre_cfg.frame_stack
+    rows, builder = _validation_builder(demos, model.pre_cfg, chunk)
+    weights = loss_weights(train_cfg, demos.actions.shape[1])
+    return _loss_over(model, builder, rows, weights)
 
 
 def _loss_over(

@@ -16,8 +16,10 @@ from safe_bc.progress import progress_bar
 from safe_bc.selection import Selection
 
 
-def _train_one(demos: Demonstrations, run: RunConfig, bounds: Any) -> tuple[TrainResult, Selection]:
-    return train_run(demos, run, action_bounds=bounds)
+def _train_one(
+    demos: Demonstrations, run: RunConfig, bounds: Any, validation: Demonstrations | None
+) -> tuple[TrainResult, Selection]:
+    return train_run(demos, run, action_bounds=bounds, validation=validation)
 
 
 def train_many(
@@ -28,10 +30,12 @@ def train_many(
     action_bounds: Any = None,
     progress: bool = True,
     on_done: Callable[[int, TrainResult], None] | None = None,
+    validation: Demonstrations | None = None,
 ) -> list[tuple[TrainResult, Selection]]:
     """Train one agent per run config, ``workers`` at a time; results in ``runs`` order.
     ``on_done(i, result)`` is called as soon as agent ``i`` has finished (e.g. to store it,
-    so that a killed driver keeps the agents finished so far).
+    so that a killed driver keeps the agents finished so far); ``validation``: held-out
+    demonstrations whose loss every agent's curve records (the weights are the same without).
 
     Each agent trains with one torch thread (set in its config), so the weights are
     the same as a sequential run's with one thread: the seed alone decides them.
@@ -45,7 +49,8 @@ def train_many(
     ensure_ray()
     task = ray.remote(_train_one).options(num_cpus=cpus_per_actor(workers), max_retries=2)
     demos_ref = ray.put(demos)
-    refs = [task.remote(demos_ref, r, action_bounds) for r in runs]
+    validation_ref = None if validation is None else ray.put(validation)
+    refs = [task.remote(demos_ref, r, action_bounds, validation_ref) for r in runs]
     index = {ref: i for i, ref in enumerate(refs)}
     results: list[Any] = [None] * len(refs)
     pending = list(refs)

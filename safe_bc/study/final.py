@@ -54,6 +54,7 @@ from safe_bc.study.trial import (
     TrialJob,
     bounds_for,
     trial_threads,
+    validation_demos,
     with_handover,
     with_seed,
 )
@@ -114,8 +115,10 @@ def _train(
     bounds: Bounds,
     progress: bool,
     on_done: Callable[[int, Any], None] | None = None,
+    validation: Demonstrations | None = None,
 ) -> list[BCNet]:
-    """Train ``runs``; ``on_done(i, result)`` as each finishes (see ``train_many``)."""
+    """Train ``runs``; ``on_done(i, result)`` as each finishes (see ``train_many``), each
+    curve recording the loss on ``validation``."""
     if not runs:
         return []
     if workers == 0:  # in the driver, one thread per agent like the trials
@@ -124,7 +127,7 @@ def _train(
             out = []
             for i, r in enumerate(runs):
                 torch.set_num_threads(r.bc.train.num_threads or 1)
-                result = train_run(demos, r, action_bounds=bounds)[0]
+                result = train_run(demos, r, action_bounds=bounds, validation=validation)[0]
                 if on_done is not None:
                     on_done(i, result)
                 out.append(result.model)
@@ -132,7 +135,13 @@ def _train(
         finally:
             torch.set_num_threads(previous)
     trained = train_many(
-        demos, runs, workers=workers, action_bounds=bounds, progress=progress, on_done=on_done
+        demos,
+        runs,
+        workers=workers,
+        action_bounds=bounds,
+        progress=progress,
+        on_done=on_done,
+        validation=validation,
     )
     return [result.model for result, _ in trained]
 
@@ -205,7 +214,9 @@ def final_phase(
     runs = [r for *_, r in todo]
     clock = time.perf_counter()
     with deferred_stop():
-        trained = _train(demos, runs, workers, bounds_for(job.demos), progress, keep)
+        trained = _train(
+            demos, runs, workers, bounds_for(job.demos), progress, keep, validation_demos(job)
+        )
     for (method, s, run), model in zip(todo, trained, strict=True):
         nets[(method, s)] = NetSource.from_model(model, run.bc)
         models[(method, s)] = (model, run)

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -20,6 +20,7 @@ import pandas as pd
 
 from safe_bc.data.provenance import repo_relative
 from safe_bc.rollout.collect import CollectConfig
+from safe_bc.seeds import VALIDATION_SEED
 from safe_bc.study.spec import ConstraintBars, StudySpec, settings_of
 from safe_bc.tasks import TaskSpec, task_defaults, task_of
 
@@ -87,7 +88,11 @@ class StudyPlan:
     collect: CollectConfig
     """The collection the demonstrations must come from (collected when missing)."""
     validation: Path | None
-    """Another demonstration set for the trials' validation loss, absolute, or ``None``."""
+    """The demonstration set of the curves' validation loss, absolute, or ``None``."""
+    validation_collect: CollectConfig | None
+    """The collection :attr:`validation` must come from when the study collects it
+    (``StudySpec.validation_episodes``; collected when missing); ``None``: a set the spec
+    names (``validation_demos``), or none."""
     summary: dict[str, Any]
     """``StudySpec.summary()``: stored with every table."""
     settings: dict[str, Any]
@@ -110,6 +115,7 @@ def plan_study(spec: StudySpec, *, fresh: bool, command: str, final: bool) -> St
     summary = spec.summary()
     settings = settings_of(summary)
     collect = spec.collect or CollectConfig.for_task(task)
+    validation, validation_collect = validation_set(spec, collect)
     return StudyPlan(
         spec=spec,
         out=spec.results / spec.name,
@@ -122,7 +128,8 @@ def plan_study(spec: StudySpec, *, fresh: bool, command: str, final: bool) -> St
         final=final,
         demos=spec.demos.resolve(),
         collect=collect,
-        validation=None if spec.validation_demos is None else spec.validation_demos.resolve(),
+        validation=validation,
+        validation_collect=validation_collect,
         summary=summary,
         settings=settings,
         finished=json.loads(json.dumps({"study": summary}, sort_keys=True, default=str)),
@@ -132,6 +139,30 @@ def plan_study(spec: StudySpec, *, fresh: bool, command: str, final: bool) -> St
         ),
         pareto_axes=axes,
     )
+
+
+def validation_path(demos: Path) -> Path:
+    """Where a study keeps the validation set it collects beside ``demos``.
+
+    >>> validation_path(Path("data/demos")).as_posix()
+    'data/demos_validation'
+    """
+    return demos.with_name(f"{demos.name}_validation")
+
+
+def validation_set(
+    spec: StudySpec, collect: CollectConfig
+) -> tuple[Path | None, CollectConfig | None]:
+    """The study's validation set, absolute, and the collection it comes from when the study
+    collects it (``collect`` with :attr:`StudySpec.validation_episodes` episodes on the
+    tracks of :data:`safe_bc.seeds.VALIDATION_SEED`): ``(None, None)`` without one."""
+    if spec.validation_demos is not None:
+        return spec.validation_demos.resolve(), None
+    if not spec.validation_episodes:
+        return None, None
+    episodes = int(spec.validation_episodes)
+    made = replace(collect, episodes=episodes, seed=VALIDATION_SEED)
+    return validation_path(spec.demos).resolve(), made
 
 
 def constraint_bars(
@@ -162,6 +193,7 @@ def run_identity(
         "limits": list(cost_limits),
         "batch_size": plan.spec.batch_size,
         "demos_digest": inputs["demos"]["digest"],
+        **({"validation_digest": inputs["validation"]["digest"]} if "validation" in inputs else {}),
         "experiment_path": repo_relative(plan.exp_path),  # inside the repository: relative
         "settings": plan.settings,
     }

@@ -52,6 +52,7 @@ from safe_bc.data.provenance import (
 from safe_bc.data.store import (
     DatasetError,
     DatasetMeta,
+    dataset_record,
     delete_storage_tree,
     read_demonstrations,
     read_meta,
@@ -997,10 +998,17 @@ def _study_demos(plan: StudyPlan, progress: bool) -> tuple[Any, dict[str, Any]]:
     if not (plan.demos / "dataset.json").exists():
         print(f"{plan.spec.demos}: no demonstrations yet; collecting the set the study expects")
     meta = ensure_demos(plan.demos, plan.collect, progress=progress).meta  # or refuses the set
+    inputs: dict[str, Any] = {}
     if plan.validation is not None:
+        if plan.validation_collect is not None:
+            ensure_demos(plan.validation, plan.validation_collect, progress=progress)
         _check_validation_demos(plan.validation, plan.demos, meta)
+        inputs["validation"] = {
+            **dataset_record(plan.validation),
+            "path": repo_relative(plan.validation),
+        }
     demos, record = read_demonstrations(plan.demos)
-    return demos, {"demos": record}
+    return demos, {"demos": record, **inputs}
 
 
 def _make_tuner(

@@ -376,10 +376,20 @@ class StudySpec:
     ``train_seeds >= 2``. ``None`` (default): the mean reward."""
     demos: Path = Path("data/demos")
     """Demonstration set (built with ``ensure_demos`` if absent); a shared path on a cluster."""
+    validation_episodes: int | Literal["task"] = "task"
+    """Demonstration episodes held out for the learning curves' validation loss: the study
+    collects them with its own collector on tracks of their own (collection seed
+    :data:`safe_bc.seeds.VALIDATION_SEED`) into ``<demos>_validation/``, never trains on them,
+    and every trial's and final candidate's curve (``bc/curve.parquet``, TensorBoard
+    ``bc/val_loss``) records the loss on them at each log point. The loss reads no random
+    number and changes no weight, so the study's numbers are the same with any value.
+    ``"task"`` (default): the task's (``TaskSpec.validation_episodes``, chosen by
+    ``results/validation_size/``), resolved when the spec is made; 0: training loss only.
+    :attr:`validation_demos` replaces the collected set."""
     validation_demos: Path | None = None
-    """A second demonstration set of the same task (``safe-bc collect`` with other seeds), never
-    trained on: every trial's learning curve (``bc/curve.parquet`` in its folder, and
-    TensorBoard) records the loss on it at each log point. ``None``: training loss only."""
+    """Another demonstration set of the same task (``safe-bc collect`` with other seeds) to
+    compute the validation loss on instead of the collected one; ``None``: the set
+    :attr:`validation_episodes` collects (none at 0)."""
     storage: str = "results/ray"
     """Tune storage: a local folder (made absolute), a shared file system or an ``s3://`` URI."""
     results: Path = Path("results")
@@ -491,16 +501,18 @@ class StudySpec:
 
     def _take_task_defaults(self) -> None:
         """The task's critical-zone width (``selection.eps`` of the base and
-        ``critical_eps``) and handover where the spec leaves them unset; one line naming the
-        env when no registered task has it."""
+        ``critical_eps``), handover and validation episodes where the spec leaves them unset;
+        one line naming the env when no registered task has it."""
         from safe_bc.tasks import with_task_eps
 
         base = RunConfig() if self.base is None else self.base
         unset = base.selection.eps is None or self.critical_eps is None
-        if not unset and self.handover != "task":
+        if not unset and "task" not in (self.handover, self.validation_episodes):
             object.__setattr__(self, "base", base)
             return
         task = self.task()
+        if self.validation_episodes == "task":
+            object.__setattr__(self, "validation_episodes", task.validation_episodes)
         object.__setattr__(self, "base", with_task_eps(base, self.env.env_id))
         if self.critical_eps is None:
             object.__setattr__(self, "critical_eps", float(task.eps))
@@ -540,6 +552,9 @@ class StudySpec:
             raise ValueError(f"final_workers must be >= 0 or None, got {self.final_workers}")
         if self.screen_episodes < 0:
             raise ValueError(f"screen_episodes must be >= 0, got {self.screen_episodes}")
+        v = self.validation_episodes
+        if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+            raise ValueError(f"validation_episodes must be an integer >= 0 or 'task', got {v!r}")
 
     def _check_bars_and_seeds(self) -> None:
         """Constraints, confidences and shares in range; the seeds of the trials, the final
@@ -746,10 +761,17 @@ final phase's numbers: a rerun may change them (``storage`` is compared as the e
 path, ``experiment_path``; the demonstrations by their digest, wherever they lie)."""
 
 
+CURVE_FIELDS = frozenset({"validation_episodes", "validation_demos"})
+"""``StudySpec`` fields that change what the learning curves show, never a trial's or the final
+phase's numbers (the validation loss reads no random number and changes no weight): outside
+the settings a resume compares, as the resource fields are; the validation set a study used is
+compared by its digest (``validation_digest`` of ``study.json``)."""
+
+
 def settings_of(summary: Mapping[str, Any]) -> dict[str, Any]:
     """The part of ``StudySpec.summary()`` that shapes the trials and the final phase, as JSON
     values (what ``study.json`` keeps and a resume compares)."""
-    kept = {k: v for k, v in summary.items() if k not in RESOURCE_FIELDS}
+    kept = {k: v for k, v in summary.items() if k not in RESOURCE_FIELDS | CURVE_FIELDS}
     return json.loads(json.dumps(kept, sort_keys=True, default=str))
 
 

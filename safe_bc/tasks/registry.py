@@ -171,6 +171,11 @@ class TaskSpec:
     """Per action component, the sign of the direction in which no safety cost rises
     (``-1``: a lower value is safer, ``+1``: a higher one), what a handover with
     ``fallback="cap"`` needs; ``None``: the task has no such direction (CarRacing's steering)."""
+    validation_episodes: int = 0
+    """Episodes a study of this task holds out for its curves' validation loss by default
+    (``StudySpec.validation_episodes``), chosen by a committed measurement of how much the
+    recorded loss spreads with the held-out set (``results/validation_size/``); 0: none
+    measured, so a study records the training loss only unless it is told a size."""
     episode_name: str = "episode"
     """What one episode is called in messages and reports, singular (CarRacing: ``track``,
     rehab: ``patient``); :attr:`episodes_name` is its plural."""
@@ -196,6 +201,10 @@ class TaskSpec:
             len(self.safer_actions) != len(low) or set(self.safer_actions) - {-1, 1}
         ):
             raise ValueError(f"{self.name}: safer_actions must be -1 or +1 per action component")
+        if isinstance(self.validation_episodes, bool) or not (
+            isinstance(self.validation_episodes, int) and self.validation_episodes >= 0
+        ):
+            raise ValueError(f"{self.name}: validation_episodes must be an integer >= 0")
         if not self.episode_name.strip():
             raise ValueError(f"{self.name}: episode_name must name an episode (e.g. 'track')")
 

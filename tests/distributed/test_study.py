@@ -8,7 +8,6 @@ import functools
 import math
 import os
 import pickle
-import shutil
 import signal
 import sys
 from dataclasses import replace
@@ -22,9 +21,10 @@ from ray import tune
 
 from safe_bc.cli.commands import main
 from safe_bc.data.curves import read_events, read_hparams
-from safe_bc.data.store import load_demonstrations, read_table
+from safe_bc.data.store import load_demonstrations, read_meta, read_table
 from safe_bc.metrics import combined
-from safe_bc.seeds import heldout_seeds
+from safe_bc.seeds import VALIDATION_SEED, heldout_seeds
+from safe_bc.study.plan import validation_path
 from safe_bc.study.run import (
     ConstrainedOptunaSearch,
     SpaceSampler,
@@ -38,6 +38,7 @@ from safe_bc.study.search import WINNER
 from safe_bc.study.spec import TRIAL_INFO, Choice, Float, load_study, trial_metrics
 from safe_bc.study.timing import PHASES
 from safe_bc.study.trial_curves import final_run_name, run_names
+from safe_bc.tasks import task_defaults
 from tests.conftest import TINY_COLLECT, tiny_collect
 
 REPO = Path(__file__).resolve().parents[2]
@@ -99,8 +100,6 @@ def test_searcher_hands_constraints_to_optuna_and_keeps_them_in_its_checkpoint(t
 
 def test_cli_study_end_to_end(tiny_demos: Path, tmp_path: Path, capsys) -> None:
     study_file = tmp_path / "tiny.py"
-    held = tmp_path / "held"  # the curves' validation set: a copy stands in for another set
-    shutil.copytree(tiny_demos, held)
     study_file.write_text(
         "from dataclasses import replace\n"
         "from pathlib import Path\n"
@@ -110,8 +109,7 @@ def test_cli_study_end_to_end(tiny_demos: Path, tmp_path: Path, capsys) -> None:
         f"    collect={TINY_COLLECT},\n"
         f"    results=Path({str(tmp_path / 'results')!r}), batches=30, max_steps=80,\n"
         "    final_episodes=1, final_workers=0, max_concurrent=2,\n"
-        "    rollout_workers=1, cpus_per_trial=0.5, cpus_per_worker=0.5,\n"
-        f"    validation_demos=Path({str(held)!r}))\n"
+        "    rollout_workers=1, cpus_per_trial=0.5, cpus_per_worker=0.5)\n"
     )
     storage = str(tmp_path / "ray")
     rc = main(["tune", str(study_file), "--trials", "3", "--storage", storage])
@@ -153,6 +151,13 @@ def test_cli_study_end_to_end(tiny_demos: Path, tmp_path: Path, capsys) -> None:
     assert meta["command"].startswith("safe-bc tune") and "--trials 3" in meta["command"]
     assert meta["provenance"]["git_revision"] and meta["seeds"]["final_seed"] == spec.final_seed
     assert meta["study"]["name"] == "smoke" and meta["complete"] is True
+    # the curves' validation set: collected by default beside the demonstrations, the task's
+    # size, on tracks of its own, recorded with the study's inputs
+    n_val = task_defaults("carracing").validation_episodes
+    assert n_val >= 1 and spec.validation_episodes == n_val
+    val = meta["inputs"]["validation"]
+    assert val["episodes"] == n_val and val["digest"] != meta["inputs"]["demos"]["digest"]
+    assert read_meta(validation_path(tiny_demos)).seed == VALIDATION_SEED
 
     history, hmeta = read_table(out / "history.parquet")
     assert hmeta["command"] == meta["command"]
@@ -253,6 +258,8 @@ def test_cli_study_end_to_end(tiny_demos: Path, tmp_path: Path, capsys) -> None:
     first, second = spec.trial_seeds()[0], spec.trial_seeds()[0] + 1
     assert {final_run_name(c, second, names) for c in cands} <= finals
     assert {f"final_plain_bc_seed{first}", f"final_plain_bc_seed{second}"} <= finals
+    for name in finals:  # the final phase's retrained agents record the validation loss too
+        assert "bc/val_loss" in set(read_events(board / name)["tag"]), name
 
     # a finished study's rerun only reprints (the time lines too): no table is rewritten
     before = {p.name: p.stat().st_mtime_ns for p in out.iterdir() if p.is_file()}

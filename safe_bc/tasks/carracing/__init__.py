@@ -84,6 +84,9 @@ SPEC = TaskSpec(
     # tracks by the rule fixed before the run (zero crossings, fewest steps deferred), then
     # 0 of 300 fresh episodes beyond d_s on two blocks (defer_corner*.md)
     handover=HandoverConfig(2.0, lookahead=6, hold=6, hold_on=("front",)),
+    # results/validation_size/validation_size.md: the most held-out tracks whose validation
+    # passes add at most 10% to training (none reaches a 10% spread within that cost)
+    validation_episodes=1,
     # the margin the CarRacing improvement ran with (results/improve/carracing), not swept
     cost_margin=1.0,
     # results/selfimprove/carracing/rounds_choice.md and choice.md (SelfImproveConfig's doc)

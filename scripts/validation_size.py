@@ -1,0 +1,214 @@
+"""How many held-out demonstration episodes a study's validation loss needs, per task.
+
+Usage::
+
+    .venv/bin/python -m scripts.validation_size                 # both tasks
+    .venv/bin/python -m scripts.validation_size --task rehab    # one
+
+For each task: plain BC with the study's own base configuration (``tune_jobs/default.py`` for
+CarRacing, ``tune_jobs/rehab.py`` for the clinic; :meth:`StudySpec.baseline_config`) trains
+on the task's default demonstration set with ``--seeds`` training seeds (one torch thread),
+its curve recording the loss on a pool of
+``--pool`` validation episodes collected as a study collects its validation set (the task's
+collector, collection seed :data:`safe_bc.seeds.VALIDATION_SEED`). Each trained agent's loss
+is then read per pool episode, and for ``n`` held-out episodes the loss a study would record
+is resampled: ``--draws`` draws of ``n`` episodes with replacement (fixed seed 0), the
+row-weighted loss of each draw. ``rel_spread`` is the draws' standard deviation over the
+pool's loss (mean over training seeds); ``val_share`` is what the validation passes of ``n``
+episodes add to the training loop's time (the pool's measured pass time per row times ``n``
+episodes' mean rows).
+
+The rule (:func:`choose`): among the sizes whose validation adds at most :data:`COST_BAR` to
+the training time, the fewest episodes whose ``rel_spread`` is at most :data:`SPREAD_BAR`, else
+the largest of them. Writes ``validation_size.parquet`` (one row per task and ``n``) and
+``validation_size.md`` under ``--out``; the weights are the same with or without the
+validation loss, so nothing here changes a result, only what the curves show and cost.
+"""
+
+from __future__ import annotations
+
+import argparse
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+SPREAD_BAR = 0.10
+"""Largest accepted relative spread of the recorded validation loss (one standard deviation
+over the loss on an unlimited set of held-out episodes)."""
+COST_BAR = 0.10
+"""Largest accepted share the validation passes add to the training loop's time."""
+SIZES = (1, 2, 4, 8, 16, 32, 64, 128)
+"""Held-out episode counts the table prices (those up to the pool's size)."""
+STUDIES = {"carracing": "tune_jobs/default.py", "rehab": "tune_jobs/rehab.py"}
+"""The study whose base configuration trains each task's agents."""
+
+
+def resampled_spread(
+    sums: np.ndarray, rows: np.ndarray, n: int, draws: int, rng: np.random.Generator
+) -> float:
+    """Relative spread of the row-weighted loss of ``n`` episodes drawn with replacement from
+    a pool whose episode ``i`` has loss sum ``sums[i]`` over ``rows[i]`` rows.
+
+    >>> rng = np.random.default_rng(0)
+    >>> resampled_spread(np.array([1.0, 1.0]), np.array([1, 1]), 1, 100, rng)
+    0.0
+    """
+    pick = rng.integers(0, len(sums), size=(draws, n))
+    losses = sums[pick].sum(axis=1) / rows[pick].sum(axis=1)
+    return float(losses.std() / (sums.sum() / rows.sum()))
+
+
+def choose(table: pd.DataFrame) -> pd.Series:
+    """Per task, among the sizes whose validation passes add at most :data:`COST_BAR` to the
+    training time, the fewest episodes whose ``rel_spread`` is at most :data:`SPREAD_BAR`;
+    when none is that precise, the largest of them (the most precise that is affordable);
+    when none is affordable, the smallest priced size.
+
+    >>> t = pd.DataFrame({"task": "a", "n_episodes": [1, 2, 4],
+    ...                   "rel_spread": [0.3, 0.2, 0.09], "val_share": [0.05, 0.08, 0.2]})
+    >>> choose(t).to_dict()
+    {'a': 2}
+    """
+    out = {}
+    for task, rows in table.groupby("task", sort=False):
+        rows = rows.sort_values("n_episodes")
+        within = rows[rows["val_share"] <= COST_BAR]
+        precise = within[within["rel_spread"] <= SPREAD_BAR]
+        fallback = within.iloc[-1] if len(within) else rows.iloc[0]
+        out[task] = int((precise.iloc[0] if len(precise) else fallback)["n_episodes"])
+    return pd.Series(out, name="chosen")
+
+
+def measure(task: str, pool: int, seeds: int, draws: int) -> tuple[pd.DataFrame, dict]:
+    """The task's rows of the table and the record of its inputs."""
+    import torch
+
+    from safe_bc.bc.train import validation_loss
+    from safe_bc.data.store import read_demonstrations
+    from safe_bc.distributed.collect import ensure_demos
+    from safe_bc.methods.experiment import train_run
+    from safe_bc.rollout.collect import CollectConfig
+    from safe_bc.seeds import VALIDATION_SEED
+    from safe_bc.study.spec import load_study
+    from safe_bc.study.trial import bounds_for, with_seed
+
+    spec = load_study(Path(__file__).resolve().parents[1] / STUDIES[task])
+    collect = spec.collect or CollectConfig.for_task(spec.task())
+    ensure_demos(spec.demos, collect, progress=False)
+    held = Path(f"{spec.demos}_validation_pool{pool}")
+    ensure_demos(held, replace(collect, episodes=pool, seed=VALIDATION_SEED), progress=False)
+    demos, demos_record = read_demonstrations(spec.demos)
+    val, val_record = read_demonstrations(held)
+    episodes = [np.flatnonzero(val.episode_ids == e) for e in np.unique(val.episode_ids)]
+    scored = np.array([int(val.scored[r].sum()) for r in episodes])
+    torch.set_num_threads(1)
+    run = spec.baseline_config(spec.run_config({}, num_threads=1))
+    spreads, shares, losses = {}, {}, []
+    for s in range(seeds):
+        cfg = with_seed(run, run.bc.train.seed + s)
+        result, _ = train_run(demos, cfg, action_bounds=bounds_for(spec.demos), validation=val)
+        per_row = result.val_seconds / (len(result.log_steps) * scored.sum())
+        sums = np.array(
+            [validation_loss(result.model, val.take(r), cfg.bc.train) * k
+             for r, k in zip(episodes, scored, strict=True)]
+        )  # fmt: skip
+        losses.append(float(sums.sum() / scored.sum()))
+        rng = np.random.default_rng(0)
+        for n in (n for n in SIZES if n <= pool):
+            spreads.setdefault(n, []).append(resampled_spread(sums, scored, n, draws, rng))
+            cost = per_row * len(result.log_steps) * n * scored.mean()
+            shares.setdefault(n, []).append(cost / result.seconds)
+    rows = pd.DataFrame(
+        {
+            "task": task,
+            "n_episodes": list(spreads),
+            "rel_spread": [float(np.mean(v)) for v in spreads.values()],
+            "rel_spread_max": [float(np.max(v)) for v in spreads.values()],
+            "val_share": [float(np.mean(v)) for v in shares.values()],
+            "rows_per_episode": float(scored.mean()),
+            "pool_loss": float(np.mean(losses)),
+            "train_seeds": seeds,
+            "pool": pool,
+            "draws": draws,
+        }
+    )
+    inputs = {"demos": demos_record, "validation_pool": val_record, "study": STUDIES[task]}
+    return rows, inputs
+
+
+def markdown(table: pd.DataFrame, chosen: pd.Series, source: str) -> str:
+    """The table as Markdown with the rule's choice per task."""
+    lines = [
+        "# Validation episodes per task",
+        "",
+        f"The rule: among the sizes whose validation passes add at most {COST_BAR:.0%} to the "
+        f"training loop's time, the fewest held-out episodes whose recorded validation loss "
+        f"spreads by at most {SPREAD_BAR:.0%} (one sd, relative to the loss on the whole pool); "
+        "when none is that precise, the largest of them.",
+        "",
+    ]
+    for task, rows in table.groupby("task", sort=False):
+        first = rows.iloc[0]
+        lines += [
+            f"## {task}: {int(chosen[task])} episode(s)",
+            "",
+            f"{int(first['train_seeds'])} training seeds, a pool of {int(first['pool'])} "
+            f"episodes ({first['rows_per_episode']:.0f} scored rows each on average), "
+            f"{int(first['draws'])} draws per size.",
+            "",
+            "| episodes | rel. spread (mean) | rel. spread (max over seeds) | added to training |",
+            "|---:|---:|---:|---:|",
+        ]
+        lines += [
+            f"| {int(r.n_episodes)} | {r.rel_spread:.1%} | {r.rel_spread_max:.1%} | "
+            f"{r.val_share:.1%} |"
+            for r in rows.itertuples()
+        ]
+        lines.append("")
+    lines.append(f"Made by `{source}`.")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    from safe_bc.data.provenance import run_metadata
+    from safe_bc.data.store import write_table_atomic
+
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--task", choices=sorted(STUDIES), action="append")
+    ap.add_argument(
+        "--pool", type=int, default=None, help="episodes in the pool (8 car, 128 rehab)"
+    )
+    ap.add_argument("--seeds", type=int, default=3, help="training seeds per task")
+    ap.add_argument("--draws", type=int, default=2000, help="resampled draws per size")
+    ap.add_argument("--out", type=Path, default=Path("results/validation_size"))
+    args = ap.parse_args(argv)
+    tasks = args.task or list(STUDIES)
+    parts, inputs = [], {}
+    for task in tasks:
+        pool = args.pool or {"carracing": 8, "rehab": 128}[task]
+        print(f"{task}: {args.seeds} training seeds, {pool} validation episodes", flush=True)
+        rows, inputs[task] = measure(task, pool, args.seeds, args.draws)
+        parts.append(rows)
+    table = pd.concat(parts, ignore_index=True)
+    chosen = choose(table)
+    table["chosen"] = table["n_episodes"] == table["task"].map(chosen)
+    meta = run_metadata(
+        inputs=inputs,
+        settings={"spread_bar": SPREAD_BAR, "cost_bar": COST_BAR, "sizes": list(SIZES),
+                  "seeds": args.seeds,
+                  "draws": args.draws, "resample_seed": 0},
+    )  # fmt: skip
+    source = f"{meta['command']}, code {meta.get('git_revision', '?')}"
+    args.out.mkdir(parents=True, exist_ok=True)
+    write_table_atomic(args.out / "validation_size.parquet", table, meta)
+    from safe_bc.data.atomic import write_text_atomic
+
+    write_text_atomic(args.out / "validation_size.md", markdown(table, chosen, source))
+    print(markdown(table, chosen, source))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
