@@ -53,10 +53,9 @@ reproduce: $(STAMP)
 	$(BIN)/safe-bc reproduce
 
 # The observation ablation behind PreprocessConfig's defaults (results/ablation/observation/):
-# the comparison, then the analysis that chooses the default from its episodes.
+# the comparison, whose report step chooses the default from its episodes.
 ablation: $(STAMP)
 	$(BIN)/safe-bc compare tune_jobs/compare/observation.py --name observation $(ARGS)
-	$(BIN)/python -m scripts.observation_choice
 
 # The raster renderer against the exact one (results/ablation/renderer/): frames, cost errors
 # and speeds, then exact agents on raster frames, then the whole pipeline on raster frames.

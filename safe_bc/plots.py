@@ -1,5 +1,5 @@
 """Figures (matplotlib, Agg): cost histograms, the alpha sweep, safety traces, learning curves,
-a study's Pareto plot."""
+a study's Pareto plot, the observation ablation's cells."""
 
 from __future__ import annotations
 
@@ -449,4 +449,39 @@ def plot_pareto(
     )  # fmt: skip
     budgets = trial_budgets(trials)
     fig.suptitle((title or "study trials") + (f"\n{budgets}" if budgets else ""), fontsize=10)
+    return save_figure(fig, path)
+
+
+def plot_ablation_cells(summary: pd.DataFrame, path: Path, *, title: str) -> Path:
+    """The observation ablation's cells (the summary of
+    :func:`safe_bc.compare.observation_choice.summarise`: one row per ``cell`` and ``view``):
+    reward and share of episodes beyond d_s with their CIs on the full frame (a filled marker
+    where the cell has every training seed, open where it is a screen), the steering-masked
+    view's mean, the expert's as a line."""
+    full = summary[(summary["view"] == "full") & (summary["cell"] != "expert")]
+    full = full.sort_values("reward")
+    masked = summary[summary["view"] == "steer_masked"].set_index("cell")
+    expert = summary[summary["cell"] == "expert"]
+    y = np.arange(len(full))
+    fig, axes = plt.subplots(1, 2, figsize=(11, 0.45 * len(full) + 1.5), sharey=True)
+    decides = (full["n_train_seeds"] == full["n_train_seeds"].max()).to_numpy()
+    for ax, m, panel in (
+        (axes[0], "reward", "reward"),
+        (axes[1], "any_violation", "share of episodes beyond d_s"),
+    ):
+        err = np.vstack([full[m] - full[f"{m}_lo"], full[f"{m}_hi"] - full[m]])
+        for keep, style, label in ((decides, "o", "all seeds"), (~decides, "s", "screen (1 seed)")):
+            if keep.any():
+                ax.errorbar(full[m][keep], y[keep], xerr=err[:, keep], fmt=style,
+                            color="tab:blue", mfc="tab:blue" if style == "o" else "white",
+                            label=f"full frame, {label}")  # fmt: skip
+        mk = full["cell"].map(lambda c, m=m: masked[m].get(c, np.nan) if len(masked) else np.nan)
+        ax.plot(mk, y, "x", color="tab:red", label="steering indicator masked")
+        if len(expert):
+            ax.axvline(expert.iloc[0][m], color="k", ls="--", lw=1, label="expert")
+        ax.set_title(panel)
+        ax.grid(alpha=0.3)
+    axes[0].set_yticks(y, full["cell"])
+    axes[0].legend(loc="lower right", fontsize=8)
+    fig.suptitle(f"{title}: seeds x selection tracks, 95% crossed CIs")
     return save_figure(fig, path)

@@ -12,7 +12,16 @@ import pytest
 
 from safe_bc.bc import BCConfig
 from safe_bc.compare.families import load_comparison
-from safe_bc.compare.spec import Comparison, Method, Report, build_table, render_markdown
+from safe_bc.compare.spec import (
+    Comparison,
+    Method,
+    Plot,
+    Report,
+    ReportFiles,
+    build_table,
+    check_report_files,
+    render_markdown,
+)
 from safe_bc.data.store import read_table
 from safe_bc.methods.improve.config import ImproveConfig
 from safe_bc.selection import SelectionConfig
@@ -43,7 +52,14 @@ EXPERT = Method("expert", expert=True)
         (lambda: Report("safe_bc.methods.selfimprove.choice", "c.md"), "module:function"),
         (lambda: Report("a b:f", "c.md"), "module:function"),
         (lambda: Report("m:f", "sub/c.md"), "file name"),
-        (lambda: Comparison("t", methods=(BC,), report=Report("m:f", "t.md")), "the table's"),
+        (lambda: Report("m:f", reads=("steps",)), "report reads"),
+        (lambda: Report("m:f", reads=("episodes", "episodes")), "report reads"),
+        (lambda: Plot("plots.plot", {}), "plot must be 'module:function'"),
+        (lambda: Comparison("t", methods=(BC,), report=Report("m:f", "t.parquet")), "the table's"),
+        (
+            lambda: Comparison("t", methods=(BC,), report=Report("m:f", "t_episodes.parquet")),
+            "the table's",
+        ),
         (
             lambda: Comparison(
                 "t", methods=(EXPERT, Method("i", improve=ImproveConfig(), start="expert"))
@@ -68,6 +84,39 @@ def test_a_report_step_is_no_part_of_the_recorded_config() -> None:
     assert Comparison("t", methods=(BC,), report=step).to_dict() == (
         Comparison("t", methods=(BC,)).to_dict()
     )
+
+
+def test_a_report_step_names_its_files_but_none_of_the_tables() -> None:
+    """A step's files may replace the table's Markdown, never its tables or figures, and are
+    plain file names named once."""
+    comp = Comparison("t", methods=(BC,), figures=(("traces", "t_traces.png"),))
+    check_report_files(comp, ReportFiles(tables={"summary": pd.DataFrame()}, texts={"t.md": ""}))
+    for files, match in (
+        (ReportFiles(tables={"t": pd.DataFrame()}), "'t.parquet' is comparison 't''s"),
+        (ReportFiles(tables={"t_training": pd.DataFrame()}), "'t_training.parquet' is"),
+        (ReportFiles(figures={"t_traces.png": Plot("m:f")}), "'t_traces.png' is"),
+        (ReportFiles(texts={"t_runs": ""}), "'t_runs' is"),
+        (ReportFiles(texts={"../x.md": ""}), "no file name"),
+        (ReportFiles(tables={"s": pd.DataFrame()}, texts={"s.parquet": ""}), "named twice"),
+    ):
+        with pytest.raises(ValueError, match=match):
+            check_report_files(replace(comp, report=Report("m:f")), files)
+
+
+def test_a_step_returns_what_its_kind_writes(tmp_path: Path) -> None:
+    """A step with a file returns its text; one without returns its files (else a TypeError)."""
+    from safe_bc.compare.run import run_report
+    from safe_bc.data.store import write_table_atomic
+
+    table = pd.DataFrame({"method": ["bc"]})
+    write_table_atomic(tmp_path / "t.parquet", table, {"git_revision": "abc"})
+    text = Report("tests.test_compare:methods_report", "rows.txt")
+    comp = Comparison("t", methods=(BC,), out=tmp_path, report=text)
+    assert run_report(comp, "cmd") == [tmp_path / "rows.txt"]
+    assert (tmp_path / "rows.txt").read_text() == "bc from t.parquet (abc); cmd\n"
+    with pytest.raises(TypeError, match="returned a str, not a ReportFiles"):
+        run_report(replace(comp, report=Report(text.step)), "cmd")
+    assert run_report(replace(comp, report=None)) == []
 
 
 def test_load_comparison_files(tmp_path: Path) -> None:

@@ -334,10 +334,11 @@ def test_tiny_masked_row_evaluates_the_same_agent_with_the_indicator_black(
 ) -> None:
     """A bar-kept BC row and its masked row on CarRacing: the masked row trains nothing, runs
     the row's agent on the same tracks, and the evaluation path records the steering-follow
-    metrics; the runner's rows read back as (cell, view) for scripts/observation_choice."""
+    metrics; the runner's rows read back as (cell, view) for the observation ablation's report
+    step."""
     from safe_bc.bc import BCConfig, NetworkConfig, PreprocessConfig, TrainConfig
+    from safe_bc.compare.observation_choice import cells_and_views
     from safe_bc.compare.run import run_comparison
-    from scripts.observation_choice import cells_and_views
 
     pre = PreprocessConfig(crop_bar=False, mask_steering=False)
     bc = BCConfig(preprocess=pre, network=NetworkConfig(channels=(4, 4, 4), hidden=8),

@@ -62,7 +62,7 @@ def test_committed_choice_rederives_through_the_report_step(
     before)."""
     out, committed = _committed_elsewhere(tmp_path, key, monkeypatch)
     (command,) = re.findall(r"Command: `([^`]*)`", committed)
-    assert run_report(REPORTED[key], command) == out
+    assert run_report(REPORTED[key], command) == [out]
     assert out.read_text() == committed
 
 

@@ -425,7 +425,7 @@ def compare(job: CompareJob) -> Done:
             raise ValueError("--report-only runs the report step alone (no --render-only, --cell)")
         if comparison.report is None:
             raise ValueError(f"comparison {comparison.name!r} declares no report step")
-        return Done(f"wrote {run_report(comparison)}", comparison)
+        return Done("wrote " + ", ".join(map(str, run_report(comparison))), comparison)
     if job.cell is not None:
         folder = run_cell(comparison, job.cell, workers=job.workers, progress=not job.quiet)
         return Done(f"cell {job.cell} done in {folder}", comparison)

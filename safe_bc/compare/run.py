@@ -47,8 +47,11 @@ from safe_bc.compare.spec import (
     Comparison,
     FromStart,
     Handover,
+    Read,
+    ReportFiles,
     Row,
     build_table,
+    check_report_files,
     machines,
     render_markdown,
     run_slug,
@@ -777,28 +780,74 @@ def rerender(comparison: Comparison) -> pd.DataFrame:
     return table
 
 
-def run_report(comparison: Comparison, command: str | None = None) -> Path | None:
+def run_report(comparison: Comparison, command: str | None = None) -> list[Path]:
     """The comparison's report step (:attr:`~safe_bc.compare.spec.Comparison.report`) on the
-    table it wrote (``OUT/<name>.parquet``, read back with its provenance): the step's text
-    written to ``OUT/<report.file>``. ``command``: the command the text records (``None``: this
-    process's). ``None`` without a report step.
+    tables it wrote (``OUT/<name>.parquet`` and those the step reads, each read back with its
+    provenance): a text step's text written to ``OUT/<report.file>``, or every file of a
+    :class:`~safe_bc.compare.spec.ReportFiles` (:func:`write_report_files`). ``command``: the
+    command the outputs record (``None``: this process's). Returns the files written (none
+    without a report step).
 
     Raises:
-        FileNotFoundError: the table has not been written (run the comparison first).
+        FileNotFoundError: a table has not been written (run the comparison first).
+        TypeError: the step returned other than its kind returns.
     """
     c = comparison
     if c.report is None:
-        return None
-    source = c.out / f"{c.name}.parquet"
-    if not source.is_file():
-        raise FileNotFoundError(f"{source} is missing: run the comparison {c.name!r} first")
-    table, meta = read_table(source)
+        return []
+    paths = {"": c.out / f"{c.name}.parquet"}
+    paths |= {t: c.out / f"{c.name}_{t}.parquet" for t in c.report.reads}
+    for path in paths.values():
+        if not path.is_file():
+            raise FileNotFoundError(f"{path} is missing: run the comparison {c.name!r} first")
+    (table, meta, source), *reads = (Read(*read_table(p), p) for p in paths.values())
     module, _, function = c.report.step.partition(":")
     step = getattr(importlib.import_module(module), function)
-    text = step(table, meta, source, command_line() if command is None else command)
-    path = c.out / c.report.file
-    write_text_atomic(path, text)
-    return path
+    command = command_line() if command is None else command
+    made = step(table, meta, source, command, **dict(zip(c.report.reads, reads, strict=True)))
+    kind = str if c.report.file else ReportFiles
+    if not isinstance(made, kind):
+        raise TypeError(
+            f"report step {c.report.step} returned a {type(made).__name__}, not a {kind.__name__}"
+        )
+    if isinstance(made, str):
+        path = c.out / c.report.file
+        write_text_atomic(path, made)
+        return [path]
+    return write_report_files(c, made, command, list(paths.values()))
+
+
+def write_report_files(
+    comparison: Comparison, files: ReportFiles, command: str, read: list[Path]
+) -> list[Path]:
+    """Every file of ``files`` into the comparison's ``out``, each atomically: the tables with
+    their metadata, this run's provenance, ``command`` and the digests of the tables ``read``
+    (``inputs.tables``), the texts, the figures (each drawn by its plot function). Returns the
+    files written.
+
+    Raises:
+        ValueError: a name is no file name, repeats, or is one of the comparison's own files.
+    """
+    c = comparison
+    check_report_files(c, files)
+    meta = run_metadata(**files.meta)
+    meta["command"] = command
+    meta["inputs"] = {
+        **files.meta.get("inputs", {}),
+        "tables": {str(p): file_digest(p) for p in read},
+    }
+    written = []
+    for name, frame in files.tables.items():
+        written.append(c.out / f"{name}.parquet")
+        write_table_atomic(written[-1], frame, meta)
+    for name, text in files.texts.items():
+        written.append(c.out / name)
+        write_text_atomic(written[-1], text)
+    for name, plot in files.figures.items():
+        module, _, function = plot.function.partition(":")
+        written.append(c.out / name)
+        getattr(importlib.import_module(module), function)(**plot.args, path=written[-1])
+    return written
 
 
 def stored_limit_distances(c: Comparison) -> dict[str, float] | None:

@@ -27,7 +27,7 @@ import re
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, NamedTuple
 
 import numpy as np
 import pandas as pd
@@ -50,7 +50,8 @@ from safe_bc.report import fmt_ci
 from safe_bc.tasks import TASKS, Task, task_defaults
 
 __all__ = [
-    "Agent", "Comparison", "Expert", "FromStart", "Handover", "Method", "Report", "Row", "View",
+    "Agent", "Comparison", "Expert", "FromStart", "Handover", "Method", "Plot", "Read", "Report",
+    "ReportFiles", "Row", "View",
 ]  # fmt: skip
 
 FIGURES = ("alpha_sweep", "traces", "learning_curves")
@@ -70,29 +71,114 @@ PAPER_TABLE1 = pd.DataFrame(
 """Boecking & Philipp (2020), Table 1 (2 evaluation episodes, one training run each)."""
 
 
+TABLES = ("episodes", "traces", "training", "history")
+"""The comparison's tables beside ``OUT/<name>.parquet``: ``OUT/<name>_<suffix>.parquet``, each
+one a report step may read (:attr:`Report.reads`)."""
+
+_FILE_NAME = re.compile(r"[A-Za-z0-9_-][A-Za-z0-9_.-]*")
+"""A report output's file name: no folder, no leading dot."""
+
+
 @dataclass(frozen=True)
 class Report:
-    """A comparison's report step: an analysis of the table the runner wrote, e.g. the default
-    it supports. The runner runs it after writing the table
+    """A comparison's report step: an analysis of the tables the runner wrote, e.g. the default
+    they support. The runner runs it after writing the table
     (:func:`safe_bc.compare.run.run_report`); ``safe-bc compare FILE --name NAME --report-only``
-    runs only it, from the table on disk."""
+    runs only it, from the tables on disk."""
 
     step: str
     """``"module:function"``, imported when the step runs: ``function(table, meta, source,
-    command) -> str``, given the table and its provenance as written, the table's path and the
-    command running the step, returns the text of :attr:`file`; pure (the runner reads and
-    writes), e.g. ``"safe_bc.methods.selfimprove.choice:markdown"``."""
-    file: str
-    """The file it writes, beside the table: ``OUT/<file>``."""
+    command, **reads)``, given the table and its provenance as written, the table's path, the
+    command running the step and, by suffix, each table of :attr:`reads` (a :class:`Read`);
+    pure (the runner reads and writes). With a :attr:`file` it returns that file's text (e.g.
+    ``"safe_bc.methods.selfimprove.choice:markdown"``), else a :class:`ReportFiles` (e.g.
+    ``"safe_bc.compare.observation_choice:report"``)."""
+    file: str = ""
+    """The one file a text step writes, beside the table: ``OUT/<file>``; ``""``: the step
+    names its files (:class:`ReportFiles`)."""
+    reads: tuple[str, ...] = ()
+    """The comparison's other tables the step is handed, by suffix (:data:`TABLES`):
+    ``"episodes"`` is ``OUT/<name>_episodes.parquet``."""
 
     def __post_init__(self) -> None:
-        module, colon, function = self.step.partition(":")
-        if not (
-            colon and all(p.isidentifier() for p in module.split(".")) and function.isidentifier()
-        ):
-            raise ValueError(f"report step must be 'module:function', got {self.step!r}")
-        if not re.fullmatch(r"[A-Za-z0-9_-][A-Za-z0-9_.-]*", self.file):
+        _check_function(self.step, "report step")
+        if self.file and not _FILE_NAME.fullmatch(self.file):
             raise ValueError(f"report file must be a file name ([A-Za-z0-9_.-]), got {self.file!r}")
+        unknown = [r for r in self.reads if r not in TABLES]
+        if unknown or len(set(self.reads)) != len(self.reads):
+            raise ValueError(f"report reads: distinct tables of {TABLES}, got {self.reads}")
+
+
+class Read(NamedTuple):
+    """A table a report step is handed: its rows and provenance as written, and its path."""
+
+    frame: pd.DataFrame
+    meta: dict[str, Any]
+    path: Path
+
+
+@dataclass(frozen=True, eq=False)
+class Plot:
+    """A figure a report step asks for: ``function(**args, path=OUT/<file>)``, ``function``
+    named ``"module:function"`` (a figure of :mod:`safe_bc.plots`, which draws it and writes it
+    atomically), called by the runner; the step stays free of drawing and files."""
+
+    function: str
+    """``"module:function"``, e.g. ``"safe_bc.plots:plot_ablation_cells"``."""
+    args: dict[str, Any] = field(default_factory=dict)
+    """Its keyword arguments but ``path``."""
+
+    def __post_init__(self) -> None:
+        _check_function(self.function, "plot")
+
+
+@dataclass(frozen=True, eq=False)
+class ReportFiles:
+    """What a report step without a :attr:`Report.file` returns: the files the runner writes
+    beside the table, each atomically. None may be one of the comparison's own tables or
+    figures (:meth:`Comparison.own_files`); a text named ``<name>.md`` takes the place of the
+    table's Markdown."""
+
+    tables: dict[str, pd.DataFrame] = field(default_factory=dict)
+    """``OUT/<key>.parquet`` each, recording :attr:`meta`, the command running the step, this
+    run's provenance and the digests of the tables the step read (``inputs.tables``)."""
+    meta: dict[str, Any] = field(default_factory=dict)
+    """What the tables record about how they were made (an ``inputs`` entry is kept, with the
+    read tables added)."""
+    texts: dict[str, str] = field(default_factory=dict)
+    """``OUT/<key>``: its text (e.g. the Markdown)."""
+    figures: dict[str, Plot] = field(default_factory=dict)
+    """``OUT/<key>``: the figure drawn there."""
+
+    def files(self) -> list[str]:
+        """The file names, tables first, then texts, then figures."""
+        return [f"{t}.parquet" for t in self.tables] + [*self.texts, *self.figures]
+
+
+def _check_function(text: str, what: str) -> None:
+    """Refuse ``text`` unless it reads ``"module:function"`` (one line)."""
+    module, colon, function = text.partition(":")
+    if not (colon and all(p.isidentifier() for p in module.split(".")) and function.isidentifier()):
+        raise ValueError(f"{what} must be 'module:function', got {text!r}")
+
+
+def check_report_files(comparison: Comparison, files: ReportFiles) -> None:
+    """Refuse what a report step returned where a name is no file name, repeats, or is one of
+    the comparison's own files (:meth:`Comparison.own_files`).
+
+    Raises:
+        ValueError: one line naming the file.
+    """
+    names = files.files()
+    step = comparison.report.step if comparison.report else "?"
+    for name in names:
+        if not _FILE_NAME.fullmatch(name):
+            raise ValueError(f"report step {step}: {name!r} is no file name ([A-Za-z0-9_.-])")
+        if name in comparison.own_files():
+            raise ValueError(f"report step {step}: {name!r} is comparison {comparison.name!r}'s")
+    repeated = sorted({n for n in names if names.count(n) > 1})
+    if repeated:
+        raise ValueError(f"report step {step}: files named twice: {repeated}")
 
 
 @dataclass(frozen=True)
@@ -269,10 +355,7 @@ class Comparison:
                 raise ValueError(f"figure {fig!r}: file must be a .png, got {file!r}")
         if self.task not in TASKS:
             raise ValueError(f"task must be one of {tuple(TASKS)}, got {self.task!r}")
-        if self.report is not None and self.report.file in (
-            f"{self.name}.md",
-            f"{self.name}.parquet",
-        ):
+        if self.report is not None and self.report.file in self.own_files():
             raise ValueError(
                 f"comparison {self.name!r}: report file {self.report.file!r} is the table's"
             )
@@ -326,6 +409,15 @@ class Comparison:
             m for m in self.methods if not (isinstance(m, Handover) and m.handover is not None)
         )
         return dataclasses.replace(self, methods=(*kept, *rows), **changes)
+
+    def own_files(self) -> set[str]:
+        """What the runner writes into :attr:`out` for this table, which no report step may
+        replace: the table and its other tables (:data:`TABLES`), the selection and runs
+        folders, the stored evaluations, the figures. Its Markdown is not among them: a report
+        may write ``<name>.md`` in its place."""
+        tables = (f"{self.name}_{t}.parquet" for t in TABLES)
+        folders = (f"{self.name}_selection", f"{self.runs or self.name}_runs", "stored_evaluations")
+        return {f"{self.name}.parquet", *tables, *folders, *(file for _, file in self.figures)}
 
     def label_of(self, name: str) -> str:
         """The Markdown name of the row called ``name`` (``name`` if it is no row)."""

@@ -16,10 +16,11 @@ seed the bootstrap.
   axis each: batch size 64 / 32; 1,000 / 2,000 / 4,000 batches; conv channels 8-16-16 /
   16-32-32 / 32-64-64; the full 96x96 frame / 64x64 / 48x48 (area interpolation).
 
-Run: ``safe-bc compare tune_jobs/compare/observation.py --name NAME``, then ``python -m
-scripts.observation_choice`` (the chosen default and the figure from the episode table; for
-the one-axis tables ``--episodes results/ablation/NAME/NAME_episodes.parquet --out
-results/ablation/NAME --name NAME --title TITLE``).
+Run: ``safe-bc compare tune_jobs/compare/observation.py --name NAME``. Each table's report step
+(:data:`CHOICE`, :mod:`safe_bc.compare.observation_choice`) then writes, beside it, the default
+it supports from its episodes: ``summary.parquet``, ``paired.parquet``, ``copycat.parquet``,
+``paired_chosen.parquet``, ``NAME.md`` (in place of the table's own Markdown) and ``NAME.png``,
+headed by the comparison's title; ``--report-only`` reruns only the step.
 """
 
 import itertools
@@ -27,11 +28,9 @@ from dataclasses import replace
 from pathlib import Path
 
 from safe_bc.bc.config import BCConfig, NetworkConfig, PreprocessConfig, TrainConfig
-from safe_bc.compare.spec import Agent, Comparison, Expert, Row, View
+from safe_bc.compare.observation_choice import MASKED
+from safe_bc.compare.spec import Agent, Comparison, Expert, Report, Row, View
 from safe_bc.selection import SelectionConfig
-
-MASKED = "/steer_masked"
-"""Suffix of the rows evaluated with the steering indicator masked."""
 
 
 def cell_name(pre: PreprocessConfig) -> str:
@@ -83,6 +82,8 @@ CHOSEN = "bar-nosteer_rgb_k1"
 """The factorial's choice, the cell of the one-axis tables."""
 _cells = all_cells()
 _pre = _cells[CHOSEN]
+CHOICE = Report("safe_bc.compare.observation_choice:report", reads=("episodes", "training"))
+"""Every table's report step: the default it supports, from its episodes and training table."""
 
 
 def table(name: str, methods: list[Row], reference: str, title: str, out: str = "") -> Comparison:
@@ -99,6 +100,7 @@ def table(name: str, methods: list[Row], reference: str, title: str, out: str = 
         paired_metrics=("reward", "violation_steps", "any_violation"),
         title=title,
         shares_tracks_with=SELECTION_BLOCK,
+        report=CHOICE,
     )
 
 
