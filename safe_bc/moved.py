@@ -69,12 +69,14 @@ MOVED: dict[str, str] = {
 
 NAMES: dict[str, str] = {
     "safe_bc.methods.stages.STAGES": "safe_bc.methods.METHODS",
+    "safe_bc.cli.jobs.ImproveMethod": "safe_bc.methods.improve.command.ImproveMethod",
 }
 """Old public names of a module that stayed -> their new home (``module.name``): read from the
 old module (:func:`names`), each warns once and answers the new object. ``STAGES`` (stage name
 -> the method seen as a stage) is the registry itself now: its entries are the
 :class:`safe_bc.methods.MethodSpec` records (``.name``, ``.prefix``, ``.metrics``,
-``.reduce``), run as a stage by :func:`safe_bc.methods.stages.run_stage`."""
+``.reduce``), run as a stage by :func:`safe_bc.methods.stages.run_stage`. ``ImproveMethod``
+(``safe-bc improve --method``'s values) lives beside that command's record."""
 
 _warned: set[str] = set()
 

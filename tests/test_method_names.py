@@ -29,28 +29,8 @@ _WORD = re.compile(r"\b(" + "|".join(BUILT_IN) + r")\b")
 IDENTITY = "a StudySpec field named after a method: part of every committed study's identity"
 FLAT = "the comparison row API (Method(improve=, selfimprove=)) and its flat record's fields"
 CONFIG = "imports the config record of a field or flag that is named after the method"
-INNARDS = "uses a method's own code beyond the registry's interface (its shield, deferral, ...)"
-OLD_COMMAND = "the old command `safe-bc improve` / `safe-bc query` (an alias of safe-bc method)"
 
 ALLOWED: dict[tuple[str, str], str] = {
-    ("cli/api.py", 'bar.set_postfix(queries=int(summary["queries"]))'):
-        OLD_COMMAND + ": its progress bar reads the query runner's round summary",
-    ("cli/api.py", 'f"{result.total_queries} queries in {result.total_episodes} episodes; "'):
-        OLD_COMMAND + ": its summary line (the word)",
-    ("cli/api.py", "def improve(job: ImproveJob) -> Done:"): OLD_COMMAND + ": its function",
-    ("cli/api.py", "from safe_bc.methods.improve import LocalEnvs"):
-        OLD_COMMAND + ": runs PPO-Lagrangian with its own env workers (--rollout-workers)",
-    ("cli/api.py", "from safe_bc.methods.improve import improve as run_improve"):
-        OLD_COMMAND + ": runs PPO-Lagrangian with its own env workers (--rollout-workers)",
-    ("cli/api.py", 'bar = progress_bar(show=not job.quiet, total=config.iterations, '
-                   'desc=f"improve ({config.mode})")'): OLD_COMMAND + ": its progress bar",
-    ("cli/commands.py", '"improve": ("ImproveJob", "improve"),'): OLD_COMMAND,
-    ("cli/commands.py", '"improve": {"ppo_lagrangian": "config", '
-                        '"selfimitation": "selfimitation"},'):
-        OLD_COMMAND + ": where its --method finds the config (the method: the registry's)",
-    ("cli/jobs.py", "from safe_bc.methods.improve.config import ImproveConfig"): CONFIG,
-    ("cli/jobs.py", "from safe_bc.methods.queries.config import QueryConfig"): CONFIG,
-    ("cli/jobs.py", "from safe_bc.methods.selfimprove.config import SelfImproveConfig"): CONFIG,
     ("compare/rows.py", "from safe_bc.methods.improve.config import ImproveConfig"): CONFIG,
     ("compare/rows.py", "from safe_bc.methods.selfimprove.config import SelfImproveConfig"):
         CONFIG,
@@ -73,14 +53,6 @@ ALLOWED: dict[tuple[str, str], str] = {
         FLAT,
     ("compare/rows.py", "return FromStart(name, start, improve if improve is not None else "
                         "selfimprove,"): FLAT,
-    ("compare/run.py", "from safe_bc.methods.improve import validation_seeds"):
-        INNARDS + ": the improvement's validation tracks, kept apart from the comparison's",
-    ("compare/run.py", "from safe_bc.methods.improve import ImprovedSource"):
-        INNARDS + ": a handover row over an improved agent",
-    ("compare/run.py", "from safe_bc.methods.improve.shield import Shield"):
-        INNARDS + ": a handover row over an improved agent",
-    ("study/run.py", "from safe_bc.methods.improve.shield import ImprovedSource"):
-        INNARDS + ": the recommender of an improved agent",
     ("study/spec.py", "from safe_bc.methods.improve.config import ImproveConfig"): IDENTITY,
     ("study/spec.py", "from safe_bc.methods.queries.config import QueryConfig"): IDENTITY,
     ("study/spec.py", "from safe_bc.methods.selfimprove.config import SelfImproveConfig"):

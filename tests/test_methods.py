@@ -43,3 +43,31 @@ def test_a_method_spec_is_checked() -> None:
         MethodSpec("x", ImproveConfig, "m:f", metrics=("a",), summed=("b",))
     with pytest.raises(ValueError, match="unknown method 'x': choose improve, queries"):
         method_of("x")
+
+
+@pytest.mark.parametrize("name", ["query", "improve"])
+def test_every_old_command_is_complete(name: str) -> None:
+    """A command from before ``safe-bc method NAME``: its record, its runner taking the
+    distributed layer's pieces, and each ``--method``'s config field, of a registered method."""
+    from safe_bc.methods import METHOD_COMMANDS, method_of_config
+
+    command = METHOD_COMMANDS[name]
+    record = command.record()
+    assert record.__name__ == command.record_name and record.__dataclass_params__.frozen
+    params = inspect.signature(command.load()).parameters
+    assert list(params) == ["job", "parallel", "envs"]
+    fields = {f.name: f for f in dataclasses.fields(record)}
+    for _, field in command.configs:
+        method_of_config(fields[field].default_factory())  # type: ignore[misc]
+
+
+def test_a_method_command_is_checked() -> None:
+    from safe_bc.methods import METHOD_COMMANDS, MethodCommand, register_command
+
+    with pytest.raises(ValueError, match="'module:name'"):
+        MethodCommand("x", "m.Job", "m:run")
+    with pytest.raises(ValueError, match="at least one field"):
+        MethodCommand("x", "m:Job", "m:run", configs=())
+    assert register_command(METHOD_COMMANDS["query"]) is METHOD_COMMANDS["query"]
+    with pytest.raises(ValueError, match="registered already"):
+        register_command(MethodCommand("query", "m:Job", "m:run"))

@@ -89,3 +89,26 @@ def test_the_entry_point_group_and_console_script():
     from safe_bc.tasks.registry import ENTRY_POINTS
 
     assert ENTRY_POINTS == "safe_bc.tasks"
+
+
+def test_the_old_method_commands_names_still_answer():
+    """``safe-bc query`` and ``safe-bc improve``'s records and functions live beside their
+    methods (``safe_bc.methods.METHOD_COMMANDS``); the command line's modules still hand them
+    out by their names, ``ImproveMethod`` with a warning."""
+    proc = run(
+        """
+        import dataclasses
+        from safe_bc.cli.api import Done, improve, query
+        from safe_bc.cli.jobs import ImproveJob, QueryJob
+        from safe_bc.methods.improve.command import ImproveJob as Home
+        from safe_bc.methods.queries.command import QueryJob as QueryHome
+        assert ImproveJob is Home and QueryJob is QueryHome
+        assert improve.args == ("improve",) and query.args == ("query",)
+        from safe_bc.cli.jobs import ImproveMethod
+        import safe_bc.cli.jobs as jobs
+        assert not hasattr(jobs, "NoSuchJob")
+        """
+    )
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    lines = [x for x in proc.stderr.splitlines() if "FutureWarning" in x]
+    assert len(lines) == 1 and "safe_bc.methods.improve.command.ImproveMethod" in lines[0]

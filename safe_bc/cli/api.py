@@ -5,6 +5,7 @@ exits with its code)."""
 from __future__ import annotations
 
 import fnmatch
+import functools
 import json
 import os
 from collections.abc import Sequence
@@ -19,9 +20,7 @@ from safe_bc.cli.jobs import (
     EvaluateJob,
     ExpertJob,
     ExportJob,
-    ImproveJob,
     MethodJob,
-    QueryJob,
     RenderJob,
     ReproduceJob,
     TrainJob,
@@ -502,71 +501,6 @@ def _check_study_demos(spec: Any) -> None:
             check_dataset(Path(path), "--demos" if path == spec.demos else "--validation-demos")
 
 
-def query(job: QueryJob) -> Done:
-    """Critical-zone queries on a checkpoint (resumable; the ``queries`` method of
-    :data:`safe_bc.methods.METHODS`); the value is the run's result."""
-    from dataclasses import replace
-
-    from safe_bc.distributed.rollouts import ChunkedRayRollouts
-    from safe_bc.methods import method_of_config
-    from safe_bc.methods.start import start_from_checkpoint
-    from safe_bc.progress import progress_bar
-
-    start = start_from_checkpoint(job.checkpoint, job.demos)
-    rounds = job.config.rounds
-    with progress_bar(show=not job.quiet, total=rounds, desc="query", unit="round") as bar:
-
-        def show(summary: dict[str, Any]) -> None:
-            bar.n = int(summary["round"]) + 1  # resumed rounds count as done
-            bar.set_postfix(queries=int(summary["queries"]))
-
-        start = replace(start, parallel=ChunkedRayRollouts, on_round=show)
-        result = method_of_config(job.config).run(job.config, start, job.out).result
-    return Done(
-        f"{result.total_queries} queries in {result.total_episodes} episodes; "
-        f"agent: {result.policy}",
-        result,
-    )
-
-
-def improve(job: ImproveJob) -> Done:
-    """Improve a checkpoint by constrained RL or, ``method="selfimitation"``, by filtered
-    self-imitation (resumable); the value is the run's result."""
-    if job.method == "selfimitation":
-        return _selfimitate(job)
-    from safe_bc.methods.improve import LocalEnvs
-    from safe_bc.methods.improve import improve as run_improve
-    from safe_bc.progress import progress_bar
-
-    config = job.config
-    bar = progress_bar(show=not job.quiet, total=config.iterations, desc=f"improve ({config.mode})")
-
-    def show(row: dict[str, float]) -> None:
-        bar.n = int(row["iteration"])
-        bar.set_postfix(reward=f"{row['train_reward']:.2f}", lam=f"{row['lambda']:.2f}",
-                        viol=f"{row['train_violation_steps']:.2f}")  # fmt: skip
-        bar.refresh()
-
-    envs = LocalEnvs
-    if job.rollout_workers:
-        from safe_bc.distributed.envs import ray_envs
-
-        envs = ray_envs(job.rollout_workers)
-    with output_lock(job.out), bar:
-        result = run_improve(job.start, job.out, config, demos=job.demos, on_iteration=show,
-                             envs=envs)  # fmt: skip
-    last = result.history.dropna(subset=["val_reward"]).iloc[-1]
-    return Done(
-        f"{job.out}: {config.mode}, {result.iterations} iterations "
-        f"({'resumed at ' + str(result.resumed_at) if result.resumed_at else 'fresh'}), "
-        f"{int(last['env_steps'])} env steps; validation reward {last['val_reward']:.2f}, "
-        f"violating sessions / patient {last['val_violation_steps']:.3f}, lambda "
-        f"{last['lambda']:.2f}; policy of iteration {result.kept_iteration} in "
-        f"{job.out / 'policy'}",
-        result,
-    )
-
-
 def method(job: MethodJob) -> Done:
     """Run (or resume) the registered method ``job.name`` from a checkpoint; the value is its
     :class:`~safe_bc.methods.Improved`."""
@@ -586,43 +520,34 @@ def method(job: MethodJob) -> Done:
     )
 
 
-def _selfimitate(job: ImproveJob) -> Done:
-    from dataclasses import replace
-
+def method_command(name: str, job: Any) -> Done:
+    """Run ``job`` by the command ``name`` from before ``safe-bc method NAME``
+    (:data:`safe_bc.methods.METHOD_COMMANDS`, e.g. ``safe-bc query``), its rollouts on Ray
+    actors; the value is the run's result. Each such command is also a function of this module
+    by its name (``api.query(job)``)."""
     from safe_bc.distributed.rollouts import ChunkedRayRollouts
-    from safe_bc.methods import method_of_config
-    from safe_bc.methods.start import start_from_checkpoint
-    from safe_bc.progress import progress_bar
-    from safe_bc.tasks import task_of
+    from safe_bc.methods import METHOD_COMMANDS
 
-    with output_lock(job.out):
-        start = start_from_checkpoint(job.start, job.demos)
-        rounds = job.selfimitation.for_task(task_of(start.env.env_id)).rounds
-        with progress_bar(
-            show=not job.quiet, total=rounds, desc="selfimitation", unit="round"
-        ) as bar:
+    run = METHOD_COMMANDS[name].load()
+    summary, value = run(job, parallel=ChunkedRayRollouts, envs=_ray_envs)
+    return Done(summary, value)
 
-            def show(summary: dict[str, Any]) -> None:
-                bar.n = int(summary["round"]) + 1  # resumed rounds count as done
-                bar.set_postfix(
-                    val_reward=f"{summary['validation_reward']:.2f}",
-                    accepted=bool(summary["accepted"]),
-                    kept=int(summary["kept_steps"]),
-                )
 
-            start = replace(start, parallel=ChunkedRayRollouts, on_round=show)
-            done = method_of_config(job.selfimitation).run(job.selfimitation, start, job.out)
-    result = done.result
-    last = result.rounds[-1]
-    return Done(
-        f"{job.out}: selfimitation, {len(result.rounds)} rounds ({result.resumed_rounds} "
-        f"resumed), {result.accepted_rounds} accepted, {result.kept_steps} kept steps; "
-        f"validation reward {last['validation_reward']:.2f} (previous "
-        f"{last['previous_validation_reward']:.2f}), {last['validation_beyond']} of "
-        f"{job.selfimitation.validation_episodes} validation episodes beyond d_s; agent: "
-        f"{result.policy}",
-        result,
-    )
+def _ray_envs(workers: int) -> Any:
+    """Env groups stepped by ``workers`` Ray actors (imported only when asked for)."""
+    from safe_bc.distributed.envs import ray_envs
+
+    return ray_envs(workers)
+
+
+def __getattr__(name: str) -> Any:
+    """A command from before ``safe-bc method NAME`` (:data:`safe_bc.methods.METHOD_COMMANDS`)
+    by its name: ``job -> Done``, :func:`method_command`."""
+    from safe_bc.methods import METHOD_COMMANDS
+
+    if name not in METHOD_COMMANDS:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return functools.partial(method_command, name)
 
 
 def export(job: ExportJob) -> Done:

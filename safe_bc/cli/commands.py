@@ -20,31 +20,33 @@ import sys
 from collections.abc import Callable, Sequence
 from typing import Any
 
-COMMANDS: dict[str, tuple[str, str]] = {
-    "collect": ("CollectJob", "collect"),
-    "describe": ("DescribeJob", "describe"),
-    "train": ("TrainJob", "train"),
-    "evaluate": ("EvaluateJob", "evaluate"),
-    "expert": ("ExpertJob", "expert"),
-    "reproduce": ("ReproduceJob", "reproduce"),
-    "compare": ("CompareJob", "compare"),
-    "tune": ("TuneJob", "tune"),
-    "method": ("MethodJob", "method"),
-    "query": ("QueryJob", "query"),
-    "improve": ("ImproveJob", "improve"),
-    "export": ("ExportJob", "export"),
-    "render": ("RenderJob", "render"),
-}
-"""Command -> (its record in :mod:`safe_bc.cli.jobs`, its function in :mod:`safe_bc.cli.api`)."""
 
-OLD_COMMANDS: dict[str, dict[str | None, str]] = {
-    "query": {None: "config"},
-    "improve": {"ppo_lagrangian": "config", "selfimitation": "selfimitation"},
-}
-"""Commands that are ``safe-bc method NAME`` now -> their ``--method`` value (``None``: no
-such flag; the first entry: its default) -> the field of their record holding the method's
-config. They run as before, after one line to stderr naming the new form
-(:func:`_new_form`; the method: the registered one taking that config)."""
+def _commands() -> dict[str, tuple[str, str]]:
+    from safe_bc.methods import METHOD_COMMANDS
+
+    own = {c.name: (c.record_name, c.name) for c in METHOD_COMMANDS.values()}
+    return {
+        "collect": ("CollectJob", "collect"),
+        "describe": ("DescribeJob", "describe"),
+        "train": ("TrainJob", "train"),
+        "evaluate": ("EvaluateJob", "evaluate"),
+        "expert": ("ExpertJob", "expert"),
+        "reproduce": ("ReproduceJob", "reproduce"),
+        "compare": ("CompareJob", "compare"),
+        "tune": ("TuneJob", "tune"),
+        "method": ("MethodJob", "method"),
+        **own,
+        "export": ("ExportJob", "export"),
+        "render": ("RenderJob", "render"),
+    }
+
+
+COMMANDS: dict[str, tuple[str, str]] = _commands()
+"""Command -> (its record in :mod:`safe_bc.cli.jobs`, its function in :mod:`safe_bc.cli.api`).
+The commands from before ``safe-bc method NAME`` (after ``method``) are those of
+:data:`safe_bc.methods.METHOD_COMMANDS`, their records and functions read from their methods'
+code (by name, through ``jobs`` and ``api``); they run as before, after one line to stderr
+naming the new form (:func:`_new_form`)."""
 
 RAY_COMMANDS = frozenset({"collect", "compare", "evaluate", "expert", "reproduce", "tune"})
 """Commands that may start or join Ray: with ``RAY_ADDRESS`` set they join the cluster before
@@ -235,18 +237,19 @@ def _new_form(command: str, argv: Sequence[str]) -> str | None:
     """
     import dataclasses
 
-    from safe_bc.cli import jobs
-    from safe_bc.methods import method_of_config
+    from safe_bc.methods import METHOD_COMMANDS, method_of_config
 
-    modes = OLD_COMMANDS.get(command)
-    if modes is None:
+    old = METHOD_COMMANDS.get(command)
+    if old is None:
         return None
+    modes = dict(old.configs)
     chosen = next(iter(modes))
     for before, a in itertools.pairwise(["", *argv]):
         chosen = a.partition("=")[2] if a.startswith("--method=") else chosen
         chosen = a if before == "--method" else chosen
-    record = getattr(jobs, COMMANDS[command][0])
-    field = next(f for f in dataclasses.fields(record) if f.name == modes.get(chosen, "config"))
+    record = old.record()
+    name = modes.get(chosen, old.configs[0][1])
+    field = next(f for f in dataclasses.fields(record) if f.name == name)
     return f"safe-bc method {method_of_config(field.default_factory()).name}"  # type: ignore[misc]
 
 

@@ -5,7 +5,9 @@ flag,
 its docstring the flag's help, a nested config's fields dotted flags (``--selection.eps``,
 ``--bc.train.lr``: the names a study's search space uses). Range checks live in the configs'
 ``__post_init__``. ``None`` defaults mean "the task's" or "the config's own default", so no
-default is written twice. The functions of :mod:`safe_bc.cli.api` take these records.
+default is written twice. The functions of :mod:`safe_bc.cli.api` take these records. The
+records of the commands from before ``safe-bc method NAME`` live beside their methods' code
+(:data:`safe_bc.methods.METHOD_COMMANDS`) and are read here by their names (``QueryJob``).
 """
 
 from __future__ import annotations
@@ -19,9 +21,7 @@ import tyro
 
 from safe_bc.compare.reproduce import ReproduceConfig
 from safe_bc.data.codec import Encoding
-from safe_bc.methods.improve.config import ImproveConfig
-from safe_bc.methods.queries.config import QueryConfig
-from safe_bc.methods.selfimprove.config import SelfImproveConfig
+from safe_bc.moved import names
 from safe_bc.rollout.config import EvalConfig
 from safe_bc.run_config import RunConfig
 from safe_bc.tasks import DEFAULT_TASK, Task
@@ -302,53 +302,6 @@ class TuneJob:
 
 
 @dataclass(frozen=True)
-class QueryJob:
-    """Critical-zone queries: retrain a checkpoint on expert labels of its own critical
-    states, per round (rerun to resume)."""
-
-    checkpoint: Path
-    """A safe-bc train checkpoint."""
-    demos: Path
-    """Its demonstration dataset folder."""
-    out: Path
-    """Run folder (resumes a run there)."""
-    config: Annotated[QueryConfig, Flat] = field(default_factory=lambda: QueryConfig(workers=2))
-    """The query run (the command rolls out on 2 Ray actors unless --workers says otherwise)."""
-    quiet: bool = False
-    """No progress bar (it shows on a terminal only)."""
-
-
-ImproveMethod = Literal["ppo_lagrangian", "selfimitation"]
-
-
-@dataclass(frozen=True)
-class ImproveJob:
-    """Improve a safety-imitation checkpoint by constrained RL or filtered self-imitation
-    (rerun to resume)."""
-
-    start: Path
-    """A safe-bc train checkpoint."""
-    out: Path
-    """Run folder (rerun to resume)."""
-    method: ImproveMethod = "ppo_lagrangian"
-    """ppo_lagrangian: constrained RL (--mode, --iterations, ...); selfimitation: iterated,
-    filtered self-imitation inside d_s (--selfimitation.rounds, --selfimitation.pushes, ...,
-    safe_bc.methods.selfimprove)."""
-    demos: Path | None = None
-    """Demonstrations; None: the start's."""
-    config: Annotated[ImproveConfig, Flat] = field(default_factory=ImproveConfig)
-    """The improvement run (method ppo_lagrangian)."""
-    selfimitation: SelfImproveConfig = field(default_factory=SelfImproveConfig)
-    """The self-imitation run (method selfimitation); --selfimitation.workers: its Ray
-    rollout actors (0: in-process), the run is bit-identical either way."""
-    rollout_workers: int = 0
-    """Ray actors stepping the rollout envs (0: in-process, right for rehab; CarRacing: one
-    per core); the run is bit-identical either way (method ppo_lagrangian)."""
-    quiet: bool = False
-    """No progress bar."""
-
-
-@dataclass(frozen=True)
 class MethodJob:
     """Run a registered method (safe_bc.methods.METHODS) from a checkpoint; rerun to resume."""
 
@@ -447,3 +400,18 @@ class RenderJob:
             raise ValueError(f"scale must be >= 1, got {self.scale}")
         if self.fps is not None and not 0 < self.fps < float("inf"):
             raise ValueError(f"fps must be finite, > 0, got {self.fps}")
+
+
+_moved = names(__name__)
+
+
+def __getattr__(name: str) -> Any:
+    """The record of a command from before ``safe-bc method NAME`` by its class name
+    (:attr:`safe_bc.methods.MethodCommand.record_name`), from its method's package; an old name
+    of :data:`safe_bc.moved.NAMES` (warning once)."""
+    from safe_bc.methods import METHOD_COMMANDS
+
+    for command in METHOD_COMMANDS.values():
+        if command.record_name == name:
+            return command.record()
+    return _moved(name)

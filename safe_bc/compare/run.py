@@ -107,7 +107,7 @@ def track_seeds(comparison: Comparison) -> list[int]:
     """The env seeds every policy runs on (:attr:`Comparison.tracks`)."""
     if comparison.tracks == "heldout":
         return eval_config(comparison).seeds()
-    from safe_bc.methods.improve import validation_seeds
+    from safe_bc.methods.common import validation_seeds
 
     first = comparison.first_track
     return validation_seeds(first + comparison.episodes)[first:]
@@ -375,8 +375,7 @@ class _Runs:
     def handover(self, row: Handover, net: Any, seed: int) -> Any:
         """``net`` (a BC agent, or a method run's net without its own shield) with the scripted
         expert in the critical states of ``row``, by its evaluation thresholds."""
-        from safe_bc.methods.improve import ImprovedSource
-        from safe_bc.methods.improve.shield import Shield
+        from safe_bc.methods.common import shielded
         from safe_bc.rollout.collect import stored_expert_config
         from safe_bc.selection import CriticalZone
 
@@ -387,8 +386,8 @@ class _Runs:
             from safe_bc.rollout.handover import handover_source
 
             return handover_source(net, row.handover, expert, limits, task.safety_dims)
-        shield = Shield(CriticalZone(limits, c.width, "any"), task.env.env_id)
-        return ImprovedSource(net, ExpertSource(expert), shield)
+        zone = CriticalZone(limits, c.width, "any")
+        return shielded(net, ExpertSource(expert), zone, task.env.env_id)
 
 
 def _load_sets(

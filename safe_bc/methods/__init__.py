@@ -1,32 +1,40 @@
 """Improvement methods: one interface (:class:`MethodSpec`, :class:`Start`, :class:`Improved`)
 and one registry (:data:`METHODS`) that the study's stages, the comparison runner and the
 command line read (:mod:`safe_bc.methods.registry`). The built-in methods are registered
-here, one line each, in the order study stages run; their runners live beside their code."""
+here, one line each, in the order study stages run; their runners live beside their code, as do
+the records and runners of the commands from before ``safe-bc method NAME``
+(:data:`METHOD_COMMANDS`)."""
 
 from __future__ import annotations
 
 from safe_bc.methods.improve.config import ImproveConfig
 from safe_bc.methods.queries.config import QueryConfig
 from safe_bc.methods.registry import (
+    METHOD_COMMANDS,
     METHODS,
     Improved,
+    MethodCommand,
     MethodSpec,
     Runner,
     Start,
     method_of,
     method_of_config,
+    register_command,
     register_method,
 )
 from safe_bc.methods.selfimprove.config import SelfImproveConfig
 
 __all__ = [
     "METHODS",
+    "METHOD_COMMANDS",
     "Improved",
+    "MethodCommand",
     "MethodSpec",
     "Runner",
     "Start",
     "method_of",
     "method_of_config",
+    "register_command",
     "register_method",
 ]
 
@@ -62,5 +70,20 @@ register_method(
         identity="safe_bc.methods.selfimprove.stage:identity",
         start_modes=("mix",),
         shares_rounds=True,
+    )
+)
+register_command(
+    MethodCommand(
+        name="query",
+        job="safe_bc.methods.queries.command:QueryJob",
+        runner="safe_bc.methods.queries.command:query",
+    )
+)
+register_command(
+    MethodCommand(
+        name="improve",
+        job="safe_bc.methods.improve.command:ImproveJob",
+        runner="safe_bc.methods.improve.command:improve",
+        configs=(("ppo_lagrangian", "config"), ("selfimitation", "selfimitation")),
     )
 )

@@ -14,7 +14,10 @@ One entry serves every place that runs methods:
   ``<name>.<field>`` keys (:attr:`MethodSpec.prefix`);
 * the comparison runner: a row ``FromStart(name, start=..., config=...)`` of
   :mod:`safe_bc.compare.spec` improves every training seed's agent of its start row;
-* the command line: ``safe-bc method NAME --start CKPT --out DIR --config.<field> ...``.
+* the command line: ``safe-bc method NAME --start CKPT --out DIR --config.<field> ...``; the
+  commands from before it (``safe-bc query``, ``safe-bc improve``) are entries of
+  :data:`METHOD_COMMANDS` (:class:`MethodCommand`: their records and runners live beside their
+  methods' code).
 
 Adding a method is one module holding its runner (``run(config, start, folder, *,
 metadata=None) -> Improved``), one :func:`register_method` line and its tests; a method
@@ -94,6 +97,11 @@ class Improved:
 
 Runner = Callable[..., Improved]
 """``run(config, start, folder, *, metadata=None) -> Improved``."""
+
+EnvGroups = Callable[[int], Any]
+"""``envs(workers)``: a factory of env groups stepped by ``workers`` Ray actors (an
+``EnvGroupFactory`` of :mod:`safe_bc.methods.improve.envs`), the distributed layer's, handed to
+a :class:`MethodCommand` by the command line."""
 
 
 @dataclass(frozen=True)
@@ -189,6 +197,61 @@ class MethodSpec:
 def _load(target: str) -> Callable[..., Any]:
     module, _, name = target.partition(":")
     return getattr(importlib.import_module(module), name)
+
+
+@dataclass(frozen=True)
+class MethodCommand:
+    """A command of its own that runs a method, from before ``safe-bc method NAME``: it runs as
+    it did (its own flags, its own summary), then one line to stderr names its ``safe-bc method
+    NAME`` form."""
+
+    name: str
+    """The command: ``safe-bc <name>``."""
+    job: str
+    """``"module:Class"`` of its record (a frozen dataclass: its fields are the flags)."""
+    runner: str
+    """``"module:function"``: ``run(job, *, parallel, envs) -> (summary, result)``, given the
+    distributed layer's :attr:`Start.parallel` and :data:`EnvGroups` by the command line."""
+    configs: tuple[tuple[str | None, str], ...] = ((None, "config"),)
+    """Its ``--method`` values (``None``: it has no such flag; the first: the default), each with
+    the field of its record holding the config it runs: the method of its ``safe-bc method``
+    form is the registered one taking that config."""
+
+    def __post_init__(self) -> None:
+        if ":" not in self.job or ":" not in self.runner:
+            raise ValueError(f"command {self.name!r}: job and runner are 'module:name'")
+        if not self.configs:
+            raise ValueError(f"command {self.name!r}: configs names at least one field")
+
+    @property
+    def record_name(self) -> str:
+        """The name of its record's class (``"QueryJob"``)."""
+        return self.job.rpartition(":")[2]
+
+    def record(self) -> type:
+        """Its record's class (imports its module)."""
+        return _load(self.job)  # type: ignore[return-value]
+
+    def load(self) -> Callable[..., tuple[str, Any]]:
+        """Its runner (imports its module)."""
+        return _load(self.runner)
+
+
+METHOD_COMMANDS: dict[str, MethodCommand] = {}
+"""Command name -> the :class:`MethodCommand` from before ``safe-bc method NAME``, in the order
+the command line lists them. Add with :func:`register_command`."""
+
+
+def register_command(command: MethodCommand) -> MethodCommand:
+    """Add ``command`` to :data:`METHOD_COMMANDS` (the same again does nothing; another under a
+    taken name is an error)."""
+    known = METHOD_COMMANDS.get(command.name)
+    if known is not None:
+        if known != command:
+            raise ValueError(f"command {command.name!r} is registered already")
+        return known
+    METHOD_COMMANDS[command.name] = command
+    return command
 
 
 METHODS: dict[str, MethodSpec] = {}

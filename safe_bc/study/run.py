@@ -1328,11 +1328,10 @@ def shippable_net(source: Any) -> tuple[BCNet, BCConfig] | None:
     net alone (a trained or retrained net; a stage's net without a shield): what a recommender
     ships, so that loading it gives the agent that was evaluated and certified. ``None`` for
     anything else (a shielded policy, a missing agent)."""
-    from safe_bc.methods.improve.shield import ImprovedSource
+    from safe_bc.methods.common import unshielded
     from safe_bc.rollout.evaluate import NetSource
 
-    if isinstance(source, ImprovedSource) and source.imitation is None:
-        source = source.improved
+    source = unshielded(source)
     if isinstance(source, NetSource):
         return source.to_model()
     return None
