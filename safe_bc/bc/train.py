@@ -252,7 +252,9 @@ def training_threads(train_cfg: TrainConfig) -> int:
 @contextmanager
 def torch_settings(num_threads: int | None) -> Iterator[None]:
     """Deterministic algorithms, optional thread count and a forked torch RNG, all restored
-    on exit so that training does not leak global state into the caller."""
+    on exit so that training does not leak global state into the caller. The first call in a
+    process pays a one-off ~2-5 s (``torch.use_deterministic_algorithms`` imports
+    ``torch._inductor``)."""
     old_det = torch.are_deterministic_algorithms_enabled()
     old_warn = torch.is_deterministic_algorithms_warn_only_enabled()
     old_threads = torch.get_num_threads()
@@ -312,9 +314,8 @@ def train_bc(
     stream starts from ``train_cfg.seed`` (the passed sampler is not advanced); only those
     rows are preprocessed. The weights are a function of the data and the configs alone,
     bit for bit: the thread count is ``training_threads(train_cfg)`` (``DEFAULT_NUM_THREADS``
-    when unset, recorded in the result's config), never the process's. Global torch state
-    (see ``torch_settings``) is restored on return; the first call in a process pays a
-    one-off ~2-5 s because ``torch.use_deterministic_algorithms`` imports ``torch._inductor``.
+    when unset, recorded in the result's config), never the process's. Torch's global state
+    is restored on return (``torch_settings``: a one-off ~2-5 s on a process's first call).
 
     Args:
         demos: ``N`` state-action pairs (frames or vectors).
