@@ -483,3 +483,16 @@ def test_describe_names_the_set_by_its_content_digest(tiny_demos, tmp_path) -> N
     assert main(["describe", "--demos", str(tiny_demos), "--out", str(tmp_path / "d")]) == 0
     summary = json.loads((tmp_path / "d" / "summary.json").read_text())
     assert summary["digest"] == data_digest(tiny_demos) and summary["digest"].startswith("sha256:")
+
+
+def test_python_m_safe_bc_cli_exits_with_the_commands_status(tmp_path) -> None:
+    """``python -m safe_bc.cli`` is the ``safe-bc`` command, its exit status too (a refused
+    input must not read as success to a script or ``make``)."""
+    import subprocess
+    import sys
+
+    bad = subprocess.run([sys.executable, "-m", "safe_bc.cli", "tune", str(tmp_path / "none.py")],
+                         capture_output=True, text=True, cwd=tmp_path)  # fmt: skip
+    assert bad.returncode == 2 and "none.py" in bad.stderr
+    ok = subprocess.run([sys.executable, "-m", "safe_bc.cli", "--help"], capture_output=True)
+    assert ok.returncode == 0

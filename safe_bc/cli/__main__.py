@@ -1,5 +1,5 @@
-"""``python -m safe_bc.cli``: the ``safe-bc`` command."""
+"""``python -m safe_bc.cli``: the ``safe-bc`` command (its exit status too)."""
 
 from safe_bc.cli.commands import main
 
-main()
+raise SystemExit(main())
