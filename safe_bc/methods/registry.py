@@ -245,13 +245,7 @@ the command line lists them. Add with :func:`register_command`."""
 def register_command(command: MethodCommand) -> MethodCommand:
     """Add ``command`` to :data:`METHOD_COMMANDS` (the same again does nothing; another under a
     taken name is an error)."""
-    known = METHOD_COMMANDS.get(command.name)
-    if known is not None:
-        if known != command:
-            raise ValueError(f"command {command.name!r} is registered already")
-        return known
-    METHOD_COMMANDS[command.name] = command
-    return command
+    return _register(METHOD_COMMANDS, command, "command")
 
 
 METHODS: dict[str, MethodSpec] = {}
@@ -262,13 +256,19 @@ METHODS: dict[str, MethodSpec] = {}
 def register_method(spec: MethodSpec) -> MethodSpec:
     """Add ``spec`` to :data:`METHODS`. Registering the same spec again does nothing; another
     spec under a taken name is an error."""
-    known = METHODS.get(spec.name)
+    return _register(METHODS, spec, "method")
+
+
+def _register(table: dict[str, Any], entry: Any, kind: str) -> Any:
+    """``entry`` added to ``table`` under its ``name``; the same again does nothing, another
+    under a taken name is an error."""
+    known = table.get(entry.name)
     if known is not None:
-        if known != spec:
-            raise ValueError(f"method {spec.name!r} is registered already")
+        if known != entry:
+            raise ValueError(f"{kind} {entry.name!r} is registered already")
         return known
-    METHODS[spec.name] = spec
-    return spec
+    table[entry.name] = entry
+    return entry
 
 
 def method_of(name: str) -> MethodSpec:
