@@ -10,10 +10,12 @@ from pathlib import Path
 import pytest
 
 from safe_bc.compare.families import family, load_comparison, load_comparisons
-from safe_bc.compare.rows import FLAT_FIELDS, KINDS
+from safe_bc.compare.rows import FLAT_FIELDS, FLAT_METHODS, KINDS
 from safe_bc.compare.spec import Agent, Comparison, Expert, FromStart, Handover, Method, View
 from safe_bc.handover import HandoverConfig
+from safe_bc.methods import METHODS
 from safe_bc.methods.improve.config import ImproveConfig
+from safe_bc.methods.queries.config import QueryConfig
 from safe_bc.methods.selfimprove.config import SelfImproveConfig
 from safe_bc.selection import SelectionConfig
 
@@ -143,6 +145,25 @@ def test_the_flat_spelling_gives_each_kind() -> None:
         for field in ("selection", "expert", "agents_of", "defer_width", "fallback_of"):
             assert not hasattr(row, field)
     assert held.record()["selection"] is None and held.record()["defer_width"] == 2.0
+
+
+def test_the_registry_gives_the_flat_record_its_method_fields() -> None:
+    """The methods with a field of their own in the flat record are the registry's
+    ``flat_field`` ones, and their fields stand where comparisons were first recorded with
+    them; a registered method without one is refused by the flat spelling, with its row's
+    spelling."""
+    assert tuple(n for n, s in METHODS.items() if s.flat_field) == FLAT_METHODS
+    assert FLAT_METHODS == ("improve", "selfimprove")
+    assert list(FLAT_FIELDS) == [
+        "name", "selection", "bc", "expert", "expert_config", "improve", "selfimprove", "start",
+        "fallback_of", "defer_width", "defer_hold", "defer_lookahead", "defer_hold_on", "seeds",
+        "masked_of", "label", "agents_of", "renderer", "demos",
+    ]  # fmt: skip
+    assert FLAT_FIELDS["improve"] is None and FLAT_FIELDS["selfimprove"] is None
+    with pytest.raises(TypeError, match=r"'queries' \(a queries row: FromStart\('q', start='a'"):
+        Method("q", queries=QueryConfig(), start="a")
+    with pytest.raises(TypeError, match="unexpected keyword argument 'nope'"):
+        Method("q", nope=1)
 
 
 def test_a_method_row_names_a_registered_method() -> None:

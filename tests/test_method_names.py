@@ -27,32 +27,8 @@ BUILT_IN = ("improve", "queries", "selfimprove")
 _WORD = re.compile(r"\b(" + "|".join(BUILT_IN) + r")\b")
 
 IDENTITY = "a StudySpec field named after a method: part of every committed study's identity"
-FLAT = "the comparison row API (Method(improve=, selfimprove=)) and its flat record's fields"
-CONFIG = "imports the config record of a field or flag that is named after the method"
 
 ALLOWED: dict[tuple[str, str], str] = {
-    ("compare/rows.py", "from safe_bc.methods.improve.config import ImproveConfig"): CONFIG,
-    ("compare/rows.py", "from safe_bc.methods.selfimprove.config import SelfImproveConfig"):
-        CONFIG,
-    ("compare/rows.py", '"improve": None,'): FLAT,
-    ("compare/rows.py", '"selfimprove": None,'): FLAT,
-    ("compare/rows.py", 'FLAT_METHODS = ("improve", "selfimprove")'): FLAT,
-    ("compare/rows.py", "improve: ImproveConfig | None = None,"): FLAT,
-    ("compare/rows.py", "selfimprove: SelfImproveConfig | None = None,"): FLAT,
-    ("compare/rows.py", "kinds = [selection is not None, expert, improve is not None, "
-                        "selfimprove is not None,"): FLAT,
-    ("compare/rows.py", 'f"method {name!r}: give exactly one of selection, '
-                        'expert=True, improve, "'):
-        FLAT,
-    ("compare/rows.py", "improves = improve is not None or selfimprove is not None"): FLAT,
-    ("compare/rows.py", 'f"method {name!r}: start= goes with improve= or selfimprove= '
-                        '(and only with them)"'): FLAT,
-    ("compare/rows.py", "for given, kind in ((selfimprove, SelfImproveConfig), "
-                        "(improve, ImproveConfig)):"): FLAT,
-    ("compare/rows.py", '("selfimprove", "a") if kind is SelfImproveConfig else ("improve", "an")'):
-        FLAT,
-    ("compare/rows.py", "return FromStart(name, start, improve if improve is not None else "
-                        "selfimprove,"): FLAT,
     ("study/spec.py", "from safe_bc.methods.improve.config import ImproveConfig"): IDENTITY,
     ("study/spec.py", "from safe_bc.methods.queries.config import QueryConfig"): IDENTITY,
     ("study/spec.py", "from safe_bc.methods.selfimprove.config import SelfImproveConfig"):

@@ -21,7 +21,9 @@ agent, running a method) are the runner's.
 
 A comparison's recorded configuration lists each row as the flat record comparisons were
 first written with (:meth:`Row.record`, fields :data:`FLAT_FIELDS`), so recorded
-configurations stay what they were; :func:`Method` builds a row from that flat spelling.
+configurations stay what they were; :func:`Method` builds a row from that flat spelling. The
+methods with a field of their own in it are read from the registry
+(:attr:`safe_bc.methods.MethodSpec.flat_field`).
 """
 
 from __future__ import annotations
@@ -35,8 +37,6 @@ from typing import Any, Protocol
 from safe_bc.bc.config import BCConfig
 from safe_bc.handover import HandoverConfig
 from safe_bc.methods import METHODS, method_of, method_of_config
-from safe_bc.methods.improve.config import ImproveConfig
-from safe_bc.methods.selfimprove.config import SelfImproveConfig
 from safe_bc.run_config import RunConfig
 from safe_bc.selection import SelectionConfig
 from safe_bc.tasks.env_config import Renderer, canonical_renderer
@@ -44,14 +44,17 @@ from safe_bc.tasks.env_config import Renderer, canonical_renderer
 EXPERT = "expert"
 """``mode`` (and default name) of the expert's row; the default expert's policy key."""
 
+FLAT_METHODS = tuple(name for name, spec in METHODS.items() if spec.flat_field)
+"""Methods the flat record has a field of its own for, in registration order
+(:attr:`safe_bc.methods.MethodSpec.flat_field`; other methods: ``method``, ``config``)."""
+
 FLAT_FIELDS: dict[str, Any] = {
     "name": "",
     "selection": None,
     "bc": None,
     "expert": False,
     "expert_config": None,
-    "improve": None,
-    "selfimprove": None,
+    **dict.fromkeys(FLAT_METHODS),
     "start": "",
     "fallback_of": "",
     "defer_width": None,
@@ -65,10 +68,8 @@ FLAT_FIELDS: dict[str, Any] = {
     "renderer": None,
     "demos": None,
 }
-"""The flat record's fields, in its order, with their values on a row that does not set them."""
-
-FLAT_METHODS = ("improve", "selfimprove")
-"""Methods the flat record has a field of its own for (other methods: ``method``, ``config``)."""
+"""The flat record's fields, in its order, with their values on a row that does not set them
+(a method's field: ``None``)."""
 
 
 def _renderer(name: str, renderer: Renderer | None) -> Renderer | None:
@@ -587,14 +588,27 @@ KINDS = (Agent, Expert, FromStart, Handover, View)
 """Every kind of row."""
 
 
+def _flat_configs(name: str, configs: dict[str, Any], start: str) -> dict[str, Any]:
+    """The methods' configs that a flat spelling gives (its keywords beyond the fixed fields,
+    ``None`` ones left out); a keyword that is no method of :data:`FLAT_METHODS` is refused."""
+    for key in configs:
+        if key not in FLAT_METHODS:
+            hint = (
+                f" (a {key} row: FromStart({name!r}, start={start!r}, config=...))"
+                if key in METHODS
+                else ""
+            )
+            raise TypeError(f"Method() got an unexpected keyword argument {key!r}{hint}")
+    return {k: v for k, v in configs.items() if v is not None}
+
+
 def Method(
     name: str,
     selection: SelectionConfig | None = None,
     bc: BCConfig | None = None,
     expert: bool = False,
     expert_config: Any = None,
-    improve: ImproveConfig | None = None,
-    selfimprove: SelfImproveConfig | None = None,
+    *,
     start: str = "",
     fallback_of: str = "",
     defer_width: float | None = None,
@@ -607,32 +621,32 @@ def Method(
     agents_of: str = "",
     renderer: Renderer | None = None,
     demos: Path | None = None,
+    **configs: Any,
 ) -> Row:
-    """The row that the flat spelling describes (its fields: :data:`FLAT_FIELDS`; exactly one
-    of ``selection``, ``expert=True``, ``improve``, ``selfimprove``, ``fallback_of``,
-    ``masked_of``, ``agents_of``), checked as it always was."""
-    kinds = [selection is not None, expert, improve is not None, selfimprove is not None,
+    """The row that the flat spelling describes (its fields: :data:`FLAT_FIELDS`, a method's
+    config under the method's name, :data:`FLAT_METHODS`; exactly one of ``selection``,
+    ``expert=True``, a method's config, ``fallback_of``, ``masked_of``, ``agents_of``),
+    checked as it always was."""
+    given = _flat_configs(name, configs, start)
+    kinds = [selection is not None, expert, *(m in given for m in FLAT_METHODS),
              bool(fallback_of), bool(masked_of), bool(agents_of)]  # fmt: skip
     if sum(kinds) != 1:
         raise ValueError(
-            f"method {name!r}: give exactly one of selection, expert=True, improve, "
-            "selfimprove, fallback_of, masked_of, agents_of"
+            f"method {name!r}: give exactly one of selection, expert=True, "
+            f"{', '.join(FLAT_METHODS)}, fallback_of, masked_of, agents_of"
         )
     if not name:
         raise ValueError("a method needs a name")
-    improves = improve is not None or selfimprove is not None
-    if improves != bool(start):
-        raise ValueError(
-            f"method {name!r}: start= goes with improve= or selfimprove= (and only with them)"
-        )
-    for given, kind in ((selfimprove, SelfImproveConfig), (improve, ImproveConfig)):
-        if given is not None and not isinstance(given, kind):
-            field, article = (
-                ("selfimprove", "a") if kind is SelfImproveConfig else ("improve", "an")
-            )
+    if bool(given) != bool(start):
+        fields = " or ".join(f"{m}=" for m in FLAT_METHODS)
+        raise ValueError(f"method {name!r}: start= goes with {fields} (and only with them)")
+    for method, config in given.items():
+        kind = METHODS[method].config
+        if not isinstance(config, kind):
+            article = "an" if kind.__name__[:1] in "AEIOU" else "a"
             raise ValueError(
-                f"method {name!r}: {field} must be {article} {kind.__name__}, got "
-                f"{type(given).__name__}"
+                f"method {name!r}: {method} must be {article} {kind.__name__}, got "
+                f"{type(config).__name__}"
             )
     if bc is not None and selection is None:
         raise ValueError(f"method {name!r}: bc= is for BC rows (with selection=)")
@@ -665,9 +679,9 @@ def Method(
         return Agent(name, selection, bc, tuple(seeds), label, renderer, demos)
     if expert:
         return Expert(name, expert_config, label, renderer)
-    if improves:
-        return FromStart(name, start, improve if improve is not None else selfimprove,
-                         label=label, renderer=renderer)  # fmt: skip
+    if given:
+        ((method, config),) = given.items()
+        return FromStart(name, start, config, method=method, label=label, renderer=renderer)
     if fallback_of:
         handover = None
         if defer_width is not None:

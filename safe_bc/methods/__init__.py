@@ -47,6 +47,7 @@ register_method(
         metrics=("improve_seconds", "improve_kept_iteration"),
         summed=("improve_seconds",),
         label="improving",
+        flat_field=True,
     )
 )
 register_method(
@@ -70,6 +71,7 @@ register_method(
         identity="safe_bc.methods.selfimprove.stage:identity",
         start_modes=("mix",),
         shares_rounds=True,
+        flat_field=True,
     )
 )
 register_command(

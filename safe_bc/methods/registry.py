@@ -134,6 +134,12 @@ class MethodSpec:
     """A run is a sequence of rounds that depend only on the settings and the rounds before
     them: a comparison seeds a new run with the done rounds of a shorter run of the same
     settings (its config has ``rounds``; its folder ``round_<r>/done.json``)."""
+    flat_field: bool = False
+    """A comparison's flat record (:meth:`safe_bc.compare.rows.Row.record`) has a field of its
+    own named after it, holding its rows' config, and the flat spelling takes it
+    (``Method(row, <name>=config, start=...)``): the methods comparisons were first written
+    with. A method without one records its rows as ``method`` and ``config``; setting it on a
+    method added since would add a field to every comparison's recorded configuration."""
 
     def __post_init__(self) -> None:
         if not self.name.isidentifier():
