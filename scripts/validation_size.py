@@ -20,9 +20,11 @@ episodes' mean rows).
 
 The rule (:func:`choose`): among the sizes whose validation adds at most :data:`COST_BAR` to
 the training time, the fewest episodes whose ``rel_spread`` is at most :data:`SPREAD_BAR`, else
-the largest of them. Writes ``validation_size.parquet`` (one row per task and ``n``) and
-``validation_size.md`` under ``--out``; the weights are the same with or without the
-validation loss, so nothing here changes a result, only what the curves show and cost.
+the largest of them. Writes ``validation_size.parquet`` (one row per task and ``n``),
+``validation_curves.parquet`` (the agents' training and validation loss at each log point),
+``validation_size.md`` and ``validation_size.png`` under ``--out``; the weights are the same
+with or without the validation loss, so nothing here changes a result, only what the curves
+show and cost.
 """
 
 from __future__ import annotations
@@ -81,8 +83,11 @@ def choose(table: pd.DataFrame) -> pd.Series:
     return pd.Series(out, name="chosen")
 
 
-def measure(task: str, pool: int, seeds: int, draws: int) -> tuple[pd.DataFrame, dict]:
-    """The task's rows of the table and the record of its inputs."""
+def measure(
+    task: str, pool: int, seeds: int, draws: int
+) -> tuple[pd.DataFrame, pd.DataFrame, dict]:
+    """The task's rows of the table, its agents' learning curves (training loss and the loss
+    on the whole pool at each log point, per training seed) and the record of its inputs."""
     import torch
 
     from safe_bc.bc.train import validation_loss
@@ -105,11 +110,12 @@ def measure(task: str, pool: int, seeds: int, draws: int) -> tuple[pd.DataFrame,
     scored = np.array([int(val.scored[r].sum()) for r in episodes])
     torch.set_num_threads(1)
     run = spec.baseline_config(spec.run_config({}, num_threads=1))
-    spreads, shares, losses = {}, {}, []
+    spreads, shares, losses, curves = {}, {}, [], []
     for s in range(seeds):
         cfg = with_seed(run, run.bc.train.seed + s)
         result, _ = train_run(demos, cfg, action_bounds=bounds_for(spec.demos), validation=val)
         per_row = result.val_seconds / (len(result.log_steps) * scored.sum())
+        curves.append(result.curve().assign(task=task, train_seed=cfg.bc.train.seed))
         sums = np.array(
             [validation_loss(result.model, val.take(r), cfg.bc.train) * k
              for r, k in zip(episodes, scored, strict=True)]
@@ -135,7 +141,40 @@ def measure(task: str, pool: int, seeds: int, draws: int) -> tuple[pd.DataFrame,
         }
     )
     inputs = {"demos": demos_record, "validation_pool": val_record, "study": STUDIES[task]}
-    return rows, inputs
+    return rows, pd.concat(curves, ignore_index=True), inputs
+
+
+def figure(table: pd.DataFrame, curves: pd.DataFrame, chosen: pd.Series, path: Path) -> Path:
+    """Per task: the agents' training and validation loss against batches (top), and the
+    recorded loss's relative spread and the training time it adds against the held-out
+    episodes, the bars and the choice marked (bottom)."""
+    import matplotlib.pyplot as plt
+
+    from safe_bc.plots import save_figure
+
+    tasks = list(dict.fromkeys(table["task"]))
+    fig, axes = plt.subplots(2, len(tasks), figsize=(5.2 * len(tasks), 7.4), squeeze=False)
+    for j, task in enumerate(tasks):
+        top, low = axes[0, j], axes[1, j]
+        for k, (seed, c) in enumerate(curves[curves["task"] == task].groupby("train_seed")):
+            colour = f"C{k}"
+            top.plot(c["batch"], c["train_loss"], color=colour, lw=1, label=f"seed {seed} train")
+            top.plot(c["batch"], c["val_loss"], color=colour, lw=1, ls="--",
+                     label=f"seed {seed} validation")  # fmt: skip
+        pool = int(table.loc[table["task"] == task, "pool"].iloc[0])
+        top.set(title=f"{task}: BC loss (validation: {pool} held-out episodes)", yscale="log",
+                xlabel="batch", ylabel="loss (weighted squared error)")  # fmt: skip
+        top.legend(fontsize=7, ncol=2)
+        rows = table[table["task"] == task]
+        low.plot(rows["n_episodes"], 100 * rows["rel_spread"], "o-", label="loss spread (1 sd)")
+        low.plot(rows["n_episodes"], 100 * rows["val_share"], "s-", label="added training time")
+        low.axhline(100 * SPREAD_BAR, color="grey", ls=":", lw=1, label="bars (10%)")
+        low.axvline(chosen[task], color="k", lw=1, ls="--", label=f"chosen: {chosen[task]}")
+        low.set(xscale="log", xlabel="held-out episodes", ylabel="%",
+                title=f"{task}: {int(rows['train_seeds'].iloc[0])} training seeds")  # fmt: skip
+        low.legend(fontsize=7)
+    fig.tight_layout()
+    return save_figure(fig, path)
 
 
 def markdown(table: pd.DataFrame, chosen: pd.Series, source: str) -> str:
@@ -185,13 +224,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, default=Path("results/validation_size"))
     args = ap.parse_args(argv)
     tasks = args.task or list(STUDIES)
-    parts, inputs = [], {}
+    parts, curve_parts, inputs = [], [], {}
     for task in tasks:
         pool = args.pool or {"carracing": 8, "rehab": 128}[task]
         print(f"{task}: {args.seeds} training seeds, {pool} validation episodes", flush=True)
-        rows, inputs[task] = measure(task, pool, args.seeds, args.draws)
+        rows, curves, inputs[task] = measure(task, pool, args.seeds, args.draws)
         parts.append(rows)
+        curve_parts.append(curves)
     table = pd.concat(parts, ignore_index=True)
+    curves = pd.concat(curve_parts, ignore_index=True)
     chosen = choose(table)
     table["chosen"] = table["n_episodes"] == table["task"].map(chosen)
     meta = run_metadata(
@@ -203,6 +244,8 @@ def main(argv: list[str] | None = None) -> int:
     source = f"{meta['command']}, code {meta.get('git_revision', '?')}"
     args.out.mkdir(parents=True, exist_ok=True)
     write_table_atomic(args.out / "validation_size.parquet", table, meta)
+    write_table_atomic(args.out / "validation_curves.parquet", curves, meta)
+    figure(table, curves, chosen, args.out / "validation_size.png")
     from safe_bc.data.atomic import write_text_atomic
 
     write_text_atomic(args.out / "validation_size.md", markdown(table, chosen, source))

@@ -67,3 +67,6 @@ def test_a_small_rehab_run_writes_the_table_with_its_inputs(tmp_path, monkeypatc
     assert (table["rel_spread"] > 0).all() and (table["val_share"] > 0).all()
     assert meta["inputs"]["rehab"]["validation_pool"]["episodes"] == 4
     assert (out / "validation_size.md").read_text().startswith("# Validation episodes per task")
+    curves, _ = read_table(out / "validation_curves.parquet")
+    assert set(curves["train_seed"]) == {0} and curves["val_loss"].notna().all()
+    assert (out / "validation_size.png").stat().st_size > 0
