@@ -170,8 +170,10 @@ def figure(table: pd.DataFrame, curves: pd.DataFrame, chosen: pd.Series, path: P
         low.plot(rows["n_episodes"], 100 * rows["val_share"], "s-", label="added training time")
         low.axhline(100 * SPREAD_BAR, color="grey", ls=":", lw=1, label="bars (10%)")
         low.axvline(chosen[task], color="k", lw=1, ls="--", label=f"chosen: {chosen[task]}")
-        low.set(xscale="log", xlabel="held-out episodes", ylabel="%",
+        low.set(xscale="log", xlabel="held-out episodes", ylabel="% of the loss / of training",
                 title=f"{task}: {int(rows['train_seeds'].iloc[0])} training seeds")  # fmt: skip
+        low.set_xticks(list(rows["n_episodes"]), [str(n) for n in rows["n_episodes"]])
+        low.minorticks_off()
         low.legend(fontsize=7)
     fig.tight_layout()
     return save_figure(fig, path)
