@@ -39,8 +39,11 @@ import pandas as pd
 SPREAD_BAR = 0.10
 """Largest accepted relative spread of the recorded validation loss (one standard deviation
 over the loss on an unlimited set of held-out episodes)."""
-COST_BAR = 0.10
-"""Largest accepted share the validation passes add to the training loop's time."""
+COST_BAR = 0.075
+"""Largest accepted share the validation passes add to the training loop's time. A timing moves
+with the machine's load, so the bar sits between measured sizes, not on one: two runs of this
+table on one machine priced one CarRacing track at 4.9% and 5.5% and two at 9.8% and 10.9%,
+which a bar at 10% would have split between runs."""
 SIZES = (1, 2, 4, 8, 16, 32, 64, 128)
 """Held-out episode counts the table prices (those up to the pool's size)."""
 STUDIES = {"carracing": "tune_jobs/default.py", "rehab": "tune_jobs/rehab.py"}
@@ -69,7 +72,7 @@ def choose(table: pd.DataFrame) -> pd.Series:
     when none is affordable, the smallest priced size.
 
     >>> t = pd.DataFrame({"task": "a", "n_episodes": [1, 2, 4],
-    ...                   "rel_spread": [0.3, 0.2, 0.09], "val_share": [0.05, 0.08, 0.2]})
+    ...                   "rel_spread": [0.3, 0.2, 0.09], "val_share": [0.03, 0.06, 0.2]})
     >>> choose(t).to_dict()
     {'a': 2}
     """
@@ -168,7 +171,8 @@ def figure(table: pd.DataFrame, curves: pd.DataFrame, chosen: pd.Series, path: P
         rows = table[table["task"] == task]
         low.plot(rows["n_episodes"], 100 * rows["rel_spread"], "o-", label="loss spread (1 sd)")
         low.plot(rows["n_episodes"], 100 * rows["val_share"], "s-", label="added training time")
-        low.axhline(100 * SPREAD_BAR, color="grey", ls=":", lw=1, label="bars (10%)")
+        low.axhline(100 * SPREAD_BAR, color="C0", ls=":", lw=1, label="spread bar")
+        low.axhline(100 * COST_BAR, color="C1", ls=":", lw=1, label="time bar")
         low.axvline(chosen[task], color="k", lw=1, ls="--", label=f"chosen: {chosen[task]}")
         low.set(xscale="log", xlabel="held-out episodes", ylabel="% of the loss / of training",
                 title=f"{task}: {int(rows['train_seeds'].iloc[0])} training seeds")  # fmt: skip
