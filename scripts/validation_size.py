@@ -188,7 +188,7 @@ def markdown(table: pd.DataFrame, chosen: pd.Series, source: str) -> str:
     lines = [
         "# Validation episodes per task",
         "",
-        f"The rule: among the sizes whose validation passes add at most {COST_BAR:.0%} to the "
+        f"The rule: among the sizes whose validation passes add at most {COST_BAR:.1%} to the "
         f"training loop's time, the fewest held-out episodes whose recorded validation loss "
         f"spreads by at most {SPREAD_BAR:.0%} (one sd, relative to the loss on the whole pool); "
         "when none is that precise, the largest of them.",
