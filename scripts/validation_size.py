@@ -183,8 +183,19 @@ def figure(table: pd.DataFrame, curves: pd.DataFrame, chosen: pd.Series, path: P
     return save_figure(fig, path)
 
 
+def made_by(meta: dict) -> str:
+    """The Markdown's last line, from the table's metadata: the command and the code revision."""
+    return f"{meta['command']}, code {meta.get('git_revision', '?')}"
+
+
+COLUMNS = ("episodes", "rel. spread (mean)", "rel. spread (max over seeds)", "added to training")
+"""The Markdown table's columns, one row per priced size."""
+
+
 def markdown(table: pd.DataFrame, chosen: pd.Series, source: str) -> str:
     """The table as Markdown with the rule's choice per task."""
+    from safe_bc.report import markdown_table
+
     lines = [
         "# Validation episodes per task",
         "",
@@ -203,14 +214,17 @@ def markdown(table: pd.DataFrame, chosen: pd.Series, source: str) -> str:
             f"episodes ({first['rows_per_episode']:.0f} scored rows each on average), "
             f"{int(first['draws'])} draws per size.",
             "",
-            "| episodes | rel. spread (mean) | rel. spread (max over seeds) | added to training |",
-            "|---:|---:|---:|---:|",
         ]
-        lines += [
-            f"| {int(r.n_episodes)} | {r.rel_spread:.1%} | {r.rel_spread_max:.1%} | "
-            f"{r.val_share:.1%} |"
+        cells = [
+            [
+                int(r.n_episodes),
+                f"{r.rel_spread:.1%}",
+                f"{r.rel_spread_max:.1%}",
+                f"{r.val_share:.1%}",
+            ]
             for r in rows.itertuples()
         ]
+        lines.append(markdown_table(cells, COLUMNS))
         lines.append("")
     lines.append(f"Made by `{source}`.")
     return "\n".join(lines) + "\n"
@@ -247,15 +261,16 @@ def main(argv: list[str] | None = None) -> int:
                   "seeds": args.seeds,
                   "draws": args.draws, "resample_seed": 0},
     )  # fmt: skip
-    source = f"{meta['command']}, code {meta.get('git_revision', '?')}"
+    source = made_by(meta)
     args.out.mkdir(parents=True, exist_ok=True)
     write_table_atomic(args.out / "validation_size.parquet", table, meta)
     write_table_atomic(args.out / "validation_curves.parquet", curves, meta)
     figure(table, curves, chosen, args.out / "validation_size.png")
     from safe_bc.data.atomic import write_text_atomic
 
-    write_text_atomic(args.out / "validation_size.md", markdown(table, chosen, source))
-    print(markdown(table, chosen, source))
+    text = markdown(table, chosen, source)
+    write_text_atomic(args.out / "validation_size.md", text)
+    print(text)
     return 0
 
 

@@ -51,6 +51,8 @@ def test_each_tasks_validation_size_is_the_committed_tables_choice(task: str) ->
     )
     assert meta["inputs"][task]["demos"]["digest"].startswith("sha256:")
     assert meta["git_revision"] and "-dirty" not in meta["git_revision"]
+    text = (COMMITTED / "validation_size.md").read_text()  # the Markdown re-derives from the table
+    assert text == vs.markdown(table, vs.choose(table), vs.made_by(meta))
 
 
 def test_a_small_rehab_run_writes_the_table_with_its_inputs(tmp_path, monkeypatch) -> None:
